@@ -1,0 +1,106 @@
+"""Read planner: the fewest requests a device permits for a set of registers.
+
+Merging is worth it on every link (a TCP round trip on loopback costs ~0.1-0.2 ms, an RTU
+transaction at 9600 baud tens of ms), but a device may refuse requests that span
+undefined addresses, cut a 32-bit value in two, or exceed its own register limit, so
+the planner only merges where the map and the device's limits allow.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+
+from .codec import Value, decode
+from .registers import DeviceLimits, Register, RegisterMap, Table
+
+
+@dataclass(frozen=True)
+class ReadRequest:
+    """One read transaction and the registers it serves."""
+
+    table: Table
+    address: int
+    count: int
+    registers: tuple[Register, ...]
+
+    @property
+    def end(self) -> int:
+        return self.address + self.count
+
+
+def _gap_is_readable(
+    register_map: RegisterMap, table: Table, start: int, end: int, limits: DeviceLimits
+) -> bool:
+    """Whether reading through ``start..end`` is allowed: every address readable and whole."""
+    if start == end:
+        return True
+    if end - start > limits.max_gap:
+        return False
+    address = start
+    while address < end:
+        owner = register_map.owner_at(table, address)
+        if owner is None:
+            if not limits.read_undefined_ok:
+                return False
+            address += 1
+            continue
+        if not owner.access.readable or owner.address < start or owner.end > end:
+            return False
+        address = owner.end
+    return True
+
+
+def plan_reads(
+    register_map: RegisterMap, wanted: Iterable[Register], limits: DeviceLimits | None = None
+) -> list[ReadRequest]:
+    """Cover ``wanted`` with as few requests as ``limits`` allow, never cutting a value."""
+    limits = limits or register_map.limits
+    by_table: dict[Table, list[Register]] = {}
+    for reg in wanted:
+        if not reg.access.readable:
+            raise ValueError(f"{reg.name} is write-only")
+        by_table.setdefault(reg.table, []).append(reg)
+    requests: list[ReadRequest] = []
+    for table in sorted(by_table, key=lambda t: t.value):
+        limit = limits.max_read_bits if table.is_bit else limits.max_read_registers
+        regs = sorted(set(by_table[table]), key=lambda r: r.address)
+        current: list[Register] = []
+        start = end = 0
+        for reg in regs:
+            if reg.count > limit:
+                raise ValueError(f"{reg.name} is larger than one request allows ({limit})")
+            if (
+                current
+                and reg.end - start <= limit
+                and reg.address >= end
+                and _gap_is_readable(register_map, table, end, reg.address, limits)
+            ):
+                current.append(reg)
+                end = reg.end
+                continue
+            if current:
+                requests.append(ReadRequest(table, start, end - start, tuple(current)))
+            current, start, end = [reg], reg.address, reg.end
+        if current:
+            requests.append(ReadRequest(table, start, end - start, tuple(current)))
+    return requests
+
+
+def decode_reply(request: ReadRequest, words: Sequence[int] | Sequence[bool]) -> dict[str, Value]:
+    """Values of the request's registers from the words (or bits) the device returned."""
+    if len(words) < request.count:
+        raise ValueError(f"reply has {len(words)} values, request asked for {request.count}")
+    values: dict[str, Value] = {}
+    for reg in request.registers:
+        offset = reg.address - request.address
+        chunk = [int(w) for w in words[offset : offset + reg.count]]
+        values[reg.name] = decode(reg, chunk)
+    return values
+
+
+def merge_values(parts: Iterable[Mapping[str, Value]]) -> dict[str, Value]:
+    merged: dict[str, Value] = {}
+    for part in parts:
+        merged.update(part)
+    return merged

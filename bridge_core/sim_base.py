@@ -1,0 +1,387 @@
+"""Simulator base: a real pymodbus server whose datastore follows a register map.
+
+Each simulated unit (``SimulatedDevice``) serves exactly the addresses its map defines
+(exception 0x02 elsewhere), refuses requests that cut a multi-register value in two,
+refuses function codes the device lacks (0x01), keeps a write log the tests assert on,
+and calls behaviour hooks (device ``sim.py`` modules make axes move, alarms appear ...).
+A multi-drop server stays silent for unit ids it does not own, as an RS-485 device does.
+
+The datastore plugs into pymodbus 3.16 as an "old simulator" ``ModbusServerContext``
+(the server then calls ``async_getValues``/``async_setValues`` on it directly), which
+gives async hooks for reply delays and withheld replies. Pinned: see notes.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import threading
+import time
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import IO, Any
+
+from pymodbus.constants import ExcCodes
+from pymodbus.datastore import ModbusServerContext
+from pymodbus.exceptions import NoSuchIdException
+from pymodbus.server import ModbusSerialServer, ModbusTcpServer
+
+from .codec import Value, decode, encode
+from .registers import DeviceLimits, Register, RegisterMap, Table, ValueType
+
+FUNCTION_TABLES: dict[int, Table] = {
+    1: Table.COIL,
+    5: Table.COIL,
+    15: Table.COIL,
+    2: Table.DISCRETE_INPUT,
+    3: Table.HOLDING,
+    6: Table.HOLDING,
+    16: Table.HOLDING,
+    22: Table.HOLDING,
+    23: Table.HOLDING,
+    4: Table.INPUT,
+}
+ILLEGAL_FUNCTION = int(ExcCodes.ILLEGAL_FUNCTION)
+ILLEGAL_ADDRESS = int(ExcCodes.ILLEGAL_ADDRESS)
+ILLEGAL_VALUE = int(ExcCodes.ILLEGAL_VALUE)
+DEVICE_FAILURE = int(ExcCodes.DEVICE_FAILURE)
+TICK_S = 0.01
+ECHO_FUNCTIONS = frozenset({5, 6})
+
+
+@dataclass(frozen=True)
+class WriteRecord:
+    """One accepted write, as the device saw it."""
+
+    time: float
+    unit_id: int
+    function_code: int
+    table: Table
+    address: int
+    values: tuple[int, ...]
+
+    def to_json(self) -> str:
+        return json.dumps(
+            {
+                "time": self.time,
+                "unit_id": self.unit_id,
+                "function_code": self.function_code,
+                "table": self.table.value,
+                "address": self.address,
+                "values": list(self.values),
+            }
+        )
+
+    @classmethod
+    def from_json(cls, line: str) -> WriteRecord:
+        data = json.loads(line)
+        return cls(
+            time=data["time"],
+            unit_id=data["unit_id"],
+            function_code=data["function_code"],
+            table=Table(data["table"]),
+            address=data["address"],
+            values=tuple(data["values"]),
+        )
+
+
+def read_write_log(path: Path) -> list[WriteRecord]:
+    if not path.exists():
+        return []
+    return [WriteRecord.from_json(line) for line in path.read_text().splitlines() if line]
+
+
+# A hook sees a write before it lands and may refuse it with an exception code.
+WriteGuard = Callable[[WriteRecord], int | None]
+WriteHook = Callable[[WriteRecord], None]
+
+
+class SimulatedDevice:
+    """Memory and behaviour of one unit id, driven by a register map."""
+
+    def __init__(
+        self,
+        register_map: RegisterMap,
+        unit_id: int = 1,
+        *,
+        limits: DeviceLimits | None = None,
+        extra_addresses: dict[Table, Iterable[int]] | None = None,
+        whole_values: bool = True,
+    ) -> None:
+        self.map = register_map
+        self.unit_id = unit_id
+        self.limits = limits or register_map.limits
+        self.whole_values = whole_values
+        self.lock = threading.RLock()
+        self.words: dict[tuple[Table, int], int] = {}
+        self.readable: set[tuple[Table, int]] = set()
+        self.writable: set[tuple[Table, int]] = set()
+        for reg in register_map:
+            for address in reg.addresses():
+                key = (reg.table, address)
+                self.words[key] = 0
+                if reg.access.readable:
+                    self.readable.add(key)
+                if reg.access.writable:
+                    self.writable.add(key)
+        for table, addresses in (extra_addresses or {}).items():
+            for address in addresses:
+                self.words.setdefault((table, address), 0)
+                self.readable.add((table, address))
+                if table.writable:
+                    self.writable.add((table, address))
+        self.write_log: list[WriteRecord] = []
+        self.write_guards: list[WriteGuard] = []
+        self.write_hooks: list[WriteHook] = []
+        self.log_file: IO[str] | None = None
+        # Fault injection: address ranges that answer with a given exception code.
+        self.forced_exceptions: list[tuple[Table, range, int]] = []
+
+    # ------------------------------------------------------------ values by name
+    def get(self, name: str) -> Value:
+        reg = self.map[name]
+        with self.lock:
+            return decode(reg, [self.words[(reg.table, a)] for a in reg.addresses()])
+
+    def set(self, name: str, value: Value) -> None:
+        """Set a value as the device itself would (no write-range check, no log)."""
+        reg = self.map[name]
+        unchecked = Register(
+            name=reg.name,
+            address=reg.address,
+            value_type=reg.value_type,
+            doc=reg.doc,
+            table=reg.table,
+            word_order=reg.word_order,
+            scale=reg.scale,
+            length=reg.length,
+        )
+        self.set_words(reg.table, reg.address, encode(unchecked, value))
+
+    def set_words(self, table: Table, address: int, values: Sequence[int]) -> None:
+        with self.lock:
+            for offset, word in enumerate(values):
+                self.words[(table, address + offset)] = int(word)
+
+    def get_words(self, table: Table, address: int, count: int) -> list[int]:
+        with self.lock:
+            return [self.words[(table, address + i)] for i in range(count)]
+
+    # ------------------------------------------------------------ Modbus side
+    def _check(self, table: Table, address: int, count: int, writing: bool) -> int | None:
+        allowed = self.writable if writing else self.readable
+        for a in range(address, address + count):
+            if (table, a) not in allowed:
+                return ILLEGAL_ADDRESS
+        for forced_table, forced, code in self.forced_exceptions:
+            if forced_table is table and any(a in forced for a in range(address, address + count)):
+                return code
+        if self.whole_values and not table.is_bit:
+            # Strings may be read in part (R6 version: (length + 1) / 2 registers).
+            for a in (address, address + count - 1):
+                reg = self.map.owner_at(table, a)
+                if (
+                    reg is not None
+                    and reg.value_type is not ValueType.STRING
+                    and (reg.address < address or reg.end > address + count)
+                ):
+                    return ILLEGAL_ADDRESS
+        return None
+
+    def read(self, function_code: int, address: int, count: int) -> list[int] | int:
+        table = FUNCTION_TABLES[function_code]
+        limit = self.limits.max_read_bits if table.is_bit else self.limits.max_read_registers
+        if count > limit:
+            return ILLEGAL_ADDRESS
+        with self.lock:
+            code = self._check(table, address, count, writing=False)
+            if code is not None:
+                return code
+            return [self.words[(table, address + i)] for i in range(count)]
+
+    def write(self, function_code: int, address: int, values: Sequence[int]) -> int | None:
+        table = FUNCTION_TABLES[function_code]
+        if not table.is_bit and len(values) > self.limits.max_write_registers:
+            return ILLEGAL_ADDRESS
+        record = WriteRecord(
+            time.time(), self.unit_id, function_code, table, address, tuple(int(v) for v in values)
+        )
+        with self.lock:
+            code = self._check(table, address, len(values), writing=True)
+            if code is not None:
+                return code
+            for guard in self.write_guards:
+                code = guard(record)
+                if code is not None:
+                    return code
+            self.set_words(table, address, record.values)
+            self.write_log.append(record)
+            if self.log_file is not None:
+                self.log_file.write(record.to_json() + "\n")
+                self.log_file.flush()
+            for hook in self.write_hooks:
+                hook(record)
+        return None
+
+    def writes_to(self, address: int, table: Table = Table.HOLDING) -> list[WriteRecord]:
+        with self.lock:
+            return [
+                r for r in self.write_log if r.table is table and r.address <= address < r.address + len(r.values)
+            ]
+
+    def tick(self, dt: float) -> None:
+        """Advance behaviour by ``dt`` seconds; device simulators override."""
+
+
+class _MapContext(ModbusServerContext):
+    """pymodbus datastore adapter; bypasses the deprecated base constructor on purpose."""
+
+    def __init__(self, simulator: Simulator) -> None:  # noqa: D107 - no super().__init__
+        self.old_simulator = True
+        self.simdevices = []
+        self._sim = simulator
+
+    def device_ids(self) -> list[int]:
+        return list(self._sim.devices)
+
+    def _device(self, device_id: int, function_code: int) -> SimulatedDevice:
+        sim = self._sim
+        if sim.withhold_replies or device_id not in sim.devices:
+            # With ignore_missing_devices the server then sends nothing, like a silent slave.
+            raise NoSuchIdException(f"unit {device_id} silent")
+        return sim.devices[device_id]
+
+    async def async_getValues(  # noqa: N802 - pymodbus name
+        self, device_id: int, func_code: int, address: int, count: int = 1
+    ) -> Any:
+        device = self._device(device_id, func_code)
+        if func_code in ECHO_FUNCTIONS:
+            # pymodbus reads back what FC 05/06 just wrote to build the echo reply; the
+            # register may be write-only, so this is not a Modbus read.
+            words = device.get_words(FUNCTION_TABLES[func_code], address, count)
+            return [bool(w) for w in words] if func_code == 5 else words
+        await self._sim.delay()
+        if func_code not in device.limits.function_codes:
+            return ExcCodes.ILLEGAL_FUNCTION
+        result = device.read(func_code, address, count)
+        if isinstance(result, int):
+            return ExcCodes(result)
+        if FUNCTION_TABLES[func_code].is_bit:
+            return [bool(v) for v in result]
+        return result
+
+    async def async_setValues(  # noqa: N802 - pymodbus name
+        self, device_id: int, func_code: int, address: int, values: Sequence[int] | Sequence[bool]
+    ) -> Any:
+        device = self._device(device_id, func_code)
+        await self._sim.delay()
+        if func_code not in device.limits.function_codes:
+            return ExcCodes.ILLEGAL_FUNCTION
+        result = device.write(func_code, address, [int(v) for v in values])
+        return None if result is None else ExcCodes(result)
+
+
+class Simulator:
+    """A pymodbus server for one or more simulated units, run on a background thread."""
+
+    def __init__(self, devices: Sequence[SimulatedDevice], *, tick_s: float = TICK_S) -> None:
+        self.devices = {d.unit_id: d for d in devices}
+        self.tick_s = tick_s
+        self.withhold_replies = False
+        self.reply_delay_s = max(d.limits.reply_delay_s for d in devices)
+        self._thread: threading.Thread | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._stop: asyncio.Event | None = None
+        self._ready = threading.Event()
+        self._error: BaseException | None = None
+        self.port: int = 0
+
+    @property
+    def device(self) -> SimulatedDevice:
+        """The only (or first) unit, for single-device simulators."""
+        return next(iter(self.devices.values()))
+
+    async def delay(self) -> None:
+        if self.reply_delay_s > 0:
+            await asyncio.sleep(self.reply_delay_s)
+
+    def start_tcp(self, host: str = "127.0.0.1", port: int = 0) -> int:
+        """Serve Modbus TCP on ``host:port`` (0 = a free port); returns the port."""
+        self._start(lambda ctx: ModbusTcpServer(ctx, address=(host, port), ignore_missing_devices=True))
+        return self.port
+
+    def start_serial(
+        self, port: str, baudrate: int = 9600, parity: str = "N", stopbits: int = 1
+    ) -> None:
+        self._start(
+            lambda ctx: ModbusSerialServer(
+                ctx,
+                port=port,
+                baudrate=baudrate,
+                parity=parity,
+                stopbits=stopbits,
+                ignore_missing_devices=True,
+                broadcast_enable=True,
+            )
+        )
+
+    def _start(self, make_server: Callable[[ModbusServerContext], Any]) -> None:
+        if self._thread is not None:
+            raise RuntimeError("simulator already running")
+        self._ready.clear()
+        self._error = None
+        self._thread = threading.Thread(
+            target=lambda: asyncio.run(self._main(make_server)), name="modbus-sim", daemon=True
+        )
+        self._thread.start()
+        if not self._ready.wait(10):
+            raise RuntimeError("simulator did not start within 10 s")
+        if self._error is not None:
+            self._thread.join()
+            self._thread = None
+            raise RuntimeError(f"simulator failed to start: {self._error}") from self._error
+
+    async def _main(self, make_server: Callable[[ModbusServerContext], Any]) -> None:
+        self._loop = asyncio.get_running_loop()
+        self._stop = asyncio.Event()
+        try:
+            server = make_server(_MapContext(self))
+            await server.serve_forever(background=True)
+            transport = getattr(server, "transport", None)
+            sockets = getattr(transport, "sockets", None)
+            if sockets:
+                self.port = int(sockets[0].getsockname()[1])
+        except BaseException as err:  # reported to the starting thread
+            self._error = err
+            self._ready.set()
+            return
+        self._ready.set()
+        last = time.monotonic()
+        try:
+            while not self._stop.is_set():
+                try:
+                    await asyncio.wait_for(self._stop.wait(), self.tick_s)
+                except TimeoutError:
+                    pass
+                now = time.monotonic()
+                for device in self.devices.values():
+                    device.tick(now - last)
+                last = now
+        finally:
+            await server.shutdown()
+
+    def stop(self) -> None:
+        if self._thread is None:
+            return
+        loop, stop = self._loop, self._stop
+        if loop is not None and stop is not None:
+            loop.call_soon_threadsafe(stop.set)
+        self._thread.join(10)
+        self._thread = None
+
+    def __enter__(self) -> Simulator:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()

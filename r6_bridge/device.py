@@ -1,0 +1,331 @@
+"""R6 device model: polls into typed snapshots, commands into checked writes.
+
+No ROS here. Every command validates all of its inputs before the first write, so a
+refused command writes nothing.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Protocol
+
+from bridge_core.codec import encode, int_to_words, words_to_int
+from bridge_core.errors import CommandRejected, FrameError, PollIncomplete
+from bridge_core.link import Priority
+from bridge_core.planner import ReadRequest, decode_reply, plan_reads
+from bridge_core.registers import MAX_READ_REGISTERS, MAX_WRITE_REGISTERS, Table, WordOrder
+
+from .registers import (
+    COMMANDS,
+    MAX_AXES,
+    MAX_COUNTERS,
+    MAX_IO_BOARDS,
+    MAX_VERSION_BYTES,
+    MODE_NAMES,
+    OUTPUT_BOARDS_ACCEPTED,
+    OUTPUT_POINTS,
+    PARAMETER_COUNT,
+    POINT_AXIS_MASK_MAX,
+    POINT_FRAME_MAX_BYTES,
+    POINT_VALUES_PER_POINT,
+    R6_MAP,
+    parameter_address,
+    parameter_offered,
+)
+
+HIGH = WordOrder.HIGH_FIRST
+U32_MAX = 0xFFFF_FFFF
+I32_MIN, I32_MAX = -(1 << 31), (1 << 31) - 1
+# Registers in one upload frame: the manual's 256-byte frame cap and Modbus's 123 (FC 10).
+POINT_FRAME_MAX_REGISTERS = min(POINT_FRAME_MAX_BYTES // 2, MAX_WRITE_REGISTERS)
+POINT_FRAME_HEADER_REGISTERS = 2  # 30005 point count, 30006 clear flag
+
+
+class RegisterIO(Protocol):
+    """What the device needs from a link channel (``bridge_core.link.DeviceChannel``)."""
+
+    def read_registers(
+        self, address: int, count: int, table: Table = ..., priority: Priority = ...
+    ) -> list[int]: ...
+    def write_register(self, address: int, value: int) -> None: ...
+    def write_registers(self, address: int, values: Sequence[int]) -> None: ...
+
+
+def mode_name(mode: int) -> str:
+    return MODE_NAMES.get(mode, f"unknown({mode})")
+
+
+@dataclass(frozen=True)
+class R6Snapshot:
+    """One full poll, in the manual's units (deg, mm, rpm, fraction of rated torque)."""
+
+    read_time: float  # wall clock (time.time()) when the first register was read
+    mode: int
+    alarm_code: int
+    moving: bool
+    homed: bool
+    global_speed_percent: float
+    current_cycle_time_ms: int
+    last_cycle_time_ms: int
+    machine_id: int
+    axis_count: int
+    io_board_count: int
+    io_board_inputs: tuple[int, ...]
+    io_board_outputs: tuple[int, ...]
+    axis_positions_deg: tuple[float, ...]
+    axis_speeds_rpm: tuple[int, ...]
+    axis_torques_rated: tuple[float, ...]
+    world: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def mode_name(self) -> str:
+        return mode_name(self.mode)
+
+
+class R6Device:
+    """The R6 controller behind one Modbus channel."""
+
+    def __init__(self, io: RegisterIO) -> None:
+        self.io = io
+        self._plan: list[ReadRequest] | None = None
+        self._plan_counts: tuple[int, int] | None = None
+
+    # ------------------------------------------------------------------ polling
+    def poll_plan(self, axis_count: int, io_board_count: int) -> list[ReadRequest]:
+        """Requests for a full state poll.
+
+        The manual (§3.1.6, §3.1.8) makes only the axes and IO boards in use valid, so the
+        plan depends on the two counts, which every poll re-reads in its own blocks.
+        """
+        axes = min(max(axis_count, 0), MAX_AXES)
+        boards = min(max(io_board_count, 0), MAX_IO_BOARDS)
+        names = ["mode", "io_board_count", "axis_count", "alarm_code", "current_cycle_time",
+                 "last_cycle_time", "machine_id", "moving", "homed", "global_speed"]
+        names += [f"io_board_input_{b}" for b in range(boards)]
+        names += [f"io_board_output_{b}" for b in range(boards)]
+        names += [f"axis_position_{a}" for a in range(1, axes + 1)]
+        names += [f"world_{w}" for w in ("x", "y", "z", "u", "v", "w", "m7", "m8")]
+        names += [f"axis_torque_{a}" for a in range(1, MAX_AXES + 1)]
+        names += [f"axis_speed_{a}" for a in range(1, MAX_AXES + 1)]
+        return plan_reads(R6_MAP, R6_MAP.select(names))
+
+    def read_counts(self) -> tuple[int, int]:
+        axis_count = self.io.read_registers(R6_MAP["axis_count"].address, 1)[0]
+        boards = self.io.read_registers(R6_MAP["io_board_count"].address, 1)[0]
+        return axis_count, boards
+
+    def poll(self) -> R6Snapshot:
+        if self._plan is None or self._plan_counts is None:
+            self._plan_counts = self.read_counts()
+            self._plan = self.poll_plan(*self._plan_counts)
+        read_time = time.time()
+        values: dict[str, object] = {}
+        for request in self._plan:
+            words = self.io.read_registers(request.address, request.count, request.table)
+            values.update(decode_reply(request, words))
+        axis_count = int(values["axis_count"])  # type: ignore[call-overload]
+        boards = int(values["io_board_count"])  # type: ignore[call-overload]
+        if (axis_count, boards) != self._plan_counts:
+            # Configuration changed: next poll reads the new set; this one is incomplete.
+            self._plan_counts = (axis_count, boards)
+            self._plan = self.poll_plan(axis_count, boards)
+            raise PollIncomplete(
+                f"axis/board count changed to {axis_count}/{boards}; re-planning the poll"
+            )
+        axes = min(axis_count, MAX_AXES)
+        nboards = min(boards, MAX_IO_BOARDS)
+
+        def f(name: str) -> float:
+            return float(values[name])  # type: ignore[arg-type]
+
+        def i(name: str) -> int:
+            return int(values[name])  # type: ignore[call-overload]
+
+        return R6Snapshot(
+            read_time=read_time,
+            mode=i("mode"),
+            alarm_code=i("alarm_code"),
+            moving=bool(i("moving")),
+            homed=bool(i("homed")),
+            global_speed_percent=f("global_speed"),
+            current_cycle_time_ms=i("current_cycle_time"),
+            last_cycle_time_ms=i("last_cycle_time"),
+            machine_id=i("machine_id"),
+            axis_count=axis_count,
+            io_board_count=boards,
+            io_board_inputs=tuple(i(f"io_board_input_{b}") for b in range(nboards)),
+            io_board_outputs=tuple(i(f"io_board_output_{b}") for b in range(nboards)),
+            axis_positions_deg=tuple(f(f"axis_position_{a}") for a in range(1, axes + 1)),
+            axis_speeds_rpm=tuple(i(f"axis_speed_{a}") for a in range(1, axes + 1)),
+            axis_torques_rated=tuple(f(f"axis_torque_{a}") for a in range(1, axes + 1)),
+            world={w: f(f"world_{w}") for w in ("x", "y", "z", "u", "v", "w", "m7", "m8")},
+        )
+
+    def invalidate_plan(self) -> None:
+        """Re-read the counts on the next poll (after a reconnect the device may differ)."""
+        self._plan = None
+        self._plan_counts = None
+
+    # ------------------------------------------------------------------ reads on request
+    def read_version(self) -> str:
+        """§3.1.1-3.1.2: the length first, then (length + 1) / 2 registers from 1."""
+        length = self.io.read_registers(R6_MAP["version_length"].address, 1, priority=Priority.COMMAND)[0]
+        if not 1 <= length <= MAX_VERSION_BYTES:
+            raise FrameError(f"version length {length} outside 1..{MAX_VERSION_BYTES}")
+        words = self.io.read_registers(
+            R6_MAP["version"].address, (length + 1) // 2, priority=Priority.COMMAND
+        )
+        data = b"".join(w.to_bytes(2, "big") for w in words)[:length]
+        return data.rstrip(b"\x00").decode("latin-1")
+
+    def read_mode(self) -> int:
+        return self.io.read_registers(R6_MAP["mode"].address, 1)[0]
+
+    def read_counter_ids(self) -> list[int]:
+        """§3.1.3: the count, then 2 registers per id in chunks that keep ids whole."""
+        count = self.io.read_registers(R6_MAP["counter_count"].address, 1)[0]
+        count = min(count, MAX_COUNTERS)
+        ids: list[int] = []
+        per_request = (MAX_READ_REGISTERS // 2) * 2
+        first = R6_MAP["counter_id_0"].address
+        remaining = 2 * count
+        address = first
+        while remaining > 0:
+            n = min(per_request, remaining)
+            words = self.io.read_registers(address, n)
+            ids += [words_to_int(words[k : k + 2], False, HIGH) for k in range(0, n, 2)]
+            address += n
+            remaining -= n
+        return ids
+
+    def read_counter(self, counter_id: int) -> tuple[int, int, int]:
+        """§3.1.4: write the id to 2179, then read id, target and current (6 registers)."""
+        _check_range("counter id", counter_id, 0, U32_MAX)
+        address = R6_MAP["counter_select_id"].address
+        self.io.write_registers(address, int_to_words(counter_id, 2, False, HIGH))
+        words = self.io.read_registers(address, 6, priority=Priority.COMMAND)
+        return (
+            words_to_int(words[0:2], False, HIGH),
+            words_to_int(words[2:4], False, HIGH),
+            words_to_int(words[4:6], False, HIGH),
+        )
+
+    def read_parameter(self, index: int) -> int:
+        _check_parameter_index(index)
+        words = self.io.read_registers(parameter_address(index), 2, priority=Priority.COMMAND)
+        return words_to_int(words, True, HIGH)
+
+    # ------------------------------------------------------------------ commands
+    def command(self, name: str) -> None:
+        """§3.2.1: write 1 (any value executes) with FC 06."""
+        if name not in COMMANDS:
+            raise CommandRejected(f"unknown R6 command {name!r}; known: {', '.join(COMMANDS)}")
+        self.io.write_register(COMMANDS[name], 1)
+
+    def set_global_speed(self, percent: float) -> None:
+        """§3.2.2: one register, FC 06, 0-1000 = 0.0-100.0 %."""
+        reg = R6_MAP["global_speed"]
+        (raw,) = encode(reg, float(percent))
+        self.io.write_register(reg.address, raw)
+
+    def set_output(self, board: int, point: int, on: bool) -> None:
+        """§3.3.3: board, point and state in one FC 10 write to 20056-20058."""
+        if board not in OUTPUT_BOARDS_ACCEPTED:
+            raise CommandRejected(
+                f"output board {board} refused: only general IO boards "
+                f"{OUTPUT_BOARDS_ACCEPTED.start}-{OUTPUT_BOARDS_ACCEPTED.stop - 1} are accepted "
+                "(the manual numbers M/EUIO boards two ways and the host port lacks M values)"
+            )
+        if point not in OUTPUT_POINTS:
+            raise CommandRejected(f"output point {point} outside 0-31")
+        self.io.write_registers(R6_MAP["output_board"].address, [board, point, 1 if on else 0])
+
+    def write_board_outputs(self, board: int, bits: int) -> None:
+        """§3.3.1: all 32 outputs of one IO board (FC 10, 2 registers, high word first)."""
+        if not 0 <= board < MAX_IO_BOARDS:
+            raise CommandRejected(f"IO board {board} outside 0-{MAX_IO_BOARDS - 1}")
+        _check_range("output bits", bits, 0, U32_MAX)
+        reg = R6_MAP[f"io_board_output_{board}"]
+        self.io.write_registers(reg.address, int_to_words(bits, 2, False, HIGH))
+
+    def set_counter(self, counter_id: int, value: int) -> None:
+        """§3.3.2: id, target (ignored by the host: 0) and current value, 6 registers."""
+        _check_range("counter id", counter_id, 0, U32_MAX)
+        _check_range("counter value", value, 0, U32_MAX)
+        words = (
+            int_to_words(counter_id, 2, False, HIGH)
+            + [0, 0]
+            + int_to_words(value, 2, False, HIGH)
+        )
+        self.io.write_registers(R6_MAP["counter_modify_id"].address, words)
+
+    def write_parameter(self, index: int, value: int) -> None:
+        self.write_parameters(index, [value])
+
+    def write_parameters(self, first_index: int, values: Sequence[int]) -> None:
+        """§3.3.4: consecutive int32 parameters in one FC 10 write."""
+        if not values:
+            raise CommandRejected("no parameter values given")
+        if 2 * len(values) > MAX_WRITE_REGISTERS:
+            raise CommandRejected(f"at most {MAX_WRITE_REGISTERS // 2} parameters per write")
+        for k, value in enumerate(values):
+            _check_parameter_index(first_index + k)
+            _check_range(f"parameter {first_index + k}", value, I32_MIN, I32_MAX)
+        words: list[int] = []
+        for value in values:
+            words += int_to_words(value, 2, True, HIGH)
+        self.io.write_registers(parameter_address(first_index), words)
+
+    def upload_points(
+        self, data_source_id: int, values_per_point: int, axis_mask: int, values: Sequence[int]
+    ) -> int:
+        """§3.3.5: configure 30002-30004, then frames at 30005 (count, clear flag, data).
+
+        The first frame clears the source (30006 = 1), later ones append (0). Returns the
+        number of data frames sent.
+        """
+        _check_range("data source id", data_source_id, 0, 0xFFFF)
+        if values_per_point not in POINT_VALUES_PER_POINT:
+            raise CommandRejected(f"values_per_point must be one of {POINT_VALUES_PER_POINT}")
+        _check_range("axis mask", axis_mask, 0, POINT_AXIS_MASK_MAX)
+        if not values or len(values) % values_per_point:
+            raise CommandRejected(
+                f"{len(values)} values is not a whole, non-zero number of "
+                f"{values_per_point}-value points"
+            )
+        for value in values:
+            _check_range("point value", value, I32_MIN, I32_MAX)
+        per_frame = (POINT_FRAME_MAX_REGISTERS - POINT_FRAME_HEADER_REGISTERS) // (
+            2 * values_per_point
+        )
+        frames: list[list[int]] = []
+        points = [values[k : k + values_per_point] for k in range(0, len(values), values_per_point)]
+        for first in range(0, len(points), per_frame):
+            chunk = points[first : first + per_frame]
+            words = [len(chunk), 1 if first == 0 else 0]
+            for point in chunk:
+                for value in point:
+                    words += int_to_words(value, 2, True, HIGH)
+            frames.append(words)
+        self.io.write_registers(
+            R6_MAP["point_source_id"].address, [data_source_id, values_per_point, axis_mask]
+        )
+        for words in frames:
+            self.io.write_registers(R6_MAP["point_count"].address, words)
+        return len(frames)
+
+
+def _check_range(what: str, value: int, low: int, high: int) -> None:
+    if not isinstance(value, int) or not low <= value <= high:
+        raise CommandRejected(f"{what} {value!r} outside {low}..{high}")
+
+
+def _check_parameter_index(index: int) -> None:
+    _check_range("parameter index", index, 0, PARAMETER_COUNT - 1)
+    if not parameter_offered(index):
+        raise CommandRejected(
+            f"parameter index {index} overlaps registers 22130-22131 "
+            "(photo / mold switching), which the R6 host does not support"
+        )
