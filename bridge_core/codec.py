@@ -98,6 +98,8 @@ def to_raw(register: Register, value: Value) -> int | str | bool:
             f"{register.name}: {value}{unit} is outside "
             f"{register.minimum}..{register.maximum}{unit}"
         )
+    if isinstance(value, int) and register.scale == 1.0:
+        return value  # exact: a float product would lose 64-bit precision
     # Quantise to the register's step (e.g. 33.33 % -> 333 at 0.1 % steps); range was checked.
     return round(value * register.scale)
 

@@ -11,7 +11,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
-from bridge_core.codec import encode, int_to_words, words_to_int
+from bridge_core.codec import Value, encode, int_to_words, words_to_int
 from bridge_core.errors import CommandRejected, FrameError, PollIncomplete
 from bridge_core.link import Priority
 from bridge_core.planner import ReadRequest, decode_reply, plan_reads
@@ -180,8 +180,18 @@ class R6Device:
         data = b"".join(w.to_bytes(2, "big") for w in words)[:length]
         return data.rstrip(b"\x00").decode("latin-1")
 
+    def read_named(self, *names: str) -> dict[str, Value]:
+        """Values of named registers, read in as few requests as the device allows."""
+        values: dict[str, Value] = {}
+        for request in plan_reads(R6_MAP, R6_MAP.select(names)):
+            words = self.io.read_registers(
+                request.address, request.count, request.table, priority=Priority.COMMAND
+            )
+            values.update(decode_reply(request, words))
+        return values
+
     def read_mode(self) -> int:
-        return self.io.read_registers(R6_MAP["mode"].address, 1)[0]
+        return int(self.read_named("mode")["mode"])
 
     def read_counter_ids(self) -> list[int]:
         """§3.1.3: the count, then 2 registers per id in chunks that keep ids whole."""

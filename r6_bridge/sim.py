@@ -61,7 +61,8 @@ class R6SimDevice(SimulatedDevice):
 
     def set_version(self, text: str) -> None:
         data = text.encode("latin-1")
-        self.set("version_length", len(data))
+        # §3.1.2 example: length 0x29 for a 40-character string, i.e. the NUL counts.
+        self.set("version_length", len(data) + 1)
         self.set("version", text)
 
     def set_alarm(self, code: int) -> None:

@@ -1,0 +1,319 @@
+"""The rclpy node base every bridge shares.
+
+What it gives a bridge (DESIGN §2): the common parameters with descriptors and ranges, the
+link and its channel, a poll timer, ``joint_states`` / ``~/connected`` / ``/diagnostics``
+publishers, the stale-data policy (no fresh stamps while the link is down), and the
+command guard that refuses, writing nothing, when the link is down or ``read_only`` is
+set, and turns device errors into a clear ``message``.
+
+Threading: a MultiThreadedExecutor runs the poll timer, the services and the diagnostics
+timer in three mutually exclusive callback groups. Modbus traffic never interleaves
+because every transaction holds the link's PriorityLock, which also lets a waiting
+command go before the next poll request.
+"""
+
+from __future__ import annotations
+
+import math
+import traceback
+from collections.abc import Callable, Sequence
+from typing import Any, TypeVar
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    IntegerRange,
+    ParameterDescriptor,
+    ParameterType,
+)
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.time import Time
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Bool
+
+from .diagnostics import Level, RateTracker, Report, link_report
+from .errors import CommandRejected, DeviceException, LinkError, PollIncomplete
+from .link import DeviceChannel, ModbusLink, SerialSettings, TcpSettings
+
+T = TypeVar("T")
+DIAGNOSTICS_PERIOD_S = 1.0
+JOINT_STATES_DEPTH = 10
+
+
+def _descriptor(text: str, kind: int, low: float | None = None, high: float | None = None,
+                step: float = 0.0) -> ParameterDescriptor:
+    descriptor = ParameterDescriptor(description=text, type=kind)
+    if low is not None and high is not None:
+        if kind == ParameterType.PARAMETER_INTEGER:
+            descriptor.integer_range = [IntegerRange(from_value=int(low), to_value=int(high), step=int(step))]
+        else:
+            descriptor.floating_point_range = [
+                FloatingPointRange(from_value=float(low), to_value=float(high), step=step)
+            ]
+    return descriptor
+
+
+INT = ParameterType.PARAMETER_INTEGER
+DOUBLE = ParameterType.PARAMETER_DOUBLE
+STRING = ParameterType.PARAMETER_STRING
+BOOL = ParameterType.PARAMETER_BOOL
+DOUBLE_ARRAY = ParameterType.PARAMETER_DOUBLE_ARRAY
+
+
+class BridgeNode(Node):
+    """Base of the four bridge nodes; subclasses poll, publish and add services."""
+
+    def __init__(
+        self,
+        node_name: str,
+        *,
+        transport: str,
+        device_name: str,
+        default_poll_rate_hz: float = 20.0,
+        default_port: int = 502,
+        default_baudrate: int = 9600,
+        link: ModbusLink | None = None,
+        **node_kwargs: Any,
+    ) -> None:
+        super().__init__(node_name, **node_kwargs)
+        self.device_name = device_name
+        self.poll_group = MutuallyExclusiveCallbackGroup()
+        self.command_group = MutuallyExclusiveCallbackGroup()
+        self.diagnostics_group = MutuallyExclusiveCallbackGroup()
+
+        p = self.declare_parameter
+        if transport == "tcp":
+            p("host", "127.0.0.1", _descriptor("device IP address or host name", STRING))
+            p("port", default_port, _descriptor("Modbus TCP port", INT, 1, 65535))
+        else:
+            p("serial_port", "/dev/ttyUSB0",
+              _descriptor("serial device path or pyserial URL (e.g. socket://host:port)", STRING))
+            p("baudrate", default_baudrate, _descriptor("serial baud rate", INT, 300, 4_000_000))
+            p("parity", "N", _descriptor("N, E or O", STRING))
+            p("stopbits", 1, _descriptor("1 or 2", INT, 1, 2))
+        p("unit_id", 1, _descriptor("Modbus unit (slave) id", INT, 0, 247))
+        p("poll_rate_hz", default_poll_rate_hz, _descriptor("full-state polls per second", DOUBLE, 0.1, 1000.0))
+        p("timeout_s", 0.5, _descriptor("reply timeout per transaction", DOUBLE, 0.01, 10.0))
+        p("retries", 1, _descriptor("extra attempts for a failed read; writes are never retried", INT, 0, 10))
+        p("reconnect_max_s", 5.0, _descriptor("cap of the exponential reconnect backoff", DOUBLE, 0.1, 300.0))
+        p("joint_prefix", "", _descriptor("prefix of every joint name", STRING))
+        p("frame_id", "base_link", _descriptor("frame of published poses", STRING))
+        p("read_only", False, _descriptor("refuse every command that writes to the device", BOOL))
+
+        self.poll_rate_hz = float(self.param("poll_rate_hz"))
+        self.joint_prefix = str(self.param("joint_prefix"))
+        self.frame_id = str(self.param("frame_id"))
+        self.read_only = bool(self.param("read_only"))
+        timeout_s = float(self.param("timeout_s"))
+        settings: TcpSettings | SerialSettings
+        if link is not None:
+            self.link = link
+        else:
+            if transport == "tcp":
+                settings = TcpSettings(str(self.param("host")), int(self.param("port")), timeout_s)
+            else:
+                parity = str(self.param("parity")).upper()
+                if parity not in ("N", "E", "O"):
+                    raise ValueError(f"parity {parity!r} is not N, E or O")
+                settings = SerialSettings(
+                    str(self.param("serial_port")),
+                    int(self.param("baudrate")),
+                    parity,
+                    int(self.param("stopbits")),
+                    timeout_s=timeout_s,
+                )
+            self.link = ModbusLink(settings)
+        self.channel = DeviceChannel(
+            self.link,
+            int(self.param("unit_id")),
+            retries=int(self.param("retries")),
+            reconnect_max_s=float(self.param("reconnect_max_s")),
+        )
+        self.hardware_id = f"{device_name}@{self.channel.describe()}"
+
+        self.joint_states_pub = self.create_publisher(JointState, "joint_states", JOINT_STATES_DEPTH)
+        latched = QoSProfile(
+            depth=1,
+            reliability=ReliabilityPolicy.RELIABLE,
+            durability=DurabilityPolicy.TRANSIENT_LOCAL,
+        )
+        self.connected_pub = self.create_publisher(Bool, "~/connected", latched)
+        self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self._connected_published: bool | None = None
+        self.poll_rate = RateTracker()
+        self.poll_failures = 0
+        self._publish_connected(False)
+        self.poll_timer = self.create_timer(
+            1.0 / self.poll_rate_hz, self._poll_tick, callback_group=self.poll_group
+        )
+        self.diagnostics_timer = self.create_timer(
+            DIAGNOSTICS_PERIOD_S, self.publish_diagnostics, callback_group=self.diagnostics_group
+        )
+
+    # ------------------------------------------------------------ for subclasses
+    def param(self, name: str) -> Any:
+        return self.get_parameter(name).value
+
+    def poll_device(self) -> Any:
+        """Read the device's state; raise LinkError on failure."""
+        raise NotImplementedError
+
+    def publish_snapshot(self, snapshot: Any) -> None:
+        raise NotImplementedError
+
+    def on_link_up(self) -> None:
+        """Called before the first poll after (re)connecting, e.g. to read a version."""
+
+    def device_report(self) -> Report | None:
+        """The device's own status (alarm code and its meaning) for diagnostics."""
+        return None
+
+    def stamp(self, wall_time: float) -> Any:
+        return Time(nanoseconds=int(wall_time * 1e9)).to_msg()
+
+    def joint_state(self, wall_time: float, names: Sequence[str], position: Sequence[float],
+                    velocity: Sequence[float] = (), effort: Sequence[float] = ()) -> JointState:
+        msg = JointState()
+        msg.header.stamp = self.stamp(wall_time)
+        msg.name = list(names)
+        msg.position = [float(v) for v in position]
+        msg.velocity = [float(v) for v in velocity]
+        msg.effort = [float(v) for v in effort]
+        return msg
+
+    # ------------------------------------------------------------ polling
+    def _poll_tick(self) -> None:
+        if not self.channel.may_attempt():
+            return
+        try:
+            if not self.channel.connected:
+                self.on_link_up()
+            snapshot = self.poll_device()
+        except PollIncomplete as err:
+            self.get_logger().info(str(err))
+            return
+        except DeviceException as err:
+            # The device answered but refused part of the poll: report, publish nothing.
+            self.poll_failures += 1
+            self.get_logger().warn(f"poll refused by the device: {err}", throttle_duration_sec=5.0)
+            return
+        except LinkError as err:
+            self.poll_failures += 1
+            if self._connected_published:
+                self.get_logger().error(f"link to {self.channel.describe()} lost: {err}")
+            self._publish_connected(False)
+            return
+        except Exception as err:  # a device fault must never kill the node
+            self.poll_failures += 1
+            self.get_logger().error(f"poll failed: {err}\n{traceback.format_exc()}")
+            return
+        if not self._connected_published:
+            self.get_logger().info(f"connected to {self.channel.describe()}")
+        self._publish_connected(True)
+        self.poll_rate.tick()
+        self.publish_snapshot(snapshot)
+
+    def _publish_connected(self, connected: bool) -> None:
+        if connected != self._connected_published:
+            self._connected_published = connected
+            self.connected_pub.publish(Bool(data=connected))
+
+    # ------------------------------------------------------------ commands
+    def run_command(
+        self, what: str, action: Callable[[], T], *, writes: bool = True
+    ) -> tuple[bool, str, T | None]:
+        """Guard and run one command: (success, message, result). Never raises."""
+        if writes and self.read_only:
+            return False, f"{what} refused: read_only is set, nothing was written", None
+        if not self.channel.connected:
+            return False, f"{what} refused: not connected to {self.channel.describe()}", None
+        try:
+            result = action()
+        except CommandRejected as err:
+            return False, f"{what} refused: {err}", None
+        except DeviceException as err:
+            return False, f"{what}: the device answered {err}", None
+        except LinkError as err:
+            self._publish_connected(self.channel.connected)
+            hint = " (it may or may not have been executed)" if writes else ""
+            return False, f"{what} failed: {err}{hint}", None
+        except Exception as err:
+            self.get_logger().error(f"{what} failed: {err}\n{traceback.format_exc()}")
+            return False, f"{what} failed: internal error: {err}", None
+        return True, f"{what}: done", result
+
+    def trigger_service(self, name: str, what: str, action: Callable[[], object]) -> None:
+        """A std_srvs/Trigger service that runs one guarded command."""
+        from std_srvs.srv import Trigger
+
+        def handle(_request: Any, response: Any) -> Any:
+            response.success, response.message, _ = self.run_command(what, action)
+            return response
+
+        self.create_service(Trigger, name, handle, callback_group=self.command_group)
+
+    # ------------------------------------------------------------ diagnostics
+    def publish_diagnostics(self) -> None:
+        link = link_report(
+            self.channel,
+            poll_rate=self.poll_rate,
+            target_rate_hz=self.poll_rate_hz,
+            poll_failures=self.poll_failures,
+        )
+        device = self.device_report() if self.channel.connected else None
+        level, message, values = link.level, link.message, list(link.values)
+        if device is not None:
+            values += device.values
+            if device.level > level:
+                level, message = device.level, device.message
+        status = DiagnosticStatus(
+            level=bytes([int(level)]),
+            name=f"{self.get_name()}: {self.device_name} Modbus bridge",
+            message=message,
+            hardware_id=self.hardware_id,
+            values=[KeyValue(key=k, value=v) for k, v in values],
+        )
+        array = DiagnosticArray()
+        array.header.stamp = self.get_clock().now().to_msg()
+        array.status = [status]
+        self.diagnostics_pub.publish(array)
+
+    def close(self) -> None:
+        self.link.close()
+
+
+def float_list(values: Sequence[float], count: int, default: float, name: str) -> list[float]:
+    """A per-joint parameter padded with ``default``; refuses NaN and non-positive values."""
+    out = [float(v) for v in values][:count]
+    out += [default] * (count - len(out))
+    for v in out:
+        if not math.isfinite(v) or v <= 0:
+            raise ValueError(f"{name} must be positive and finite, got {v}")
+    return out
+
+
+def spin_node(make_node: Callable[[], Node], args: Sequence[str] | None = None) -> None:
+    """rclpy demo-style main: init, spin with a multi-threaded executor, clean shutdown."""
+    rclpy.init(args=list(args) if args is not None else None)
+    node: Node | None = None
+    executor = MultiThreadedExecutor(num_threads=3)
+    try:
+        node = make_node()
+        executor.add_node(node)
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        executor.shutdown()
+        if node is not None:
+            if isinstance(node, BridgeNode):
+                node.close()
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+__all__ = ["BridgeNode", "Level", "Report", "float_list", "spin_node"]

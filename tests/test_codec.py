@@ -1,0 +1,98 @@
+"""Known vectors for every value type in both word orders, both directions."""
+
+from __future__ import annotations
+
+import pytest
+
+from bridge_core.codec import (
+    CodecError,
+    decode,
+    encode,
+    int_to_words,
+    string_to_words,
+    words_to_int,
+    words_to_string,
+)
+from bridge_core.registers import Access, Register, ValueType, WordOrder
+
+HIGH, LOW = WordOrder.HIGH_FIRST, WordOrder.LOW_FIRST
+
+# (type, value, words high-word-first); low-word-first is the same words reversed.
+VECTORS = [
+    (ValueType.U16, 0, [0x0000]),
+    (ValueType.U16, 0xABCD, [0xABCD]),
+    (ValueType.U16, 65535, [0xFFFF]),
+    (ValueType.I16, -1, [0xFFFF]),
+    (ValueType.I16, -32768, [0x8000]),
+    (ValueType.I16, 32767, [0x7FFF]),
+    (ValueType.U32, 0x12345678, [0x1234, 0x5678]),
+    (ValueType.U32, 4294967295, [0xFFFF, 0xFFFF]),
+    (ValueType.I32, -2, [0xFFFF, 0xFFFE]),
+    (ValueType.I32, -2147483648, [0x8000, 0x0000]),
+    (ValueType.I32, 100000, [0x0001, 0x86A0]),
+    (ValueType.U64, 0x0102030405060708, [0x0102, 0x0304, 0x0506, 0x0708]),
+    (ValueType.U64, 2**64 - 1, [0xFFFF] * 4),
+    (ValueType.I64, -1, [0xFFFF] * 4),
+    (ValueType.I64, -(2**63), [0x8000, 0, 0, 0]),
+    (ValueType.I64, 5000, [0, 0, 0, 0x1388]),
+]
+
+
+@pytest.mark.parametrize(("kind", "value", "words"), VECTORS)
+@pytest.mark.parametrize("order", [HIGH, LOW])
+def test_integer_vectors(kind: ValueType, value: int, words: list[int], order: WordOrder) -> None:
+    on_wire = words if order is HIGH else list(reversed(words))
+    assert int_to_words(value, kind.words, kind.signed, order) == on_wire
+    assert words_to_int(on_wire, kind.signed, order) == value
+    reg = Register("v", 0, kind, "test", word_order=order, access=Access.READ_WRITE)
+    assert encode(reg, value) == on_wire
+    assert decode(reg, on_wire) == value
+
+
+def test_low_word_first_differs_from_high_word_first() -> None:
+    # Stepper manual: "低16位在前" - 0x00010002 is sent as 0002 0001.
+    assert int_to_words(0x00010002, 2, False, LOW) == [0x0002, 0x0001]
+    assert words_to_int([0x0002, 0x0001], False, LOW) == 0x00010002
+    assert words_to_int([0x0002, 0x0001], False, HIGH) == 0x00020001
+
+
+@pytest.mark.parametrize(
+    ("kind", "value"),
+    [(ValueType.U16, -1), (ValueType.U16, 65536), (ValueType.I16, 32768), (ValueType.U32, 2**32),
+     (ValueType.I32, -(2**31) - 1), (ValueType.U64, -1), (ValueType.I64, 2**63)],
+)
+def test_out_of_range_integers_are_refused(kind: ValueType, value: int) -> None:
+    with pytest.raises(CodecError):
+        int_to_words(value, kind.words, kind.signed, HIGH)
+
+
+def test_scaled_values_both_directions() -> None:
+    position = Register("p", 0, ValueType.I32, "test", scale=1000, access=Access.READ_WRITE)
+    assert encode(position, -1.5) == [0xFFFF, 0xFA24]  # -1500
+    assert decode(position, [0xFFFF, 0xFA24]) == pytest.approx(-1.5)
+    speed = Register("s", 0, ValueType.U16, "test", scale=10, minimum=0, maximum=100,
+                     access=Access.READ_WRITE)
+    assert encode(speed, 10.0) == [100]
+    assert encode(speed, 33.33) == [333]  # quantised to the 0.1 step
+    assert decode(speed, [1000]) == pytest.approx(100.0)
+    with pytest.raises(CodecError, match="outside"):
+        encode(speed, 100.1)
+    with pytest.raises(CodecError, match="outside"):
+        encode(speed, -0.1)
+
+
+def test_strings() -> None:
+    # R6 §3.1.2: odd length, the last register's low byte is 0.
+    words = string_to_words("ABC", 2)
+    assert words == [0x4142, 0x4300]
+    assert words_to_string(words) == "ABC"
+    reg = Register("name", 0, ValueType.STRING, "test", length=2, access=Access.READ_WRITE)
+    assert decode(reg, [0x4142, 0x4300]) == "ABC"
+    with pytest.raises(CodecError):
+        encode(reg, "ABCDE")
+
+
+def test_decode_checks_word_count() -> None:
+    reg = Register("v", 0, ValueType.U32, "test")
+    with pytest.raises(CodecError):
+        decode(reg, [1])
