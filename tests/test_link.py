@@ -1,0 +1,204 @@
+"""The link layer: lock ordering, backoff, faults over TCP and RTU (real sockets and ptys)."""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Iterator
+
+import pytest
+
+from bridge_core.errors import DeviceException, FrameError, LinkDown, LinkTimeout
+from bridge_core.link import (
+    Backoff,
+    DeviceChannel,
+    ModbusLink,
+    Priority,
+    PriorityLock,
+    SerialSettings,
+    TcpSettings,
+)
+from bridge_core.registers import Access, DeviceLimits, Register, RegisterMap, ValueType, register_array
+from bridge_core.sim_base import SimulatedDevice, Simulator
+
+from .support.serial_pair import socat_pair
+
+TEST_MAP = RegisterMap(
+    "test",
+    (
+        *register_array("word", 0, 10, ValueType.U16, "test", access=Access.READ_WRITE, first_index=0),
+        Register("big", 10, ValueType.I32, "test", access=Access.READ_WRITE),
+    ),
+    DeviceLimits(max_read_registers=12),
+)
+
+
+def wait_until(predicate, timeout: float = 10.0) -> None:  # type: ignore[no-untyped-def]
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > deadline:
+            raise AssertionError("condition not met in time")
+        time.sleep(0.005)
+
+
+def test_priority_lock_serves_commands_first_then_fifo() -> None:
+    lock = PriorityLock()
+    order: list[str] = []
+    holder_in = threading.Event()
+    release = threading.Event()
+
+    def holder() -> None:
+        with lock.hold(Priority.POLL):
+            holder_in.set()
+            release.wait(5)
+
+    def waiter(name: str, priority: Priority) -> None:
+        with lock.hold(priority):
+            order.append(name)
+
+    threads = [threading.Thread(target=holder)]
+    threads[0].start()
+    holder_in.wait(5)
+    for name, priority in [("poll-1", Priority.POLL), ("poll-2", Priority.POLL),
+                           ("command-1", Priority.COMMAND), ("command-2", Priority.COMMAND)]:
+        t = threading.Thread(target=waiter, args=(name, priority))
+        t.start()
+        threads.append(t)
+        wait_until(lambda n=len(threads) - 1: len(lock._waiting) == n)
+    release.set()
+    for t in threads:
+        t.join(5)
+    assert order == ["command-1", "command-2", "poll-1", "poll-2"]
+
+
+def test_backoff_doubles_up_to_the_cap() -> None:
+    now = [100.0]
+    backoff = Backoff(0.25, 2.0, clock=lambda: now[0])
+    delays = []
+    for _ in range(6):
+        backoff.failed()
+        delays.append(backoff.delay_s)
+    assert delays == [0.25, 0.5, 1.0, 2.0, 2.0, 2.0]
+    assert not backoff.ready()
+    now[0] += 2.0
+    assert backoff.ready()
+    backoff.succeeded()
+    assert backoff.delay_s == 0.0 and backoff.ready()
+
+
+@pytest.fixture
+def tcp_sim() -> Iterator[tuple[Simulator, int]]:
+    sim = Simulator([SimulatedDevice(TEST_MAP, 1)])
+    port = sim.start_tcp()
+    yield sim, port
+    sim.stop()
+
+
+def test_tcp_withheld_replies_time_out_and_recover(tcp_sim: tuple[Simulator, int]) -> None:
+    sim, port = tcp_sim
+    channel = DeviceChannel(ModbusLink(TcpSettings(port=port, timeout_s=0.2)), 1, retries=1,
+                            reconnect_max_s=0.5)
+    sim.device.set("big", -5)
+    assert channel.read_registers(10, 2) == [0xFFFF, 0xFFFB]
+    sim.withhold_replies = True
+    with pytest.raises(LinkTimeout):
+        channel.read_registers(0, 1)
+    assert channel.stats.timeouts == 2  # one retry for a read
+    assert not channel.connected
+    sim.withhold_replies = False
+    wait_until(channel.may_attempt, timeout=2)
+    assert channel.read_registers(0, 1) == [0]
+    assert channel.connected and channel.stats.reconnects == 1
+
+
+def test_writes_are_never_retried(tcp_sim: tuple[Simulator, int]) -> None:
+    sim, port = tcp_sim
+    channel = DeviceChannel(ModbusLink(TcpSettings(port=port, timeout_s=0.2)), 1, retries=3)
+    channel.read_registers(0, 1)
+    sim.withhold_replies = True
+    with pytest.raises(LinkTimeout):
+        channel.write_register(3, 9)
+    assert channel.stats.timeouts == 1
+
+
+def test_exception_reply_keeps_the_link_up(tcp_sim: tuple[Simulator, int]) -> None:
+    _, port = tcp_sim
+    channel = DeviceChannel(ModbusLink(TcpSettings(port=port, timeout_s=0.5)), 1)
+    with pytest.raises(DeviceException, match="ILLEGAL DATA ADDRESS"):
+        channel.read_registers(11, 1)  # cuts the int32 at 10-11
+    assert channel.connected
+
+
+def test_server_gone_and_back(tcp_sim: tuple[Simulator, int]) -> None:
+    sim, port = tcp_sim
+    channel = DeviceChannel(ModbusLink(TcpSettings(port=port, timeout_s=0.3)), 1, retries=0,
+                            reconnect_max_s=0.4)
+    channel.read_registers(0, 2)
+    sim.stop()
+    with pytest.raises((LinkDown, LinkTimeout)):
+        channel.read_registers(0, 2)
+    assert not channel.connected
+    # Refused connects back off, capped at reconnect_max_s.
+    for _ in range(4):
+        wait_until(channel.may_attempt, timeout=1.0)
+        with pytest.raises(LinkDown):
+            channel.read_registers(0, 2)
+    assert channel.backoff.delay_s == pytest.approx(0.4)
+    sim.start_tcp(port=port)
+    wait_until(channel.may_attempt, timeout=1.0)
+    assert channel.read_registers(0, 2) == [0, 0]
+    assert channel.connected and channel.stats.reconnects == 1
+
+
+def test_rtu_several_units_on_one_pty_bus() -> None:
+    devices = [SimulatedDevice(TEST_MAP, unit) for unit in (1, 2, 5)]
+    for unit, device in zip((1, 2, 5), devices, strict=True):
+        device.set("word_1", unit * 100)
+    sim = Simulator(devices)
+    with socat_pair() as (bridge_end, device_end, _):
+        sim.start_serial(device_end, baudrate=115200)
+        try:
+            link = ModbusLink(SerialSettings(bridge_end, 115200, timeout_s=0.3))
+            channels = {u: DeviceChannel(link, u, retries=0, reconnect_max_s=5.0) for u in (1, 2, 5, 7)}
+            for unit in (1, 2, 5):
+                assert channels[unit].read_registers(0, 2) == [0, unit * 100]
+            channels[2].write_registers(10, [0x1234, 0x5678])
+            assert devices[1].get("big") == 0x12345678
+            assert [r.unit_id for r in devices[1].write_log] == [2]
+            assert devices[0].write_log == [] and devices[2].write_log == []
+            # Unit 7 is not on the bus: it stays silent, times out and backs off on its own...
+            with pytest.raises(LinkTimeout):
+                channels[7].read_registers(0, 1)
+            assert not channels[7].may_attempt()
+            # ...while the others keep working on the same port.
+            assert link.is_open
+            for unit in (1, 2, 5):
+                assert channels[unit].read_registers(1, 1) == [unit * 100]
+                assert channels[unit].connected
+            # Broadcast (unit 0) writes reach every unit and get no reply.
+            broadcast = DeviceChannel(link, 0)
+            broadcast.write_register(4, 77)
+            wait_until(lambda: all(d.get("word_4") == 77 for d in devices), timeout=2)
+            link.close()
+        finally:
+            sim.stop()
+
+
+def test_rtu_reply_from_the_wrong_unit_is_a_frame_error() -> None:
+    # A misconfigured drive that answers as unit 3 when asked as unit 1.
+    sim_device = SimulatedDevice(TEST_MAP, 3)
+    sim = Simulator([sim_device])
+    with socat_pair() as (bridge_end, device_end, _):
+        sim.start_serial(device_end, baudrate=115200)
+        try:
+            link = ModbusLink(SerialSettings(bridge_end, 115200, timeout_s=0.3))
+            # The server only answers unit 3; ask unit 3, then check the id check itself by
+            # talking to unit 3 through a channel that believes it is unit 1 is impossible
+            # with pymodbus' framer (it drops foreign ids), so a foreign reply is a timeout.
+            channel = DeviceChannel(link, 1, retries=0)
+            with pytest.raises((LinkTimeout, FrameError)):
+                channel.read_registers(0, 1)
+            assert DeviceChannel(link, 3).read_registers(0, 1) == [0]
+            link.close()
+        finally:
+            sim.stop()
