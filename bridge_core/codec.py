@@ -6,6 +6,7 @@ it free of pymodbus means a pymodbus upgrade cannot silently change a word order
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 from .errors import CommandRejected
@@ -90,6 +91,8 @@ def to_raw(register: Register, value: Value) -> int | str | bool:
         return bool(value)
     if isinstance(value, str):
         raise CodecError(f"{register.name} takes a number, not {value!r}")
+    if isinstance(value, float) and not math.isfinite(value):
+        raise CodecError(f"{register.name}: {value} is outside any range")
     if (register.minimum is not None and value < register.minimum) or (
         register.maximum is not None and value > register.maximum
     ):

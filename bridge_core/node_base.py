@@ -146,6 +146,7 @@ class BridgeNode(Node):
         self._connected_published: bool | None = None
         self.poll_rate = RateTracker()
         self.poll_failures = 0
+        self.last_poll_error: str | None = None
         self._publish_connected(False)
         self.poll_timer = self.create_timer(
             1.0 / self.poll_rate_hz, self._poll_tick, callback_group=self.poll_group
@@ -199,21 +200,25 @@ class BridgeNode(Node):
         except DeviceException as err:
             # The device answered but refused part of the poll: report, publish nothing.
             self.poll_failures += 1
-            self.get_logger().warn(f"poll refused by the device: {err}", throttle_duration_sec=5.0)
+            self.last_poll_error = f"poll refused by the device: {err}"
+            self.get_logger().warn(self.last_poll_error, throttle_duration_sec=5.0)
             return
         except LinkError as err:
             self.poll_failures += 1
+            self.last_poll_error = str(err)
             if self._connected_published:
                 self.get_logger().error(f"link to {self.channel.describe()} lost: {err}")
             self._publish_connected(False)
             return
         except Exception as err:  # a device fault must never kill the node
             self.poll_failures += 1
+            self.last_poll_error = f"poll failed: {err}"
             self.get_logger().error(f"poll failed: {err}\n{traceback.format_exc()}")
             return
         if not self._connected_published:
             self.get_logger().info(f"connected to {self.channel.describe()}")
         self._publish_connected(True)
+        self.last_poll_error = None
         self.poll_rate.tick()
         self.publish_snapshot(snapshot)
 
@@ -266,6 +271,9 @@ class BridgeNode(Node):
         )
         device = self.device_report() if self.channel.connected else None
         level, message, values = link.level, link.message, list(link.values)
+        if self.channel.connected and self.last_poll_error:
+            # Connected but no fresh state: as bad as a lost link for a consumer.
+            level, message = Level.ERROR, self.last_poll_error
         if device is not None:
             values += device.values
             if device.level > level:

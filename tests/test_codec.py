@@ -96,3 +96,11 @@ def test_decode_checks_word_count() -> None:
     reg = Register("v", 0, ValueType.U32, "test")
     with pytest.raises(CodecError):
         decode(reg, [1])
+
+
+@pytest.mark.parametrize("value", [float("nan"), float("inf"), float("-inf")])
+def test_non_finite_values_are_refused(value: float) -> None:
+    reg = Register("s", 0, ValueType.U16, "test", scale=10, minimum=0, maximum=100,
+                   access=Access.READ_WRITE)
+    with pytest.raises(CodecError, match="outside"):
+        encode(reg, value)

@@ -12,9 +12,9 @@ from collections.abc import Iterator
 from typing import Any
 
 import pytest
-
 import rclpy
 import rclpy.executors
+from rclpy.context import Context
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message, serialize_message
 
@@ -190,7 +190,7 @@ def test_r6state_published_in_another_process_is_received(ros_env: dict[str, str
         stderr=subprocess.STDOUT,
         text=True,
     )
-    context = rclpy.Context()
+    context = Context()
     rclpy.init(context=context, domain_id=int(ros_env["ROS_DOMAIN_ID"]))
     received: list[Any] = []
     got_one = threading.Event()

@@ -1,0 +1,335 @@
+"""The R6 bridge node in its own process, driven by an rclpy client in this one.
+
+The simulator runs in this process (a real pymodbus TCP server on a thread), so the tests
+can set registers and read its write log; the fault test runs it as a separate process
+to kill it for real.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseStamped
+from msg_defs.msg import R6State
+from msg_defs.srv import ReadParameter, SetCounter, SetOutput, SetValue, UploadPoints, WriteParameter
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Bool
+from std_srvs.srv import Trigger
+
+from bridge_core.registers import Table
+from bridge_core.sim_base import read_write_log
+from r6_bridge.registers import COMMANDS
+from r6_bridge.sim import R6SimDevice, make_simulator
+
+from .conftest import free_port
+from .support.ros import LATCHED, ROOT, Client, node_process, ros_client, wait_for
+
+pytestmark = pytest.mark.ros
+NAMESPACES = (f"/r6test{i}" for i in itertools.count())
+
+
+@pytest.fixture(scope="module")
+def client() -> Iterator[Client]:
+    with ros_client() as c:
+        c.subscribe(DiagnosticArray, "/diagnostics")
+        yield c
+
+
+@pytest.fixture
+def sim() -> Iterator[tuple[R6SimDevice, int]]:
+    simulator = make_simulator(axis_count=6, io_board_count=2)
+    port = simulator.start_tcp()
+    device = simulator.device
+    assert isinstance(device, R6SimDevice)
+    device.simulator = simulator  # type: ignore[attr-defined]
+    yield device, port
+    simulator.stop()
+
+
+class Bridge:
+    """Names of one running bridge node's topics and services."""
+
+    def __init__(self, client: Client, namespace: str) -> None:
+        self.client = client
+        self.ns = namespace
+        self.joint_states = f"{namespace}/joint_states"
+        self.state = f"{namespace}/r6_bridge/state"
+        self.pose = f"{namespace}/r6_bridge/tcp_pose"
+        self.connected = f"{namespace}/r6_bridge/connected"
+        client.subscribe(JointState, self.joint_states)
+        client.subscribe(R6State, self.state)
+        client.subscribe(PoseStamped, self.pose)
+        client.subscribe(Bool, self.connected, LATCHED)
+
+    def service(self, name: str) -> str:
+        return f"{self.ns}/r6_bridge/{name}"
+
+    def call(self, srv_type: Any, name: str, **fields: Any) -> Any:
+        request = srv_type.Request()
+        for key, value in fields.items():
+            setattr(request, key, value)
+        return self.client.call(srv_type, self.service(name), request)
+
+    def diagnostics(self, since: float = 0.0) -> list[Any]:
+        return [
+            status
+            for array in self.client.received("/diagnostics", since)
+            for status in array.status
+            if status.name.startswith(f"{self.ns.strip('/')}") or status.name.startswith("r6_bridge")
+        ]
+
+    def wait_diagnostic(self, level: int, since: float, port: int, timeout: float = 15.0) -> Any:
+        def find() -> Any:
+            for status in reversed(self.diagnostics(since)):
+                if f":{port} " in status.hardware_id and status.level == bytes([level]):
+                    return status
+            return None
+        return wait_for(find, timeout, f"diagnostics level {level} for port {port}")
+
+    def wait_connected(self, value: bool, since: float = 0.0, timeout: float = 15.0) -> None:
+        self.client.wait_message(self.connected, lambda m: m.data == value, timeout, since)
+
+
+@pytest.fixture
+def bridge_factory(client: Client, tmp_path: Path):  # type: ignore[no-untyped-def]
+    @__import__("contextlib").contextmanager
+    def start(port: int, **params: Any) -> Iterator[tuple[Bridge, subprocess.Popen[bytes]]]:
+        namespace = next(NAMESPACES)
+        defaults = {"port": port, "poll_rate_hz": 50.0, "timeout_s": 0.3, "reconnect_max_s": 1.0}
+        defaults.update(params)
+        bridge = Bridge(client, namespace)
+        with node_process("r6_bridge.node", defaults, tmp_path, ["-r", f"__ns:={namespace}"]) as proc:
+            yield bridge, proc
+            assert proc.poll() is None, "the bridge process died"
+    return start
+
+
+def values_of(status: Any) -> dict[str, str]:
+    return {kv.key: kv.value for kv in status.values}
+
+
+def test_topics_carry_si_values(sim, bridge_factory, client: Client) -> None:  # type: ignore[no-untyped-def]
+    device, port = sim
+    device.set("axis_position_1", 90.0)
+    device.set("axis_position_2", -45.0)
+    device.set("axis_speed_1", 60)
+    device.set("axis_torque_1", 0.5)
+    device.set("io_board_input_1", 0x0001_0002)
+    device.set_alarm(0x325)
+    device.tick = lambda dt: None  # freeze the world pose the sim would derive from the axes
+    device.set("world_x", 1000.0)
+    device.set("world_y", -250.5)
+    device.set("world_z", 300.0)
+    device.set("world_w", 90.0)
+    started = time.monotonic()
+    with bridge_factory(port, gear_ratios=[2.0] * 8, rated_torques=[10.0] * 8, frame_id="r6_base") as (bridge, _):
+        js = client.wait_message(bridge.joint_states)
+        assert js.name == [f"joint_{i}" for i in range(1, 7)]
+        assert js.position[0] == pytest.approx(math.pi / 2) and js.position[1] == pytest.approx(-math.pi / 4)
+        assert js.velocity[0] == pytest.approx(60 * 2 * math.pi / 60 / 2.0)
+        assert js.effort[0] == pytest.approx(0.5 * 10.0, abs=0.01)
+        stamp = js.header.stamp.sec + js.header.stamp.nanosec * 1e-9
+        assert abs(stamp - time.time()) < 5.0
+        state = client.wait_message(bridge.state)
+        assert (state.mode, state.mode_name, state.alarm_code) == (2, "auto", 0x325)
+        assert state.global_speed_percent == pytest.approx(50.0)
+        assert state.axis_count == 6 and state.io_board_count == 2
+        assert list(state.io_board_inputs) == [0, 0x0001_0002] and len(state.io_board_outputs) == 2
+        assert state.homed and not state.moving and state.machine_id == 1
+        pose = client.wait_message(bridge.pose)
+        assert pose.header.frame_id == "r6_base"
+        assert (pose.pose.position.x, pose.pose.position.y, pose.pose.position.z) == pytest.approx((1.0, -0.2505, 0.3))
+        q = pose.pose.orientation
+        assert (q.x, q.y, q.z, q.w) == pytest.approx((0.0, 0.0, math.sqrt(0.5), math.sqrt(0.5)))
+        bridge.wait_connected(True)
+        status = bridge.wait_diagnostic(1, started, port)  # WARN: the alarm
+        info = values_of(status)
+        assert status.hardware_id == f"Huacheng R6@tcp://127.0.0.1:{port} unit 1"
+        assert info["firmware version"] == "AM8-QC-RXE-7.8.02-bate7_FAKE_TGF_ENCODER"
+        assert info["link state"] == "connected" and "805" in info["alarm code"]
+        assert float(info["achieved poll rate (Hz)"]) > 0
+        device.set_alarm(0)
+        bridge.wait_diagnostic(0, time.monotonic(), port)
+
+
+def test_every_service_writes_its_registers(sim, bridge_factory) -> None:  # type: ignore[no-untyped-def]
+    device, port = sim
+    with bridge_factory(port) as (bridge, _):
+        bridge.wait_connected(True)
+        for name, address in COMMANDS.items():
+            before = len(device.write_log)
+            reply = bridge.call(Trigger, name)
+            assert reply.success, reply.message
+            new = device.write_log[before:]
+            assert [(r.function_code, r.address, r.values) for r in new] == [(6, address, (1,))], name
+        device.write_log.clear()
+        assert bridge.call(SetValue, "set_global_speed", value=25.5).success
+        assert bridge.call(SetOutput, "set_output", board=2, index=5, on=True).success
+        assert bridge.call(SetCounter, "set_counter", id=1, value=99).success
+        assert bridge.call(WriteParameter, "write_parameter", index=3, value=-2).success
+        reply = bridge.call(UploadPoints, "upload_points", data_source_id=100, values_per_point=6,
+                            axis_mask=0x23, values=list(range(1, 13)))
+        assert reply.success and reply.frames_sent == 1
+        assert [(r.function_code, r.address, r.values) for r in device.write_log] == [
+            (6, 20200, (255,)),
+            (16, 20056, (2, 5, 1)),
+            (16, 20050, (0, 1, 0, 0, 0, 99)),
+            (16, 20306, (0xFFFF, 0xFFFE)),
+            (16, 30002, (100, 6, 0x23)),
+            (16, 30005, (2, 1, *sum(([0, v] for v in range(1, 13)), []))),
+        ]
+        reply = bridge.call(ReadParameter, "read_parameter", index=3)
+        assert reply.success and reply.value == -2
+        assert device.points[100] == list(range(1, 13))
+        assert device.get("io_board_output_2") == 1 << 5
+
+
+REFUSALS = [
+    (SetValue, "set_global_speed", {"value": 100.5}, "outside"),
+    (SetValue, "set_global_speed", {"value": -0.5}, "outside"),
+    (SetValue, "set_global_speed", {"value": math.nan}, "outside"),
+    (SetOutput, "set_output", {"board": 4, "index": 0, "on": True}, "board 4"),
+    (SetOutput, "set_output", {"board": 0, "index": 32, "on": True}, "point 32"),
+    (WriteParameter, "write_parameter", {"index": 1000, "value": 1}, "index"),
+    (WriteParameter, "write_parameter", {"index": 0, "value": 2**31}, "outside"),
+    (UploadPoints, "upload_points", {"data_source_id": 1, "values_per_point": 6, "axis_mask": 0x23,
+                                     "values": [1, 2, 3]}, "whole"),
+    (UploadPoints, "upload_points", {"data_source_id": 1, "values_per_point": 6, "axis_mask": 0x40,
+                                     "values": [1] * 6}, "axis mask"),
+]
+
+
+def test_out_of_range_requests_are_refused_and_write_nothing(sim, bridge_factory) -> None:  # type: ignore[no-untyped-def]
+    device, port = sim
+    with bridge_factory(port) as (bridge, _):
+        bridge.wait_connected(True)
+        for srv_type, name, fields, reason in REFUSALS:
+            reply = bridge.call(srv_type, name, **fields)
+            assert not reply.success, (name, fields)
+            assert "refused" in reply.message and reason in reply.message, reply.message
+        assert device.write_log == []
+
+
+def test_read_only_refuses_every_write(sim, bridge_factory) -> None:  # type: ignore[no-untyped-def]
+    device, port = sim
+    with bridge_factory(port, read_only=True) as (bridge, _):
+        bridge.wait_connected(True)
+        for name in COMMANDS:
+            reply = bridge.call(Trigger, name)
+            assert not reply.success and "read_only" in reply.message
+        for reply in (
+            bridge.call(SetValue, "set_global_speed", value=10.0),
+            bridge.call(SetOutput, "set_output", board=0, index=1, on=True),
+            bridge.call(SetCounter, "set_counter", id=1, value=1),
+            bridge.call(WriteParameter, "write_parameter", index=0, value=1),
+            bridge.call(UploadPoints, "upload_points", data_source_id=1, values_per_point=4, axis_mask=1,
+                        values=[1, 2, 3, 4]),
+        ):
+            assert not reply.success and "read_only" in reply.message
+        assert bridge.call(ReadParameter, "read_parameter", index=0).success  # reads still work
+        assert device.write_log == []
+
+
+def test_disconnected_bridge_refuses_and_connects_later(bridge_factory, client: Client) -> None:  # type: ignore[no-untyped-def]
+    port = free_port()
+    started = time.monotonic()
+    with bridge_factory(port) as (bridge, proc):
+        bridge.wait_connected(False)
+        bridge.wait_diagnostic(2, started, port)
+        reply = bridge.call(Trigger, "start")
+        assert not reply.success and "not connected" in reply.message
+        assert not bridge.call(SetValue, "set_global_speed", value=10.0).success
+        assert client.received(bridge.joint_states) == []
+        simulator = make_simulator()
+        simulator.start_tcp(port=port)
+        try:
+            up = time.monotonic()
+            bridge.wait_connected(True, since=up, timeout=10)
+            client.wait_message(bridge.joint_states)
+            assert simulator.device.write_log == []  # nothing queued across the reconnect
+            assert proc.poll() is None
+        finally:
+            simulator.stop()
+
+
+def test_simulator_killed_and_restarted(bridge_factory, client: Client, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    port = free_port()
+    write_log = tmp_path / "writes.jsonl"
+
+    def start_sim() -> subprocess.Popen[bytes]:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "r6_bridge.sim", "--port", str(port), "--running",
+             "--write-log", str(write_log)],
+            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+        )
+        assert proc.stdout is not None
+        line = proc.stdout.readline().decode()
+        assert "listening" in line, line
+        return proc
+
+    sim_proc = start_sim()
+    try:
+        with bridge_factory(port, reconnect_max_s=1.0) as (bridge, node):
+            client.wait_message(bridge.joint_states)
+            bridge.wait_connected(True)
+            sim_proc.send_signal(signal.SIGKILL)  # mid-poll: the node polls at 50 Hz
+            sim_proc.wait(5)
+            killed = time.monotonic()
+            bridge.wait_connected(False, since=killed)
+            status = bridge.wait_diagnostic(2, killed, port)
+            assert values_of(status)["link state"] == "disconnected"
+            down = time.monotonic()
+            reply = bridge.call(Trigger, "start")
+            assert not reply.success and "not connected" in reply.message
+            # Stay down for a while: no joint_states with fresh stamps may appear.
+            wait_for(lambda: time.monotonic() - down > 1.5 or None, 5, "a quiet period")
+            assert client.received(bridge.joint_states, since=down) == []
+            assert client.received(bridge.state, since=down) == []
+            assert node.poll() is None
+            sim_proc = start_sim()
+            restarted = time.monotonic()
+            client.wait_message(bridge.joint_states, since=restarted, timeout=1.0 + 10)
+            bridge.wait_connected(True, since=restarted)
+            status = bridge.wait_diagnostic(0, restarted, port)
+            assert int(values_of(status)["reconnects"]) >= 1
+            # The refused start was not executed after the reconnect.
+            assert read_write_log(write_log) == []
+    finally:
+        sim_proc.kill()
+        sim_proc.wait(5)
+
+
+def test_withheld_replies_and_exception_replies(sim, bridge_factory, client: Client) -> None:  # type: ignore[no-untyped-def]
+    device, port = sim
+    simulator = device.simulator  # type: ignore[attr-defined]
+    with bridge_factory(port, timeout_s=0.2, retries=0) as (bridge, node):
+        client.wait_message(bridge.joint_states)
+        simulator.withhold_replies = True
+        withheld = time.monotonic()
+        status = bridge.wait_diagnostic(2, withheld, port)
+        wait_for(lambda: any(int(values_of(s)["timeouts"]) > 0 for s in bridge.diagnostics(withheld)), 10,
+                 "a timeout count")
+        simulator.withhold_replies = False
+        back = time.monotonic()
+        client.wait_message(bridge.joint_states, since=back)
+        # Exception replies to a polled block: node alive, reported by name, nothing published.
+        device.forced_exceptions.append((Table.HOLDING, range(2470, 2472), 4))
+        refused = time.monotonic()
+        status = bridge.wait_diagnostic(2, refused, port)
+        assert "SERVER DEVICE FAILURE" in status.message
+        quiet = time.monotonic()
+        wait_for(lambda: time.monotonic() - quiet > 0.5 or None, 5, "a quiet period")
+        assert client.received(bridge.joint_states, since=quiet) == []
+        device.forced_exceptions.clear()
+        client.wait_message(bridge.joint_states, since=time.monotonic())
+        assert node.poll() is None
