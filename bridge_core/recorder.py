@@ -1,0 +1,145 @@
+"""``bridge_record``: record chosen topics to a rosbag2 bag, for machines without ``ros2 bag``.
+
+Subscribes with ``raw=True`` and writes the CDR bytes as received, so nothing is decoded
+and re-encoded; the bag (MCAP by default, rosbag2 version 9) is written with the
+pure-Python ``rosbags`` library and plays back with ``ros2 bag play``. Types not in
+rosbags' Jazzy typestore (our own ``msg_defs``) are registered from their ``.msg`` files.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+import sys
+import threading
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import rclpy
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+from rosbags.typesys.store import Typestore
+
+
+
+def message_class(type_name: str) -> Any:
+    """``pkg/msg/Type`` -> the generated Python class."""
+    package, kind, name = type_name.split("/")
+    return getattr(importlib.import_module(f"{package}.{kind}"), name)
+
+
+def msg_file(type_name: str) -> Path:
+    """Find ``share/<pkg>/msg/<Type>.msg`` in the ament prefixes (or the venv's prefix)."""
+    package, kind, name = type_name.split("/")
+    prefixes = [p for p in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p]
+    prefixes.append(sys.prefix)
+    for prefix in prefixes:
+        candidate = Path(prefix) / "share" / package / kind / f"{name}.msg"
+        if candidate.exists():
+            return candidate
+    raise FileNotFoundError(f"no .msg definition found for {type_name}")
+
+
+def typestore_for(type_names: Sequence[str]) -> Typestore:
+    """Jazzy's typestore plus any missing types, registered from their .msg text."""
+    store = get_typestore(Stores.ROS2_JAZZY)
+    missing = [t for t in type_names if t not in store.fielddefs]
+    while missing:
+        type_name = missing.pop()
+        types = get_types_from_msg(msg_file(type_name).read_text(), type_name)
+        store.register(types)
+    return store
+
+
+class Recorder(Node):
+    """Subscribes to topics as they appear and writes every message to one bag."""
+
+    def __init__(self, output: Path, topics: Sequence[str], storage: StoragePlugin) -> None:
+        super().__init__("bridge_recorder")
+        self.topics = list(topics)
+        self.output = output
+        self.storage = storage
+        self.counts: dict[str, int] = {t: 0 for t in self.topics}
+        self._writer: Writer | None = None
+        self._connections: dict[str, Any] = {}
+        self._lock = threading.Lock()
+        self._pending = set(self.topics)
+        self.create_timer(0.1, self._discover)
+
+    def _discover(self) -> None:
+        if not self._pending:
+            return
+        known = dict(self.get_topic_names_and_types())
+        ready = [t for t in self._pending if t in known]
+        if not ready:
+            return
+        types = {t: known[t][0] for t in ready}
+        store = typestore_for(list(types.values()))
+        with self._lock:
+            if self._writer is None:
+                self._writer = Writer(self.output, version=9, storage_plugin=self.storage)
+                self._writer.open()
+            for topic, type_name in types.items():
+                self._connections[topic] = self._writer.add_connection(
+                    topic, type_name, typestore=store
+                )
+                qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+                if topic.endswith("/connected"):
+                    qos.durability = DurabilityPolicy.TRANSIENT_LOCAL
+                self.create_subscription(
+                    message_class(type_name), topic, lambda data, t=topic: self._write(t, data), qos, raw=True
+                )
+                self._pending.discard(topic)
+                self.get_logger().info(f"recording {topic} ({type_name})")
+
+    def _write(self, topic: str, data: bytes) -> None:
+        with self._lock:
+            if self._writer is None:
+                return
+            self._writer.write(self._connections[topic], time.time_ns(), data)
+            self.counts[topic] += 1
+
+    def close(self) -> None:
+        with self._lock:
+            if self._writer is not None:
+                self._writer.close()
+                self._writer = None
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description="record ROS 2 topics to a rosbag2 bag (MCAP)")
+    parser.add_argument("-o", "--output", type=Path, required=True, help="bag directory (must not exist)")
+    parser.add_argument("topics", nargs="+", help="absolute topic names, e.g. /joint_states")
+    parser.add_argument("--duration", type=float, default=0.0, help="seconds; 0 = until Ctrl-C")
+    parser.add_argument("--storage", choices=["mcap", "sqlite3"], default="mcap")
+    args, ros_args = parser.parse_known_args(argv)
+    if args.output.exists():
+        parser.error(f"{args.output} exists; rosbag2 writes a new directory")
+    rclpy.init(args=ros_args)
+    storage = StoragePlugin.MCAP if args.storage == "mcap" else StoragePlugin.SQLITE3
+    recorder = Recorder(args.output, args.topics, storage)
+    executor = SingleThreadedExecutor()
+    executor.add_node(recorder)
+    deadline = time.monotonic() + args.duration if args.duration > 0 else None
+    try:
+        while rclpy.ok() and (deadline is None or time.monotonic() < deadline):
+            executor.spin_once(timeout_sec=0.1)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        recorder.close()
+        counts = ", ".join(f"{t}: {n}" for t, n in recorder.counts.items())
+        print(f"bag {args.output}: {counts}", flush=True)
+        executor.shutdown()
+        recorder.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    main()
