@@ -15,6 +15,7 @@ Shape:
 from __future__ import annotations
 
 import heapq
+import logging
 import itertools
 import threading
 import time
@@ -29,6 +30,10 @@ from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOEx
 
 from .errors import DeviceException, FrameError, LinkDown, LinkError, LinkTimeout
 from .registers import Table
+
+# pymodbus logs every refused connect and timeout on its own (and repeats itself); the
+# channel counts and reports them in diagnostics, so its logger only speaks when critical.
+logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
 
 # First reconnect delay; it doubles per failure up to the node's reconnect_max_s.
 RECONNECT_INITIAL_S = 0.25

@@ -164,7 +164,8 @@ class R6SimDevice(SimulatedDevice):
             moving = self.running and speed_fraction > 0
             self.set("moving", 1 if moving else 0)
             for a in range(1, MAX_AXES + 1):
-                deg_s = AXIS_SPEED_DEG_S * speed_fraction * self.axis_directions[a - 1] if moving and a <= axes else 0.0
+                axis_speed = AXIS_SPEED_DEG_S * (1.0 - 0.1 * (a - 1))  # distinct per axis
+                deg_s = axis_speed * speed_fraction * self.axis_directions[a - 1] if moving and a <= axes else 0.0
                 if deg_s:
                     position = float(self.get(f"axis_position_{a}")) + deg_s * dt
                     if abs(position) > 170.0:  # turn around before the joint limit
