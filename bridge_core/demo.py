@@ -47,8 +47,11 @@ class DemoDevice:
 
 
 def _r6_state(state: Any) -> str:
-    return (f"mode {state.mode_name}  alarm {state.alarm_code}  moving {'yes' if state.moving else 'no'}  "
-            f"speed {state.global_speed_percent:.1f}%  cycle {state.current_cycle_time_ms} ms")
+    return (
+        f"mode {state.mode_name}  alarm {state.alarm_code}  "
+        f"moving {'yes' if state.moving else 'no'}  "
+        f"speed {state.global_speed_percent:.1f}%  cycle {state.current_cycle_time_ms} ms"
+    )
 
 
 DEVICES: list[DemoDevice] = [
@@ -93,8 +96,11 @@ class Monitor:
         self.executor.add_node(self.node)
         self.latest: dict[str, Any] = {}
         self.counts: dict[str, int] = {}
-        latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        latched = QoSProfile(
+            depth=1,
+            reliability=ReliabilityPolicy.RELIABLE,
+            durability=DurabilityPolicy.TRANSIENT_LOCAL,
+        )
         for device in devices:
             ns = f"/{device.name.lower()}"
             self._watch(JointState, f"{ns}/joint_states")
@@ -120,7 +126,9 @@ class Monitor:
         while time.monotonic() < end:
             self.executor.spin_once(timeout_sec=max(0.0, min(0.05, end - time.monotonic())))
 
-    def call(self, service: str, type_name: str, fields: dict[str, Any], timeout: float = 10.0) -> str:
+    def call(
+        self, service: str, type_name: str, fields: dict[str, Any], timeout: float = 10.0
+    ) -> str:
         srv = _import(type_name)
         client = self.node.create_client(srv, service)
         try:
@@ -153,15 +161,28 @@ def render(monitor: Monitor, device: DemoDevice, rates: dict[str, float]) -> str
     connected = monitor.latest.get(f"{ns}/{device.node_name}/connected")
     joints = monitor.latest.get(f"{ns}/joint_states")
     state = monitor.latest.get(f"{ns}/{device.node_name}/state")
-    diag = next((s for k, s in monitor.latest.items() if k.startswith("diag:") and
-                 s.name.startswith(f"{device.node_name}:")), None)
+    diag = next(
+        (
+            s
+            for k, s in monitor.latest.items()
+            if k.startswith("diag:") and s.name.startswith(f"{device.node_name}:")
+        ),
+        None,
+    )
     link = "connected" if connected is not None and connected.data else "DISCONNECTED"
     level = {0: "OK", 1: "WARN", 2: "ERROR", 3: "STALE"}.get(diag.level[0], "?") if diag else "-"
-    lines = [f"[{device.name}] {link}  diagnostics {level}"
-             f"{': ' + diag.message if diag else ''}  joint_states {rates.get(ns, 0.0):.1f} Hz"]
+    lines = [
+        f"[{device.name}] {link}  diagnostics {level}"
+        f"{': ' + diag.message if diag else ''}  joint_states {rates.get(ns, 0.0):.1f} Hz"
+    ]
     if joints is not None:
-        lines.append("   joints (deg): " + "  ".join(
-            f"{n} {math.degrees(p):8.2f}" for n, p in zip(joints.name, joints.position, strict=False)))
+        lines.append(
+            "   joints (deg): "
+            + "  ".join(
+                f"{n} {math.degrees(p):8.2f}"
+                for n, p in zip(joints.name, joints.position, strict=False)
+            )
+        )
     if state is not None:
         lines.append("   " + device.format_state(state))
     return "\n".join(lines)
@@ -170,8 +191,11 @@ def render(monitor: Monitor, device: DemoDevice, rates: dict[str, float]) -> str
 def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description="run the bridges against their simulators")
     parser.add_argument("--duration", type=float, default=0.0, help="seconds; 0 = until Ctrl-C")
-    parser.add_argument("--devices", default=",".join(d.name for d in DEVICES),
-                        help="comma-separated subset, e.g. R6")
+    parser.add_argument(
+        "--devices",
+        default=",".join(d.name for d in DEVICES),
+        help="comma-separated subset, e.g. R6",
+    )
     args = parser.parse_args(argv)
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"  # everything here is local
     os.environ.pop("ROS_LOCALHOST_ONLY", None)
@@ -187,8 +211,11 @@ def main(argv: Sequence[str] | None = None) -> None:
 
     def spawn(name: str, command: list[str]) -> None:
         log = (logs / f"{name}.log").open("wb")
-        processes.append(subprocess.Popen([sys.executable, *command], cwd=ROOT, stdout=log,
-                                          stderr=subprocess.STDOUT))
+        processes.append(
+            subprocess.Popen(
+                [sys.executable, *command], cwd=ROOT, stdout=log, stderr=subprocess.STDOUT
+            )
+        )
 
     stop = {"now": False}
     signal.signal(signal.SIGTERM, lambda *_: stop.update(now=True))
@@ -205,11 +232,18 @@ def main(argv: Sequence[str] | None = None) -> None:
         monitor = Monitor(devices)
         for device in devices:
             for service, type_name, fields in device.start_services:
-                print("  " + monitor.call(f"/{device.name.lower()}/{device.node_name}/{service}",
-                                          type_name, fields), flush=True)
+                print(
+                    "  "
+                    + monitor.call(
+                        f"/{device.name.lower()}/{device.node_name}/{service}", type_name, fields
+                    ),
+                    flush=True,
+                )
         started = time.monotonic()
         last_counts = dict(monitor.counts)
-        while not stop["now"] and (args.duration <= 0 or time.monotonic() - started < args.duration):
+        while not stop["now"] and (
+            args.duration <= 0 or time.monotonic() - started < args.duration
+        ):
             monitor.spin_for(1.0)
             rates = {}
             for device in devices:
@@ -222,7 +256,7 @@ def main(argv: Sequence[str] | None = None) -> None:
                 print(render(monitor, device, rates), flush=True)
             for proc in processes:
                 if proc.poll() is not None:
-                    raise SystemExit(f"bridge_demo: a process exited ({proc.args}); see {logs}")
+                    raise SystemExit(f"bridge_demo: a process exited ({proc.args!r}); see {logs}")
     except KeyboardInterrupt:
         pass
     finally:

@@ -30,7 +30,9 @@ class Level(IntEnum):
 class RateTracker:
     """Events per second over a sliding window (diagnostic_updater's FrequencyStatus)."""
 
-    def __init__(self, window_s: float = RATE_WINDOW_S, clock: Callable[[], float] = time.monotonic) -> None:
+    def __init__(
+        self, window_s: float = RATE_WINDOW_S, clock: Callable[[], float] = time.monotonic
+    ) -> None:
         self.window_s = window_s
         self._clock = clock
         self._events: deque[float] = deque()

@@ -15,13 +15,13 @@ Shape:
 from __future__ import annotations
 
 import heapq
-import logging
 import itertools
+import logging
 import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field
 from enum import IntEnum
 
@@ -225,10 +225,8 @@ class ModbusLink:
 
     def close(self) -> None:
         self._open = False
-        try:
-            self._client.close()
-        except OSError:
-            pass
+        with suppress(OSError):
+            self._client.close()  # type: ignore[no-untyped-call]
 
     def execute(self, unit_id: int, request: Request) -> Reply:
         """One transaction; pymodbus errors come out as ``LinkError`` subclasses."""
@@ -243,7 +241,9 @@ class ModbusLink:
             text = str(err)
             if "device id" in text or "transaction id" in text:
                 raise FrameError(f"unit {unit_id}: mismatched reply: {text}") from err
-            raise LinkTimeout(f"unit {unit_id}: no reply within {self.settings.timeout_s} s") from err
+            raise LinkTimeout(
+                f"unit {unit_id}: no reply within {self.settings.timeout_s} s"
+            ) from err
         except ModbusException as err:
             raise FrameError(f"unit {unit_id}: {err}") from err
         except OSError as err:
@@ -455,7 +455,11 @@ class DeviceChannel:
         return [int(v) for v in reply[:count]]
 
     def read_bits(
-        self, address: int, count: int, table: Table = Table.COIL, priority: Priority = Priority.POLL
+        self,
+        address: int,
+        count: int,
+        table: Table = Table.COIL,
+        priority: Priority = Priority.POLL,
     ) -> list[bool]:
         reply = self.transact(ReadBits(address, count, table), priority)
         assert isinstance(reply, list)

@@ -44,12 +44,15 @@ DIAGNOSTICS_PERIOD_S = 1.0
 JOINT_STATES_DEPTH = 10
 
 
-def _descriptor(text: str, kind: int, low: float | None = None, high: float | None = None,
-                step: float = 0.0) -> ParameterDescriptor:
+def _descriptor(
+    text: str, kind: int, low: float | None = None, high: float | None = None, step: float = 0.0
+) -> ParameterDescriptor:
     descriptor = ParameterDescriptor(description=text, type=kind)
     if low is not None and high is not None:
         if kind == ParameterType.PARAMETER_INTEGER:
-            descriptor.integer_range = [IntegerRange(from_value=int(low), to_value=int(high), step=int(step))]
+            descriptor.integer_range = [
+                IntegerRange(from_value=int(low), to_value=int(high), step=int(step))
+            ]
         else:
             descriptor.floating_point_range = [
                 FloatingPointRange(from_value=float(low), to_value=float(high), step=step)
@@ -90,16 +93,31 @@ class BridgeNode(Node):
             p("host", "127.0.0.1", _descriptor("device IP address or host name", STRING))
             p("port", default_port, _descriptor("Modbus TCP port", INT, 1, 65535))
         else:
-            p("serial_port", "/dev/ttyUSB0",
-              _descriptor("serial device path or pyserial URL (e.g. socket://host:port)", STRING))
+            p(
+                "serial_port",
+                "/dev/ttyUSB0",
+                _descriptor("serial device path or pyserial URL (e.g. socket://host:port)", STRING),
+            )
             p("baudrate", default_baudrate, _descriptor("serial baud rate", INT, 300, 4_000_000))
             p("parity", "N", _descriptor("N, E or O", STRING))
             p("stopbits", 1, _descriptor("1 or 2", INT, 1, 2))
         p("unit_id", 1, _descriptor("Modbus unit (slave) id", INT, 0, 247))
-        p("poll_rate_hz", default_poll_rate_hz, _descriptor("full-state polls per second", DOUBLE, 0.1, 1000.0))
+        p(
+            "poll_rate_hz",
+            default_poll_rate_hz,
+            _descriptor("full-state polls per second", DOUBLE, 0.1, 1000.0),
+        )
         p("timeout_s", 0.5, _descriptor("reply timeout per transaction", DOUBLE, 0.01, 10.0))
-        p("retries", 1, _descriptor("extra attempts for a failed read; writes are never retried", INT, 0, 10))
-        p("reconnect_max_s", 5.0, _descriptor("cap of the exponential reconnect backoff", DOUBLE, 0.1, 300.0))
+        p(
+            "retries",
+            1,
+            _descriptor("extra attempts for a failed read; writes are never retried", INT, 0, 10),
+        )
+        p(
+            "reconnect_max_s",
+            5.0,
+            _descriptor("cap of the exponential reconnect backoff", DOUBLE, 0.1, 300.0),
+        )
         p("joint_prefix", "", _descriptor("prefix of every joint name", STRING))
         p("frame_id", "base_link", _descriptor("frame of published poses", STRING))
         p("read_only", False, _descriptor("refuse every command that writes to the device", BOOL))
@@ -135,7 +153,9 @@ class BridgeNode(Node):
         )
         self.hardware_id = f"{device_name}@{self.channel.describe()}"
 
-        self.joint_states_pub = self.create_publisher(JointState, "joint_states", JOINT_STATES_DEPTH)
+        self.joint_states_pub = self.create_publisher(
+            JointState, "joint_states", JOINT_STATES_DEPTH
+        )
         latched = QoSProfile(
             depth=1,
             reliability=ReliabilityPolicy.RELIABLE,
@@ -176,8 +196,14 @@ class BridgeNode(Node):
     def stamp(self, wall_time: float) -> Any:
         return Time(nanoseconds=int(wall_time * 1e9)).to_msg()
 
-    def joint_state(self, wall_time: float, names: Sequence[str], position: Sequence[float],
-                    velocity: Sequence[float] = (), effort: Sequence[float] = ()) -> JointState:
+    def joint_state(
+        self,
+        wall_time: float,
+        names: Sequence[str],
+        position: Sequence[float],
+        velocity: Sequence[float] = (),
+        effort: Sequence[float] = (),
+    ) -> JointState:
         msg = JointState()
         msg.header.stamp = self.stamp(wall_time)
         msg.name = list(names)

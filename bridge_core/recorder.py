@@ -14,7 +14,7 @@ import os
 import sys
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -25,7 +25,6 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
-
 
 
 def message_class(type_name: str) -> Any:
@@ -93,10 +92,13 @@ class Recorder(Node):
                 if topic.endswith("/connected"):
                     qos.durability = DurabilityPolicy.TRANSIENT_LOCAL
                 self.create_subscription(
-                    message_class(type_name), topic, lambda data, t=topic: self._write(t, data), qos, raw=True
+                    message_class(type_name), topic, self._writer_for(topic), qos, raw=True
                 )
                 self._pending.discard(topic)
                 self.get_logger().info(f"recording {topic} ({type_name})")
+
+    def _writer_for(self, topic: str) -> Callable[[bytes], None]:
+        return lambda data: self._write(topic, data)
 
     def _write(self, topic: str, data: bytes) -> None:
         with self._lock:
@@ -114,7 +116,9 @@ class Recorder(Node):
 
 def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description="record ROS 2 topics to a rosbag2 bag (MCAP)")
-    parser.add_argument("-o", "--output", type=Path, required=True, help="bag directory (must not exist)")
+    parser.add_argument(
+        "-o", "--output", type=Path, required=True, help="bag directory (must not exist)"
+    )
     parser.add_argument("topics", nargs="+", help="absolute topic names, e.g. /joint_states")
     parser.add_argument("--duration", type=float, default=0.0, help="seconds; 0 = until Ctrl-C")
     parser.add_argument("--storage", choices=["mcap", "sqlite3"], default="mcap")

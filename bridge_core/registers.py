@@ -124,17 +124,13 @@ class Register:
             problems.append("length is for STRING only")
         if self.table.is_bit != (self.value_type is ValueType.BOOL):
             problems.append("bit tables hold BOOL values and only they do")
-        if not 0 <= self.address or self.address + self.count - 1 > MAX_ADDRESS:
+        if not self.address >= 0 or self.address + self.count - 1 > MAX_ADDRESS:
             problems.append("address out of 0..65535")
         if self.scale <= 0:
             problems.append("scale must be positive")
         if self.access.writable and not self.table.writable:
             problems.append(f"{self.table.value} table is read-only")
-        if (
-            self.minimum is not None
-            and self.maximum is not None
-            and self.minimum > self.maximum
-        ):
+        if self.minimum is not None and self.maximum is not None and self.minimum > self.maximum:
             problems.append("minimum > maximum")
         if problems:
             raise ValueError(f"register {self.name!r} @ {self.address}: " + "; ".join(problems))
@@ -267,5 +263,7 @@ def whole_values_only(
             touched[reg.name] = reg
     for reg in touched.values():
         if reg.address < address or reg.end > address + count:
-            raise ValueError(f"request {address}+{count} cuts {reg.name} ({reg.address}+{reg.count})")
+            raise ValueError(
+                f"request {address}+{count} cuts {reg.name} ({reg.address}+{reg.count})"
+            )
     return list(touched.values())

@@ -14,6 +14,7 @@ gives async hooks for reply delays and withheld replies. Pinned: see notes.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import threading
 import time
@@ -227,7 +228,9 @@ class SimulatedDevice:
     def writes_to(self, address: int, table: Table = Table.HOLDING) -> list[WriteRecord]:
         with self.lock:
             return [
-                r for r in self.write_log if r.table is table and r.address <= address < r.address + len(r.values)
+                r
+                for r in self.write_log
+                if r.table is table and r.address <= address < r.address + len(r.values)
             ]
 
     def tick(self, dt: float) -> None:
@@ -237,7 +240,7 @@ class SimulatedDevice:
 class _MapContext(ModbusServerContext):
     """pymodbus datastore adapter; bypasses the deprecated base constructor on purpose."""
 
-    def __init__(self, simulator: Simulator) -> None:  # noqa: D107 - no super().__init__
+    def __init__(self, simulator: Simulator) -> None:
         self.old_simulator = True
         self.simdevices = []
         self._sim = simulator
@@ -308,7 +311,9 @@ class Simulator:
 
     def start_tcp(self, host: str = "127.0.0.1", port: int = 0) -> int:
         """Serve Modbus TCP on ``host:port`` (0 = a free port); returns the port."""
-        self._start(lambda ctx: ModbusTcpServer(ctx, address=(host, port), ignore_missing_devices=True))
+        self._start(
+            lambda ctx: ModbusTcpServer(ctx, address=(host, port), ignore_missing_devices=True)
+        )
         return self.port
 
     def start_serial(
@@ -360,10 +365,8 @@ class Simulator:
         last = time.monotonic()
         try:
             while not self._stop.is_set():
-                try:
+                with contextlib.suppress(TimeoutError):
                     await asyncio.wait_for(self._stop.wait(), self.tick_s)
-                except TimeoutError:
-                    pass
                 now = time.monotonic()
                 for device in self.devices.values():
                     device.tick(now - last)

@@ -6,6 +6,7 @@ refused command writes nothing.
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -36,6 +37,7 @@ from .registers import (
 )
 
 HIGH = WordOrder.HIGH_FIRST
+_DEG = math.pi / 180.0
 U32_MAX = 0xFFFF_FFFF
 I32_MIN, I32_MAX = -(1 << 31), (1 << 31) - 1
 # Registers in one upload frame: the manual's 256-byte frame cap and Modbus's 123 (FC 10).
@@ -51,6 +53,29 @@ class RegisterIO(Protocol):
     ) -> list[int]: ...
     def write_register(self, address: int, value: int) -> None: ...
     def write_registers(self, address: int, values: Sequence[int]) -> None: ...
+
+
+def euler_xyz_deg_to_quaternion(u: float, v: float, w: float) -> tuple[float, float, float, float]:
+    """U, V, W (deg) as rotations about fixed X, Y, Z in that order: R = Rz(W) Ry(V) Rx(U).
+
+    The R6 manual names the world axes X Y Z U V W without a convention; this is the usual
+    roll-pitch-yaw reading (also REP 103's), written down in the README.
+    """
+    hr, hp, hy = u * _DEG / 2.0, v * _DEG / 2.0, w * _DEG / 2.0
+    cr, sr, cp, sp, cy, sy = (
+        math.cos(hr),
+        math.sin(hr),
+        math.cos(hp),
+        math.sin(hp),
+        math.cos(hy),
+        math.sin(hy),
+    )
+    return (
+        sr * cp * cy - cr * sp * sy,  # x
+        cr * sp * cy + sr * cp * sy,  # y
+        cr * cp * sy - sr * sp * cy,  # z
+        cr * cp * cy + sr * sp * sy,  # w
+    )
 
 
 def mode_name(mode: int) -> str:
@@ -101,8 +126,18 @@ class R6Device:
         """
         axes = min(max(axis_count, 0), MAX_AXES)
         boards = min(max(io_board_count, 0), MAX_IO_BOARDS)
-        names = ["mode", "io_board_count", "axis_count", "alarm_code", "current_cycle_time",
-                 "last_cycle_time", "machine_id", "moving", "homed", "global_speed"]
+        names = [
+            "mode",
+            "io_board_count",
+            "axis_count",
+            "alarm_code",
+            "current_cycle_time",
+            "last_cycle_time",
+            "machine_id",
+            "moving",
+            "homed",
+            "global_speed",
+        ]
         names += [f"io_board_input_{b}" for b in range(boards)]
         names += [f"io_board_output_{b}" for b in range(boards)]
         names += [f"axis_position_{a}" for a in range(1, axes + 1)]
@@ -141,7 +176,7 @@ class R6Device:
             return float(values[name])  # type: ignore[arg-type]
 
         def i(name: str) -> int:
-            return int(values[name])  # type: ignore[call-overload]
+            return int(values[name])  # type: ignore[call-overload, no-any-return]
 
         return R6Snapshot(
             read_time=read_time,
@@ -171,7 +206,9 @@ class R6Device:
     # ------------------------------------------------------------------ reads on request
     def read_version(self) -> str:
         """§3.1.1-3.1.2: the length first, then (length + 1) / 2 registers from 1."""
-        length = self.io.read_registers(R6_MAP["version_length"].address, 1, priority=Priority.COMMAND)[0]
+        length = self.io.read_registers(
+            R6_MAP["version_length"].address, 1, priority=Priority.COMMAND
+        )[0]
         if not 1 <= length <= MAX_VERSION_BYTES:
             raise FrameError(f"version length {length} outside 1..{MAX_VERSION_BYTES}")
         words = self.io.read_registers(
@@ -264,11 +301,12 @@ class R6Device:
         """§3.3.2: id, target (ignored by the host: 0) and current value, 6 registers."""
         _check_range("counter id", counter_id, 0, U32_MAX)
         _check_range("counter value", value, 0, U32_MAX)
-        words = (
-            int_to_words(counter_id, 2, False, HIGH)
-            + [0, 0]
-            + int_to_words(value, 2, False, HIGH)
-        )
+        words = [
+            *int_to_words(counter_id, 2, False, HIGH),
+            0,
+            0,
+            *int_to_words(value, 2, False, HIGH),
+        ]
         self.io.write_registers(R6_MAP["counter_modify_id"].address, words)
 
     def write_parameter(self, index: int, value: int) -> None:

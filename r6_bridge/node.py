@@ -7,13 +7,20 @@ from collections.abc import Sequence
 from typing import Any
 
 from geometry_msgs.msg import PoseStamped
-from msg_defs.msg import R6State
-from msg_defs.srv import ReadParameter, SetCounter, SetOutput, SetValue, UploadPoints, WriteParameter
 
 from bridge_core.diagnostics import Level, Report
 from bridge_core.node_base import DOUBLE_ARRAY, BridgeNode, _descriptor, float_list, spin_node
+from msg_defs.msg import R6State
+from msg_defs.srv import (
+    ReadParameter,
+    SetCounter,
+    SetOutput,
+    SetValue,
+    UploadPoints,
+    WriteParameter,
+)
 
-from .device import R6Device, R6Snapshot
+from .device import R6Device, R6Snapshot, euler_xyz_deg_to_quaternion
 from .registers import COMMANDS, MAX_AXES
 
 DEG = math.pi / 180.0
@@ -21,31 +28,25 @@ RPM_TO_RAD_S = 2.0 * math.pi / 60.0
 MM = 1e-3
 
 
-def euler_xyz_deg_to_quaternion(u: float, v: float, w: float) -> tuple[float, float, float, float]:
-    """U, V, W (deg) as rotations about fixed X, Y, Z in that order: R = Rz(W) Ry(V) Rx(U).
-
-    The R6 manual names the world axes X Y Z U V W without a convention; this is the usual
-    roll-pitch-yaw reading (also REP 103's), written down in the README.
-    """
-    hr, hp, hy = u * DEG / 2.0, v * DEG / 2.0, w * DEG / 2.0
-    cr, sr, cp, sp, cy, sy = math.cos(hr), math.sin(hr), math.cos(hp), math.sin(hp), math.cos(hy), math.sin(hy)
-    return (
-        sr * cp * cy - cr * sp * sy,  # x
-        cr * sp * cy + sr * cp * sy,  # y
-        cr * cp * sy - sr * sp * cy,  # z
-        cr * cp * cy + sr * sp * sy,  # w
-    )
-
-
 class R6BridgeNode(BridgeNode):
     def __init__(self, **kwargs: Any) -> None:
-        super().__init__("r6_bridge", transport="tcp", device_name="Huacheng R6",
-                         default_poll_rate_hz=50.0, **kwargs)
-        self.declare_parameter("gear_ratios", [1.0] * MAX_AXES,
-                               _descriptor("motor rpm per joint rpm, per axis", DOUBLE_ARRAY))
-        self.declare_parameter("rated_torques", [1.0] * MAX_AXES,
-                               _descriptor("rated torque (N m) per axis; effort = fraction x this",
-                                           DOUBLE_ARRAY))
+        super().__init__(
+            "r6_bridge",
+            transport="tcp",
+            device_name="Huacheng R6",
+            default_poll_rate_hz=50.0,
+            **kwargs,
+        )
+        self.declare_parameter(
+            "gear_ratios",
+            [1.0] * MAX_AXES,
+            _descriptor("motor rpm per joint rpm, per axis", DOUBLE_ARRAY),
+        )
+        self.declare_parameter(
+            "rated_torques",
+            [1.0] * MAX_AXES,
+            _descriptor("rated torque (N m) per axis; effort = fraction x this", DOUBLE_ARRAY),
+        )
         self.gear_ratios = float_list(self.param("gear_ratios"), MAX_AXES, 1.0, "gear_ratios")
         self.rated_torques = float_list(self.param("rated_torques"), MAX_AXES, 1.0, "rated_torques")
         self.device = R6Device(self.channel)
@@ -58,12 +59,20 @@ class R6BridgeNode(BridgeNode):
         for name in COMMANDS:
             self.trigger_service(f"~/{name}", name, lambda n=name: self.device.command(n))  # type: ignore[misc]
         group = self.command_group
-        self.create_service(SetValue, "~/set_global_speed", self._set_global_speed, callback_group=group)
+        self.create_service(
+            SetValue, "~/set_global_speed", self._set_global_speed, callback_group=group
+        )
         self.create_service(SetOutput, "~/set_output", self._set_output, callback_group=group)
         self.create_service(SetCounter, "~/set_counter", self._set_counter, callback_group=group)
-        self.create_service(ReadParameter, "~/read_parameter", self._read_parameter, callback_group=group)
-        self.create_service(WriteParameter, "~/write_parameter", self._write_parameter, callback_group=group)
-        self.create_service(UploadPoints, "~/upload_points", self._upload_points, callback_group=group)
+        self.create_service(
+            ReadParameter, "~/read_parameter", self._read_parameter, callback_group=group
+        )
+        self.create_service(
+            WriteParameter, "~/write_parameter", self._write_parameter, callback_group=group
+        )
+        self.create_service(
+            UploadPoints, "~/upload_points", self._upload_points, callback_group=group
+        )
 
     # ------------------------------------------------------------ polling
     def on_link_up(self) -> None:
@@ -83,7 +92,10 @@ class R6BridgeNode(BridgeNode):
                 snapshot.read_time,
                 names,
                 [deg * DEG for deg in snapshot.axis_positions_deg],
-                [rpm * RPM_TO_RAD_S / self.gear_ratios[a] for a, rpm in enumerate(snapshot.axis_speeds_rpm)],
+                [
+                    rpm * RPM_TO_RAD_S / self.gear_ratios[a]
+                    for a, rpm in enumerate(snapshot.axis_speeds_rpm)
+                ],
                 [t * self.rated_torques[a] for a, t in enumerate(snapshot.axis_torques_rated)],
             )
         )
@@ -114,7 +126,12 @@ class R6BridgeNode(BridgeNode):
         pose.pose.position.y = world["y"] * MM
         pose.pose.position.z = world["z"] * MM
         q = euler_xyz_deg_to_quaternion(world["u"], world["v"], world["w"])
-        pose.pose.orientation.x, pose.pose.orientation.y, pose.pose.orientation.z, pose.pose.orientation.w = q
+        (
+            pose.pose.orientation.x,
+            pose.pose.orientation.y,
+            pose.pose.orientation.z,
+            pose.pose.orientation.w,
+        ) = q
         self.pose_pub.publish(pose)
 
     def device_report(self) -> Report | None:
@@ -130,20 +147,26 @@ class R6BridgeNode(BridgeNode):
         ]
         if snapshot.alarm_code:
             # The R6 Modbus manual lists no alarm texts; the code is shown as read.
-            return Report(Level.WARN, f"controller alarm {snapshot.alarm_code} "
-                          f"(0x{snapshot.alarm_code:04X}; the R6 Modbus manual gives no text)", values)
+            return Report(
+                Level.WARN,
+                f"controller alarm {snapshot.alarm_code} "
+                f"(0x{snapshot.alarm_code:04X}; the R6 Modbus manual gives no text)",
+                values,
+            )
         return Report(Level.OK, "connected", values)
 
     # ------------------------------------------------------------ services
     def _set_global_speed(self, request: Any, response: Any) -> Any:
         response.success, response.message, _ = self.run_command(
-            f"set_global_speed {request.value} %", lambda: self.device.set_global_speed(request.value)
+            f"set_global_speed {request.value} %",
+            lambda: self.device.set_global_speed(request.value),
         )
         return response
 
     def _set_output(self, request: Any, response: Any) -> Any:
         response.success, response.message, _ = self.run_command(
-            f"set_output board {request.board} point {request.index} {'on' if request.on else 'off'}",
+            f"set_output board {request.board} point {request.index} "
+            f"{'on' if request.on else 'off'}",
             lambda: self.device.set_output(request.board, request.index, request.on),
         )
         return response
@@ -157,7 +180,8 @@ class R6BridgeNode(BridgeNode):
 
     def _read_parameter(self, request: Any, response: Any) -> Any:
         response.success, response.message, value = self.run_command(
-            f"read_parameter {request.index}", lambda: self.device.read_parameter(request.index),
+            f"read_parameter {request.index}",
+            lambda: self.device.read_parameter(request.index),
             writes=False,
         )
         response.value = int(value or 0)
@@ -174,7 +198,9 @@ class R6BridgeNode(BridgeNode):
         response.success, response.message, frames = self.run_command(
             f"upload_points to source {request.data_source_id}",
             lambda: self.device.upload_points(
-                request.data_source_id, request.values_per_point, request.axis_mask,
+                request.data_source_id,
+                request.values_per_point,
+                request.axis_mask,
                 [int(v) for v in request.values],
             ),
         )

@@ -90,107 +90,304 @@ def parameter_offered(index: int) -> bool:
 
 def _build() -> tuple[Register, ...]:
     regs: list[Register] = [
-        Register("version_length", 0, ValueType.U16, "§3.1.1, §4 row 0", unit="bytes",
-                 description="length of the version string in bytes"),
-        Register("version", 1, ValueType.STRING, "§3.1.2, §4 rows 1-64", length=64,
-                 description="read (length + 1) / 2 registers from 1"),
+        Register(
+            "version_length",
+            0,
+            ValueType.U16,
+            "§3.1.1, §4 row 0",
+            unit="bytes",
+            description="length of the version string in bytes",
+        ),
+        Register(
+            "version",
+            1,
+            ValueType.STRING,
+            "§3.1.2, §4 rows 1-64",
+            length=64,
+            description="read (length + 1) / 2 registers from 1",
+        ),
         Register("counter_count", 130, ValueType.U16, "§3.1.3, §4 row 130"),
-        *register_array("counter_id", 131, MAX_COUNTERS, ValueType.U32, "§3.1.3, §4 rows 131-2178",
-                        first_index=0),
-        Register("counter_select_id", 2179, ValueType.U32, "§3.1.4, §4 rows 2179-2180",
-                 access=Access.READ_WRITE, description="write an id, then read 2179-2184"),
+        *register_array(
+            "counter_id",
+            131,
+            MAX_COUNTERS,
+            ValueType.U32,
+            "§3.1.3, §4 rows 131-2178",
+            first_index=0,
+        ),
+        Register(
+            "counter_select_id",
+            2179,
+            ValueType.U32,
+            "§3.1.4, §4 rows 2179-2180",
+            access=Access.READ_WRITE,
+            description="write an id, then read 2179-2184",
+        ),
         Register("counter_target", 2181, ValueType.U32, "§3.1.4, §4 rows 2181-2182"),
         Register("counter_current", 2183, ValueType.U32, "§3.1.4, §4 rows 2183-2184"),
         Register("mode", 2185, ValueType.U16, "§3.1.5, §4 row 2185"),
-        Register("io_board_count", 2186, ValueType.U16, "§3.1.6, §4 row 2186",
-                 minimum=0, maximum=MAX_IO_BOARDS),
-        *register_array("io_board_input", 2187, MAX_IO_BOARDS, ValueType.U32,
-                        "§3.1.6, §4 rows 2187-2196", first_index=0),
-        *register_array("m_board_input", 2197, M_BOARDS, ValueType.U32, f"{T} rows 2197-2202",
-                        first_index=0),
+        Register(
+            "io_board_count",
+            2186,
+            ValueType.U16,
+            "§3.1.6, §4 row 2186",
+            minimum=0,
+            maximum=MAX_IO_BOARDS,
+        ),
+        *register_array(
+            "io_board_input",
+            2187,
+            MAX_IO_BOARDS,
+            ValueType.U32,
+            "§3.1.6, §4 rows 2187-2196",
+            first_index=0,
+        ),
+        *register_array(
+            "m_board_input", 2197, M_BOARDS, ValueType.U32, f"{T} rows 2197-2202", first_index=0
+        ),
         Register("eu_board_input", 2203, ValueType.U32, f"{T} rows 2203-2204"),
-        *register_array("io_board_output", 2227, MAX_IO_BOARDS, ValueType.U32,
-                        "§3.1.6, §3.3.1, §4 rows 2227-2236", first_index=0,
-                        access=Access.READ_WRITE),
-        *register_array("m_board_output", 2237, M_BOARDS, ValueType.U32, f"{T} rows 2237-2242",
-                        first_index=0, access=Access.READ_WRITE),
-        Register("eu_board_output", 2243, ValueType.U32, f"{T} rows 2243-2244",
-                 access=Access.READ_WRITE),
-        Register("axis_count", 2267, ValueType.U16, "§3.1.7, §4 row 2267",
-                 minimum=0, maximum=MAX_AXES),
-        *register_array("axis_position", 2268, MAX_AXES, ValueType.I32, "§3.1.8, §4 rows 2268-2283",
-                        scale=POSITION_SCALE, unit="deg"),
+        *register_array(
+            "io_board_output",
+            2227,
+            MAX_IO_BOARDS,
+            ValueType.U32,
+            "§3.1.6, §3.3.1, §4 rows 2227-2236",
+            first_index=0,
+            access=Access.READ_WRITE,
+        ),
+        *register_array(
+            "m_board_output",
+            2237,
+            M_BOARDS,
+            ValueType.U32,
+            f"{T} rows 2237-2242",
+            first_index=0,
+            access=Access.READ_WRITE,
+        ),
+        Register(
+            "eu_board_output", 2243, ValueType.U32, f"{T} rows 2243-2244", access=Access.READ_WRITE
+        ),
+        Register(
+            "axis_count", 2267, ValueType.U16, "§3.1.7, §4 row 2267", minimum=0, maximum=MAX_AXES
+        ),
+        *register_array(
+            "axis_position",
+            2268,
+            MAX_AXES,
+            ValueType.I32,
+            "§3.1.8, §4 rows 2268-2283",
+            scale=POSITION_SCALE,
+            unit="deg",
+        ),
     ]
     for i, (axis, unit) in enumerate(
-        [("x", "mm"), ("y", "mm"), ("z", "mm"), ("u", "deg"), ("v", "deg"), ("w", "deg"),
-         ("m7", ""), ("m8", "")]
+        [
+            ("x", "mm"),
+            ("y", "mm"),
+            ("z", "mm"),
+            ("u", "deg"),
+            ("v", "deg"),
+            ("w", "deg"),
+            ("m7", ""),
+            ("m8", ""),
+        ]
     ):
-        regs.append(Register(f"world_{axis}", 2332 + 2 * i, ValueType.I32,
-                             "§3.1.9, §4 rows 2332-2347", scale=POSITION_SCALE, unit=unit))
+        regs.append(
+            Register(
+                f"world_{axis}",
+                2332 + 2 * i,
+                ValueType.I32,
+                "§3.1.9, §4 rows 2332-2347",
+                scale=POSITION_SCALE,
+                unit=unit,
+            )
+        )
     regs += [
         Register("alarm_code", 2396, ValueType.U16, "§3.1.10, §4 row 2396"),
-        Register("current_cycle_time", 2397, ValueType.U64, "§3.1.11, §4 rows 2397-2400", unit="ms"),
+        Register(
+            "current_cycle_time", 2397, ValueType.U64, "§3.1.11, §4 rows 2397-2400", unit="ms"
+        ),
         Register("last_cycle_time", 2401, ValueType.U64, "§3.1.11, §4 rows 2401-2404", unit="ms"),
         Register("machine_id", 2405, ValueType.U16, "§3.1.12, §4 row 2405"),
-        *register_array("axis_torque", 2406, MAX_AXES, ValueType.I16, "§3.1.13, §4 rows 2406-2413",
-                        scale=TORQUE_RATED_RAW, unit="rated"),
-        *register_array("axis_speed", 2438, MAX_AXES, ValueType.I16, "§3.1.14, §4 rows 2438-2445",
-                        unit="rpm"),
+        *register_array(
+            "axis_torque",
+            2406,
+            MAX_AXES,
+            ValueType.I16,
+            "§3.1.13, §4 rows 2406-2413",
+            scale=TORQUE_RATED_RAW,
+            unit="rated",
+        ),
+        *register_array(
+            "axis_speed", 2438, MAX_AXES, ValueType.I16, "§3.1.14, §4 rows 2438-2445", unit="rpm"
+        ),
         Register("moving", 2470, ValueType.U16, "§3.1.15, §4 row 2470"),
         Register("homed", 2471, ValueType.U16, "§4 row 2471"),
     ]
     regs += [
-        Register(f"command_{name}", address, ValueType.U16, "§3.2.1, §4 rows 20000-20006",
-                 access=Access.WRITE)
+        Register(
+            f"command_{name}",
+            address,
+            ValueType.U16,
+            "§3.2.1, §4 rows 20000-20006",
+            access=Access.WRITE,
+        )
         for name, address in COMMANDS.items()
     ]
     regs += [
-        Register("counter_modify_id", 20050, ValueType.U32, "§3.3.2, §4 rows 20050-20051",
-                 access=Access.WRITE),
-        Register("counter_modify_target", 20052, ValueType.U32, "§3.3.2, §4 rows 20052-20053",
-                 access=Access.WRITE, description="ignored by the host"),
-        Register("counter_modify_current", 20054, ValueType.U32, "§3.3.2, §4 rows 20054-20055",
-                 access=Access.WRITE),
-        Register("output_board", 20056, ValueType.U16, "§3.3.3, §4 row 20056", access=Access.WRITE,
-                 minimum=OUTPUT_BOARDS_ACCEPTED.start, maximum=OUTPUT_BOARDS_ACCEPTED.stop - 1),
-        Register("output_point", 20057, ValueType.U16, "§3.3.3, §4 row 20057", access=Access.WRITE,
-                 minimum=OUTPUT_POINTS.start, maximum=OUTPUT_POINTS.stop - 1),
-        Register("output_state", 20058, ValueType.U16, "§3.3.3, §4 row 20058", access=Access.WRITE,
-                 minimum=0, maximum=1),
-        Register("global_speed", 20200, ValueType.U16, "§3.2.2, §4 row 20200",
-                 access=Access.READ_WRITE, scale=GLOBAL_SPEED_SCALE, unit="%",
-                 minimum=0.0, maximum=100.0),
+        Register(
+            "counter_modify_id",
+            20050,
+            ValueType.U32,
+            "§3.3.2, §4 rows 20050-20051",
+            access=Access.WRITE,
+        ),
+        Register(
+            "counter_modify_target",
+            20052,
+            ValueType.U32,
+            "§3.3.2, §4 rows 20052-20053",
+            access=Access.WRITE,
+            description="ignored by the host",
+        ),
+        Register(
+            "counter_modify_current",
+            20054,
+            ValueType.U32,
+            "§3.3.2, §4 rows 20054-20055",
+            access=Access.WRITE,
+        ),
+        Register(
+            "output_board",
+            20056,
+            ValueType.U16,
+            "§3.3.3, §4 row 20056",
+            access=Access.WRITE,
+            minimum=OUTPUT_BOARDS_ACCEPTED.start,
+            maximum=OUTPUT_BOARDS_ACCEPTED.stop - 1,
+        ),
+        Register(
+            "output_point",
+            20057,
+            ValueType.U16,
+            "§3.3.3, §4 row 20057",
+            access=Access.WRITE,
+            minimum=OUTPUT_POINTS.start,
+            maximum=OUTPUT_POINTS.stop - 1,
+        ),
+        Register(
+            "output_state",
+            20058,
+            ValueType.U16,
+            "§3.3.3, §4 row 20058",
+            access=Access.WRITE,
+            minimum=0,
+            maximum=1,
+        ),
+        Register(
+            "global_speed",
+            20200,
+            ValueType.U16,
+            "§3.2.2, §4 row 20200",
+            access=Access.READ_WRITE,
+            scale=GLOBAL_SPEED_SCALE,
+            unit="%",
+            minimum=0.0,
+            maximum=100.0,
+        ),
         *(
             r
-            for r in register_array("parameter", PARAMETER_BASE, PARAMETER_COUNT, ValueType.I32,
-                                    "§3.3.4, §4 rows 20300-22299", first_index=0,
-                                    access=Access.READ_WRITE)
+            for r in register_array(
+                "parameter",
+                PARAMETER_BASE,
+                PARAMETER_COUNT,
+                ValueType.I32,
+                "§3.3.4, §4 rows 20300-22299",
+                first_index=0,
+                access=Access.READ_WRITE,
+            )
             if not _overlaps_not_offered(r.address)
         ),
-        Register("data_source_view_id", 30000, ValueType.U16, "§4 row 30000",
-                 access=Access.READ_WRITE),
+        Register(
+            "data_source_view_id", 30000, ValueType.U16, "§4 row 30000", access=Access.READ_WRITE
+        ),
         Register("data_source_buffer_length", 30001, ValueType.U16, "§4 row 30001"),
-        Register("point_source_id", 30002, ValueType.U16, "§3.3.5, §4 row 30002",
-                 access=Access.READ_WRITE),
-        Register("point_values_per_point", 30003, ValueType.U16, "§3.3.5, §4 row 30003",
-                 access=Access.READ_WRITE),
-        Register("point_axis_mask", 30004, ValueType.U16, "§3.3.5, §4 row 30004",
-                 access=Access.READ_WRITE, minimum=0, maximum=POINT_AXIS_MASK_MAX),
-        Register("point_count", 30005, ValueType.U16, "§3.3.5, §4 row 30005",
-                 access=Access.READ_WRITE),
-        Register("point_clear", 30006, ValueType.U16, "§3.3.5, §4 row 30006",
-                 access=Access.READ_WRITE, minimum=0, maximum=1),
-        *register_array("point_data", POINT_DATA_FIRST, (POINT_DATA_LAST - POINT_DATA_FIRST) // 2,
-                        ValueType.I32, "§3.3.5, §4 rows 30007-40000", first_index=0,
-                        access=Access.WRITE),
+        Register(
+            "point_source_id",
+            30002,
+            ValueType.U16,
+            "§3.3.5, §4 row 30002",
+            access=Access.READ_WRITE,
+        ),
+        Register(
+            "point_values_per_point",
+            30003,
+            ValueType.U16,
+            "§3.3.5, §4 row 30003",
+            access=Access.READ_WRITE,
+        ),
+        Register(
+            "point_axis_mask",
+            30004,
+            ValueType.U16,
+            "§3.3.5, §4 row 30004",
+            access=Access.READ_WRITE,
+            minimum=0,
+            maximum=POINT_AXIS_MASK_MAX,
+        ),
+        Register(
+            "point_count", 30005, ValueType.U16, "§3.3.5, §4 row 30005", access=Access.READ_WRITE
+        ),
+        Register(
+            "point_clear",
+            30006,
+            ValueType.U16,
+            "§3.3.5, §4 row 30006",
+            access=Access.READ_WRITE,
+            minimum=0,
+            maximum=1,
+        ),
+        *register_array(
+            "point_data",
+            POINT_DATA_FIRST,
+            (POINT_DATA_LAST - POINT_DATA_FIRST) // 2,
+            ValueType.I32,
+            "§3.3.5, §4 rows 30007-40000",
+            first_index=0,
+            access=Access.WRITE,
+        ),
     ]
     # §5: coils, 0xFF00 = on, 0x0000 = off.
-    regs += register_array("y_output", 0, 160, ValueType.BOOL, "§5 rows 0-159 (Y010-Y247)",
-                           first_index=0, table=Table.COIL, access=Access.READ_WRITE)
-    regs += register_array("m_output", 160, 96, ValueType.BOOL, "§5 rows 160-255 (M010-M147)",
-                           first_index=0, table=Table.COIL, access=Access.READ_WRITE)
-    regs += register_array("eu_output", 256, 32, ValueType.BOOL, "§5 rows 256-287 (EUY010-EUY047)",
-                           first_index=0, table=Table.COIL, access=Access.READ_WRITE)
+    regs += register_array(
+        "y_output",
+        0,
+        160,
+        ValueType.BOOL,
+        "§5 rows 0-159 (Y010-Y247)",
+        first_index=0,
+        table=Table.COIL,
+        access=Access.READ_WRITE,
+    )
+    regs += register_array(
+        "m_output",
+        160,
+        96,
+        ValueType.BOOL,
+        "§5 rows 160-255 (M010-M147)",
+        first_index=0,
+        table=Table.COIL,
+        access=Access.READ_WRITE,
+    )
+    regs += register_array(
+        "eu_output",
+        256,
+        32,
+        ValueType.BOOL,
+        "§5 rows 256-287 (EUY010-EUY047)",
+        first_index=0,
+        table=Table.COIL,
+        access=Access.READ_WRITE,
+    )
     return tuple(regs)
 
 

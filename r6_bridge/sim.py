@@ -98,12 +98,19 @@ class R6SimDevice(SimulatedDevice):
             if record.address == R6_MAP["global_speed"].address and record.values[0] > 1000:
                 return ILLEGAL_VALUE
             if record.address == R6_MAP["output_board"].address:
-                board, point, state = (list(record.values) + [0, 0, 0])[:3]
-                if len(record.values) != 3 or board > OUTPUT_BOARD_TABLE_MAX or point > 31 or state > 1:
+                board, point, state = ([*list(record.values), 0, 0, 0])[:3]
+                if (
+                    len(record.values) != 3
+                    or board > OUTPUT_BOARD_TABLE_MAX
+                    or point > 31
+                    or state > 1
+                ):
                     return ILLEGAL_VALUE
-            if record.address == R6_MAP["counter_select_id"].address:
-                if words_to_int(record.values[:2], False, HIGH) not in self.counters:
-                    return ILLEGAL_VALUE
+            if (
+                record.address == R6_MAP["counter_select_id"].address
+                and words_to_int(record.values[:2], False, HIGH) not in self.counters
+            ):
+                return ILLEGAL_VALUE
         return None
 
     def _on_write(self, record: WriteRecord) -> None:
@@ -154,8 +161,12 @@ class R6SimDevice(SimulatedDevice):
             self.set(f"counter_id_{k}", counter_id)
         selected = int(self.get("counter_select_id"))
         target, current = self.counters.get(selected, [0, 0])
-        self.set_words(Table.HOLDING, R6_MAP["counter_target"].address, int_to_words(target, 2, False, HIGH))
-        self.set_words(Table.HOLDING, R6_MAP["counter_current"].address, int_to_words(current, 2, False, HIGH))
+        self.set_words(
+            Table.HOLDING, R6_MAP["counter_target"].address, int_to_words(target, 2, False, HIGH)
+        )
+        self.set_words(
+            Table.HOLDING, R6_MAP["counter_current"].address, int_to_words(current, 2, False, HIGH)
+        )
 
     def tick(self, dt: float) -> None:
         with self.lock:
@@ -165,7 +176,11 @@ class R6SimDevice(SimulatedDevice):
             self.set("moving", 1 if moving else 0)
             for a in range(1, MAX_AXES + 1):
                 axis_speed = AXIS_SPEED_DEG_S * (1.0 - 0.1 * (a - 1))  # distinct per axis
-                deg_s = axis_speed * speed_fraction * self.axis_directions[a - 1] if moving and a <= axes else 0.0
+                deg_s = (
+                    axis_speed * speed_fraction * self.axis_directions[a - 1]
+                    if moving and a <= axes
+                    else 0.0
+                )
                 if deg_s:
                     position = float(self.get(f"axis_position_{a}")) + deg_s * dt
                     if abs(position) > 170.0:  # turn around before the joint limit

@@ -58,8 +58,15 @@ def test_low_word_first_differs_from_high_word_first() -> None:
 
 @pytest.mark.parametrize(
     ("kind", "value"),
-    [(ValueType.U16, -1), (ValueType.U16, 65536), (ValueType.I16, 32768), (ValueType.U32, 2**32),
-     (ValueType.I32, -(2**31) - 1), (ValueType.U64, -1), (ValueType.I64, 2**63)],
+    [
+        (ValueType.U16, -1),
+        (ValueType.U16, 65536),
+        (ValueType.I16, 32768),
+        (ValueType.U32, 2**32),
+        (ValueType.I32, -(2**31) - 1),
+        (ValueType.U64, -1),
+        (ValueType.I64, 2**63),
+    ],
 )
 def test_out_of_range_integers_are_refused(kind: ValueType, value: int) -> None:
     with pytest.raises(CodecError):
@@ -70,8 +77,9 @@ def test_scaled_values_both_directions() -> None:
     position = Register("p", 0, ValueType.I32, "test", scale=1000, access=Access.READ_WRITE)
     assert encode(position, -1.5) == [0xFFFF, 0xFA24]  # -1500
     assert decode(position, [0xFFFF, 0xFA24]) == pytest.approx(-1.5)
-    speed = Register("s", 0, ValueType.U16, "test", scale=10, minimum=0, maximum=100,
-                     access=Access.READ_WRITE)
+    speed = Register(
+        "s", 0, ValueType.U16, "test", scale=10, minimum=0, maximum=100, access=Access.READ_WRITE
+    )
     assert encode(speed, 10.0) == [100]
     assert encode(speed, 33.33) == [333]  # quantised to the 0.1 step
     assert decode(speed, [1000]) == pytest.approx(100.0)
@@ -100,7 +108,8 @@ def test_decode_checks_word_count() -> None:
 
 @pytest.mark.parametrize("value", [float("nan"), float("inf"), float("-inf")])
 def test_non_finite_values_are_refused(value: float) -> None:
-    reg = Register("s", 0, ValueType.U16, "test", scale=10, minimum=0, maximum=100,
-                   access=Access.READ_WRITE)
+    reg = Register(
+        "s", 0, ValueType.U16, "test", scale=10, minimum=0, maximum=100, access=Access.READ_WRITE
+    )
     with pytest.raises(CodecError, match="outside"):
         encode(reg, value)

@@ -24,7 +24,11 @@ def test_demo_shows_moving_r6(tmp_path: Path) -> None:
     env = dict(os.environ)
     result = subprocess.run(
         [sys.executable, "-m", "bridge_core.demo", "--duration", "4"],
-        cwd=ROOT, capture_output=True, text=True, timeout=120, env=env,
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env=env,
     )
     assert result.returncode == 0, result.stdout + result.stderr
     out = result.stdout
@@ -42,14 +46,17 @@ def test_example_yaml_configures_the_node(tmp_path: Path) -> None:
     simulator = make_simulator()
     port = simulator.start_tcp()
     config = (ROOT / "config" / "r6.yaml").read_text()
-    config = config.replace("port: 502", f"port: {port}").replace('joint_prefix: ""', 'joint_prefix: "left_"')
+    config = config.replace("port: 502", f"port: {port}").replace(
+        'joint_prefix: ""', 'joint_prefix: "left_"'
+    )
     params = tmp_path / "r6.yaml"
     params.write_text(config)
     try:
         with ros_client() as client:
             client.subscribe(JointState, "/yaml/joint_states")
-            with node_process("r6_bridge.node", {}, tmp_path,
-                              ["--params-file", str(params), "-r", "__ns:=/yaml"]):
+            with node_process(
+                "r6_bridge.node", {}, tmp_path, ["--params-file", str(params), "-r", "__ns:=/yaml"]
+            ):
                 msg = client.wait_message("/yaml/joint_states")
                 assert msg.name[0] == "left_joint_1"
                 assert all(math.isfinite(p) for p in msg.position)

@@ -18,7 +18,14 @@ from bridge_core.link import (
     SerialSettings,
     TcpSettings,
 )
-from bridge_core.registers import Access, DeviceLimits, Register, RegisterMap, ValueType, register_array
+from bridge_core.registers import (
+    Access,
+    DeviceLimits,
+    Register,
+    RegisterMap,
+    ValueType,
+    register_array,
+)
 from bridge_core.sim_base import SimulatedDevice, Simulator
 
 from .support.serial_pair import socat_pair
@@ -26,7 +33,9 @@ from .support.serial_pair import socat_pair
 TEST_MAP = RegisterMap(
     "test",
     (
-        *register_array("word", 0, 10, ValueType.U16, "test", access=Access.READ_WRITE, first_index=0),
+        *register_array(
+            "word", 0, 10, ValueType.U16, "test", access=Access.READ_WRITE, first_index=0
+        ),
         Register("big", 10, ValueType.I32, "test", access=Access.READ_WRITE),
     ),
     DeviceLimits(max_read_registers=12),
@@ -59,12 +68,17 @@ def test_priority_lock_serves_commands_first_then_fifo() -> None:
     threads = [threading.Thread(target=holder)]
     threads[0].start()
     holder_in.wait(5)
-    for name, priority in [("poll-1", Priority.POLL), ("poll-2", Priority.POLL),
-                           ("command-1", Priority.COMMAND), ("command-2", Priority.COMMAND)]:
+    for name, priority in [
+        ("poll-1", Priority.POLL),
+        ("poll-2", Priority.POLL),
+        ("command-1", Priority.COMMAND),
+        ("command-2", Priority.COMMAND),
+    ]:
         t = threading.Thread(target=waiter, args=(name, priority))
         t.start()
         threads.append(t)
-        wait_until(lambda n=len(threads) - 1: len(lock._waiting) == n)
+        waiting = len(threads) - 1
+        wait_until(lambda n=waiting: len(lock._waiting) == n)
     release.set()
     for t in threads:
         t.join(5)
@@ -96,8 +110,9 @@ def tcp_sim() -> Iterator[tuple[Simulator, int]]:
 
 def test_tcp_withheld_replies_time_out_and_recover(tcp_sim: tuple[Simulator, int]) -> None:
     sim, port = tcp_sim
-    channel = DeviceChannel(ModbusLink(TcpSettings(port=port, timeout_s=0.2)), 1, retries=1,
-                            reconnect_max_s=0.5)
+    channel = DeviceChannel(
+        ModbusLink(TcpSettings(port=port, timeout_s=0.2)), 1, retries=1, reconnect_max_s=0.5
+    )
     sim.device.set("big", -5)
     assert channel.read_registers(10, 2) == [0xFFFF, 0xFFFB]
     sim.withhold_replies = True
@@ -131,8 +146,9 @@ def test_exception_reply_keeps_the_link_up(tcp_sim: tuple[Simulator, int]) -> No
 
 def test_server_gone_and_back(tcp_sim: tuple[Simulator, int]) -> None:
     sim, port = tcp_sim
-    channel = DeviceChannel(ModbusLink(TcpSettings(port=port, timeout_s=0.3)), 1, retries=0,
-                            reconnect_max_s=0.4)
+    channel = DeviceChannel(
+        ModbusLink(TcpSettings(port=port, timeout_s=0.3)), 1, retries=0, reconnect_max_s=0.4
+    )
     channel.read_registers(0, 2)
     sim.stop()
     with pytest.raises((LinkDown, LinkTimeout)):
@@ -159,7 +175,9 @@ def test_rtu_several_units_on_one_pty_bus() -> None:
         sim.start_serial(device_end, baudrate=115200)
         try:
             link = ModbusLink(SerialSettings(bridge_end, 115200, timeout_s=0.3))
-            channels = {u: DeviceChannel(link, u, retries=0, reconnect_max_s=5.0) for u in (1, 2, 5, 7)}
+            channels = {
+                u: DeviceChannel(link, u, retries=0, reconnect_max_s=5.0) for u in (1, 2, 5, 7)
+            }
             for unit in (1, 2, 5):
                 assert channels[unit].read_registers(0, 2) == [0, unit * 100]
             channels[2].write_registers(10, [0x1234, 0x5678])

@@ -80,9 +80,13 @@ def test_write_only_register_cannot_be_planned() -> None:
 
 def test_map_validation() -> None:
     with pytest.raises(ValueError, match="overlaps"):
-        RegisterMap("x", (Register("a", 0, ValueType.U32, "t"), Register("b", 1, ValueType.U16, "t")))
+        RegisterMap(
+            "x", (Register("a", 0, ValueType.U32, "t"), Register("b", 1, ValueType.U16, "t"))
+        )
     with pytest.raises(ValueError, match="duplicate"):
-        RegisterMap("x", (Register("a", 0, ValueType.U16, "t"), Register("a", 1, ValueType.U16, "t")))
+        RegisterMap(
+            "x", (Register("a", 0, ValueType.U16, "t"), Register("a", 1, ValueType.U16, "t"))
+        )
     with pytest.raises(ValueError, match="cite"):
         Register("a", 0, ValueType.U16, "")
     with pytest.raises(ValueError, match="read-only"):

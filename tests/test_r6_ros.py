@@ -20,14 +20,21 @@ from typing import Any
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
-from msg_defs.msg import R6State
-from msg_defs.srv import ReadParameter, SetCounter, SetOutput, SetValue, UploadPoints, WriteParameter
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 
 from bridge_core.registers import Table
 from bridge_core.sim_base import read_write_log
+from msg_defs.msg import R6State
+from msg_defs.srv import (
+    ReadParameter,
+    SetCounter,
+    SetOutput,
+    SetValue,
+    UploadPoints,
+    WriteParameter,
+)
 from r6_bridge.registers import COMMANDS
 from r6_bridge.sim import R6SimDevice, make_simulator
 
@@ -85,7 +92,8 @@ class Bridge:
             status
             for array in self.client.received("/diagnostics", since)
             for status in array.status
-            if status.name.startswith(f"{self.ns.strip('/')}") or status.name.startswith("r6_bridge")
+            if status.name.startswith(f"{self.ns.strip('/')}")
+            or status.name.startswith("r6_bridge")
         ]
 
     def wait_diagnostic(self, level: int, since: float, port: int, timeout: float = 15.0) -> Any:
@@ -94,6 +102,7 @@ class Bridge:
                 if f":{port} " in status.hardware_id and status.level == bytes([level]):
                     return status
             return None
+
         return wait_for(find, timeout, f"diagnostics level {level} for port {port}")
 
     def wait_connected(self, value: bool, since: float = 0.0, timeout: float = 15.0) -> None:
@@ -108,9 +117,12 @@ def bridge_factory(client: Client, tmp_path: Path):  # type: ignore[no-untyped-d
         defaults = {"port": port, "poll_rate_hz": 50.0, "timeout_s": 0.3, "reconnect_max_s": 1.0}
         defaults.update(params)
         bridge = Bridge(client, namespace)
-        with node_process("r6_bridge.node", defaults, tmp_path, ["-r", f"__ns:={namespace}"]) as proc:
+        with node_process(
+            "r6_bridge.node", defaults, tmp_path, ["-r", f"__ns:={namespace}"]
+        ) as proc:
             yield bridge, proc
             assert proc.poll() is None, "the bridge process died"
+
     return start
 
 
@@ -132,10 +144,14 @@ def test_topics_carry_si_values(sim, bridge_factory, client: Client) -> None:  #
     device.set("world_z", 300.0)
     device.set("world_w", 90.0)
     started = time.monotonic()
-    with bridge_factory(port, gear_ratios=[2.0] * 8, rated_torques=[10.0] * 8, frame_id="r6_base") as (bridge, _):
+    with bridge_factory(
+        port, gear_ratios=[2.0] * 8, rated_torques=[10.0] * 8, frame_id="r6_base"
+    ) as (bridge, _):
         js = client.wait_message(bridge.joint_states)
         assert js.name == [f"joint_{i}" for i in range(1, 7)]
-        assert js.position[0] == pytest.approx(math.pi / 2) and js.position[1] == pytest.approx(-math.pi / 4)
+        assert js.position[0] == pytest.approx(math.pi / 2) and js.position[1] == pytest.approx(
+            -math.pi / 4
+        )
         assert js.velocity[0] == pytest.approx(60 * 2 * math.pi / 60 / 2.0)
         assert js.effort[0] == pytest.approx(0.5 * 10.0, abs=0.01)
         stamp = js.header.stamp.sec + js.header.stamp.nanosec * 1e-9
@@ -148,7 +164,9 @@ def test_topics_carry_si_values(sim, bridge_factory, client: Client) -> None:  #
         assert state.homed and not state.moving and state.machine_id == 1
         pose = client.wait_message(bridge.pose)
         assert pose.header.frame_id == "r6_base"
-        assert (pose.pose.position.x, pose.pose.position.y, pose.pose.position.z) == pytest.approx((1.0, -0.2505, 0.3))
+        assert (pose.pose.position.x, pose.pose.position.y, pose.pose.position.z) == pytest.approx(
+            (1.0, -0.2505, 0.3)
+        )
         q = pose.pose.orientation
         assert (q.x, q.y, q.z, q.w) == pytest.approx((0.0, 0.0, math.sqrt(0.5), math.sqrt(0.5)))
         bridge.wait_connected(True)
@@ -171,14 +189,22 @@ def test_every_service_writes_its_registers(sim, bridge_factory) -> None:  # typ
             reply = bridge.call(Trigger, name)
             assert reply.success, reply.message
             new = device.write_log[before:]
-            assert [(r.function_code, r.address, r.values) for r in new] == [(6, address, (1,))], name
+            assert [(r.function_code, r.address, r.values) for r in new] == [(6, address, (1,))], (
+                name
+            )
         device.write_log.clear()
         assert bridge.call(SetValue, "set_global_speed", value=25.5).success
         assert bridge.call(SetOutput, "set_output", board=2, index=5, on=True).success
         assert bridge.call(SetCounter, "set_counter", id=1, value=99).success
         assert bridge.call(WriteParameter, "write_parameter", index=3, value=-2).success
-        reply = bridge.call(UploadPoints, "upload_points", data_source_id=100, values_per_point=6,
-                            axis_mask=0x23, values=list(range(1, 13)))
+        reply = bridge.call(
+            UploadPoints,
+            "upload_points",
+            data_source_id=100,
+            values_per_point=6,
+            axis_mask=0x23,
+            values=list(range(1, 13)),
+        )
         assert reply.success and reply.frames_sent == 1
         assert [(r.function_code, r.address, r.values) for r in device.write_log] == [
             (6, 20200, (255,)),
@@ -186,7 +212,7 @@ def test_every_service_writes_its_registers(sim, bridge_factory) -> None:  # typ
             (16, 20050, (0, 1, 0, 0, 0, 99)),
             (16, 20306, (0xFFFF, 0xFFFE)),
             (16, 30002, (100, 6, 0x23)),
-            (16, 30005, (2, 1, *sum(([0, v] for v in range(1, 13)), []))),
+            (16, 30005, (2, 1, *(w for v in range(1, 13) for w in (0, v)))),
         ]
         reply = bridge.call(ReadParameter, "read_parameter", index=3)
         assert reply.success and reply.value == -2
@@ -202,10 +228,18 @@ REFUSALS = [
     (SetOutput, "set_output", {"board": 0, "index": 32, "on": True}, "point 32"),
     (WriteParameter, "write_parameter", {"index": 1000, "value": 1}, "index"),
     (WriteParameter, "write_parameter", {"index": 0, "value": 2**31}, "outside"),
-    (UploadPoints, "upload_points", {"data_source_id": 1, "values_per_point": 6, "axis_mask": 0x23,
-                                     "values": [1, 2, 3]}, "whole"),
-    (UploadPoints, "upload_points", {"data_source_id": 1, "values_per_point": 6, "axis_mask": 0x40,
-                                     "values": [1] * 6}, "axis mask"),
+    (
+        UploadPoints,
+        "upload_points",
+        {"data_source_id": 1, "values_per_point": 6, "axis_mask": 0x23, "values": [1, 2, 3]},
+        "whole",
+    ),
+    (
+        UploadPoints,
+        "upload_points",
+        {"data_source_id": 1, "values_per_point": 6, "axis_mask": 0x40, "values": [1] * 6},
+        "axis mask",
+    ),
 ]
 
 
@@ -232,8 +266,14 @@ def test_read_only_refuses_every_write(sim, bridge_factory) -> None:  # type: ig
             bridge.call(SetOutput, "set_output", board=0, index=1, on=True),
             bridge.call(SetCounter, "set_counter", id=1, value=1),
             bridge.call(WriteParameter, "write_parameter", index=0, value=1),
-            bridge.call(UploadPoints, "upload_points", data_source_id=1, values_per_point=4, axis_mask=1,
-                        values=[1, 2, 3, 4]),
+            bridge.call(
+                UploadPoints,
+                "upload_points",
+                data_source_id=1,
+                values_per_point=4,
+                axis_mask=1,
+                values=[1, 2, 3, 4],
+            ),
         ):
             assert not reply.success and "read_only" in reply.message
         assert bridge.call(ReadParameter, "read_parameter", index=0).success  # reads still work
@@ -268,9 +308,19 @@ def test_simulator_killed_and_restarted(bridge_factory, client: Client, tmp_path
 
     def start_sim() -> subprocess.Popen[bytes]:
         proc = subprocess.Popen(
-            [sys.executable, "-m", "r6_bridge.sim", "--port", str(port), "--running",
-             "--write-log", str(write_log)],
-            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+            [
+                sys.executable,
+                "-m",
+                "r6_bridge.sim",
+                "--port",
+                str(port),
+                "--running",
+                "--write-log",
+                str(write_log),
+            ],
+            cwd=ROOT,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
         )
         assert proc.stdout is not None
         line = proc.stdout.readline().decode()
@@ -317,8 +367,11 @@ def test_withheld_replies_and_exception_replies(sim, bridge_factory, client: Cli
         simulator.withhold_replies = True
         withheld = time.monotonic()
         status = bridge.wait_diagnostic(2, withheld, port)
-        wait_for(lambda: any(int(values_of(s)["timeouts"]) > 0 for s in bridge.diagnostics(withheld)), 10,
-                 "a timeout count")
+        wait_for(
+            lambda: any(int(values_of(s)["timeouts"]) > 0 for s in bridge.diagnostics(withheld)),
+            10,
+            "a timeout count",
+        )
         simulator.withhold_replies = False
         back = time.monotonic()
         client.wait_message(bridge.joint_states, since=back)

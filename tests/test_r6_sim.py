@@ -70,7 +70,9 @@ def test_poll_decodes_the_simulator_state(r6: tuple[R6Device, R6SimDevice, Devic
     assert device.read_version() == MANUAL_VERSION
 
 
-def test_commands_write_the_manual_registers(r6: tuple[R6Device, R6SimDevice, DeviceChannel]) -> None:
+def test_commands_write_the_manual_registers(
+    r6: tuple[R6Device, R6SimDevice, DeviceChannel],
+) -> None:
     device, sim, _ = r6
     device.command("start")
     device.set_global_speed(12.5)
@@ -108,7 +110,9 @@ def test_commands_write_the_manual_registers(r6: tuple[R6Device, R6SimDevice, De
         (lambda d: d.upload_points(1, 6, 1, [1] * 7), "whole"),
     ],
 )
-def test_out_of_range_commands_write_nothing(r6: tuple[R6Device, R6SimDevice, DeviceChannel], call, match) -> None:  # type: ignore[no-untyped-def]
+def test_out_of_range_commands_write_nothing(
+    r6: tuple[R6Device, R6SimDevice, DeviceChannel], call, match
+) -> None:  # type: ignore[no-untyped-def]
     device, sim, channel = r6
     before = channel.stats.transactions
     with pytest.raises(CommandRejected, match=match):
@@ -119,6 +123,7 @@ def test_out_of_range_commands_write_nothing(r6: tuple[R6Device, R6SimDevice, De
 
 def test_simulator_refuses_what_the_device_refuses(sim: tuple[R6SimDevice, int]) -> None:
     _, port = sim
+
     def exception_code(pdu: bytes) -> int | None:
         reply = raw_request(port, pdu)
         return reply[2] if reply[1] & 0x80 else None
@@ -141,7 +146,9 @@ def test_simulator_refuses_what_the_device_refuses(sim: tuple[R6SimDevice, int])
     assert exception_code(bytes([6]) + struct.pack(">HH", 20200, 1001)) == 3
 
 
-def test_device_exception_comes_back_by_name(r6: tuple[R6Device, R6SimDevice, DeviceChannel]) -> None:
+def test_device_exception_comes_back_by_name(
+    r6: tuple[R6Device, R6SimDevice, DeviceChannel],
+) -> None:
     _, _, channel = r6
     with pytest.raises(DeviceException, match="ILLEGAL DATA ADDRESS"):
         channel.read_registers(2205, 1)
@@ -171,7 +178,9 @@ def test_axes_move_while_running_and_stop(r6: tuple[R6Device, R6SimDevice, Devic
     assert sim.running and sim.get("alarm_code") == 0
 
 
-def test_point_upload_reaches_the_simulator(r6: tuple[R6Device, R6SimDevice, DeviceChannel]) -> None:
+def test_point_upload_reaches_the_simulator(
+    r6: tuple[R6Device, R6SimDevice, DeviceChannel],
+) -> None:
     device, sim, _ = r6
     values = [(-1) ** k * k * 1000 for k in range(6 * 23)]
     assert device.upload_points(100, 6, 0x23, values) == 3
@@ -183,18 +192,48 @@ def test_point_upload_reaches_the_simulator(r6: tuple[R6Device, R6SimDevice, Dev
 def test_the_map_covers_the_manual_tables() -> None:
     # Spot checks of addresses and scales straight from the §4 / §5 tables.
     expect = {
-        "version_length": 0, "counter_count": 130, "counter_id_0": 131, "counter_id_1023": 2177,
-        "counter_select_id": 2179, "mode": 2185, "io_board_count": 2186, "io_board_input_0": 2187,
-        "eu_board_input": 2203, "io_board_output_0": 2227, "m_board_output_1": 2239,
-        "eu_board_output": 2243, "axis_count": 2267, "axis_position_1": 2268,
-        "axis_position_8": 2282, "world_x": 2332, "world_m8": 2346, "alarm_code": 2396,
-        "current_cycle_time": 2397, "last_cycle_time": 2401, "machine_id": 2405,
-        "axis_torque_1": 2406, "axis_torque_8": 2413, "axis_speed_1": 2438, "axis_speed_8": 2445,
-        "moving": 2470, "homed": 2471, "command_stop": 20000, "command_clear_alarm_and_continue": 20006,
-        "counter_modify_id": 20050, "output_board": 20056, "output_state": 20058,
-        "global_speed": 20200, "parameter_0": 20300, "parameter_999": 22298,
-        "data_source_view_id": 30000, "point_source_id": 30002, "point_count": 30005,
-        "point_clear": 30006, "point_data_0": 30007, "y_output_0": 0, "m_output_0": 160,
+        "version_length": 0,
+        "counter_count": 130,
+        "counter_id_0": 131,
+        "counter_id_1023": 2177,
+        "counter_select_id": 2179,
+        "mode": 2185,
+        "io_board_count": 2186,
+        "io_board_input_0": 2187,
+        "eu_board_input": 2203,
+        "io_board_output_0": 2227,
+        "m_board_output_1": 2239,
+        "eu_board_output": 2243,
+        "axis_count": 2267,
+        "axis_position_1": 2268,
+        "axis_position_8": 2282,
+        "world_x": 2332,
+        "world_m8": 2346,
+        "alarm_code": 2396,
+        "current_cycle_time": 2397,
+        "last_cycle_time": 2401,
+        "machine_id": 2405,
+        "axis_torque_1": 2406,
+        "axis_torque_8": 2413,
+        "axis_speed_1": 2438,
+        "axis_speed_8": 2445,
+        "moving": 2470,
+        "homed": 2471,
+        "command_stop": 20000,
+        "command_clear_alarm_and_continue": 20006,
+        "counter_modify_id": 20050,
+        "output_board": 20056,
+        "output_state": 20058,
+        "global_speed": 20200,
+        "parameter_0": 20300,
+        "parameter_999": 22298,
+        "data_source_view_id": 30000,
+        "point_source_id": 30002,
+        "point_count": 30005,
+        "point_clear": 30006,
+        "point_data_0": 30007,
+        "y_output_0": 0,
+        "m_output_0": 160,
         "eu_output_31": 287,
     }
     for name, address in expect.items():

@@ -30,12 +30,24 @@ def test_bag_of_a_running_bridge(tmp_path: Path) -> None:
     ns = "/rec"
     topics = [f"{ns}/joint_states", f"{ns}/r6_bridge/state", "/diagnostics"]
     try:
-        with node_process("r6_bridge.node", {"port": port, "poll_rate_hz": 20.0}, tmp_path,
-                          ["-r", f"__ns:={ns}"]):
+        with node_process(
+            "r6_bridge.node", {"port": port, "poll_rate_hz": 20.0}, tmp_path, ["-r", f"__ns:={ns}"]
+        ):
             result = subprocess.run(
-                [sys.executable, "-m", "bridge_core.recorder", "-o", str(bag), *topics,
-                 "--duration", "6"],
-                cwd=ROOT, capture_output=True, text=True, timeout=60,
+                [
+                    sys.executable,
+                    "-m",
+                    "bridge_core.recorder",
+                    "-o",
+                    str(bag),
+                    *topics,
+                    "--duration",
+                    "6",
+                ],
+                cwd=ROOT,
+                capture_output=True,
+                text=True,
+                timeout=60,
             )
     finally:
         simulator.stop()

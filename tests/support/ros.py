@@ -23,8 +23,9 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 ROOT = Path(__file__).resolve().parents[2]
-LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+LATCHED = QoSProfile(
+    depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL
+)
 
 
 def wait_for(predicate: Callable[[], Any], timeout: float, what: str) -> Any:
@@ -59,7 +60,9 @@ class Client:
             except Exception:  # shutting down
                 return
 
-    def subscribe(self, msg_type: Any, topic: str, qos: QoSProfile | int = 10, raw: bool = False) -> None:
+    def subscribe(
+        self, msg_type: Any, topic: str, qos: QoSProfile | int = 10, raw: bool = False
+    ) -> None:
         self.messages.setdefault(topic, [])
 
         def store(msg: Any) -> None:
@@ -76,13 +79,19 @@ class Client:
         got = self.received(topic)
         return got[-1] if got else None
 
-    def wait_message(self, topic: str, predicate: Callable[[Any], bool] = lambda m: True,
-                     timeout: float = 15.0, since: float = 0.0) -> Any:
+    def wait_message(
+        self,
+        topic: str,
+        predicate: Callable[[Any], bool] = lambda m: True,
+        timeout: float = 15.0,
+        since: float = 0.0,
+    ) -> Any:
         def find() -> Any:
             for msg in reversed(self.received(topic, since)):
                 if predicate(msg):
                     return msg
             return None
+
         return wait_for(find, timeout, f"a matching message on {topic}")
 
     def call(self, srv_type: Any, name: str, request: Any, timeout: float = 15.0) -> Any:
@@ -117,7 +126,11 @@ def ros_args(params: dict[str, Any]) -> list[str]:
         if isinstance(value, bool):
             text = "true" if value else "false"
         elif isinstance(value, list | tuple):
-            text = "[" + ",".join(repr(float(v)) if isinstance(v, float) else str(v) for v in value) + "]"
+            text = (
+                "["
+                + ",".join(repr(float(v)) if isinstance(v, float) else str(v) for v in value)
+                + "]"
+            )
         else:
             text = str(value)
         args += ["-p", f"{key}:={text}"]
@@ -125,13 +138,17 @@ def ros_args(params: dict[str, Any]) -> list[str]:
 
 
 @contextmanager
-def node_process(module: str, params: dict[str, Any], log_dir: Path,
-                 extra: Sequence[str] = ()) -> Iterator[subprocess.Popen[bytes]]:
+def node_process(
+    module: str, params: dict[str, Any], log_dir: Path, extra: Sequence[str] = ()
+) -> Iterator[subprocess.Popen[bytes]]:
     """Run ``python -m module --ros-args ...`` in its own process; stop it with SIGINT."""
     log = (log_dir / f"{module.replace('.', '_')}.log").open("wb")
     proc = subprocess.Popen(
         [sys.executable, "-m", module, *ros_args(params), *extra],
-        cwd=ROOT, env=dict(os.environ), stdout=log, stderr=subprocess.STDOUT,
+        cwd=ROOT,
+        env=dict(os.environ),
+        stdout=log,
+        stderr=subprocess.STDOUT,
     )
     try:
         yield proc
