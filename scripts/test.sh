@@ -1,0 +1,34 @@
+#!/usr/bin/env bash
+# Set up the environment (scripts/setup.sh, a quick no-op when nothing changed), then run
+# pytest from the repo root; arguments are passed to pytest. LINT=1 also runs ruff and mypy
+# on the Python packages first.
+set -euo pipefail
+
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+cd "$ROOT"
+
+bash scripts/setup.sh
+
+# Keep ROS discovery on this machine (tests start nodes of their own).
+export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
+
+if [[ "${LINT:-0}" == 1 ]]; then
+    pkgs=()
+    for p in bridge_core r6_bridge xarm_bridge stepper_bridge motec_bridge; do
+        [[ -d "$p" ]] && pkgs+=("$p")
+    done
+    if ((${#pkgs[@]})); then
+        echo "test: ruff check ${pkgs[*]}"
+        .venv/bin/ruff check "${pkgs[@]}"
+        echo "test: mypy ${pkgs[*]}"
+        .venv/bin/mypy "${pkgs[@]}"
+    fi
+fi
+
+rc=0
+.venv/bin/python -m pytest "$@" || rc=$?
+if ((rc == 5)); then
+    echo "test: pytest collected no tests; treating that as a failure" >&2
+    exit 1
+fi
+exit "$rc"
