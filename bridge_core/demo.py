@@ -151,9 +151,11 @@ class Monitor:
             self.node.destroy_client(client)
 
     def close(self) -> None:
+        from rclpy.utilities import try_shutdown
+
         self.executor.shutdown()
         self.node.destroy_node()
-        self.rclpy.try_shutdown()
+        try_shutdown()
 
 
 def render(monitor: Monitor, device: DemoDevice, rates: dict[str, float]) -> str:

@@ -32,6 +32,7 @@ from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.time import Time
+from rclpy.utilities import try_shutdown
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 
@@ -347,7 +348,7 @@ def spin_node(make_node: Callable[[], Node], args: Sequence[str] | None = None) 
             if isinstance(node, BridgeNode):
                 node.close()
             node.destroy_node()
-        rclpy.try_shutdown()
+        try_shutdown()
 
 
 __all__ = ["BridgeNode", "Level", "Report", "float_list", "spin_node"]

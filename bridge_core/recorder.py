@@ -22,6 +22,8 @@ import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.utilities import ok as rclpy_ok
+from rclpy.utilities import try_shutdown
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
@@ -132,7 +134,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     executor.add_node(recorder)
     deadline = time.monotonic() + args.duration if args.duration > 0 else None
     try:
-        while rclpy.ok() and (deadline is None or time.monotonic() < deadline):
+        while rclpy_ok() and (deadline is None or time.monotonic() < deadline):
             executor.spin_once(timeout_sec=0.1)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
@@ -142,7 +144,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         print(f"bag {args.output}: {counts}", flush=True)
         executor.shutdown()
         recorder.destroy_node()
-        rclpy.try_shutdown()
+        try_shutdown()
 
 
 if __name__ == "__main__":

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Set up the environment (scripts/setup.sh, a quick no-op when nothing changed), then run
-# pytest from the repo root; arguments are passed to pytest. LINT=1 also runs ruff and mypy
-# on the Python packages first.
+# pytest from the repo root; arguments are passed to pytest. ruff and mypy check the
+# Python packages first (LINT=0 skips them).
 set -euo pipefail
 
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -12,7 +12,7 @@ bash scripts/setup.sh
 # Keep ROS discovery on this machine (tests start nodes of their own).
 export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
 
-if [[ "${LINT:-0}" == 1 ]]; then
+if [[ "${LINT:-1}" == 1 ]]; then
     pkgs=()
     for p in bridge_core r6_bridge xarm_bridge stepper_bridge motec_bridge; do
         [[ -d "$p" ]] && pkgs+=("$p")

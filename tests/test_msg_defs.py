@@ -48,10 +48,6 @@ MAKE_STATE_SRC = textwrap.dedent(
         m.io_board_count = 5
         m.io_board_inputs = [0, 1, 0xFFFF_FFFF, 0x8000_0001, 42]
         m.io_board_outputs = [5, 4, 3, 2, 1]
-        m.m_board_inputs = [7, 8, 9]
-        m.m_board_outputs = [0xDEAD_BEEF, 0, 1]
-        m.eu_board_inputs = 0x1234_5678
-        m.eu_board_outputs = 0xFFFF_FFFF
         return m
     """
 )
@@ -78,10 +74,6 @@ R6STATE_FIELDS = {
     "io_board_count": "uint16",
     "io_board_inputs": "sequence<uint32>",
     "io_board_outputs": "sequence<uint32>",
-    "m_board_inputs": "sequence<uint32>",
-    "m_board_outputs": "sequence<uint32>",
-    "eu_board_inputs": "uint32",
-    "eu_board_outputs": "uint32",
 }
 
 REPLY = {"success": "boolean", "message": "string"}

@@ -291,9 +291,9 @@ def test_disconnected_bridge_refuses_and_connects_later(bridge_factory, client: 
         assert not bridge.call(SetValue, "set_global_speed", value=10.0).success
         assert client.received(bridge.joint_states) == []
         simulator = make_simulator()
+        up = time.monotonic()
         simulator.start_tcp(port=port)
         try:
-            up = time.monotonic()
             bridge.wait_connected(True, since=up, timeout=10)
             client.wait_message(bridge.joint_states)
             assert simulator.device.write_log == []  # nothing queued across the reconnect
@@ -332,9 +332,9 @@ def test_simulator_killed_and_restarted(bridge_factory, client: Client, tmp_path
         with bridge_factory(port, reconnect_max_s=1.0) as (bridge, node):
             client.wait_message(bridge.joint_states)
             bridge.wait_connected(True)
+            killed = time.monotonic()  # before the kill: the node may notice at once
             sim_proc.send_signal(signal.SIGKILL)  # mid-poll: the node polls at 50 Hz
             sim_proc.wait(5)
-            killed = time.monotonic()
             bridge.wait_connected(False, since=killed)
             status = bridge.wait_diagnostic(2, killed, port)
             assert values_of(status)["link state"] == "disconnected"
@@ -346,8 +346,8 @@ def test_simulator_killed_and_restarted(bridge_factory, client: Client, tmp_path
             assert client.received(bridge.joint_states, since=down) == []
             assert client.received(bridge.state, since=down) == []
             assert node.poll() is None
-            sim_proc = start_sim()
             restarted = time.monotonic()
+            sim_proc = start_sim()
             client.wait_message(bridge.joint_states, since=restarted, timeout=1.0 + 10)
             bridge.wait_connected(True, since=restarted)
             status = bridge.wait_diagnostic(0, restarted, port)
@@ -372,12 +372,12 @@ def test_withheld_replies_and_exception_replies(sim, bridge_factory, client: Cli
             10,
             "a timeout count",
         )
-        simulator.withhold_replies = False
         back = time.monotonic()
+        simulator.withhold_replies = False
         client.wait_message(bridge.joint_states, since=back)
         # Exception replies to a polled block: node alive, reported by name, nothing published.
-        device.forced_exceptions.append((Table.HOLDING, range(2470, 2472), 4))
         refused = time.monotonic()
+        device.forced_exceptions.append((Table.HOLDING, range(2470, 2472), 4))
         status = bridge.wait_diagnostic(2, refused, port)
         assert "SERVER DEVICE FAILURE" in status.message
         quiet = time.monotonic()
