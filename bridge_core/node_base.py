@@ -278,15 +278,39 @@ class BridgeNode(Node):
             return False, f"{what} failed: internal error: {err}", None
         return True, f"{what}: done", result
 
+    def command_service(
+        self,
+        srv_type: Any,
+        name: str,
+        describe: Callable[[Any], str],
+        action: Callable[[Any], T],
+        *,
+        writes: bool = True,
+        fill: Callable[[Any, T], None] | None = None,
+    ) -> None:
+        """A service that runs one guarded command per request.
+
+        ``describe(request)`` names the command in the reply message, ``action(request)``
+        does it through the device layer, ``fill(response, result)`` copies a result into
+        the response on success.
+        """
+
+        def handle(request: Any, response: Any) -> Any:
+            ok, message, result = self.run_command(
+                describe(request), lambda: action(request), writes=writes
+            )
+            response.success, response.message = ok, message
+            if ok and fill is not None:
+                fill(response, result)  # type: ignore[arg-type]
+            return response
+
+        self.create_service(srv_type, name, handle, callback_group=self.command_group)
+
     def trigger_service(self, name: str, what: str, action: Callable[[], object]) -> None:
         """A std_srvs/Trigger service that runs one guarded command."""
         from std_srvs.srv import Trigger
 
-        def handle(_request: Any, response: Any) -> Any:
-            response.success, response.message, _ = self.run_command(what, action)
-            return response
-
-        self.create_service(Trigger, name, handle, callback_group=self.command_group)
+        self.command_service(Trigger, name, lambda _request: what, lambda _request: action())
 
     # ------------------------------------------------------------ diagnostics
     def publish_diagnostics(self) -> None:

@@ -56,23 +56,7 @@ class R6BridgeNode(BridgeNode):
         self.state_pub = self.create_publisher(R6State, "~/state", 10)
         self.pose_pub = self.create_publisher(PoseStamped, "~/tcp_pose", 10)
 
-        for name in COMMANDS:
-            self.trigger_service(f"~/{name}", name, lambda n=name: self.device.command(n))  # type: ignore[misc]
-        group = self.command_group
-        self.create_service(
-            SetValue, "~/set_global_speed", self._set_global_speed, callback_group=group
-        )
-        self.create_service(SetOutput, "~/set_output", self._set_output, callback_group=group)
-        self.create_service(SetCounter, "~/set_counter", self._set_counter, callback_group=group)
-        self.create_service(
-            ReadParameter, "~/read_parameter", self._read_parameter, callback_group=group
-        )
-        self.create_service(
-            WriteParameter, "~/write_parameter", self._write_parameter, callback_group=group
-        )
-        self.create_service(
-            UploadPoints, "~/upload_points", self._upload_points, callback_group=group
-        )
+        self._create_services()
 
     # ------------------------------------------------------------ polling
     def on_link_up(self) -> None:
@@ -156,56 +140,51 @@ class R6BridgeNode(BridgeNode):
         return Report(Level.OK, "connected", values)
 
     # ------------------------------------------------------------ services
-    def _set_global_speed(self, request: Any, response: Any) -> Any:
-        response.success, response.message, _ = self.run_command(
-            f"set_global_speed {request.value} %",
-            lambda: self.device.set_global_speed(request.value),
+    def _create_services(self) -> None:
+        d = self.device
+        for name in COMMANDS:
+            self.trigger_service(f"~/{name}", name, lambda n=name: d.command(n))  # type: ignore[misc]
+        self.command_service(
+            SetValue,
+            "~/set_global_speed",
+            lambda r: f"set_global_speed {r.value} %",
+            lambda r: d.set_global_speed(r.value),
         )
-        return response
-
-    def _set_output(self, request: Any, response: Any) -> Any:
-        response.success, response.message, _ = self.run_command(
-            f"set_output board {request.board} point {request.index} "
-            f"{'on' if request.on else 'off'}",
-            lambda: self.device.set_output(request.board, request.index, request.on),
+        self.command_service(
+            SetOutput,
+            "~/set_output",
+            lambda r: f"set_output board {r.board} point {r.index} {'on' if r.on else 'off'}",
+            lambda r: d.set_output(r.board, r.index, r.on),
         )
-        return response
-
-    def _set_counter(self, request: Any, response: Any) -> Any:
-        response.success, response.message, _ = self.run_command(
-            f"set_counter {request.id} = {request.value}",
-            lambda: self.device.set_counter(request.id, request.value),
+        self.command_service(
+            SetCounter,
+            "~/set_counter",
+            lambda r: f"set_counter {r.id} = {r.value}",
+            lambda r: d.set_counter(r.id, r.value),
         )
-        return response
-
-    def _read_parameter(self, request: Any, response: Any) -> Any:
-        response.success, response.message, value = self.run_command(
-            f"read_parameter {request.index}",
-            lambda: self.device.read_parameter(request.index),
+        self.command_service(
+            ReadParameter,
+            "~/read_parameter",
+            lambda r: f"read_parameter {r.index}",
+            lambda r: d.read_parameter(r.index),
             writes=False,
+            fill=lambda response, value: setattr(response, "value", value),
         )
-        response.value = int(value or 0)
-        return response
-
-    def _write_parameter(self, request: Any, response: Any) -> Any:
-        response.success, response.message, _ = self.run_command(
-            f"write_parameter {request.index} = {request.value}",
-            lambda: self.device.write_parameter(request.index, request.value),
+        self.command_service(
+            WriteParameter,
+            "~/write_parameter",
+            lambda r: f"write_parameter {r.index} = {r.value}",
+            lambda r: d.write_parameter(r.index, r.value),
         )
-        return response
-
-    def _upload_points(self, request: Any, response: Any) -> Any:
-        response.success, response.message, frames = self.run_command(
-            f"upload_points to source {request.data_source_id}",
-            lambda: self.device.upload_points(
-                request.data_source_id,
-                request.values_per_point,
-                request.axis_mask,
-                [int(v) for v in request.values],
+        self.command_service(
+            UploadPoints,
+            "~/upload_points",
+            lambda r: f"upload_points to source {r.data_source_id}",
+            lambda r: d.upload_points(
+                r.data_source_id, r.values_per_point, r.axis_mask, [int(v) for v in r.values]
             ),
+            fill=lambda response, frames: setattr(response, "frames_sent", frames),
         )
-        response.frames_sent = int(frames or 0)
-        return response
 
 
 def main(args: Sequence[str] | None = None) -> None:
