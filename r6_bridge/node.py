@@ -9,6 +9,7 @@ from typing import Any
 from geometry_msgs.msg import PoseStamped
 
 from bridge_core.diagnostics import Level, Report
+from bridge_core.errors import DeviceException, FrameError
 from bridge_core.node_base import DOUBLE_ARRAY, BridgeNode, _descriptor, float_list, spin_node
 from msg_defs.msg import R6State
 from msg_defs.srv import (
@@ -61,7 +62,11 @@ class R6BridgeNode(BridgeNode):
     # ------------------------------------------------------------ polling
     def on_link_up(self) -> None:
         self.device.invalidate_plan()
-        self.firmware_version = self.device.read_version()
+        try:
+            self.firmware_version = self.device.read_version()
+        except (DeviceException, FrameError) as err:
+            # A controller without the version rows still gets polled.
+            self.firmware_version = f"unavailable ({err})"
         self.get_logger().info(f"R6 firmware {self.firmware_version!r}")
 
     def poll_device(self) -> R6Snapshot:

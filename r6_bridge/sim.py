@@ -217,13 +217,17 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--axes", type=int, default=6)
     parser.add_argument("--io-boards", type=int, default=1)
     parser.add_argument("--running", action="store_true", help="start with the axes moving")
+    parser.add_argument("--mode", type=int, default=2, help="1 manual, 2 auto, 3 configuration")
+    parser.add_argument("--alarm", type=int, default=0, help="start with this alarm code")
     parser.add_argument("--write-log", type=Path, help="append every accepted write (JSON lines)")
     parser.add_argument("--port-file", type=Path, help="write the bound port here once listening")
     args = parser.parse_args(argv)
     sim = make_simulator(args.axes, args.io_boards)
     device = sim.device
     assert isinstance(device, R6SimDevice)
-    device.running = args.running
+    device.set("mode", args.mode)
+    device.set_alarm(args.alarm)
+    device.running = args.running and not args.alarm
     if args.write_log:
         device.log_file = args.write_log.open("a")
     port = sim.start_tcp(args.host, args.port)

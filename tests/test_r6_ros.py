@@ -386,3 +386,13 @@ def test_withheld_replies_and_exception_replies(sim, bridge_factory, client: Cli
         device.forced_exceptions.clear()
         client.wait_message(bridge.joint_states, since=time.monotonic())
         assert node.poll() is None
+
+
+def test_controller_without_version_rows_still_polls(sim, bridge_factory, client: Client) -> None:  # type: ignore[no-untyped-def]
+    device, port = sim
+    device.forced_exceptions.append((Table.HOLDING, range(0, 65), 2))
+    started = time.monotonic()
+    with bridge_factory(port) as (bridge, _):
+        client.wait_message(bridge.joint_states)
+        status = bridge.wait_diagnostic(0, started, port)
+        assert values_of(status)["firmware version"].startswith("unavailable (ILLEGAL DATA ADDRESS")
