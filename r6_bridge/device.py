@@ -6,7 +6,6 @@ refused command writes nothing.
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -37,7 +36,6 @@ from .registers import (
 )
 
 HIGH = WordOrder.HIGH_FIRST
-_DEG = math.pi / 180.0
 U32_MAX = 0xFFFF_FFFF
 I32_MIN, I32_MAX = -(1 << 31), (1 << 31) - 1
 # Registers in one upload frame: the manual's 256-byte frame cap and Modbus's 123 (FC 10).
@@ -53,29 +51,6 @@ class RegisterIO(Protocol):
     ) -> list[int]: ...
     def write_register(self, address: int, value: int) -> None: ...
     def write_registers(self, address: int, values: Sequence[int]) -> None: ...
-
-
-def euler_xyz_deg_to_quaternion(u: float, v: float, w: float) -> tuple[float, float, float, float]:
-    """U, V, W (deg) as rotations about fixed X, Y, Z in that order: R = Rz(W) Ry(V) Rx(U).
-
-    The R6 manual names the world axes X Y Z U V W without a convention; this is the usual
-    roll-pitch-yaw reading (also REP 103's), written down in the README.
-    """
-    hr, hp, hy = u * _DEG / 2.0, v * _DEG / 2.0, w * _DEG / 2.0
-    cr, sr, cp, sp, cy, sy = (
-        math.cos(hr),
-        math.sin(hr),
-        math.cos(hp),
-        math.sin(hp),
-        math.cos(hy),
-        math.sin(hy),
-    )
-    return (
-        sr * cp * cy - cr * sp * sy,  # x
-        cr * sp * cy + sr * cp * sy,  # y
-        cr * cp * sy - sr * sp * cy,  # z
-        cr * cp * cy + sr * sp * sy,  # w
-    )
 
 
 def mode_name(mode: int) -> str:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -11,6 +10,7 @@ from geometry_msgs.msg import PoseStamped
 from bridge_core.diagnostics import Level, Report
 from bridge_core.errors import DeviceException, FrameError
 from bridge_core.node_base import DOUBLE_ARRAY, BridgeNode, _descriptor, float_list, spin_node
+from bridge_core.units import DEG, MM, RPM_TO_RAD_S, euler_xyz_deg_to_quaternion
 from msg_defs.msg import R6State
 from msg_defs.srv import (
     ReadParameter,
@@ -21,12 +21,8 @@ from msg_defs.srv import (
     WriteParameter,
 )
 
-from .device import R6Device, R6Snapshot, euler_xyz_deg_to_quaternion
+from .device import R6Device, R6Snapshot
 from .registers import COMMANDS, MAX_AXES
-
-DEG = math.pi / 180.0
-RPM_TO_RAD_S = 2.0 * math.pi / 60.0
-MM = 1e-3
 
 
 class R6BridgeNode(BridgeNode):

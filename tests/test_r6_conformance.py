@@ -428,6 +428,6 @@ def test_large_upload_is_split_into_frames_of_at_most_256_bytes() -> None:
 def test_tcp_pose_euler_convention(
     u: float, v: float, w: float, expected: tuple[float, ...]
 ) -> None:
-    from r6_bridge.device import euler_xyz_deg_to_quaternion
+    from bridge_core.units import euler_xyz_deg_to_quaternion
 
     assert euler_xyz_deg_to_quaternion(u, v, w) == pytest.approx(expected, abs=1e-12)
