@@ -71,6 +71,32 @@ DEVICES: list[DemoDevice] = [
 ]
 
 
+def _xarm_state(state: Any) -> str:
+    error = f"error {state.error_code} {state.error_text}" if state.error_code else "no error"
+    outputs = "".join("1" if b else "0" for b in state.digital_outputs)
+    return (
+        f"state {state.state_name}  mode {state.mode}  {error}  "
+        f"tcp speed {state.tcp_speed:.3f} m/s  DO {outputs}"
+    )
+
+
+DEVICES.append(
+    DemoDevice(
+        name="xArm",
+        node_name="xarm_bridge",
+        sim_args=lambda port: ["-m", "xarm_bridge.sim", "--port", str(port)],
+        node_module="xarm_bridge.node",
+        node_params=lambda port: {"port": port, "poll_rate_hz": 50.0},
+        state_type="msg_defs/msg/XArmState",
+        format_state=_xarm_state,
+        start_services=[
+            ("set_digital_output", "msg_defs/srv/SetOutput", {"board": 0, "index": 2, "on": True}),
+            ("run_offline_task", "msg_defs/srv/RunOfflineTask", {"projects": [1, 2, 3, 4, 5, 6]}),
+        ],
+    )
+)
+
+
 def _import(type_name: str) -> Any:
     import importlib
 

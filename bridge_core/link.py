@@ -30,6 +30,7 @@ from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOEx
 
 from .errors import DeviceException, FrameError, LinkDown, LinkError, LinkTimeout
 from .registers import Table
+from .serial_timing import TimedSerialClient
 
 # pymodbus logs every refused connect and timeout on its own (and repeats itself); the
 # channel counts and reports them in diagnostics, so its logger only speaks when critical.
@@ -196,7 +197,7 @@ class ModbusLink:
                 settings.host, port=settings.port, timeout=settings.timeout_s, retries=0
             )
         else:
-            self._client = ModbusSerialClient(
+            self._client = TimedSerialClient(
                 settings.port,
                 baudrate=settings.baudrate,
                 parity=settings.parity,
@@ -476,6 +477,21 @@ class DeviceChannel:
 
     def write_coils(self, address: int, values: Sequence[bool]) -> None:
         self.transact(WriteCoils(address, tuple(values)), Priority.COMMAND)
+
+    def mask_write_register(self, address: int, and_mask: int, or_mask: int) -> None:
+        """FC 0x16: register = (register AND and_mask) OR (or_mask AND NOT and_mask)."""
+        self.transact(MaskWriteRegister(address, and_mask, or_mask), Priority.COMMAND)
+
+    def read_write_registers(
+        self, read_address: int, read_count: int, write_address: int, values: Sequence[int]
+    ) -> list[int]:
+        """FC 0x17: write, then read, in one round trip (the write happens first)."""
+        reply = self.transact(
+            ReadWriteRegisters(read_address, read_count, write_address, tuple(values)),
+            Priority.COMMAND,
+        )
+        assert isinstance(reply, list)
+        return [int(v) for v in reply[:read_count]]
 
     def describe(self) -> str:
         return f"{self.link.describe()} unit {self.unit_id}"

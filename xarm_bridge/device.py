@@ -1,0 +1,324 @@
+"""xArm device model: polls into typed snapshots, commands into checked writes (no ROS).
+
+Every command validates all of its inputs before its first write, so a refused command
+writes nothing; writes to channels the manual does not call valid never reach the wire.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Protocol
+
+from bridge_core.codec import Value, encode
+from bridge_core.errors import CommandRejected
+from bridge_core.link import Priority
+from bridge_core.planner import ReadRequest, decode_reply, plan_reads
+from bridge_core.registers import Table
+
+from .registers import (
+    COIL_FENCE_MODE,
+    COIL_REDUCED_MODE,
+    CONTROLLER_ANALOG_INPUT_VALID,
+    CONTROLLER_DIGITAL_VALID,
+    ERROR_TEXTS,
+    FIRST_TOOL_DIGITAL,
+    JOINTS,
+    MODE_NAMES,
+    MOTION_MODES,
+    OFFLINE_TASK_ADDRESS,
+    OFFLINE_TASK_MAX,
+    SET_STATE_PAUSE,
+    SET_STATE_START,
+    SET_STATE_STOP,
+    SETTABLE_STATES,
+    STATE_NAMES,
+    TOOL_ANALOG_INPUT_VALID,
+    TOOL_DIGITAL_VALID,
+    WARNING_TEXTS,
+    WORLD,
+    WRITABLE_ANALOG_OUTPUTS,
+    WRITABLE_DIGITAL_OUTPUTS,
+    WRITABLE_TOOL_DIGITAL_OUTPUTS,
+    XARM_MAP,
+)
+
+TASK_NUMBER_MIN = 1
+TASK_NUMBER_MAX = 0xFFFF
+MODE_ADDRESS = XARM_MAP["arm_mode"].address
+STATE_ADDRESS = XARM_MAP["arm_state"].address
+
+
+class RegisterIO(Protocol):
+    """What the device needs from a link channel (``bridge_core.link.DeviceChannel``)."""
+
+    def read_registers(
+        self, address: int, count: int, table: Table = ..., priority: Priority = ...
+    ) -> list[int]: ...
+    def read_bits(
+        self, address: int, count: int, table: Table = ..., priority: Priority = ...
+    ) -> list[bool]: ...
+    def write_register(self, address: int, value: int) -> None: ...
+    def write_registers(self, address: int, values: Sequence[int]) -> None: ...
+    def write_coil(self, address: int, on: bool) -> None: ...
+    def write_coils(self, address: int, values: Sequence[bool]) -> None: ...
+    def mask_write_register(self, address: int, and_mask: int, or_mask: int) -> None: ...
+    def read_write_registers(
+        self, read_address: int, read_count: int, write_address: int, values: Sequence[int]
+    ) -> list[int]: ...
+
+
+def error_text(code: int) -> str:
+    return "" if code == 0 else ERROR_TEXTS.get(code, "unknown error code")
+
+
+def warning_text(code: int) -> str:
+    return "" if code == 0 else WARNING_TEXTS.get(code, "unknown warning code")
+
+
+def state_name(state: int) -> str:
+    return STATE_NAMES.get(state, f"unknown({state})")
+
+
+def mode_name(mode: int) -> str:
+    return MODE_NAMES.get(mode, f"mode {mode}")
+
+
+@dataclass(frozen=True)
+class XArmSnapshot:
+    """One full poll in the manual's units (deg, deg/s, mm, mm/s, V, kg, degC)."""
+
+    read_time: float
+    mode: int
+    state: int
+    error_code: int
+    warning_code: int
+    joint_angles_deg: tuple[float, ...]
+    joint_speeds_deg_s: tuple[float, ...]
+    joint_temperatures_c: tuple[float, ...]
+    tcp_pose: dict[str, float]  # x y z (mm), roll pitch yaw (deg)
+    tcp_speed_mm_s: float
+    counter: int
+    brakes: tuple[bool, ...]
+    enabled: tuple[bool, ...]
+    reduced_mode: bool
+    fence_mode: bool
+    paused: bool
+    stopped: bool
+    motion_modes: tuple[bool, ...]
+    digital_inputs: tuple[bool, ...]
+    digital_outputs: tuple[bool, ...]
+    tool_digital_inputs: tuple[bool, ...]
+    tool_digital_outputs: tuple[bool, ...]
+    analog_inputs: tuple[float, ...]
+    tool_analog_inputs: tuple[float, ...]
+    analog_outputs: tuple[float, ...]
+    tcp_load_mass_kg: float
+    tcp_load_center_mm: tuple[float, float, float]
+    tcp_offset: dict[str, float]
+    base_offset: dict[str, float]
+
+
+def _poll_names() -> list[str]:
+    names = [f"controller_do_{i}" for i in range(CONTROLLER_DIGITAL_VALID)]
+    names += [f"tool_do_{i}" for i in range(TOOL_DIGITAL_VALID)]
+    names += [f"controller_di_{i}" for i in range(CONTROLLER_DIGITAL_VALID)]
+    names += [f"tool_di_{i}" for i in range(TOOL_DIGITAL_VALID)]
+    names += [f"brake_{j}" for j in range(1, JOINTS + 1)]
+    names += [f"enable_{j}" for j in range(1, JOINTS + 1)]
+    names += ["reduced_mode", "fence_mode", "paused", "stopped"]
+    names += [f"motion_mode_{m}" for m in range(MOTION_MODES)]
+    names += [f"controller_ao_{i}" for i in WRITABLE_ANALOG_OUTPUTS]
+    names += ["arm_mode", "arm_state", "error_code", "warning_code", "counter"]
+    names += [f"controller_ai_{i}" for i in range(CONTROLLER_ANALOG_INPUT_VALID)]
+    names += [f"tool_ai_{i}" for i in range(TOOL_ANALOG_INPUT_VALID)]
+    names += [f"tcp_{a}" for a in WORLD]
+    names += ["tcp_load_mass", "tcp_load_center_x", "tcp_load_center_y", "tcp_load_center_z"]
+    names += [f"tcp_offset_{a}" for a in WORLD] + [f"base_offset_{a}" for a in WORLD]
+    names += [f"joint_angle_{j}" for j in range(1, JOINTS + 1)]
+    names += [f"joint_temperature_{j}" for j in range(1, JOINTS + 1)]
+    names += [f"joint_speed_{j}" for j in range(1, JOINTS + 1)]
+    names += ["tcp_speed"]
+    return names
+
+
+POLL_PLAN: list[ReadRequest] = plan_reads(XARM_MAP, XARM_MAP.select(_poll_names()))
+
+
+class XArmDevice:
+    """The xArm controller behind one Modbus channel."""
+
+    def __init__(self, io: RegisterIO) -> None:
+        self.io = io
+
+    # ------------------------------------------------------------------ polling
+    def read_plan(self, plan: Sequence[ReadRequest], priority: Priority) -> dict[str, Value]:
+        values: dict[str, Value] = {}
+        for request in plan:
+            if request.table.is_bit:
+                raw: Sequence[int] | Sequence[bool] = self.io.read_bits(
+                    request.address, request.count, request.table, priority=priority
+                )
+            else:
+                raw = self.io.read_registers(
+                    request.address, request.count, request.table, priority=priority
+                )
+            values.update(decode_reply(request, raw))
+        return values
+
+    def read_named(self, *names: str) -> dict[str, Value]:
+        return self.read_plan(plan_reads(XARM_MAP, XARM_MAP.select(names)), Priority.COMMAND)
+
+    def poll(self) -> XArmSnapshot:
+        read_time = time.time()
+        v = self.read_plan(POLL_PLAN, Priority.POLL)
+
+        def f(name: str) -> float:
+            return float(v[name])
+
+        def b(name: str) -> bool:
+            return bool(v[name])
+
+        def i(name: str) -> int:
+            return int(v[name])
+
+        joints = range(1, JOINTS + 1)
+        return XArmSnapshot(
+            read_time=read_time,
+            mode=i("arm_mode"),
+            state=i("arm_state"),
+            error_code=i("error_code"),
+            warning_code=i("warning_code"),
+            joint_angles_deg=tuple(f(f"joint_angle_{j}") for j in joints),
+            joint_speeds_deg_s=tuple(f(f"joint_speed_{j}") for j in joints),
+            joint_temperatures_c=tuple(f(f"joint_temperature_{j}") for j in joints),
+            tcp_pose={a: f(f"tcp_{a}") for a in WORLD},
+            tcp_speed_mm_s=f("tcp_speed"),
+            counter=i("counter"),
+            brakes=tuple(b(f"brake_{j}") for j in joints),
+            enabled=tuple(b(f"enable_{j}") for j in joints),
+            reduced_mode=b("reduced_mode"),
+            fence_mode=b("fence_mode"),
+            paused=b("paused"),
+            stopped=b("stopped"),
+            motion_modes=tuple(b(f"motion_mode_{m}") for m in range(MOTION_MODES)),
+            digital_inputs=tuple(b(f"controller_di_{k}") for k in range(CONTROLLER_DIGITAL_VALID)),
+            digital_outputs=tuple(b(f"controller_do_{k}") for k in range(CONTROLLER_DIGITAL_VALID)),
+            tool_digital_inputs=tuple(b(f"tool_di_{k}") for k in range(TOOL_DIGITAL_VALID)),
+            tool_digital_outputs=tuple(b(f"tool_do_{k}") for k in range(TOOL_DIGITAL_VALID)),
+            analog_inputs=tuple(
+                f(f"controller_ai_{k}") for k in range(CONTROLLER_ANALOG_INPUT_VALID)
+            ),
+            tool_analog_inputs=tuple(f(f"tool_ai_{k}") for k in range(TOOL_ANALOG_INPUT_VALID)),
+            analog_outputs=tuple(f(f"controller_ao_{k}") for k in WRITABLE_ANALOG_OUTPUTS),
+            tcp_load_mass_kg=f("tcp_load_mass"),
+            tcp_load_center_mm=(
+                f("tcp_load_center_x"),
+                f("tcp_load_center_y"),
+                f("tcp_load_center_z"),
+            ),
+            tcp_offset={a: f(f"tcp_offset_{a}") for a in WORLD},
+            base_offset={a: f(f"base_offset_{a}") for a in WORLD},
+        )
+
+    # ------------------------------------------------------------------ commands
+    def set_mode(self, mode: int) -> None:
+        """H32 with FC 06, as the manual's FC 06 example (mode 6). As with the xArm SDK, a
+        new mode takes effect after set_state 0."""
+        if not isinstance(mode, int) or not 0 <= mode < MOTION_MODES:
+            raise CommandRejected(f"mode {mode!r} outside 0-{MOTION_MODES - 1}")
+        self.io.write_register(MODE_ADDRESS, mode)
+
+    def set_state(self, state: int) -> tuple[int, int]:
+        """Write H33 (0 start, 3 pause, 4 stop) and read H32-33 back (FC 0x17)."""
+        if state not in SETTABLE_STATES:
+            raise CommandRejected(
+                f"state {state!r} refused: the controller takes 0 (start), 3 (pause), 4 (stop)"
+            )
+        mode_now, state_now = self.io.read_write_registers(MODE_ADDRESS, 2, STATE_ADDRESS, [state])
+        return _signed(mode_now), _signed(state_now)
+
+    def pause(self) -> tuple[int, int]:
+        return self.set_state(SET_STATE_PAUSE)
+
+    def stop(self) -> tuple[int, int]:
+        return self.set_state(SET_STATE_STOP)
+
+    def resume(self) -> tuple[int, int]:
+        return self.set_state(SET_STATE_START)
+
+    def set_digital_output(self, index: int, on: bool) -> None:
+        """Controller DO 0-15 (FC 05 to coil ``index``)."""
+        _check_channel("digital output", index, WRITABLE_DIGITAL_OUTPUTS)
+        self.io.write_coil(index, bool(on))
+
+    def set_tool_digital_output(self, index: int, on: bool) -> None:
+        """Tool DO 0-1 (FC 05 to coil 32 + ``index``)."""
+        _check_channel("tool digital output", index, WRITABLE_TOOL_DIGITAL_OUTPUTS)
+        self.io.write_coil(FIRST_TOOL_DIGITAL + index, bool(on))
+
+    def write_digital_outputs(self, first: int, values: Sequence[bool]) -> None:
+        """Consecutive controller DOs in one FC 0F write."""
+        if not values:
+            raise CommandRejected("no output values given")
+        for k in range(first, first + len(values)):
+            _check_channel("digital output", k, WRITABLE_DIGITAL_OUTPUTS)
+        self.io.write_coils(first, [bool(v) for v in values])
+
+    def change_digital_outputs(self, changes: Mapping[int, bool]) -> None:
+        """Several controller DOs in one FC 0x16 mask write to H0, the others kept."""
+        if not changes:
+            raise CommandRejected("no output changes given")
+        and_mask, or_mask = 0xFFFF, 0
+        for index, on in changes.items():
+            _check_channel("digital output", index, WRITABLE_DIGITAL_OUTPUTS)
+            and_mask &= ~(1 << index) & 0xFFFF
+            if on:
+                or_mask |= 1 << index
+        self.io.mask_write_register(XARM_MAP["controller_do_word_0"].address, and_mask, or_mask)
+
+    def set_analog_output(self, channel: int, volts: float) -> None:
+        """Controller AO 0-1 in volts (x1000, signed 16-bit, FC 06)."""
+        _check_channel("analog output", channel, WRITABLE_ANALOG_OUTPUTS)
+        reg = XARM_MAP[f"controller_ao_{channel}"]
+        self.io.write_register(reg.address, encode(reg, float(volts))[0])
+
+    def set_analog_outputs(self, volts: Sequence[float]) -> None:
+        """Controller AO 0.. in one FC 10 write."""
+        if not volts:
+            raise CommandRejected("no analog values given")
+        words: list[int] = []
+        for channel, value in enumerate(volts):
+            _check_channel("analog output", channel, WRITABLE_ANALOG_OUTPUTS)
+            words += encode(XARM_MAP[f"controller_ao_{channel}"], float(value))
+        self.io.write_registers(XARM_MAP["controller_ao_0"].address, words)
+
+    def set_reduced_mode(self, on: bool) -> None:
+        self.io.write_coil(COIL_REDUCED_MODE, bool(on))
+
+    def set_fence_mode(self, on: bool) -> None:
+        self.io.write_coil(COIL_FENCE_MODE, bool(on))
+
+    def run_offline_task(self, projects: Sequence[int]) -> None:
+        """Up to 16 Blockly project numbers with FC 10 at 0x30 (the only way the manual allows)."""
+        if not 1 <= len(projects) <= OFFLINE_TASK_MAX:
+            raise CommandRejected(f"give 1-{OFFLINE_TASK_MAX} project numbers, not {len(projects)}")
+        for number in projects:
+            if not isinstance(number, int) or not TASK_NUMBER_MIN <= number <= TASK_NUMBER_MAX:
+                raise CommandRejected(
+                    f"project number {number!r} outside {TASK_NUMBER_MIN}-{TASK_NUMBER_MAX}"
+                )
+        self.io.write_registers(OFFLINE_TASK_ADDRESS, list(projects))
+
+
+def _signed(word: int) -> int:
+    return word - 0x10000 if word >= 0x8000 else word
+
+
+def _check_channel(what: str, index: int, valid: range) -> None:
+    if not isinstance(index, int) or index not in valid:
+        raise CommandRejected(
+            f"{what} {index!r} refused: "
+            f"the manual names only {valid.start}-{valid.stop - 1} as valid"
+        )

@@ -1,0 +1,236 @@
+"""Simulator of the xArm controller's Modbus TCP interface, on the shared simulator base.
+
+Behaviour:
+- serves the appendix tables; reserved rows answer 0x02, function codes other than
+  01 02 03 04 05 06 0F 10 16 17 answer 0x01 (the manual's exception list);
+- offline tasks (FC 10 at 0x30 only, at most 16 registers) put the arm in motion
+  (state 1) for ``TASK_SECONDS`` per project: 7 joints move, speeds and TCP pose follow;
+- H33 (set_state) 3 pauses, 4 stops (cancels the task), 0 resumes a paused task or makes
+  a stopped arm ready (2); the pause/stop coils C144/C145 mirror the state and act alike;
+- mode H32 0-13 (C146-159 mirror it); DO coils and the H0/H2 words stay consistent;
+- error injection (``set_error``) stops the arm until cleared.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import signal
+import threading
+from collections.abc import Sequence
+from pathlib import Path
+
+from bridge_core.registers import Table
+from bridge_core.sim_base import (
+    ILLEGAL_ADDRESS,
+    ILLEGAL_FUNCTION,
+    ILLEGAL_VALUE,
+    SimulatedDevice,
+    Simulator,
+    WriteRecord,
+)
+
+from .registers import (
+    COIL_PAUSED,
+    COIL_STOPPED,
+    CONTROLLER_DIGITAL_CHANNELS,
+    FIRST_TOOL_DIGITAL,
+    JOINTS,
+    MOTION_MODES,
+    OFFLINE_TASK_ADDRESS,
+    OFFLINE_TASK_MAX,
+    TOOL_DIGITAL_CHANNELS,
+    XARM_MAP,
+)
+
+IN_MOTION, SLEEPING, PAUSED, STOPPED = 1, 2, 3, 4
+TASK_SECONDS = 5.0
+AMPLITUDE_DEG = 40.0
+PERIOD_S = 6.0
+
+
+class XArmSimDevice(SimulatedDevice):
+    def __init__(self, unit_id: int = 1) -> None:
+        super().__init__(XARM_MAP, unit_id)
+        self.task_seconds_left = 0.0
+        self.arm_state = SLEEPING  # the truth; H33 and C144/C145 mirror it
+        self.phase = 0.0
+        self.tasks_started: list[list[int]] = []
+        self.write_guards.append(self._guard)
+        self.write_hooks.append(self._on_write)
+        self.set_state(SLEEPING)
+        self.set("arm_mode", 0)
+        self.set("motion_mode_0", True)
+        for j in range(1, JOINTS + 1):
+            self.set(f"enable_{j}", True)
+            self.set(f"joint_temperature_{j}", 30 + j)
+        self.set("tcp_load_mass", 0.5)
+        self.set("tcp_load_center_z", 30.0)
+        self.set("tcp_offset_z", 60.0)
+        self._pose_from_joints()
+
+    # ------------------------------------------------------------ controls for tests
+    def set_state(self, state: int) -> None:
+        with self.lock:
+            self.arm_state = state
+            self.set("arm_state", state)
+            self.set("paused", state == PAUSED)
+            self.set("stopped", state == STOPPED)
+
+    def set_error(self, code: int) -> None:
+        with self.lock:
+            self.set("error_code", code)
+            if code:
+                self.task_seconds_left = 0.0
+                self.set_state(STOPPED)
+
+    def set_warning(self, code: int) -> None:
+        self.set("warning_code", code)
+
+    def set_input(self, index: int, on: bool) -> None:
+        """Controller DI 0-31 or tool DI (32-39), with the DI words kept consistent."""
+        with self.lock:
+            tool = index >= FIRST_TOOL_DIGITAL
+            name = f"tool_di_{index - FIRST_TOOL_DIGITAL}" if tool else f"controller_di_{index}"
+            self.set(name, on)
+            self._sync_words("controller_di", "controller_di_word", "tool_di", "tool_di_word")
+
+    # ------------------------------------------------------------ Modbus behaviour
+    def _guard(self, record: WriteRecord) -> int | None:
+        span = range(record.address, record.address + len(record.values))
+        if record.table is Table.HOLDING:
+            if OFFLINE_TASK_ADDRESS in span or any(48 <= a <= 63 for a in span):
+                if record.function_code != 16:
+                    return ILLEGAL_FUNCTION
+                if record.address != OFFLINE_TASK_ADDRESS or len(record.values) > OFFLINE_TASK_MAX:
+                    return ILLEGAL_ADDRESS
+            if 32 in span and not 0 <= _signed(record.values[32 - record.address]) < MOTION_MODES:
+                return ILLEGAL_VALUE
+            if 33 in span and _signed(record.values[33 - record.address]) not in (0, 3, 4):
+                return ILLEGAL_VALUE
+        return None
+
+    def _on_write(self, record: WriteRecord) -> None:
+        span = range(record.address, record.address + len(record.values))
+        if record.table is Table.COIL:
+            if any(a < FIRST_TOOL_DIGITAL + TOOL_DIGITAL_CHANNELS for a in span):
+                self._sync_words("controller_do", "controller_do_word", "tool_do", "tool_do_word")
+            if COIL_PAUSED in span:
+                self._apply_state(3 if self.get("paused") else 0)
+            if COIL_STOPPED in span and self.get("stopped"):
+                self._apply_state(4)
+            return
+        if any(a in (0, 1, 2) for a in span):
+            self._sync_bits()
+        if 32 in span:
+            mode = int(self.get("arm_mode"))
+            for m in range(MOTION_MODES):
+                self.set(f"motion_mode_{m}", m == mode)
+        if 33 in span:
+            self._apply_state(int(self.get("arm_state")))
+        if record.address == OFFLINE_TASK_ADDRESS:
+            projects = [v for v in record.values if v]
+            self.tasks_started.append(projects)
+            if int(self.get("error_code")) == 0 and self.arm_state in (IN_MOTION, SLEEPING):
+                self.task_seconds_left += TASK_SECONDS * len(projects)
+                self.set_state(IN_MOTION)
+        # Controller AI read back what AO drives, so a demo shows the loop closed.
+        for k in range(2):
+            self.set(f"controller_ai_{k}", float(self.get(f"controller_ao_{k}")))
+
+    def _apply_state(self, requested: int) -> None:
+        """What the controller does with a set_state request, from its current state."""
+        if requested == 3:
+            self.set_state(PAUSED if self.arm_state in (IN_MOTION, PAUSED) else self.arm_state)
+        elif requested == 4:
+            self.task_seconds_left = 0.0
+            self.set_state(STOPPED)
+        elif requested == 0:
+            if int(self.get("error_code")):
+                self.set_state(STOPPED)
+            else:
+                self.set_state(IN_MOTION if self.task_seconds_left > 0 else SLEEPING)
+
+    def _sync_words(self, bits: str, words: str, tool_bits: str, tool_word: str) -> None:
+        """Keep the DI/DO words (H/I 0-2) equal to the bit tables."""
+        table = XARM_MAP[f"{words}_0"].table
+        for w in range(2):
+            word = sum(1 << k for k in range(16) if self.get(f"{bits}_{16 * w + k}"))
+            self.set_words(table, w, [word])
+        tool = sum(1 << k for k in range(TOOL_DIGITAL_CHANNELS) if self.get(f"{tool_bits}_{k}"))
+        self.set_words(table, 2, [tool])
+
+    def _sync_bits(self) -> None:
+        words = self.get_words(Table.HOLDING, 0, 3)
+        for k in range(CONTROLLER_DIGITAL_CHANNELS):
+            self.set(f"controller_do_{k}", bool(words[k // 16] >> (k % 16) & 1))
+        for k in range(TOOL_DIGITAL_CHANNELS):
+            self.set(f"tool_do_{k}", bool(words[2] >> k & 1))
+
+    def _pose_from_joints(self) -> None:
+        q = [float(self.get(f"joint_angle_{j}")) for j in range(1, JOINTS + 1)]
+        self.set("tcp_x", round(300.0 + 2.0 * q[0], 1))
+        self.set("tcp_y", round(0.0 + 2.0 * q[1], 1))
+        self.set("tcp_z", round(400.0 + 2.0 * q[2], 1))
+        self.set("tcp_roll", 180.0)
+        self.set("tcp_pitch", 0.0)
+        self.set("tcp_yaw", round(q[0], 1))
+
+    def tick(self, dt: float) -> None:
+        with self.lock:
+            moving = self.arm_state == IN_MOTION
+            previous = [float(self.get(f"joint_angle_{j}")) for j in range(1, JOINTS + 1)]
+            if moving:
+                self.phase += dt
+                self.task_seconds_left -= dt
+                for j in range(1, JOINTS + 1):
+                    angle = AMPLITUDE_DEG / j * math.sin(2 * math.pi * self.phase / PERIOD_S + j)
+                    self.set(f"joint_angle_{j}", round(angle, 1))
+                self.set("counter", int(self.get("counter")) + 1)
+                if self.task_seconds_left <= 0:
+                    self.task_seconds_left = 0.0
+                    self.set_state(SLEEPING)
+            for j in range(1, JOINTS + 1):
+                moved = float(self.get(f"joint_angle_{j}")) - previous[j - 1]
+                speed = moved / dt if moving and dt > 0 else 0.0
+                self.set(f"joint_speed_{j}", round(max(-3000.0, min(3000.0, speed)), 1))
+                self.set(f"brake_{j}", not moving)
+            self._pose_from_joints()
+            self.set("tcp_speed", 50.0 if moving else 0.0)
+
+
+def _signed(word: int) -> int:
+    return word - 0x10000 if word >= 0x8000 else word
+
+
+def make_simulator() -> Simulator:
+    return Simulator([XArmSimDevice()])
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description="UFactory xArm Modbus TCP simulator")
+    parser.add_argument("--host", default="127.0.0.1")
+    parser.add_argument("--port", type=int, default=5021, help="0 picks a free port")
+    parser.add_argument("--error", type=int, default=0, help="start with this error code")
+    parser.add_argument("--write-log", type=Path, help="append every accepted write (JSON lines)")
+    parser.add_argument("--port-file", type=Path, help="write the bound port here once listening")
+    args = parser.parse_args(argv)
+    sim = make_simulator()
+    device = sim.device
+    assert isinstance(device, XArmSimDevice)
+    device.set_error(args.error)
+    if args.write_log:
+        device.log_file = args.write_log.open("a")
+    port = sim.start_tcp(args.host, args.port)
+    if args.port_file:
+        args.port_file.write_text(str(port))
+    print(f"xarm_sim listening on {args.host}:{port}", flush=True)
+    done = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: done.set())
+    signal.signal(signal.SIGINT, lambda *_: done.set())
+    done.wait()
+    sim.stop()
+
+
+if __name__ == "__main__":
+    main()
