@@ -352,6 +352,14 @@ class Simulator:
         self._stop = asyncio.Event()
         try:
             server = make_server(_MapContext(self))
+            # Decode only the function codes the devices have, so any other one gets
+            # ILLEGAL FUNCTION from the server itself, like the real device (pymodbus
+            # otherwise answers e.g. FC 0x2B/0x08 on its own, without the datastore).
+            allowed = set().union(*(d.limits.function_codes for d in self.devices.values()))
+            decoder = server.decoder
+            decoder.pdu_table = {
+                code: entry for code, entry in decoder.pdu_table.items() if code in allowed
+            }
             await server.serve_forever(background=True)
             transport = getattr(server, "transport", None)
             sockets = getattr(transport, "sockets", None)

@@ -7,11 +7,7 @@ to kill it for real.
 
 from __future__ import annotations
 
-import itertools
 import math
-import signal
-import subprocess
-import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -19,13 +15,9 @@ from typing import Any
 
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
-from geometry_msgs.msg import PoseStamped
-from sensor_msgs.msg import JointState
-from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 
 from bridge_core.registers import Table
-from bridge_core.sim_base import read_write_log
 from msg_defs.msg import R6State
 from msg_defs.srv import (
     ReadParameter,
@@ -39,10 +31,9 @@ from r6_bridge.registers import COMMANDS
 from r6_bridge.sim import R6SimDevice, make_simulator
 
 from .conftest import free_port
-from .support.ros import LATCHED, ROOT, Client, node_process, ros_client, wait_for
+from .support.ros import Client, ros_client, start_bridge, values_of, wait_for
 
 pytestmark = pytest.mark.ros
-NAMESPACES = (f"/r6test{i}" for i in itertools.count())
 
 
 @pytest.fixture(scope="module")
@@ -63,71 +54,14 @@ def sim() -> Iterator[tuple[R6SimDevice, int]]:
     simulator.stop()
 
 
-class Bridge:
-    """Names of one running bridge node's topics and services."""
-
-    def __init__(self, client: Client, namespace: str) -> None:
-        self.client = client
-        self.ns = namespace
-        self.joint_states = f"{namespace}/joint_states"
-        self.state = f"{namespace}/r6_bridge/state"
-        self.pose = f"{namespace}/r6_bridge/tcp_pose"
-        self.connected = f"{namespace}/r6_bridge/connected"
-        client.subscribe(JointState, self.joint_states)
-        client.subscribe(R6State, self.state)
-        client.subscribe(PoseStamped, self.pose)
-        client.subscribe(Bool, self.connected, LATCHED)
-
-    def service(self, name: str) -> str:
-        return f"{self.ns}/r6_bridge/{name}"
-
-    def call(self, srv_type: Any, name: str, **fields: Any) -> Any:
-        request = srv_type.Request()
-        for key, value in fields.items():
-            setattr(request, key, value)
-        return self.client.call(srv_type, self.service(name), request)
-
-    def diagnostics(self, since: float = 0.0) -> list[Any]:
-        return [
-            status
-            for array in self.client.received("/diagnostics", since)
-            for status in array.status
-            if status.name.startswith(f"{self.ns.strip('/')}")
-            or status.name.startswith("r6_bridge")
-        ]
-
-    def wait_diagnostic(self, level: int, since: float, port: int, timeout: float = 15.0) -> Any:
-        def find() -> Any:
-            for status in reversed(self.diagnostics(since)):
-                if f":{port} " in status.hardware_id and status.level == bytes([level]):
-                    return status
-            return None
-
-        return wait_for(find, timeout, f"diagnostics level {level} for port {port}")
-
-    def wait_connected(self, value: bool, since: float = 0.0, timeout: float = 15.0) -> None:
-        self.client.wait_message(self.connected, lambda m: m.data == value, timeout, since)
-
-
 @pytest.fixture
 def bridge_factory(client: Client, tmp_path: Path):  # type: ignore[no-untyped-def]
-    @__import__("contextlib").contextmanager
-    def start(port: int, **params: Any) -> Iterator[tuple[Bridge, subprocess.Popen[bytes]]]:
-        namespace = next(NAMESPACES)
+    def start(port: int, **params: Any):  # type: ignore[no-untyped-def]
         defaults = {"port": port, "poll_rate_hz": 50.0, "timeout_s": 0.3, "reconnect_max_s": 1.0}
         defaults.update(params)
-        bridge = Bridge(client, namespace)
-        with node_process(
-            "r6_bridge.node", defaults, tmp_path, ["-r", f"__ns:={namespace}"]
-        ) as proc:
-            yield bridge, proc
-            assert proc.poll() is None, "the bridge process died"
+        return start_bridge(client, tmp_path, "r6_bridge.node", "r6_bridge", R6State, defaults)
 
     return start
-
-
-def values_of(status: Any) -> dict[str, str]:
-    return {kv.key: kv.value for kv in status.values}
 
 
 def test_topics_carry_si_values(sim, bridge_factory, client: Client) -> None:  # type: ignore[no-untyped-def]
@@ -300,63 +234,6 @@ def test_disconnected_bridge_refuses_and_connects_later(bridge_factory, client: 
             assert proc.poll() is None
         finally:
             simulator.stop()
-
-
-def test_simulator_killed_and_restarted(bridge_factory, client: Client, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
-    port = free_port()
-    write_log = tmp_path / "writes.jsonl"
-
-    def start_sim() -> subprocess.Popen[bytes]:
-        proc = subprocess.Popen(
-            [
-                sys.executable,
-                "-m",
-                "r6_bridge.sim",
-                "--port",
-                str(port),
-                "--running",
-                "--write-log",
-                str(write_log),
-            ],
-            cwd=ROOT,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-        )
-        assert proc.stdout is not None
-        line = proc.stdout.readline().decode()
-        assert "listening" in line, line
-        return proc
-
-    sim_proc = start_sim()
-    try:
-        with bridge_factory(port, reconnect_max_s=1.0) as (bridge, node):
-            client.wait_message(bridge.joint_states)
-            bridge.wait_connected(True)
-            killed = time.monotonic()  # before the kill: the node may notice at once
-            sim_proc.send_signal(signal.SIGKILL)  # mid-poll: the node polls at 50 Hz
-            sim_proc.wait(5)
-            bridge.wait_connected(False, since=killed)
-            status = bridge.wait_diagnostic(2, killed, port)
-            assert values_of(status)["link state"] == "disconnected"
-            down = time.monotonic()
-            reply = bridge.call(Trigger, "start")
-            assert not reply.success and "not connected" in reply.message
-            # Stay down for a while: no joint_states with fresh stamps may appear.
-            wait_for(lambda: time.monotonic() - down > 1.5 or None, 5, "a quiet period")
-            assert client.received(bridge.joint_states, since=down) == []
-            assert client.received(bridge.state, since=down) == []
-            assert node.poll() is None
-            restarted = time.monotonic()
-            sim_proc = start_sim()
-            client.wait_message(bridge.joint_states, since=restarted, timeout=1.0 + 10)
-            bridge.wait_connected(True, since=restarted)
-            status = bridge.wait_diagnostic(0, restarted, port)
-            assert int(values_of(status)["reconnects"]) >= 1
-            # The refused start was not executed after the reconnect.
-            assert read_write_log(write_log) == []
-    finally:
-        sim_proc.kill()
-        sim_proc.wait(5)
 
 
 def test_withheld_replies_and_exception_replies(sim, bridge_factory, client: Client) -> None:  # type: ignore[no-untyped-def]

@@ -161,3 +161,78 @@ def node_process(
                 proc.kill()
                 proc.wait(5)
         log.close()
+
+
+def values_of(status: Any) -> dict[str, str]:
+    """A DiagnosticStatus's key-value pairs as a dict."""
+    return {kv.key: kv.value for kv in status.values}
+
+
+class Bridge:
+    """Names of one running bridge node's topics and services."""
+
+    def __init__(self, client: Client, namespace: str, node_name: str, state_type: Any) -> None:
+        from geometry_msgs.msg import PoseStamped
+        from sensor_msgs.msg import JointState
+        from std_msgs.msg import Bool
+
+        self.client = client
+        self.ns = namespace
+        self.node_name = node_name
+        self.joint_states = f"{namespace}/joint_states"
+        self.state = f"{namespace}/{node_name}/state"
+        self.pose = f"{namespace}/{node_name}/tcp_pose"
+        self.connected = f"{namespace}/{node_name}/connected"
+        client.subscribe(JointState, self.joint_states)
+        client.subscribe(state_type, self.state)
+        client.subscribe(PoseStamped, self.pose)
+        client.subscribe(Bool, self.connected, LATCHED)
+
+    def service(self, name: str) -> str:
+        return f"{self.ns}/{self.node_name}/{name}"
+
+    def call(self, srv_type: Any, name: str, **fields: Any) -> Any:
+        request = srv_type.Request()
+        for key, value in fields.items():
+            setattr(request, key, value)
+        return self.client.call(srv_type, self.service(name), request)
+
+    def diagnostics(self, since: float = 0.0) -> list[Any]:
+        return [
+            status
+            for array in self.client.received("/diagnostics", since)
+            for status in array.status
+            if status.name.startswith(f"{self.node_name}:")
+        ]
+
+    def wait_diagnostic(self, level: int, since: float, port: int, timeout: float = 15.0) -> Any:
+        def find() -> Any:
+            for status in reversed(self.diagnostics(since)):
+                if f":{port} " in status.hardware_id and status.level == bytes([level]):
+                    return status
+            return None
+
+        return wait_for(find, timeout, f"diagnostics level {level} for port {port}")
+
+    def wait_connected(self, value: bool, since: float = 0.0, timeout: float = 15.0) -> None:
+        self.client.wait_message(self.connected, lambda m: m.data == value, timeout, since)
+
+
+_NAMESPACE_COUNTER = iter(range(1_000_000))
+
+
+@contextmanager
+def start_bridge(
+    client: Client,
+    log_dir: Path,
+    module: str,
+    node_name: str,
+    state_type: Any,
+    params: dict[str, Any],
+) -> Iterator[tuple[Bridge, subprocess.Popen[bytes]]]:
+    """A bridge node in its own process under a fresh namespace; asserts it did not die."""
+    namespace = f"/{node_name}_test{next(_NAMESPACE_COUNTER)}"
+    bridge = Bridge(client, namespace, node_name, state_type)
+    with node_process(module, params, log_dir, ["-r", f"__ns:={namespace}"]) as proc:
+        yield bridge, proc
+        assert proc.poll() is None, f"the bridge process died; see {log_dir}"

@@ -1,0 +1,348 @@
+"""RTU wire timing for pymodbus's sync serial client.
+
+pymodbus 3.16's ``ModbusSerialClient`` has two timing gaps on a real RS-485 line (measured
+in shared/notes/pymodbus-and-timing.md):
+
+- it never waits for the 3.5-character silence before sending, so it may start a request
+  while a device still treats the line as inside the previous frame (devices then merge
+  or drop frames);
+- it finds the end of a reply by polling the port until the byte count stops growing,
+  which costs 4-8 ms per transaction at 9600 baud and 1-2 ms at 115200.
+
+``TimedSerialClient`` fixes both and keeps the rest of pymodbus: its framer and CRC check
+decide whether a reply is good, its transaction manager does retries and id checks, and
+the client's ``timeout`` still bounds the wait for a reply. Override points:
+
+- ``send``: waits for the silence (draining stray bytes, which restart it), writes, and
+  works out from the request frame how long the reply will be;
+- ``recv(None)`` (called by ``TransactionManager.sync_get_response``): reads exactly that
+  many bytes and returns at the last one; after an exception function code (byte 2) it
+  reads 5 bytes. Unknown function codes, ASCII framing, local echo and ports without a
+  file descriptor keep pymodbus's own behaviour.
+
+Timing rules are from "MODBUS over Serial Line, Specification and Implementation Guide
+V1.02" §2.5.1.1 (framing) and §2.4.1 (master states).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+import select
+import time
+from typing import Any
+
+from pymodbus.client import ModbusSerialClient
+from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
+from pymodbus.framer import FramerRTU
+
+_log = logging.getLogger(__name__)
+
+# ---------------------------------------------------------------- protocol timing limits
+
+START_BITS = 1
+# Frames are separated by at least 3.5 character times of silence (spec §2.5.1.1).
+SILENCE_CHARS = 3.5
+# Above 19200 baud the spec fixes the silence instead of scaling it with the baud rate.
+FIXED_TIMING_ABOVE_BAUD = 19200
+SILENCE_FIXED_S = 0.00175
+# After a broadcast nobody answers; the master waits a "turnaround delay" so every device
+# can process it before the next request (spec §2.4.1: typically 100 to 200 ms).
+BROADCAST_TURNAROUND_S = 0.1
+# A frame whose length is unknown (fallback paths only) ends after this much silence at
+# least: USB adapters deliver bytes in bursts, so the wire's 3.5 characters is too short.
+FALLBACK_FRAME_GAP_S = 0.005
+# time.sleep overshoots by ~50-100 us (timer slack); the last stretch of a silence wait
+# is spun on the clock so the request leaves within a few us of the silence's end.
+SPIN_S = 100e-6
+
+# ---------------------------------------------------------------- frame layout
+
+BROADCAST_UNIT = 0
+EXCEPTION_FLAG = 0x80
+# unit id + function code: enough to tell a normal reply from an exception reply.
+REPLY_HEADER_LEN = 2
+# unit id, function code, exception code, CRC (2).
+EXCEPTION_REPLY_LEN = 5
+# unit id, function code, byte count, CRC (2): the frame around a read reply's data.
+READ_REPLY_OVERHEAD = 5
+# Replies that echo the request's first fields (unit, function, 4 bytes, CRC).
+ECHO_REPLY_LEN = 8
+MASK_WRITE_REPLY_LEN = 10
+CRC_LEN = 2
+MIN_FRAME_LEN = 4
+
+FC_READ_COILS = 0x01
+FC_READ_DISCRETE_INPUTS = 0x02
+FC_READ_HOLDING = 0x03
+FC_READ_INPUT = 0x04
+FC_WRITE_COIL = 0x05
+FC_WRITE_REGISTER = 0x06
+FC_READ_EXCEPTION_STATUS = 0x07
+FC_COMM_EVENT_COUNTER = 0x0B
+FC_WRITE_COILS = 0x0F
+FC_WRITE_REGISTERS = 0x10
+FC_MASK_WRITE = 0x16
+FC_READ_WRITE_REGISTERS = 0x17
+
+# Request length (with CRC) each rule needs to read its count field.
+_REQUEST_LEN_READ = 8
+_REQUEST_LEN_READ_WRITE = 13
+
+
+def char_time_s(baudrate: int, bytesize: int = 8, parity: str = "N", stopbits: int = 1) -> float:
+    """Seconds per character: start bit, data bits, parity bit if any, stop bits."""
+    bits = START_BITS + bytesize + (0 if parity.upper() == "N" else 1) + stopbits
+    return bits / baudrate
+
+
+def silence_s(baudrate: int, bytesize: int = 8, parity: str = "N", stopbits: int = 1) -> float:
+    """The inter-frame silence t3.5 (fixed 1.75 ms above 19200 baud)."""
+    if baudrate > FIXED_TIMING_ABOVE_BAUD:
+        return SILENCE_FIXED_S
+    return SILENCE_CHARS * char_time_s(baudrate, bytesize, parity, stopbits)
+
+
+def expected_reply_length(request: bytes) -> int | None:
+    """Bytes of the normal reply to an RTU request frame (CRC included).
+
+    0 for a broadcast (unit 0: no device answers), None when the function code's reply
+    length does not follow from the request (then the caller falls back to silence).
+    """
+    if len(request) < MIN_FRAME_LEN:
+        return None
+    if request[0] == BROADCAST_UNIT:
+        return 0
+    function = request[1]
+    if function in (FC_READ_COILS, FC_READ_DISCRETE_INPUTS) and len(request) >= _REQUEST_LEN_READ:
+        bits = int.from_bytes(request[4:6], "big")
+        return READ_REPLY_OVERHEAD + math.ceil(bits / 8)
+    if function in (FC_READ_HOLDING, FC_READ_INPUT) and len(request) >= _REQUEST_LEN_READ:
+        return READ_REPLY_OVERHEAD + 2 * int.from_bytes(request[4:6], "big")
+    if function == FC_READ_WRITE_REGISTERS and len(request) >= _REQUEST_LEN_READ_WRITE:
+        return READ_REPLY_OVERHEAD + 2 * int.from_bytes(request[4:6], "big")
+    if function in (FC_WRITE_COIL, FC_WRITE_REGISTER, FC_WRITE_COILS, FC_WRITE_REGISTERS):
+        return ECHO_REPLY_LEN
+    if function == FC_COMM_EVENT_COUNTER:
+        return ECHO_REPLY_LEN
+    if function == FC_MASK_WRITE:
+        return MASK_WRITE_REPLY_LEN
+    if function == FC_READ_EXCEPTION_STATUS:
+        return EXCEPTION_REPLY_LEN  # unit, function, status byte, CRC
+    return None
+
+
+def reply_length(request: bytes, header: bytes) -> int | None:
+    """Total reply length once its first two bytes are in (None: unknown, read to silence).
+
+    An exception reply has the request's function code with bit 7 set and is 5 bytes
+    long whatever was asked.
+    """
+    if len(header) < REPLY_HEADER_LEN or len(request) < MIN_FRAME_LEN:
+        return None
+    function = header[1]
+    if function & EXCEPTION_FLAG and function & ~EXCEPTION_FLAG == request[1]:
+        return EXCEPTION_REPLY_LEN
+    if function != request[1]:
+        return None
+    return expected_reply_length(request)
+
+
+class ReplyFrameError(ModbusException):
+    """A reply arrived but its frame was bad (the link reports it as a frame error)."""
+
+
+class TimedSerialClient(ModbusSerialClient):
+    """``ModbusSerialClient`` that keeps the RTU inter-frame silence and reads by length.
+
+    Same constructor as ``ModbusSerialClient``, plus ``broadcast_turnaround_s``.
+    """
+
+    def __init__(
+        self,
+        port: str,
+        *,
+        broadcast_turnaround_s: float = BROADCAST_TURNAROUND_S,
+        **kwargs: Any,
+    ) -> None:
+        super().__init__(port, **kwargs)
+        params = self.comm_params
+        self.char_s = char_time_s(params.baudrate, params.bytesize, params.parity, params.stopbits)
+        self.silence_s = silence_s(params.baudrate, params.bytesize, params.parity, params.stopbits)
+        self.broadcast_turnaround_s = max(broadcast_turnaround_s, self.silence_s)
+        self._fd: int | None = None
+        # Line state, on time.monotonic(): the next request may start at _ready_at.
+        self._ready_at = 0.0
+        # The transaction in progress: its request, expected reply length (None: let
+        # pymodbus find the end), reply deadline, and the bytes already handed over.
+        self._request = b""
+        self._expected: int | None = None
+        self._deadline = 0.0
+        self._returned: bytes | None = None
+
+    # ------------------------------------------------------------ connection
+    def connect(self) -> bool:
+        was_open = self.socket is not None
+        ok = super().connect()
+        if ok and not was_open and self.socket is not None:
+            try:
+                self._fd = int(self.socket.fileno())
+            except (AttributeError, OSError, ValueError):  # URL handlers without a descriptor
+                self._fd = None
+            # The line state is unknown: be silent for one interval before the first request.
+            self._ready_at = time.monotonic() + self.silence_s
+        return ok
+
+    def close(self) -> None:
+        self._fd = None
+        super().close()  # type: ignore[no-untyped-call]
+
+    @property
+    def _timed(self) -> bool:
+        """Whether this client does the RTU timing itself (else: pymodbus's behaviour)."""
+        return (
+            self._fd is not None
+            and isinstance(self.framer, FramerRTU)
+            and not self.comm_params.handle_local_echo
+        )
+
+    # ------------------------------------------------------------ sending
+    def send(self, request: bytes, addr: tuple[Any, ...] | None = None) -> int:
+        """Wait for the inter-frame silence, then send ``request``."""
+        if not self._timed or not request:
+            self._expected = None
+            return super().send(request, addr)
+        if not self.socket:
+            raise ConnectionException(str(self))
+        try:
+            self._wait_for_silence()
+            started = time.monotonic()
+            size = self.socket.write(request) or 0
+        except (BlockingIOError, InterruptedError):
+            raise
+        except OSError:
+            self.close()
+            raise ConnectionException(str(self)) from None
+        # write() returns once the bytes are queued; the last one leaves n chars later.
+        sent_at = max(time.monotonic(), started + len(request) * self.char_s)
+        self._request = bytes(request)
+        self._expected = expected_reply_length(self._request)
+        self._deadline = sent_at + self.comm_params.timeout_connect
+        self._returned = None
+        if self._expected == 0:
+            self._ready_at = sent_at + self.broadcast_turnaround_s
+        else:
+            self._ready_at = sent_at + self.silence_s
+        return int(size)
+
+    def _wait_for_silence(self) -> None:
+        """Block until the line has been quiet for t3.5 (stray bytes restart the wait)."""
+        assert self.socket is not None
+        while True:
+            if waiting := int(self.socket.in_waiting):
+                # A late reply or noise: it restarts the silence and is not a reply to
+                # the coming request.
+                stray = self.socket.read(waiting)
+                self._heard_at(time.monotonic())
+                _log.debug("discarded %d stray bytes before a request: %s", waiting, stray.hex())
+            remaining = self._ready_at - time.monotonic()
+            if remaining <= 0:
+                return
+            if remaining > SPIN_S:
+                time.sleep(remaining - SPIN_S)
+            while time.monotonic() < self._ready_at:
+                pass
+
+    def _heard_at(self, when: float) -> None:
+        self._ready_at = max(self._ready_at, when + self.silence_s)
+
+    # ------------------------------------------------------------ receiving
+    def recv(self, size: int | None) -> bytes:
+        """Return the reply frame as soon as its last byte is in (pymodbus asks size=None)."""
+        if size is not None or self._expected is None or not self._timed:
+            return super().recv(size)
+        if not self.socket:
+            raise ConnectionException(str(self))
+        try:
+            if self._returned is None:
+                frame = b"" if self._expected == 0 else self._read_frame()
+                self._returned = frame
+                return frame
+            return self._after_rejected(self._returned)
+        except (BlockingIOError, InterruptedError):
+            raise
+        except OSError:
+            self.close()
+            raise ConnectionException(str(self)) from None
+
+    def _read_frame(self) -> bytes:
+        """One reply by its length; short (or empty) if the deadline passes first."""
+        header = self._read_exact(REPLY_HEADER_LEN)
+        if len(header) < REPLY_HEADER_LEN:
+            return header
+        total = reply_length(self._request, header)
+        if total is None:  # a function code we did not ask for: read until silence
+            return header + self._read_until_gap()
+        return header + self._read_exact(total - REPLY_HEADER_LEN)
+
+    def _after_rejected(self, previous: bytes) -> bytes:
+        """pymodbus asks for more after the framer found no reply in ``previous``.
+
+        Per the master state diagram (spec §2.4.1): a frame error ends the transaction at
+        once; a reply from an unexpected unit leaves the master waiting for the right one
+        until the timeout; anything else (a longer reply than expected) is read on.
+        """
+        unit = self._request[0]
+        if len(previous) >= MIN_FRAME_LEN and not FramerRTU.check_CRC(
+            previous[:-CRC_LEN], int.from_bytes(previous[-CRC_LEN:], "big")
+        ):
+            raise ReplyFrameError(f"reply failed the CRC check: {previous.hex(' ')}")
+        if previous and previous[0] != unit:
+            frame = self._read_frame()
+            if frame:
+                self._returned = frame
+                return frame
+            raise ModbusIOException(
+                f"reply came from device id {previous[0]}, request was for device id {unit}"
+            )
+        more = self._read_until_gap()
+        self._returned = previous + more
+        return more
+
+    def _read_exact(self, count: int) -> bytes:
+        """Read ``count`` bytes, returning early only at the reply deadline."""
+        assert self._fd is not None
+        buf = bytearray()
+        while len(buf) < count:
+            remaining = self._deadline - time.monotonic()
+            if remaining <= 0:
+                break
+            ready, _, _ = select.select([self._fd], [], [], remaining)
+            if not ready:
+                break
+            chunk = os.read(self._fd, count - len(buf))
+            if not chunk:
+                raise OSError("serial port reports data but returned none (disconnected?)")
+            buf += chunk
+            self._heard_at(time.monotonic())
+        return bytes(buf)
+
+    def _read_until_gap(self) -> bytes:
+        """Read until the line is quiet (fallback when the length is unknown)."""
+        assert self._fd is not None
+        gap = max(self.silence_s, FALLBACK_FRAME_GAP_S)
+        buf = bytearray()
+        while True:
+            remaining = self._deadline - time.monotonic()
+            if remaining <= 0:
+                break
+            ready, _, _ = select.select([self._fd], [], [], min(gap, remaining))
+            if not ready:
+                break
+            chunk = os.read(self._fd, 256)
+            if not chunk:
+                raise OSError("serial port reports data but returned none (disconnected?)")
+            buf += chunk
+            self._heard_at(time.monotonic())
+        return bytes(buf)

@@ -1,0 +1,110 @@
+"""Faults every TCP bridge survives: its simulator killed mid-poll and restarted.
+
+Runs the simulator as its own process (killed with SIGKILL, restarted on the same port,
+writes logged to a file) and the bridge node as another; the rclpy client is this process.
+"""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray
+from std_srvs.srv import Trigger
+
+from bridge_core.sim_base import read_write_log
+from msg_defs.msg import R6State, XArmState
+
+from .conftest import free_port
+from .support.ros import ROOT, Client, ros_client, start_bridge, values_of, wait_for
+
+pytestmark = pytest.mark.ros
+
+DEVICES = [
+    pytest.param("r6_bridge", R6State, "start", ["--running"], id="r6"),
+    pytest.param("xarm_bridge", XArmState, "resume", [], id="xarm"),
+]
+
+
+@pytest.fixture(scope="module")
+def client() -> Iterator[Client]:
+    with ros_client("fault_client") as c:
+        c.subscribe(DiagnosticArray, "/diagnostics")
+        yield c
+
+
+@pytest.mark.parametrize(("package", "state_type", "command", "sim_args"), DEVICES)
+def test_simulator_killed_and_restarted(
+    client: Client, tmp_path: Path, package: str, state_type: Any, command: str, sim_args: list[str]
+) -> None:
+    port = free_port()
+    write_log = tmp_path / "writes.jsonl"
+    reconnect_max_s = 1.0
+
+    def start_sim() -> subprocess.Popen[bytes]:
+        proc = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                f"{package}.sim",
+                "--port",
+                str(port),
+                "--write-log",
+                str(write_log),
+                *sim_args,
+            ],
+            cwd=ROOT,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+        )
+        assert proc.stdout is not None
+        line = proc.stdout.readline().decode()
+        assert "listening" in line, line
+        return proc
+
+    params = {
+        "port": port,
+        "poll_rate_hz": 50.0,
+        "timeout_s": 0.3,
+        "reconnect_max_s": reconnect_max_s,
+    }
+    sim_proc = start_sim()
+    try:
+        with start_bridge(client, tmp_path, f"{package}.node", package, state_type, params) as (
+            bridge,
+            node,
+        ):
+            client.wait_message(bridge.joint_states)
+            bridge.wait_connected(True)
+            killed = time.monotonic()  # before the kill: the node may notice at once
+            sim_proc.send_signal(signal.SIGKILL)  # mid-poll: the node polls at 50 Hz
+            sim_proc.wait(5)
+            bridge.wait_connected(False, since=killed)
+            status = bridge.wait_diagnostic(2, killed, port)
+            assert values_of(status)["link state"] == "disconnected"
+            down = time.monotonic()
+            reply = client.call(Trigger, bridge.service(command), Trigger.Request())
+            assert not reply.success and "not connected" in reply.message
+            # Stay down a while: no joint_states or state with fresh stamps may appear.
+            wait_for(lambda: time.monotonic() - down > 1.5 or None, 5, "a quiet period")
+            assert client.received(bridge.joint_states, since=down) == []
+            assert client.received(bridge.state, since=down) == []
+            assert node.poll() is None
+            restarted = time.monotonic()
+            sim_proc = start_sim()
+            # Reconnects within the backoff cap (plus start-up slack on a loaded machine).
+            client.wait_message(bridge.joint_states, since=restarted, timeout=reconnect_max_s + 10)
+            bridge.wait_connected(True, since=restarted)
+            status = bridge.wait_diagnostic(0, restarted, port)
+            assert int(values_of(status)["reconnects"]) >= 1
+            # The refused command was not executed after the reconnect.
+            assert read_write_log(write_log) == []
+    finally:
+        sim_proc.kill()
+        sim_proc.wait(5)
