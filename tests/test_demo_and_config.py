@@ -33,12 +33,16 @@ def test_demo_shows_moving_r6(tmp_path: Path) -> None:
     assert result.returncode == 0, result.stdout + result.stderr
     out = result.stdout
     assert "start: done" in out
-    blocks = [line for line in out.splitlines() if line.startswith("   joints (deg): ")]
+    blocks = [line for line in out.splitlines() if line.startswith("   joints (deg): joint_1")]
     assert len(blocks) >= 2, out
     first = float(blocks[0].split()[3])
     last = float(blocks[-1].split()[3])
     assert abs(last - first) > 1.0, out  # the axes move after ~start
     assert "[R6] connected  diagnostics OK" in out
+    assert "[xArm] connected  diagnostics OK" in out
+    assert "run_offline_task [1, 2, 3, 4, 5, 6]: done" in out
+    xarm = [line for line in out.splitlines() if line.startswith("   joints (deg): joint1")]
+    assert len(xarm) >= 2 and xarm[0] != xarm[-1], out  # the xArm moves too
     assert "bridge_demo: stopped" in out
 
 
