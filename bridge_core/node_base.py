@@ -247,7 +247,11 @@ class BridgeNode(Node):
         self._publish_connected(True)
         self.last_poll_error = None
         self.poll_rate.tick()
-        self.publish_snapshot(snapshot)
+        try:
+            self.publish_snapshot(snapshot)
+        except Exception as err:  # a value the message cannot hold must not kill the node
+            self.last_poll_error = f"publishing failed: {err}"
+            self.get_logger().error(f"{self.last_poll_error}\n{traceback.format_exc()}")
 
     def _publish_connected(self, connected: bool) -> None:
         if connected != self._connected_published:
@@ -314,6 +318,12 @@ class BridgeNode(Node):
 
     # ------------------------------------------------------------ diagnostics
     def publish_diagnostics(self) -> None:
+        try:
+            self._publish_diagnostics()
+        except Exception as err:  # diagnostics must never take the node down
+            self.get_logger().error(f"diagnostics failed: {err}\n{traceback.format_exc()}")
+
+    def _publish_diagnostics(self) -> None:
         link = link_report(
             self.channel,
             poll_rate=self.poll_rate,
