@@ -60,18 +60,20 @@ class PriorityLock:
     @contextmanager
     def hold(self, priority: Priority) -> Iterator[None]:
         with self._cond:
-            me = (int(priority), next(self._tickets))
-            heapq.heappush(self._waiting, me)
-            while self._busy or self._waiting[0] != me:
-                self._cond.wait()
-            heapq.heappop(self._waiting)
+            if self._busy or self._waiting:
+                me = (int(priority), next(self._tickets))
+                heapq.heappush(self._waiting, me)
+                while self._busy or self._waiting[0] != me:
+                    self._cond.wait()
+                heapq.heappop(self._waiting)
             self._busy = True
         try:
             yield
         finally:
             with self._cond:
                 self._busy = False
-                self._cond.notify_all()
+                if self._waiting:
+                    self._cond.notify_all()
 
 
 # ---------------------------------------------------------------- requests (pymodbus-free)
@@ -259,7 +261,8 @@ class ModbusLink:
         if isinstance(request, ReadBits):
             return [bool(b) for b in response.bits[: request.count]]
         if isinstance(request, ReadRegisters | ReadWriteRegisters):
-            return [int(r) for r in response.registers]
+            registers: list[int] = response.registers  # pymodbus decodes them to ints
+            return registers
         return None
 
     def _send(self, unit_id: int, request: Request):  # type: ignore[no-untyped-def]
@@ -451,9 +454,11 @@ class DeviceChannel:
     ) -> list[int]:
         reply = self.transact(ReadRegisters(address, count, table), priority)
         assert isinstance(reply, list)
-        if len(reply) < count:
-            raise FrameError(f"short reply: {len(reply)} of {count} registers")
-        return [int(v) for v in reply[:count]]
+        if len(reply) != count:
+            if len(reply) < count:
+                raise FrameError(f"short reply: {len(reply)} of {count} registers")
+            reply = reply[:count]
+        return reply  # type: ignore[return-value]
 
     def read_bits(
         self,

@@ -8,11 +8,13 @@ the planner only merges where the map and the device's limits allow.
 
 from __future__ import annotations
 
+import functools
+import struct
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 from .codec import Value, decode
-from .registers import DeviceLimits, Register, RegisterMap, Table
+from .registers import DeviceLimits, Register, RegisterMap, Table, ValueType, WordOrder
 
 
 @dataclass(frozen=True)
@@ -27,6 +29,10 @@ class ReadRequest:
     @property
     def end(self) -> int:
         return self.address + self.count
+
+    @functools.cached_property
+    def decoder(self) -> BlockDecoder:
+        return BlockDecoder(self)
 
 
 def _gap_is_readable(
@@ -87,10 +93,85 @@ def plan_reads(
     return requests
 
 
+# struct codes of high-word-first values: the words are big-endian, so the whole block is
+# one big-endian byte string and each value one struct field.
+_STRUCT_CODES = {
+    ValueType.U16: "H",
+    ValueType.I16: "h",
+    ValueType.U32: "I",
+    ValueType.I32: "i",
+    ValueType.U64: "Q",
+    ValueType.I64: "q",
+}
+
+
+class BlockDecoder:
+    """Decodes one planned register request with a single precompiled ``struct``.
+
+    The hot path of every poll: bench/r6_bench.py measured the per-value decoder at about
+    a third of the device layer's CPU. Same results as ``codec.decode`` (tested).
+    """
+
+    def __init__(self, request: ReadRequest) -> None:
+        self.count = request.count
+        self._words = struct.Struct(f">{request.count}H")
+        fields: list[str] = []
+        # (name, kind, scale, word count) per unpacked field, in order
+        self._plan: list[tuple[str, str, float, int]] = []
+        position = request.address
+        for reg in sorted(request.registers, key=lambda r: r.address):
+            if reg.address > position:
+                fields.append(f"{2 * (reg.address - position)}x")
+            kind = reg.value_type
+            if kind is ValueType.STRING:
+                fields.append(f"{2 * reg.count}s")
+                self._plan.append((reg.name, "string", 1.0, 1))
+            elif kind is ValueType.BOOL:
+                fields.append("H")
+                self._plan.append((reg.name, "bool", 1.0, 1))
+            elif kind.words == 1 or reg.word_order is WordOrder.HIGH_FIRST:
+                fields.append(_STRUCT_CODES[kind])
+                self._plan.append((reg.name, "int", reg.scale, 1))
+            else:  # low word first: unpack the words, join them in reverse
+                fields.append(f"{kind.words}H")
+                self._plan.append(
+                    (reg.name, "signed" if kind.signed else "unsigned", reg.scale, kind.words)
+                )
+            position = reg.end
+        self._values = struct.Struct(">" + "".join(fields))
+
+    def __call__(self, words: Sequence[int]) -> dict[str, Value]:
+        if len(words) < self.count:
+            raise ValueError(f"reply has {len(words)} values, request asked for {self.count}")
+        fields = self._values.unpack(self._words.pack(*words[: self.count]))
+        values: dict[str, Value] = {}
+        index = 0
+        for name, kind, scale, nwords in self._plan:
+            raw: int | str | bool
+            if kind == "int":
+                raw = fields[index]
+            elif kind == "bool":
+                raw = bool(fields[index])
+            elif kind == "string":
+                raw = fields[index].rstrip(b"\x00").decode("latin-1")
+            else:
+                joined = 0
+                for word in reversed(fields[index : index + nwords]):
+                    joined = (joined << 16) | word
+                if kind == "signed" and joined >= 1 << (16 * nwords - 1):
+                    joined -= 1 << (16 * nwords)
+                raw = joined
+            index += nwords
+            values[name] = raw / scale if scale != 1.0 and not isinstance(raw, str | bool) else raw
+        return values
+
+
 def decode_reply(request: ReadRequest, words: Sequence[int] | Sequence[bool]) -> dict[str, Value]:
     """Values of the request's registers from the words (or bits) the device returned."""
     if len(words) < request.count:
         raise ValueError(f"reply has {len(words)} values, request asked for {request.count}")
+    if not request.table.is_bit:
+        return request.decoder(words)
     values: dict[str, Value] = {}
     for reg in request.registers:
         offset = reg.address - request.address

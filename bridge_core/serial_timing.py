@@ -33,6 +33,7 @@ import select
 import time
 from typing import Any
 
+import serial
 from pymodbus.client import ModbusSerialClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
 from pymodbus.framer import FramerRTU
@@ -172,6 +173,7 @@ class TimedSerialClient(ModbusSerialClient):
         self.silence_s = silence_s(params.baudrate, params.bytesize, params.parity, params.stopbits)
         self.broadcast_turnaround_s = max(broadcast_turnaround_s, self.silence_s)
         self._fd: int | None = None
+        self._poller = select.poll()
         # Line state, on time.monotonic(): the next request may start at _ready_at.
         self._ready_at = 0.0
         # The transaction in progress: its request, expected reply length (None: let
@@ -190,6 +192,10 @@ class TimedSerialClient(ModbusSerialClient):
                 self._fd = int(self.socket.fileno())
             except (AttributeError, OSError, ValueError):  # URL handlers without a descriptor
                 self._fd = None
+            else:
+                # poll, not select: a process with many files may give the port fd > 1023.
+                self._poller = select.poll()
+                self._poller.register(self._fd, select.POLLIN)
             # The line state is unknown: be silent for one interval before the first request.
             self._ready_at = time.monotonic() + self.silence_s
         return ok
@@ -221,6 +227,8 @@ class TimedSerialClient(ModbusSerialClient):
             size = self.socket.write(request) or 0
         except (BlockingIOError, InterruptedError):
             raise
+        except serial.SerialTimeoutException:
+            raise ConnectionException(str(self)) from None
         except OSError:
             self.close()
             raise ConnectionException(str(self)) from None
@@ -261,7 +269,10 @@ class TimedSerialClient(ModbusSerialClient):
     def recv(self, size: int | None) -> bytes:
         """Return the reply frame as soon as its last byte is in (pymodbus asks size=None)."""
         if size is not None or self._expected is None or not self._timed:
-            return super().recv(size)
+            data = super().recv(size)
+            if data:  # pymodbus found the end by silence: the line was busy until about now
+                self._heard_at(time.monotonic())
+            return data
         if not self.socket:
             raise ConnectionException(str(self))
         try:
@@ -289,60 +300,56 @@ class TimedSerialClient(ModbusSerialClient):
     def _after_rejected(self, previous: bytes) -> bytes:
         """pymodbus asks for more after the framer found no reply in ``previous``.
 
-        Per the master state diagram (spec §2.4.1): a frame error ends the transaction at
-        once; a reply from an unexpected unit leaves the master waiting for the right one
-        until the timeout; anything else (a longer reply than expected) is read on.
+        More bytes on the line (a longer reply than expected) go to the framer. Else, per
+        the master state diagram (spec §2.4.1): a frame error ends the transaction at once;
+        a reply from an unexpected unit leaves the master waiting for the right one until
+        the timeout.
         """
+        if more := self._read_until_gap():
+            self._returned = previous + more
+            return more
         unit = self._request[0]
         if len(previous) >= MIN_FRAME_LEN and not FramerRTU.check_CRC(
             previous[:-CRC_LEN], int.from_bytes(previous[-CRC_LEN:], "big")
         ):
             raise ReplyFrameError(f"reply failed the CRC check: {previous.hex(' ')}")
         if previous and previous[0] != unit:
-            frame = self._read_frame()
-            if frame:
+            if frame := self._read_frame():
                 self._returned = frame
                 return frame
             raise ModbusIOException(
                 f"reply came from device id {previous[0]}, request was for device id {unit}"
             )
-        more = self._read_until_gap()
-        self._returned = previous + more
-        return more
+        return b""
 
     def _read_exact(self, count: int) -> bytes:
         """Read ``count`` bytes, returning early only at the reply deadline."""
-        assert self._fd is not None
         buf = bytearray()
         while len(buf) < count:
             remaining = self._deadline - time.monotonic()
-            if remaining <= 0:
+            if remaining <= 0 or not (chunk := self._read_some(count - len(buf), remaining)):
                 break
-            ready, _, _ = select.select([self._fd], [], [], remaining)
-            if not ready:
-                break
-            chunk = os.read(self._fd, count - len(buf))
-            if not chunk:
-                raise OSError("serial port reports data but returned none (disconnected?)")
             buf += chunk
-            self._heard_at(time.monotonic())
         return bytes(buf)
 
     def _read_until_gap(self) -> bytes:
         """Read until the line is quiet (fallback when the length is unknown)."""
-        assert self._fd is not None
         gap = max(self.silence_s, FALLBACK_FRAME_GAP_S)
         buf = bytearray()
         while True:
             remaining = self._deadline - time.monotonic()
-            if remaining <= 0:
+            if remaining <= 0 or not (chunk := self._read_some(256, min(gap, remaining))):
                 break
-            ready, _, _ = select.select([self._fd], [], [], min(gap, remaining))
-            if not ready:
-                break
-            chunk = os.read(self._fd, 256)
-            if not chunk:
-                raise OSError("serial port reports data but returned none (disconnected?)")
             buf += chunk
-            self._heard_at(time.monotonic())
         return bytes(buf)
+
+    def _read_some(self, count: int, wait_s: float) -> bytes:
+        """Up to ``count`` bytes as soon as any arrive, or b"" after ``wait_s``."""
+        assert self._fd is not None
+        if not self._poller.poll(math.ceil(wait_s * 1000)):
+            return b""
+        chunk = os.read(self._fd, count)
+        if not chunk:
+            raise OSError("serial port reports data but returned none (disconnected?)")
+        self._heard_at(time.monotonic())
+        return chunk
