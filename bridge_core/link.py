@@ -57,8 +57,7 @@ class PriorityLock:
         self._waiting: list[tuple[int, int]] = []
         self._tickets = itertools.count()
 
-    @contextmanager
-    def hold(self, priority: Priority) -> Iterator[None]:
+    def acquire(self, priority: Priority) -> None:
         with self._cond:
             if self._busy or self._waiting:
                 me = (int(priority), next(self._tickets))
@@ -67,13 +66,20 @@ class PriorityLock:
                     self._cond.wait()
                 heapq.heappop(self._waiting)
             self._busy = True
+
+    def release(self) -> None:
+        with self._cond:
+            self._busy = False
+            if self._waiting:
+                self._cond.notify_all()
+
+    @contextmanager
+    def hold(self, priority: Priority) -> Iterator[None]:
+        self.acquire(priority)
         try:
             yield
         finally:
-            with self._cond:
-                self._busy = False
-                if self._waiting:
-                    self._cond.notify_all()
+            self.release()
 
 
 # ---------------------------------------------------------------- requests (pymodbus-free)
@@ -399,7 +405,9 @@ class DeviceChannel:
     def transact(self, request: Request, priority: Priority = Priority.POLL) -> Reply:
         """Run one request; reads are retried ``retries`` times, writes never are."""
         attempts = 1 if request.is_write else 1 + self.retries
-        with self.link.lock.hold(priority):
+        lock = self.link.lock
+        lock.acquire(priority)  # acquire/release, not a context manager: the poll hot path
+        try:
             last: LinkError = LinkDown("no attempt made")
             for _ in range(attempts):
                 try:
@@ -429,12 +437,16 @@ class DeviceChannel:
                     last = err
                     break
                 else:
-                    self.stats.transactions += 1
-                    self.stats.latencies_s.append(time.perf_counter() - started)
-                    self._note_alive()
+                    stats = self.stats
+                    stats.transactions += 1
+                    stats.latencies_s.append(time.perf_counter() - started)
+                    if not self._connected:
+                        self._note_alive()
                     return reply
             self.mark_down(last)
             raise last
+        finally:
+            lock.release()
 
     def _note_alive(self) -> None:
         if not self._connected:

@@ -6,17 +6,21 @@ publishers, the stale-data policy (no fresh stamps while the link is down), and 
 command guard that refuses, writing nothing, when the link is down or ``read_only`` is
 set, and turns device errors into a clear ``message``.
 
-Threading: polling runs on a thread of its own, paced by the poll rate; a
-MultiThreadedExecutor runs the services and the diagnostics timer in two mutually
-exclusive callback groups. A poll thread rather than an executor timer, because
-bench/r6_bench.py measured the executor's wait-set rebuilds at ~1 ms of CPU per poll
-cycle. Modbus traffic never interleaves because every transaction holds the link's
-PriorityLock, which also lets a waiting command go before the next poll request.
+Threading: polling runs on a thread of its own, paced by the poll rate, and hands each
+snapshot to a publisher thread, so building and publishing the messages overlaps the
+device's time to answer the next request; a MultiThreadedExecutor runs the services and
+the diagnostics timer in two mutually exclusive callback groups. Threads rather than an
+executor timer, because bench/r6_bench.py measured the executor's wait-set rebuilds at
+~1 ms of CPU per poll cycle. Modbus traffic never interleaves because every transaction
+holds the link's PriorityLock, which also lets a waiting command go before the next poll
+request.
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
+import queue
 import threading
 import time
 import traceback
@@ -46,6 +50,7 @@ from .link import DeviceChannel, ModbusLink, SerialSettings, TcpSettings
 
 T = TypeVar("T")
 DIAGNOSTICS_PERIOD_S = 1.0
+PUBLISH_BACKLOG = 8  # snapshots waiting for the publisher thread before the oldest is dropped
 JOINT_STATES_DEPTH = 10
 
 
@@ -177,6 +182,11 @@ class BridgeNode(Node):
         self._poll_thread = threading.Thread(
             target=self._poll_loop, name=f"{node_name}-poll", daemon=True
         )
+        self._snapshots: queue.Queue[Any] = queue.Queue(maxsize=PUBLISH_BACKLOG)
+        self.snapshots_dropped = 0
+        self._publish_thread = threading.Thread(
+            target=self._publish_loop, name=f"{node_name}-publish", daemon=True
+        )
         # Start polling once the executor runs, i.e. after the subclass finished __init__.
         self._poll_starter = self.create_timer(
             0.0, self._start_polling, callback_group=self.poll_group
@@ -226,6 +236,7 @@ class BridgeNode(Node):
     def _start_polling(self) -> None:
         self._poll_starter.cancel()
         if not self._poll_thread.is_alive() and not self._stop_polling.is_set():
+            self._publish_thread.start()
             self._poll_thread.start()
 
     def _poll_loop(self) -> None:
@@ -274,10 +285,25 @@ class BridgeNode(Node):
         self.last_poll_error = None
         self.poll_rate.tick()
         try:
-            self.publish_snapshot(snapshot)
-        except Exception as err:  # a value the message cannot hold must not kill the node
-            self.last_poll_error = f"publishing failed: {err}"
-            self.get_logger().error(f"{self.last_poll_error}\n{traceback.format_exc()}")
+            self._snapshots.put_nowait(snapshot)
+        except queue.Full:  # the publisher fell behind: drop the oldest, keep the newest
+            with contextlib.suppress(queue.Empty):
+                self._snapshots.get_nowait()
+                self.snapshots_dropped += 1
+            with contextlib.suppress(queue.Full):
+                self._snapshots.put_nowait(snapshot)
+
+    def _publish_loop(self) -> None:
+        while not self._stop_polling.is_set():
+            try:
+                snapshot = self._snapshots.get(timeout=0.1)
+            except queue.Empty:
+                continue
+            try:
+                self.publish_snapshot(snapshot)
+            except Exception as err:  # a value the message cannot hold must not kill the node
+                self.last_poll_error = f"publishing failed: {err}"
+                self.get_logger().error(f"{self.last_poll_error}\n{traceback.format_exc()}")
 
     def _publish_connected(self, connected: bool) -> None:
         if connected != self._connected_published:
@@ -358,6 +384,7 @@ class BridgeNode(Node):
         )
         device = self.device_report() if self.channel.connected else None
         level, message, values = link.level, link.message, list(link.values)
+        values.append(("snapshots dropped (publisher behind)", str(self.snapshots_dropped)))
         if self.channel.connected and self.last_poll_error:
             # Connected but no fresh state: as bad as a lost link for a consumer.
             level, message = Level.ERROR, self.last_poll_error
@@ -379,8 +406,9 @@ class BridgeNode(Node):
 
     def close(self) -> None:
         self._stop_polling.set()
-        if self._poll_thread.is_alive():
-            self._poll_thread.join(5.0)
+        for thread in (self._poll_thread, self._publish_thread):
+            if thread.is_alive():
+                thread.join(5.0)
         self.link.close()
 
 
