@@ -46,7 +46,7 @@ from std_msgs.msg import Bool
 
 from .diagnostics import Level, RateTracker, Report, link_report
 from .errors import CommandRejected, DeviceException, LinkError, PollIncomplete
-from .link import DeviceChannel, ModbusLink, SerialSettings, TcpSettings
+from .link import DeviceChannel, ModbusLink, Priority, SerialSettings, TcpSettings
 
 T = TypeVar("T")
 DIAGNOSTICS_PERIOD_S = 1.0
@@ -409,7 +409,8 @@ class BridgeNode(Node):
         for thread in (self._poll_thread, self._publish_thread):
             if thread.is_alive():
                 thread.join(5.0)
-        self.link.close()
+        with self.link.lock.hold(Priority.COMMAND):  # never under a running transaction
+            self.link.close()
 
 
 def float_list(values: Sequence[float], count: int, default: float, name: str) -> list[float]:

@@ -312,7 +312,8 @@ class Simulator:
     def start_tcp(self, host: str = "127.0.0.1", port: int = 0) -> int:
         """Serve Modbus TCP on ``host:port`` (0 = a free port); returns the port."""
         self._start(
-            lambda ctx: ModbusTcpServer(ctx, address=(host, port), ignore_missing_devices=True)
+            lambda ctx: ModbusTcpServer(ctx, address=(host, port), ignore_missing_devices=True),
+            restrict_decoder=True,
         )
         return self.port
 
@@ -331,13 +332,17 @@ class Simulator:
             )
         )
 
-    def _start(self, make_server: Callable[[ModbusServerContext], Any]) -> None:
+    def _start(
+        self, make_server: Callable[[ModbusServerContext], Any], restrict_decoder: bool = False
+    ) -> None:
         if self._thread is not None:
             raise RuntimeError("simulator already running")
         self._ready.clear()
         self._error = None
         self._thread = threading.Thread(
-            target=lambda: asyncio.run(self._main(make_server)), name="modbus-sim", daemon=True
+            target=lambda: asyncio.run(self._main(make_server, restrict_decoder)),
+            name="modbus-sim",
+            daemon=True,
         )
         self._thread.start()
         if not self._ready.wait(10):
@@ -347,19 +352,24 @@ class Simulator:
             self._thread = None
             raise RuntimeError(f"simulator failed to start: {self._error}") from self._error
 
-    async def _main(self, make_server: Callable[[ModbusServerContext], Any]) -> None:
+    async def _main(
+        self, make_server: Callable[[ModbusServerContext], Any], restrict_decoder: bool
+    ) -> None:
         self._loop = asyncio.get_running_loop()
         self._stop = asyncio.Event()
         try:
             server = make_server(_MapContext(self))
-            # Decode only the function codes the devices have, so any other one gets
-            # ILLEGAL FUNCTION from the server itself, like the real device (pymodbus
-            # otherwise answers e.g. FC 0x2B/0x08 on its own, without the datastore).
-            allowed = set().union(*(d.limits.function_codes for d in self.devices.values()))
-            decoder = server.decoder
-            decoder.pdu_table = {
-                code: entry for code, entry in decoder.pdu_table.items() if code in allowed
-            }
+            if restrict_decoder:
+                # Decode only the function codes the devices have, so any other one gets
+                # ILLEGAL FUNCTION from the server itself, like the real device (pymodbus
+                # otherwise answers e.g. FC 0x2B/0x08 on its own, without the datastore).
+                # TCP only: an RTU server needs the decoder to find where a frame ends,
+                # and the datastore already answers 0x01 for the data function codes.
+                allowed = set().union(*(d.limits.function_codes for d in self.devices.values()))
+                decoder = server.decoder
+                decoder.pdu_table = {
+                    code: entry for code, entry in decoder.pdu_table.items() if code in allowed
+                }
             await server.serve_forever(background=True)
             transport = getattr(server, "transport", None)
             sockets = getattr(transport, "sockets", None)

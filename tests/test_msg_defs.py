@@ -92,6 +92,44 @@ SERVICES: dict[str, tuple[dict[str, str], dict[str, str]]] = {
         },
         {**REPLY, "frames_sent": "uint32"},
     ),
+    "SetInteger": ({"value": "int64"}, REPLY),
+    "SetChannelValue": ({"channel": "uint16", "value": "double"}, REPLY),
+    "RunOfflineTask": ({"projects": "sequence<uint16>"}, REPLY),
+    "MoveBy": ({"distance": "double"}, REPLY),
+    "ConfigureMotor": (
+        {
+            "step_angle_deg": "double",
+            "microstep": "uint16",
+            "start_frequency_hz": "uint16",
+            "accel_frequency_hz": "uint16",
+            "speed_rpm": "uint16",
+            "lead": "double",
+        },
+        REPLY,
+    ),
+    "LineMove": (
+        {"pair": "uint8", "start": "double[2]", "end": "double[2]", "speed_rpm": "uint16"},
+        REPLY,
+    ),
+    "ArcMove": (
+        {
+            "pair": "uint8",
+            "mode": "uint8",
+            "start": "double[2]",
+            "end": "double[2]",
+            "center": "double[2]",
+            "via": "double[2]",
+            "counterclockwise": "boolean",
+            "speed_rpm": "uint16",
+        },
+        REPLY,
+    ),
+    "ConfirmedCommand": ({"confirm": "string"}, REPLY),
+    "SetHomingOrder": ({"motors": "sequence<uint8>"}, REPLY),
+    "SetLimitInputs": (
+        {"positive_limit": "uint8", "negative_limit": "uint8", "home": "uint8"},
+        REPLY,
+    ),
 }
 
 

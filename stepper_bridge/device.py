@@ -1,0 +1,707 @@
+"""Stepper controller device model: polls into snapshots, commands into checked writes.
+
+No ROS here. Every command validates all of its inputs before its first write, so a
+refused command writes nothing. Values are in the manual's units: the user's length unit
+for lead, run distance and coordinates (the device stores them x100), rpm, Hz, degrees.
+
+Polling. A poll reads the four status blocks (coordinates 40108-40117, inputs
+40124-40136, outputs 40148-40159, running flags 40168-40172: four requests, the undefined
+rows between them cannot be read through). The configuration (motor parameters, limit
+inputs, homing order, system mode) changes rarely; it is read whole when the link comes
+up, then refreshed one request per poll every ``config_refresh_s``, and the cache is
+updated from every write the bridge makes.
+
+Jog (``jog``): rpm with sign = direction. A change of speed writes the speed register
+(40006+, "运行中可以调节": adjustable while running); a change of direction writes the
+forward / reverse coil (a reversal sends the stop coil first); 0 sends the stop coil.
+A command equal to the last one writes nothing. After a stop (the motor's stop service
+or the emergency stop) jogging is locked until a 0 command (or the node's deadman) so a
+joystick still held cannot restart a motor that was just stopped.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Protocol
+
+from bridge_core.codec import Value, decode, encode
+from bridge_core.errors import CommandRejected, LinkError
+from bridge_core.link import Priority
+from bridge_core.planner import ReadRequest, decode_reply, plan_reads
+from bridge_core.registers import Register, Table
+
+from .registers import (
+    ARC_MODE_CENTER,
+    ARC_MODE_THREE_POINTS,
+    DISTANCE_SCALE,
+    INPUTS,
+    INTERPOLATION_PAIRS,
+    MOTOR_ACTIONS,
+    MOTOR_FIELD_NAMES,
+    MOTORS,
+    OUTPUTS,
+    STEPPER_MAP,
+    SYSTEM_COILS,
+    SYSTEM_MODES,
+    motor_coil,
+    motor_register,
+    output_coil,
+)
+
+SYSTEM_COMMANDS = (
+    "emergency_stop",
+    "zero_coordinates",
+    "return_to_zero",
+    "home_all",
+    "save_parameters",
+)
+DESTRUCTIVE_COMMANDS = ("factory_reset", "clear_all_parameters")
+LIMIT_FIELDS = ("positive_limit_input", "negative_limit_input", "home_input")
+DEFAULT_CONFIG_REFRESH_S = 5.0
+SPEED_MAX_RPM = 0xFFFF
+JOINT_TYPES = ("prismatic", "revolute")
+
+
+class RegisterIO(Protocol):
+    """What the device needs from a link channel (``bridge_core.link.DeviceChannel``)."""
+
+    def read_registers(
+        self, address: int, count: int, table: Table = ..., priority: Priority = ...
+    ) -> list[int]: ...
+    def write_register(self, address: int, value: int) -> None: ...
+    def write_registers(self, address: int, values: Sequence[int]) -> None: ...
+    def write_coil(self, address: int, on: bool) -> None: ...
+
+
+# ---------------------------------------------------------------- snapshots
+
+
+@dataclass(frozen=True)
+class MotorConfig:
+    """One motor's parameters as last read (or written) by the bridge."""
+
+    step_angle_deg: float
+    microstep: int
+    start_frequency_hz: int
+    accel_frequency_hz: int
+    direction: int  # 0 positive, 1 negative: the single run's direction
+    speed_rpm: int
+    lead: float  # user units per revolution
+    run_distance: float  # user units
+    positive_limit_input: int  # input 1-13, 0 none
+    negative_limit_input: int
+    home_input: int
+    reciprocations: int  # system mode 1 round trips, 0 endless
+
+
+@dataclass(frozen=True)
+class StepperConfig:
+    motors: tuple[MotorConfig, ...]
+    homing_order: tuple[int, ...]
+    system_mode: int
+
+
+@dataclass(frozen=True)
+class StepperSnapshot:
+    """One poll: status as read now, configuration as last read."""
+
+    read_time: float  # wall clock when the first status register was read
+    coordinates: tuple[float, ...]  # user units (register / 100)
+    running: tuple[bool, ...]
+    inputs: tuple[bool, ...]  # input 1 first
+    outputs: tuple[bool, ...]  # output 1 first
+    config: StepperConfig
+
+
+def _status_names() -> list[str]:
+    names = [motor_register(m, "coordinate") for m in range(1, MOTORS + 1)]
+    names += [f"input_{n}" for n in range(1, INPUTS + 1)]
+    names += [f"output_{n}" for n in range(1, OUTPUTS + 1)]
+    names += [motor_register(m, "running") for m in range(1, MOTORS + 1)]
+    return names
+
+
+def _config_names() -> list[str]:
+    names = [motor_register(m, f) for m in range(1, MOTORS + 1) for f in MOTOR_FIELD_NAMES]
+    names += [motor_register(m, f) for m in range(1, MOTORS + 1) for f in LIMIT_FIELDS]
+    names += [f"homing_order_{k}" for k in range(1, MOTORS + 1)]
+    names += ["system_mode"]
+    names += [motor_register(m, "reciprocations") for m in range(1, MOTORS + 1)]
+    return names
+
+
+STATUS_PLAN: list[ReadRequest] = plan_reads(STEPPER_MAP, STEPPER_MAP.select(_status_names()))
+CONFIG_PLAN: list[ReadRequest] = plan_reads(STEPPER_MAP, STEPPER_MAP.select(_config_names()))
+
+
+# ---------------------------------------------------------------- joint units
+
+
+@dataclass(frozen=True)
+class JointScale:
+    """Device units <-> SI for one motor (README "joint positions").
+
+    prismatic: metres = units / ``units_per_meter`` (1000 when the user's unit is mm);
+    revolute: radians = units / lead x 2 pi (lead = units per motor revolution).
+    """
+
+    joint_type: str = "prismatic"
+    units_per_meter: float = 1000.0
+
+    def __post_init__(self) -> None:
+        if self.joint_type not in JOINT_TYPES:
+            raise ValueError(f"joint type {self.joint_type!r} is not one of {JOINT_TYPES}")
+        if not math.isfinite(self.units_per_meter) or self.units_per_meter <= 0:
+            raise ValueError(f"units_per_meter must be positive, got {self.units_per_meter}")
+
+    def to_si(self, units: float, lead: float) -> float:
+        if self.joint_type == "prismatic":
+            return units / self.units_per_meter
+        if lead <= 0:
+            return math.nan  # the device's lead is unset: no angle
+        return units / lead * 2.0 * math.pi
+
+    def to_units(self, si: float, lead: float) -> float:
+        if not math.isfinite(si):
+            raise CommandRejected(f"{si} is not a finite distance")
+        if self.joint_type == "prismatic":
+            return si * self.units_per_meter
+        if lead <= 0:
+            raise CommandRejected("the motor's lead is 0: a revolute angle cannot be converted")
+        return si / (2.0 * math.pi) * lead
+
+
+# ---------------------------------------------------------------- the device
+
+
+@dataclass
+class _Jog:
+    speed: int | None = None  # last speed written by a jog (None: unknown)
+    sign: int = 0  # -1 reverse, 0 stopped, +1 forward
+    locked: bool = False
+
+
+class StepperDevice:
+    """The stepper controller behind one Modbus channel."""
+
+    def __init__(
+        self,
+        io: RegisterIO,
+        *,
+        config_refresh_s: float = DEFAULT_CONFIG_REFRESH_S,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.io = io
+        self.config_refresh_s = config_refresh_s
+        self._clock = clock
+        self._config: dict[str, Value] = {}
+        self._refresh_next = 0  # index into CONFIG_PLAN of the next slow read
+        self._refresh_due = math.inf
+        self._jogs = {m: _Jog() for m in range(1, MOTORS + 1)}
+
+    # ------------------------------------------------------------------ reads
+    def _read(self, request: ReadRequest, priority: Priority) -> dict[str, Value]:
+        words = self.io.read_registers(
+            request.address, request.count, request.table, priority=priority
+        )
+        return decode_reply(request, words)
+
+    def read_config(self, priority: Priority = Priority.POLL) -> StepperConfig:
+        """Read the whole configuration (on link up, and whenever asked)."""
+        values: dict[str, Value] = {}
+        for request in CONFIG_PLAN:
+            values.update(self._read(request, priority))
+        self._config.update(values)
+        self._refresh_next = 0
+        self._refresh_due = self._clock() + self.config_refresh_s
+        return self.config
+
+    def read_named(self, *names: str) -> dict[str, Value]:
+        """Values of named registers, in as few requests as the device allows."""
+        values: dict[str, Value] = {}
+        for request in plan_reads(STEPPER_MAP, STEPPER_MAP.select(names)):
+            values.update(self._read(request, Priority.COMMAND))
+        return values
+
+    def invalidate_config(self) -> None:
+        """Forget the cached configuration: the next poll reads it whole first."""
+        self._config.clear()
+        for jog in self._jogs.values():
+            # The speed register may have changed; a jog that was running is still
+            # "jogging" so that the node's deadman stops it once the link is back.
+            jog.speed = None
+
+    @property
+    def has_config(self) -> bool:
+        return len(self._config) == len(_config_names())
+
+    @property
+    def config(self) -> StepperConfig:
+        if not self.has_config:
+            raise CommandRejected("the controller's configuration has not been read yet")
+        v = self._config
+
+        def i(name: str) -> int:
+            return int(v[name])
+
+        motors = tuple(
+            MotorConfig(
+                step_angle_deg=float(v[motor_register(m, "step_angle")]),
+                microstep=i(motor_register(m, "microstep")),
+                start_frequency_hz=i(motor_register(m, "start_frequency")),
+                accel_frequency_hz=i(motor_register(m, "accel_frequency")),
+                direction=i(motor_register(m, "direction")),
+                speed_rpm=i(motor_register(m, "speed")),
+                lead=float(v[motor_register(m, "lead")]),
+                run_distance=float(v[motor_register(m, "run_distance")]),
+                positive_limit_input=i(motor_register(m, "positive_limit_input")),
+                negative_limit_input=i(motor_register(m, "negative_limit_input")),
+                home_input=i(motor_register(m, "home_input")),
+                reciprocations=i(motor_register(m, "reciprocations")),
+            )
+            for m in range(1, MOTORS + 1)
+        )
+        return StepperConfig(
+            motors=motors,
+            homing_order=tuple(i(f"homing_order_{k}") for k in range(1, MOTORS + 1)),
+            system_mode=i("system_mode"),
+        )
+
+    def lead(self, motor: int) -> float:
+        _check_motor(motor)
+        return self.config.motors[motor - 1].lead
+
+    def poll(self) -> StepperSnapshot:
+        if not self.has_config:
+            self.read_config()
+        read_time = time.time()
+        v: dict[str, Value] = {}
+        for request in STATUS_PLAN:
+            v.update(self._read(request, Priority.POLL))
+        # The slow part: one configuration request per poll while a refresh is due.
+        if self._clock() >= self._refresh_due or self._refresh_next:
+            self._config.update(self._read(CONFIG_PLAN[self._refresh_next], Priority.POLL))
+            self._refresh_next = (self._refresh_next + 1) % len(CONFIG_PLAN)
+            if self._refresh_next == 0:
+                self._refresh_due = self._clock() + self.config_refresh_s
+        return StepperSnapshot(
+            read_time=read_time,
+            coordinates=tuple(
+                float(v[motor_register(m, "coordinate")]) for m in range(1, MOTORS + 1)
+            ),
+            running=tuple(bool(v[motor_register(m, "running")]) for m in range(1, MOTORS + 1)),
+            inputs=tuple(bool(v[f"input_{n}"]) for n in range(1, INPUTS + 1)),
+            outputs=tuple(bool(v[f"output_{n}"]) for n in range(1, OUTPUTS + 1)),
+            config=self.config,
+        )
+
+    # ------------------------------------------------------------------ write helpers
+    def _write_values(self, values: Sequence[tuple[str, Value]]) -> None:
+        """Consecutive registers in one write (FC 06 for one register, else FC 10).
+
+        ``values`` must be contiguous and in address order; each is range-checked by the
+        map before anything is sent. The cache follows a successful write; after a
+        failed one a configuration refresh is started.
+        """
+        regs = [STEPPER_MAP[name] for name, _ in values]
+        words: list[int] = []
+        for reg, (_, value) in zip(regs, values, strict=True):
+            words += encode(reg, value)
+        _check_contiguous(regs)
+        try:
+            if len(words) == 1:
+                self.io.write_register(regs[0].address, words[0])
+            else:
+                self.io.write_registers(regs[0].address, words)
+        except LinkError:
+            self._refresh_due = 0.0
+            raise
+        for reg, (_, value) in zip(regs, values, strict=True):
+            if reg.name in self._config:
+                self._config[reg.name] = _as_read(reg, value)
+
+    def _coil(self, name: str) -> None:
+        self.io.write_coil(STEPPER_MAP[name].address, True)
+
+    # ------------------------------------------------------------------ motor commands
+    def motor_action(self, motor: int, action: str) -> None:
+        """run_once / forward / reverse / home / stop: 0xFF00 to the motor's coil (FC 05)."""
+        _check_motor(motor)
+        if action not in MOTOR_ACTIONS:
+            raise CommandRejected(f"unknown motor action {action!r}; known: {MOTOR_ACTIONS}")
+        jog = self._jogs[motor]
+        try:
+            self.io.write_coil(motor_coil(motor, action), True)
+        finally:
+            # A service overrides any jog: the next jog command is sent whole.
+            jog.speed, jog.sign = None, 0
+            jog.locked = action == "stop"
+
+    def set_motor_parameter(self, motor: int, field: str, value: float) -> None:
+        """One basic parameter: FC 06 for a 16-bit one, FC 10 for lead / run distance.
+
+        ``field`` is one of MOTOR_FIELD_NAMES, in the manual's units (degrees, Hz, rpm,
+        user units; the device stores step angle, lead and distance x100).
+        """
+        _check_motor(motor)
+        if field not in MOTOR_FIELD_NAMES:
+            raise CommandRejected(f"unknown motor parameter {field!r}; known: {MOTOR_FIELD_NAMES}")
+        _check_finite(field, value)
+        reg = STEPPER_MAP[motor_register(motor, field)]
+        if reg.scale == 1.0:
+            _check_integer(field, value, low=0, high=0xFFFF_FFFF)
+            self._write_values([(reg.name, int(value))])
+        else:
+            self._write_values([(reg.name, float(value))])
+
+    def set_run_distance(self, motor: int, distance: float) -> None:
+        """Run distance (user units, x100, 32-bit low word first) with FC 10."""
+        self.set_motor_parameter(motor, "run_distance", distance)
+
+    def move_by(self, motor: int, distance: float) -> None:
+        """Signed single run: direction (FC 06), distance (FC 10), single-run coil (FC 05)."""
+        _check_motor(motor)
+        _check_finite("distance", distance)
+        direction = 0 if distance >= 0 else 1
+        magnitude = abs(float(distance))
+        reg = STEPPER_MAP[motor_register(motor, "run_distance")]
+        encode(reg, magnitude)  # range check before the first write
+        if round(magnitude * DISTANCE_SCALE) == 0:
+            raise CommandRejected(
+                f"distance {distance} is below the controller's step of {1 / DISTANCE_SCALE}"
+            )
+        self._write_values([(motor_register(motor, "direction"), direction)])
+        self._write_values([(motor_register(motor, "run_distance"), magnitude)])
+        self.motor_action(motor, "run_once")
+
+    def configure(
+        self,
+        motor: int,
+        *,
+        step_angle_deg: float,
+        microstep: int,
+        start_frequency_hz: int,
+        accel_frequency_hz: int,
+        speed_rpm: int,
+        lead: float,
+    ) -> None:
+        """Basic parameters: 40001-40004 then 40006-40008 (two FC 10; direction untouched)."""
+        _check_motor(motor)
+        _check_finite("step angle", step_angle_deg)
+        _check_finite("lead", lead)
+        for what, value in (
+            ("microstep", microstep),
+            ("start frequency", start_frequency_hz),
+            ("accel frequency", accel_frequency_hz),
+            ("speed", speed_rpm),
+        ):
+            _check_integer(what, value)
+        first: list[tuple[str, Value]] = [
+            (motor_register(motor, "step_angle"), float(step_angle_deg)),
+            (motor_register(motor, "microstep"), int(microstep)),
+            (motor_register(motor, "start_frequency"), int(start_frequency_hz)),
+            (motor_register(motor, "accel_frequency"), int(accel_frequency_hz)),
+        ]
+        second: list[tuple[str, Value]] = [
+            (motor_register(motor, "speed"), int(speed_rpm)),
+            (motor_register(motor, "lead"), float(lead)),
+        ]
+        for name, new in first + second:
+            encode(STEPPER_MAP[name], new)  # every range checked before the first write
+        self._write_values(first)
+        self._write_values(second)
+
+    def set_speed(self, motor: int, rpm: int) -> None:
+        _check_motor(motor)
+        _check_integer("speed", rpm)
+        self._write_values([(motor_register(motor, "speed"), int(rpm))])
+
+    def set_limit_inputs(self, motor: int, positive: int, negative: int, home: int) -> None:
+        """Which input (1-13, 0 none) is the motor's positive / negative limit and home."""
+        _check_motor(motor)
+        for what, value in (("positive limit", positive), ("negative limit", negative)):
+            _check_integer(f"{what} input", value)
+        _check_integer("home input", home)
+        self._write_values(
+            [
+                (motor_register(motor, "positive_limit_input"), int(positive)),
+                (motor_register(motor, "negative_limit_input"), int(negative)),
+                (motor_register(motor, "home_input"), int(home)),
+            ]
+        )
+
+    def set_homing_order(self, motors: Sequence[int]) -> None:
+        """40177-40181: the motors home_all homes, in order; the rest is set to 0 (none)."""
+        if len(motors) > MOTORS:
+            raise CommandRejected(f"at most {MOTORS} motors, got {len(motors)}")
+        for motor in motors:
+            _check_motor(motor)
+        if len(set(motors)) != len(motors):
+            raise CommandRejected(f"motor listed twice in the homing order {list(motors)}")
+        order = [int(m) for m in motors] + [0] * (MOTORS - len(motors))
+        self._write_values([(f"homing_order_{k + 1}", m) for k, m in enumerate(order)])
+
+    def set_system_mode(self, mode: int) -> None:
+        _check_choice("system mode", mode, tuple(SYSTEM_MODES))
+        self._write_values([("system_mode", int(mode))])
+
+    # ------------------------------------------------------------------ jog
+    def jog(self, motor: int, rpm: float) -> bool:
+        """Run at ``rpm`` (sign = direction) until told otherwise; True if anything was sent."""
+        _check_motor(motor)
+        _check_finite("jog speed", rpm)
+        speed = round(abs(rpm))
+        if speed > SPEED_MAX_RPM:
+            raise CommandRejected(f"jog speed {rpm} rpm outside -65535..65535")
+        sign = 0 if speed == 0 else (1 if rpm > 0 else -1)
+        jog = self._jogs[motor]
+        if sign == 0:
+            jog.locked = False
+            if jog.sign == 0 and jog.speed is not None:
+                return False
+            self.jog_stop(motor, force=True)
+            return True
+        if jog.locked:
+            raise CommandRejected(
+                f"motor {motor} was stopped: send a 0 jog (or none for command_timeout_s) "
+                "before jogging it again"
+            )
+        if (jog.speed, jog.sign) == (speed, sign):
+            return False
+        try:
+            if jog.sign == -sign:
+                self.io.write_coil(motor_coil(motor, "stop"), True)
+                jog.sign = 0
+            if jog.speed != speed:
+                self._write_values([(motor_register(motor, "speed"), speed)])
+                jog.speed = speed
+            if jog.sign != sign:
+                self.io.write_coil(motor_coil(motor, "forward" if sign > 0 else "reverse"), True)
+                jog.sign = sign
+        except LinkError:
+            jog.speed, jog.sign = None, 0  # unknown: the next command is sent whole
+            raise
+        return True
+
+    def jogging(self, motor: int) -> bool:
+        return self._jogs[motor].sign != 0
+
+    def jog_locked(self, motor: int) -> bool:
+        return self._jogs[motor].locked
+
+    def jog_stop(self, motor: int, *, force: bool = False) -> bool:
+        """Stop a jogging motor (the deadman); ``force`` sends the stop coil regardless."""
+        _check_motor(motor)
+        jog = self._jogs[motor]
+        jog.locked = False
+        if not force and jog.sign == 0:
+            return False
+        try:
+            self.io.write_coil(motor_coil(motor, "stop"), True)
+        finally:
+            jog.sign = 0
+        return True
+
+    # ------------------------------------------------------------------ all-motor commands
+    def system_command(self, name: str) -> None:
+        if name not in SYSTEM_COMMANDS:
+            raise CommandRejected(f"unknown command {name!r}; known: {SYSTEM_COMMANDS}")
+        try:
+            self._coil(name)
+        finally:
+            # The e-stop halts every jog and locks it; homing and return to zero take
+            # the motors over, so the next jog command is sent whole.
+            if name == "emergency_stop":
+                for jog in self._jogs.values():
+                    jog.sign, jog.locked = 0, True
+            elif name in ("home_all", "return_to_zero"):
+                for jog in self._jogs.values():
+                    jog.speed, jog.sign = None, 0
+
+    def destructive_command(self, name: str, confirmation: str) -> None:
+        """Factory reset (00073) or clear all parameters (00097): ``confirmation`` must
+        repeat the command's name."""
+        if name not in DESTRUCTIVE_COMMANDS:
+            raise CommandRejected(f"unknown command {name!r}; known: {DESTRUCTIVE_COMMANDS}")
+        if confirmation != name:
+            raise CommandRejected(
+                f"{name} erases the controller's parameters: set confirm to {name!r} to do it"
+            )
+        try:
+            self._coil(name)
+        finally:
+            self._refresh_due = 0.0
+
+    def set_output(self, output: int, on: bool) -> None:
+        """Output 1-12: 0xFF00 to its ON coil, or to its OFF coil (00049-00072 in pairs)."""
+        if not isinstance(output, int) or not 1 <= output <= OUTPUTS:
+            raise CommandRejected(f"output {output!r} outside 1-{OUTPUTS}")
+        self.io.write_coil(output_coil(output, bool(on)), True)
+
+    def set_all_outputs(self, on: bool) -> None:
+        self._coil("all_outputs_on" if on else "all_outputs_off")
+
+    # ------------------------------------------------------------------ interpolation
+    def line_move(
+        self,
+        pair: int,
+        start: tuple[float, float],
+        end: tuple[float, float],
+        speed_rpm: int,
+    ) -> None:
+        """Line interpolation: 40202-40211 in one FC 10, then the start coil (00102)."""
+        _check_pair(pair)
+        _check_integer("speed", speed_rpm, low=1)
+        points = [("start", start), ("end", end)]
+        _check_points(points)
+        if _same(start, end):
+            raise CommandRejected("line start and end are the same point")
+        self._write_values(
+            [
+                ("line_pair", pair),
+                ("line_start_a", float(start[0])),
+                ("line_start_b", float(start[1])),
+                ("line_end_a", float(end[0])),
+                ("line_end_b", float(end[1])),
+                ("line_speed", int(speed_rpm)),
+            ]
+        )
+        self._coil("line_start")
+
+    def arc_move(
+        self,
+        pair: int,
+        mode: int,
+        start: tuple[float, float],
+        end: tuple[float, float],
+        center: tuple[float, float],
+        via: tuple[float, float],
+        counterclockwise: bool,
+        speed_rpm: int,
+    ) -> None:
+        """Arc interpolation: 40182-40201 in one FC 10, then the start coil (00100).
+
+        Mode 0 uses start, end and centre; mode 1 start, end and the middle point ``via``.
+        The point the mode does not use is written as given (the device ignores it).
+        """
+        _check_pair(pair)
+        _check_choice("arc mode", mode, (ARC_MODE_CENTER, ARC_MODE_THREE_POINTS))
+        _check_integer("speed", speed_rpm, low=1)
+        _check_points([("start", start), ("end", end), ("center", center), ("via", via)])
+        third = center if mode == ARC_MODE_CENTER else via
+        if _same(start, end) or _same(start, third) or _same(end, third):
+            raise CommandRejected("an arc needs three different points (manual: 三点确定圆弧)")
+        if mode == ARC_MODE_THREE_POINTS and _collinear(start, via, end):
+            raise CommandRejected("start, via and end are on one line: no arc passes them")
+        self._write_values(
+            [
+                ("arc_pair", pair),
+                ("arc_mode", mode),
+                ("arc_start_a", float(start[0])),
+                ("arc_start_b", float(start[1])),
+                ("arc_end_a", float(end[0])),
+                ("arc_end_b", float(end[1])),
+                ("arc_center_a", float(center[0])),
+                ("arc_center_b", float(center[1])),
+                ("arc_via_a", float(via[0])),
+                ("arc_via_b", float(via[1])),
+                ("arc_direction", 1 if counterclockwise else 0),
+                ("arc_speed", int(speed_rpm)),
+            ]
+        )
+        self._coil("arc_start")
+
+    def stop_interpolation(self) -> None:
+        """Arc stop (00101) and line stop (00103); both are tried even if one fails."""
+        error: LinkError | None = None
+        for name in ("arc_stop", "line_stop"):
+            try:
+                self._coil(name)
+            except LinkError as err:
+                error = error or err
+        if error is not None:
+            raise error
+
+
+# ---------------------------------------------------------------- checks
+
+
+def _as_read(reg: Register, value: Value) -> Value:
+    """The value a read of ``reg`` would decode to after writing ``value``."""
+    return decode(reg, encode(reg, value))
+
+
+def _check_contiguous(regs: Sequence[Register]) -> None:
+    for before, after in itertools.pairwise(regs):
+        if after.address != before.end:
+            raise ValueError(f"{after.name} does not follow {before.name}")
+
+
+def _check_motor(motor: int) -> None:
+    if isinstance(motor, bool) or not isinstance(motor, int) or not 1 <= motor <= MOTORS:
+        raise CommandRejected(f"motor {motor!r} outside 1-{MOTORS}")
+
+
+def _check_pair(pair: int) -> None:
+    if pair not in INTERPOLATION_PAIRS:
+        raise CommandRejected(
+            f"interpolation pair {pair!r} refused: 1 (motors 1+2), 2 (1+3) or 3 (2+3)"
+        )
+
+
+def _check_choice(what: str, value: int, allowed: Sequence[int]) -> None:
+    if isinstance(value, bool) or value not in allowed:
+        raise CommandRejected(f"{what} {value!r} refused: one of {list(allowed)}")
+
+
+def _check_finite(what: str, value: float) -> None:
+    if not isinstance(value, int | float) or not math.isfinite(value):
+        raise CommandRejected(f"{what} {value!r} is not a finite number")
+
+
+def _check_integer(what: str, value: float, low: int = 0, high: int = 0xFFFF) -> None:
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, int | float)
+        or not math.isfinite(value)
+        or value != int(value)
+        or not low <= value <= high
+    ):
+        raise CommandRejected(f"{what} {value!r} outside the whole numbers {low}..{high}")
+
+
+def _check_points(points: Sequence[tuple[str, tuple[float, float]]]) -> None:
+    for what, point in points:
+        if len(point) != 2:
+            raise CommandRejected(f"{what} needs 2 coordinates, got {len(point)}")
+        for value in point:
+            _check_finite(what, value)
+            encode(STEPPER_MAP["line_start_a"], float(value))  # int32 x100 range
+
+
+def _same(p: tuple[float, float], q: tuple[float, float]) -> bool:
+    return all(
+        round(a * DISTANCE_SCALE) == round(b * DISTANCE_SCALE) for a, b in zip(p, q, strict=True)
+    )
+
+
+def _collinear(p: tuple[float, float], q: tuple[float, float], r: tuple[float, float]) -> bool:
+    cross = (q[0] - p[0]) * (r[1] - p[1]) - (q[1] - p[1]) * (r[0] - p[0])
+    scale = max(1.0, *(abs(v) for v in (*p, *q, *r)))
+    return abs(cross) <= 1e-9 * scale * scale
+
+
+__all__ = [
+    "DESTRUCTIVE_COMMANDS",
+    "SYSTEM_COILS",
+    "SYSTEM_COMMANDS",
+    "JointScale",
+    "MotorConfig",
+    "StepperConfig",
+    "StepperDevice",
+    "StepperSnapshot",
+]

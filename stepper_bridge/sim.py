@@ -1,0 +1,555 @@
+"""Simulator of the 5-axis stepper controller's Modbus RTU slave, on the shared base.
+
+Behaviour (from the manual, plus what a test needs to see):
+
+- serves the §5 map: FC 03/05/06/10 only (others: exception 0x01), at most 49 registers
+  per read or write and undefined rows (40051-40080, 40096-40107, ...) answer 0x02, as
+  does a request that cuts a 32-bit value (so the §6(3) example frame at address 9 is
+  refused); values outside the manual's ranges answer 0x03;
+- replies after ``reply_delay_s`` (35 ms by default, §3; 0 for fast tests);
+- each motor has a physical position; its coordinate (40108+) is that position minus an
+  offset that "zero coordinates" and homing set. Forward / reverse run at the speed
+  register's rpm x lead (units per second, read live: "运行中可以调节") until the stop
+  coil, the e-stop or the limit input in that direction; a single run covers the run
+  distance in the direction register's sense; home runs in reverse until the motor's
+  home input is on, then its coordinate is 0; "return to zero" runs each motor back to
+  coordinate 0; "home all" homes the motors of 40177-40181 one after the other. Speed 0
+  (or lead 0) does not run ("若速度为0则不运行");
+- switches: each motor's home and negative limit switch is at physical 0, its positive
+  limit at ``travel`` (500.00 units); an input is on when a switch assigned to it
+  (40081-40095) is active, or when a test forces it (``set_input``). The simulator starts
+  with the mode-1 layout (motor m: positive limit IN(2m-1), negative limit and home IN2m)
+  and every motor 50.00 units from its home switch, coordinate 0;
+- outputs: 0xFF00 to coil 00049+2(n-1) switches output n on, to 00050+2(n-1) off; all on
+  / all off; the e-stop stops every motor, every interpolation and switches every output
+  off;
+- line and arc interpolation: the pair's motors first run to the start point each at its
+  own speed, then follow the line / arc at the interpolation speed (rpm x the first
+  motor's lead); the stop coils end it;
+- factory reset restores the simulator's defaults, clear-all zeroes every parameter
+  except the device id and baud rate (so the simulator stays reachable), save counts.
+
+The special modes 1-5 (input-driven motion, §5(3)) are stored but not simulated.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import shutil
+import signal
+import subprocess
+import tempfile
+import threading
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+from bridge_core.codec import decode
+from bridge_core.registers import Table
+from bridge_core.sim_base import (
+    ILLEGAL_FUNCTION,
+    ILLEGAL_VALUE,
+    SimulatedDevice,
+    Simulator,
+    WriteRecord,
+)
+
+from .registers import (
+    ARC_MODE_CENTER,
+    BAUD_RATES,
+    DEFAULT_BAUDRATE,
+    FUNCTION_CODES,
+    INPUTS,
+    INTERPOLATION_PAIRS,
+    MOTOR_ACTIONS,
+    MOTOR_COILS,
+    MOTORS,
+    OUTPUT_COIL_FIRST,
+    OUTPUTS,
+    REPLY_DELAY_S,
+    STEPPER_LIMITS,
+    STEPPER_MAP,
+    SYSTEM_COILS,
+    motor_register,
+)
+
+TRAVEL = 500.0  # physical position of each positive limit switch, user units
+START_POSITION = 50.0  # physical position at power-on (coordinate 0)
+FACTORY: dict[str, float] = {
+    "step_angle": 1.8,
+    "microstep": 8,
+    "start_frequency": 200,
+    "accel_frequency": 800,
+    "direction": 0,
+    "speed": 60,
+    "lead": 5.0,
+    "run_distance": 10.0,
+}
+# Parameters clear-all leaves alone: the link would be lost otherwise.
+KEPT_BY_CLEAR = ("device_id", "baud_rate")
+_COIL_NAMES = {STEPPER_MAP[name].address: name for name in SYSTEM_COILS}
+_OUTPUT_COILS = range(OUTPUT_COIL_FIRST - 1, OUTPUT_COIL_FIRST - 1 + 2 * OUTPUTS)
+
+
+@dataclass
+class Motion:
+    """What one motor is doing: 'forward', 'reverse', 'single', 'home' or 'to_coordinate'."""
+
+    kind: str
+    target: float = 0.0  # physical position for 'single' / 'to_coordinate'
+
+
+@dataclass
+class Interpolation:
+    kind: str  # "line" or "arc"
+    motors: tuple[int, int]
+    start: tuple[float, float]  # coordinates
+    end: tuple[float, float]
+    rpm: float
+    center: tuple[float, float] = (0.0, 0.0)
+    sweep: float = 0.0  # signed angle of the arc (rad), ccw positive
+    phase: str = "approach"  # "approach" (each motor to the start), then "path"
+    travelled: float = 0.0  # along the path, user units
+    length: float = 0.0
+    done: list[int] = field(default_factory=list)
+
+
+# The server must still frame the standard data-access function codes the device lacks:
+# over RTU a frame with a function code the decoder does not know cannot be delimited and
+# is dropped as noise, while the device answers it with ILLEGAL FUNCTION. So the server
+# decodes these, and the device refuses them itself (``read`` / ``_guard``).
+DECODED_FUNCTION_CODES = frozenset({0x01, 0x02, 0x03, 0x04, 0x05, 0x06, 0x0F, 0x10})
+SIM_LIMITS = replace(STEPPER_LIMITS, function_codes=DECODED_FUNCTION_CODES)
+
+
+class StepperSimDevice(SimulatedDevice):
+    def __init__(self, unit_id: int = 1, travel: float = TRAVEL) -> None:
+        super().__init__(STEPPER_MAP, unit_id, limits=SIM_LIMITS)
+        self.travel = travel
+        self.position = {m: START_POSITION for m in range(1, MOTORS + 1)}
+        self.offset = {m: START_POSITION for m in range(1, MOTORS + 1)}
+        self.motion: dict[int, Motion | None] = {m: None for m in range(1, MOTORS + 1)}
+        self.interpolation: Interpolation | None = None
+        self.homing_queue: list[int] = []
+        self.forced_inputs: set[int] = set()
+        self.saves = 0
+        self.write_guards.append(self._guard)
+        self.write_hooks.append(self._on_write)
+        self.factory_defaults()
+        self._update_status()
+
+    # ------------------------------------------------------------ state for tests
+    def factory_defaults(self) -> None:
+        with self.lock:
+            for m in range(1, MOTORS + 1):
+                for name, value in FACTORY.items():
+                    self.set(motor_register(m, name), value)
+                self.set(motor_register(m, "positive_limit_input"), 2 * m - 1)
+                self.set(motor_register(m, "negative_limit_input"), 2 * m)
+                self.set(motor_register(m, "home_input"), 2 * m)
+                self.set(motor_register(m, "reciprocations"), 0)
+                self.set(f"homing_order_{m}", 0)
+            self.set("system_mode", 0)
+            self.set("device_id", self.unit_id)
+            self.set("baud_rate", DEFAULT_BAUDRATE)
+
+    def coordinate(self, motor: int) -> float:
+        with self.lock:
+            return self.position[motor] - self.offset[motor]
+
+    def set_input(self, number: int, on: bool) -> None:
+        """Force input 1-13 on (or release it) as a wired switch would."""
+        with self.lock:
+            if on:
+                self.forced_inputs.add(number)
+            else:
+                self.forced_inputs.discard(number)
+            self._update_status()
+
+    def input_on(self, number: int) -> bool:
+        if number == 0:
+            return False
+        if number in self.forced_inputs:
+            return True
+        for m in range(1, MOTORS + 1):
+            p = self.position[m]
+            if p <= 0.0 and number in (self._assigned(m, "negative"), self._assigned(m, "home")):
+                return True
+            if p >= self.travel and number == self._assigned(m, "positive"):
+                return True
+        return False
+
+    def _assigned(self, motor: int, which: str) -> int:
+        field_name = "home_input" if which == "home" else f"{which}_limit_input"
+        return int(self.get(motor_register(motor, field_name)))
+
+    def _speed(self, motor: int, rpm: float | None = None) -> float:
+        """User units per second at ``rpm`` (default: the motor's speed register)."""
+        rpm = float(self.get(motor_register(motor, "speed"))) if rpm is None else rpm
+        return rpm / 60.0 * float(self.get(motor_register(motor, "lead")))
+
+    # ------------------------------------------------------------ Modbus behaviour
+    def read(self, function_code: int, address: int, count: int) -> list[int] | int:
+        if function_code not in FUNCTION_CODES:
+            return ILLEGAL_FUNCTION  # FC 01 / 02 / 04: the controller has none
+        return super().read(function_code, address, count)
+
+    def _guard(self, record: WriteRecord) -> int | None:
+        """FC 0F answers ILLEGAL FUNCTION; values outside the manual's ranges ILLEGAL
+        DATA VALUE."""
+        if record.function_code not in FUNCTION_CODES:
+            return ILLEGAL_FUNCTION
+        if record.table is not Table.HOLDING:
+            return None
+        end = record.address + len(record.values)
+        seen: set[str] = set()
+        for address in range(record.address, end):
+            reg = self.map.owner_at(Table.HOLDING, address)
+            if reg is None or reg.name in seen:
+                continue
+            seen.add(reg.name)
+            words = record.values[reg.address - record.address : reg.end - record.address]
+            value = decode(reg, list(words))
+            assert isinstance(value, int | float)
+            if (reg.minimum is not None and value < reg.minimum) or (
+                reg.maximum is not None and value > reg.maximum
+            ):
+                return ILLEGAL_VALUE
+            if reg.name == "baud_rate" and value not in BAUD_RATES:
+                return ILLEGAL_VALUE
+        return None
+
+    def _on_write(self, record: WriteRecord) -> None:
+        if record.table is not Table.COIL or not record.values[0]:
+            return  # 0x0000 to a command coil does nothing
+        address = record.address
+        if address < MOTORS * MOTOR_COILS:
+            motor, k = divmod(address, MOTOR_COILS)
+            self._motor_command(motor + 1, MOTOR_ACTIONS[k])
+        elif address in _OUTPUT_COILS:
+            output, off = divmod(address - (OUTPUT_COIL_FIRST - 1), 2)
+            self.set(f"output_{output + 1}", 0 if off else 1)
+        elif address in _COIL_NAMES:
+            self._system_command(_COIL_NAMES[address])
+        self._update_status()
+
+    def _motor_command(self, motor: int, action: str) -> None:
+        if action == "stop":
+            self.motion[motor] = None
+            if motor in self.homing_queue:
+                self.homing_queue.clear()
+            return
+        if self._speed(motor) <= 0:
+            return  # speed 0: "若速度为0则不运行"
+        if action in ("forward", "reverse", "home"):
+            self.motion[motor] = Motion(action)
+        elif action == "run_once":
+            distance = float(self.get(motor_register(motor, "run_distance")))
+            sign = -1.0 if int(self.get(motor_register(motor, "direction"))) else 1.0
+            self.motion[motor] = Motion("single", self.position[motor] + sign * distance)
+
+    def _system_command(self, name: str) -> None:
+        if name == "emergency_stop":
+            self._stop_all()
+            for n in range(1, OUTPUTS + 1):
+                self.set(f"output_{n}", 0)
+        elif name == "zero_coordinates":
+            for m in range(1, MOTORS + 1):
+                self.offset[m] = self.position[m]
+        elif name == "return_to_zero":
+            for m in range(1, MOTORS + 1):
+                if self._speed(m) > 0 and self.coordinate(m) != 0:
+                    self.motion[m] = Motion("to_coordinate", self.offset[m])
+        elif name == "home_all":
+            order = [int(self.get(f"homing_order_{k}")) for k in range(1, MOTORS + 1)]
+            self.homing_queue = [m for m in order if m]
+            self._next_homing()
+        elif name == "factory_reset":
+            self._stop_all()
+            self.factory_defaults()
+        elif name == "save_parameters":
+            self.saves += 1
+        elif name == "clear_all_parameters":
+            self._stop_all()
+            for reg in self.map.in_table(Table.HOLDING):
+                if reg.access.writable and reg.name not in KEPT_BY_CLEAR:
+                    self.set_words(Table.HOLDING, reg.address, [0] * reg.count)
+        elif name in ("all_outputs_on", "all_outputs_off"):
+            for n in range(1, OUTPUTS + 1):
+                self.set(f"output_{n}", 1 if name == "all_outputs_on" else 0)
+        elif name in ("arc_start", "line_start"):
+            self._start_interpolation(name.split("_")[0])
+        elif (
+            name in ("arc_stop", "line_stop")
+            and self.interpolation
+            and self.interpolation.kind == name.split("_")[0]
+        ):
+            self.interpolation = None
+
+    def _stop_all(self) -> None:
+        for m in range(1, MOTORS + 1):
+            self.motion[m] = None
+        self.interpolation = None
+        self.homing_queue.clear()
+
+    def _next_homing(self) -> None:
+        while self.homing_queue:
+            motor = self.homing_queue[0]
+            if self._speed(motor) > 0:
+                self.motion[motor] = Motion("home")
+                return
+            self.homing_queue.pop(0)
+
+    def _start_interpolation(self, kind: str) -> None:
+        prefix = kind
+        pair = int(self.get(f"{prefix}_pair"))
+        if pair not in INTERPOLATION_PAIRS:
+            return
+        a, b = INTERPOLATION_PAIRS[pair]
+
+        def point(name: str) -> tuple[float, float]:
+            return (float(self.get(f"{name}_a")), float(self.get(f"{name}_b")))
+
+        start, end = point(f"{prefix}_start"), point(f"{prefix}_end")
+        rpm = float(self.get(f"{prefix}_speed"))
+        if rpm <= 0:
+            return
+        job = Interpolation(kind, (a, b), start, end, rpm)
+        if kind == "line":
+            job.length = math.dist(start, end)
+        else:
+            if int(self.get("arc_mode")) == ARC_MODE_CENTER:
+                center = point("arc_center")
+                ccw = bool(int(self.get("arc_direction")))
+                sweep = _angle(center, end) - _angle(center, start)
+                if ccw and sweep <= 0:
+                    sweep += 2 * math.pi
+                if not ccw and sweep >= 0:
+                    sweep -= 2 * math.pi
+            else:
+                via = point("arc_via")
+                found = _circumcenter(start, via, end)
+                if found is None:
+                    return
+                center = found
+                to_via = (_angle(center, via) - _angle(center, start)) % (2 * math.pi)
+                to_end = (_angle(center, end) - _angle(center, start)) % (2 * math.pi)
+                sweep = to_end if to_via <= to_end else to_end - 2 * math.pi
+            job.center, job.sweep = center, sweep
+            job.length = abs(sweep) * math.dist(center, start)
+        for m in job.motors:
+            self.motion[m] = None
+        self.interpolation = job
+
+    # ------------------------------------------------------------ time
+    def tick(self, dt: float) -> None:
+        with self.lock:
+            for m in range(1, MOTORS + 1):
+                self._move_motor(m, dt)
+            if self.interpolation is not None:
+                self._move_interpolation(self.interpolation, dt)
+            self._update_status()
+
+    def _blocked(self, motor: int, direction: float) -> bool:
+        """Whether the limit input in ``direction`` stops the motor."""
+        which = "positive" if direction > 0 else "negative"
+        return self.input_on(self._assigned(motor, which))
+
+    def _move_motor(self, m: int, dt: float) -> None:
+        motion = self.motion[m]
+        if motion is None:
+            return
+        v = self._speed(m)
+        p = self.position[m]
+        if motion.kind == "forward":
+            direction, target = 1.0, math.inf
+        elif motion.kind in ("reverse", "home"):
+            direction, target = -1.0, -math.inf
+        else:
+            if motion.target == p:
+                self._finish(m)
+                return
+            direction, target = (1.0 if motion.target > p else -1.0), motion.target
+        if motion.kind == "home" and self.input_on(self._assigned(m, "home")):
+            self.offset[m] = p  # at the home switch: the coordinate is 0
+            self._finish(m)
+            return
+        if self._blocked(m, direction):
+            self._finish(m)
+            return
+        step = direction * v * dt
+        new = p + step
+        if (direction > 0 and new >= target) or (direction < 0 and new <= target):
+            new = target
+        # Switches are at 0 and travel: stop on them rather than beyond.
+        if p > 0.0 >= new and direction < 0:
+            new = 0.0
+        if p < self.travel <= new and direction > 0:
+            new = self.travel
+        self.position[m] = new
+        if new == target:
+            self._finish(m)
+
+    def _finish(self, m: int) -> None:
+        motion = self.motion[m]
+        was_homing = motion is not None and motion.kind == "home"
+        self.motion[m] = None
+        if was_homing and self.homing_queue and self.homing_queue[0] == m:
+            self.homing_queue.pop(0)
+            self._next_homing()
+
+    def _move_interpolation(self, job: Interpolation, dt: float) -> None:
+        a, b = job.motors
+        if job.phase == "approach":
+            arrived = True
+            for m, goal in ((a, job.start[0]), (b, job.start[1])):
+                target = goal + self.offset[m]
+                p = self.position[m]
+                if abs(target - p) > 1e-9:
+                    step = self._speed(m) * dt
+                    self.position[m] = (
+                        target if abs(target - p) <= step else p + math.copysign(step, target - p)
+                    )
+                    arrived = arrived and self.position[m] == target
+            if arrived:
+                job.phase = "path"
+            return
+        previous = (self.position[a], self.position[b])
+        job.travelled = min(job.length, job.travelled + self._speed(a, job.rpm) * dt)
+        fraction = job.travelled / job.length if job.length > 0 else 1.0
+        if job.kind == "line":
+            point = tuple(s + (e - s) * fraction for s, e in zip(job.start, job.end, strict=True))
+        else:
+            radius = math.dist(job.center, job.start)
+            angle = _angle(job.center, job.start) + job.sweep * fraction
+            point = (
+                job.center[0] + radius * math.cos(angle),
+                job.center[1] + radius * math.sin(angle),
+            )
+            if fraction >= 1.0:
+                point = job.end
+        for m, value, before in zip((a, b), point, previous, strict=True):
+            new = value + self.offset[m]
+            if new != before and self._blocked(m, new - before):
+                self.interpolation = None
+                return
+            self.position[m] = new
+        if fraction >= 1.0:
+            self.interpolation = None
+
+    def _update_status(self) -> None:
+        moving_by_interpolation = set(self.interpolation.motors) if self.interpolation else set()
+        for m in range(1, MOTORS + 1):
+            self.set(motor_register(m, "coordinate"), round(self.coordinate(m), 2))
+            running = self.motion[m] is not None or m in moving_by_interpolation
+            self.set(motor_register(m, "running"), 1 if running else 0)
+        for n in range(1, INPUTS + 1):
+            self.set(f"input_{n}", 1 if self.input_on(n) else 0)
+
+
+def _angle(center: tuple[float, float], point: tuple[float, float]) -> float:
+    return math.atan2(point[1] - center[1], point[0] - center[0])
+
+
+def _circumcenter(
+    p: tuple[float, float], q: tuple[float, float], r: tuple[float, float]
+) -> tuple[float, float] | None:
+    d = 2 * (p[0] * (q[1] - r[1]) + q[0] * (r[1] - p[1]) + r[0] * (p[1] - q[1]))
+    if abs(d) < 1e-12:
+        return None
+    pp, qq, rr = p[0] ** 2 + p[1] ** 2, q[0] ** 2 + q[1] ** 2, r[0] ** 2 + r[1] ** 2
+    x = (pp * (q[1] - r[1]) + qq * (r[1] - p[1]) + rr * (p[1] - q[1])) / d
+    y = (pp * (r[0] - q[0]) + qq * (p[0] - r[0]) + rr * (q[0] - p[0])) / d
+    return (x, y)
+
+
+def make_simulator(
+    unit_id: int = 1, reply_delay_s: float = REPLY_DELAY_S, travel: float = TRAVEL
+) -> Simulator:
+    sim = Simulator([StepperSimDevice(unit_id, travel)])
+    sim.reply_delay_s = reply_delay_s
+    return sim
+
+
+class PtyPair:
+    """Two linked pseudo-terminals from socat: ``link`` for the bridge, one for the server."""
+
+    def __init__(self, link: Path) -> None:
+        socat = shutil.which("socat")
+        if socat is None:
+            raise RuntimeError("--pty needs socat (apt-get install socat)")
+        self._tmp = tempfile.TemporaryDirectory()
+        self.link = link
+        self.device_end = Path(self._tmp.name) / "device"
+        self.proc = subprocess.Popen(
+            [socat, f"pty,raw,echo=0,link={link}", f"pty,raw,echo=0,link={self.device_end}"],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
+        deadline = time.monotonic() + 10
+        while not (link.exists() and self.device_end.exists()):
+            if self.proc.poll() is not None or time.monotonic() > deadline:
+                self.close()
+                raise RuntimeError("socat did not create the pty pair")
+            time.sleep(0.01)
+
+    def close(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.terminate()
+            self.proc.wait(5)
+        self._tmp.cleanup()
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description="5-axis stepper controller Modbus RTU simulator")
+    where = parser.add_mutually_exclusive_group(required=True)
+    where.add_argument("--serial", help="serve on this serial port or pty path")
+    where.add_argument(
+        "--pty",
+        type=Path,
+        help="create a socat pty pair and link the bridge's end here (e.g. /tmp/stepper)",
+    )
+    parser.add_argument("--baudrate", type=int, default=DEFAULT_BAUDRATE)
+    parser.add_argument("--parity", default="N", choices=("N", "E", "O"))
+    parser.add_argument("--stopbits", type=int, default=1, choices=(1, 2))
+    parser.add_argument("--unit-id", type=int, default=1)
+    parser.add_argument(
+        "--reply-delay-ms",
+        type=float,
+        default=REPLY_DELAY_S * 1000,
+        help="delay before every reply (manual: at least 35 ms on RS-485)",
+    )
+    parser.add_argument("--travel", type=float, default=TRAVEL, help="positive limit, units")
+    parser.add_argument("--write-log", type=Path, help="append every accepted write (JSON lines)")
+    args = parser.parse_args(argv)
+    if args.reply_delay_ms < 0:
+        parser.error("--reply-delay-ms must be >= 0")
+    sim = make_simulator(args.unit_id, args.reply_delay_ms / 1000.0, args.travel)
+    device = sim.device
+    assert isinstance(device, StepperSimDevice)
+    if args.write_log:
+        device.log_file = args.write_log.open("a")
+    pair = PtyPair(args.pty) if args.pty else None
+    try:
+        shown = str(args.pty) if pair else args.serial
+        port = str(pair.device_end) if pair else args.serial
+        sim.start_serial(port, args.baudrate, args.parity, args.stopbits)
+        print(
+            f"stepper_sim listening on {shown} (unit {args.unit_id}, {args.baudrate} baud, "
+            f"reply delay {args.reply_delay_ms:g} ms)",
+            flush=True,
+        )
+        done = threading.Event()
+        signal.signal(signal.SIGTERM, lambda *_: done.set())
+        signal.signal(signal.SIGINT, lambda *_: done.set())
+        done.wait()
+    finally:
+        sim.stop()
+        if pair is not None:
+            pair.close()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,361 @@
+"""The stepper bridge node in its own process, against the simulator over a real socat pty
+pair, driven by an rclpy client in this process."""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Iterator
+from contextlib import AbstractContextManager
+from pathlib import Path
+from typing import Any
+
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray
+from std_msgs.msg import Float64
+from std_srvs.srv import SetBool, Trigger
+
+from bridge_core.registers import Table
+from msg_defs.msg import StepperState
+from msg_defs.srv import (
+    ArcMove,
+    ConfigureMotor,
+    ConfirmedCommand,
+    LineMove,
+    MoveBy,
+    SetHomingOrder,
+    SetInteger,
+    SetLimitInputs,
+    SetOutput,
+)
+from stepper_bridge.sim import START_POSITION, StepperSimDevice, make_simulator
+
+from .support.ros import Bridge, Client, ros_client, start_bridge, values_of, wait_for
+from .support.serial_pair import socat_pair
+
+pytestmark = pytest.mark.ros
+
+BAUD = 115200
+COMMAND_TIMEOUT_S = 0.5
+
+
+@pytest.fixture(scope="module")
+def client() -> Iterator[Client]:
+    with ros_client("stepper_client") as c:
+        c.subscribe(DiagnosticArray, "/diagnostics")
+        yield c
+
+
+@pytest.fixture
+def sim() -> Iterator[tuple[StepperSimDevice, str]]:
+    """The simulator on one end of a socat pty pair; yields it and the bridge's end."""
+    simulator = make_simulator(reply_delay_s=0.0)
+    with socat_pair() as (bridge_end, device_end, _):
+        simulator.start_serial(device_end, BAUD)
+        device = simulator.device
+        assert isinstance(device, StepperSimDevice)
+        try:
+            yield device, bridge_end
+        finally:
+            simulator.stop()
+
+
+def bridge(
+    client: Client, tmp_path: Path, port: str, **params: Any
+) -> AbstractContextManager[tuple[Bridge, Any]]:
+    defaults: dict[str, Any] = {
+        "serial_port": port,
+        "baudrate": BAUD,
+        "poll_rate_hz": 20.0,
+        "timeout_s": 0.3,
+        "reconnect_max_s": 1.0,
+        "command_timeout_s": COMMAND_TIMEOUT_S,
+    }
+    defaults.update(params)
+    return start_bridge(
+        client, tmp_path, "stepper_bridge.node", "stepper_bridge", StepperState, defaults
+    )
+
+
+def diagnostic(b: Bridge, predicate: Callable[[Any], bool], since: float) -> Any:
+    def find() -> Any:
+        for status in reversed(b.diagnostics(since)):
+            if predicate(status):
+                return status
+        return None
+
+    return wait_for(find, 15.0, "a matching diagnostic status")
+
+
+def writes(device: StepperSimDevice) -> list[tuple[int, Table, int, tuple[int, ...]]]:
+    return [(r.function_code, r.table, r.address, r.values) for r in device.write_log]
+
+
+def test_topics_jog_and_deadman(sim, client: Client, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    device, port = sim
+    device.position[2] = START_POSITION + 2.5  # coordinate 2.50 = half a turn at lead 5.00
+    device.position[5] = START_POSITION - 12.5
+    device.set_input(9, True)
+    device.set("output_4", 1)
+    started = time.monotonic()
+    with bridge(
+        client,
+        tmp_path,
+        port,
+        joint_types=["prismatic", "revolute", "prismatic", "prismatic", "prismatic"],
+        units_per_meter=[1000.0, 1.0, 1.0, 1000.0, 1000.0],
+        joint_prefix="x_",
+    ) as (b, _):
+        js = client.wait_message(b.joint_states)
+        assert js.name == [f"x_motor_{m}" for m in range(1, 6)]
+        assert list(js.position) == pytest.approx([0.0, math.pi, 0.0, 0.0, -0.0125])
+        st = client.wait_message(b.state)
+        assert st.inputs[8] and sum(st.inputs) == 1 and st.outputs[3]
+        assert list(st.coordinates) == pytest.approx([0.0, 2.5, 0.0, 0.0, -12.5])
+        assert st.lead[1] == pytest.approx(5.0) and st.microstep[0] == 8
+        assert list(st.home_input) == [2, 4, 6, 8, 10] and st.system_mode == 0
+        status = diagnostic(b, lambda s: s.level == b"\x00", started)
+        assert values_of(status)["system mode"] == "0"
+
+        # Jog motor 1 at 600 rpm (50 mm/s) for a while: the position moves.
+        jog = client.node.create_publisher(Float64, f"{b.ns}/stepper_bridge/motor_1/jog", 10)
+        wait_for(lambda: jog.get_subscription_count() > 0, 10, "the jog subscription")
+        first = client.wait_message(b.joint_states, since=time.monotonic()).position[0]
+        deadline = time.monotonic() + 1.0
+        while time.monotonic() < deadline:
+            jog.publish(Float64(data=600.0))
+            last_sent = time.time()
+            time.sleep(0.05)
+        moving = client.wait_message(b.joint_states, since=time.monotonic()).position[0]
+        assert moving > first + 0.02  # > 20 mm in about a second
+        # Silence: the deadman stops the motor after command_timeout_s.
+        client.wait_message(b.state, lambda m: not m.running[0], timeout=5, since=time.monotonic())
+        stop = device.write_log[-1]
+        assert (stop.table, stop.address) == (Table.COIL, 4)
+        assert stop.time - last_sent >= COMMAND_TIMEOUT_S * 0.9
+        # Speed once, forward once (20 identical messages), then the deadman's stop coil.
+        assert writes(device) == [
+            (6, Table.HOLDING, 5, (600,)),
+            (5, Table.COIL, 1, (1,)),
+            (5, Table.COIL, 4, (1,)),
+        ]
+        resting = device.coordinate(1)
+        time.sleep(0.3)
+        assert device.coordinate(1) == resting
+        # Jog 0 after the stop writes nothing more (already stopped).
+        jog.publish(Float64(data=0.0))
+        time.sleep(0.3)
+        assert len(device.write_log) == 3
+        client.node.destroy_publisher(jog)
+
+
+def test_services_write_what_they_should(sim, client: Client, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    device, port = sim
+    device.set("motor1_speed", 1200)  # 100 mm/s: move_by finishes quickly
+    with bridge(client, tmp_path, port, joint_types=["prismatic", "revolute"]) as (b, _):
+        b.wait_connected(True)
+        client.wait_message(b.state)
+
+        def ok(srv: Any, name: str, **fields: Any) -> None:
+            reply = b.call(srv, name, **fields)
+            assert reply.success, f"{name}: {reply.message}"
+
+        ok(MoveBy, "motor_1/move_by", distance=0.005)  # 5 mm -> 5.00 -> 500
+        client.wait_message(
+            b.state, lambda m: m.coordinates[0] == pytest.approx(5.0) and not m.running[0]
+        )
+        js = client.wait_message(b.joint_states, lambda m: m.position[0] > 0.004)
+        assert js.position[0] == pytest.approx(0.005)
+        ok(MoveBy, "motor_2/move_by", distance=-math.pi / 2)  # quarter turn at lead 5 -> 1.25
+        ok(
+            SetLimitInputs,
+            "motor_3/set_limit_inputs",
+            positive_limit=11,
+            negative_limit=12,
+            home=12,
+        )
+        ok(
+            ConfigureMotor,
+            "motor_3/configure",
+            step_angle_deg=0.9,
+            microstep=16,
+            start_frequency_hz=500,
+            accel_frequency_hz=4000,
+            speed_rpm=300,
+            lead=12.0,
+        )
+        for action in ("run_once", "forward", "reverse", "home", "stop"):
+            ok(Trigger, f"motor_4/{action}")
+        for name in ("zero_coordinates", "return_to_zero", "home_all", "save_parameters"):
+            ok(Trigger, name)
+        ok(Trigger, "emergency_stop")
+        ok(SetOutput, "set_output", board=0, index=4, on=True)
+        ok(SetOutput, "set_output", board=0, index=4, on=False)
+        ok(SetBool, "set_all_outputs", data=True)
+        ok(SetHomingOrder, "set_homing_order", motors=[2, 1])
+        ok(SetInteger, "set_system_mode", value=0)
+        ok(
+            LineMove,
+            "line_move",
+            pair=LineMove.Request.PAIR_MOTORS_1_3,
+            start=[0.001, 0.002],
+            end=[0.003, -0.004],
+            speed_rpm=100,
+        )
+        ok(
+            ArcMove,
+            "arc_move",
+            pair=ArcMove.Request.PAIR_MOTORS_1_2,
+            mode=ArcMove.Request.MODE_CENTER,
+            start=[0.01, 0.0],
+            end=[0.0, math.pi],
+            center=[0.0, 0.0],
+            via=[0.0, 0.0],
+            counterclockwise=True,
+            speed_rpm=60,
+        )
+        ok(Trigger, "stop_interpolation")
+        ok(ConfirmedCommand, "factory_reset", confirm="factory_reset")
+        ok(ConfirmedCommand, "clear_all_parameters", confirm="clear_all_parameters")
+        assert device.saves == 1
+        H, C = Table.HOLDING, Table.COIL  # noqa: N806
+        assert writes(device) == [
+            (6, H, 4, (0,)),  # motor 1 direction +
+            (16, H, 8, (500, 0)),  # run distance 5.00
+            (5, C, 0, (1,)),  # single run
+            (6, H, 14, (1,)),  # motor 2 direction -
+            (16, H, 18, (125, 0)),  # 1.25 = a quarter of lead 5.00
+            (5, C, 5, (1,)),
+            (16, H, 86, (11, 12, 12)),  # 40087-40089
+            (16, H, 20, (90, 16, 500, 4000)),
+            (16, H, 25, (300, 1200, 0)),
+            (5, C, 15, (1,)),
+            (5, C, 16, (1,)),
+            (5, C, 17, (1,)),
+            (5, C, 18, (1,)),
+            (5, C, 19, (1,)),
+            (5, C, 43, (1,)),
+            (5, C, 44, (1,)),
+            (5, C, 45, (1,)),
+            (5, C, 95, (1,)),
+            (5, C, 41, (1,)),
+            (5, C, 54, (1,)),  # output 4 on: coil 00055
+            (5, C, 55, (1,)),  # output 4 off: coil 00056
+            (5, C, 97, (1,)),
+            (16, H, 176, (2, 1, 0, 0, 0)),
+            (6, H, 299, (0,)),
+            (16, H, 201, (2, 100, 0, 200, 0, 300, 0, 0xFE70, 0xFFFF, 100)),  # 40202-40211
+            (5, C, 101, (1,)),
+            (
+                16,
+                H,
+                181,
+                (1, 0, 1000, 0, 0, 0, 0, 0, 250, 0, 0, 0, 0, 0, 0, 0, 0, 0, 1, 60),
+            ),  # 40182-40201: motor 1 in mm x100, motor 2 revolute: pi rad = 2.50 at lead 5
+            (5, C, 99, (1,)),
+            (5, C, 100, (1,)),
+            (5, C, 102, (1,)),
+            (5, C, 72, (1,)),
+            (5, C, 96, (1,)),
+        ]
+
+
+def test_refusals_write_nothing(sim, client: Client, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    device, port = sim
+    device.set("motor5_lead", 0.0)  # a revolute motor without a lead: no angle
+    started = time.monotonic()
+    with bridge(client, tmp_path, port, joint_types=["prismatic"] * 4 + ["revolute"]) as (b, _):
+        b.wait_connected(True)
+        js = client.wait_message(b.joint_states)
+        assert math.isnan(js.position[4])
+        status = diagnostic(b, lambda s: s.level == b"\x01", started)
+        assert "lead 0 on revolute motor(s) 5" in status.message
+        refusals: list[tuple[Any, str, dict[str, Any], str]] = [
+            (MoveBy, "motor_1/move_by", {"distance": math.nan}, "not a finite"),
+            (MoveBy, "motor_1/move_by", {"distance": 1e6}, "outside"),
+            (MoveBy, "motor_1/move_by", {"distance": 0.0}, "below"),
+            (MoveBy, "motor_5/move_by", {"distance": 1.0}, "lead is 0"),
+            (
+                ConfigureMotor,
+                "motor_2/configure",
+                {"step_angle_deg": 0.0, "microstep": 8, "speed_rpm": 10, "lead": 1.0},
+                "step_angle",
+            ),
+            (
+                ConfigureMotor,
+                "motor_2/configure",
+                {"step_angle_deg": 1.8, "microstep": 8, "speed_rpm": 10, "lead": math.inf},
+                "lead",
+            ),
+            (SetLimitInputs, "motor_1/set_limit_inputs", {"home": 14}, "home_input"),
+            (SetOutput, "set_output", {"board": 0, "index": 13, "on": True}, "output 13"),
+            (SetOutput, "set_output", {"board": 0, "index": 0, "on": True}, "output 0"),
+            (SetOutput, "set_output", {"board": 1, "index": 1, "on": True}, "board 1"),
+            (SetHomingOrder, "set_homing_order", {"motors": [1, 2, 3, 4, 5, 1]}, "at most"),
+            (SetHomingOrder, "set_homing_order", {"motors": [3, 3]}, "twice"),
+            (SetInteger, "set_system_mode", {"value": 9}, "system mode 9"),
+            (LineMove, "line_move", {"pair": 4, "speed_rpm": 10}, "pair 4"),
+            (LineMove, "line_move", {"pair": 1, "end": [0.01, 0.0], "speed_rpm": 0}, "speed"),
+            (ArcMove, "arc_move", {"pair": 1, "end": [0.01, 0.0], "speed_rpm": 10}, "three"),
+            (ConfirmedCommand, "factory_reset", {"confirm": ""}, "confirm"),
+            (ConfirmedCommand, "factory_reset", {"confirm": "yes"}, "confirm"),
+            (ConfirmedCommand, "clear_all_parameters", {"confirm": "factory_reset"}, "confirm"),
+        ]
+        for srv, name, fields, reason in refusals:
+            reply = b.call(srv, name, **fields)
+            assert not reply.success, name
+            assert "refused" in reply.message and reason in reply.message, reply.message
+        jog = client.node.create_publisher(Float64, f"{b.ns}/stepper_bridge/motor_1/jog", 10)
+        wait_for(lambda: jog.get_subscription_count() > 0, 10, "the jog subscription")
+        for value in (math.nan, math.inf, 1e6):
+            jog.publish(Float64(data=value))
+        time.sleep(0.5)
+        client.node.destroy_publisher(jog)
+        assert device.write_log == []
+
+
+def test_read_only_refuses_every_write(sim, client: Client, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    device, port = sim
+    with bridge(client, tmp_path, port, read_only=True) as (b, _):
+        b.wait_connected(True)
+        replies = [b.call(Trigger, name) for name in ("motor_1/forward", "emergency_stop")]
+        replies += [
+            b.call(MoveBy, "motor_2/move_by", distance=0.01),
+            b.call(SetOutput, "set_output", board=0, index=1, on=True),
+            b.call(ConfirmedCommand, "factory_reset", confirm="factory_reset"),
+            b.call(SetBool, "set_all_outputs", data=False),
+        ]
+        for reply in replies:
+            assert not reply.success and "read_only" in reply.message, reply.message
+        jog = client.node.create_publisher(Float64, f"{b.ns}/stepper_bridge/motor_1/jog", 10)
+        wait_for(lambda: jog.get_subscription_count() > 0, 10, "the jog subscription")
+        jog.publish(Float64(data=100.0))
+        time.sleep(0.5)
+        client.node.destroy_publisher(jog)
+        assert device.write_log == []
+
+
+def test_example_yaml_configures_the_node(sim, client: Client, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    from sensor_msgs.msg import JointState
+
+    from .support.ros import ROOT, node_process
+
+    device, port = sim
+    device.position[5] = START_POSITION + 1.25  # a quarter turn at lead 5.00
+    config = (ROOT / "config" / "stepper.yaml").read_text()
+    config = config.replace('"/dev/ttyUSB0"', f'"{port}"').replace(
+        "baudrate: 9600", "baudrate: 115200"
+    )
+    params = tmp_path / "stepper.yaml"
+    params.write_text(config)
+    client.subscribe(JointState, "/yaml_stepper/joint_states")
+    with node_process(
+        "stepper_bridge.node",
+        {},
+        tmp_path,
+        ["--params-file", str(params), "-r", "__ns:=/yaml_stepper"],
+    ) as proc:
+        msg = client.wait_message("/yaml_stepper/joint_states")
+        assert msg.name == [f"motor_{m}" for m in range(1, 6)]
+        assert msg.position[4] == pytest.approx(math.pi / 2)  # joint_types: motor 5 revolute
+        assert proc.poll() is None

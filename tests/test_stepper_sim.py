@@ -1,0 +1,449 @@
+"""The stepper device layer against the stepper simulator over a real socat pty pair (no ROS).
+
+115200 baud and no reply delay, except where the 35 ms delay is the point.
+"""
+
+from __future__ import annotations
+
+import math
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+import serial
+from pymodbus.framer import FramerRTU
+
+from bridge_core.errors import CommandRejected
+from bridge_core.link import DeviceChannel, ModbusLink, SerialSettings
+from bridge_core.registers import Table
+from bridge_core.sim_base import Simulator
+from stepper_bridge.device import JointScale, StepperDevice
+from stepper_bridge.registers import STEPPER_MAP, UNDEFINED_HOLDING, holding
+from stepper_bridge.sim import START_POSITION, StepperSimDevice, make_simulator
+
+from .support.serial_pair import socat_pair
+
+BAUD = 115200
+
+
+class Rig:
+    """Simulator on one end of a pty pair, a device layer on the other."""
+
+    def __init__(self, sim: Simulator, bridge_end: str, device_end: str) -> None:
+        self.sim = sim
+        sim_device = sim.device
+        assert isinstance(sim_device, StepperSimDevice)
+        self.fake = sim_device
+        self.device_end = device_end
+        self.link = ModbusLink(SerialSettings(bridge_end, BAUD, timeout_s=0.5))
+        self.channel = DeviceChannel(self.link, 1, retries=0)
+        self.device = StepperDevice(self.channel)
+
+    def writes(self) -> list[tuple[int, Table, int, tuple[int, ...]]]:
+        return [(r.function_code, r.table, r.address, r.values) for r in self.fake.write_log]
+
+    def raw(self, frame_without_crc: bytes, reply_length: int) -> bytes:
+        """Send a raw frame (CRC added) through the bridge's end and return the reply."""
+        self.link.close()
+        frame = frame_without_crc + FramerRTU.compute_CRC(frame_without_crc).to_bytes(2, "big")
+        with serial.Serial(self.link.settings.port, BAUD, timeout=1.0) as port:  # type: ignore[union-attr]
+            port.write(frame)
+            head = bytes(port.read(5))
+            if len(head) < 5 or head[1] & 0x80:
+                return head  # an exception reply is 5 bytes long
+            return head + bytes(port.read(reply_length - 5))
+
+
+@pytest.fixture
+def rig() -> Iterator[Rig]:
+    sim = make_simulator(reply_delay_s=0.0, travel=80.0)
+    with socat_pair() as (bridge_end, device_end, _):
+        sim.start_serial(device_end, BAUD)
+        r = Rig(sim, bridge_end, device_end)
+        try:
+            yield r
+        finally:
+            r.link.close()
+            sim.stop()
+
+
+def wait_until(predicate: Callable[[], Any], timeout: float = 5.0) -> Any:
+    deadline = time.monotonic() + timeout
+    while not (value := predicate()):
+        assert time.monotonic() < deadline, "condition not met in time"
+        time.sleep(0.02)
+    return value
+
+
+def idle(rig: Rig) -> bool:
+    return not any(rig.device.poll().running)
+
+
+def test_poll_reads_status_and_configuration(rig: Rig) -> None:
+    rig.fake.set_input(7, True)
+    rig.device.set_output(3, True)
+    s = rig.device.poll()
+    assert s.coordinates == (0.0,) * 5 and s.running == (False,) * 5
+    assert s.inputs[6] and sum(s.inputs) == 1
+    assert s.outputs[2] and sum(s.outputs) == 1
+    m1 = s.config.motors[0]
+    assert (m1.step_angle_deg, m1.microstep, m1.speed_rpm, m1.lead) == (1.8, 8, 60, 5.0)
+    assert (m1.positive_limit_input, m1.negative_limit_input, m1.home_input) == (1, 2, 2)
+    assert s.config.system_mode == 0 and s.config.homing_order == (0,) * 5
+
+
+def test_move_by_covers_the_distance_both_ways(rig: Rig) -> None:
+    rig.device.set_speed(3, 600)  # 600 rpm x 5.00 per rev = 50 units/s
+    rig.device.move_by(3, 12.34)
+    wait_until(lambda: idle(rig))
+    assert rig.device.poll().coordinates[2] == pytest.approx(12.34)
+    rig.device.move_by(3, -2.0)
+    wait_until(lambda: idle(rig))
+    assert rig.device.poll().coordinates[2] == pytest.approx(10.34)
+    s = rig.device.poll()
+    assert s.config.motors[2].direction == 1 and s.config.motors[2].run_distance == 2.0
+
+
+def test_jog_runs_at_the_speed_and_stops(rig: Rig) -> None:
+    d = rig.device
+    assert d.jog(1, 600.0)
+    wait_until(lambda: rig.device.poll().coordinates[0] > 5.0)
+    assert not d.jog(1, 600.0)  # unchanged: nothing written
+    assert d.jog(1, 300.0)  # speed only, while running
+    assert d.jog(1, -300.0)  # reversal: stop, then reverse
+    assert d.jog(1, 0.0)
+    wait_until(lambda: idle(rig))
+    assert rig.writes() == [
+        (6, Table.HOLDING, 5, (600,)),
+        (5, Table.COIL, 1, (1,)),
+        (6, Table.HOLDING, 5, (300,)),
+        (5, Table.COIL, 4, (1,)),
+        (5, Table.COIL, 2, (1,)),
+        (5, Table.COIL, 4, (1,)),
+    ]
+
+
+def test_homing_limits_and_zero(rig: Rig) -> None:
+    d, fake = rig.device, rig.fake
+    d.set_speed(2, 1200)  # 100 units/s
+    d.motor_action(2, "forward")
+    # travel 80: the positive limit (input 3) stops it 30 units from the start.
+    wait_until(lambda: idle(rig))
+    s = d.poll()
+    assert s.coordinates[1] == pytest.approx(80.0 - START_POSITION) and s.inputs[2]
+    d.motor_action(2, "home")
+    wait_until(lambda: idle(rig))
+    s = d.poll()
+    # Home switch (input 4) at physical 0: coordinate 0 there.
+    assert s.coordinates[1] == 0.0 and s.inputs[3] and fake.position[2] == 0.0
+    d.motor_action(2, "reverse")  # the negative limit is on: it does not move
+    time.sleep(0.1)
+    assert idle(rig) and fake.position[2] == 0.0
+    d.move_by(2, 7.5)
+    wait_until(lambda: idle(rig))
+    d.system_command("zero_coordinates")
+    assert d.poll().coordinates[1] == 0.0
+    d.move_by(2, 2.0)
+    wait_until(lambda: idle(rig))
+    d.system_command("return_to_zero")
+    wait_until(lambda: idle(rig))
+    assert d.poll().coordinates[1] == 0.0 and fake.position[2] == pytest.approx(7.5)
+
+
+def test_home_all_in_order(rig: Rig) -> None:
+    d, fake = rig.device, rig.fake
+    for motor in (1, 4, 5):
+        d.set_speed(motor, 3000)
+    d.set_homing_order([4, 1])
+    d.system_command("home_all")
+    wait_until(lambda: fake.motion[4] is None and fake.motion[1] is None and not fake.homing_queue)
+    assert fake.position[4] == 0.0 and fake.position[1] == 0.0
+    assert fake.position[5] == START_POSITION  # not in the order: not homed
+
+
+def test_emergency_stop_stops_everything_and_locks_jog(rig: Rig) -> None:
+    d = rig.device
+    d.set_all_outputs(True)
+    d.jog(1, 60.0)
+    d.motor_action(2, "forward")
+    assert all(d.poll().outputs) and d.poll().running[:2] == (True, True)
+    d.system_command("emergency_stop")
+    s = d.poll()
+    assert not any(s.running) and not any(s.outputs)
+    with pytest.raises(CommandRejected, match="send a 0 jog"):
+        d.jog(1, 60.0)
+    d.jog(1, 0.0)  # releases the lock
+    d.jog(1, 60.0)
+    assert d.poll().running[0]
+
+
+def test_outputs_and_inputs(rig: Rig) -> None:
+    d = rig.device
+    d.set_output(5, True)
+    d.set_output(12, True)
+    d.set_output(5, False)
+    assert [k + 1 for k, on in enumerate(d.poll().outputs) if on] == [12]
+    d.set_all_outputs(False)
+    assert not any(d.poll().outputs)
+    rig.fake.set_input(13, True)
+    assert d.poll().inputs[12]
+
+
+def test_line_and_arc_interpolation(rig: Rig) -> None:
+    d, fake = rig.device, rig.fake
+    for motor in (1, 2, 3):
+        d.set_speed(motor, 1200)
+    d.line_move(1, (5.0, 10.0), (15.0, 20.0), 1200)
+    wait_until(lambda: fake.interpolation is None and idle(rig))
+    assert d.poll().coordinates[:2] == (15.0, 20.0)
+    # Quarter circle around (5, 20) from (15, 20) to (5, 30), counter-clockwise.
+    d.arc_move(1, 0, (15.0, 20.0), (5.0, 30.0), (5.0, 20.0), (0.0, 0.0), True, 1200)
+    assert fake.interpolation is not None and fake.interpolation.sweep == pytest.approx(math.pi / 2)
+    wait_until(lambda: fake.interpolation is None)
+    assert d.poll().coordinates[:2] == (5.0, 30.0)
+    # Three points on motors 2 and 3; stop_interpolation ends it early.
+    d.set_speed(3, 60)
+    d.arc_move(3, 1, (30.0, 0.0), (30.0, 20.0), (0.0, 0.0), (40.0, 10.0), False, 60)
+    wait_until(lambda: fake.interpolation is not None)
+    d.stop_interpolation()
+    assert fake.interpolation is None
+    assert rig.writes()[-2:] == [(5, Table.COIL, 100, (1,)), (5, Table.COIL, 102, (1,))]
+
+
+def test_factory_reset_and_clear_need_their_name(rig: Rig) -> None:
+    d = rig.device
+    d.configure(
+        1,
+        step_angle_deg=0.9,
+        microstep=16,
+        start_frequency_hz=100,
+        accel_frequency_hz=100,
+        speed_rpm=10,
+        lead=2.0,
+    )
+    for name in ("factory_reset", "clear_all_parameters"):
+        for wrong in ("", "yes", "FACTORY_RESET", "clear_all"):
+            with pytest.raises(CommandRejected, match="confirm"):
+                d.destructive_command(name, wrong)
+    writes = len(rig.fake.write_log)
+    d.destructive_command("factory_reset", "factory_reset")
+    assert d.read_config().motors[0].step_angle_deg == 1.8
+    d.destructive_command("clear_all_parameters", "clear_all_parameters")
+    config = d.read_config()
+    assert config.motors[0].lead == 0.0 and config.motors[0].home_input == 0
+    assert d.read_named("device_id", "baud_rate") == {"device_id": 1, "baud_rate": 9600}
+    assert len(rig.fake.write_log) == writes + 2
+
+
+REFUSED: list[tuple[str, Callable[[StepperDevice], object]]] = [
+    ("motor 0", lambda d: d.motor_action(0, "forward")),
+    ("motor 6", lambda d: d.move_by(6, 1.0)),
+    ("action", lambda d: d.motor_action(1, "spin")),
+    ("nan distance", lambda d: d.move_by(1, math.nan)),
+    ("tiny distance", lambda d: d.move_by(1, 0.004)),
+    ("huge distance", lambda d: d.move_by(1, 5e7)),
+    ("jog inf", lambda d: d.jog(1, math.inf)),
+    ("jog too fast", lambda d: d.jog(1, 70000.0)),
+    (
+        "step angle 0",
+        lambda d: d.configure(
+            1,
+            step_angle_deg=0.0,
+            microstep=8,
+            start_frequency_hz=1,
+            accel_frequency_hz=1,
+            speed_rpm=1,
+            lead=1.0,
+        ),
+    ),
+    (
+        "microstep 0",
+        lambda d: d.configure(
+            1,
+            step_angle_deg=1.8,
+            microstep=0,
+            start_frequency_hz=1,
+            accel_frequency_hz=1,
+            speed_rpm=1,
+            lead=1.0,
+        ),
+    ),
+    (
+        "lead nan",
+        lambda d: d.configure(
+            1,
+            step_angle_deg=1.8,
+            microstep=8,
+            start_frequency_hz=1,
+            accel_frequency_hz=1,
+            speed_rpm=1,
+            lead=math.nan,
+        ),
+    ),
+    ("speed 70000", lambda d: d.set_speed(1, 70000)),
+    ("output 0", lambda d: d.set_output(0, True)),
+    ("output 13", lambda d: d.set_output(13, True)),
+    ("limit input 14", lambda d: d.set_limit_inputs(1, 1, 14, 2)),
+    ("homing twice", lambda d: d.set_homing_order([1, 1])),
+    ("homing motor 6", lambda d: d.set_homing_order([6])),
+    ("system mode 6", lambda d: d.set_system_mode(6)),
+    ("pair 0", lambda d: d.line_move(0, (0.0, 0.0), (1.0, 1.0), 60)),
+    ("pair 4", lambda d: d.line_move(4, (0.0, 0.0), (1.0, 1.0), 60)),
+    ("line speed 0", lambda d: d.line_move(1, (0.0, 0.0), (1.0, 1.0), 0)),
+    ("line zero length", lambda d: d.line_move(1, (1.0, 1.0), (1.0, 1.0), 60)),
+    (
+        "arc same points",
+        lambda d: d.arc_move(1, 0, (0.0, 0.0), (1.0, 0.0), (0.0, 0.0), (0.0, 0.0), False, 60),
+    ),
+    (
+        "arc collinear",
+        lambda d: d.arc_move(2, 1, (0.0, 0.0), (2.0, 0.0), (0.0, 5.0), (1.0, 0.0), False, 60),
+    ),
+    (
+        "arc mode 2",
+        lambda d: d.arc_move(1, 2, (0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (0.0, 1.0), False, 60),
+    ),
+    ("destructive", lambda d: d.destructive_command("factory_reset", "no")),
+    ("system", lambda d: d.system_command("self_destruct")),
+]
+
+
+@pytest.mark.parametrize("check", [pytest.param(c, id=name) for name, c in REFUSED])
+def test_refusals_write_nothing(rig: Rig, check: Callable[[StepperDevice], object]) -> None:
+    rig.device.read_config()
+    with pytest.raises(CommandRejected):
+        check(rig.device)
+    assert rig.fake.write_log == []
+
+
+def test_reply_delay_is_kept() -> None:
+    sim = make_simulator(reply_delay_s=0.035)
+    with socat_pair() as (bridge_end, device_end, _):
+        sim.start_serial(device_end, BAUD)
+        link = ModbusLink(SerialSettings(bridge_end, BAUD, timeout_s=0.5))
+        try:
+            channel = DeviceChannel(link, 1, retries=0)
+            device = StepperDevice(channel)
+            device.poll()
+            device.motor_action(1, "stop")
+            assert min(channel.stats.latencies_s) >= 0.035
+        finally:
+            link.close()
+            sim.stop()
+
+
+# ---------------------------------------------------------------- what the simulator refuses
+
+
+def exception_of(reply: bytes, function: int) -> int:
+    assert len(reply) == 5, reply.hex(" ")
+    assert FramerRTU.check_CRC(reply[:3], int.from_bytes(reply[3:], "big"))
+    assert reply[1] == function | 0x80, reply.hex(" ")
+    return reply[2]
+
+
+@pytest.mark.parametrize(
+    ("function", "body"),
+    [
+        (0x01, "00 00 00 08"),  # read coils: the device has no coil read
+        (0x02, "00 00 00 08"),
+        (0x04, "00 00 00 02"),
+        (0x0F, "00 00 00 02 01 03"),
+    ],
+)
+def test_function_codes_the_device_lacks(rig: Rig, function: int, body: str) -> None:
+    reply = rig.raw(bytes([1, function]) + bytes.fromhex(body), 5)
+    assert exception_of(reply, function) == 0x01
+
+
+def test_illegal_addresses_and_values(rig: Rig) -> None:
+    def read(address: int, count: int) -> bytes:
+        request = bytes([1, 3]) + address.to_bytes(2, "big") + count.to_bytes(2, "big")
+        return rig.raw(request, 5 + 2 * count)
+
+    assert len(read(1, 49)) == 5 + 98  # 49 registers: fine
+    assert exception_of(read(0, 50)[:5], 3) == 0x02  # "<50"
+    for first, last in UNDEFINED_HOLDING:
+        assert exception_of(read(holding(first), 1)[:5], 3) == 0x02, first
+        assert exception_of(read(holding(first) - 1, last - first + 2)[:5], 3) == 0x02, first
+    assert exception_of(read(107, 1)[:5], 3) == 0x02  # half a coordinate
+    # The §6(3) example frame (address 9-10) cuts two values: refused, nothing written.
+    example = bytes.fromhex("01 10 00 09 00 02 04 00 C8 00 00")
+    assert exception_of(rig.raw(example, 8)[:5], 0x10) == 0x02
+    # 50 registers in one write: refused.
+    fifty = bytes([1, 0x10, 0, 0, 0, 50, 100]) + bytes(100)
+    assert exception_of(rig.raw(fifty, 8)[:5], 0x10) == 0x02
+    # Values outside the manual's ranges: ILLEGAL DATA VALUE.
+    for address, value in (
+        (STEPPER_MAP["motor1_direction"].address, 2),
+        (STEPPER_MAP["motor2_home_input"].address, 14),
+        (STEPPER_MAP["homing_order_1"].address, 6),
+        (STEPPER_MAP["system_mode"].address, 6),
+        (STEPPER_MAP["device_id"].address, 0),
+        (STEPPER_MAP["motor1_microstep"].address, 0),
+    ):
+        request = bytes([1, 6]) + address.to_bytes(2, "big") + value.to_bytes(2, "big")
+        assert exception_of(rig.raw(request, 8)[:5], 6) == 0x03, address
+    baud = bytes.fromhex("01 10 00 D4 00 02 04 E1 00 00 01")  # 57600: not a listed rate
+    assert exception_of(rig.raw(baud, 8)[:5], 0x10) == 0x03
+    assert rig.fake.write_log == []
+
+
+def test_joint_scale() -> None:
+    mm = JointScale("prismatic", 1000.0)
+    assert mm.to_si(250.0, 5.0) == pytest.approx(0.25)
+    assert mm.to_units(-0.0125, 5.0) == pytest.approx(-12.5)
+    rev = JointScale("revolute")
+    assert rev.to_si(7.5, 5.0) == pytest.approx(3 * math.pi)  # 1.5 turns
+    assert rev.to_units(math.pi, 360.0) == pytest.approx(180.0)
+    assert math.isnan(rev.to_si(1.0, 0.0))
+    with pytest.raises(CommandRejected):
+        rev.to_units(1.0, 0.0)
+    with pytest.raises(ValueError):
+        JointScale("helical")
+
+
+def test_stepper_sim_cli_on_its_own_pty(tmp_path: Path) -> None:
+    """`stepper_sim --pty LINK`: socat pty pair, 9600 baud, the manual's 35 ms reply delay."""
+    from bridge_core.sim_base import read_write_log
+
+    from .support.ros import ROOT
+
+    link_path, log = tmp_path / "stepper", tmp_path / "writes.jsonl"
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "stepper_bridge.sim",
+            "--pty",
+            str(link_path),
+            "--write-log",
+            str(log),
+        ],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+    )
+    try:
+        assert proc.stdout is not None
+        line = proc.stdout.readline().decode()
+        assert "listening on" in line and "reply delay 35 ms" in line, line
+        link = ModbusLink(SerialSettings(str(link_path), 9600, timeout_s=0.5))
+        channel = DeviceChannel(link, 1, retries=0)
+        device = StepperDevice(channel)
+        assert device.poll().config.motors[0].lead == 5.0
+        device.set_output(2, True)
+        assert device.poll().outputs[1]
+        assert min(channel.stats.latencies_s) >= 0.035
+        link.close()
+        records = read_write_log(log)
+        assert [(r.function_code, r.address, r.values) for r in records] == [(5, 50, (1,))]
+    finally:
+        proc.send_signal(signal.SIGINT)
+        proc.wait(10)
+    assert not link_path.exists()  # socat cleaned up
