@@ -38,12 +38,15 @@ class DemoDevice:
 
     name: str
     node_name: str
-    sim_args: Callable[[int], list[str]]
+    # Both take where the device is: a TCP port, or (serial=True) the path of a pty the
+    # simulator creates for the bridge's end.
+    sim_args: Callable[[Any], list[str]]
     node_module: str
-    node_params: Callable[[int], dict[str, Any]]
+    node_params: Callable[[Any], dict[str, Any]]
     state_type: str  # "package/msg/Type"
     format_state: Callable[[Any], str]
     start_services: list[tuple[str, str, dict[str, Any]]] = field(default_factory=list)
+    serial: bool = False
 
 
 def _r6_state(state: Any) -> str:
@@ -93,6 +96,33 @@ DEVICES.append(
             ("set_digital_output", "msg_defs/srv/SetOutput", {"board": 0, "index": 2, "on": True}),
             ("run_offline_task", "msg_defs/srv/RunOfflineTask", {"projects": [1, 2, 3, 4, 5, 6]}),
         ],
+    )
+)
+
+
+def _stepper_state(state: Any) -> str:
+    running = "".join("R" if r else "." for r in state.running)
+    outputs = "".join("1" if o else "0" for o in state.outputs)
+    coordinates = " ".join(f"{c:8.2f}" for c in state.coordinates)
+    return f"running {running}  coordinates {coordinates}  outputs {outputs}"
+
+
+DEVICES.append(
+    DemoDevice(
+        name="Stepper",
+        node_name="stepper_bridge",
+        # The manual's line: 9600 baud 8N1, replies after 35 ms (the simulator's default).
+        sim_args=lambda pty: ["-m", "stepper_bridge.sim", "--pty", str(pty)],
+        node_module="stepper_bridge.node",
+        node_params=lambda pty: {"serial_port": str(pty), "baudrate": 9600},
+        state_type="msg_defs/msg/StepperState",
+        format_state=_stepper_state,
+        start_services=[
+            ("motor_1/forward", "std_srvs/srv/Trigger", {}),
+            ("motor_3/reverse", "std_srvs/srv/Trigger", {}),
+            ("set_output", "msg_defs/srv/SetOutput", {"board": 0, "index": 2, "on": True}),
+        ],
+        serial=True,
     )
 )
 
@@ -250,9 +280,9 @@ def main(argv: Sequence[str] | None = None) -> None:
     monitor: Monitor | None = None
     try:
         for device in devices:
-            port = _free_port()
-            spawn(f"{device.name.lower()}_sim", device.sim_args(port))
-            params = device.node_params(port)
+            where: Any = logs / f"{device.name.lower()}.pty" if device.serial else _free_port()
+            spawn(f"{device.name.lower()}_sim", device.sim_args(where))
+            params = device.node_params(where)
             ros_args = ["--ros-args", "-r", f"__ns:=/{device.name.lower()}"]
             for key, value in params.items():
                 ros_args += ["-p", f"{key}:={value}"]

@@ -23,7 +23,7 @@ def test_demo_shows_moving_r6(tmp_path: Path) -> None:
 
     env = dict(os.environ)
     result = subprocess.run(
-        [sys.executable, "-m", "bridge_core.demo", "--duration", "4"],
+        [sys.executable, "-m", "bridge_core.demo", "--duration", "6"],
         cwd=ROOT,
         capture_output=True,
         text=True,
@@ -43,6 +43,9 @@ def test_demo_shows_moving_r6(tmp_path: Path) -> None:
     assert "run_offline_task [1, 2, 3, 4, 5, 6]: done" in out
     xarm = [line for line in out.splitlines() if line.startswith("   joints (deg): joint1")]
     assert len(xarm) >= 2 and xarm[0] != xarm[-1], out  # the xArm moves too
+    assert "[Stepper] connected  diagnostics OK" in out
+    stepper = [line for line in out.splitlines() if line.startswith("   joints (deg): motor_1")]
+    assert len(stepper) >= 2 and stepper[0] != stepper[-1], out  # motor 1 runs forward
     assert "bridge_demo: stopped" in out
 
 
