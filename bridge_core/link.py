@@ -23,11 +23,11 @@ from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field
-from enum import IntEnum
 
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
 
+from .channel import Priority
 from .errors import DeviceException, FrameError, LinkDown, LinkError, LinkTimeout
 from .registers import Table
 from .serial_timing import TimedSerialClient
@@ -41,11 +41,6 @@ RECONNECT_INITIAL_S = 0.25
 LATENCY_SAMPLES = 512
 UNIT_ID_MIN = 0
 UNIT_ID_MAX = 247
-
-
-class Priority(IntEnum):
-    COMMAND = 0
-    POLL = 1
 
 
 class PriorityLock:

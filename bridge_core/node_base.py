@@ -44,9 +44,10 @@ from rclpy.utilities import try_shutdown
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 
+from .channel import Priority
 from .diagnostics import Level, RateTracker, Report, link_report
 from .errors import CommandRejected, DeviceException, LinkError, PollIncomplete
-from .link import DeviceChannel, ModbusLink, Priority, SerialSettings, TcpSettings
+from .link import DeviceChannel, ModbusLink, SerialSettings, TcpSettings
 
 T = TypeVar("T")
 DIAGNOSTICS_PERIOD_S = 1.0

@@ -16,6 +16,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
+import signal
 import threading
 import time
 from collections.abc import Callable, Iterable, Sequence
@@ -406,3 +407,19 @@ class Simulator:
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
+
+
+def serve_until_signalled(sim: Simulator, banner: str, port_file: Path | None = None) -> None:
+    """The simulators' command-line loop: announce, wait for SIGINT/SIGTERM, stop.
+
+    ``banner`` is printed (flushed) once the server listens: tests wait for that line;
+    ``port_file`` receives the bound TCP port (useful with ``--port 0``).
+    """
+    if port_file is not None:
+        port_file.write_text(str(sim.port))
+    print(banner, flush=True)
+    done = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: done.set())
+    signal.signal(signal.SIGINT, lambda *_: done.set())
+    done.wait()
+    sim.stop()

@@ -9,13 +9,12 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Protocol
 
+from bridge_core.channel import Priority, RegisterIO
 from bridge_core.codec import Value, encode, int_to_words, words_to_int
 from bridge_core.errors import CommandRejected, FrameError, PollIncomplete
-from bridge_core.link import Priority
 from bridge_core.planner import ReadRequest, decode_reply, plan_reads
-from bridge_core.registers import MAX_READ_REGISTERS, MAX_WRITE_REGISTERS, Table, WordOrder
+from bridge_core.registers import MAX_READ_REGISTERS, MAX_WRITE_REGISTERS, WordOrder
 
 from .registers import (
     COMMANDS,
@@ -41,16 +40,6 @@ I32_MIN, I32_MAX = -(1 << 31), (1 << 31) - 1
 # Registers in one upload frame: the manual's 256-byte frame cap and Modbus's 123 (FC 10).
 POINT_FRAME_MAX_REGISTERS = min(POINT_FRAME_MAX_BYTES // 2, MAX_WRITE_REGISTERS)
 POINT_FRAME_HEADER_REGISTERS = 2  # 30005 point count, 30006 clear flag
-
-
-class RegisterIO(Protocol):
-    """What the device needs from a link channel (``bridge_core.link.DeviceChannel``)."""
-
-    def read_registers(
-        self, address: int, count: int, table: Table = ..., priority: Priority = ...
-    ) -> list[int]: ...
-    def write_register(self, address: int, value: int) -> None: ...
-    def write_registers(self, address: int, values: Sequence[int]) -> None: ...
 
 
 def mode_name(mode: int) -> str:

@@ -26,13 +26,12 @@ import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Protocol
 
+from bridge_core.channel import Priority, RegisterIO
 from bridge_core.codec import Value, decode, encode
 from bridge_core.errors import CommandRejected, LinkError
-from bridge_core.link import Priority
 from bridge_core.planner import ReadRequest, decode_reply, plan_reads
-from bridge_core.registers import Register, Table
+from bridge_core.registers import Register
 
 from .registers import (
     ARC_MODE_CENTER,
@@ -64,17 +63,6 @@ LIMIT_FIELDS = ("positive_limit_input", "negative_limit_input", "home_input")
 DEFAULT_CONFIG_REFRESH_S = 5.0
 SPEED_MAX_RPM = 0xFFFF
 JOINT_TYPES = ("prismatic", "revolute")
-
-
-class RegisterIO(Protocol):
-    """What the device needs from a link channel (``bridge_core.link.DeviceChannel``)."""
-
-    def read_registers(
-        self, address: int, count: int, table: Table = ..., priority: Priority = ...
-    ) -> list[int]: ...
-    def write_register(self, address: int, value: int) -> None: ...
-    def write_registers(self, address: int, values: Sequence[int]) -> None: ...
-    def write_coil(self, address: int, on: bool) -> None: ...
 
 
 # ---------------------------------------------------------------- snapshots

@@ -37,10 +37,8 @@ from __future__ import annotations
 import argparse
 import math
 import shutil
-import signal
 import subprocess
 import tempfile
-import threading
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
@@ -54,6 +52,7 @@ from bridge_core.sim_base import (
     SimulatedDevice,
     Simulator,
     WriteRecord,
+    serve_until_signalled,
 )
 
 from .registers import (
@@ -536,15 +535,11 @@ def main(argv: Sequence[str] | None = None) -> None:
         shown = str(args.pty) if pair else args.serial
         port = str(pair.device_end) if pair else args.serial
         sim.start_serial(port, args.baudrate, args.parity, args.stopbits)
-        print(
+        serve_until_signalled(
+            sim,
             f"stepper_sim listening on {shown} (unit {args.unit_id}, {args.baudrate} baud, "
             f"reply delay {args.reply_delay_ms:g} ms)",
-            flush=True,
         )
-        done = threading.Event()
-        signal.signal(signal.SIGTERM, lambda *_: done.set())
-        signal.signal(signal.SIGINT, lambda *_: done.set())
-        done.wait()
     finally:
         sim.stop()
         if pair is not None:

@@ -9,13 +9,11 @@ from __future__ import annotations
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Protocol
 
+from bridge_core.channel import Priority, RegisterIO
 from bridge_core.codec import Value, encode
 from bridge_core.errors import CommandRejected
-from bridge_core.link import Priority
 from bridge_core.planner import ReadRequest, decode_reply, plan_reads
-from bridge_core.registers import Table
 
 from .registers import (
     COIL_FENCE_MODE,
@@ -48,25 +46,6 @@ TASK_NUMBER_MIN = 1
 TASK_NUMBER_MAX = 0xFFFF
 MODE_ADDRESS = XARM_MAP["arm_mode"].address
 STATE_ADDRESS = XARM_MAP["arm_state"].address
-
-
-class RegisterIO(Protocol):
-    """What the device needs from a link channel (``bridge_core.link.DeviceChannel``)."""
-
-    def read_registers(
-        self, address: int, count: int, table: Table = ..., priority: Priority = ...
-    ) -> list[int]: ...
-    def read_bits(
-        self, address: int, count: int, table: Table = ..., priority: Priority = ...
-    ) -> list[bool]: ...
-    def write_register(self, address: int, value: int) -> None: ...
-    def write_registers(self, address: int, values: Sequence[int]) -> None: ...
-    def write_coil(self, address: int, on: bool) -> None: ...
-    def write_coils(self, address: int, values: Sequence[bool]) -> None: ...
-    def mask_write_register(self, address: int, and_mask: int, or_mask: int) -> None: ...
-    def read_write_registers(
-        self, read_address: int, read_count: int, write_address: int, values: Sequence[int]
-    ) -> list[int]: ...
 
 
 def error_text(code: int) -> str:

@@ -15,8 +15,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import signal
-import threading
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -28,6 +26,7 @@ from bridge_core.sim_base import (
     SimulatedDevice,
     Simulator,
     WriteRecord,
+    serve_until_signalled,
 )
 
 from .registers import (
@@ -222,14 +221,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     if args.write_log:
         device.log_file = args.write_log.open("a")
     port = sim.start_tcp(args.host, args.port)
-    if args.port_file:
-        args.port_file.write_text(str(port))
-    print(f"xarm_sim listening on {args.host}:{port}", flush=True)
-    done = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: done.set())
-    signal.signal(signal.SIGINT, lambda *_: done.set())
-    done.wait()
-    sim.stop()
+    serve_until_signalled(sim, f"xarm_sim listening on {args.host}:{port}", args.port_file)
 
 
 if __name__ == "__main__":
