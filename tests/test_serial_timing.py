@@ -1,0 +1,430 @@
+"""TimedSerialClient: RTU reply lengths, the 3.5-character silence, faults on a real line.
+
+Line tests run over bench/line_relay.py (two pty pairs, bytes paced at the baud rate) or
+a plain pty with a scripted device. Timing assertions are protocol properties counted
+from the relay's timestamps (violations == 0), or medians with a generous tolerance;
+none is a wall-clock bound on the client.
+"""
+
+from __future__ import annotations
+
+import os
+import pty
+import select
+import threading
+import time
+import tty
+from collections.abc import Iterable, Iterator
+
+import pytest
+from pymodbus.framer import FramerRTU
+from pymodbus.pdu import DecodePDU, ExceptionResponse, ModbusPDU
+from pymodbus.pdu import bit_message as bits
+from pymodbus.pdu import other_message as other
+from pymodbus.pdu import register_message as regs
+
+from bench.line_relay import (
+    REPLY,
+    REQUEST,
+    LineRelay,
+    check_relay,
+    request_gaps,
+    silence_violations,
+)
+from bridge_core.errors import DeviceException, FrameError, LinkTimeout
+from bridge_core.link import (
+    DeviceChannel,
+    MaskWriteRegister,
+    ModbusLink,
+    ReadBits,
+    ReadRegisters,
+    ReadWriteRegisters,
+    SerialSettings,
+    WriteCoil,
+    WriteCoils,
+)
+from bridge_core.registers import (
+    Access,
+    DeviceLimits,
+    RegisterMap,
+    Table,
+    ValueType,
+    register_array,
+)
+from bridge_core.serial_timing import (
+    BROADCAST_TURNAROUND_S,
+    TimedSerialClient,
+    expected_reply_length,
+    reply_length,
+    silence_s,
+)
+from bridge_core.sim_base import SimulatedDevice, Simulator
+
+FRAMER = FramerRTU(DecodePDU(False))
+WORDS = 16
+LIMITS = DeviceLimits(function_codes=frozenset({1, 2, 3, 4, 5, 6, 15, 16, 22, 23}))
+TEST_MAP = RegisterMap(
+    "timing",
+    tuple(
+        register_array(
+            "word", 0, WORDS, ValueType.U16, "test", access=Access.READ_WRITE, first_index=0
+        )
+    ),
+    LIMITS,
+)
+EXTRA: dict[Table, Iterable[int]] = {
+    Table.COIL: range(16),
+    Table.DISCRETE_INPUT: range(16),
+    Table.INPUT: range(4),
+}
+
+
+def frame(pdu: ModbusPDU) -> bytes:
+    return bytes(FRAMER.buildFrame(pdu))
+
+
+# ---------------------------------------------------------------- pure rules
+
+
+def test_silence_follows_the_character_time_and_is_fixed_above_19200() -> None:
+    assert silence_s(9600) == pytest.approx(3.5 * 10 / 9600)
+    assert silence_s(9600, parity="E") == pytest.approx(3.5 * 11 / 9600)
+    assert silence_s(9600, stopbits=2) == pytest.approx(3.5 * 11 / 9600)
+    assert silence_s(19200) == pytest.approx(3.5 * 10 / 19200)
+    assert silence_s(38400) == silence_s(115200) == pytest.approx(0.00175)
+    client = TimedSerialClient("/dev/null", baudrate=9600, parity="E")
+    assert client.silence_s == pytest.approx(3.5 * 11 / 9600)
+
+
+# (request, normal reply) pairs, both encoded by pymodbus itself.
+PAIRS: dict[str, tuple[ModbusPDU, ModbusPDU]] = {
+    "01 coils 1": (
+        bits.ReadCoilsRequest(address=0, count=1, dev_id=1),
+        bits.ReadCoilsResponse(bits=[True] * 8, dev_id=1),
+    ),
+    "01 coils 9": (
+        bits.ReadCoilsRequest(address=0, count=9, dev_id=1),
+        bits.ReadCoilsResponse(bits=[True] * 16, dev_id=1),
+    ),
+    "02 inputs 16": (
+        bits.ReadDiscreteInputsRequest(address=0, count=16, dev_id=1),
+        bits.ReadDiscreteInputsResponse(bits=[False] * 16, dev_id=1),
+    ),
+    "03 holding 49": (
+        regs.ReadHoldingRegistersRequest(address=0, count=49, dev_id=1),
+        regs.ReadHoldingRegistersResponse(registers=[7] * 49, dev_id=1),
+    ),
+    "04 input 125": (
+        regs.ReadInputRegistersRequest(address=0, count=125, dev_id=1),
+        regs.ReadInputRegistersResponse(registers=[7] * 125, dev_id=1),
+    ),
+    "05 coil": (
+        bits.WriteSingleCoilRequest(address=3, bits=[True], dev_id=1),
+        bits.WriteSingleCoilResponse(address=3, bits=[True], dev_id=1),
+    ),
+    "06 register": (
+        regs.WriteSingleRegisterRequest(address=3, registers=[9], dev_id=1),
+        regs.WriteSingleRegisterResponse(address=3, registers=[9], dev_id=1),
+    ),
+    "07 exception status": (
+        other.ReadExceptionStatusRequest(dev_id=1),
+        other.ReadExceptionStatusResponse(status=0x12, dev_id=1),
+    ),
+    "0B comm event counter": (
+        other.GetCommEventCounterRequest(dev_id=1),
+        other.GetCommEventCounterResponse(count=5, dev_id=1),
+    ),
+    "0F coils": (
+        bits.WriteMultipleCoilsRequest(address=0, bits=[True] * 10, dev_id=1),
+        bits.WriteMultipleCoilsResponse(address=0, count=10, dev_id=1),
+    ),
+    "10 registers": (
+        regs.WriteMultipleRegistersRequest(address=0, registers=[1, 2, 3], dev_id=1),
+        regs.WriteMultipleRegistersResponse(address=0, count=3, dev_id=1),
+    ),
+    "16 mask write": (
+        regs.MaskWriteRegisterRequest(address=2, and_mask=0xF0F0, or_mask=0x0101, dev_id=1),
+        regs.MaskWriteRegisterResponse(address=2, and_mask=0xF0F0, or_mask=0x0101, dev_id=1),
+    ),
+    "17 read/write": (
+        regs.ReadWriteMultipleRegistersRequest(
+            read_address=0, read_count=6, write_address=8, write_registers=[1, 2], dev_id=1
+        ),
+        regs.ReadWriteMultipleRegistersResponse(registers=[0] * 6, dev_id=1),
+    ),
+}
+
+
+@pytest.mark.parametrize("name", list(PAIRS))
+def test_reply_length_follows_from_the_request(name: str) -> None:
+    request, response = (frame(p) for p in PAIRS[name])
+    assert expected_reply_length(request) == len(response)
+    assert reply_length(request, response[:2]) == len(response)
+    # An exception reply is 5 bytes whatever was asked; the second byte tells.
+    code = request[1]
+    exception = frame(ExceptionResponse(code, 2, device_id=1))
+    assert len(exception) == 5
+    assert reply_length(request, exception[:2]) == 5
+
+
+def test_reply_length_unknowns_and_broadcast() -> None:
+    broadcast = frame(regs.WriteSingleRegisterRequest(address=1, registers=[5], dev_id=0))
+    assert expected_reply_length(broadcast) == 0
+    report_id = frame(other.ReportDeviceIdRequest(dev_id=1))  # FC 0x11: length in the reply
+    assert expected_reply_length(report_id) is None
+    read = frame(regs.ReadHoldingRegistersRequest(address=0, count=2, dev_id=1))
+    assert reply_length(read, bytes([1, 0x04])) is None  # another function: unknown
+    assert reply_length(read, bytes([1, 0x84])) is None  # exception to another function
+    assert reply_length(read, b"\x01") is None
+    assert expected_reply_length(b"\x01\x03") is None
+
+
+# ---------------------------------------------------------------- the relay itself
+
+
+def test_relay_transfer_times_match_theory() -> None:
+    results = check_relay(baudrates=(9600, 115200), sizes=(8, 103), repeats=7, pause_s=0.005)
+    for r in results:
+        # Medians, generous: ~+0.1 ms per frame on an idle machine, several ms on one whose
+        # CPUs are saturated. A relay that did not pace would be early by the frame time.
+        assert -0.3e-3 < r.error_s < 10e-3 + 0.25 * r.theory_s, r
+
+
+def test_relay_flags_a_request_inside_the_silence() -> None:
+    """A master that sends before the reply is over (or right after it) is caught."""
+    with LineRelay(9600) as line:
+        client = os.open(line.client_path, os.O_RDWR | os.O_NOCTTY)
+        device = os.open(line.device_path, os.O_RDWR | os.O_NOCTTY)
+        try:
+            for _ in range(3):
+                os.write(client, bytes(8))
+                assert len(read_exactly(device, 8)) == 8
+                time.sleep(0.01)
+                os.write(device, bytes(120))
+                # The reply has started (125 ms on the line): a request now has to queue
+                # behind it on the half-duplex line and follows it with no silence at all.
+                assert len(read_exactly(client, 1)) == 1
+                os.write(client, bytes(8))
+                assert len(read_exactly(client, 119)) == 119
+                assert len(read_exactly(device, 8)) == 8
+                time.sleep(0.02)  # a proper pause before the next round
+            frames = line.frames()
+        finally:
+            os.close(client)
+            os.close(device)
+    assert [f.direction for f in frames] == [REQUEST, REPLY, REQUEST] * 3
+    assert [f.size for f in frames] == [8, 120, 8] * 3
+    for f in frames:
+        assert f.due_end - f.start == pytest.approx(f.size * 10 / 9600)
+    violations = silence_violations(frames, line.silence_s)
+    assert len(violations) == 3
+    assert all(v.silence_s < line.silence_s / 2 for v in violations)
+
+
+def read_exactly(fd: int, size: int, timeout_s: float = 5.0) -> bytes:
+    buf = bytearray()
+    deadline = time.monotonic() + timeout_s
+    while len(buf) < size:
+        ready, _, _ = select.select([fd], [], [], max(0.0, deadline - time.monotonic()))
+        if not ready:
+            break
+        buf += os.read(fd, size - len(buf))
+    return bytes(buf)
+
+
+# ---------------------------------------------------------------- against the simulator
+
+
+@pytest.fixture
+def bus_115200() -> Iterator[tuple[LineRelay, Simulator, ModbusLink]]:
+    devices = [SimulatedDevice(TEST_MAP, u, extra_addresses=EXTRA) for u in (1, 2, 5)]
+    for device in devices:
+        device.set_words(Table.HOLDING, 0, [device.unit_id * 100 + i for i in range(WORDS)])
+    sim = Simulator(devices)
+    # The pymodbus simulator answers at once; a real device waits out t3.5 first.
+    with LineRelay(115200, device_turnaround_s=silence_s(115200)) as line:
+        sim.start_serial(line.device_path, baudrate=115200)
+        link = ModbusLink(SerialSettings(line.client_path, 115200, timeout_s=0.3))
+        try:
+            yield line, sim, link
+        finally:
+            link.close()
+            sim.stop()
+
+
+def test_units_read_and_write_through_channels(
+    bus_115200: tuple[LineRelay, Simulator, ModbusLink],
+) -> None:
+    line, sim, link = bus_115200
+    assert isinstance(link._client, TimedSerialClient)
+    channels = {u: DeviceChannel(link, u, retries=0) for u in (1, 2, 5)}
+    for _ in range(3):
+        for unit, ch in channels.items():
+            assert ch.read_registers(0, WORDS) == [unit * 100 + i for i in range(WORDS)]
+    ch1, ch2, ch5 = channels[1], channels[2], channels[5]
+    ch2.write_register(3, 0xBEEF)
+    ch5.write_registers(4, [1, 2, 3])
+    ch1.write_coil(2, True)
+    ch1.transact(WriteCoils(8, (True, False, True)))
+    ch5.transact(WriteCoil(0, True))
+    ch2.transact(MaskWriteRegister(1, 0x00FF, 0x1200))  # 201 = 0x00C9 -> 0x12C9
+    assert ch2.transact(ReadWriteRegisters(0, 4, 10, (7, 8))) == [200, 0x12C9, 202, 0xBEEF]
+    assert ch1.read_bits(0, 11) == [False, False, True] + [False] * 5 + [True, False, True]
+    assert ch5.read_bits(0, 2) == [True, False]
+    assert ch5.transact(ReadBits(0, 3, Table.DISCRETE_INPUT)) == [False] * 3
+    assert ch1.transact(ReadRegisters(0, 4, Table.INPUT)) == [0] * 4
+    devices = sim.devices
+    assert devices[2].get_words(Table.HOLDING, 0, 4) == [200, 0x12C9, 202, 0xBEEF]
+    assert devices[2].get_words(Table.HOLDING, 10, 2) == [7, 8]
+    assert devices[5].get_words(Table.HOLDING, 4, 3) == [1, 2, 3]
+    assert devices[1].get_words(Table.HOLDING, 0, 4) == [100, 101, 102, 103]
+    # Exception replies (5 bytes) come back as DeviceException and keep the link up.
+    with pytest.raises(DeviceException, match="ILLEGAL DATA ADDRESS") as exc:
+        ch5.read_registers(WORDS - 1, 2)
+    assert exc.value.function_code == 3
+    with pytest.raises(DeviceException):
+        ch2.write_register(WORDS + 3, 1)
+    assert ch5.read_registers(0, 1) == [500] and ch5.connected
+    assert ch5.stats.exceptions == 1 and ch5.stats.timeouts == ch5.stats.frame_errors == 0
+
+    frames = line.frames()
+    requests = [f for f in frames if f.direction == REQUEST]
+    assert len(requests) == 23
+    assert silence_violations(frames, line.silence_s) == []
+
+
+def test_no_request_inside_the_silence_at_9600() -> None:
+    devices = [SimulatedDevice(TEST_MAP, u) for u in (1, 4)]
+    sim = Simulator(devices)
+    with LineRelay(9600, device_turnaround_s=silence_s(9600)) as line:
+        sim.start_serial(line.device_path, baudrate=9600)
+        link = ModbusLink(SerialSettings(line.client_path, 9600, timeout_s=0.5))
+        try:
+            channels = [DeviceChannel(link, u, retries=0) for u in (1, 4)]
+            for _ in range(8):
+                for ch in channels:
+                    ch.read_registers(0, 2)
+                channels[1].write_register(1, 3)
+            frames = line.frames()
+        finally:
+            link.close()
+            sim.stop()
+    assert len(request_gaps(frames)) == 8 * 3 - 1
+    assert silence_violations(frames, line.silence_s) == []
+
+
+def test_broadcast_expects_no_reply_and_waits_the_turnaround(
+    bus_115200: tuple[LineRelay, Simulator, ModbusLink],
+) -> None:
+    line, sim, link = bus_115200
+    everyone = DeviceChannel(link, 0)
+    one = DeviceChannel(link, 1, retries=0)
+    one.read_registers(0, 1)
+    line.clear()
+    everyone.write_register(6, 66)
+    assert one.read_registers(6, 1) == [66]
+    frames = line.frames()
+    assert [f.direction for f in frames] == [REQUEST, REQUEST, REPLY]
+    # The turnaround (100 ms), not just t3.5 (1.75 ms). Half of it: a relay that wakes up
+    # late for the broadcast (a busy machine) dates it late and sees a shorter gap after.
+    assert frames[1].start - frames[0].end >= 0.5 * BROADCAST_TURNAROUND_S
+    assert all(d.get_words(Table.HOLDING, 6, 1) == [66] for d in sim.devices.values())
+    assert everyone.stats.timeouts == 0
+
+
+def test_withheld_reply_times_out_and_the_next_works(
+    bus_115200: tuple[LineRelay, Simulator, ModbusLink],
+) -> None:
+    line, sim, link = bus_115200
+    ch = DeviceChannel(link, 2, retries=1, reconnect_max_s=0.1)
+    assert ch.read_registers(0, 2) == [200, 201]
+    sim.withhold_replies = True
+    with pytest.raises(LinkTimeout):
+        ch.read_registers(0, 2)
+    assert ch.stats.timeouts == 2  # one retry for a read
+    sim.withhold_replies = False
+    time.sleep(0.15)  # backoff
+    assert ch.read_registers(0, 2) == [200, 201]
+    assert ch.connected and ch.stats.reconnects == 1
+    assert silence_violations(line.frames(), line.silence_s) == []
+
+
+# ---------------------------------------------------------------- scripted faults
+
+
+class ScriptedDevice:
+    """Answers FC 03 requests on a pty as scripted: good, crc, wrong_unit, late, silent."""
+
+    def __init__(self, script: list[str], late_s: float = 0.0) -> None:
+        self.script = list(script)
+        self.late_s = late_s
+        self.requests = 0
+        self._master, self._slave = pty.openpty()
+        tty.setraw(self._slave)
+        self.path = os.ttyname(self._slave)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            ready, _, _ = select.select([self._master], [], [], 0.02)
+            if not ready:
+                continue
+            request = read_exactly(self._master, 8, timeout_s=0.5)
+            if len(request) < 8:
+                continue
+            self.requests += 1
+            unit, count = request[0], int.from_bytes(request[4:6], "big")
+            action = self.script.pop(0) if self.script else "good"
+            values = [self.requests * 10 + i for i in range(count)]
+            reply = frame(
+                regs.ReadHoldingRegistersResponse(
+                    registers=values, dev_id=unit + 2 if action == "wrong_unit" else unit
+                )
+            )
+            if action == "crc":
+                reply = reply[:-1] + bytes([reply[-1] ^ 0xFF])
+            if action == "late":
+                time.sleep(self.late_s)
+            if action != "silent":
+                os.write(self._master, reply)
+
+    def __enter__(self) -> ScriptedDevice:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join(2)
+        os.close(self._master)
+        os.close(self._slave)
+
+
+@pytest.mark.parametrize("fault", ["crc", "wrong_unit"])
+def test_bad_reply_is_a_frame_error_and_the_next_works(fault: str) -> None:
+    with ScriptedDevice(["good", fault, "good"]) as device:
+        # A reply from another unit leaves the client listening until the timeout.
+        link = ModbusLink(SerialSettings(device.path, 115200, timeout_s=0.5))
+        ch = DeviceChannel(link, 1, retries=0)
+        try:
+            assert ch.read_registers(0, 2) == [10, 11]
+            with pytest.raises(FrameError):
+                ch.read_registers(0, 2)
+            assert ch.stats.frame_errors == 1 and ch.stats.timeouts == 0
+            assert ch.read_registers(0, 2) == [30, 31]
+            assert ch.connected and ch.stats.transactions == 2
+        finally:
+            link.close()
+
+
+def test_a_late_reply_is_not_taken_for_the_next_one() -> None:
+    with ScriptedDevice(["late", "good"], late_s=0.3) as device:
+        link = ModbusLink(SerialSettings(device.path, 115200, timeout_s=0.15))
+        ch = DeviceChannel(link, 1, retries=0)
+        try:
+            with pytest.raises(LinkTimeout):
+                ch.read_registers(0, 2)  # its reply [10, 11] comes after the timeout
+            time.sleep(0.6)  # the late reply is in by then; the next request drains it
+            assert ch.read_registers(0, 2) == [20, 21]
+        finally:
+            link.close()
