@@ -130,6 +130,11 @@ SERVICES: dict[str, tuple[dict[str, str], dict[str, str]]] = {
         {"positive_limit": "uint8", "negative_limit": "uint8", "home": "uint8"},
         REPLY,
     ),
+    "SetControlMode": ({"mode": "uint8"}, REPLY),
+    "PositionMove": (
+        {"position": "double", "relative": "boolean", "max_velocity": "double"},
+        {**REPLY, "counts": "int32"},
+    ),
 }
 
 

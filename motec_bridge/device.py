@@ -1,0 +1,562 @@
+"""MOTEC β drive model: polls into snapshots, commands into checked writes. No ROS here.
+
+Every command checks all of its inputs (and, where the drive's mode matters, the mode
+read fresh from the drive) before its first write, so a refused command writes nothing.
+Units are the drive's: encoder counts and rpm; ``DriveScale`` converts to SI.
+
+Polling: 4 reads per drive (0x24-0x2D, 0xAA-0xAF, 0xC5-0xC9, 0x109; see registers.py on
+reading through unnamed parameters). The configuration (analog max speed 0x6D, lifeguard
+0x112 / 0x114) is read whole when the link comes up, then one request per poll every
+``config_refresh_s``, and the cache follows the bridge's own writes.
+
+Commands that depend on the mode (``move``, ``enable``, ``stop``, the first velocity
+command of a stream) read 0x24-0x29 first at command priority (one FC 03, ~3 ms at
+115200 baud): the last poll may be older than a mode change the caller just made.
+
+Velocity stream (``velocity``): rpm, sign = direction, written to 0xAE when it changes; a
+command equal to the last one writes nothing. The first non-zero command of a stream
+checks network mode, velocity control and enable. After ``stop`` the stream is locked
+until a 0 command (or the node's deadman), so a joystick still held cannot restart the
+motor. ``velocity_stop`` (the deadman) writes 0 rpm; the drive ramps down by its own
+acceleration (§4.2).
+
+Lifeguard (§3.4): ``arm_lifeguard(ms)`` writes 0x112 = ms then 0x114 = 9999 (the
+manual's two FC 06 frames); ``feed_lifeguard`` rewrites 0x112 when no other write went
+to the drive for a feed period, so the drive's watchdog only fires when the bridge is
+gone (or the bus is).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from bridge_core.channel import Priority, RegisterIO
+from bridge_core.codec import Value, encode
+from bridge_core.errors import CommandRejected, LinkError
+from bridge_core.planner import ReadRequest, decode_reply, plan_reads
+
+from .registers import (
+    CONTROL_MODE_POSITION,
+    CONTROL_MODE_VELOCITY,
+    ENABLE_OFF,
+    ENABLE_ON,
+    INPUTS,
+    LIFEGUARD_ACTIVE,
+    MOTEC_MAP,
+    MOTION_ABSOLUTE,
+    MOTION_RELATIVE,
+    OPERATION_MODE_NETWORK,
+    OUTPUTS,
+    SAVE_TO_FLASH,
+    START_MOVE,
+    STOP_MOVE,
+    control_mode_name,
+    operation_mode_name,
+    output_coil,
+)
+
+DEFAULT_CONFIG_REFRESH_S = 5.0
+DEFAULT_MAX_SPEED_RPM = 3000
+SPEED_LIMIT_RPM = 32767  # 0xAE is a signed 16-bit register
+LIFEGUARD_MIN_MS = 50  # below this a feed every third of it would crowd the bus
+FEEDS_PER_PERIOD = 3  # the bridge writes at least 3 times per lifeguard time
+
+STATUS_NAMES = (
+    "operation_mode",
+    "control_mode",
+    "target_distance",
+    "enable",
+    "start",
+    "motion_mode",
+    "position_setpoint",
+    "position_actual",
+    "speed_setpoint",
+    "speed_actual",
+    "input_word",
+    "output_state",
+    "fault_code",
+    "analog_input",
+)
+CONFIG_NAMES = ("analog_max_speed", "lifeguard_time", "lifeguard_mode")
+MODE_NAMES = ("operation_mode", "control_mode", "target_distance", "enable", "start")
+
+STATUS_PLAN: list[ReadRequest] = plan_reads(MOTEC_MAP, MOTEC_MAP.select(STATUS_NAMES))
+CONFIG_PLAN: list[ReadRequest] = plan_reads(MOTEC_MAP, MOTEC_MAP.select(CONFIG_NAMES))
+MODE_PLAN: list[ReadRequest] = plan_reads(MOTEC_MAP, MOTEC_MAP.select(MODE_NAMES))
+
+
+# ---------------------------------------------------------------- snapshots
+
+
+@dataclass(frozen=True)
+class Modes:
+    """What decides whether the drive may move over Modbus (0x24, 0x25, 0x28)."""
+
+    operation_mode: int
+    control_mode: int
+    enabled: bool
+
+    @property
+    def network(self) -> bool:
+        return self.operation_mode == OPERATION_MODE_NETWORK
+
+    def describe(self) -> str:
+        return (
+            f"operation mode {operation_mode_name(self.operation_mode)}, control mode "
+            f"{control_mode_name(self.control_mode)}, {'enabled' if self.enabled else 'disabled'}"
+        )
+
+
+@dataclass(frozen=True)
+class MotecConfig:
+    analog_max_speed_rpm: int
+    lifeguard_time_ms: int
+    lifeguard_mode: int
+
+    @property
+    def lifeguard_armed(self) -> bool:
+        """§3.4: a non-zero time and mode 9999."""
+        return self.lifeguard_time_ms > 0 and self.lifeguard_mode == LIFEGUARD_ACTIVE
+
+
+@dataclass(frozen=True)
+class MotecSnapshot:
+    """One poll of one drive (drive units)."""
+
+    read_time: float  # wall clock just before the first status read
+    modes: Modes
+    motion_mode: int
+    target_distance: int  # counts, as last written
+    start: int
+    position_setpoint: int  # counts
+    position_actual: int  # counts
+    speed_setpoint_rpm: int
+    speed_actual_rpm: int
+    input_word: int
+    output_word: int
+    fault_code: int
+    analog_input: int
+    config: MotecConfig
+
+    @property
+    def inputs(self) -> tuple[bool, ...]:
+        return tuple(bool(self.input_word >> k & 1) for k in range(INPUTS))
+
+    @property
+    def outputs(self) -> tuple[bool, ...]:
+        return tuple(bool(self.output_word >> k & 1) for k in range(OUTPUTS))
+
+    @property
+    def moving(self) -> bool:
+        """Derived (the manual gives no motion flag's address): turning, or not yet at
+        the setpoint."""
+        return self.speed_actual_rpm != 0 or self.position_setpoint != self.position_actual
+
+
+# ---------------------------------------------------------------- units
+
+
+@dataclass(frozen=True)
+class DriveScale:
+    """Drive units <-> SI for one joint (README "MOTEC units").
+
+    ``counts_per_rev``: encoder counts per motor revolution; ``gear_ratio``: motor
+    revolutions per joint revolution. rad = counts / (counts_per_rev x gear) x 2 pi;
+    rad/s = rpm x 2 pi / 60 / gear.
+    """
+
+    counts_per_rev: float = 10000.0
+    gear_ratio: float = 1.0
+
+    def __post_init__(self) -> None:
+        for what, value in (
+            ("counts_per_rev", self.counts_per_rev),
+            ("gear_ratio", self.gear_ratio),
+        ):
+            if not math.isfinite(value) or value <= 0:
+                raise ValueError(f"{what} must be positive and finite, got {value}")
+
+    def position(self, counts: int) -> float:
+        return counts / (self.counts_per_rev * self.gear_ratio) * 2.0 * math.pi
+
+    def velocity(self, rpm: float) -> float:
+        return rpm * 2.0 * math.pi / 60.0 / self.gear_ratio
+
+    def to_counts(self, rad: float) -> int:
+        _check_finite("position", rad)
+        counts = round(rad / (2.0 * math.pi) * self.counts_per_rev * self.gear_ratio)
+        reg = MOTEC_MAP["target_distance"]
+        assert reg.minimum is not None and reg.maximum is not None
+        if not reg.minimum <= counts <= reg.maximum:
+            raise CommandRejected(
+                f"{rad} rad is {counts} counts, outside {int(reg.minimum)}..{int(reg.maximum)}"
+            )
+        return int(counts)
+
+    def to_rpm(self, rad_s: float) -> float:
+        _check_finite("velocity", rad_s)
+        return rad_s * 60.0 / (2.0 * math.pi) * self.gear_ratio
+
+
+# ---------------------------------------------------------------- the device
+
+
+@dataclass
+class _Stream:
+    rpm: int | None = None  # last speed the stream wrote to 0xAE (None: unknown)
+    active: bool = False  # a non-zero speed is being commanded
+    locked: bool = False  # stopped by ~/stop: wait for a 0 command or silence
+
+
+class MotecDevice:
+    """One MOTEC β drive behind one Modbus channel (one unit id on the shared bus)."""
+
+    def __init__(
+        self,
+        io: RegisterIO,
+        *,
+        max_speed_rpm: int = DEFAULT_MAX_SPEED_RPM,
+        config_refresh_s: float = DEFAULT_CONFIG_REFRESH_S,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        if not 1 <= max_speed_rpm <= SPEED_LIMIT_RPM:
+            raise ValueError(f"max_speed_rpm {max_speed_rpm} outside 1..{SPEED_LIMIT_RPM}")
+        self.io = io
+        self.max_speed_rpm = max_speed_rpm
+        self.config_refresh_s = config_refresh_s
+        self._clock = clock
+        self._config: dict[str, Value] = {}
+        self._refresh_next = 0
+        self._refresh_due = math.inf
+        self._stream = _Stream()
+        self.last_write = -math.inf  # clock() of the last successful write
+
+    # ------------------------------------------------------------------ reads
+    def _read(self, request: ReadRequest, priority: Priority) -> dict[str, Value]:
+        if request.table.is_bit:
+            bits = self.io.read_bits(request.address, request.count, request.table, priority)
+            return decode_reply(request, bits)
+        words = self.io.read_registers(request.address, request.count, request.table, priority)
+        return decode_reply(request, words)
+
+    def read_config(self, priority: Priority = Priority.POLL) -> MotecConfig:
+        values: dict[str, Value] = {}
+        for request in CONFIG_PLAN:
+            values.update(self._read(request, priority))
+        self._config.update(values)
+        self._refresh_next = 0
+        self._refresh_due = self._clock() + self.config_refresh_s
+        return self.config
+
+    def invalidate_config(self) -> None:
+        """Forget the configuration (link came up): the next poll reads it first."""
+        self._config.clear()
+        # A stream that was running stays "active" so the node's deadman stops it once
+        # the link is back; the speed the drive holds is unknown.
+        self._stream.rpm = None
+
+    @property
+    def has_config(self) -> bool:
+        return len(self._config) == len(CONFIG_NAMES)
+
+    @property
+    def config(self) -> MotecConfig:
+        if not self.has_config:
+            raise CommandRejected("the drive's configuration has not been read yet")
+        v = self._config
+        return MotecConfig(
+            analog_max_speed_rpm=int(v["analog_max_speed"]),
+            lifeguard_time_ms=int(v["lifeguard_time"]),
+            lifeguard_mode=int(v["lifeguard_mode"]),
+        )
+
+    def read_modes(self) -> Modes:
+        """0x24-0x29 now, at command priority (one FC 03)."""
+        v: dict[str, Value] = {}
+        for request in MODE_PLAN:
+            v.update(self._read(request, Priority.COMMAND))
+        return Modes(int(v["operation_mode"]), int(v["control_mode"]), bool(v["enable"]))
+
+    def read_named(self, *names: str) -> dict[str, Value]:
+        values: dict[str, Value] = {}
+        for request in plan_reads(MOTEC_MAP, MOTEC_MAP.select(names)):
+            values.update(self._read(request, Priority.COMMAND))
+        return values
+
+    def read_outputs(self) -> tuple[bool, ...]:
+        """OUTPUT1-3 with FC 01 (§3.3.1)."""
+        values = self.read_named(*(f"output_{n}" for n in range(1, OUTPUTS + 1)))
+        return tuple(bool(values[f"output_{n}"]) for n in range(1, OUTPUTS + 1))
+
+    def read_inputs(self) -> tuple[bool, ...]:
+        """INPUT1-8 with FC 02 (§3.3.2)."""
+        values = self.read_named(*(f"input_{n}" for n in range(1, INPUTS + 1)))
+        return tuple(bool(values[f"input_{n}"]) for n in range(1, INPUTS + 1))
+
+    def poll(self) -> MotecSnapshot:
+        if not self.has_config:
+            self.read_config()
+        read_time = time.time()
+        v: dict[str, Value] = {}
+        for request in STATUS_PLAN:
+            v.update(self._read(request, Priority.POLL))
+        if self._clock() >= self._refresh_due or self._refresh_next:
+            self._config.update(self._read(CONFIG_PLAN[self._refresh_next], Priority.POLL))
+            self._refresh_next = (self._refresh_next + 1) % len(CONFIG_PLAN)
+            if self._refresh_next == 0:
+                self._refresh_due = self._clock() + self.config_refresh_s
+        return MotecSnapshot(
+            read_time=read_time,
+            modes=Modes(int(v["operation_mode"]), int(v["control_mode"]), bool(v["enable"])),
+            motion_mode=int(v["motion_mode"]),
+            target_distance=int(v["target_distance"]),
+            start=int(v["start"]),
+            position_setpoint=int(v["position_setpoint"]),
+            position_actual=int(v["position_actual"]),
+            speed_setpoint_rpm=int(v["speed_setpoint"]),
+            speed_actual_rpm=int(v["speed_actual"]),
+            input_word=int(v["input_word"]),
+            output_word=int(v["output_state"]),
+            fault_code=int(v["fault_code"]),
+            analog_input=int(v["analog_input"]),
+            config=self.config,
+        )
+
+    # ------------------------------------------------------------------ writes
+    def _write(self, name: str, value: Value) -> None:
+        """One value: FC 06 for a 16-bit register, FC 16 for a 32-bit one (§3.1)."""
+        reg = MOTEC_MAP[name]
+        words = encode(reg, value)
+        if len(words) == 1:
+            self.io.write_register(reg.address, words[0])
+        else:
+            self.io.write_registers(reg.address, words)
+        self.last_write = self._clock()
+        if name in self._config:
+            self._config[name] = value
+
+    def _check_speed(self, rpm: float, what: str) -> int:
+        _check_finite(what, rpm)
+        value = round(rpm)
+        if abs(value) > self.max_speed_rpm:
+            raise CommandRejected(
+                f"{what} {rpm:g} rpm outside -{self.max_speed_rpm}..{self.max_speed_rpm} "
+                "(max_speed_rpm)"
+            )
+        return int(value)
+
+    def set_control_mode(self, mode: int) -> None:
+        """Network mode (0x24 = 0), then the control mode (0x25), as §4.1 / §4.2 do.
+
+        Velocity: the speed setpoint is zeroed between the two, so that switching an
+        enabled drive to velocity control never starts the motor with a stale speed.
+        """
+        _check_choice("control mode", mode, (CONTROL_MODE_VELOCITY, CONTROL_MODE_POSITION))
+        self._stream = _Stream()
+        self._write("operation_mode", OPERATION_MODE_NETWORK)
+        if mode == CONTROL_MODE_VELOCITY:
+            self._write("speed_setpoint", 0)
+            self._stream.rpm = 0
+        self._write("control_mode", mode)
+
+    def enable(self, on: bool) -> None:
+        """0x28 = 1 / 0 (§4.1 step 4). Enabling in velocity control first zeroes 0xAE:
+        §4.2 step 4 says enabling starts the motor at the set speed, and a bridge's enable
+        must not start motion by itself."""
+        if not on:
+            try:
+                self._write("enable", ENABLE_OFF)
+            finally:
+                self._stream = _Stream(rpm=self._stream.rpm)
+            return
+        modes = self.read_modes()
+        if modes.control_mode == CONTROL_MODE_VELOCITY:
+            self._write("speed_setpoint", 0)
+            self._stream = _Stream(rpm=0)
+        self._write("enable", ENABLE_ON)
+
+    def move(self, counts: int, *, relative: bool, speed_rpm: float = 0.0) -> None:
+        """Point-to-point move (§4.1): [speed limit 0xAE], motion mode 0x2D, distance or
+        target 0x26-0x27 (FC 16), start 0x29 = 1. Needs network mode, position control
+        and an enabled drive (read fresh)."""
+        if isinstance(counts, bool) or not isinstance(counts, int):
+            raise CommandRejected(f"distance {counts!r} is not a whole number of counts")
+        encode(MOTEC_MAP["target_distance"], counts)  # range check before any write
+        limit = self._check_speed(speed_rpm, "max velocity")
+        if limit < 0:
+            raise CommandRejected(f"max velocity {speed_rpm:g} rpm must not be negative")
+        modes = self.read_modes()
+        if not modes.network or modes.control_mode != CONTROL_MODE_POSITION or not modes.enabled:
+            raise CommandRejected(
+                f"a move needs network mode, position control and an enabled drive; the drive "
+                f"is in {modes.describe()} (use ~/set_control_mode and ~/enable)"
+            )
+        if limit:
+            self._write("speed_setpoint", limit)
+        self._write("motion_mode", MOTION_RELATIVE if relative else MOTION_ABSOLUTE)
+        self._write("target_distance", counts)
+        self._write("start", START_MOVE)
+
+    def stop(self) -> str:
+        """Stop in the present mode: velocity -> 0xAE = 0 (ramps down, §4.2); position ->
+        0x29 = 0 (the move / stop register); any other mode -> release (0x28 = 0), the
+        only stop the manual gives for every mode. Returns what was done."""
+        modes = self.read_modes()
+        self._stream.locked = True
+        if modes.network and modes.control_mode == CONTROL_MODE_VELOCITY:
+            try:
+                self._write("speed_setpoint", 0)
+            finally:
+                self._stream.active, self._stream.rpm = False, 0
+            return "speed setpoint 0"
+        if modes.network and modes.control_mode == CONTROL_MODE_POSITION:
+            self._write("start", STOP_MOVE)
+            return "move stopped (0x29 = 0)"
+        self._write("enable", ENABLE_OFF)
+        return f"drive released ({modes.describe()}: no Modbus stop for that mode)"
+
+    def save_to_flash(self) -> None:
+        self._write("save_to_flash", SAVE_TO_FLASH)
+
+    def set_output(self, output: int, on: bool) -> None:
+        """OUTPUT1-3 with FC 05 (§3.3.3): 0xFF00 on, 0x0000 off."""
+        if isinstance(output, bool) or not isinstance(output, int) or not 1 <= output <= OUTPUTS:
+            raise CommandRejected(f"output {output!r} outside 1-{OUTPUTS}")
+        self.io.write_coil(output_coil(output), bool(on))
+        self.last_write = self._clock()
+
+    def set_analog_max_speed(self, rpm: float) -> None:
+        _check_finite("analog max speed", rpm)
+        if rpm != int(rpm):
+            raise CommandRejected(f"analog max speed {rpm} is not a whole number of rpm")
+        self._write("analog_max_speed", int(rpm))
+
+    # ------------------------------------------------------------------ velocity stream
+    def velocity(self, rpm: float) -> bool:
+        """Command ``rpm`` (0xAE) until told otherwise; True if anything was written."""
+        speed = self._check_speed(rpm, "velocity")
+        stream = self._stream
+        if speed == 0:
+            stream.locked = False
+            if not stream.active:
+                return False
+            self.velocity_stop()
+            return True
+        if stream.locked:
+            raise CommandRejected(
+                "the drive was stopped: send 0 (or nothing for command_timeout_s) "
+                "before commanding a velocity again"
+            )
+        if not stream.active:
+            modes = self.read_modes()
+            if (
+                not modes.network
+                or modes.control_mode != CONTROL_MODE_VELOCITY
+                or not modes.enabled
+            ):
+                raise CommandRejected(
+                    f"velocity commands need network mode, velocity control and an enabled "
+                    f"drive; the drive is in {modes.describe()}"
+                )
+        if stream.active and stream.rpm == speed:
+            return False
+        try:
+            self._write("speed_setpoint", speed)
+        except LinkError:
+            stream.rpm = None
+            raise
+        stream.rpm, stream.active = speed, True
+        return True
+
+    @property
+    def streaming(self) -> bool:
+        return self._stream.active
+
+    @property
+    def stream_locked(self) -> bool:
+        return self._stream.locked
+
+    @property
+    def stream_rpm(self) -> int | None:
+        return self._stream.rpm
+
+    def velocity_stop(self) -> bool:
+        """The deadman: 0 rpm if a stream is commanding a speed; unlocks the stream."""
+        stream = self._stream
+        stream.locked = False
+        if not stream.active:
+            return False
+        try:
+            self._write("speed_setpoint", 0)
+        except LinkError:
+            stream.rpm = None
+            raise
+        stream.active, stream.rpm = False, 0
+        return True
+
+    # ------------------------------------------------------------------ lifeguard
+    def arm_lifeguard(self, time_ms: int) -> None:
+        """§3.4: detection time 0x112 (ms), then mode 0x114 = 9999."""
+        _check_lifeguard_ms(time_ms)
+        self._write("lifeguard_time", int(time_ms))
+        self._write("lifeguard_mode", LIFEGUARD_ACTIVE)
+
+    def lifeguard_feed_period_s(self, time_ms: int) -> float:
+        return time_ms / 1000.0 / FEEDS_PER_PERIOD
+
+    def feed_lifeguard(self, time_ms: int) -> bool:
+        """Rewrite 0x112 if nothing was written to the drive for a feed period."""
+        if time_ms <= 0:
+            return False
+        if self._clock() - self.last_write < self.lifeguard_feed_period_s(time_ms):
+            return False
+        self._write("lifeguard_time", int(time_ms))
+        return True
+
+
+def disable_all(broadcast: RegisterIO) -> None:
+    """Release every drive on the bus with one broadcast write (unit 0, §2.5): 0x28 = 0.
+    No drive answers a broadcast, so nothing confirms it."""
+    reg = MOTEC_MAP["enable"]
+    broadcast.write_register(reg.address, encode(reg, ENABLE_OFF)[0])
+
+
+# ---------------------------------------------------------------- checks
+
+
+def _check_finite(what: str, value: float) -> None:
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise CommandRejected(f"{what} {value!r} is not a finite number")
+
+
+def _check_choice(what: str, value: int, allowed: tuple[int, ...]) -> None:
+    if isinstance(value, bool) or value not in allowed:
+        raise CommandRejected(f"{what} {value!r} refused: one of {list(allowed)}")
+
+
+def _check_lifeguard_ms(time_ms: int) -> None:
+    reg = MOTEC_MAP["lifeguard_time"]
+    if (
+        isinstance(time_ms, bool)
+        or not isinstance(time_ms, int)
+        or not LIFEGUARD_MIN_MS <= time_ms <= (reg.maximum or 0)
+    ):
+        raise CommandRejected(
+            f"lifeguard time {time_ms!r} ms outside {LIFEGUARD_MIN_MS}..{int(reg.maximum or 0)}"
+        )
+
+
+__all__ = [
+    "CONFIG_PLAN",
+    "MODE_PLAN",
+    "STATUS_PLAN",
+    "DriveScale",
+    "Modes",
+    "MotecConfig",
+    "MotecDevice",
+    "MotecSnapshot",
+    "disable_all",
+]

@@ -1,0 +1,505 @@
+"""ROS 2 nodes for MOTEC β servo drives on one RS-485 bus (DESIGN §3, motec_bridge).
+
+One process, one serial port, one node per drive. ``main`` starts:
+
+- ``motec_bridge``: the bus. It owns the serial parameters (``serial_port``,
+  ``baudrate``, ``parity``, ``stopbits``, ``timeout_s``) and ``unit_ids``, opens the one
+  ``ModbusLink`` every drive shares, and offers ``~/disable_all`` (one broadcast write,
+  unit 0: 0x28 = 0 on every drive, unanswered).
+- ``motec_<id>`` per unit id: a ``BridgeNode`` on the shared link with its own
+  ``DeviceChannel`` (so its own backoff: a dead drive is retried on its own schedule,
+  the others keep their poll slots), poll thread, topics, services and parameters.
+
+Parameters: a params file's ``/**:`` block reaches every node of the process (bus and
+drives); a ``/**/motec_<id>:`` block overrides one drive; ``-p name:=value`` on the
+command line reaches every node. The bus parameters are read by ``motec_bridge`` only and
+copied into each drive node (which shows them, e.g. ``ros2 param get /motec_2
+serial_port``); ``unit_id`` is set from ``unit_ids``. See config/motec.yaml.
+
+Fairness: every transaction holds the link's PriorityLock (FIFO within a priority,
+commands first), so drives polling at the same rate take turns request by request.
+
+Units: ``joint_states`` position = 0xAC counts / (``counts_per_rev`` x ``gear_ratio``)
+x 2 pi (rad), velocity = 0xAF rpm x 2 pi / 60 / ``gear_ratio`` (rad/s); ``~/move`` and
+``~/cmd_velocity`` take the same units. ``~/state`` stays in counts and rpm.
+"""
+
+from __future__ import annotations
+
+import signal
+import threading
+import time
+from collections.abc import Sequence
+from typing import Any
+
+import rclpy
+from rcl_interfaces.msg import ParameterType
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.signals import SignalHandlerOptions
+from rclpy.utilities import try_shutdown
+from std_msgs.msg import Float64
+from std_srvs.srv import SetBool, Trigger
+
+from bridge_core.diagnostics import Level, Report
+from bridge_core.errors import CommandRejected, DeviceException, LinkError
+from bridge_core.link import DeviceChannel, ModbusLink, SerialSettings
+from bridge_core.node_base import BOOL, DOUBLE, INT, STRING, BridgeNode, _descriptor
+from msg_defs.msg import MotecState
+from msg_defs.srv import PositionMove, SetControlMode, SetOutput, SetValue
+
+from .device import (
+    DEFAULT_CONFIG_REFRESH_S,
+    DEFAULT_MAX_SPEED_RPM,
+    LIFEGUARD_MIN_MS,
+    SPEED_LIMIT_RPM,
+    DriveScale,
+    MotecDevice,
+    MotecSnapshot,
+    disable_all,
+)
+from .registers import (
+    BROADCAST_UNIT,
+    DEFAULT_BAUDRATE,
+    UNIT_IDS,
+    control_mode_name,
+    fault_text,
+    operation_mode_name,
+)
+
+DEVICE_NAME = "MOTEC β servo drive"
+BUS_NODE_NAME = "motec_bridge"
+DEFAULT_POLL_RATE_HZ = 10.0  # per drive; a poll is 4 reads (~15-25 ms at 115200 baud)
+DEFAULT_TIMEOUT_S = 0.1  # a reply is a few ms at 115200: a dead drive costs little bus time
+DEADMAN_PERIOD_MIN_S = 0.02
+DEADMAN_PERIOD_MAX_S = 0.1
+LIFEGUARD_CHECK_S = 0.05  # feed check period when the drive armed its lifeguard itself
+INT_ARRAY = ParameterType.PARAMETER_INTEGER_ARRAY
+BUS_PARAMETERS = ("serial_port", "baudrate", "parity", "stopbits", "timeout_s")
+
+
+def drive_node_name(unit_id: int) -> str:
+    return f"motec_{unit_id}"
+
+
+class MotecDriveNode(BridgeNode):
+    """One drive on the shared bus."""
+
+    def __init__(
+        self,
+        unit_id: int,
+        link: ModbusLink,
+        bus_parameters: Sequence[Parameter] = (),
+        **kwargs: Any,
+    ) -> None:
+        overrides = [*bus_parameters, Parameter("unit_id", Parameter.Type.INTEGER, unit_id)]
+        super().__init__(
+            drive_node_name(unit_id),
+            transport="rtu",
+            device_name=DEVICE_NAME,
+            default_poll_rate_hz=DEFAULT_POLL_RATE_HZ,
+            default_baudrate=DEFAULT_BAUDRATE,
+            link=link,
+            parameter_overrides=overrides,
+            **kwargs,
+        )
+        self.unit_id = unit_id
+        p = self.declare_parameter
+        p(
+            "counts_per_rev",
+            10000.0,
+            _descriptor("encoder counts per motor revolution", DOUBLE, 1.0, 1e9),
+        )
+        p(
+            "gear_ratio",
+            1.0,
+            _descriptor("motor revolutions per joint revolution", DOUBLE, 1e-6, 1e6),
+        )
+        p(
+            "command_timeout_s",
+            0.5,
+            _descriptor("cmd_velocity deadman: 0 rpm after this silence", DOUBLE, 0.05, 60.0),
+        )
+        p(
+            "lifeguard_ms",
+            0,
+            _descriptor(
+                f"drive watchdog (0x112): 0 = leave the drive's setting, else "
+                f"{LIFEGUARD_MIN_MS}-65535 ms, armed on connect and fed by the bridge",
+                INT,
+                0,
+                65535,
+            ),
+        )
+        p(
+            "max_speed_rpm",
+            DEFAULT_MAX_SPEED_RPM,
+            _descriptor("largest |speed| a command may ask (rpm)", INT, 1, SPEED_LIMIT_RPM),
+        )
+        p(
+            "config_refresh_s",
+            DEFAULT_CONFIG_REFRESH_S,
+            _descriptor("re-read 0x6D, 0x112, 0x114 this often", DOUBLE, 0.5, 3600.0),
+        )
+        self.scale = DriveScale(
+            float(self.param("counts_per_rev")), float(self.param("gear_ratio"))
+        )
+        self.command_timeout_s = float(self.param("command_timeout_s"))
+        self.lifeguard_ms = int(self.param("lifeguard_ms"))
+        if 0 < self.lifeguard_ms < LIFEGUARD_MIN_MS:
+            raise ValueError(
+                f"{self.get_name()}: lifeguard_ms {self.lifeguard_ms} is below "
+                f"{LIFEGUARD_MIN_MS} (0 = off)"
+            )
+        self.device = MotecDevice(
+            self.channel,
+            max_speed_rpm=int(self.param("max_speed_rpm")),
+            config_refresh_s=float(self.param("config_refresh_s")),
+        )
+        self.last_snapshot: MotecSnapshot | None = None
+        self.lifeguard_error: str | None = None
+        self.velocity_seen: float | None = None
+        self.joint_names = [f"{self.joint_prefix}drive_{unit_id}"]
+        self.state_pub = self.create_publisher(MotecState, "~/state", 10)
+        self._create_services()
+        self._create_velocity()
+        self.lifeguard_group = MutuallyExclusiveCallbackGroup()
+        period = (
+            self.device.lifeguard_feed_period_s(self.lifeguard_ms) / 2
+            if self.lifeguard_ms
+            else LIFEGUARD_CHECK_S
+        )
+        self.lifeguard_timer = self.create_timer(
+            period, self._feed_lifeguard, callback_group=self.lifeguard_group
+        )
+
+    # ------------------------------------------------------------ polling
+    def on_link_up(self) -> None:
+        # The drive may have been power-cycled (or swapped) while the link was down.
+        self.device.invalidate_config()
+        if self.lifeguard_ms and not self.read_only:
+            try:
+                self.device.arm_lifeguard(self.lifeguard_ms)
+                self.lifeguard_error = None
+            except DeviceException as err:
+                self.lifeguard_error = f"arming the lifeguard failed: the drive answered {err}"
+                self.get_logger().error(self.lifeguard_error)
+
+    def poll_device(self) -> MotecSnapshot:
+        return self.device.poll()
+
+    def publish_snapshot(self, s: MotecSnapshot) -> None:
+        self.last_snapshot = s
+        self.joint_states_pub.publish(
+            self.joint_state(
+                s.read_time,
+                self.joint_names,
+                [self.scale.position(s.position_actual)],
+                [self.scale.velocity(s.speed_actual_rpm)],
+            )
+        )
+        m = MotecState()
+        m.header.stamp = self.stamp(s.read_time)
+        m.header.frame_id = self.frame_id
+        m.unit_id = self.unit_id
+        m.operation_mode = s.modes.operation_mode
+        m.operation_mode_name = operation_mode_name(s.modes.operation_mode)
+        m.control_mode = s.modes.control_mode
+        m.control_mode_name = control_mode_name(s.modes.control_mode)
+        m.enabled = s.modes.enabled
+        m.motion_mode = s.motion_mode
+        m.target_distance = s.target_distance
+        m.fault_code = s.fault_code
+        m.fault_text = fault_text(s.fault_code)
+        m.position_setpoint = s.position_setpoint
+        m.position_actual = s.position_actual
+        m.speed_setpoint_rpm = s.speed_setpoint_rpm
+        m.speed_actual_rpm = s.speed_actual_rpm
+        m.moving = s.moving
+        m.inputs = list(s.inputs)
+        m.outputs = list(s.outputs)
+        m.input_word = s.input_word
+        m.output_word = s.output_word
+        m.analog_input = s.analog_input
+        m.analog_max_speed_rpm = s.config.analog_max_speed_rpm
+        m.lifeguard_time_ms = s.config.lifeguard_time_ms
+        m.lifeguard_mode = s.config.lifeguard_mode
+        m.lifeguard_armed = s.config.lifeguard_armed
+        self.state_pub.publish(m)
+
+    def lifeguard_time_ms(self) -> int:
+        """The watchdog time the bridge feeds: its parameter, or the drive's own setting."""
+        if self.lifeguard_ms:
+            return self.lifeguard_ms
+        if self.device.has_config and self.device.config.lifeguard_armed:
+            return self.device.config.lifeguard_time_ms
+        return 0
+
+    def device_report(self) -> Report | None:
+        s = self.last_snapshot
+        if s is None:
+            return None
+        d = self.device
+        lifeguard = "off"
+        if s.config.lifeguard_armed:
+            lifeguard = f"armed, {s.config.lifeguard_time_ms} ms"
+            lifeguard += ", NOT fed (read_only)" if self.read_only else ", fed by the bridge"
+        stream = "idle"
+        if d.streaming:
+            stream = f"commanding {d.stream_rpm} rpm"
+        elif d.stream_locked:
+            stream = "locked after ~/stop (send 0)"
+        values = [
+            ("unit id", str(self.unit_id)),
+            (
+                "operation mode",
+                f"{s.modes.operation_mode} ({operation_mode_name(s.modes.operation_mode)})",
+            ),
+            ("control mode", f"{s.modes.control_mode} ({control_mode_name(s.modes.control_mode)})"),
+            ("enabled", str(s.modes.enabled).lower()),
+            ("fault code", f"{s.fault_code} (0x{s.fault_code:08X}): {fault_text(s.fault_code)}"),
+            ("position (counts)", str(s.position_actual)),
+            ("speed (rpm)", str(s.speed_actual_rpm)),
+            ("analog input (raw)", str(s.analog_input)),
+            ("lifeguard", lifeguard),
+            ("cmd_velocity", stream),
+        ]
+        if s.fault_code:
+            return Report(
+                Level.ERROR, f"drive fault {s.fault_code}: {fault_text(s.fault_code)}", values
+            )
+        if self.lifeguard_error:
+            return Report(Level.WARN, self.lifeguard_error, values)
+        if s.config.lifeguard_armed and self.read_only:
+            return Report(
+                Level.WARN, "the drive's lifeguard is armed but read_only stops the feed", values
+            )
+        return Report(Level.OK, "connected", values)
+
+    # ------------------------------------------------------------ services
+    def _create_services(self) -> None:
+        d = self.device
+        self.command_service(
+            SetBool,
+            "~/enable",
+            lambda r: f"enable {'on' if r.data else 'off'}",
+            lambda r: d.enable(bool(r.data)),
+        )
+        self.command_service(
+            SetControlMode,
+            "~/set_control_mode",
+            lambda r: f"set_control_mode {control_mode_name(r.mode)}",
+            self._set_control_mode,
+        )
+        self.command_service(
+            PositionMove,
+            "~/move",
+            lambda r: f"move {'by' if r.relative else 'to'} {r.position} rad",
+            self._move,
+            fill=lambda response, counts: setattr(response, "counts", counts),
+        )
+        self.command_service(Trigger, "~/stop", lambda _r: "stop", lambda _r: d.stop(), fill=_said)
+        self.command_service(
+            Trigger, "~/save_to_flash", lambda _r: "save_to_flash", lambda _r: d.save_to_flash()
+        )
+        self.command_service(
+            SetOutput,
+            "~/set_output",
+            lambda r: f"set_output {r.index} {'on' if r.on else 'off'}",
+            lambda r: d.set_output(_only_board_zero(r.board, r.index), r.on),
+        )
+        self.command_service(
+            SetValue,
+            "~/set_analog_max_speed",
+            lambda r: f"set_analog_max_speed {r.value} rpm",
+            lambda r: d.set_analog_max_speed(r.value),
+        )
+
+    def _set_control_mode(self, r: Any) -> None:
+        s = self.last_snapshot
+        if s is not None and s.speed_actual_rpm != 0:
+            raise CommandRejected(
+                f"the motor turns at {s.speed_actual_rpm} rpm: ~/stop it before changing mode"
+            )
+        self.device.set_control_mode(int(r.mode))
+
+    def _move(self, r: Any) -> int:
+        counts = self.scale.to_counts(float(r.position))
+        rpm = self.scale.to_rpm(float(r.max_velocity))
+        self.device.move(counts, relative=bool(r.relative), speed_rpm=rpm)
+        return counts
+
+    # ------------------------------------------------------------ velocity + deadman
+    def _create_velocity(self) -> None:
+        self.create_subscription(
+            Float64,
+            "~/cmd_velocity",
+            self._on_cmd_velocity_msg,
+            10,
+            callback_group=self.command_group,
+        )
+        period = min(DEADMAN_PERIOD_MAX_S, max(DEADMAN_PERIOD_MIN_S, self.command_timeout_s / 5))
+        self.deadman_timer = self.create_timer(
+            period, self._deadman, callback_group=self.command_group
+        )
+
+    def _on_cmd_velocity_msg(self, msg: Any) -> None:
+        self._on_cmd_velocity(float(msg.data))
+
+    def _on_cmd_velocity(self, rad_s: float) -> None:
+        self.velocity_seen = time.monotonic()
+        ok, message, _ = self.run_command(
+            f"cmd_velocity {rad_s} rad/s",
+            lambda: self.device.velocity(self.scale.to_rpm(rad_s)),
+        )
+        if ok:
+            return
+        self.get_logger().warn(message, throttle_duration_sec=2.0)
+        if self.device.streaming:
+            # A refused value must not leave the motor running at the previous one.
+            self.run_command("cmd_velocity stop", self.device.velocity_stop)
+
+    def _deadman(self) -> None:
+        d = self.device
+        if not (d.streaming or d.stream_locked):
+            return
+        seen = self.velocity_seen
+        if seen is not None and time.monotonic() - seen <= self.command_timeout_s:
+            return
+        was_streaming = d.streaming
+        ok, message, _ = self.run_command("cmd_velocity deadman stop", d.velocity_stop)
+        if was_streaming:
+            if ok:
+                self.get_logger().info(
+                    f"no cmd_velocity for {self.command_timeout_s} s: speed setpoint 0"
+                )
+            else:
+                self.get_logger().warn(message, throttle_duration_sec=2.0)
+
+    # ------------------------------------------------------------ lifeguard
+    def _feed_lifeguard(self) -> None:
+        if self.read_only or not self.channel.connected:
+            return
+        time_ms = self.lifeguard_time_ms()
+        if not time_ms:
+            return
+        try:
+            self.device.feed_lifeguard(time_ms)
+        except LinkError as err:  # the poll reports the link; nothing else to do here
+            self.get_logger().warn(f"lifeguard feed failed: {err}", throttle_duration_sec=5.0)
+
+
+class MotecBusNode(Node):
+    """The serial bus shared by every drive node of the process."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(BUS_NODE_NAME, **kwargs)
+        p = self.declare_parameter
+        p("serial_port", "/dev/ttyUSB0", _descriptor("serial device path or pyserial URL", STRING))
+        p("baudrate", DEFAULT_BAUDRATE, _descriptor("serial baud rate", INT, 300, 4_000_000))
+        p("parity", "N", _descriptor("N, E or O", STRING))
+        p("stopbits", 1, _descriptor("1 or 2", INT, 1, 2))
+        p(
+            "timeout_s",
+            DEFAULT_TIMEOUT_S,
+            _descriptor("reply timeout per transaction", DOUBLE, 0.01, 10.0),
+        )
+        p("unit_ids", [1], _descriptor("drives on the bus (1-31), one node each", INT_ARRAY))
+        p("read_only", False, _descriptor("refuse ~/disable_all", BOOL))
+        self.unit_ids = [int(u) for u in self.get_parameter("unit_ids").value]
+        if not self.unit_ids or len(set(self.unit_ids)) != len(self.unit_ids):
+            raise ValueError(f"unit_ids {self.unit_ids} must be distinct and not empty")
+        for unit in self.unit_ids:
+            if unit not in UNIT_IDS:
+                raise ValueError(f"unit id {unit} outside 1-31 (the manual's range)")
+        parity = str(self.get_parameter("parity").value).upper()
+        if parity not in ("N", "E", "O"):
+            raise ValueError(f"parity {parity!r} is not N, E or O")
+        self.read_only = bool(self.get_parameter("read_only").value)
+        self.settings = SerialSettings(
+            str(self.get_parameter("serial_port").value),
+            int(self.get_parameter("baudrate").value),
+            parity,
+            int(self.get_parameter("stopbits").value),
+            timeout_s=float(self.get_parameter("timeout_s").value),
+        )
+        self.link = ModbusLink(self.settings)
+        self.broadcast = DeviceChannel(self.link, BROADCAST_UNIT, retries=0)
+        self.create_service(Trigger, "~/disable_all", self._disable_all)
+
+    def bus_parameters(self) -> list[Parameter]:
+        """The bus settings, for the drive nodes' own (informational) parameters."""
+        return [self.get_parameter(name) for name in BUS_PARAMETERS]
+
+    def _disable_all(self, _request: Any, response: Any) -> Any:
+        if self.read_only:
+            response.success, response.message = False, "disable_all refused: read_only is set"
+            return response
+        try:
+            disable_all(self.broadcast)
+        except LinkError as err:
+            response.success, response.message = False, f"disable_all failed: {err}"
+            return response
+        response.success = True
+        response.message = "disable_all: broadcast 0x28 = 0 sent (drives do not answer a broadcast)"
+        return response
+
+
+def _said(response: Any, what: str) -> None:
+    response.message += f" ({what})"
+
+
+def _only_board_zero(board: int, index: int) -> int:
+    if board != 0:
+        raise CommandRejected(f"board {board} refused: the drive has one board (board 0)")
+    return index
+
+
+def _interrupt(_signum: int, _frame: Any) -> None:
+    raise KeyboardInterrupt
+
+
+def main(args: Sequence[str] | None = None) -> None:
+    # Our own SIGINT / SIGTERM handling: rclpy's would shut the context down while the
+    # drives' threads still publish; here the drives stop first, then the context.
+    rclpy.init(
+        args=list(args) if args is not None else None,
+        signal_handler_options=SignalHandlerOptions.NO,
+    )
+    signal.signal(signal.SIGINT, _interrupt)
+    signal.signal(signal.SIGTERM, _interrupt)
+    bus: MotecBusNode | None = None
+    drives: list[MotecDriveNode] = []
+    executor: MultiThreadedExecutor | None = None
+    try:
+        bus = MotecBusNode()
+        for unit in bus.unit_ids:
+            drives.append(MotecDriveNode(unit, bus.link, bus.bus_parameters()))
+        executor = MultiThreadedExecutor(num_threads=max(4, min(32, 2 + 3 * len(drives))))
+        for node in (bus, *drives):
+            executor.add_node(node)
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if executor is not None:
+            executor.shutdown()
+        # Stop every drive's threads at once: the context may already be shut down, and
+        # a drive still publishing while another one closes would log errors.
+        closers = [threading.Thread(target=drive.close) for drive in drives]
+        for closer in closers:
+            closer.start()
+        for closer in closers:
+            closer.join()
+        for drive in drives:
+            drive.destroy_node()
+        if bus is not None:
+            bus.link.close()
+            bus.destroy_node()
+        try_shutdown()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,504 @@
+"""Simulator of MOTEC β drives on one RS-485 bus, on the shared simulator base.
+
+Behaviour (the manual where it says something, the simulator's own choice where it is
+silent; the choices are listed in the README's MOTEC section):
+
+- one serial server, several drives (unit ids 1-31); a unit id nobody owns gets no
+  reply, a broadcast write (unit 0) is applied by every drive that is plugged in and
+  answered by none (§2.4-2.6); ``unplug(unit)`` takes one drive off the bus (silent, not
+  ticking: powered off or cable pulled) and ``plug(unit)`` puts it back;
+- the parameter table is contiguous: every holding address 0x00-0x114 reads (unnamed
+  ones as 0), anything beyond answers 0x02; writes are accepted only at the registers the
+  map names writable (else 0x02), within their ranges (else 0x03); a request that cuts
+  a 32-bit value in two answers 0x02; FC 04 / 15 answer 0x01 (§2.7). Coils and inputs are
+  16 bits wide (OUTPUT1-3, INPUT1-8, the rest 0); FC 05 beyond OUTPUT3 answers 0x02;
+- powers up in operation mode 1 (not network), position control, released, at position
+  0, no fault; motion over Modbus needs network mode (§4): elsewhere the motor stays;
+- position control: 0x29 = 1 starts a trapezoidal move (ramps at ``accel_rpm_s`` up to
+  |0xAE| rpm, or ``move_speed_rpm`` when 0xAE is 0) to setpoint + distance (0x2D = 0) or
+  to the distance as a target (0x2D = 1); 0x29 = 0 decelerates to a stop. Starting
+  without network mode, position control and enable answers 0x03;
+- velocity control: the speed ramps to 0xAE at ``accel_rpm_s`` (§4.2) while enabled;
+- releasing (0x28 = 0) stops the motor at once (it coasts in reality) and clears a
+  latched fault; enabling while a fault is latched answers 0x03;
+- lifeguard (§3.4): with 0x112 != 0 and 0x114 = 9999 in network mode, a drive that gets
+  no write (any FC 05/06/16 to its unit id or to the broadcast id) for 0x112 ms latches
+  fault ``lifeguard_fault_code`` (1, the manual's "有故障") and releases the motor.
+  Reads do not feed it (the strictest reading of "没有指令信号");
+- ``inject_fault(code)`` latches any fault (and releases), ``set_input`` drives an
+  input (0xC5 and FC 02 agree), ``set_analog`` the analog input 0x109; outputs switched
+  by FC 05, or FC 06 at 0x79 / 0xC6 (low 3 bits), show in 0x79, 0xC6 and FC 01 alike;
+- 0x35 = 1 counts a save to flash and reads back 0 (§3.5);
+- replies after ``reply_delay_s`` (0 by default: the manual states none); the whole bus
+  can withhold its replies (``withhold_replies``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import shutil
+import subprocess
+import tempfile
+import time
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from bridge_core.codec import decode
+from bridge_core.registers import Table
+from bridge_core.sim_base import (
+    ILLEGAL_ADDRESS,
+    ILLEGAL_VALUE,
+    TICK_S,
+    SimulatedDevice,
+    Simulator,
+    WriteRecord,
+    serve_until_signalled,
+)
+
+from .registers import (
+    BIT_TABLE_WIDTH,
+    CONTROL_MODE_POSITION,
+    CONTROL_MODE_VELOCITY,
+    DEFAULT_BAUDRATE,
+    FAULT_NONE,
+    FAULT_PRESENT,
+    I16_MAX,
+    INPUTS,
+    LAST_PARAMETER,
+    LIFEGUARD_ACTIVE,
+    MOTEC_MAP,
+    MOTION_ABSOLUTE,
+    OPERATION_MODE_NETWORK,
+    OUTPUTS,
+    UNIT_IDS,
+)
+
+DEFAULT_COUNTS_PER_REV = 10000
+DEFAULT_ACCEL_RPM_S = 6000.0
+DEFAULT_MOVE_SPEED_RPM = 600.0
+POWER_UP_OPERATION_MODE = 1  # anything but network: the user must select network mode
+LIFEGUARD_FAULT_CODE = FAULT_PRESENT
+OUTPUT_MASK = (1 << OUTPUTS) - 1
+I32_MIN, I32_MAX = -(1 << 31), (1 << 31) - 1
+_WRITABLE_HOLDING = {
+    address
+    for reg in MOTEC_MAP.in_table(Table.HOLDING)
+    if reg.access.writable
+    for address in reg.addresses()
+}
+_OUTPUT_WORDS = ("output_word", "output_state")
+
+
+@dataclass
+class Move:
+    """A position move in progress (counts); ``target`` None = decelerate to a stop."""
+
+    target: float | None
+    max_rpm: float
+
+
+class MotecSimDrive(SimulatedDevice):
+    """One MOTEC β drive: registers, motion, IO, lifeguard and faults."""
+
+    def __init__(
+        self,
+        unit_id: int = 1,
+        *,
+        counts_per_rev: int = DEFAULT_COUNTS_PER_REV,
+        accel_rpm_s: float = DEFAULT_ACCEL_RPM_S,
+        move_speed_rpm: float = DEFAULT_MOVE_SPEED_RPM,
+        lifeguard_fault_code: int = LIFEGUARD_FAULT_CODE,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        if unit_id not in UNIT_IDS:
+            raise ValueError(f"unit id {unit_id} outside 1-31 (§1.1.2)")
+        super().__init__(
+            MOTEC_MAP,
+            unit_id,
+            extra_addresses={
+                Table.HOLDING: range(0, LAST_PARAMETER + 1),
+                Table.COIL: range(BIT_TABLE_WIDTH),
+                Table.DISCRETE_INPUT: range(BIT_TABLE_WIDTH),
+            },
+        )
+        self.counts_per_rev = counts_per_rev
+        self.accel_rpm_s = accel_rpm_s
+        self.move_speed_rpm = move_speed_rpm
+        self.lifeguard_fault_code = lifeguard_fault_code
+        self._clock = clock
+        self.position = 0.0  # counts
+        self.speed = 0.0  # rpm
+        self.move: Move | None = None
+        self.fault = FAULT_NONE
+        self.outputs = 0
+        self.forced_inputs = 0
+        self.analog = 0
+        self.saves = 0
+        self.lifeguard_trips = 0
+        self.last_command = clock()
+        self.write_guards.append(self._guard)
+        self.write_hooks.append(self._on_write)
+        with self.lock:
+            self.set("operation_mode", POWER_UP_OPERATION_MODE)
+            self.set("control_mode", CONTROL_MODE_POSITION)
+            self._update_registers()
+
+    # ------------------------------------------------------------ for tests / the CLI
+    def inject_fault(self, code: int) -> None:
+        """Latch fault ``code`` and release the motor, as a drive alarm does."""
+        with self.lock:
+            self._trip(code)
+            self._update_registers()
+
+    def set_input(self, number: int, on: bool) -> None:
+        """Drive INPUT ``number`` (1-8) high or low."""
+        if not 1 <= number <= INPUTS:
+            raise ValueError(f"input {number} outside 1-{INPUTS}")
+        with self.lock:
+            bit = 1 << (number - 1)
+            self.forced_inputs = self.forced_inputs | bit if on else self.forced_inputs & ~bit
+            self._update_registers()
+
+    def set_position(self, counts: float) -> None:
+        """Put the motor at ``counts`` (as if turned by hand while released)."""
+        with self.lock:
+            self.position = float(counts)
+            self._update_registers()
+
+    def set_analog(self, raw: int) -> None:
+        with self.lock:
+            self.analog = raw
+            self._update_registers()
+
+    @property
+    def enabled(self) -> bool:
+        return bool(self.get("enable"))
+
+    def value(self, name: str) -> int:
+        value = self.get(name)
+        assert isinstance(value, int)
+        return value
+
+    # ------------------------------------------------------------ Modbus behaviour
+    def _guard(self, record: WriteRecord) -> int | None:
+        end = record.address + len(record.values)
+        if record.table is Table.COIL:
+            return None if end <= OUTPUTS else ILLEGAL_ADDRESS
+        if any(a not in _WRITABLE_HOLDING for a in range(record.address, end)):
+            return ILLEGAL_ADDRESS  # an unnamed parameter: never written
+        new: dict[str, int] = {}
+        for reg in MOTEC_MAP.in_table(Table.HOLDING):
+            if reg.address >= record.address and reg.end <= end:
+                words = record.values[reg.address - record.address : reg.end - record.address]
+                value = decode(reg, list(words))
+                assert isinstance(value, int)
+                if (reg.minimum is not None and value < reg.minimum) or (
+                    reg.maximum is not None and value > reg.maximum
+                ):
+                    return ILLEGAL_VALUE
+                new[reg.name] = value
+        if new.get("enable") == 1 and self.fault != FAULT_NONE:
+            return ILLEGAL_VALUE  # a latched fault: release (0x28 = 0) first
+        if new.get("start") == 1 and not self._may_move(CONTROL_MODE_POSITION):
+            return ILLEGAL_VALUE
+        return None
+
+    def _may_move(self, control_mode: int) -> bool:
+        return (
+            self.value("operation_mode") == OPERATION_MODE_NETWORK
+            and self.value("control_mode") == control_mode
+            and self.enabled
+            and self.fault == FAULT_NONE
+        )
+
+    def _on_write(self, record: WriteRecord) -> None:
+        self.last_command = self._clock()  # any accepted write feeds the lifeguard
+        if record.table is Table.COIL:
+            bit = 1 << record.address
+            self.outputs = self.outputs | bit if record.values[0] else self.outputs & ~bit
+            self._update_registers()
+            return
+        end = record.address + len(record.values)
+        written = {
+            reg.name
+            for reg in MOTEC_MAP.in_table(Table.HOLDING)
+            if reg.address >= record.address and reg.end <= end
+        }
+        if "enable" in written and not self.enabled:
+            self.speed, self.move = 0.0, None
+            self.fault = FAULT_NONE  # releasing acknowledges a latched fault
+        if written & {"operation_mode", "control_mode"}:
+            # A mode change ends any move: decelerate to a stop first.
+            self.move = Move(None, 0.0) if self.speed else None
+        if "start" in written:
+            if self.value("start") == 1:
+                self._start_move()
+            elif self.move is not None:
+                self.move = Move(None, 0.0) if self.speed else None
+        if "save_to_flash" in written and self.value("save_to_flash") == 1:
+            self.saves += 1
+            self.set("save_to_flash", 0)
+        for name in _OUTPUT_WORDS:
+            if name in written:
+                self.outputs = self.value(name) & OUTPUT_MASK
+        self._update_registers()
+
+    def _start_move(self) -> None:
+        distance = float(self.value("target_distance"))
+        if self.value("motion_mode") == MOTION_ABSOLUTE:
+            target = distance
+        else:
+            target = self.position + distance
+        limit = abs(self.value("speed_setpoint")) or self.move_speed_rpm
+        self.move = Move(target, float(limit))
+
+    def _trip(self, code: int) -> None:
+        self.fault = code
+        self.set("enable", 0)
+        self.speed, self.move = 0.0, None
+
+    # ------------------------------------------------------------ time
+    def tick(self, dt: float) -> None:
+        with self.lock:
+            self._check_lifeguard()
+            self._advance(dt)
+            self._update_registers()
+
+    def _check_lifeguard(self) -> None:
+        time_ms = self.value("lifeguard_time")
+        if (
+            time_ms > 0
+            and self.value("lifeguard_mode") == LIFEGUARD_ACTIVE
+            and self.value("operation_mode") == OPERATION_MODE_NETWORK
+            and self.fault == FAULT_NONE
+            and self._clock() - self.last_command > time_ms / 1000.0
+        ):
+            self.lifeguard_trips += 1
+            self._trip(self.lifeguard_fault_code)
+
+    def _advance(self, dt: float) -> None:
+        network = self.value("operation_mode") == OPERATION_MODE_NETWORK
+        if not self.enabled or self.fault != FAULT_NONE or not network or dt <= 0:
+            self.speed = 0.0
+            return
+        if self.move is not None:  # a move, or the deceleration after a stop / mode change
+            self._advance_move(self.move, dt)
+        elif self.value("control_mode") == CONTROL_MODE_VELOCITY:
+            target = float(self.value("speed_setpoint"))
+            accel = self.accel_rpm_s * dt
+            self.speed += max(-accel, min(accel, target - self.speed))
+            self.position += self.speed / 60.0 * self.counts_per_rev * dt
+        else:
+            self.speed = 0.0  # position control, no move: hold
+
+    def _advance_move(self, move: Move, dt: float) -> None:
+        """Trapezoid, computed online: never faster than the distance left allows."""
+        counts_per_rpm_s = self.counts_per_rev / 60.0  # counts/s per rpm
+        accel = self.accel_rpm_s * dt
+        if move.target is None:
+            desired = 0.0
+        else:
+            remaining = move.target - self.position
+            a = self.accel_rpm_s * counts_per_rpm_s  # counts/s^2
+            reachable = math.sqrt(2.0 * a * abs(remaining)) / counts_per_rpm_s  # rpm
+            desired = math.copysign(min(move.max_rpm, reachable), remaining)
+        self.speed += max(-accel, min(accel, desired - self.speed))
+        before = self.position
+        self.position += self.speed * counts_per_rpm_s * dt
+        if move.target is None:
+            if self.speed == 0.0:
+                self.move = None
+            return
+        crossed = (before - move.target) * (self.position - move.target) <= 0
+        if crossed or abs(move.target - self.position) < 0.5:
+            self.position, self.speed, self.move = move.target, 0.0, None
+
+    def _update_registers(self) -> None:
+        position = max(I32_MIN, min(I32_MAX, round(self.position)))
+        self.set("position_actual", position)
+        self.set("position_setpoint", position)  # perfect tracking
+        self.set("speed_actual", max(-I16_MAX, min(I16_MAX, round(self.speed))))
+        self.set("fault_code", self.fault)
+        self.set("input_word", self.forced_inputs)
+        self.set("analog_input", self.analog)
+        for name in _OUTPUT_WORDS:
+            self.set(name, self.outputs)
+        for n in range(1, OUTPUTS + 1):
+            self.set(f"output_{n}", bool(self.outputs >> (n - 1) & 1))
+        for n in range(1, INPUTS + 1):
+            self.set(f"input_{n}", bool(self.forced_inputs >> (n - 1) & 1))
+
+
+class MotecSimulator(Simulator):
+    """Several drives on one serial server; drives can be unplugged and plugged back."""
+
+    def __init__(self, drives: Sequence[MotecSimDrive], *, tick_s: float = TICK_S) -> None:
+        super().__init__(drives, tick_s=tick_s)
+        self.drives: dict[int, MotecSimDrive] = {d.unit_id: d for d in drives}
+        self.unplugged: set[int] = set()
+
+    def drive(self, unit_id: int) -> MotecSimDrive:
+        return self.drives[unit_id]
+
+    def unplug(self, unit_id: int) -> None:
+        """The drive goes silent (and stops ticking) until ``plug``."""
+        self.unplugged.add(unit_id)
+        self._rebuild()
+
+    def plug(self, unit_id: int) -> None:
+        self.unplugged.discard(unit_id)
+        self._rebuild()
+
+    def _rebuild(self) -> None:
+        # Rebinding (not mutating) the dict: the server and the tick loop read
+        # ``devices`` from another thread; an iteration in progress keeps the old one.
+        self.devices = {u: d for u, d in self.drives.items() if u not in self.unplugged}
+
+    def start_serial(
+        self,
+        port: str,
+        baudrate: int = DEFAULT_BAUDRATE,
+        parity: str = "N",
+        stopbits: int = 1,
+    ) -> None:
+        super().start_serial(port, baudrate, parity, stopbits)
+
+
+def make_simulator(
+    unit_ids: Iterable[int] = (1,),
+    *,
+    reply_delay_s: float = 0.0,
+    counts_per_rev: int = DEFAULT_COUNTS_PER_REV,
+    accel_rpm_s: float = DEFAULT_ACCEL_RPM_S,
+    move_speed_rpm: float = DEFAULT_MOVE_SPEED_RPM,
+) -> MotecSimulator:
+    ids = list(unit_ids)
+    if len(set(ids)) != len(ids) or not ids:
+        raise ValueError(f"unit ids {ids} must be distinct and not empty")
+    sim = MotecSimulator(
+        [
+            MotecSimDrive(
+                u,
+                counts_per_rev=counts_per_rev,
+                accel_rpm_s=accel_rpm_s,
+                move_speed_rpm=move_speed_rpm,
+            )
+            for u in ids
+        ]
+    )
+    sim.reply_delay_s = reply_delay_s
+    return sim
+
+
+class PtyPair:
+    """Two linked pseudo-terminals from socat: ``link`` for the bridge, one for the server."""
+
+    def __init__(self, link: Path) -> None:
+        socat = shutil.which("socat")
+        if socat is None:
+            raise RuntimeError("--pty needs socat (apt-get install socat)")
+        self._tmp = tempfile.TemporaryDirectory()
+        self.link = link
+        self.device_end = Path(self._tmp.name) / "device"
+        self.proc = subprocess.Popen(
+            [socat, f"pty,raw,echo=0,link={link}", f"pty,raw,echo=0,link={self.device_end}"],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
+        deadline = time.monotonic() + 10
+        while not (link.exists() and self.device_end.exists()):
+            if self.proc.poll() is not None or time.monotonic() > deadline:
+                self.close()
+                raise RuntimeError("socat did not create the pty pair")
+            time.sleep(0.01)
+
+    def close(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.terminate()
+            self.proc.wait(5)
+        self._tmp.cleanup()
+
+
+def _unit_list(text: str) -> list[int]:
+    try:
+        ids = [int(part) for part in text.split(",") if part.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a comma-separated id list") from None
+    if not ids or any(u not in UNIT_IDS for u in ids) or len(set(ids)) != len(ids):
+        raise argparse.ArgumentTypeError(f"unit ids {text!r}: distinct ids in 1-31")
+    return ids
+
+
+def _fault(text: str) -> tuple[int, int]:
+    unit, _, code = text.partition(":")
+    try:
+        return int(unit), int(code, 0)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--fault {text!r}: UNIT:CODE, e.g. 2:0x31") from None
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description="MOTEC β servo drives on one Modbus RTU bus")
+    where = parser.add_mutually_exclusive_group(required=True)
+    where.add_argument("--serial", help="serve on this serial port or pty path")
+    where.add_argument(
+        "--pty",
+        type=Path,
+        help="create a socat pty pair and link the bridge's end here (e.g. /tmp/motec)",
+    )
+    parser.add_argument("--baudrate", type=int, default=DEFAULT_BAUDRATE)
+    parser.add_argument("--parity", default="N", choices=("N", "E", "O"))
+    parser.add_argument("--stopbits", type=int, default=1, choices=(1, 2))
+    parser.add_argument(
+        "--unit-ids", type=_unit_list, default=[1], help="drives on the bus, e.g. 1,2,3"
+    )
+    parser.add_argument("--reply-delay-ms", type=float, default=0.0)
+    parser.add_argument("--counts-per-rev", type=int, default=DEFAULT_COUNTS_PER_REV)
+    parser.add_argument("--accel-rpm-s", type=float, default=DEFAULT_ACCEL_RPM_S)
+    parser.add_argument("--move-speed-rpm", type=float, default=DEFAULT_MOVE_SPEED_RPM)
+    parser.add_argument(
+        "--fault", type=_fault, action="append", default=[], help="latch a fault: UNIT:CODE"
+    )
+    parser.add_argument("--write-log", type=Path, help="append every accepted write (JSON lines)")
+    args = parser.parse_args(argv)
+    if args.reply_delay_ms < 0:
+        parser.error("--reply-delay-ms must be >= 0")
+    if args.counts_per_rev <= 0 or args.accel_rpm_s <= 0 or args.move_speed_rpm <= 0:
+        parser.error("--counts-per-rev, --accel-rpm-s and --move-speed-rpm must be > 0")
+    sim = make_simulator(
+        args.unit_ids,
+        reply_delay_s=args.reply_delay_ms / 1000.0,
+        counts_per_rev=args.counts_per_rev,
+        accel_rpm_s=args.accel_rpm_s,
+        move_speed_rpm=args.move_speed_rpm,
+    )
+    for unit, code in args.fault:
+        if unit not in sim.drives:
+            parser.error(f"--fault: no drive {unit} on the bus")
+        sim.drive(unit).inject_fault(code)
+    log = args.write_log.open("a") if args.write_log else None
+    for drive in sim.drives.values():
+        drive.log_file = log
+    pair = PtyPair(args.pty) if args.pty else None
+    try:
+        shown = str(args.pty) if pair else args.serial
+        port = str(pair.device_end) if pair else args.serial
+        sim.start_serial(port, args.baudrate, args.parity, args.stopbits)
+        ids = ",".join(str(u) for u in args.unit_ids)
+        serve_until_signalled(
+            sim,
+            f"motec_sim listening on {shown} (units {ids}, {args.baudrate} baud, "
+            f"reply delay {args.reply_delay_ms:g} ms)",
+        )
+    finally:
+        sim.stop()
+        if pair is not None:
+            pair.close()
+        if log is not None:
+            log.close()
+
+
+if __name__ == "__main__":
+    main()

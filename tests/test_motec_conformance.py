@@ -1,0 +1,498 @@
+"""The MOTEC manual's example frames, byte-exact with their CRC, over a real pty pair.
+
+An RTU replay peer on the device end of a socat pty pair answers each request frame the
+bridge must send (CRC included) with the reply the step names. Frames are written
+without their CRC and completed by pymodbus's RTU framer (never typed by hand); the
+manual's own CRC routine (§6, getCRC16) is checked against it. Unit id 3, not the
+manuals' usual 1, so the CRCs are specific. Also: the register map against the manual,
+and refusals that never reach the wire.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from typing import Any
+
+import pytest
+import serial
+from pymodbus.framer import FramerRTU
+
+from bridge_core.channel import Priority
+from bridge_core.errors import CommandRejected, DeviceException
+from bridge_core.link import DeviceChannel, ModbusLink, SerialSettings
+from bridge_core.registers import Table, ValueType, WordOrder
+from motec_bridge.device import (
+    CONFIG_PLAN,
+    MODE_PLAN,
+    STATUS_PLAN,
+    DriveScale,
+    MotecDevice,
+    disable_all,
+)
+from motec_bridge.registers import (
+    CONTROL_MODE_POSITION,
+    CONTROL_MODE_VELOCITY,
+    MOTEC_LIMITS,
+    MOTEC_MAP,
+    fault_text,
+    output_coil,
+)
+
+from .support.serial_pair import socat_pair
+
+BAUD = 115200
+UNIT = 3
+
+
+def frame(text: str, unit: int = UNIT) -> bytes:
+    """``unit`` + the hex PDU + the CRC pymodbus computes (low byte first on the wire)."""
+    body = bytes([unit]) + bytes.fromhex(text)
+    return body + FramerRTU.compute_CRC(body).to_bytes(2, "big")
+
+
+def get_crc16(data: bytes) -> int:
+    """The manual's appendix §6 routine, transcribed: CRC-16, poly 0xA001, init 0xFFFF."""
+    crc = 0xFFFF
+    for byte in data:
+        crc ^= byte
+        for _ in range(8):
+            crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
+    return crc
+
+
+# ---------------------------------------------------------------- RTU replay peer
+
+
+@dataclass
+class Step:
+    request: bytes
+    reply: bytes  # b"": no reply (broadcast)
+    meaning: str = ""
+
+
+@dataclass
+class RtuReplay:
+    port: str
+    steps: list[Step]
+    received: list[bytes] = field(default_factory=list)
+    mismatches: list[str] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        self._serial = serial.Serial(self.port, BAUD, timeout=3.0)
+        self._thread = threading.Thread(target=self._serve, daemon=True)
+        self._thread.start()
+
+    def _serve(self) -> None:
+        for step in self.steps:
+            data = self._serial.read(len(step.request))
+            self.received.append(data)
+            if data != step.request:
+                self.mismatches.append(
+                    f"{step.meaning}: expected {step.request.hex(' ')}, got {data.hex(' ')}"
+                )
+                return
+            if step.reply:
+                self._serial.write(step.reply)
+                self._serial.flush()
+
+    def close(self) -> None:
+        self._thread.join(5)
+        self._serial.close()
+
+
+@contextmanager
+def replay(steps: Sequence[Step], unit: int = UNIT) -> Iterator[tuple[MotecDevice, DeviceChannel]]:
+    with socat_pair() as (bridge_end, device_end, _):
+        peer = RtuReplay(device_end, list(steps))
+        link = ModbusLink(SerialSettings(bridge_end, BAUD, timeout_s=1.0))
+        channel = DeviceChannel(link, unit, retries=0)
+        try:
+            yield MotecDevice(channel), channel
+        finally:
+            link.close()
+            peer.close()
+    assert peer.mismatches == []
+    assert peer.received == [s.request for s in steps]
+
+
+def run(steps: Sequence[Step], action: Callable[[MotecDevice], Any]) -> Any:
+    with replay(steps) as (device, _):
+        return action(device)
+
+
+def echo(pdu: str, meaning: str) -> Step:
+    """FC 05 / 06: the reply repeats the request (§2.4, §2.5)."""
+    return Step(frame(pdu), frame(pdu), meaning)
+
+
+def modes_read(operation: int, control: int, enabled: int) -> Step:
+    """The fresh mode read (0x24-0x29) some commands do first, and its reply."""
+    words = [operation, control, 0, 0, enabled, 0]
+    data = "".join(f"{w:04X}" for w in words)
+    return Step(frame("03 00 24 00 06"), frame(f"03 0C {data}"), "read 0x24-0x29")
+
+
+# ---------------------------------------------------------------- CRC
+
+
+def test_manual_crc_routine_is_pymodbus_crc_low_byte_first() -> None:
+    # §6's getCRC16 returns the CRC; the §2 tables list "CRC 校验码高位" first, but the
+    # drive is "与 MODBUS RTU 通讯规约相兼容" (§1.2): the low byte goes first on the wire.
+    for text in ("06 00 24 00 00", "06 01 14 27 0F", "10 00 26 00 02 04 12 34 56 78"):
+        for unit in (1, 3, 31):
+            body = bytes([unit]) + bytes.fromhex(text)
+            wire = frame(text, unit)
+            assert wire[-2:] == get_crc16(body).to_bytes(2, "little")
+            assert FramerRTU.check_CRC(body, int.from_bytes(wire[-2:], "big"))
+
+
+# ---------------------------------------------------------------- §4.1 position mode
+
+
+def test_position_mode_sequence_of_section_4_1() -> None:
+    steps = [
+        echo("06 00 24 00 00", "step 1: network operation mode"),
+        echo("06 00 25 00 02", "step 2: position control"),
+        modes_read(0, CONTROL_MODE_POSITION, 0),
+        echo("06 00 28 00 01", "step 4: enable"),
+        modes_read(0, CONTROL_MODE_POSITION, 1),
+        echo("06 00 2D 00 00", "step 3: relative"),
+        Step(
+            frame("10 00 26 00 02 04 12 34 56 78"),
+            frame("10 00 26 00 02"),
+            "step 5: distance 0x12345678, high word first (§3.1.2 note)",
+        ),
+        echo("06 00 29 00 01", "step 6: start"),
+    ]
+
+    def act(d: MotecDevice) -> None:
+        d.set_control_mode(CONTROL_MODE_POSITION)
+        d.enable(True)
+        d.move(0x12345678, relative=True)
+
+    run(steps, act)
+
+
+def test_absolute_move_with_a_speed_limit_and_stop() -> None:
+    steps = [
+        modes_read(0, CONTROL_MODE_POSITION, 1),
+        echo("06 00 AE 01 2C", "speed limit 300 rpm"),
+        echo("06 00 2D 00 01", "absolute"),
+        Step(
+            frame("10 00 26 00 02 04 FF FF EC 78"),
+            frame("10 00 26 00 02"),
+            "target -5000",
+        ),
+        echo("06 00 29 00 01", "start"),
+        modes_read(0, CONTROL_MODE_POSITION, 1),
+        echo("06 00 29 00 00", "stop: 0x29 is the move / stop register"),
+    ]
+
+    def act(d: MotecDevice) -> str:
+        d.move(-5000, relative=False, speed_rpm=300.0)
+        return d.stop()
+
+    assert "0x29 = 0" in run(steps, act)
+
+
+def test_setpoint_position_speed_and_fault_reads() -> None:
+    steps = [
+        Step(frame("03 00 AA 00 02"), frame("03 04 FF FF FF 9C"), "§4.1 step 7: setpoint -100"),
+        Step(frame("03 00 AC 00 02"), frame("03 04 12 34 56 78"), "§3.2: position 0x12345678"),
+        Step(frame("03 00 AF 00 01"), frame("03 02 FF 38"), "§4.2 step 5: -200 rpm"),
+        Step(frame("03 00 C8 00 02"), frame("03 04 00 00 00 01"), "§4.3: fault 1"),
+        Step(frame("03 01 09 00 01"), frame("03 02 01 F4"), "§3.3.4: analog input 500"),
+    ]
+
+    def act(d: MotecDevice) -> list[Any]:
+        names = ("position_setpoint", "position_actual", "speed_actual", "fault_code")
+        values = [d.read_named(name)[name] for name in names]
+        return [*values, d.read_named("analog_input")["analog_input"]]
+
+    assert run(steps, act) == [-100, 0x12345678, -200, 1, 500]
+    assert fault_text(1) == "fault (有故障)" and fault_text(0) == "no fault (无故障)"
+
+
+# ---------------------------------------------------------------- §4.2 velocity mode
+
+
+def test_velocity_mode_sequence_of_section_4_2() -> None:
+    steps = [
+        echo("06 00 24 00 00", "network operation mode"),
+        echo("06 00 AE 00 00", "speed setpoint 0 before velocity control (decision)"),
+        echo("06 00 25 00 01", "velocity control"),
+        modes_read(0, CONTROL_MODE_VELOCITY, 0),
+        echo("06 00 AE 00 00", "speed 0 again: enabling must not start the motor"),
+        echo("06 00 28 00 01", "enable"),
+        modes_read(0, CONTROL_MODE_VELOCITY, 1),
+        echo("06 00 AE FE D4", "-300 rpm (sign = direction)"),
+        echo("06 00 AE 00 00", "deadman: 0 rpm"),
+        echo("06 00 28 00 00", "release"),
+    ]
+
+    def act(d: MotecDevice) -> None:
+        d.set_control_mode(CONTROL_MODE_VELOCITY)
+        d.enable(True)
+        assert d.velocity(-300.2)
+        assert not d.velocity(-299.6)  # the same rpm: nothing sent
+        assert d.velocity_stop()
+        d.enable(False)
+
+    run(steps, act)
+
+
+# ---------------------------------------------------------------- §3.3 IO
+
+
+def test_io_frames_of_section_3_3() -> None:
+    steps = [
+        Step(frame("01 00 00 00 03"), frame("01 01 07"), "FC 01: OUTPUT1-3 all on"),
+        Step(frame("02 00 00 00 08"), frame("02 01 C0"), "FC 02: INPUT7, INPUT8"),
+        echo("05 00 02 FF 00", "§3.3.3's frame: coil 2 = OUTPUT3 on (decision)"),
+        echo("05 00 02 00 00", "OUTPUT3 off"),
+        echo("05 00 00 FF 00", "OUTPUT1 on"),
+    ]
+
+    def act(d: MotecDevice) -> tuple[Any, Any]:
+        outputs, inputs = d.read_outputs(), d.read_inputs()
+        d.set_output(3, True)
+        d.set_output(3, False)
+        d.set_output(1, True)
+        return outputs, inputs
+
+    outputs, inputs = run(steps, act)
+    assert outputs == (True, True, True)
+    assert inputs == (False,) * 6 + (True, True)
+    assert [output_coil(n) for n in (1, 2, 3)] == [0, 1, 2]
+
+
+def test_manual_nine_bit_reads_decode_with_the_bridge_bit_order() -> None:
+    # §3.3.1 / §3.3.2 read 9 bits from 0 and get 2 bytes: 07 00 and C0 00.
+    steps = [
+        Step(frame("01 00 00 00 09"), frame("01 02 07 00"), "§3.3.1"),
+        Step(frame("02 00 00 00 09"), frame("02 02 C0 00"), "§3.3.2"),
+    ]
+    with replay(steps) as (_, channel):
+        outputs = channel.read_bits(0, 9, Table.COIL, Priority.COMMAND)
+        inputs = channel.read_bits(0, 9, Table.DISCRETE_INPUT, Priority.COMMAND)
+    assert outputs == [True, True, True] + [False] * 6  # OUTPUT1-3
+    assert inputs == [False] * 6 + [True, True, False]  # INPUT7, INPUT8
+
+
+# ---------------------------------------------------------------- §3.1, §3.4, §3.5
+
+
+def test_lifeguard_save_and_analog_max_speed_frames() -> None:
+    steps = [
+        echo("06 01 12 01 F4", "§3.4.1: lifeguard time 500 ms"),
+        echo("06 01 14 27 0F", "§3.4.2: lifeguard mode 9999"),
+        echo("06 00 35 00 01", "§3.5: save to flash"),
+        echo("06 00 6D 0B B8", "§3.1.1: analog max speed 3000"),
+    ]
+
+    def act(d: MotecDevice) -> None:
+        d.arm_lifeguard(500)
+        d.save_to_flash()
+        d.set_analog_max_speed(3000)
+
+    run(steps, act)
+
+
+def test_broadcast_disable_gets_no_reply() -> None:
+    steps = [Step(frame("06 00 28 00 00", unit=0), b"", "broadcast release")]
+    with replay(steps, unit=0) as (_, channel):
+        disable_all(channel)
+        assert channel.stats.timeouts == 0
+
+
+def test_exception_reply_comes_back_by_name() -> None:
+    steps = [Step(frame("03 00 AC 00 02"), frame("83 02"), "refused read")]
+    with pytest.raises(DeviceException, match="ILLEGAL DATA ADDRESS") as raised:
+        run(steps, lambda d: d.read_named("position_actual"))
+    assert (raised.value.function_code, raised.value.exception_code) == (3, 2)
+
+
+# ---------------------------------------------------------------- the map against the manual
+
+
+def test_map_addresses_types_and_word_order() -> None:
+    expected = {
+        "operation_mode": (0x24, ValueType.U16),
+        "control_mode": (0x25, ValueType.U16),
+        "target_distance": (0x26, ValueType.I32),
+        "enable": (0x28, ValueType.U16),
+        "start": (0x29, ValueType.U16),
+        "motion_mode": (0x2D, ValueType.U16),
+        "save_to_flash": (0x35, ValueType.U16),
+        "analog_max_speed": (0x6D, ValueType.U16),
+        "output_word": (0x79, ValueType.U16),
+        "position_setpoint": (0xAA, ValueType.I32),
+        "position_actual": (0xAC, ValueType.I32),
+        "speed_setpoint": (0xAE, ValueType.I16),
+        "speed_actual": (0xAF, ValueType.I16),
+        "input_word": (0xC5, ValueType.U16),
+        "output_state": (0xC6, ValueType.U16),
+        "fault_code": (0xC8, ValueType.U32),
+        "analog_input": (0x109, ValueType.I16),
+        "lifeguard_time": (0x112, ValueType.U16),
+        "lifeguard_mode": (0x114, ValueType.U16),
+    }
+    holding = {r.name: r for r in MOTEC_MAP.in_table(Table.HOLDING)}
+    assert set(holding) == set(expected)
+    for name, (address, kind) in expected.items():
+        assert (holding[name].address, holding[name].value_type) == (address, kind), name
+    for reg in MOTEC_MAP:
+        assert reg.word_order is WordOrder.HIGH_FIRST
+        assert "§" in reg.doc, reg.name
+    read_only = {"position_setpoint", "position_actual", "speed_actual", "input_word"}
+    read_only |= {"fault_code", "analog_input"}
+    assert {n for n, r in holding.items() if not r.access.writable} == read_only
+    coils = MOTEC_MAP.in_table(Table.COIL)
+    inputs = MOTEC_MAP.in_table(Table.DISCRETE_INPUT)
+    assert [(r.name, r.address) for r in coils] == [(f"output_{n}", n - 1) for n in (1, 2, 3)]
+    assert [(r.name, r.address) for r in inputs] == [(f"input_{n}", n - 1) for n in range(1, 9)]
+    assert MOTEC_MAP["target_distance"].minimum == -(2**31 - 1)  # §5.1
+    assert MOTEC_LIMITS.function_codes == frozenset({1, 2, 3, 5, 6, 16})
+
+
+def test_parameter_numbers_of_sections_3_4_and_5() -> None:
+    # Address = parameter number; a touch panel adds 1 (§5.2).
+    assert MOTEC_MAP["lifeguard_time"].address == 274  # Pr.274
+    assert MOTEC_MAP["lifeguard_mode"].address == 276  # Pr.276
+    assert MOTEC_MAP["enable"].address == 4100 // 100 - 1 == 40  # panel 4100 -> Pr.40
+    assert MOTEC_MAP["start"].address == 4200 // 100 - 1 == 41  # panel 4200 -> Pr.41
+    assert MOTEC_MAP["target_distance"].address == 39 - 1 == 38  # panel 39 -> Pr.38-39
+    assert MOTEC_MAP["speed_setpoint"].address == 175 - 1 == 174  # panel 175 -> Pr.174
+
+
+def test_poll_plans() -> None:
+    assert [(r.address, r.count) for r in STATUS_PLAN] == [
+        (0x24, 10),
+        (0xAA, 6),
+        (0xC5, 5),
+        (0x109, 1),
+    ]
+    assert [(r.address, r.count) for r in CONFIG_PLAN] == [(0x6D, 1), (0x112, 3)]
+    assert [(r.address, r.count) for r in MODE_PLAN] == [(0x24, 6)]
+
+
+# ---------------------------------------------------------------- refusals write nothing
+
+
+class FakeIO:
+    """A RegisterIO that answers mode reads with ``modes`` and records writes."""
+
+    def __init__(self, operation: int = 0, control: int = 2, enabled: int = 1) -> None:
+        self.modes = [operation, control, 0, 0, enabled, 0]
+        self.writes: list[tuple[str, int, Any]] = []
+
+    def read_registers(
+        self, address: int, count: int, table: Table = Table.HOLDING, priority: Any = None
+    ) -> list[int]:
+        assert (address, count) == (0x24, 6)
+        return list(self.modes)
+
+    def read_bits(self, *args: Any, **kwargs: Any) -> list[bool]:
+        raise AssertionError("no bit reads expected")
+
+    def write_register(self, address: int, value: int) -> None:
+        self.writes.append(("06", address, value))
+
+    def write_registers(self, address: int, values: Sequence[int]) -> None:
+        self.writes.append(("16", address, list(values)))
+
+    def write_coil(self, address: int, on: bool) -> None:
+        self.writes.append(("05", address, on))
+
+    def write_coils(self, address: int, values: Sequence[bool]) -> None:
+        raise AssertionError("the drive has no FC 15")
+
+    def mask_write_register(self, address: int, and_mask: int, or_mask: int) -> None:
+        raise AssertionError("the drive has no FC 22")
+
+    def read_write_registers(self, *args: Any) -> list[int]:
+        raise AssertionError("the drive has no FC 23")
+
+
+@pytest.mark.parametrize(
+    ("modes", "action", "reason"),
+    [
+        ((0, 2, 1), lambda d: d.move(2**31, relative=True), "outside"),
+        ((0, 2, 1), lambda d: d.move(1.5, relative=True), "whole number"),
+        ((0, 2, 1), lambda d: d.move(10, relative=True, speed_rpm=math.nan), "finite"),
+        ((0, 2, 1), lambda d: d.move(10, relative=True, speed_rpm=5000), "max_speed_rpm"),
+        ((0, 2, 1), lambda d: d.move(10, relative=True, speed_rpm=-5), "negative"),
+        ((1, 2, 1), lambda d: d.move(10, relative=True), "network mode"),
+        ((0, 1, 1), lambda d: d.move(10, relative=True), "position control"),
+        ((0, 2, 0), lambda d: d.move(10, relative=True), "disabled"),
+        ((0, 1, 0), lambda d: d.velocity(100), "velocity control"),
+        ((0, 2, 1), lambda d: d.velocity(100), "velocity control"),
+        ((0, 1, 1), lambda d: d.velocity(math.inf), "finite"),
+        ((0, 1, 1), lambda d: d.velocity(3000.6), "outside"),
+        ((0, 1, 1), lambda d: d.set_control_mode(3), "control mode 3"),
+        ((0, 1, 1), lambda d: d.set_output(4, True), "output 4"),
+        ((0, 1, 1), lambda d: d.set_output(0, True), "output 0"),
+        ((0, 1, 1), lambda d: d.set_analog_max_speed(-1), "outside"),
+        ((0, 1, 1), lambda d: d.set_analog_max_speed(65536), "outside"),
+        ((0, 1, 1), lambda d: d.set_analog_max_speed(1.5), "whole number"),
+        ((0, 1, 1), lambda d: d.arm_lifeguard(10), "lifeguard time 10"),
+    ],
+)
+def test_refused_commands_write_nothing(
+    modes: tuple[int, int, int], action: Callable[[MotecDevice], Any], reason: str
+) -> None:
+    io = FakeIO(*modes)
+    with pytest.raises(CommandRejected, match=reason):
+        action(MotecDevice(io))
+    assert io.writes == []
+
+
+def test_stop_locks_the_velocity_stream_until_zero() -> None:
+    io = FakeIO(0, CONTROL_MODE_VELOCITY, 1)
+    d = MotecDevice(io)
+    assert d.velocity(100)
+    assert d.stop() == "speed setpoint 0"
+    with pytest.raises(CommandRejected, match="stopped"):
+        d.velocity(100)
+    assert not d.velocity(0)  # unlocks, writes nothing
+    assert d.velocity(100)
+    assert io.writes == [("06", 0xAE, 100), ("06", 0xAE, 0), ("06", 0xAE, 100)]
+
+
+def test_stop_outside_network_mode_releases_the_drive() -> None:
+    io = FakeIO(1, CONTROL_MODE_POSITION, 1)
+    assert "released" in MotecDevice(io).stop()
+    assert io.writes == [("06", 0x28, 0)]
+
+
+def test_lifeguard_feed_only_when_nothing_else_was_written() -> None:
+    now = [100.0]
+    io = FakeIO()
+    d = MotecDevice(io, clock=lambda: now[0])
+    assert d.feed_lifeguard(300)  # nothing written yet
+    now[0] += 0.05
+    assert not d.feed_lifeguard(300)  # within a third of 300 ms
+    d.save_to_flash()
+    now[0] += 0.09
+    assert not d.feed_lifeguard(300)  # the save fed it
+    now[0] += 0.02
+    assert d.feed_lifeguard(300)
+    assert not d.feed_lifeguard(0)
+    assert io.writes == [("06", 0x112, 300), ("06", 0x35, 1), ("06", 0x112, 300)]
+
+
+def test_drive_scale() -> None:
+    s = DriveScale(counts_per_rev=10000, gear_ratio=10)
+    assert s.position(25000) == pytest.approx(math.pi / 2)
+    assert s.velocity(600) == pytest.approx(2 * math.pi)  # 600 motor rpm = 1 joint rev/s
+    assert s.to_counts(math.pi / 2) == 25000
+    assert s.to_rpm(2 * math.pi) == pytest.approx(600)
+    for bad in (math.nan, math.inf, 1e9):
+        with pytest.raises(CommandRejected):
+            s.to_counts(bad)
+    with pytest.raises(ValueError, match="counts_per_rev"):
+        DriveScale(counts_per_rev=0)

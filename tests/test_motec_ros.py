@@ -1,0 +1,405 @@
+"""The MOTEC bridge in its own process (one node per drive, one shared bus) against the
+simulator's drives on a real socat pty pair, driven by an rclpy client in this process."""
+
+from __future__ import annotations
+
+import itertools
+import math
+import signal
+import time
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Bool, Float64
+from std_srvs.srv import SetBool, Trigger
+
+from bridge_core.registers import Table
+from motec_bridge.sim import MotecSimDrive, MotecSimulator, make_simulator
+from msg_defs.msg import MotecState
+from msg_defs.srv import PositionMove, SetControlMode, SetOutput, SetValue
+
+from .support.ros import LATCHED, ROOT, Client, node_process, ros_client, values_of, wait_for
+from .support.serial_pair import socat_pair
+
+pytestmark = pytest.mark.ros
+
+BAUD = 115200
+UNITS = [1, 2, 3]
+COMMAND_TIMEOUT_S = 0.5
+H, C = Table.HOLDING, Table.COIL
+_NAMESPACES = itertools.count()
+
+
+class MotecBridge:
+    """Topic and service names of one running motec_bridge process (all its drives)."""
+
+    def __init__(
+        self, client: Client, namespace: str, port: str, units: Sequence[int], prefix: str = ""
+    ) -> None:
+        self.client, self.ns, self.port, self.prefix = client, namespace, port, prefix
+        self.joint_states = f"{namespace}/joint_states"
+        client.subscribe(JointState, self.joint_states)
+        for unit in units:
+            client.subscribe(MotecState, self.state(unit))
+            client.subscribe(Bool, self.connected(unit), LATCHED)
+
+    def state(self, unit: int) -> str:
+        return f"{self.ns}/motec_{unit}/state"
+
+    def connected(self, unit: int) -> str:
+        return f"{self.ns}/motec_{unit}/connected"
+
+    def call(self, unit: int | None, srv: Any, name: str, **fields: Any) -> Any:
+        node = "motec_bridge" if unit is None else f"motec_{unit}"
+        request = srv.Request()
+        for key, value in fields.items():
+            setattr(request, key, value)
+        return self.client.call(srv, f"{self.ns}/{node}/{name}", request)
+
+    def ok(self, unit: int | None, srv: Any, name: str, **fields: Any) -> Any:
+        reply = self.call(unit, srv, name, **fields)
+        assert reply.success, f"{name}: {reply.message}"
+        return reply
+
+    def joints(self, unit: int, since: float = 0.0) -> list[Any]:
+        name = [f"{self.prefix}drive_{unit}"]
+        return [m for m in self.client.received(self.joint_states, since) if list(m.name) == name]
+
+    def wait_joint(
+        self, unit: int, predicate: Callable[[Any], bool] = lambda m: True, since: float = 0.0
+    ) -> Any:
+        def find() -> Any:
+            return next((m for m in reversed(self.joints(unit, since)) if predicate(m)), None)
+
+        return wait_for(find, 15.0, f"joint_states of drive {unit}")
+
+    def wait_state(
+        self, unit: int, predicate: Callable[[Any], bool] = lambda m: True, since: float = 0.0
+    ) -> Any:
+        return self.client.wait_message(self.state(unit), predicate, 15.0, since)
+
+    def wait_connected(self, unit: int, value: bool, since: float = 0.0) -> None:
+        self.client.wait_message(self.connected(unit), lambda m: m.data == value, 15.0, since)
+
+    def wait_diagnostic(
+        self, unit: int, predicate: Callable[[Any], bool], since: float = 0.0
+    ) -> Any:
+        """The newest status of drive ``unit`` on this bus (hardware id names the port)."""
+
+        def find() -> Any:
+            for array in reversed(self.client.received("/diagnostics", since)):
+                for status in array.status:
+                    if (
+                        status.name.startswith(f"motec_{unit}:")
+                        and f"{self.port}@" in status.hardware_id
+                        and predicate(status)
+                    ):
+                        return status
+            return None
+
+        return wait_for(find, 15.0, f"a matching diagnostic status of motec_{unit}")
+
+
+@pytest.fixture(scope="module")
+def client() -> Iterator[Client]:
+    with ros_client("motec_client") as c:
+        c.subscribe(DiagnosticArray, "/diagnostics")
+        yield c
+
+
+@pytest.fixture
+def bus() -> Iterator[tuple[MotecSimulator, str]]:
+    """Three drives on one simulated bus at the device end of a socat pty pair."""
+    simulator = make_simulator(UNITS)
+    with socat_pair() as (bridge_end, device_end, _):
+        simulator.start_serial(device_end, BAUD)
+        try:
+            yield simulator, bridge_end
+        finally:
+            simulator.stop()
+
+
+def bridge_params(port: str, **params: Any) -> dict[str, Any]:
+    defaults: dict[str, Any] = {
+        "serial_port": port,
+        "baudrate": BAUD,
+        "unit_ids": UNITS,
+        "poll_rate_hz": 20.0,
+        "timeout_s": 0.1,
+        "reconnect_max_s": 0.5,
+        "command_timeout_s": COMMAND_TIMEOUT_S,
+    }
+    defaults.update(params)
+    return defaults
+
+
+@contextmanager
+def motec(
+    client: Client,
+    log_dir: Path,
+    params: dict[str, Any],
+    *,
+    port: str = "",
+    units: Sequence[int] = UNITS,
+    extra: Sequence[str] = (),
+    namespace: str | None = None,
+) -> Iterator[tuple[MotecBridge, Any]]:
+    namespace = namespace or f"/motec_test{next(_NAMESPACES)}"
+    port = port or str(params["serial_port"])
+    bridge = MotecBridge(client, namespace, port, units, str(params.get("joint_prefix", "")))
+    log_dir.mkdir(parents=True, exist_ok=True)
+    with node_process(
+        "motec_bridge.node", params, log_dir, ["-r", f"__ns:={namespace}", *extra]
+    ) as proc:
+        yield bridge, proc
+
+
+def writes(drive: MotecSimDrive) -> list[tuple[int, Table, int, tuple[int, ...]]]:
+    return [(r.function_code, r.table, r.address, r.values) for r in drive.write_log]
+
+
+def level(value: int) -> Callable[[Any], bool]:
+    return lambda status: status.level == bytes([value])
+
+
+def test_three_drives_topics_services_and_deadman(bus, client: Client, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    sim, port = bus
+    sim.drive(2).set_position(2500)  # a quarter turn at 10000 counts/rev
+    sim.drive(3).set_input(8, True)
+    sim.drive(3).set_analog(1234)
+    with motec(client, tmp_path, bridge_params(port, joint_prefix="m_")) as (b, proc):
+        for unit in UNITS:
+            b.wait_connected(unit, True)
+            b.wait_joint(unit)
+        js = b.wait_joint(2)
+        assert list(js.position) == pytest.approx([math.pi / 2])
+        assert list(js.velocity) == [0.0]
+        st = b.wait_state(3)
+        assert st.unit_id == 3 and st.inputs[7] and sum(st.inputs) == 1
+        assert st.input_word == 0x80 and st.analog_input == 1234
+        assert (st.operation_mode_name, st.control_mode_name) == ("other(1)", "position")
+        assert not st.enabled and st.fault_code == 0 and st.fault_text == "no fault (无故障)"
+        for unit in UNITS:
+            status = b.wait_diagnostic(unit, level(0))
+            assert values_of(status)["unit id"] == str(unit)
+            assert f"unit {unit}" in status.hardware_id
+
+        # Drive 1: the manual's position-mode sequence, then more services.
+        b.ok(1, SetControlMode, "set_control_mode", mode=SetControlMode.Request.POSITION)
+        b.ok(1, SetBool, "enable", data=True)
+        assert b.ok(1, PositionMove, "move", position=math.pi, relative=True).counts == 5000
+        t = time.monotonic()
+        b.wait_joint(1, lambda m: m.position[0] == pytest.approx(math.pi), since=t)
+        b.wait_state(1, lambda m: m.position_actual == 5000 and not m.moving, since=t)
+        b.ok(1, PositionMove, "move", position=0.0, relative=False, max_velocity=10.0)
+        t = time.monotonic()
+        b.wait_state(1, lambda m: m.speed_actual_rpm == -95, since=t)  # 10 rad/s = 95 rpm
+        b.wait_state(1, lambda m: m.position_actual == 0 and not m.moving, since=t)
+        assert "0x29 = 0" in b.ok(1, Trigger, "stop").message
+        b.ok(1, Trigger, "save_to_flash")
+        b.ok(1, SetOutput, "set_output", board=0, index=2, on=True)
+        b.ok(1, SetValue, "set_analog_max_speed", value=1500.0)
+        t = time.monotonic()
+        st = b.wait_state(1, lambda m: m.outputs[1] and m.analog_max_speed_rpm == 1500, since=t)
+        assert st.motion_mode == MotecState.MOTION_MODE_ABSOLUTE and st.enabled
+        assert sim.drive(1).saves == 1
+
+        # Drive 3: an output.
+        b.ok(3, SetOutput, "set_output", board=0, index=1, on=True)
+        b.wait_state(3, lambda m: m.outputs[0] and m.output_word == 1, since=time.monotonic())
+
+        # Drive 2: velocity stream, then silence: the deadman sets 0 rpm.
+        b.ok(2, SetControlMode, "set_control_mode", mode=SetControlMode.Request.VELOCITY)
+        b.ok(2, SetBool, "enable", data=True)
+        pub = client.node.create_publisher(Float64, f"{b.ns}/motec_2/cmd_velocity", 10)
+        wait_for(lambda: pub.get_subscription_count() > 0, 10, "the cmd_velocity subscription")
+        t = time.monotonic()
+        deadline = t + 1.0
+        while time.monotonic() < deadline:
+            pub.publish(Float64(data=2 * math.pi))  # 60 rpm
+            last_sent = time.time()
+            time.sleep(0.05)
+        js = b.wait_joint(2, lambda m: m.velocity[0] != 0.0, since=t)
+        assert js.velocity[0] == pytest.approx(2 * math.pi)
+        b.wait_state(2, lambda m: m.speed_actual_rpm == 0, since=time.monotonic())
+        client.node.destroy_publisher(pub)
+        stop = sim.drive(2).write_log[-1]
+        assert (stop.address, stop.values) == (0xAE, (0,))
+        assert stop.time - last_sent >= COMMAND_TIMEOUT_S * 0.9
+        assert proc.poll() is None
+
+    assert writes(sim.drive(1)) == [
+        (6, H, 0x24, (0,)),  # network mode
+        (6, H, 0x25, (2,)),  # position control
+        (6, H, 0x28, (1,)),  # enable
+        (6, H, 0x2D, (0,)),  # relative
+        (16, H, 0x26, (0, 5000)),  # pi rad = half a turn
+        (6, H, 0x29, (1,)),  # start
+        (6, H, 0xAE, (95,)),  # max_velocity 10 rad/s
+        (6, H, 0x2D, (1,)),  # absolute
+        (16, H, 0x26, (0, 0)),
+        (6, H, 0x29, (1,)),
+        (6, H, 0x29, (0,)),  # stop
+        (6, H, 0x35, (1,)),  # save to flash
+        (5, C, 1, (1,)),  # OUTPUT2 on
+        (6, H, 0x6D, (1500,)),
+    ]
+    assert writes(sim.drive(2)) == [
+        (6, H, 0x24, (0,)),
+        (6, H, 0xAE, (0,)),  # zeroed before velocity control
+        (6, H, 0x25, (1,)),
+        (6, H, 0xAE, (0,)),  # and before enabling
+        (6, H, 0x28, (1,)),
+        (6, H, 0xAE, (60,)),  # once, for 20 equal messages
+        (6, H, 0xAE, (0,)),  # the deadman
+    ]
+    assert writes(sim.drive(3)) == [(5, C, 0, (1,))]  # OUTPUT1 on
+
+
+def test_a_drive_removed_and_back(bus, client: Client, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    sim, port = bus
+    with motec(client, tmp_path, bridge_params(port)) as (b, proc):
+        for unit in UNITS:
+            b.wait_joint(unit)
+            b.wait_connected(unit, True)
+        t0 = time.monotonic()
+        time.sleep(1.5)
+        before = {u: len(b.joints(u, t0)) for u in (1, 3)}
+
+        t = time.monotonic()
+        sim.unplug(2)
+        b.wait_connected(2, False, since=t)
+        status = b.wait_diagnostic(2, level(2), since=t)
+        values = values_of(status)
+        assert values["link state"] == "disconnected" and int(values["timeouts"]) > 0
+        reply = b.call(2, SetBool, "enable", data=True)
+        assert not reply.success and "not connected" in reply.message
+        t1 = time.monotonic()
+        time.sleep(1.5)
+        after = {u: len(b.joints(u, t1)) for u in (1, 3)}
+        assert b.joints(2, t1 + 0.3) == []  # nothing stale from the dead drive
+        for unit in (1, 3):  # the live drives keep their slots
+            assert after[unit] >= 0.6 * before[unit], (before, after)
+            b.wait_diagnostic(unit, level(0), since=t1)
+
+        t = time.monotonic()
+        sim.plug(2)
+        b.wait_connected(2, True, since=t)
+        b.wait_joint(2, since=t)
+        status = b.wait_diagnostic(2, level(0), since=t)
+        assert int(values_of(status)["reconnects"]) >= 1
+        assert proc.poll() is None
+    for unit in UNITS:
+        assert sim.drive(unit).write_log == []  # the refused command never ran
+
+
+def test_lifeguard_fault_after_the_bridge_dies(bus, client: Client, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    sim, port = bus
+    params = bridge_params(port, unit_ids=[1, 2], lifeguard_ms=200)
+    namespace = "/motec_lifeguard"
+    drive = sim.drive(1)
+    with motec(client, tmp_path / "first", params, units=[1, 2], namespace=namespace) as (b, proc):
+        b.wait_connected(1, True)
+        b.ok(1, SetControlMode, "set_control_mode", mode=SetControlMode.Request.VELOCITY)
+        b.ok(1, SetBool, "enable", data=True)
+        assert writes(drive)[:2] == [(6, H, 0x112, (200,)), (6, H, 0x114, (9999,))]
+        st = b.wait_state(1, lambda m: m.enabled and m.lifeguard_armed)
+        assert st.lifeguard_time_ms == 200 and st.lifeguard_mode == 9999
+        status = b.wait_diagnostic(1, level(0))
+        assert values_of(status)["lifeguard"] == "armed, 200 ms, fed by the bridge"
+        time.sleep(1.0)  # five lifeguard times: the feed keeps the drive happy
+        assert drive.fault == 0 and drive.enabled
+        feeds = [r for r in drive.write_log if r.address == 0x112]
+        assert len(feeds) >= 5
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(5)
+        killed = time.monotonic()
+        wait_for(lambda: drive.fault == 1, 5, "the lifeguard to fire")
+        assert time.monotonic() - killed < 1.0
+        assert not drive.enabled and drive.lifeguard_trips == 1
+        assert sim.drive(2).fault == 0  # not in network mode: no lifeguard
+
+    t = time.monotonic()
+    with motec(client, tmp_path / "second", params, units=[1, 2], namespace=namespace) as (b, _):
+        st = b.wait_state(1, lambda m: m.fault_code == 1, since=t)
+        assert st.fault_text == "fault (有故障)" and not st.enabled
+        status = b.wait_diagnostic(1, level(2), since=t)
+        assert status.message == "drive fault 1: fault (有故障)"
+        assert values_of(status)["link state"] == "connected"
+        b.ok(1, SetBool, "enable", data=False)  # releasing acknowledges the fault
+        t = time.monotonic()
+        b.wait_state(1, lambda m: m.fault_code == 0, since=t)
+        b.wait_diagnostic(1, level(0), since=t)
+
+
+def test_refusals_read_only_and_params_file(bus, client: Client, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    sim, port = bus
+    sim.drive(2).set_position(25000)  # 2.5 motor turns = a quarter joint turn at gear 10
+    sim.drive(1).inject_fault(7)
+    config = (ROOT / "config" / "motec.yaml").read_text()
+    config = config.replace('"/dev/ttyUSB0"', f'"{port}"').replace(
+        "lifeguard_ms: 500", "lifeguard_ms: 0"
+    )
+    config = config.replace("poll_rate_hz: 10.0", "poll_rate_hz: 20.0")
+    config += "/**/motec_3:\n  ros__parameters:\n    read_only: true\n"
+    params_file = tmp_path / "motec.yaml"
+    params_file.write_text(config)
+    extra = ["--params-file", str(params_file)]
+    with motec(client, tmp_path, {}, port=port, extra=extra) as (b, _):
+        for unit in UNITS:
+            b.wait_connected(unit, True)
+        assert b.wait_joint(2).position[0] == pytest.approx(math.pi / 2)  # gear_ratio 10
+        status = b.wait_diagnostic(1, level(2))
+        assert status.message == "drive fault 7: fault 0x00000007 (code not listed in the manual)"
+
+        refusals: list[tuple[int, Any, str, dict[str, Any], str]] = [
+            (1, PositionMove, "move", {"position": 1.0, "relative": True}, "network mode"),
+            (1, PositionMove, "move", {"position": math.nan}, "not a finite"),
+            (1, PositionMove, "move", {"position": 1e12}, "outside"),
+            (1, PositionMove, "move", {"position": 1.0, "max_velocity": 1e3}, "max_speed_rpm"),
+            (1, PositionMove, "move", {"position": 1.0, "max_velocity": -1.0}, "negative"),
+            (1, SetControlMode, "set_control_mode", {"mode": 3}, "control mode 3"),
+            (1, SetOutput, "set_output", {"board": 0, "index": 4, "on": True}, "output 4"),
+            (1, SetOutput, "set_output", {"board": 1, "index": 1, "on": True}, "board 1"),
+            (1, SetValue, "set_analog_max_speed", {"value": 70000.0}, "outside"),
+            (1, SetValue, "set_analog_max_speed", {"value": 1.5}, "whole number"),
+            (3, SetBool, "enable", {"data": False}, "read_only"),
+            (3, Trigger, "save_to_flash", {}, "read_only"),
+        ]
+        for unit, srv, name, fields, reason in refusals:
+            reply = b.call(unit, srv, name, **fields)
+            assert not reply.success, (name, reply.message)
+            assert "refused" in reply.message and reason in reply.message, reply.message
+        # The drive itself refuses to enable with a latched fault.
+        reply = b.call(1, SetBool, "enable", data=True)
+        assert not reply.success and "ILLEGAL DATA VALUE" in reply.message
+        # Velocity commands outside velocity control, or read_only: nothing written.
+        for unit in (1, 3):
+            pub = client.node.create_publisher(Float64, f"{b.ns}/motec_{unit}/cmd_velocity", 10)
+            wait_for(lambda p=pub: p.get_subscription_count() > 0, 10, "cmd_velocity")  # type: ignore[misc]
+            for value in (1.0, math.nan, 1e6):
+                pub.publish(Float64(data=value))
+            client.node.destroy_publisher(pub)
+        # A disconnected drive.
+        t = time.monotonic()
+        sim.unplug(2)
+        b.wait_connected(2, False, since=t)
+        reply = b.call(2, Trigger, "stop")
+        assert not reply.success and "not connected" in reply.message
+        sim.plug(2)
+        b.wait_connected(2, True, since=time.monotonic())
+        time.sleep(0.3)
+        for unit in UNITS:
+            assert sim.drive(unit).write_log == [], unit
+
+        # The bus node's broadcast reaches every drive (and clears drive 1's fault).
+        assert "broadcast" in b.ok(None, Trigger, "disable_all").message
+        wait_for(lambda: all(sim.drive(u).write_log for u in UNITS), 5, "the broadcast")
+        for unit in UNITS:
+            assert writes(sim.drive(unit)) == [(6, H, 0x28, (0,))]
+        b.wait_state(1, lambda m: m.fault_code == 0, since=time.monotonic())

@@ -1,0 +1,291 @@
+"""The MOTEC simulator: drive behaviour (ticked directly), and several drives on one bus
+driven by the device layer over a real socat pty pair."""
+
+from __future__ import annotations
+
+import itertools
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import pytest
+
+from bridge_core.channel import Priority
+from bridge_core.errors import DeviceException, LinkTimeout
+from bridge_core.link import DeviceChannel, ModbusLink, SerialSettings
+from bridge_core.registers import Table
+from motec_bridge.device import MotecDevice, disable_all
+from motec_bridge.registers import (
+    CONTROL_MODE_POSITION,
+    CONTROL_MODE_VELOCITY,
+    LIFEGUARD_ACTIVE,
+    MOTEC_MAP,
+)
+from motec_bridge.sim import (
+    DEFAULT_ACCEL_RPM_S,
+    LIFEGUARD_FAULT_CODE,
+    MotecSimDrive,
+    MotecSimulator,
+    make_simulator,
+)
+
+from .support.serial_pair import socat_pair
+
+BAUD = 115200
+UNITS = (1, 2, 3)
+DT = 0.01
+
+
+def write(drive: MotecSimDrive, name: str, value: int) -> int | None:
+    """A write as the bus would deliver it (FC 06 / 16), through guards and hooks."""
+    from bridge_core.codec import encode
+
+    reg = MOTEC_MAP[name]
+    words = encode(reg, value)
+    return drive.write(6 if len(words) == 1 else 16, reg.address, words)
+
+
+def ready(drive: MotecSimDrive, control_mode: int) -> None:
+    assert write(drive, "operation_mode", 0) is None
+    assert write(drive, "control_mode", control_mode) is None
+    assert write(drive, "enable", 1) is None
+
+
+# ---------------------------------------------------------------- behaviour, ticked
+
+
+def test_trapezoid_move_reaches_the_target_exactly() -> None:
+    drive = MotecSimDrive(1, counts_per_rev=10000, accel_rpm_s=6000, move_speed_rpm=600)
+    ready(drive, CONTROL_MODE_POSITION)
+    assert write(drive, "target_distance", 30000) is None
+    assert write(drive, "start", 1) is None
+    speeds = []
+    for _ in range(200):
+        drive.tick(DT)
+        speeds.append(drive.value("speed_actual"))
+        if drive.move is None:
+            break
+    assert drive.value("position_actual") == 30000 == drive.value("position_setpoint")
+    assert drive.value("speed_actual") == 0
+    peak = max(speeds)
+    assert peak == 600  # the plateau: move_speed_rpm (0xAE is 0)
+    rising = speeds[: speeds.index(peak) + 1]
+    assert all(b - a <= 60 for a, b in itertools.pairwise(rising))  # 6000 rpm/s
+    assert rising[0] == 60
+    # Absolute move back, limited by 0xAE = 300 rpm.
+    assert write(drive, "speed_setpoint", 300) is None
+    assert write(drive, "motion_mode", 1) is None
+    assert write(drive, "target_distance", -1000) is None
+    assert write(drive, "start", 1) is None
+    peak = 0
+    while drive.move is not None:
+        drive.tick(DT)
+        peak = max(peak, abs(drive.value("speed_actual")))
+    assert drive.value("position_actual") == -1000 and peak == 300
+
+
+def test_stop_decelerates_and_velocity_ramps() -> None:
+    drive = MotecSimDrive(1, accel_rpm_s=DEFAULT_ACCEL_RPM_S)
+    ready(drive, CONTROL_MODE_POSITION)
+    write(drive, "target_distance", 10**6)
+    write(drive, "start", 1)
+    for _ in range(20):
+        drive.tick(DT)
+    assert drive.value("speed_actual") == 600
+    write(drive, "start", 0)
+    drive.tick(DT)
+    assert 0 < drive.value("speed_actual") < 600
+    for _ in range(20):
+        drive.tick(DT)
+    assert drive.value("speed_actual") == 0 and drive.move is None
+    # Velocity control: ramps to 0xAE by the acceleration, both ways.
+    write(drive, "control_mode", CONTROL_MODE_VELOCITY)
+    write(drive, "speed_setpoint", -1200)
+    drive.tick(DT)
+    assert drive.value("speed_actual") == -60
+    for _ in range(30):
+        drive.tick(DT)
+    assert drive.value("speed_actual") == -1200
+    before = drive.value("position_actual")
+    drive.tick(0.1)
+    assert drive.value("position_actual") - before == pytest.approx(-20000, abs=1)
+    write(drive, "enable", 0)
+    drive.tick(DT)
+    assert drive.value("speed_actual") == 0
+
+
+def test_motion_needs_network_mode() -> None:
+    drive = MotecSimDrive(1)
+    assert drive.value("operation_mode") != 0  # powers up outside network mode
+    write(drive, "enable", 1)
+    write(drive, "target_distance", 5000)
+    assert write(drive, "start", 1) == 3  # ILLEGAL DATA VALUE
+    write(drive, "operation_mode", 0)
+    write(drive, "control_mode", CONTROL_MODE_VELOCITY)
+    write(drive, "speed_setpoint", 100)
+    write(drive, "operation_mode", 5)  # back out of network mode: the motor stays
+    for _ in range(10):
+        drive.tick(DT)
+    assert drive.value("speed_actual") == 0 and drive.value("position_actual") == 0
+
+
+def test_lifeguard_expiry_latches_a_fault_and_releases() -> None:
+    now = [0.0]
+    drive = MotecSimDrive(1, clock=lambda: now[0])
+    ready(drive, CONTROL_MODE_VELOCITY)
+    write(drive, "speed_setpoint", 100)
+    write(drive, "lifeguard_time", 200)
+    write(drive, "lifeguard_mode", LIFEGUARD_ACTIVE)
+    for _ in range(5):  # fed by a write every 150 ms: no fault
+        now[0] += 0.15
+        drive.tick(DT)
+        write(drive, "lifeguard_time", 200)
+    assert drive.fault == 0 and drive.enabled
+    assert drive.read(3, 0xAC, 2) is not None  # reads do not feed it
+    now[0] += 0.21
+    drive.tick(DT)
+    assert drive.value("fault_code") == LIFEGUARD_FAULT_CODE == 1
+    assert not drive.enabled and drive.value("speed_actual") == 0
+    assert write(drive, "enable", 1) == 3  # refused while the fault is latched
+    assert write(drive, "enable", 0) is None  # releasing acknowledges it
+    assert drive.value("fault_code") == 0
+    assert write(drive, "enable", 1) is None
+
+
+def test_writes_refused_where_the_drive_would() -> None:
+    drive = MotecSimDrive(1)
+    assert drive.write(6, 0x28, [2]) == 3  # enable: 0 or 1
+    assert drive.write(6, 0x2D, [2]) == 3  # motion mode: 0 or 1
+    assert drive.write(6, 0x2A, [1]) == 2  # an unnamed parameter
+    assert drive.write(6, 0x26, [1]) == 2  # half of the 32-bit distance
+    assert drive.write(6, 0xAC, [1]) == 2  # read-only position
+    assert drive.write(5, 3, [1]) == 2  # no OUTPUT4
+    assert drive.read(3, 0x2A, 3) == [0, 0, 0]  # unnamed parameters read as 0
+    assert drive.read(3, 0x114, 2) == 2  # past the end of the table
+    assert write(drive, "save_to_flash", 1) is None
+    assert drive.value("save_to_flash") == 0 and drive.saves == 1
+    assert drive.write(6, 0x79, [0b1010]) is None  # FC 06 on the output word: low 3 bits
+    assert drive.value("output_state") == 0b010 == drive.value("output_word")
+    assert drive.read(1, 0, 3) == [0, 1, 0]
+    assert drive.write(6, 0xC6, [0b101]) is None
+    assert drive.read(1, 0, 3) == [1, 0, 1]
+    assert drive.write_log[-1].address == 0xC6
+
+
+# ---------------------------------------------------------------- a bus of three drives
+
+
+@dataclass
+class Bus:
+    sim: MotecSimulator
+    link: ModbusLink
+    devices: dict[int, MotecDevice]
+    channels: dict[int, DeviceChannel]
+
+
+@pytest.fixture
+def bus() -> Iterator[Bus]:
+    sim = make_simulator(UNITS)
+    with socat_pair() as (bridge_end, device_end, _):
+        sim.start_serial(device_end, BAUD)
+        link = ModbusLink(SerialSettings(bridge_end, BAUD, timeout_s=0.1))
+        channels = {u: DeviceChannel(link, u, retries=0) for u in (*UNITS, 9)}
+        try:
+            yield Bus(sim, link, {u: MotecDevice(channels[u]) for u in UNITS}, channels)
+        finally:
+            link.close()
+            sim.stop()
+
+
+def test_three_drives_move_independently(bus: Bus) -> None:
+    d1, d2, d3 = (bus.devices[u] for u in UNITS)
+    bus.sim.drive(3).set_input(2, True)
+    bus.sim.drive(3).set_analog(-321)
+    bus.sim.drive(2).inject_fault(0x31)
+    d1.set_control_mode(CONTROL_MODE_POSITION)
+    d1.enable(True)
+    d1.move(20000, relative=True)
+    deadline = time.monotonic() + 5
+    while (s := d1.poll()).position_actual != 20000 or s.moving:
+        assert time.monotonic() < deadline, s
+        time.sleep(0.02)
+    assert s.modes.enabled and s.modes.network and s.fault_code == 0
+    s2, s3 = d2.poll(), d3.poll()
+    assert s2.fault_code == 0x31 and s2.position_actual == 0
+    assert s3.inputs[1] and s3.input_word == 2 and s3.analog_input == -321
+    assert d3.read_inputs()[1]
+    # Writes landed on drive 1 only, with the unit id of the request.
+    assert [r.unit_id for r in bus.sim.drive(1).write_log] == [1] * 6
+    assert bus.sim.drive(2).write_log == bus.sim.drive(3).write_log == []
+
+
+def test_start_outside_position_mode_is_refused_by_the_drive(bus: Bus) -> None:
+    channel = bus.channels[1]
+    with pytest.raises(DeviceException, match="ILLEGAL DATA VALUE"):
+        channel.write_register(0x29, 1)
+    with pytest.raises(DeviceException, match="ILLEGAL FUNCTION"):
+        channel.read_registers(0, 1, Table.INPUT, Priority.COMMAND)  # FC 04
+    with pytest.raises(DeviceException, match="ILLEGAL DATA ADDRESS"):
+        channel.read_registers(0x115, 1, Table.HOLDING, Priority.COMMAND)
+
+
+def test_broadcast_reaches_every_drive_and_nobody_answers(bus: Bus) -> None:
+    for u in UNITS:
+        bus.devices[u].set_control_mode(CONTROL_MODE_POSITION)
+        bus.devices[u].enable(True)
+    broadcast = DeviceChannel(bus.link, 0, retries=0)
+    disable_all(broadcast)
+    assert broadcast.stats.timeouts == 0
+    for u in UNITS:
+        assert not bus.devices[u].poll().modes.enabled
+        last = bus.sim.drive(u).write_log[-1]
+        assert (last.address, last.values) == (0x28, (0,))
+
+
+def test_unplugged_and_unknown_drives_are_silent(bus: Bus) -> None:
+    bus.sim.unplug(2)
+    with pytest.raises(LinkTimeout):
+        bus.devices[2].poll()
+    with pytest.raises(LinkTimeout):
+        bus.channels[9].read_registers(0x24, 1)
+    assert bus.devices[1].poll().modes.operation_mode == 1  # the others answer
+    assert bus.devices[3].poll().fault_code == 0
+    disable_all(DeviceChannel(bus.link, 0, retries=0))  # an unplugged drive misses it
+    assert bus.sim.drive(2).write_log == []
+    bus.sim.plug(2)
+    assert bus.devices[2].poll().fault_code == 0
+
+
+def test_reply_delay_and_withheld_replies(bus: Bus) -> None:
+    channel = bus.channels[1]
+    bus.sim.reply_delay_s = 0.03
+    started = time.perf_counter()
+    channel.read_registers(0x24, 1)
+    assert time.perf_counter() - started >= 0.03
+    bus.sim.reply_delay_s = 0.0
+    bus.sim.withhold_replies = True
+    with pytest.raises(LinkTimeout):
+        channel.read_registers(0x24, 1)
+    bus.sim.withhold_replies = False
+    assert channel.read_registers(0x24, 1) == [1]
+
+
+def test_lifeguard_over_the_bus(bus: Bus) -> None:
+    d = bus.devices[1]
+    d.set_control_mode(CONTROL_MODE_VELOCITY)
+    d.enable(True)
+    d.arm_lifeguard(100)
+    deadline = time.monotonic() + 0.4
+    while time.monotonic() < deadline:  # the bridge's feed keeps it alive
+        d.feed_lifeguard(100)
+        time.sleep(0.01)
+    assert d.poll().fault_code == 0
+    deadline = time.monotonic() + 0.4
+    while time.monotonic() < deadline:  # polls alone do not
+        s = d.poll()
+    assert s.fault_code == LIFEGUARD_FAULT_CODE and not s.modes.enabled
+    assert s.config.lifeguard_armed and s.config.lifeguard_time_ms == 100
+    with pytest.raises(DeviceException, match="ILLEGAL DATA VALUE"):
+        d.enable(True)
+    d.enable(False)
+    assert d.poll().fault_code == 0
