@@ -47,6 +47,13 @@ class DemoDevice:
     format_state: Callable[[Any], str]
     start_services: list[tuple[str, str, dict[str, Any]]] = field(default_factory=list)
     serial: bool = False
+    # Nodes with a ~/state of their own, when one process runs several (MOTEC: one per
+    # drive); default: just ``node_name``.
+    state_nodes: list[str] = field(default_factory=list)
+
+    @property
+    def nodes(self) -> list[str]:
+        return self.state_nodes or [self.node_name]
 
 
 def _r6_state(state: Any) -> str:
@@ -127,6 +134,56 @@ DEVICES.append(
 )
 
 
+def _motec_state(state: Any) -> str:
+    fault = f"fault {state.fault_code} {state.fault_text}" if state.fault_code else "no fault"
+    return (
+        f"{state.control_mode_name} control  {'enabled' if state.enabled else 'disabled'}  "
+        f"position {state.position_actual} counts  speed {state.speed_actual_rpm} rpm  {fault}"
+    )
+
+
+MOTEC_UNITS = (1, 2, 3)
+DEVICES.append(
+    DemoDevice(
+        name="MOTEC",
+        node_name="motec_bridge",
+        sim_args=lambda pty: [
+            "-m",
+            "motec_bridge.sim",
+            "--pty",
+            str(pty),
+            "--unit-ids",
+            ",".join(str(u) for u in MOTEC_UNITS),
+        ],
+        node_module="motec_bridge.node",
+        node_params=lambda pty: {
+            "serial_port": str(pty),
+            "baudrate": 115200,
+            "unit_ids": "[" + ",".join(str(u) for u in MOTEC_UNITS) + "]",
+        },
+        state_type="msg_defs/msg/MotecState",
+        format_state=_motec_state,
+        start_services=[
+            *[
+                (f"motec_{u}/{service}", type_name, fields)
+                for u in MOTEC_UNITS
+                for service, type_name, fields in (
+                    ("set_control_mode", "msg_defs/srv/SetControlMode", {"mode": 2}),
+                    ("enable", "std_srvs/srv/SetBool", {"data": True}),
+                    (
+                        "move",
+                        "msg_defs/srv/PositionMove",
+                        {"position": 100.0 * u, "relative": True, "max_velocity": 5.0},
+                    ),
+                )
+            ],
+        ],
+        serial=True,
+        state_nodes=[f"motec_{u}" for u in MOTEC_UNITS],
+    )
+)
+
+
 def _import(type_name: str) -> Any:
     import importlib
 
@@ -152,6 +209,7 @@ class Monitor:
         self.executor.add_node(self.node)
         self.latest: dict[str, Any] = {}
         self.counts: dict[str, int] = {}
+        self.positions: dict[str, dict[str, float]] = {}
         latched = QoSProfile(
             depth=1,
             reliability=ReliabilityPolicy.RELIABLE,
@@ -160,8 +218,9 @@ class Monitor:
         for device in devices:
             ns = f"/{device.name.lower()}"
             self._watch(JointState, f"{ns}/joint_states")
-            self._watch(_import(device.state_type), f"{ns}/{device.node_name}/state")
-            self._watch(Bool, f"{ns}/{device.node_name}/connected", latched)
+            for node in device.nodes:
+                self._watch(_import(device.state_type), f"{ns}/{node}/state")
+                self._watch(Bool, f"{ns}/{node}/connected", latched)
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self._diagnostics, 10)
 
     def _watch(self, msg_type: Any, topic: str, qos: Any = 10) -> None:
@@ -170,6 +229,9 @@ class Monitor:
         def store(msg: Any) -> None:
             self.latest[topic] = msg
             self.counts[topic] += 1
+            if topic.endswith("/joint_states"):  # several nodes may share the topic
+                positions = self.positions.setdefault(topic, {})
+                positions.update(zip(msg.name, msg.position, strict=False))
 
         self.node.create_subscription(msg_type, topic, store, qos)
 
@@ -216,33 +278,31 @@ class Monitor:
 
 def render(monitor: Monitor, device: DemoDevice, rates: dict[str, float]) -> str:
     ns = f"/{device.name.lower()}"
-    connected = monitor.latest.get(f"{ns}/{device.node_name}/connected")
-    joints = monitor.latest.get(f"{ns}/joint_states")
-    state = monitor.latest.get(f"{ns}/{device.node_name}/state")
-    diag = next(
-        (
-            s
-            for k, s in monitor.latest.items()
-            if k.startswith("diag:") and s.name.startswith(f"{device.node_name}:")
-        ),
-        None,
-    )
-    link = "connected" if connected is not None and connected.data else "DISCONNECTED"
-    level = {0: "OK", 1: "WARN", 2: "ERROR", 3: "STALE"}.get(diag.level[0], "?") if diag else "-"
-    lines = [
-        f"[{device.name}] {link}  diagnostics {level}"
-        f"{': ' + diag.message if diag else ''}  joint_states {rates.get(ns, 0.0):.1f} Hz"
-    ]
-    if joints is not None:
-        lines.append(
-            "   joints (deg): "
-            + "  ".join(
-                f"{n} {math.degrees(p):8.2f}"
-                for n, p in zip(joints.name, joints.position, strict=False)
-            )
+    lines: list[str] = []
+    for node in device.nodes:
+        connected = monitor.latest.get(f"{ns}/{node}/connected")
+        diag = next(
+            (
+                s
+                for k, s in monitor.latest.items()
+                if k.startswith("diag:") and s.name.startswith(f"{node}:")
+            ),
+            None,
         )
-    if state is not None:
-        lines.append("   " + device.format_state(state))
+        link = "connected" if connected is not None and connected.data else "DISCONNECTED"
+        level = (
+            {0: "OK", 1: "WARN", 2: "ERROR", 3: "STALE"}.get(diag.level[0], "?") if diag else "-"
+        )
+        label = device.name if len(device.nodes) == 1 else f"{device.name} {node}"
+        lines.append(f"[{label}] {link}  diagnostics {level}{': ' + diag.message if diag else ''}")
+        state = monitor.latest.get(f"{ns}/{node}/state")
+        if state is not None:
+            lines.append("   " + device.format_state(state))
+    lines[0] += f"  joint_states {rates.get(ns, 0.0):.1f} Hz"
+    positions = monitor.positions.get(f"{ns}/joint_states", {})
+    if positions:
+        joints = "  ".join(f"{n} {math.degrees(p):8.2f}" for n, p in sorted(positions.items()))
+        lines.insert(1, f"   joints (deg): {joints}")
     return "\n".join(lines)
 
 
@@ -293,7 +353,12 @@ def main(argv: Sequence[str] | None = None) -> None:
                 print(
                     "  "
                     + monitor.call(
-                        f"/{device.name.lower()}/{device.node_name}/{service}", type_name, fields
+                        # with several state nodes, the service names its node itself
+                        f"/{device.name.lower()}/{service}"
+                        if device.state_nodes
+                        else f"/{device.name.lower()}/{device.node_name}/{service}",
+                        type_name,
+                        fields,
                     ),
                     flush=True,
                 )

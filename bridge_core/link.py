@@ -398,8 +398,12 @@ class DeviceChannel:
             self.link.close()
 
     def transact(self, request: Request, priority: Priority = Priority.POLL) -> Reply:
-        """Run one request; reads are retried ``retries`` times, writes never are."""
-        attempts = 1 if request.is_write else 1 + self.retries
+        """Run one request; reads are retried ``retries`` times, writes never are.
+
+        Nor are probes of a device that is down: on a shared RS-485 bus every retry of a
+        dead drive holds the bus for another timeout while the live drives wait.
+        """
+        attempts = 1 if request.is_write or not self._connected else 1 + self.retries
         lock = self.link.lock
         lock.acquire(priority)  # acquire/release, not a context manager: the poll hot path
         try:

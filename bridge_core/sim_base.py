@@ -16,7 +16,10 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
+import shutil
 import signal
+import subprocess
+import tempfile
 import threading
 import time
 from collections.abc import Callable, Iterable, Sequence
@@ -423,3 +426,32 @@ def serve_until_signalled(sim: Simulator, banner: str, port_file: Path | None = 
     signal.signal(signal.SIGINT, lambda *_: done.set())
     done.wait()
     sim.stop()
+
+
+class PtyPair:
+    """Two linked pseudo-terminals from socat: ``link`` for the bridge, one for the server."""
+
+    def __init__(self, link: Path) -> None:
+        socat = shutil.which("socat")
+        if socat is None:
+            raise RuntimeError("--pty needs socat (apt-get install socat)")
+        self._tmp = tempfile.TemporaryDirectory()
+        self.link = link
+        self.device_end = Path(self._tmp.name) / "device"
+        self.proc = subprocess.Popen(
+            [socat, f"pty,raw,echo=0,link={link}", f"pty,raw,echo=0,link={self.device_end}"],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
+        deadline = time.monotonic() + 10
+        while not (link.exists() and self.device_end.exists()):
+            if self.proc.poll() is not None or time.monotonic() > deadline:
+                self.close()
+                raise RuntimeError("socat did not create the pty pair")
+            time.sleep(0.01)
+
+    def close(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.terminate()
+            self.proc.wait(5)
+        self._tmp.cleanup()

@@ -36,10 +36,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import shutil
-import subprocess
-import tempfile
-import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -49,6 +45,7 @@ from bridge_core.registers import Table
 from bridge_core.sim_base import (
     ILLEGAL_FUNCTION,
     ILLEGAL_VALUE,
+    PtyPair,
     SimulatedDevice,
     Simulator,
     WriteRecord,
@@ -470,35 +467,6 @@ def make_simulator(
     sim = Simulator([StepperSimDevice(unit_id, travel)])
     sim.reply_delay_s = reply_delay_s
     return sim
-
-
-class PtyPair:
-    """Two linked pseudo-terminals from socat: ``link`` for the bridge, one for the server."""
-
-    def __init__(self, link: Path) -> None:
-        socat = shutil.which("socat")
-        if socat is None:
-            raise RuntimeError("--pty needs socat (apt-get install socat)")
-        self._tmp = tempfile.TemporaryDirectory()
-        self.link = link
-        self.device_end = Path(self._tmp.name) / "device"
-        self.proc = subprocess.Popen(
-            [socat, f"pty,raw,echo=0,link={link}", f"pty,raw,echo=0,link={self.device_end}"],
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
-        )
-        deadline = time.monotonic() + 10
-        while not (link.exists() and self.device_end.exists()):
-            if self.proc.poll() is not None or time.monotonic() > deadline:
-                self.close()
-                raise RuntimeError("socat did not create the pty pair")
-            time.sleep(0.01)
-
-    def close(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.terminate()
-            self.proc.wait(5)
-        self._tmp.cleanup()
 
 
 def main(argv: Sequence[str] | None = None) -> None:

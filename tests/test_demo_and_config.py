@@ -46,6 +46,11 @@ def test_demo_shows_moving_r6(tmp_path: Path) -> None:
     assert "[Stepper] connected  diagnostics OK" in out
     stepper = [line for line in out.splitlines() if line.startswith("   joints (deg): motor_1")]
     assert len(stepper) >= 2 and stepper[0] != stepper[-1], out  # motor 1 runs forward
+    for unit in (1, 2, 3):
+        assert f"[MOTEC motec_{unit}] connected  diagnostics OK" in out
+        assert f"/motec/motec_{unit}/move: move by {100.0 * unit} rad: done" in out
+    motec = [line for line in out.splitlines() if line.startswith("   joints (deg): drive_1")]
+    assert len(motec) >= 2 and motec[0] != motec[-1], out  # the drives move
     assert "bridge_demo: stopped" in out
 
 

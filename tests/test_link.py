@@ -220,3 +220,21 @@ def test_rtu_reply_from_the_wrong_unit_is_a_frame_error() -> None:
             link.close()
         finally:
             sim.stop()
+
+
+def test_a_device_that_is_down_is_probed_once_not_retried(tcp_sim: tuple[Simulator, int]) -> None:
+    sim, port = tcp_sim
+    channel = DeviceChannel(
+        ModbusLink(TcpSettings(port=port, timeout_s=0.2)), 1, retries=2, reconnect_max_s=0.3
+    )
+    sim.withhold_replies = True
+    with pytest.raises(LinkTimeout):
+        channel.read_registers(0, 1)  # never connected: one probe
+    assert channel.stats.timeouts == 1
+    sim.withhold_replies = False
+    wait_until(channel.may_attempt, timeout=2)
+    channel.read_registers(0, 1)
+    sim.withhold_replies = True
+    with pytest.raises(LinkTimeout):
+        channel.read_registers(0, 1)  # connected: 1 + 2 retries
+    assert channel.stats.timeouts == 1 + 3
