@@ -1,11 +1,13 @@
 """CPU floor for the bridge nodes: a bare rclpy process that only publishes.
 
-A timer at ``--rate`` Hz publishes what ``r6_bridge`` publishes per poll cycle (a
-6-joint JointState, an R6State and a PoseStamped), with no Modbus traffic. The bench
-(``bench/r6_bench.py``) reads this process's CPU from /proc to get "floor A".
+A timer at ``--rate`` Hz publishes what the bridge publishes per poll cycle, with no
+Modbus traffic: ``--device r6`` a 6-joint JointState, an R6State and a PoseStamped;
+``--device xarm`` a 7-joint JointState (position, velocity), an XArmState with the
+array sizes the xArm bridge fills and a PoseStamped. The bench
+(``bench/bridge_bench.py``) reads this process's CPU from /proc to get "floor A".
 
-    python bench/floor_rclpy_publisher.py [--rate 100] [--executor single|multi|events]
-        [--ros-args ...]
+    python bench/floor_rclpy_publisher.py [--device r6|xarm] [--rate 100]
+        [--executor single|multi|events] [--ros-args ...]
 
 Run it with ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST and a ROS_DOMAIN_ID of its own
 (the bench sets both).
@@ -25,19 +27,68 @@ from rclpy.node import Node
 from rclpy.time import Time
 from sensor_msgs.msg import JointState
 
-from msg_defs.msg import R6State
+from msg_defs.msg import R6State, XArmState
 
-JOINTS = 6
+JOINTS = {"r6": 6, "xarm": 7}
+
+
+def r6_state(k: int) -> R6State:
+    state = R6State()
+    state.mode = 2
+    state.mode_name = "auto"
+    state.global_speed_percent = 50.0
+    state.machine_id = 1
+    state.axis_count = JOINTS["r6"]
+    state.io_board_count = 1
+    state.io_board_inputs = [k & 0xFFFF]
+    state.io_board_outputs = [0]
+    return state
+
+
+def xarm_state(k: int) -> XArmState:
+    joints = JOINTS["xarm"]
+    state = XArmState()
+    state.mode, state.state, state.state_name = 0, 2, "sleeping"
+    state.error_code, state.error_text = 0, ""
+    state.warning_code, state.warning_text = 0, ""
+    state.brakes = [True] * joints
+    state.enabled = [True] * joints
+    state.reduced_mode = state.fence_mode = state.paused = state.stopped = False
+    state.motion_modes = [m == 0 for m in range(14)]
+    state.joint_temperatures = [30.0 + j for j in range(1, joints + 1)]
+    state.tcp_speed = 0.0
+    state.counter = k & 0xFFFFFFFF
+    state.digital_inputs = [bool(k >> b & 1) for b in range(16)]
+    state.digital_outputs = [False] * 16
+    state.tool_digital_inputs = [False, True]
+    state.tool_digital_outputs = [False, False]
+    state.analog_inputs = [1.25, 0.0]
+    state.tool_analog_inputs = [0.0, 3.3]
+    state.analog_outputs = [1.25, 0.0]
+    state.tcp_load_mass = 0.5
+    state.tcp_load_center = [0.0, 0.0, 0.03]
+    state.tcp_offset = [0.0, 0.0, 0.06, 0.0, 0.0, 0.0]
+    state.base_offset = [0.0] * 6
+    return state
+
+
+STATES = {"r6": r6_state, "xarm": xarm_state}
+STATE_TYPES = {"r6": R6State, "xarm": XArmState}
 
 
 class FloorPublisher(Node):
-    def __init__(self, rate_hz: float) -> None:
+    def __init__(self, rate_hz: float, device: str = "r6") -> None:
         super().__init__("floor_rclpy_publisher")
         # Same topic names and depths as the bridge (joint_states depth 10, ~/... depth 10).
         self.joint_pub = self.create_publisher(JointState, "joint_states", 10)
-        self.state_pub = self.create_publisher(R6State, "~/state", 10)
+        self.state_pub = self.create_publisher(STATE_TYPES[device], "~/state", 10)
         self.pose_pub = self.create_publisher(PoseStamped, "~/tcp_pose", 10)
-        self.names = [f"joint_{a}" for a in range(1, JOINTS + 1)]
+        self.joints = JOINTS[device]
+        # The bridges' joint names: R6 "joint_<n>", xArm "joint<n>".
+        sep = "_" if device == "r6" else ""
+        self.names = [f"joint{sep}{a}" for a in range(1, self.joints + 1)]
+        self.effort = device == "r6"  # the xArm bridge publishes no effort
+        self.make_state = STATES[device]
         self.cycles = 0
         self.timer = self.create_timer(1.0 / rate_hz, self._tick)
 
@@ -46,26 +97,20 @@ class FloorPublisher(Node):
         stamp = Time(nanoseconds=int(now * 1e9)).to_msg()
         k = self.cycles
         self.cycles += 1
+        n = self.joints
 
         joints = JointState()
         joints.header.stamp = stamp
         joints.name = list(self.names)
-        joints.position = [math.sin(k * 1e-3 + a) for a in range(JOINTS)]
-        joints.velocity = [0.1 * a for a in range(JOINTS)]
-        joints.effort = [0.2 * a for a in range(JOINTS)]
+        joints.position = [math.sin(k * 1e-3 + a) for a in range(n)]
+        joints.velocity = [0.1 * a for a in range(n)]
+        if self.effort:
+            joints.effort = [0.2 * a for a in range(n)]
         self.joint_pub.publish(joints)
 
-        state = R6State()
+        state = self.make_state(k)
         state.header.stamp = stamp
         state.header.frame_id = "base_link"
-        state.mode = 2
-        state.mode_name = "auto"
-        state.global_speed_percent = 50.0
-        state.machine_id = 1
-        state.axis_count = JOINTS
-        state.io_board_count = 1
-        state.io_board_inputs = [k & 0xFFFF]
-        state.io_board_outputs = [0]
         self.state_pub.publish(state)
 
         pose = PoseStamped()
@@ -96,11 +141,12 @@ def main(argv: list[str] | None = None) -> None:
     ros_args = argv[argv.index("--ros-args") :] if "--ros-args" in argv else []
     own = argv[: len(argv) - len(ros_args)]
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--device", choices=sorted(JOINTS), default="r6")
     parser.add_argument("--rate", type=float, default=100.0)
     parser.add_argument("--executor", choices=("single", "multi", "events"), default="single")
     args = parser.parse_args(own)
     rclpy.init(args=[sys.argv[0], *ros_args])
-    node = FloorPublisher(args.rate)
+    node = FloorPublisher(args.rate, args.device)
     executor = make_executor(args.executor)
     executor.add_node(node)
     print(f"floor publisher at {args.rate} Hz ({args.executor} executor)", flush=True)
