@@ -260,7 +260,8 @@ class ModbusLink:
                 int(response.function_code) & 0x7F, int(getattr(response, "exception_code", 0))
             )
         if isinstance(request, ReadBits):
-            return [bool(b) for b in response.bits[: request.count]]
+            bits: list[bool] = response.bits[: request.count]  # pymodbus: already bools
+            return bits
         if isinstance(request, ReadRegisters | ReadWriteRegisters):
             registers: list[int] = response.registers  # pymodbus decodes them to ints
             return registers
@@ -480,7 +481,7 @@ class DeviceChannel:
     ) -> list[bool]:
         reply = self.transact(ReadBits(address, count, table), priority)
         assert isinstance(reply, list)
-        return [bool(v) for v in reply[:count]]
+        return reply  # type: ignore[return-value]  # execute() made them bools already
 
     def write_register(self, address: int, value: int) -> None:
         self.transact(WriteRegister(address, value), Priority.COMMAND)

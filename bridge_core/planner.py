@@ -13,7 +13,7 @@ import struct
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
-from .codec import Value, decode
+from .codec import Value
 from .registers import DeviceLimits, Register, RegisterMap, Table, ValueType, WordOrder
 
 
@@ -33,6 +33,10 @@ class ReadRequest:
     @functools.cached_property
     def decoder(self) -> BlockDecoder:
         return BlockDecoder(self)
+
+    @functools.cached_property
+    def bit_offsets(self) -> tuple[tuple[str, int], ...]:
+        return tuple((reg.name, reg.address - self.address) for reg in self.registers)
 
 
 def _gap_is_readable(
@@ -172,12 +176,8 @@ def decode_reply(request: ReadRequest, words: Sequence[int] | Sequence[bool]) ->
         raise ValueError(f"reply has {len(words)} values, request asked for {request.count}")
     if not request.table.is_bit:
         return request.decoder(words)
-    values: dict[str, Value] = {}
-    for reg in request.registers:
-        offset = reg.address - request.address
-        chunk = [int(w) for w in words[offset : offset + reg.count]]
-        values[reg.name] = decode(reg, chunk)
-    return values
+    # Bit tables hold one BOOL per address: pick them out by precomputed offset.
+    return {name: bool(words[offset]) for name, offset in request.bit_offsets}
 
 
 def merge_values(parts: Iterable[Mapping[str, Value]]) -> dict[str, Value]:

@@ -68,7 +68,7 @@ def mode_name(mode: int) -> str:
 class XArmSnapshot:
     """One full poll in the manual's units (deg, deg/s, mm, mm/s, V, kg, degC)."""
 
-    read_time: float
+    read_time: float  # wall clock when the joint angles (read last) were requested
     mode: int
     state: int
     error_code: int
@@ -123,6 +123,27 @@ def _poll_names() -> list[str]:
 
 
 POLL_PLAN: list[ReadRequest] = plan_reads(XARM_MAP, XARM_MAP.select(_poll_names()))
+# The joint angles last: their read time stamps joint_states, and a joint change then
+# reaches the message soonest (latency figure of bench/bridge_bench.py).
+POLL_PLAN.sort(key=lambda request: XARM_MAP["joint_angle_1"] in request.registers)
+
+_JOINTS = range(1, JOINTS + 1)
+_ANGLES = tuple(f"joint_angle_{j}" for j in _JOINTS)
+_SPEEDS = tuple(f"joint_speed_{j}" for j in _JOINTS)
+_TEMPERATURES = tuple(f"joint_temperature_{j}" for j in _JOINTS)
+_BRAKES = tuple(f"brake_{j}" for j in _JOINTS)
+_ENABLES = tuple(f"enable_{j}" for j in _JOINTS)
+_MOTION_MODES = tuple(f"motion_mode_{m}" for m in range(MOTION_MODES))
+_DI = tuple(f"controller_di_{k}" for k in range(CONTROLLER_DIGITAL_VALID))
+_DO = tuple(f"controller_do_{k}" for k in range(CONTROLLER_DIGITAL_VALID))
+_TOOL_DI = tuple(f"tool_di_{k}" for k in range(TOOL_DIGITAL_VALID))
+_TOOL_DO = tuple(f"tool_do_{k}" for k in range(TOOL_DIGITAL_VALID))
+_AI = tuple(f"controller_ai_{k}" for k in range(CONTROLLER_ANALOG_INPUT_VALID))
+_TOOL_AI = tuple(f"tool_ai_{k}" for k in range(TOOL_ANALOG_INPUT_VALID))
+_AO = tuple(f"controller_ao_{k}" for k in WRITABLE_ANALOG_OUTPUTS)
+_TCP = tuple((a, f"tcp_{a}") for a in WORLD)
+_TCP_OFFSET = tuple((a, f"tcp_offset_{a}") for a in WORLD)
+_BASE_OFFSET = tuple((a, f"base_offset_{a}") for a in WORLD)
 
 
 class XArmDevice:
@@ -132,9 +153,14 @@ class XArmDevice:
         self.io = io
 
     # ------------------------------------------------------------------ polling
-    def read_plan(self, plan: Sequence[ReadRequest], priority: Priority) -> dict[str, Value]:
+    def read_plan(
+        self, plan: Sequence[ReadRequest], priority: Priority
+    ) -> tuple[dict[str, Value], float]:
+        """Values of a plan, and the wall-clock time its last request was sent."""
         values: dict[str, Value] = {}
+        read_time = 0.0
         for request in plan:
+            read_time = time.time()
             if request.table.is_bit:
                 raw: Sequence[int] | Sequence[bool] = self.io.read_bits(
                     request.address, request.count, request.table, priority=priority
@@ -144,61 +170,58 @@ class XArmDevice:
                     request.address, request.count, request.table, priority=priority
                 )
             values.update(decode_reply(request, raw))
-        return values
+        return values, read_time
 
     def read_named(self, *names: str) -> dict[str, Value]:
-        return self.read_plan(plan_reads(XARM_MAP, XARM_MAP.select(names)), Priority.COMMAND)
+        plan = plan_reads(XARM_MAP, XARM_MAP.select(names))
+        return self.read_plan(plan, Priority.COMMAND)[0]
 
     def poll(self) -> XArmSnapshot:
-        read_time = time.time()
-        v = self.read_plan(POLL_PLAN, Priority.POLL)
+        v, read_time = self.read_plan(POLL_PLAN, Priority.POLL)  # angles read last
 
-        def f(name: str) -> float:
-            return float(v[name])
+        def floats(names: tuple[str, ...]) -> tuple[float, ...]:
+            return tuple(float(v[n]) for n in names)
 
-        def b(name: str) -> bool:
-            return bool(v[name])
+        def bools(names: tuple[str, ...]) -> tuple[bool, ...]:
+            return tuple(bool(v[n]) for n in names)
 
-        def i(name: str) -> int:
-            return int(v[name])
+        def pose(names: tuple[tuple[str, str], ...]) -> dict[str, float]:
+            return {axis: float(v[name]) for axis, name in names}
 
-        joints = range(1, JOINTS + 1)
         return XArmSnapshot(
             read_time=read_time,
-            mode=i("arm_mode"),
-            state=i("arm_state"),
-            error_code=i("error_code"),
-            warning_code=i("warning_code"),
-            joint_angles_deg=tuple(f(f"joint_angle_{j}") for j in joints),
-            joint_speeds_deg_s=tuple(f(f"joint_speed_{j}") for j in joints),
-            joint_temperatures_c=tuple(f(f"joint_temperature_{j}") for j in joints),
-            tcp_pose={a: f(f"tcp_{a}") for a in WORLD},
-            tcp_speed_mm_s=f("tcp_speed"),
-            counter=i("counter"),
-            brakes=tuple(b(f"brake_{j}") for j in joints),
-            enabled=tuple(b(f"enable_{j}") for j in joints),
-            reduced_mode=b("reduced_mode"),
-            fence_mode=b("fence_mode"),
-            paused=b("paused"),
-            stopped=b("stopped"),
-            motion_modes=tuple(b(f"motion_mode_{m}") for m in range(MOTION_MODES)),
-            digital_inputs=tuple(b(f"controller_di_{k}") for k in range(CONTROLLER_DIGITAL_VALID)),
-            digital_outputs=tuple(b(f"controller_do_{k}") for k in range(CONTROLLER_DIGITAL_VALID)),
-            tool_digital_inputs=tuple(b(f"tool_di_{k}") for k in range(TOOL_DIGITAL_VALID)),
-            tool_digital_outputs=tuple(b(f"tool_do_{k}") for k in range(TOOL_DIGITAL_VALID)),
-            analog_inputs=tuple(
-                f(f"controller_ai_{k}") for k in range(CONTROLLER_ANALOG_INPUT_VALID)
-            ),
-            tool_analog_inputs=tuple(f(f"tool_ai_{k}") for k in range(TOOL_ANALOG_INPUT_VALID)),
-            analog_outputs=tuple(f(f"controller_ao_{k}") for k in WRITABLE_ANALOG_OUTPUTS),
-            tcp_load_mass_kg=f("tcp_load_mass"),
+            mode=int(v["arm_mode"]),
+            state=int(v["arm_state"]),
+            error_code=int(v["error_code"]),
+            warning_code=int(v["warning_code"]),
+            joint_angles_deg=floats(_ANGLES),
+            joint_speeds_deg_s=floats(_SPEEDS),
+            joint_temperatures_c=floats(_TEMPERATURES),
+            tcp_pose=pose(_TCP),
+            tcp_speed_mm_s=float(v["tcp_speed"]),
+            counter=int(v["counter"]),
+            brakes=bools(_BRAKES),
+            enabled=bools(_ENABLES),
+            reduced_mode=bool(v["reduced_mode"]),
+            fence_mode=bool(v["fence_mode"]),
+            paused=bool(v["paused"]),
+            stopped=bool(v["stopped"]),
+            motion_modes=bools(_MOTION_MODES),
+            digital_inputs=bools(_DI),
+            digital_outputs=bools(_DO),
+            tool_digital_inputs=bools(_TOOL_DI),
+            tool_digital_outputs=bools(_TOOL_DO),
+            analog_inputs=floats(_AI),
+            tool_analog_inputs=floats(_TOOL_AI),
+            analog_outputs=floats(_AO),
+            tcp_load_mass_kg=float(v["tcp_load_mass"]),
             tcp_load_center_mm=(
-                f("tcp_load_center_x"),
-                f("tcp_load_center_y"),
-                f("tcp_load_center_z"),
+                float(v["tcp_load_center_x"]),
+                float(v["tcp_load_center_y"]),
+                float(v["tcp_load_center_z"]),
             ),
-            tcp_offset={a: f(f"tcp_offset_{a}") for a in WORLD},
-            base_offset={a: f(f"base_offset_{a}") for a in WORLD},
+            tcp_offset=pose(_TCP_OFFSET),
+            base_offset=pose(_BASE_OFFSET),
         )
 
     # ------------------------------------------------------------------ commands
