@@ -21,6 +21,7 @@ from __future__ import annotations
 import contextlib
 import math
 import queue
+import signal
 import threading
 import time
 import traceback
@@ -39,6 +40,7 @@ from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
 from rclpy.time import Time
 from rclpy.utilities import try_shutdown
 from sensor_msgs.msg import JointState
@@ -424,9 +426,28 @@ def float_list(values: Sequence[float], count: int, default: float, name: str) -
     return out
 
 
+def interrupt_on_signals() -> None:
+    """SIGINT/SIGTERM raise KeyboardInterrupt in the main thread.
+
+    Used instead of rclpy's handlers (rclpy.init with SignalHandlerOptions.NO), which shut
+    the context down at once while the poll and publisher threads still publish; this way
+    the node stops its threads first and the context goes last.
+    """
+
+    def interrupt(_signum: int, _frame: Any) -> None:
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGINT, interrupt)
+    signal.signal(signal.SIGTERM, interrupt)
+
+
 def spin_node(make_node: Callable[[], Node], args: Sequence[str] | None = None) -> None:
     """rclpy demo-style main: init, spin with a multi-threaded executor, clean shutdown."""
-    rclpy.init(args=list(args) if args is not None else None)
+    rclpy.init(
+        args=list(args) if args is not None else None,
+        signal_handler_options=SignalHandlerOptions.NO,
+    )
+    interrupt_on_signals()
     node: Node | None = None
     executor = MultiThreadedExecutor(num_threads=3)
     try:
@@ -444,4 +465,4 @@ def spin_node(make_node: Callable[[], Node], args: Sequence[str] | None = None) 
         try_shutdown()
 
 
-__all__ = ["BridgeNode", "Level", "Report", "float_list", "spin_node"]
+__all__ = ["BridgeNode", "Level", "Report", "float_list", "interrupt_on_signals", "spin_node"]

@@ -26,7 +26,6 @@ x 2 pi (rad), velocity = 0xAF rpm x 2 pi / 60 / ``gear_ratio`` (rad/s); ``~/move
 
 from __future__ import annotations
 
-import signal
 import threading
 import time
 from collections.abc import Sequence
@@ -46,7 +45,15 @@ from std_srvs.srv import SetBool, Trigger
 from bridge_core.diagnostics import Level, Report
 from bridge_core.errors import CommandRejected, DeviceException, LinkError
 from bridge_core.link import DeviceChannel, ModbusLink, SerialSettings
-from bridge_core.node_base import BOOL, DOUBLE, INT, STRING, BridgeNode, _descriptor
+from bridge_core.node_base import (
+    BOOL,
+    DOUBLE,
+    INT,
+    STRING,
+    BridgeNode,
+    _descriptor,
+    interrupt_on_signals,
+)
 from msg_defs.msg import MotecState
 from msg_defs.srv import PositionMove, SetControlMode, SetOutput, SetValue
 
@@ -457,10 +464,6 @@ def _only_board_zero(board: int, index: int) -> int:
     return index
 
 
-def _interrupt(_signum: int, _frame: Any) -> None:
-    raise KeyboardInterrupt
-
-
 def main(args: Sequence[str] | None = None) -> None:
     # Our own SIGINT / SIGTERM handling: rclpy's would shut the context down while the
     # drives' threads still publish; here the drives stop first, then the context.
@@ -468,8 +471,7 @@ def main(args: Sequence[str] | None = None) -> None:
         args=list(args) if args is not None else None,
         signal_handler_options=SignalHandlerOptions.NO,
     )
-    signal.signal(signal.SIGINT, _interrupt)
-    signal.signal(signal.SIGTERM, _interrupt)
+    interrupt_on_signals()
     bus: MotecBusNode | None = None
     drives: list[MotecDriveNode] = []
     executor: MultiThreadedExecutor | None = None
