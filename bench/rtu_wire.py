@@ -117,12 +117,20 @@ def cases() -> list[Case]:
     return out
 
 
+def transaction_wire_s(
+    baudrate: int, request_bytes: int, reply_bytes: int, turnaround_s: float
+) -> float:
+    """One transaction on an ideal line: both frames, the device's turnaround (at least
+    t3.5 after the request), and t3.5 of silence after the reply."""
+    t35 = silence_s(baudrate)
+    char_s = BITS_PER_CHAR / baudrate
+    return (request_bytes + reply_bytes) * char_s + max(t35, turnaround_s) + t35
+
+
 def wire_cycle_s(baudrate: int, registers: int, turnaround_s: float) -> float:
     """One FC 03 transaction on the wire, silence after the reply included."""
-    char_s = BITS_PER_CHAR / baudrate
-    t35 = silence_s(baudrate)
-    wire_bytes = REQUEST_BYTES + REPLY_OVERHEAD_BYTES + 2 * registers
-    return wire_bytes * char_s + max(t35, turnaround_s) + t35
+    reply_bytes = REPLY_OVERHEAD_BYTES + 2 * registers
+    return transaction_wire_s(baudrate, REQUEST_BYTES, reply_bytes, turnaround_s)
 
 
 def serve_devices(
