@@ -35,6 +35,7 @@ from dataclasses import dataclass
 
 from bridge_core.channel import Priority, RegisterIO
 from bridge_core.codec import Value, encode
+from bridge_core.config_cache import ConfigCache
 from bridge_core.errors import CommandRejected, LinkError
 from bridge_core.planner import ReadRequest, decode_reply, plan_reads
 
@@ -226,11 +227,8 @@ class MotecDevice:
             raise ValueError(f"max_speed_rpm {max_speed_rpm} outside 1..{SPEED_LIMIT_RPM}")
         self.io = io
         self.max_speed_rpm = max_speed_rpm
-        self.config_refresh_s = config_refresh_s
         self._clock = clock
-        self._config: dict[str, Value] = {}
-        self._refresh_next = 0
-        self._refresh_due = math.inf
+        self._cache = ConfigCache(CONFIG_PLAN, self._read, config_refresh_s, clock)
         self._stream = _Stream()
         self.last_write = -math.inf  # clock() of the last successful write
 
@@ -243,30 +241,25 @@ class MotecDevice:
         return decode_reply(request, words)
 
     def read_config(self, priority: Priority = Priority.POLL) -> MotecConfig:
-        values: dict[str, Value] = {}
-        for request in CONFIG_PLAN:
-            values.update(self._read(request, priority))
-        self._config.update(values)
-        self._refresh_next = 0
-        self._refresh_due = self._clock() + self.config_refresh_s
+        self._cache.read_all(priority)
         return self.config
 
     def invalidate_config(self) -> None:
         """Forget the configuration (link came up): the next poll reads it first."""
-        self._config.clear()
+        self._cache.clear()
         # A stream that was running stays "active" so the node's deadman stops it once
         # the link is back; the speed the drive holds is unknown.
         self._stream.rpm = None
 
     @property
     def has_config(self) -> bool:
-        return len(self._config) == len(CONFIG_NAMES)
+        return self._cache.complete
 
     @property
     def config(self) -> MotecConfig:
         if not self.has_config:
             raise CommandRejected("the drive's configuration has not been read yet")
-        v = self._config
+        v = self._cache.values
         return MotecConfig(
             analog_max_speed_rpm=int(v["analog_max_speed"]),
             lifeguard_time_ms=int(v["lifeguard_time"]),
@@ -303,11 +296,7 @@ class MotecDevice:
         v: dict[str, Value] = {}
         for request in STATUS_PLAN:
             v.update(self._read(request, Priority.POLL))
-        if self._clock() >= self._refresh_due or self._refresh_next:
-            self._config.update(self._read(CONFIG_PLAN[self._refresh_next], Priority.POLL))
-            self._refresh_next = (self._refresh_next + 1) % len(CONFIG_PLAN)
-            if self._refresh_next == 0:
-                self._refresh_due = self._clock() + self.config_refresh_s
+        self._cache.refresh_step()  # one configuration request while a refresh is due
         return MotecSnapshot(
             read_time=read_time,
             modes=Modes(int(v["operation_mode"]), int(v["control_mode"]), bool(v["enable"])),
@@ -335,8 +324,7 @@ class MotecDevice:
         else:
             self.io.write_registers(reg.address, words)
         self.last_write = self._clock()
-        if name in self._config:
-            self._config[name] = value
+        self._cache.note_written(name, value)
 
     def _check_speed(self, rpm: float, what: str) -> int:
         _check_finite(what, rpm)

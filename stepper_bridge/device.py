@@ -29,6 +29,7 @@ from dataclasses import dataclass
 
 from bridge_core.channel import Priority, RegisterIO
 from bridge_core.codec import Value, decode, encode
+from bridge_core.config_cache import ConfigCache
 from bridge_core.errors import CommandRejected, LinkError
 from bridge_core.planner import ReadRequest, decode_reply, plan_reads
 from bridge_core.registers import Register
@@ -184,11 +185,7 @@ class StepperDevice:
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
         self.io = io
-        self.config_refresh_s = config_refresh_s
-        self._clock = clock
-        self._config: dict[str, Value] = {}
-        self._refresh_next = 0  # index into CONFIG_PLAN of the next slow read
-        self._refresh_due = math.inf
+        self._cache = ConfigCache(CONFIG_PLAN, self._read, config_refresh_s, clock)
         self._jogs = {m: _Jog() for m in range(1, MOTORS + 1)}
 
     # ------------------------------------------------------------------ reads
@@ -200,12 +197,7 @@ class StepperDevice:
 
     def read_config(self, priority: Priority = Priority.POLL) -> StepperConfig:
         """Read the whole configuration (on link up, and whenever asked)."""
-        values: dict[str, Value] = {}
-        for request in CONFIG_PLAN:
-            values.update(self._read(request, priority))
-        self._config.update(values)
-        self._refresh_next = 0
-        self._refresh_due = self._clock() + self.config_refresh_s
+        self._cache.read_all(priority)
         return self.config
 
     def read_named(self, *names: str) -> dict[str, Value]:
@@ -217,7 +209,7 @@ class StepperDevice:
 
     def invalidate_config(self) -> None:
         """Forget the cached configuration: the next poll reads it whole first."""
-        self._config.clear()
+        self._cache.clear()
         for jog in self._jogs.values():
             # The speed register may have changed; a jog that was running is still
             # "jogging" so that the node's deadman stops it once the link is back.
@@ -225,13 +217,13 @@ class StepperDevice:
 
     @property
     def has_config(self) -> bool:
-        return len(self._config) == len(_config_names())
+        return self._cache.complete
 
     @property
     def config(self) -> StepperConfig:
         if not self.has_config:
             raise CommandRejected("the controller's configuration has not been read yet")
-        v = self._config
+        v = self._cache.values
 
         def i(name: str) -> int:
             return int(v[name])
@@ -270,12 +262,7 @@ class StepperDevice:
         v: dict[str, Value] = {}
         for request in STATUS_PLAN:
             v.update(self._read(request, Priority.POLL))
-        # The slow part: one configuration request per poll while a refresh is due.
-        if self._clock() >= self._refresh_due or self._refresh_next:
-            self._config.update(self._read(CONFIG_PLAN[self._refresh_next], Priority.POLL))
-            self._refresh_next = (self._refresh_next + 1) % len(CONFIG_PLAN)
-            if self._refresh_next == 0:
-                self._refresh_due = self._clock() + self.config_refresh_s
+        self._cache.refresh_step()  # one configuration request while a refresh is due
         return StepperSnapshot(
             read_time=read_time,
             coordinates=tuple(
@@ -306,11 +293,10 @@ class StepperDevice:
             else:
                 self.io.write_registers(regs[0].address, words)
         except LinkError:
-            self._refresh_due = 0.0
+            self._cache.refresh_soon()
             raise
         for reg, (_, value) in zip(regs, values, strict=True):
-            if reg.name in self._config:
-                self._config[reg.name] = _as_read(reg, value)
+            self._cache.note_written(reg.name, _as_read(reg, value))
 
     def _coil(self, name: str) -> None:
         self.io.write_coil(STEPPER_MAP[name].address, True)
@@ -522,7 +508,7 @@ class StepperDevice:
         try:
             self._coil(name)
         finally:
-            self._refresh_due = 0.0
+            self._cache.refresh_soon()
 
     def set_output(self, output: int, on: bool) -> None:
         """Output 1-12: 0xFF00 to its ON coil, or to its OFF coil (00049-00072 in pairs)."""
