@@ -11,14 +11,11 @@ and refusals that never reach the wire.
 from __future__ import annotations
 
 import math
-import threading
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass, field
 from typing import Any
 
 import pytest
-import serial
 from pymodbus.framer import FramerRTU
 
 from bridge_core.channel import Priority
@@ -42,6 +39,7 @@ from motec_bridge.registers import (
     output_coil,
 )
 
+from .support.rtu_replay import RtuReplay, Step
 from .support.serial_pair import socat_pair
 
 BAUD = 115200
@@ -65,43 +63,6 @@ def get_crc16(data: bytes) -> int:
 
 
 # ---------------------------------------------------------------- RTU replay peer
-
-
-@dataclass
-class Step:
-    request: bytes
-    reply: bytes  # b"": no reply (broadcast)
-    meaning: str = ""
-
-
-@dataclass
-class RtuReplay:
-    port: str
-    steps: list[Step]
-    received: list[bytes] = field(default_factory=list)
-    mismatches: list[str] = field(default_factory=list)
-
-    def __post_init__(self) -> None:
-        self._serial = serial.Serial(self.port, BAUD, timeout=3.0)
-        self._thread = threading.Thread(target=self._serve, daemon=True)
-        self._thread.start()
-
-    def _serve(self) -> None:
-        for step in self.steps:
-            data = self._serial.read(len(step.request))
-            self.received.append(data)
-            if data != step.request:
-                self.mismatches.append(
-                    f"{step.meaning}: expected {step.request.hex(' ')}, got {data.hex(' ')}"
-                )
-                return
-            if step.reply:
-                self._serial.write(step.reply)
-                self._serial.flush()
-
-    def close(self) -> None:
-        self._thread.join(5)
-        self._serial.close()
 
 
 @contextmanager

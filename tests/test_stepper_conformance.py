@@ -9,14 +9,11 @@ manual's tables, and the decisions on the example/table contradictions (seeds RE
 
 from __future__ import annotations
 
-import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, field
 from typing import Any
 
 import pytest
-import serial
 from pymodbus.framer import FramerRTU
 
 from bridge_core.errors import DeviceException
@@ -36,6 +33,7 @@ from stepper_bridge.registers import (
     motor_register,
 )
 
+from .support.rtu_replay import RtuReplay, Step
 from .support.serial_pair import socat_pair
 
 BAUD = 115200
@@ -70,44 +68,6 @@ def test_manual_crcs_are_what_pymodbus_computes(name: str) -> None:
 
 
 # ---------------------------------------------------------------- RTU replay peer
-
-
-@dataclass
-class Step:
-    request: bytes
-    reply: bytes
-    meaning: str = ""
-
-
-@dataclass
-class RtuReplay:
-    """Answers each expected request frame with its reply; records what arrived."""
-
-    port: str
-    steps: list[Step]
-    received: list[bytes] = field(default_factory=list)
-    mismatches: list[str] = field(default_factory=list)
-
-    def __post_init__(self) -> None:
-        self._serial = serial.Serial(self.port, BAUD, timeout=3.0)
-        self._thread = threading.Thread(target=self._serve, daemon=True)
-        self._thread.start()
-
-    def _serve(self) -> None:
-        for step in self.steps:
-            data = self._serial.read(len(step.request))
-            self.received.append(data)
-            if data != step.request:
-                self.mismatches.append(
-                    f"{step.meaning}: expected {step.request.hex(' ')}, got {data.hex(' ')}"
-                )
-                return
-            self._serial.write(step.reply)
-            self._serial.flush()
-
-    def close(self) -> None:
-        self._thread.join(5)
-        self._serial.close()
 
 
 @contextmanager
