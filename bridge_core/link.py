@@ -377,6 +377,10 @@ class DeviceChannel:
         self.stats = LinkStats()
         self._connected = False
         self._ever_connected = False
+        # Bumped whenever the device is marked down: a command started on an older epoch
+        # must not run on a link that was lost (and maybe reopened) meanwhile.
+        self._epoch = 0
+        self._session = threading.local()
 
     @property
     def connected(self) -> bool:
@@ -387,7 +391,23 @@ class DeviceChannel:
         """Whether a poll should try the device now (connected, or backoff elapsed)."""
         return self._connected or self.backoff.ready()
 
+    @contextmanager
+    def command_session(self) -> Iterator[None]:
+        """Tie this thread's transactions to the connection they started on.
+
+        Inside it, every transaction is refused (``LinkDown``, nothing sent) once the
+        device was marked down after the session began, even if a poll has reconnected
+        since: DESIGN §2, nothing is queued across a reconnect. The node's command guard
+        wraps each command in one; polls and link-up probes run outside.
+        """
+        self._session.epoch = self._epoch if self._connected else -1
+        try:
+            yield
+        finally:
+            self._session.epoch = None
+
     def mark_down(self, error: LinkError | str) -> None:
+        self._epoch += 1
         text = str(error)
         self.stats.last_error = text
         self.stats.last_error_time = time.time()
@@ -408,6 +428,11 @@ class DeviceChannel:
         lock = self.link.lock
         lock.acquire(priority)  # acquire/release, not a context manager: the poll hot path
         try:
+            session = getattr(self._session, "epoch", None)
+            if session is not None and (session != self._epoch or not self._connected):
+                raise LinkDown(
+                    f"{self.describe()}: the link was lost while the command waited; not sent"
+                )
             last: LinkError = LinkDown("no attempt made")
             for _ in range(attempts):
                 try:

@@ -323,7 +323,8 @@ class BridgeNode(Node):
         if not self.channel.connected:
             return False, f"{what} refused: not connected to {self.channel.describe()}", None
         try:
-            result = action()
+            with self.channel.command_session():
+                result = action()
         except CommandRejected as err:
             return False, f"{what} refused: {err}", None
         except DeviceException as err:

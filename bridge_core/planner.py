@@ -40,7 +40,12 @@ class ReadRequest:
 
 
 def _gap_is_readable(
-    register_map: RegisterMap, table: Table, start: int, end: int, limits: DeviceLimits
+    register_map: RegisterMap,
+    table: Table,
+    start: int,
+    end: int,
+    limits: DeviceLimits,
+    width: int = 1,
 ) -> bool:
     """Whether reading through ``start..end`` is allowed: every address readable and whole."""
     if start == end:
@@ -57,8 +62,15 @@ def _gap_is_readable(
             continue
         if not owner.access.readable or owner.address < start or owner.end > end:
             return False
+        if limits.homogeneous_requests and owner.count != width:
+            return False
         address = owner.end
     return True
+
+
+def _same_kind(first: Register, other: Register) -> bool:
+    """May ``other`` join a request that ``first`` opened, on a homogeneous device?"""
+    return first.count == other.count and first.count < ValueType.U64.words
 
 
 def plan_reads(
@@ -84,7 +96,8 @@ def plan_reads(
                 current
                 and reg.end - start <= limit
                 and reg.address >= end
-                and _gap_is_readable(register_map, table, end, reg.address, limits)
+                and _gap_is_readable(register_map, table, end, reg.address, limits, reg.count)
+                and (not limits.homogeneous_requests or _same_kind(current[0], reg))
             ):
                 current.append(reg)
                 end = reg.end

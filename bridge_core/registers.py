@@ -185,6 +185,9 @@ class DeviceLimits:
     # Largest run of unwanted (but readable) registers the planner reads through to merge.
     max_gap: int = 16
     function_codes: frozenset[int] = frozenset({1, 2, 3, 4, 5, 6, 15, 16})
+    # Only registers of one width per request, and 64-bit values one at a time: for
+    # devices whose manual makes every block read from its own first register (R6).
+    homogeneous_requests: bool = False
     # Minimum delay before the device answers (seconds); simulators reproduce it.
     reply_delay_s: float = 0.0
 

@@ -182,6 +182,15 @@ class SimulatedDevice:
         for forced_table, forced, code in self.forced_exceptions:
             if forced_table is table and any(a in forced for a in range(address, address + count)):
                 return code
+        if self.limits.homogeneous_requests and not table.is_bit and not writing:
+            widths = {
+                owner.count
+                for a in range(address, address + count)
+                if (owner := self.map.owner_at(table, a)) is not None
+                and owner.value_type is not ValueType.STRING
+            }
+            if len(widths) > 1 or (widths == {ValueType.U64.words} and count != widths.pop()):
+                return ILLEGAL_ADDRESS  # mixed widths, or more than one 64-bit value
         if self.whole_values and not table.is_bit:
             # Strings may be read in part (R6 version: (length + 1) / 2 registers).
             for a in (address, address + count - 1):

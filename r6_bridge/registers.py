@@ -392,7 +392,12 @@ def _build() -> tuple[Register, ...]:
 
 
 # FC 03 reads, 06/10 writes (§4 title also names 04: this bridge never uses it), 01/05 coils.
-R6_LIMITS = DeviceLimits(function_codes=frozenset({1, 3, 5, 6, 16}), read_undefined_ok=False)
+# Every block read the way the manual's examples read it: 32-bit rows from a value's first
+# register in pairs (§3.1.6, §3.1.8, §3.1.9), 64-bit cycle times one at a time ("寄存器数量
+# 固定为 4", §3.1.11), never a 16-bit row merged in front of them.
+R6_LIMITS = DeviceLimits(
+    function_codes=frozenset({1, 3, 5, 6, 16}), read_undefined_ok=False, homogeneous_requests=True
+)
 R6_MAP = RegisterMap("r6", _build(), R6_LIMITS)
 
 

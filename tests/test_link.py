@@ -238,3 +238,29 @@ def test_a_device_that_is_down_is_probed_once_not_retried(tcp_sim: tuple[Simulat
     with pytest.raises(LinkTimeout):
         channel.read_registers(0, 1)  # connected: 1 + 2 retries
     assert channel.stats.timeouts == 1 + 3
+
+
+def test_a_command_that_waited_through_a_link_loss_is_not_sent(
+    tcp_sim: tuple[Simulator, int],
+) -> None:
+    # A command passes the node's "connected" guard, waits for the lock while a poll
+    # fails (device marked down, TCP closed); the poll's reconnect must not carry it.
+    sim, port = tcp_sim
+    channel = DeviceChannel(
+        ModbusLink(TcpSettings(port=port, timeout_s=0.2)), 1, retries=0, reconnect_max_s=0.3
+    )
+    channel.read_registers(0, 1)
+    with channel.command_session():
+        sim.withhold_replies = True
+        with pytest.raises(LinkTimeout):
+            channel.read_registers(0, 1)  # the poll fails meanwhile
+        sim.withhold_replies = False
+        wait_until(channel.may_attempt, timeout=2)
+        with pytest.raises(LinkDown, match="not sent"):
+            channel.write_register(3, 9)
+    assert sim.device.write_log == []
+    # Outside a stale session (a new command after the reconnect) writes go through.
+    channel.read_registers(0, 1)
+    with channel.command_session():
+        channel.write_register(3, 9)
+    assert [r.values for r in sim.device.write_log] == [(9,)]

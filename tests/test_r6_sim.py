@@ -247,3 +247,26 @@ def test_the_map_covers_the_manual_tables() -> None:
         assert reg.doc.startswith("§"), reg.name
         for rows in NOT_OFFERED.values():
             assert not (reg.table is Table.HOLDING and set(reg.addresses()) & set(rows)), reg.name
+
+
+def test_simulator_refuses_reads_that_mix_block_widths(sim: tuple[R6SimDevice, int]) -> None:
+    _, port = sim
+
+    def code(address: int, count: int) -> int | None:
+        reply = raw_request(port, bytes([3]) + struct.pack(">HH", address, count))
+        return reply[2] if reply[1] & 0x80 else None
+
+    assert code(2267, 13) == 2  # axis count (16-bit) merged in front of the positions
+    assert code(2185, 4) == 2  # mode + board count + board 0 inputs
+    assert code(2397, 8) == 2  # both cycle times: "寄存器数量固定为 4"
+    assert code(2396, 5) == 2  # alarm + a cycle time
+    assert code(2397, 4) is None and code(2268, 12) is None and code(2405, 9) is None
+
+
+def test_poll_plan_reads_every_block_as_the_manual_does() -> None:
+    plan = R6Device(None).poll_plan(6, 1)  # type: ignore[arg-type]
+    for request in plan:
+        widths = {reg.count for reg in request.registers}
+        assert len(widths) == 1, request
+        if widths == {4}:
+            assert request.count == 4
