@@ -454,7 +454,9 @@ class MotecDevice:
         try:
             self._write("speed_setpoint", speed)
         except LinkError:
-            stream.rpm = None
+            # The write may or may not have landed: treat the drive as turning, so the
+            # deadman (velocity_stop) keeps trying until a 0 is acknowledged.
+            stream.rpm, stream.active = None, True
             raise
         stream.rpm, stream.active = speed, True
         return True

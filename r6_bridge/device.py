@@ -26,6 +26,7 @@ from .registers import (
     OUTPUT_BOARDS_ACCEPTED,
     OUTPUT_POINTS,
     PARAMETER_COUNT,
+    PARAMETER_WRITE_LAST_INDEX,
     POINT_AXIS_MASK_MAX,
     POINT_FRAME_MAX_BYTES,
     POINT_VALUES_PER_POINT,
@@ -289,6 +290,11 @@ class R6Device:
             raise CommandRejected(f"at most {MAX_WRITE_REGISTERS // 2} parameters per write")
         for k, value in enumerate(values):
             _check_parameter_index(first_index + k)
+            if first_index + k > PARAMETER_WRITE_LAST_INDEX:
+                raise CommandRejected(
+                    f"parameter {first_index + k} is read-only here: §3.3.4 gives the "
+                    f"writable range as 20300-22229 (indexes 0-{PARAMETER_WRITE_LAST_INDEX})"
+                )
             _check_range(f"parameter {first_index + k}", value, I32_MIN, I32_MAX)
         words: list[int] = []
         for value in values:

@@ -45,6 +45,9 @@ M_BOARDS = 3
 MAX_COUNTERS = 1024
 MAX_VERSION_BYTES = 128
 PARAMETER_COUNT = 1000
+# §3.3.4 gives the writable range as "0x4f4c (20300)~0x56d5 (22229)": index 964 is the last
+# whole value inside it. Indexes 965-999 (DESIGN's 0-999) are read, never written.
+PARAMETER_WRITE_LAST_INDEX = (22229 - 20300) // 2
 PARAMETER_BASE = 20300
 TORQUE_RATED_RAW = 2580  # §3.1.13: 2580 = one times rated torque
 POSITION_SCALE = 1000  # §3.1.8 / §3.1.9: value x 1000 as int32

@@ -172,6 +172,11 @@ class _Jog:
     speed: int | None = None  # last speed written by a jog (None: unknown)
     sign: int = 0  # -1 reverse, 0 stopped, +1 forward
     locked: bool = False
+    # A jog write or a stop failed on the link: the motor may be running; the deadman
+    # keeps sending the stop coil until one is acknowledged.
+    stop_pending: bool = False
+    # A stop was acknowledged since the last motion command: further 0s send nothing.
+    stop_sent: bool = False
 
 
 class StepperDevice:
@@ -311,8 +316,9 @@ class StepperDevice:
         try:
             self.io.write_coil(motor_coil(motor, action), True)
         finally:
-            # A service overrides any jog: the next jog command is sent whole.
-            jog.speed, jog.sign = None, 0
+            # A service overrides any jog: the next jog command is sent whole, and a 0 jog
+            # then stops the motor once (it may be running the service's motion).
+            jog.speed, jog.sign, jog.stop_sent = None, 0, False
             jog.locked = action == "stop"
 
     def set_motor_parameter(self, motor: int, field: str, value: float) -> None:
@@ -435,7 +441,7 @@ class StepperDevice:
         jog = self._jogs[motor]
         if sign == 0:
             jog.locked = False
-            if jog.sign == 0 and jog.speed is not None:
+            if jog.sign == 0 and not jog.stop_pending and (jog.stop_sent or jog.speed is not None):
                 return False
             self.jog_stop(motor, force=True)
             return True
@@ -457,12 +463,16 @@ class StepperDevice:
                 self.io.write_coil(motor_coil(motor, "forward" if sign > 0 else "reverse"), True)
                 jog.sign = sign
         except LinkError:
-            jog.speed, jog.sign = None, 0  # unknown: the next command is sent whole
+            # Unknown: the next command is sent whole, and the motor may be running.
+            jog.speed, jog.sign, jog.stop_pending = None, 0, True
             raise
+        jog.stop_sent = False
         return True
 
     def jogging(self, motor: int) -> bool:
-        return self._jogs[motor].sign != 0
+        """Running under a jog, or possibly so after a failed write (the deadman's cue)."""
+        jog = self._jogs[motor]
+        return jog.sign != 0 or jog.stop_pending
 
     def jog_locked(self, motor: int) -> bool:
         return self._jogs[motor].locked
@@ -472,12 +482,14 @@ class StepperDevice:
         _check_motor(motor)
         jog = self._jogs[motor]
         jog.locked = False
-        if not force and jog.sign == 0:
+        if not force and jog.sign == 0 and not jog.stop_pending:
             return False
         try:
             self.io.write_coil(motor_coil(motor, "stop"), True)
-        finally:
-            jog.sign = 0
+        except LinkError:
+            jog.stop_pending = True  # keep the deadman on it until a stop is acknowledged
+            raise
+        jog.sign, jog.stop_pending, jog.stop_sent = 0, False, True
         return True
 
     # ------------------------------------------------------------------ all-motor commands

@@ -50,6 +50,7 @@ def raw_request(port: int, pdu: bytes, unit: int = 1) -> bytes:
 
 def test_poll_decodes_the_simulator_state(r6: tuple[R6Device, R6SimDevice, DeviceChannel]) -> None:
     device, sim, _ = r6
+    sim.tick = lambda dt: None  # type: ignore[method-assign]  # hold the values still
     sim.set("axis_position_3", -45.5)
     sim.set("world_z", 812.25)
     sim.set("axis_speed_2", -120)
@@ -78,19 +79,21 @@ def test_commands_write_the_manual_registers(
     device.set_global_speed(12.5)
     device.set_output(1, 7, True)
     device.set_counter(1, 42)
-    device.write_parameter(999, -7)
+    device.write_parameter(964, -7)  # the last index inside §3.3.4's 20300-22229
     log = [(r.function_code, r.address, r.values) for r in sim.write_log]
     assert log == [
         (6, 20003, (1,)),
         (6, 20200, (125,)),
         (16, 20056, (1, 7, 1)),
         (16, 20050, (0, 1, 0, 0, 0, 42)),
-        (16, 20300 + 2 * 999, (0xFFFF, 0xFFF9)),
+        (16, 20300 + 2 * 964, (0xFFFF, 0xFFF9)),
     ]
     assert sim.running
     assert sim.get("io_board_output_1") == 1 << 7
     assert device.read_counter(1) == (1, 10, 42)
-    assert device.read_parameter(999) == -7
+    assert device.read_parameter(964) == -7
+    sim.set("parameter_999", 123)
+    assert device.read_parameter(999) == 123  # read-only beyond 964, but readable
 
 
 @pytest.mark.parametrize(
@@ -102,6 +105,8 @@ def test_commands_write_the_manual_registers(
         (lambda d: d.set_output(0, 32, True), "point 32"),
         (lambda d: d.write_parameter(1000, 1), "parameter index"),
         (lambda d: d.write_parameter(915, 1), "22130"),
+        (lambda d: d.write_parameter(965, 1), "read-only"),
+        (lambda d: d.write_parameters(963, [1, 2, 3]), "read-only"),
         (lambda d: d.write_parameter(0, 2**31), "outside"),
         (lambda d: d.set_counter(-1, 0), "counter id"),
         (lambda d: d.command("self_destruct"), "unknown"),
