@@ -13,6 +13,7 @@ gives async hooks for reply delays and withheld replies. Pinned: see notes.
 
 from __future__ import annotations
 
+import argparse
 import asyncio
 import contextlib
 import json
@@ -464,3 +465,37 @@ class PtyPair:
             self.proc.terminate()
             self.proc.wait(5)
         self._tmp.cleanup()
+
+
+def add_serial_arguments(
+    parser: argparse.ArgumentParser, default_baudrate: int, example: str
+) -> None:
+    """The serial simulators' line options: where to serve (a port, or a new pty pair)."""
+    where = parser.add_mutually_exclusive_group(required=True)
+    where.add_argument("--serial", help="serve on this serial port or pty path")
+    where.add_argument(
+        "--pty",
+        type=Path,
+        help=f"create a socat pty pair and link the bridge's end here (e.g. {example})",
+    )
+    parser.add_argument("--baudrate", type=int, default=default_baudrate)
+    parser.add_argument("--parity", default="N", choices=("N", "E", "O"))
+    parser.add_argument("--stopbits", type=int, default=1, choices=(1, 2))
+
+
+def serve_serial_until_signalled(
+    sim: Simulator, args: argparse.Namespace, banner: Callable[[str], str]
+) -> None:
+    """Serve on ``args.serial`` or a new pty pair (``args.pty``) until SIGINT/SIGTERM.
+
+    ``banner(where)`` is the line printed once listening; the pty pair is closed after.
+    """
+    pair = PtyPair(args.pty) if args.pty else None
+    try:
+        port = str(pair.device_end) if pair else args.serial
+        sim.start_serial(port, args.baudrate, args.parity, args.stopbits)
+        serve_until_signalled(sim, banner(str(args.pty) if pair else args.serial))
+    finally:
+        sim.stop()
+        if pair is not None:
+            pair.close()

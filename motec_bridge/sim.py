@@ -48,11 +48,11 @@ from bridge_core.sim_base import (
     ILLEGAL_ADDRESS,
     ILLEGAL_VALUE,
     TICK_S,
-    PtyPair,
     SimulatedDevice,
     Simulator,
     WriteRecord,
-    serve_until_signalled,
+    add_serial_arguments,
+    serve_serial_until_signalled,
 )
 
 from .registers import (
@@ -410,16 +410,7 @@ def _fault(text: str) -> tuple[int, int]:
 
 def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description="MOTEC β servo drives on one Modbus RTU bus")
-    where = parser.add_mutually_exclusive_group(required=True)
-    where.add_argument("--serial", help="serve on this serial port or pty path")
-    where.add_argument(
-        "--pty",
-        type=Path,
-        help="create a socat pty pair and link the bridge's end here (e.g. /tmp/motec)",
-    )
-    parser.add_argument("--baudrate", type=int, default=DEFAULT_BAUDRATE)
-    parser.add_argument("--parity", default="N", choices=("N", "E", "O"))
-    parser.add_argument("--stopbits", type=int, default=1, choices=(1, 2))
+    add_serial_arguments(parser, DEFAULT_BAUDRATE, "/tmp/motec")
     parser.add_argument(
         "--unit-ids", type=_unit_list, default=[1], help="drives on the bus, e.g. 1,2,3"
     )
@@ -450,21 +441,17 @@ def main(argv: Sequence[str] | None = None) -> None:
     log = args.write_log.open("a") if args.write_log else None
     for drive in sim.drives.values():
         drive.log_file = log
-    pair = PtyPair(args.pty) if args.pty else None
+    ids = ",".join(str(u) for u in args.unit_ids)
     try:
-        shown = str(args.pty) if pair else args.serial
-        port = str(pair.device_end) if pair else args.serial
-        sim.start_serial(port, args.baudrate, args.parity, args.stopbits)
-        ids = ",".join(str(u) for u in args.unit_ids)
-        serve_until_signalled(
+        serve_serial_until_signalled(
             sim,
-            f"motec_sim listening on {shown} (units {ids}, {args.baudrate} baud, "
-            f"reply delay {args.reply_delay_ms:g} ms)",
+            args,
+            lambda where: (
+                f"motec_sim listening on {where} (units {ids}, {args.baudrate} "
+                f"baud, reply delay {args.reply_delay_ms:g} ms)"
+            ),
         )
     finally:
-        sim.stop()
-        if pair is not None:
-            pair.close()
         if log is not None:
             log.close()
 

@@ -45,11 +45,11 @@ from bridge_core.registers import Table
 from bridge_core.sim_base import (
     ILLEGAL_FUNCTION,
     ILLEGAL_VALUE,
-    PtyPair,
     SimulatedDevice,
     Simulator,
     WriteRecord,
-    serve_until_signalled,
+    add_serial_arguments,
+    serve_serial_until_signalled,
 )
 
 from .registers import (
@@ -471,16 +471,7 @@ def make_simulator(
 
 def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description="5-axis stepper controller Modbus RTU simulator")
-    where = parser.add_mutually_exclusive_group(required=True)
-    where.add_argument("--serial", help="serve on this serial port or pty path")
-    where.add_argument(
-        "--pty",
-        type=Path,
-        help="create a socat pty pair and link the bridge's end here (e.g. /tmp/stepper)",
-    )
-    parser.add_argument("--baudrate", type=int, default=DEFAULT_BAUDRATE)
-    parser.add_argument("--parity", default="N", choices=("N", "E", "O"))
-    parser.add_argument("--stopbits", type=int, default=1, choices=(1, 2))
+    add_serial_arguments(parser, DEFAULT_BAUDRATE, "/tmp/stepper")
     parser.add_argument("--unit-id", type=int, default=1)
     parser.add_argument(
         "--reply-delay-ms",
@@ -498,20 +489,14 @@ def main(argv: Sequence[str] | None = None) -> None:
     assert isinstance(device, StepperSimDevice)
     if args.write_log:
         device.log_file = args.write_log.open("a")
-    pair = PtyPair(args.pty) if args.pty else None
-    try:
-        shown = str(args.pty) if pair else args.serial
-        port = str(pair.device_end) if pair else args.serial
-        sim.start_serial(port, args.baudrate, args.parity, args.stopbits)
-        serve_until_signalled(
-            sim,
-            f"stepper_sim listening on {shown} (unit {args.unit_id}, {args.baudrate} baud, "
-            f"reply delay {args.reply_delay_ms:g} ms)",
-        )
-    finally:
-        sim.stop()
-        if pair is not None:
-            pair.close()
+    serve_serial_until_signalled(
+        sim,
+        args,
+        lambda where: (
+            f"stepper_sim listening on {where} (unit {args.unit_id}, "
+            f"{args.baudrate} baud, reply delay {args.reply_delay_ms:g} ms)"
+        ),
+    )
 
 
 if __name__ == "__main__":
