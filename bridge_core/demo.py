@@ -4,11 +4,39 @@ Starts each device's simulator and bridge node as separate processes (as a user 
 run them), then watches their topics from this process and prints a status block once
 per second until Ctrl-C or ``--duration``. Everything stays on this machine: discovery is
 limited to localhost and the demo uses a ROS domain of its own.
+
+This module knows no device. Each bridge package owns its entry, ``<bridge>/demo.py``
+exporting ``DEMO = DemoDevice(...)`` (simulator arguments, node parameters, services that
+set the device moving, a one-line state formatter), and declares it in the entry-point
+group ``modbus_bridges.demo`` of pyproject.toml::
+
+    [project.entry-points."modbus_bridges.demo"]
+    r6 = "r6_bridge.demo:DEMO"
+
+How the runner finds the entries (:func:`entry_specs`), first match wins:
+
+1. a list given explicitly: ``--demo-module r6_bridge.demo`` (repeatable) or
+   ``main(modules=[...])``; a spec is ``module`` (attribute ``DEMO``) or ``module:attr``;
+2. in a source checkout (a pyproject.toml of this project next to ``bridge_core/``), that
+   file's entry-point table, read with tomllib;
+3. otherwise the installed distributions' entry points in the group (a wheel install).
+
+Why read pyproject.toml rather than only the installed entry points: the editable install
+records entry points at install time, so a checkout whose table changed since (another
+git worktree sharing one venv, a pull without re-running scripts/setup.sh) would run a
+stale list, or none. The table in the checkout is always the current one, and after a
+clean clone plus scripts/setup.sh both sources agree. Why not scan the packages next to
+``bridge_core`` for a ``demo.py``: installed, those siblings are all of site-packages,
+and importing whatever ``*/demo.py`` lies there is not safe; the explicit table is one
+list for both cases, and tests/test_demo_entries.py checks that every ``<bridge>/demo.py``
+in the checkout is declared in it. Entry points carry no order, so ``DemoDevice.order``
+sets the order of the status blocks.
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib
 import math
 import os
 import signal
@@ -17,13 +45,17 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable, Sequence
+import tomllib
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
+from importlib.metadata import entry_points
 from pathlib import Path
 from typing import Any
 
 DEFAULT_DOMAIN_ID = 42
 ROOT = Path(__file__).resolve().parent.parent
+ENTRY_POINT_GROUP = "modbus_bridges.demo"
+PROJECT_NAME = "modbus-ros-bridges"
 
 
 def _free_port() -> int:
@@ -50,143 +82,41 @@ class DemoDevice:
     # Nodes with a ~/state of their own, when one process runs several (MOTEC: one per
     # drive); default: just ``node_name``.
     state_nodes: list[str] = field(default_factory=list)
+    # Where the device's block goes in the status output (lowest first).
+    order: int = 100
 
     @property
     def nodes(self) -> list[str]:
         return self.state_nodes or [self.node_name]
 
 
-def _r6_state(state: Any) -> str:
-    return (
-        f"mode {state.mode_name}  alarm {state.alarm_code}  "
-        f"moving {'yes' if state.moving else 'no'}  "
-        f"speed {state.global_speed_percent:.1f}%  cycle {state.current_cycle_time_ms} ms"
-    )
+def entry_specs(root: Path = ROOT) -> list[str]:
+    """The ``module:attr`` of every declared demo entry (see the module docstring)."""
+    pyproject = root / "pyproject.toml"
+    if pyproject.is_file():
+        with pyproject.open("rb") as f:
+            project = tomllib.load(f).get("project", {})
+        if project.get("name") == PROJECT_NAME:
+            table = project.get("entry-points", {}).get(ENTRY_POINT_GROUP, {})
+            return [str(spec) for spec in table.values()]
+    return [ep.value for ep in entry_points(group=ENTRY_POINT_GROUP)]
 
 
-DEVICES: list[DemoDevice] = [
-    DemoDevice(
-        name="R6",
-        node_name="r6_bridge",
-        sim_args=lambda port: ["-m", "r6_bridge.sim", "--port", str(port)],
-        node_module="r6_bridge.node",
-        node_params=lambda port: {"port": port, "poll_rate_hz": 50.0},
-        state_type="msg_defs/msg/R6State",
-        format_state=_r6_state,
-        start_services=[
-            ("set_global_speed", "msg_defs/srv/SetValue", {"value": 80.0}),
-            ("start", "std_srvs/srv/Trigger", {}),
-        ],
-    ),
-]
-
-
-def _xarm_state(state: Any) -> str:
-    error = f"error {state.error_code} {state.error_text}" if state.error_code else "no error"
-    outputs = "".join("1" if b else "0" for b in state.digital_outputs)
-    return (
-        f"state {state.state_name}  mode {state.mode}  {error}  "
-        f"tcp speed {state.tcp_speed:.3f} m/s  DO {outputs}"
-    )
-
-
-DEVICES.append(
-    DemoDevice(
-        name="xArm",
-        node_name="xarm_bridge",
-        sim_args=lambda port: ["-m", "xarm_bridge.sim", "--port", str(port)],
-        node_module="xarm_bridge.node",
-        node_params=lambda port: {"port": port, "poll_rate_hz": 50.0},
-        state_type="msg_defs/msg/XArmState",
-        format_state=_xarm_state,
-        start_services=[
-            ("set_digital_output", "msg_defs/srv/SetOutput", {"board": 0, "index": 2, "on": True}),
-            ("run_offline_task", "msg_defs/srv/RunOfflineTask", {"projects": [1, 2, 3, 4, 5, 6]}),
-        ],
-    )
-)
-
-
-def _stepper_state(state: Any) -> str:
-    running = "".join("R" if r else "." for r in state.running)
-    outputs = "".join("1" if o else "0" for o in state.outputs)
-    coordinates = " ".join(f"{c:8.2f}" for c in state.coordinates)
-    return f"running {running}  coordinates {coordinates}  outputs {outputs}"
-
-
-DEVICES.append(
-    DemoDevice(
-        name="Stepper",
-        node_name="stepper_bridge",
-        # The manual's line: 9600 baud 8N1, replies after 35 ms (the simulator's default).
-        sim_args=lambda pty: ["-m", "stepper_bridge.sim", "--pty", str(pty)],
-        node_module="stepper_bridge.node",
-        node_params=lambda pty: {"serial_port": str(pty), "baudrate": 9600},
-        state_type="msg_defs/msg/StepperState",
-        format_state=_stepper_state,
-        start_services=[
-            ("motor_1/forward", "std_srvs/srv/Trigger", {}),
-            ("motor_3/reverse", "std_srvs/srv/Trigger", {}),
-            ("set_output", "msg_defs/srv/SetOutput", {"board": 0, "index": 2, "on": True}),
-        ],
-        serial=True,
-    )
-)
-
-
-def _motec_state(state: Any) -> str:
-    fault = f"fault {state.fault_code} {state.fault_text}" if state.fault_code else "no fault"
-    return (
-        f"{state.control_mode_name} control  {'enabled' if state.enabled else 'disabled'}  "
-        f"position {state.position_actual} counts  speed {state.speed_actual_rpm} rpm  {fault}"
-    )
-
-
-MOTEC_UNITS = (1, 2, 3)
-DEVICES.append(
-    DemoDevice(
-        name="MOTEC",
-        node_name="motec_bridge",
-        sim_args=lambda pty: [
-            "-m",
-            "motec_bridge.sim",
-            "--pty",
-            str(pty),
-            "--unit-ids",
-            ",".join(str(u) for u in MOTEC_UNITS),
-        ],
-        node_module="motec_bridge.node",
-        node_params=lambda pty: {
-            "serial_port": str(pty),
-            "baudrate": 115200,
-            "unit_ids": "[" + ",".join(str(u) for u in MOTEC_UNITS) + "]",
-        },
-        state_type="msg_defs/msg/MotecState",
-        format_state=_motec_state,
-        start_services=[
-            *[
-                (f"motec_{u}/{service}", type_name, fields)
-                for u in MOTEC_UNITS
-                for service, type_name, fields in (
-                    ("set_control_mode", "msg_defs/srv/SetControlMode", {"mode": 2}),
-                    ("enable", "std_srvs/srv/SetBool", {"data": True}),
-                    (
-                        "move",
-                        "msg_defs/srv/PositionMove",
-                        {"position": 100.0 * u, "relative": True, "max_velocity": 5.0},
-                    ),
-                )
-            ],
-        ],
-        serial=True,
-        state_nodes=[f"motec_{u}" for u in MOTEC_UNITS],
-    )
-)
+def load_devices(specs: Iterable[str]) -> list[DemoDevice]:
+    """Import each ``module`` (attribute ``DEMO``) or ``module:attr``; in ``order``."""
+    devices: dict[str, DemoDevice] = {}
+    for spec in specs:
+        module, _, attr = spec.strip().partition(":")
+        device = getattr(importlib.import_module(module), attr or "DEMO")
+        if not isinstance(device, DemoDevice):
+            raise TypeError(f"{spec}: {type(device).__name__}, not a DemoDevice")
+        if device.name.upper() in devices:
+            raise ValueError(f"{spec}: a second demo entry named {device.name!r}")
+        devices[device.name.upper()] = device
+    return sorted(devices.values(), key=lambda d: d.order)  # stable: ties keep their order
 
 
 def _import(type_name: str) -> Any:
-    import importlib
-
     package, kind, name = type_name.split("/")
     return getattr(importlib.import_module(f"{package}.{kind}"), name)
 
@@ -306,22 +236,37 @@ def render(monitor: Monitor, device: DemoDevice, rates: dict[str, float]) -> str
     return "\n".join(lines)
 
 
-def main(argv: Sequence[str] | None = None) -> None:
+def main(argv: Sequence[str] | None = None, modules: Sequence[str] | None = None) -> None:
+    """Run the demo; ``modules``: the demo entries to use instead of the declared ones."""
     parser = argparse.ArgumentParser(description="run the bridges against their simulators")
     parser.add_argument("--duration", type=float, default=0.0, help="seconds; 0 = until Ctrl-C")
     parser.add_argument(
-        "--devices",
-        default=",".join(d.name for d in DEVICES),
-        help="comma-separated subset, e.g. R6",
+        "--devices", default="", help="comma-separated subset, e.g. R6,MOTEC (default: all)"
+    )
+    parser.add_argument(
+        "--demo-module",
+        action="append",
+        default=[],
+        metavar="MODULE[:ATTR]",
+        help="a demo entry to use instead of the declared ones (repeatable), e.g. r6_bridge.demo",
     )
     args = parser.parse_args(argv)
+    specs = [*(modules or ()), *args.demo_module] or entry_specs()
+    try:
+        known = load_devices(specs)
+    except (ImportError, AttributeError, TypeError, ValueError) as exc:
+        parser.error(f"cannot load the demo entries: {exc}")
+    if not known:
+        parser.error(f"no demo entries declared (entry-point group {ENTRY_POINT_GROUP!r})")
+    wanted = {n.strip().upper() for n in args.devices.split(",") if n.strip()}
+    devices = [d for d in known if not wanted or d.name.upper() in wanted]
+    unknown = wanted - {d.name.upper() for d in known}
+    if unknown or not devices:
+        names = ", ".join(d.name for d in known)
+        parser.error(f"no known device in {args.devices!r} (known: {names})")
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"  # everything here is local
     os.environ.pop("ROS_LOCALHOST_ONLY", None)
     os.environ.setdefault("ROS_DOMAIN_ID", str(DEFAULT_DOMAIN_ID))
-    wanted = {n.strip().upper() for n in args.devices.split(",") if n.strip()}
-    devices = [d for d in DEVICES if d.name.upper() in wanted]
-    if not devices:
-        parser.error(f"no known device in {args.devices!r}")
 
     processes: list[subprocess.Popen[bytes]] = []
     logs = Path(tempfile.mkdtemp(prefix="bridge_demo_"))
@@ -397,4 +342,9 @@ def main(argv: Sequence[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    # Run as ``python -m bridge_core.demo`` this file is ``__main__``, while the entries
+    # build their DemoDevice from ``bridge_core.demo``: run that module's main so both
+    # sides share one DemoDevice class.
+    from bridge_core.demo import main as _main
+
+    _main()

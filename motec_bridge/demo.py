@@ -1,0 +1,56 @@
+"""The MOTEC drives' entry in ``bridge_demo`` (bridge_core.demo): three drives on one bus."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from bridge_core.demo import DemoDevice
+
+UNITS = (1, 2, 3)
+
+
+def format_state(state: Any) -> str:
+    """One line of a ``MotecState``."""
+    fault = f"fault {state.fault_code} {state.fault_text}" if state.fault_code else "no fault"
+    return (
+        f"{state.control_mode_name} control  {'enabled' if state.enabled else 'disabled'}  "
+        f"position {state.position_actual} counts  speed {state.speed_actual_rpm} rpm  {fault}"
+    )
+
+
+DEMO = DemoDevice(
+    name="MOTEC",
+    node_name="motec_bridge",
+    sim_args=lambda pty: [
+        "-m",
+        "motec_bridge.sim",
+        "--pty",
+        str(pty),
+        "--unit-ids",
+        ",".join(str(u) for u in UNITS),
+    ],
+    node_module="motec_bridge.node",
+    node_params=lambda pty: {
+        "serial_port": str(pty),
+        "baudrate": 115200,
+        "unit_ids": "[" + ",".join(str(u) for u in UNITS) + "]",
+    },
+    state_type="msg_defs/msg/MotecState",
+    format_state=format_state,
+    start_services=[
+        (f"motec_{u}/{service}", type_name, fields)
+        for u in UNITS
+        for service, type_name, fields in (
+            ("set_control_mode", "msg_defs/srv/SetControlMode", {"mode": 2}),
+            ("enable", "std_srvs/srv/SetBool", {"data": True}),
+            (
+                "move",
+                "msg_defs/srv/PositionMove",
+                {"position": 100.0 * u, "relative": True, "max_velocity": 5.0},
+            ),
+        )
+    ],
+    serial=True,
+    state_nodes=[f"motec_{u}" for u in UNITS],
+    order=40,
+)

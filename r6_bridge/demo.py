@@ -1,0 +1,32 @@
+"""The R6's entry in ``bridge_demo`` (bridge_core.demo): simulator, node and state line."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from bridge_core.demo import DemoDevice
+
+
+def format_state(state: Any) -> str:
+    """One line of an ``R6State``."""
+    return (
+        f"mode {state.mode_name}  alarm {state.alarm_code}  "
+        f"moving {'yes' if state.moving else 'no'}  "
+        f"speed {state.global_speed_percent:.1f}%  cycle {state.current_cycle_time_ms} ms"
+    )
+
+
+DEMO = DemoDevice(
+    name="R6",
+    node_name="r6_bridge",
+    sim_args=lambda port: ["-m", "r6_bridge.sim", "--port", str(port)],
+    node_module="r6_bridge.node",
+    node_params=lambda port: {"port": port, "poll_rate_hz": 50.0},
+    state_type="msg_defs/msg/R6State",
+    format_state=format_state,
+    start_services=[
+        ("set_global_speed", "msg_defs/srv/SetValue", {"value": 80.0}),
+        ("start", "std_srvs/srv/Trigger", {}),
+    ],
+    order=10,
+)

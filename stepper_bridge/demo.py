@@ -1,0 +1,34 @@
+"""The stepper controller's entry in ``bridge_demo`` (bridge_core.demo)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from bridge_core.demo import DemoDevice
+
+
+def format_state(state: Any) -> str:
+    """One line of a ``StepperState``."""
+    running = "".join("R" if r else "." for r in state.running)
+    outputs = "".join("1" if o else "0" for o in state.outputs)
+    coordinates = " ".join(f"{c:8.2f}" for c in state.coordinates)
+    return f"running {running}  coordinates {coordinates}  outputs {outputs}"
+
+
+DEMO = DemoDevice(
+    name="Stepper",
+    node_name="stepper_bridge",
+    # The manual's line: 9600 baud 8N1, replies after 35 ms (the simulator's default).
+    sim_args=lambda pty: ["-m", "stepper_bridge.sim", "--pty", str(pty)],
+    node_module="stepper_bridge.node",
+    node_params=lambda pty: {"serial_port": str(pty), "baudrate": 9600},
+    state_type="msg_defs/msg/StepperState",
+    format_state=format_state,
+    start_services=[
+        ("motor_1/forward", "std_srvs/srv/Trigger", {}),
+        ("motor_3/reverse", "std_srvs/srv/Trigger", {}),
+        ("set_output", "msg_defs/srv/SetOutput", {"board": 0, "index": 2, "on": True}),
+    ],
+    serial=True,
+    order=30,
+)

@@ -1,0 +1,33 @@
+"""The xArm's entry in ``bridge_demo`` (bridge_core.demo): simulator, node and state line."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from bridge_core.demo import DemoDevice
+
+
+def format_state(state: Any) -> str:
+    """One line of an ``XArmState``."""
+    error = f"error {state.error_code} {state.error_text}" if state.error_code else "no error"
+    outputs = "".join("1" if b else "0" for b in state.digital_outputs)
+    return (
+        f"state {state.state_name}  mode {state.mode}  {error}  "
+        f"tcp speed {state.tcp_speed:.3f} m/s  DO {outputs}"
+    )
+
+
+DEMO = DemoDevice(
+    name="xArm",
+    node_name="xarm_bridge",
+    sim_args=lambda port: ["-m", "xarm_bridge.sim", "--port", str(port)],
+    node_module="xarm_bridge.node",
+    node_params=lambda port: {"port": port, "poll_rate_hz": 50.0},
+    state_type="msg_defs/msg/XArmState",
+    format_state=format_state,
+    start_services=[
+        ("set_digital_output", "msg_defs/srv/SetOutput", {"board": 0, "index": 2, "on": True}),
+        ("run_offline_task", "msg_defs/srv/RunOfflineTask", {"projects": [1, 2, 3, 4, 5, 6]}),
+    ],
+    order=20,
+)
