@@ -1,0 +1,58 @@
+"""bridge_demo's device entries: each bridge declares its own, the runner names none."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from bridge_core import demo
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def test_every_bridge_demo_module_is_declared() -> None:
+    on_disk = sorted(
+        f"{p.parent.name}.demo:DEMO"
+        for p in ROOT.glob("*/demo.py")
+        if (p.parent / "__init__.py").is_file() and p.parent.name != "bridge_core"
+    )
+    assert on_disk, "no <bridge>/demo.py found"
+    assert sorted(demo.entry_specs(ROOT)) == on_disk
+
+
+def test_entries_load_in_their_order() -> None:
+    devices = demo.load_devices(demo.entry_specs(ROOT))
+    assert [d.name for d in devices] == ["R6", "xArm", "Stepper", "MOTEC"]
+    for device in devices:
+        assert device.node_module.split(".")[0] == device.node_name
+        assert "-m" in device.sim_args("/tmp/x" if device.serial else 1502)
+
+
+def test_explicit_modules_and_bad_specs() -> None:
+    assert [d.name for d in demo.load_devices(["motec_bridge.demo", "r6_bridge.demo:DEMO"])] == [
+        "R6",
+        "MOTEC",
+    ]
+    with pytest.raises(TypeError):
+        demo.load_devices(["r6_bridge.demo:format_state"])
+    with pytest.raises(ValueError):
+        demo.load_devices(["r6_bridge.demo", "r6_bridge.demo:DEMO"])
+
+
+def test_another_projects_pyproject_is_not_read(tmp_path: Path) -> None:
+    (tmp_path / "pyproject.toml").write_text(
+        '[project]\nname = "other"\n[project.entry-points."modbus_bridges.demo"]\n'
+        'x = "x.demo:DEMO"\n'
+    )
+    assert "x.demo:DEMO" not in demo.entry_specs(tmp_path)
+
+
+def test_loading_the_entries_imports_no_rclpy() -> None:
+    code = (
+        "import sys; from bridge_core import demo; demo.load_devices(demo.entry_specs()); "
+        "assert 'rclpy' not in sys.modules, sorted(m for m in sys.modules if 'rcl' in m)"
+    )
+    subprocess.run([sys.executable, "-c", code], cwd=ROOT, check=True, timeout=60)
