@@ -57,3 +57,7 @@ class PollIncomplete(BridgeError):
 
     The link is fine; the node skips this cycle instead of publishing a mixed state.
     """
+
+
+class ConfigurationError(BridgeError, ValueError):
+    """A start-up parameter has the wrong type or value; the node does not start."""

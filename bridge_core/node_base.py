@@ -1,31 +1,32 @@
-"""The rclpy node base every bridge shares.
+"""The rclpy node base every bridge shares, and the ``main()`` that spins bridges.
 
-What it gives a bridge (DESIGN §2): the common parameters with descriptors and ranges, the
-link and its channel, a poll timer, ``joint_states`` / ``~/connected`` / ``/diagnostics``
-publishers, the stale-data policy (no fresh stamps while the link is down), and the
-command guard that refuses, writing nothing, when the link is down or ``read_only`` is
-set, and turns device errors into a clear ``message``.
+What it gives a bridge (DESIGN §2): the common parameters (one ``ParameterSpec`` each:
+start-up-only ones read-only, live ones validated and applied), the link and its channel
+(or a channel on a bus someone else owns), the poller (``bridge_core.poller``: its own
+thread, pacing, re-plan on device exceptions, a publisher thread), ``joint_states`` /
+``~/connected`` / ``/diagnostics``, the stale-data policy (no fresh stamps while the link
+is down), and the command guard that refuses, writing nothing, when the link is down or
+``read_only`` is set, and turns device errors into a clear ``message``.
 
-Threading: polling runs on a thread of its own, paced by the poll rate, and hands each
-snapshot to a publisher thread, so building and publishing the messages overlaps the
-device's time to answer the next request; a MultiThreadedExecutor runs the services and
-the diagnostics timer in two mutually exclusive callback groups. Threads rather than an
-executor timer, because bench/r6_bench.py measured the executor's wait-set rebuilds at
-~1 ms of CPU per poll cycle. Modbus traffic never interleaves because every transaction
-holds the link's PriorityLock, which also lets a waiting command go before the next poll
-request.
+Threading: the poll and publisher threads belong to the poller (bench/r6_bench.py
+measured an executor timer at ~1 ms of CPU per poll cycle); a MultiThreadedExecutor runs
+services and command topics in one mutually exclusive group and diagnostics in another.
+Modbus traffic never interleaves because every transaction holds the link's PriorityLock,
+which also lets a waiting command go before the next poll request.
+
+Live parameters (``ros2 param set``): ``read_only``, ``poll_rate_hz``, and whatever a
+bridge registers with ``on_parameter`` (``command_timeout_s`` where there is a deadman).
+Every other parameter is read-only after start-up.
 """
 
 from __future__ import annotations
 
-import contextlib
-import math
-import queue
+import functools
 import signal
+import sys
 import threading
-import time
 import traceback
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from typing import Any, TypeVar
 
 import rclpy
@@ -35,10 +36,13 @@ from rcl_interfaces.msg import (
     IntegerRange,
     ParameterDescriptor,
     ParameterType,
+    SetParametersResult,
 )
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from rclpy.time import Time
@@ -47,41 +51,176 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 
 from .channel import Priority
-from .diagnostics import Level, RateTracker, Report, link_report
-from .errors import CommandRejected, DeviceException, LinkError, PollIncomplete
+from .diagnostics import Level, Report, link_report
+from .errors import CommandRejected, ConfigurationError, DeviceException, LinkError
 from .link import DeviceChannel, ModbusLink, SerialSettings, TcpSettings
+from .parameters import ParameterSpec, ParameterValue
+from .poller import Poller, PollOutcome
+from .stream_guard import StreamGuard
 
 T = TypeVar("T")
 DIAGNOSTICS_PERIOD_S = 1.0
-PUBLISH_BACKLOG = 8  # snapshots waiting for the publisher thread before the oldest is dropped
 JOINT_STATES_DEPTH = 10
+PARITIES = ("N", "E", "O")
+UNIT_ID_RANGE = (0, 247)
+DEADMAN_PERIOD_MIN_S = 0.02
+DEADMAN_PERIOD_MAX_S = 0.1
+EXIT_CONFIGURATION_ERROR = 2
+
+_KINDS: dict[type, int] = {
+    bool: ParameterType.PARAMETER_BOOL,
+    int: ParameterType.PARAMETER_INTEGER,
+    float: ParameterType.PARAMETER_DOUBLE,
+    str: ParameterType.PARAMETER_STRING,
+}
 
 
-def _descriptor(
-    text: str, kind: int, low: float | None = None, high: float | None = None, step: float = 0.0
-) -> ParameterDescriptor:
-    descriptor = ParameterDescriptor(description=text, type=kind)
-    if low is not None and high is not None:
-        if kind == ParameterType.PARAMETER_INTEGER:
-            descriptor.integer_range = [
-                IntegerRange(from_value=int(low), to_value=int(high), step=int(step))
-            ]
+def descriptor(spec: ParameterSpec) -> ParameterDescriptor:
+    """The ROS descriptor of a spec: type, range, read-only unless live."""
+    text = spec.description
+    if spec.choices:
+        text += f" ({', '.join(spec.choices)})"
+    text += "; live" if spec.live else "; start-up only"
+    result = ParameterDescriptor(description=text, read_only=not spec.live)
+    if spec.kind in _KINDS:
+        result.type = _KINDS[spec.kind]
+    if spec.low is not None and spec.high is not None:
+        if spec.kind is int:
+            result.integer_range = [IntegerRange(from_value=int(spec.low), to_value=int(spec.high))]
         else:
-            descriptor.floating_point_range = [
-                FloatingPointRange(from_value=float(low), to_value=float(high), step=step)
+            result.floating_point_range = [
+                FloatingPointRange(from_value=float(spec.low), to_value=float(spec.high))
             ]
-    return descriptor
+    return result
 
 
-INT = ParameterType.PARAMETER_INTEGER
-DOUBLE = ParameterType.PARAMETER_DOUBLE
-STRING = ParameterType.PARAMETER_STRING
-BOOL = ParameterType.PARAMETER_BOOL
-DOUBLE_ARRAY = ParameterType.PARAMETER_DOUBLE_ARRAY
+def transport_specs(
+    transport: str, *, default_port: int, default_baudrate: int, default_timeout_s: float
+) -> list[ParameterSpec]:
+    """Where the device is: the parameters of a node (or bus) that opens its own link."""
+    if transport == "tcp":
+        specs = [
+            ParameterSpec("host", "127.0.0.1", "device IP address or host name"),
+            ParameterSpec("port", default_port, "Modbus TCP port", 1, 65535),
+        ]
+    else:
+        specs = [
+            ParameterSpec(
+                "serial_port",
+                "/dev/ttyUSB0",
+                "serial device path or pyserial URL (e.g. socket://host:port)",
+            ),
+            ParameterSpec("baudrate", default_baudrate, "serial baud rate", 300, 4_000_000),
+            ParameterSpec("parity", "N", "serial parity", choices=PARITIES),
+            ParameterSpec("stopbits", 1, "serial stop bits", 1, 2),
+        ]
+    return [
+        *specs,
+        ParameterSpec("timeout_s", default_timeout_s, "reply timeout per transaction", 0.01, 10.0),
+    ]
 
 
-class BridgeNode(Node):
-    """Base of the four bridge nodes; subclasses poll, publish and add services."""
+def channel_specs() -> list[ParameterSpec]:
+    """One device's retry and reconnect policy."""
+    return [
+        ParameterSpec(
+            "retries", 1, "extra attempts for a failed read; writes are never retried", 0, 10
+        ),
+        ParameterSpec(
+            "reconnect_max_s", 5.0, "cap of the exponential reconnect backoff", 0.1, 300.0
+        ),
+    ]
+
+
+def link_settings(values: dict[str, Any]) -> TcpSettings | SerialSettings:
+    """Typed link settings from the transport parameters' values."""
+    if "host" in values:
+        return TcpSettings(str(values["host"]), int(values["port"]), float(values["timeout_s"]))
+    return SerialSettings(
+        str(values["serial_port"]),
+        int(values["baudrate"]),
+        str(values["parity"]).upper(),
+        int(values["stopbits"]),
+        timeout_s=float(values["timeout_s"]),
+    )
+
+
+class ParameterNode(Node):
+    """A node whose parameters are declared from specs and applied when they change."""
+
+    def __init__(self, node_name: str, **node_kwargs: Any) -> None:
+        super().__init__(node_name, **node_kwargs)
+        self._specs: dict[str, ParameterSpec] = {}
+        self._appliers: dict[str, Callable[[Any], None]] = {}
+        self.add_pre_set_parameters_callback(self._coerce_parameters)
+        self.add_on_set_parameters_callback(self._check_parameters)
+        self.add_post_set_parameters_callback(self._apply_parameters)
+
+    def declare_specs(self, specs: Iterable[ParameterSpec]) -> dict[str, Any]:
+        """Declare parameters; their start-up values by name.
+
+        Raises ``ConfigurationError`` (one line) for a value of the wrong type or range.
+        """
+        values: dict[str, Any] = {}
+        overrides: dict[str, Parameter] = getattr(self, "_parameter_overrides", {})
+        for spec in specs:
+            self._specs[spec.name] = spec
+            value: ParameterValue = spec.default
+            ignore_override = False
+            if spec.name in overrides:
+                given = overrides[spec.name].value
+                coerced = spec.coerce(given)
+                if coerced is not given:
+                    value, ignore_override = coerced, True
+            try:
+                self.declare_parameter(spec.name, value, descriptor(spec), ignore_override)
+            except ParameterException as err:
+                raise ConfigurationError(
+                    f"{self.get_name()}: parameter {spec.name}: {_one_line(err)}"
+                ) from err
+            values[spec.name] = self.get_parameter(spec.name).value
+        return values
+
+    def on_parameter(self, name: str, apply: Callable[[Any], None]) -> None:
+        """Apply a live parameter's new value (after it passed its spec's checks)."""
+        if not self._specs[name].live:
+            raise ValueError(f"parameter {name} is start-up only")
+        self._appliers[name] = apply
+
+    def _coerce_parameters(self, parameters: list[Parameter]) -> list[Parameter]:
+        out = []
+        for parameter in parameters:
+            spec = self._specs.get(parameter.name)
+            value = parameter.value
+            coerced = spec.coerce(value) if spec is not None else value
+            out.append(parameter if coerced is value else Parameter(parameter.name, value=coerced))
+        return out
+
+    def _check_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
+        for parameter in parameters:
+            spec = self._specs.get(parameter.name)
+            if spec is None:
+                continue
+            reason = spec.validate(parameter.value)
+            if reason is not None:
+                return SetParametersResult(successful=False, reason=reason)
+        return SetParametersResult(successful=True)
+
+    def _apply_parameters(self, parameters: list[Parameter]) -> None:
+        for parameter in parameters:
+            apply = self._appliers.get(parameter.name)
+            if apply is not None:
+                apply(parameter.value)
+                self.get_logger().info(f"parameter {parameter.name} set to {parameter.value!r}")
+
+
+class BridgeNode(ParameterNode):
+    """Base of the bridge nodes; subclasses poll, publish and add services.
+
+    The node opens its own link from its transport parameters, unless it is given
+    ``link`` and ``unit_id`` (a device on a bus a ``BusNode`` owns): then it declares
+    no transport parameters and never closes the link.
+    """
 
     def __init__(
         self,
@@ -92,77 +231,60 @@ class BridgeNode(Node):
         default_poll_rate_hz: float = 20.0,
         default_port: int = 502,
         default_baudrate: int = 9600,
+        default_timeout_s: float = 0.5,
         link: ModbusLink | None = None,
+        unit_id: int | None = None,
         **node_kwargs: Any,
     ) -> None:
         super().__init__(node_name, **node_kwargs)
         self.device_name = device_name
-        self.poll_group = MutuallyExclusiveCallbackGroup()
         self.command_group = MutuallyExclusiveCallbackGroup()
         self.diagnostics_group = MutuallyExclusiveCallbackGroup()
+        self.stream_guards: list[StreamGuard[Any]] = []
 
-        p = self.declare_parameter
-        if transport == "tcp":
-            p("host", "127.0.0.1", _descriptor("device IP address or host name", STRING))
-            p("port", default_port, _descriptor("Modbus TCP port", INT, 1, 65535))
-        else:
-            p(
-                "serial_port",
-                "/dev/ttyUSB0",
-                _descriptor("serial device path or pyserial URL (e.g. socket://host:port)", STRING),
-            )
-            p("baudrate", default_baudrate, _descriptor("serial baud rate", INT, 300, 4_000_000))
-            p("parity", "N", _descriptor("N, E or O", STRING))
-            p("stopbits", 1, _descriptor("1 or 2", INT, 1, 2))
-        p("unit_id", 1, _descriptor("Modbus unit (slave) id", INT, 0, 247))
-        p(
-            "poll_rate_hz",
-            default_poll_rate_hz,
-            _descriptor("full-state polls per second", DOUBLE, 0.1, 1000.0),
-        )
-        p("timeout_s", 0.5, _descriptor("reply timeout per transaction", DOUBLE, 0.01, 10.0))
-        p(
-            "retries",
-            1,
-            _descriptor("extra attempts for a failed read; writes are never retried", INT, 0, 10),
-        )
-        p(
-            "reconnect_max_s",
-            5.0,
-            _descriptor("cap of the exponential reconnect backoff", DOUBLE, 0.1, 300.0),
-        )
-        p("joint_prefix", "", _descriptor("prefix of every joint name", STRING))
-        p("frame_id", "base_link", _descriptor("frame of published poses", STRING))
-        p("read_only", False, _descriptor("refuse every command that writes to the device", BOOL))
-
-        self.poll_rate_hz = float(self.param("poll_rate_hz"))
-        self.joint_prefix = str(self.param("joint_prefix"))
-        self.frame_id = str(self.param("frame_id"))
-        self.read_only = bool(self.param("read_only"))
-        timeout_s = float(self.param("timeout_s"))
-        settings: TcpSettings | SerialSettings
-        if link is not None:
-            self.link = link
-        else:
-            if transport == "tcp":
-                settings = TcpSettings(str(self.param("host")), int(self.param("port")), timeout_s)
-            else:
-                parity = str(self.param("parity")).upper()
-                if parity not in ("N", "E", "O"):
-                    raise ValueError(f"parity {parity!r} is not N, E or O")
-                settings = SerialSettings(
-                    str(self.param("serial_port")),
-                    int(self.param("baudrate")),
-                    parity,
-                    int(self.param("stopbits")),
-                    timeout_s=timeout_s,
-                )
-            self.link = ModbusLink(settings)
+        specs = [
+            *channel_specs(),
+            ParameterSpec(
+                "poll_rate_hz",
+                default_poll_rate_hz,
+                "full-state polls per second",
+                0.1,
+                1000.0,
+                live=True,
+            ),
+            ParameterSpec("joint_prefix", "", "prefix of every joint name"),
+            ParameterSpec("frame_id", "base_link", "frame of published poses and states"),
+            ParameterSpec(
+                "read_only", False, "refuse every command that writes to the device", live=True
+            ),
+        ]
+        if link is None:
+            specs = [
+                *transport_specs(
+                    transport,
+                    default_port=default_port,
+                    default_baudrate=default_baudrate,
+                    default_timeout_s=default_timeout_s,
+                ),
+                ParameterSpec("unit_id", 1, "Modbus unit (slave) id", *UNIT_ID_RANGE),
+                *specs,
+            ]
+        values = self.declare_specs(specs)
+        self.joint_prefix = str(values["joint_prefix"])
+        self.frame_id = str(values["frame_id"])
+        self.read_only = bool(values["read_only"])
+        self._owned_link: ModbusLink | None = None
+        if link is None:
+            link = self._owned_link = ModbusLink(link_settings(values))
+            unit_id = int(values["unit_id"])
+        if unit_id is None:
+            raise ValueError("a node on a shared link needs its unit_id")
+        self.link = link
         self.channel = DeviceChannel(
-            self.link,
-            int(self.param("unit_id")),
-            retries=int(self.param("retries")),
-            reconnect_max_s=float(self.param("reconnect_max_s")),
+            link,
+            unit_id,
+            retries=int(values["retries"]),
+            reconnect_max_s=float(values["reconnect_max_s"]),
         )
         self.hardware_id = f"{device_name}@{self.channel.describe()}"
 
@@ -177,23 +299,23 @@ class BridgeNode(Node):
         self.connected_pub = self.create_publisher(Bool, "~/connected", latched)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self._connected_published: bool | None = None
-        self.poll_rate = RateTracker()
-        self.poll_failures = 0
-        self.last_poll_error: str | None = None
+        self._connected_lock = threading.Lock()
         self._publish_connected(False)
-        self._stop_polling = threading.Event()
-        self._poll_thread = threading.Thread(
-            target=self._poll_loop, name=f"{node_name}-poll", daemon=True
+        self.poller: Poller[Any] = Poller(
+            self.channel,
+            self.poll_device,
+            self.publish_snapshot,
+            rate_hz=float(values["poll_rate_hz"]),
+            link_up=self.on_link_up,
+            replan=self.replan,
+            report=self._poll_report,
+            connected_changed=self._poll_connected,
+            name=node_name,
         )
-        self._snapshots: queue.Queue[Any] = queue.Queue(maxsize=PUBLISH_BACKLOG)
-        self.snapshots_dropped = 0
-        self._publish_thread = threading.Thread(
-            target=self._publish_loop, name=f"{node_name}-publish", daemon=True
-        )
+        self.on_parameter("read_only", self._set_read_only)
+        self.on_parameter("poll_rate_hz", lambda rate: setattr(self.poller, "rate_hz", rate))
         # Start polling once the executor runs, i.e. after the subclass finished __init__.
-        self._poll_starter = self.create_timer(
-            0.0, self._start_polling, callback_group=self.poll_group
-        )
+        self._poll_starter = self.create_timer(0.0, self._start_polling)
         self.diagnostics_timer = self.create_timer(
             DIAGNOSTICS_PERIOD_S, self.publish_diagnostics, callback_group=self.diagnostics_group
         )
@@ -211,6 +333,9 @@ class BridgeNode(Node):
 
     def on_link_up(self) -> None:
         """Called before the first poll after (re)connecting, e.g. to read a version."""
+
+    def replan(self) -> None:
+        """The device refused part of a poll: re-derive what to read from its configuration."""
 
     def device_report(self) -> Report | None:
         """The device's own status (alarm code and its meaning) for diagnostics."""
@@ -235,90 +360,53 @@ class BridgeNode(Node):
         msg.effort = [float(v) for v in effort]
         return msg
 
+    @property
+    def poll_rate_hz(self) -> float:
+        return self.poller.rate_hz
+
     # ------------------------------------------------------------ polling
     def _start_polling(self) -> None:
         self._poll_starter.cancel()
-        if not self._poll_thread.is_alive() and not self._stop_polling.is_set():
-            self._publish_thread.start()
-            self._poll_thread.start()
+        self.poller.start()
 
-    def _poll_loop(self) -> None:
-        period = 1.0 / self.poll_rate_hz
-        next_time = time.monotonic()
-        while not self._stop_polling.is_set():
-            self._poll_tick()
-            next_time += period
-            now = time.monotonic()
-            if next_time <= now:
-                next_time = now  # overrun: carry on, never burst to catch up
-            else:
-                self._stop_polling.wait(next_time - now)
+    def _poll_report(self, outcome: PollOutcome, text: str) -> None:
+        logger = self.get_logger()
+        if outcome is PollOutcome.INCOMPLETE:
+            logger.info(text)
+        elif outcome is PollOutcome.REFUSED:
+            logger.warn(f"{text}; re-reading the device's configuration", throttle_duration_sec=5.0)
+        elif outcome is PollOutcome.LINK_LOST:
+            logger.error(f"link to {self.channel.describe()} lost: {text}")
+        else:
+            logger.error(text)
 
-    def _poll_tick(self) -> None:
-        if not self.channel.may_attempt():
-            return
-        try:
-            if not self.channel.connected:
-                self.on_link_up()
-            snapshot = self.poll_device()
-        except PollIncomplete as err:
-            self.get_logger().info(str(err))
-            return
-        except DeviceException as err:
-            # The device answered but refused part of the poll: report, publish nothing.
-            self.poll_failures += 1
-            self.last_poll_error = f"poll refused by the device: {err}"
-            self.get_logger().warn(self.last_poll_error, throttle_duration_sec=5.0)
-            return
-        except LinkError as err:
-            self.poll_failures += 1
-            self.last_poll_error = str(err)
-            if self._connected_published:
-                self.get_logger().error(f"link to {self.channel.describe()} lost: {err}")
-            self._publish_connected(False)
-            return
-        except Exception as err:  # a device fault must never kill the node
-            self.poll_failures += 1
-            self.last_poll_error = f"poll failed: {err}"
-            self.get_logger().error(f"poll failed: {err}\n{traceback.format_exc()}")
-            return
-        if not self._connected_published:
+    def _poll_connected(self, up: bool) -> None:
+        if up:
             self.get_logger().info(f"connected to {self.channel.describe()}")
-        self._publish_connected(True)
-        self.last_poll_error = None
-        self.poll_rate.tick()
-        try:
-            self._snapshots.put_nowait(snapshot)
-        except queue.Full:  # the publisher fell behind: drop the oldest, keep the newest
-            with contextlib.suppress(queue.Empty):
-                self._snapshots.get_nowait()
-                self.snapshots_dropped += 1
-            with contextlib.suppress(queue.Full):
-                self._snapshots.put_nowait(snapshot)
-
-    def _publish_loop(self) -> None:
-        while not self._stop_polling.is_set():
-            try:
-                snapshot = self._snapshots.get(timeout=0.1)
-            except queue.Empty:
-                continue
-            try:
-                self.publish_snapshot(snapshot)
-            except Exception as err:  # a value the message cannot hold must not kill the node
-                self.last_poll_error = f"publishing failed: {err}"
-                self.get_logger().error(f"{self.last_poll_error}\n{traceback.format_exc()}")
+        self._publish_connected(up)
 
     def _publish_connected(self, connected: bool) -> None:
-        if connected != self._connected_published:
+        with self._connected_lock:
+            if connected == self._connected_published:
+                return
             self._connected_published = connected
-            self.connected_pub.publish(Bool(data=connected))
+        self.connected_pub.publish(Bool(data=connected))
+
+    def _set_read_only(self, value: bool) -> None:
+        if value and not self.read_only:
+            # No command can reach the streams any more: stop what they started.
+            self.stop_motion()
+        self.read_only = bool(value)
 
     # ------------------------------------------------------------ commands
     def run_command(
-        self, what: str, action: Callable[[], T], *, writes: bool = True
+        self, what: str, action: Callable[[], T], *, writes: bool = True, stop: bool = False
     ) -> tuple[bool, str, T | None]:
-        """Guard and run one command: (success, message, result). Never raises."""
-        if writes and self.read_only:
+        """Guard and run one command: (success, message, result). Never raises.
+
+        ``stop``: ends a motion the bridge started (deadman), allowed under read_only.
+        """
+        if writes and self.read_only and not stop:
             return False, f"{what} refused: read_only is set, nothing was written", None
         if not self.channel.connected:
             return False, f"{what} refused: not connected to {self.channel.describe()}", None
@@ -372,6 +460,103 @@ class BridgeNode(Node):
 
         self.command_service(Trigger, name, lambda _request: what, lambda _request: action())
 
+    # ------------------------------------------------------------ command streams
+    def stream_topic(
+        self,
+        guard: StreamGuard[T],
+        msg_type: Any,
+        topics: dict[T, str],
+        what: Callable[[T, float], str],
+        value_of: Callable[[Any], float],
+        *,
+        convert: Callable[[T, float], float] = lambda _key, value: value,
+        timeout_parameter: str = "command_timeout_s",
+    ) -> None:
+        """Command topics of one guard (jog, cmd_velocity) with their deadman.
+
+        Each message is handled through the guard (newest value counts, a refused value
+        stops what the stream had started); a timer stops streams that fell silent; the
+        guard's timeout follows the live ``timeout_parameter``; ``close()`` stops them all.
+        ``convert`` checks a message's value and turns it into the guard's units (inside
+        the command guard: a bad value is a refusal, not an exception in a callback).
+        """
+        self.stream_guards.append(guard)
+        for key, topic in topics.items():
+            self.create_subscription(
+                msg_type,
+                topic,
+                self._stream_callback(guard, key, value_of, convert, what),
+                10,
+                callback_group=self.command_group,
+            )
+
+        def period() -> float:
+            return min(DEADMAN_PERIOD_MAX_S, max(DEADMAN_PERIOD_MIN_S, guard.timeout_s / 5))
+
+        timer = self.create_timer(
+            period(), lambda: self._deadman(guard, what), callback_group=self.command_group
+        )
+
+        def set_timeout(value: float) -> None:
+            guard.timeout_s = float(value)
+            timer.timer_period_ns = int(period() * 1e9)
+            timer.reset()
+
+        self.on_parameter(timeout_parameter, set_timeout)
+
+    def _stream_callback(
+        self,
+        guard: StreamGuard[T],
+        key: T,
+        value_of: Callable[[Any], float],
+        convert: Callable[[T, float], float],
+        what: Callable[[T, float], str],
+    ) -> Callable[[Any], None]:
+        def handle(msg: Any) -> None:
+            value = value_of(msg)
+            guard.seen(key)
+            ok, message, _ = self.run_command(
+                what(key, value), lambda: guard.command(key, convert(key, value))
+            )
+            if not ok:
+                self._stream_refused(guard, key, message, what)
+
+        return handle
+
+    def _stream_refused(
+        self, guard: StreamGuard[T], key: T, message: str, what: Callable[[T, float], str]
+    ) -> None:
+        self.get_logger().warn(message, throttle_duration_sec=2.0)
+        if guard[key].may_move:
+            # A refused value must not leave the motor running at the previous one.
+            self.run_command(
+                f"{what(key, 0.0)} (stop after a refused command)",
+                lambda: guard.stop(key),
+                stop=True,
+            )
+
+    def _deadman(self, guard: StreamGuard[T], what: Callable[[T, float], str]) -> None:
+        for key in guard.due():
+            was_moving = guard[key].may_move
+            ok, message, _ = self.run_command(
+                f"{what(key, 0.0)} (deadman)", functools.partial(guard.expire, key), stop=True
+            )
+            if not was_moving:
+                continue
+            if ok:
+                self.get_logger().info(
+                    f"{what(key, 0.0)}: no command for {guard.timeout_s} s, stopped"
+                )
+            else:
+                self.get_logger().warn(message, throttle_duration_sec=2.0)
+
+    def stop_motion(self) -> None:
+        """Stop everything this node's streams started; tried on the wire even while the
+        link is marked down (no connected guard, no command session)."""
+        for guard in self.stream_guards:
+            for key, err in guard.stop_all():
+                self.get_logger().error(f"stopping stream {key} failed: {err}")
+
     # ------------------------------------------------------------ diagnostics
     def publish_diagnostics(self) -> None:
         try:
@@ -380,18 +565,20 @@ class BridgeNode(Node):
             self.get_logger().error(f"diagnostics failed: {err}\n{traceback.format_exc()}")
 
     def _publish_diagnostics(self) -> None:
+        poller = self.poller
         link = link_report(
             self.channel,
-            poll_rate=self.poll_rate,
-            target_rate_hz=self.poll_rate_hz,
-            poll_failures=self.poll_failures,
+            poll_rate=poller.rate,
+            target_rate_hz=poller.rate_hz,
+            poll_failures=poller.failures,
         )
         device = self.device_report() if self.channel.connected else None
         level, message, values = link.level, link.message, list(link.values)
-        values.append(("snapshots dropped (publisher behind)", str(self.snapshots_dropped)))
-        if self.channel.connected and self.last_poll_error:
+        values.append(("snapshots dropped (publisher behind)", str(poller.snapshots_dropped)))
+        values.append(("read_only", str(self.read_only).lower()))
+        if self.channel.connected and poller.last_error:
             # Connected but no fresh state: as bad as a lost link for a consumer.
-            level, message = Level.ERROR, self.last_poll_error
+            level, message = Level.ERROR, poller.last_error
         if device is not None:
             values += device.values
             if device.level > level:
@@ -409,22 +596,64 @@ class BridgeNode(Node):
         self.diagnostics_pub.publish(array)
 
     def close(self) -> None:
-        self._stop_polling.set()
-        for thread in (self._poll_thread, self._publish_thread):
-            if thread.is_alive():
-                thread.join(5.0)
-        with self.link.lock.hold(Priority.COMMAND):  # never under a running transaction
+        """Stop motion, then polling, then close the link if this node opened it."""
+        try:
+            self.stop_motion()
+        finally:
+            self.poller.stop()
+            if self._owned_link is not None:
+                with self._owned_link.lock.hold(Priority.COMMAND):  # never mid-transaction
+                    self._owned_link.close()
+
+
+class BusNode(ParameterNode):
+    """One serial line shared by several devices (any bridges): the bus owner.
+
+    It holds the line's parameters and its one ``ModbusLink``; device nodes get the link
+    and their unit id as Python values (``BridgeNode(link=..., unit_id=...)``) and take
+    turns on it through its PriorityLock.
+    """
+
+    def __init__(
+        self,
+        node_name: str,
+        *,
+        default_baudrate: int,
+        default_timeout_s: float,
+        unit_id_range: range,
+        **node_kwargs: Any,
+    ) -> None:
+        super().__init__(node_name, **node_kwargs)
+        values = self.declare_specs(
+            [
+                *transport_specs(
+                    "rtu",
+                    default_port=0,
+                    default_baudrate=default_baudrate,
+                    default_timeout_s=default_timeout_s,
+                ),
+                ParameterSpec("unit_ids", [1], "devices on the bus, one node each"),
+            ]
+        )
+        units = [int(u) for u in values["unit_ids"]]
+        if not units or len(set(units)) != len(units):
+            raise ConfigurationError(f"unit_ids {units} must be distinct and not empty")
+        for unit in units:
+            if unit not in unit_id_range:
+                raise ConfigurationError(
+                    f"unit id {unit} outside {unit_id_range.start}-{unit_id_range.stop - 1}"
+                )
+        self.unit_ids = units
+        self.settings = link_settings(values)
+        self.link = ModbusLink(self.settings)
+
+    def close(self) -> None:
+        with self.link.lock.hold(Priority.COMMAND):
             self.link.close()
 
 
-def float_list(values: Sequence[float], count: int, default: float, name: str) -> list[float]:
-    """A per-joint parameter padded with ``default``; refuses NaN and non-positive values."""
-    out = [float(v) for v in values][:count]
-    out += [default] * (count - len(out))
-    for v in out:
-        if not math.isfinite(v) or v <= 0:
-            raise ValueError(f"{name} must be positive and finite, got {v}")
-    return out
+def _one_line(err: BaseException) -> str:
+    return " ".join(str(err).split())
 
 
 def interrupt_on_signals() -> None:
@@ -432,7 +661,7 @@ def interrupt_on_signals() -> None:
 
     Used instead of rclpy's handlers (rclpy.init with SignalHandlerOptions.NO), which shut
     the context down at once while the poll and publisher threads still publish; this way
-    the node stops its threads first and the context goes last.
+    the nodes stop their motion and threads first and the context goes last.
     """
 
     def interrupt(_signum: int, _frame: Any) -> None:
@@ -442,28 +671,72 @@ def interrupt_on_signals() -> None:
     signal.signal(signal.SIGTERM, interrupt)
 
 
-def spin_node(make_node: Callable[[], Node], args: Sequence[str] | None = None) -> None:
-    """rclpy demo-style main: init, spin with a multi-threaded executor, clean shutdown."""
+def _close_all(nodes: Sequence[Node]) -> None:
+    """Close every bridge at once (stops first), then the bus owners, then destroy."""
+    bridges = [node for node in nodes if isinstance(node, BridgeNode)]
+    closers = [threading.Thread(target=node.close) for node in bridges]
+    for closer in closers:
+        closer.start()
+    for closer in closers:
+        closer.join()
+    for node in nodes:
+        if isinstance(node, BusNode):
+            node.close()
+    for node in nodes:
+        node.destroy_node()
+
+
+def spin_nodes(
+    build: Callable[[list[Node]], None],
+    args: Sequence[str] | None = None,
+    *,
+    threads: Callable[[int], int] = lambda nodes: max(3, min(32, 2 + 3 * nodes)),
+) -> int:
+    """rclpy demo-style main for one process of bridge nodes; returns the exit code.
+
+    ``build`` appends the nodes it creates to the list it is given (so a node that fails
+    half-way still has the earlier ones closed). A configuration error (bad parameter
+    type or range) is one line on stderr and exit code 2, never a traceback.
+    """
     rclpy.init(
         args=list(args) if args is not None else None,
         signal_handler_options=SignalHandlerOptions.NO,
     )
     interrupt_on_signals()
-    node: Node | None = None
-    executor = MultiThreadedExecutor(num_threads=3)
+    nodes: list[Node] = []
+    executor: MultiThreadedExecutor | None = None
+    code = 0
     try:
-        node = make_node()
-        executor.add_node(node)
+        build(nodes)
+        executor = MultiThreadedExecutor(num_threads=threads(len(nodes)))
+        for node in nodes:
+            executor.add_node(node)
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except (ConfigurationError, ParameterException) as err:
+        print(f"error: {_one_line(err)}", file=sys.stderr)
+        code = EXIT_CONFIGURATION_ERROR
     finally:
-        executor.shutdown()
-        if node is not None:
-            if isinstance(node, BridgeNode):
-                node.close()
-            node.destroy_node()
+        if executor is not None:
+            executor.shutdown()
+        _close_all(nodes)
         try_shutdown()
+    return code
 
 
-__all__ = ["BridgeNode", "Level", "Report", "float_list", "interrupt_on_signals", "spin_node"]
+def spin_node(make_node: Callable[[], Node], args: Sequence[str] | None = None) -> int:
+    """``spin_nodes`` for a process of one node."""
+    return spin_nodes(lambda nodes: nodes.append(make_node()), args)
+
+
+__all__ = [
+    "BridgeNode",
+    "BusNode",
+    "Level",
+    "ParameterNode",
+    "Report",
+    "interrupt_on_signals",
+    "spin_node",
+    "spin_nodes",
+]

@@ -34,10 +34,20 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from bridge_core.channel import Priority, RegisterIO
+from bridge_core.checks import (
+    check_choice,
+    check_converted,
+    check_finite,
+    check_index,
+    check_range,
+    check_whole_number,
+)
 from bridge_core.codec import Value, encode
 from bridge_core.config_cache import ConfigCache
-from bridge_core.errors import CommandRejected, LinkError
+from bridge_core.errors import CommandRejected
 from bridge_core.planner import ReadRequest, decode_reply, plan_reads
+from bridge_core.poller import read_blocks
+from bridge_core.stream_guard import StreamGuard
 
 from .registers import (
     CONTROL_MODE_POSITION,
@@ -61,6 +71,8 @@ from .registers import (
 
 DEFAULT_CONFIG_REFRESH_S = 5.0
 DEFAULT_MAX_SPEED_RPM = 3000
+DEFAULT_VELOCITY_TIMEOUT_S = 0.5
+VELOCITY_STREAM = 0  # the key of the drive's one cmd_velocity stream
 SPEED_LIMIT_RPM = 32767  # 0xAE is a signed 16-bit register
 LIFEGUARD_MIN_MS = 50  # below this a feed every third of it would crowd the bus
 FEEDS_PER_PERIOD = 3  # the bridge writes at least 3 times per lifeguard time
@@ -87,6 +99,8 @@ MODE_NAMES = ("operation_mode", "control_mode", "target_distance", "enable", "st
 STATUS_PLAN: list[ReadRequest] = plan_reads(MOTEC_MAP, MOTEC_MAP.select(STATUS_NAMES))
 CONFIG_PLAN: list[ReadRequest] = plan_reads(MOTEC_MAP, MOTEC_MAP.select(CONFIG_NAMES))
 MODE_PLAN: list[ReadRequest] = plan_reads(MOTEC_MAP, MOTEC_MAP.select(MODE_NAMES))
+# joint_states is stamped with the read time of the block holding the actual position.
+STAMP_REGISTER = "position_actual"
 
 
 # ---------------------------------------------------------------- snapshots
@@ -187,29 +201,27 @@ class DriveScale:
         return rpm * 2.0 * math.pi / 60.0 / self.gear_ratio
 
     def to_counts(self, rad: float) -> int:
-        _check_finite("position", rad)
-        counts = round(rad / (2.0 * math.pi) * self.counts_per_rev * self.gear_ratio)
-        reg = MOTEC_MAP["target_distance"]
-        assert reg.minimum is not None and reg.maximum is not None
-        if not reg.minimum <= counts <= reg.maximum:
-            raise CommandRejected(
-                f"{rad} rad is {counts} counts, outside {int(reg.minimum)}..{int(reg.maximum)}"
-            )
-        return int(counts)
+        check_finite("position", rad)
+        kind = MOTEC_MAP["target_distance"].value_type
+        counts = check_converted(
+            f"position {rad:g} rad in counts",
+            rad / (2.0 * math.pi) * self.counts_per_rev * self.gear_ratio,
+            kind.raw_min,
+            kind.raw_max,
+        )
+        return round(counts)
 
     def to_rpm(self, rad_s: float) -> float:
-        _check_finite("velocity", rad_s)
-        return rad_s * 60.0 / (2.0 * math.pi) * self.gear_ratio
+        check_finite("velocity", rad_s)
+        return check_converted(
+            f"velocity {rad_s:g} rad/s in rpm",
+            rad_s * 60.0 / (2.0 * math.pi) * self.gear_ratio,
+            -SPEED_LIMIT_RPM,
+            SPEED_LIMIT_RPM,
+        )
 
 
 # ---------------------------------------------------------------- the device
-
-
-@dataclass
-class _Stream:
-    rpm: int | None = None  # last speed the stream wrote to 0xAE (None: unknown)
-    active: bool = False  # a non-zero speed is being commanded
-    locked: bool = False  # stopped by ~/stop: wait for a 0 command or silence
 
 
 class MotecDevice:
@@ -221,6 +233,7 @@ class MotecDevice:
         *,
         max_speed_rpm: int = DEFAULT_MAX_SPEED_RPM,
         config_refresh_s: float = DEFAULT_CONFIG_REFRESH_S,
+        velocity_timeout_s: float = DEFAULT_VELOCITY_TIMEOUT_S,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
         if not 1 <= max_speed_rpm <= SPEED_LIMIT_RPM:
@@ -229,7 +242,16 @@ class MotecDevice:
         self.max_speed_rpm = max_speed_rpm
         self._clock = clock
         self._cache = ConfigCache(CONFIG_PLAN, self._read, config_refresh_s, clock)
-        self._stream = _Stream()
+        # cmd_velocity: one stream (this drive). A 0 ends only the stream's own motion:
+        # 0xAE is also a position move's speed limit (README "MOTEC decisions").
+        self.stream: StreamGuard[int] = StreamGuard(
+            (VELOCITY_STREAM,),
+            self._velocity_send,
+            self._velocity_zero,
+            timeout_s=velocity_timeout_s,
+            stop_when_idle=False,
+            clock=clock,
+        )
         self.last_write = -math.inf  # clock() of the last successful write
 
     # ------------------------------------------------------------------ reads
@@ -249,7 +271,7 @@ class MotecDevice:
         self._cache.clear()
         # A stream that was running stays "active" so the node's deadman stops it once
         # the link is back; the speed the drive holds is unknown.
-        self._stream.rpm = None
+        self.stream.forget_values()
 
     @property
     def has_config(self) -> bool:
@@ -292,10 +314,7 @@ class MotecDevice:
     def poll(self) -> MotecSnapshot:
         if not self.has_config:
             self.read_config()
-        read_time = time.time()
-        v: dict[str, Value] = {}
-        for request in STATUS_PLAN:
-            v.update(self._read(request, Priority.POLL))
+        v, read_time = read_blocks(self.io, STATUS_PLAN, Priority.POLL, STAMP_REGISTER)
         self._cache.refresh_step()  # one configuration request while a refresh is due
         return MotecSnapshot(
             read_time=read_time,
@@ -327,14 +346,12 @@ class MotecDevice:
         self._cache.note_written(name, value)
 
     def _check_speed(self, rpm: float, what: str) -> int:
-        _check_finite(what, rpm)
-        value = round(rpm)
-        if abs(value) > self.max_speed_rpm:
-            raise CommandRejected(
-                f"{what} {rpm:g} rpm outside -{self.max_speed_rpm}..{self.max_speed_rpm} "
-                "(max_speed_rpm)"
-            )
-        return int(value)
+        check_range(f"{what} (max_speed_rpm)", rpm, -self.max_speed_rpm, self.max_speed_rpm, "rpm")
+        return round(rpm)
+
+    def check_velocity(self, rpm: float) -> float:
+        """A cmd_velocity value in rpm, rounded to the register's whole rpm."""
+        return float(self._check_speed(rpm, "velocity"))
 
     def set_control_mode(self, mode: int) -> None:
         """Network mode (0x24 = 0), then the control mode (0x25), as §4.1 / §4.2 do.
@@ -342,12 +359,11 @@ class MotecDevice:
         Velocity: the speed setpoint is zeroed between the two, so that switching an
         enabled drive to velocity control never starts the motor with a stale speed.
         """
-        _check_choice("control mode", mode, (CONTROL_MODE_VELOCITY, CONTROL_MODE_POSITION))
-        self._stream = _Stream()
+        check_choice("control mode", mode, (CONTROL_MODE_VELOCITY, CONTROL_MODE_POSITION))
+        self.stream.taken_over(VELOCITY_STREAM, locked=False)
         self._write("operation_mode", OPERATION_MODE_NETWORK)
         if mode == CONTROL_MODE_VELOCITY:
             self._write("speed_setpoint", 0)
-            self._stream.rpm = 0
         self._write("control_mode", mode)
 
     def enable(self, on: bool) -> None:
@@ -358,12 +374,12 @@ class MotecDevice:
             try:
                 self._write("enable", ENABLE_OFF)
             finally:
-                self._stream = _Stream(rpm=self._stream.rpm)
+                self.stream.taken_over(VELOCITY_STREAM, locked=False)
             return
         modes = self.read_modes()
         if modes.control_mode == CONTROL_MODE_VELOCITY:
             self._write("speed_setpoint", 0)
-            self._stream = _Stream(rpm=0)
+            self.stream.taken_over(VELOCITY_STREAM, locked=False)
         self._write("enable", ENABLE_ON)
 
     def move(self, counts: int, *, relative: bool, speed_rpm: float = 0.0) -> None:
@@ -393,12 +409,9 @@ class MotecDevice:
         0x29 = 0 (the move / stop register); any other mode -> release (0x28 = 0), the
         only stop the manual gives for every mode. Returns what was done."""
         modes = self.read_modes()
-        self._stream.locked = True
+        self.stream.taken_over(VELOCITY_STREAM, locked=True)
         if modes.network and modes.control_mode == CONTROL_MODE_VELOCITY:
-            try:
-                self._write("speed_setpoint", 0)
-            finally:
-                self._stream.active, self._stream.rpm = False, 0
+            self._write("speed_setpoint", 0)
             return "speed setpoint 0"
         if modes.network and modes.control_mode == CONTROL_MODE_POSITION:
             self._write("start", STOP_MOVE)
@@ -411,34 +424,31 @@ class MotecDevice:
 
     def set_output(self, output: int, on: bool) -> None:
         """OUTPUT1-3 with FC 05 (§3.3.3): 0xFF00 on, 0x0000 off."""
-        if isinstance(output, bool) or not isinstance(output, int) or not 1 <= output <= OUTPUTS:
-            raise CommandRejected(f"output {output!r} outside 1-{OUTPUTS}")
+        check_index("output", output, range(1, OUTPUTS + 1))
         self.io.write_coil(output_coil(output), bool(on))
         self.last_write = self._clock()
 
     def set_analog_max_speed(self, rpm: float) -> None:
-        _check_finite("analog max speed", rpm)
-        if rpm != int(rpm):
-            raise CommandRejected(f"analog max speed {rpm} is not a whole number of rpm")
-        self._write("analog_max_speed", int(rpm))
+        reg = MOTEC_MAP["analog_max_speed"]
+        value = check_whole_number(
+            "analog max speed (rpm)", rpm, reg.value_type.raw_min, reg.value_type.raw_max
+        )
+        self._write("analog_max_speed", value)
 
     # ------------------------------------------------------------------ velocity stream
     def velocity(self, rpm: float) -> bool:
         """Command ``rpm`` (0xAE) until told otherwise; True if anything was written."""
-        speed = self._check_speed(rpm, "velocity")
-        stream = self._stream
-        if speed == 0:
-            stream.locked = False
-            if not stream.active:
-                return False
-            self.velocity_stop()
-            return True
-        if stream.locked:
-            raise CommandRejected(
-                "the drive was stopped: send 0 (or nothing for command_timeout_s) "
-                "before commanding a velocity again"
-            )
-        if not stream.active:
+        return self.stream.command(
+            VELOCITY_STREAM,
+            self.check_velocity(rpm),
+            refuse_reason="the drive was stopped: send 0 (or nothing for command_timeout_s) "
+            "before commanding a velocity again",
+        )
+
+    def _velocity_send(self, _key: int, rpm: float, previous: float | None) -> None:
+        if previous is None:
+            # Starting (or the speed the drive holds is unknown): the drive must be able
+            # to turn under 0xAE at all.
             modes = self.read_modes()
             if (
                 not modes.network
@@ -449,43 +459,30 @@ class MotecDevice:
                     f"velocity commands need network mode, velocity control and an enabled "
                     f"drive; the drive is in {modes.describe()}"
                 )
-        if stream.active and stream.rpm == speed:
-            return False
-        try:
-            self._write("speed_setpoint", speed)
-        except LinkError:
-            # The write may or may not have landed: treat the drive as turning, so the
-            # deadman (velocity_stop) keeps trying until a 0 is acknowledged.
-            stream.rpm, stream.active = None, True
-            raise
-        stream.rpm, stream.active = speed, True
-        return True
+        self._write("speed_setpoint", round(rpm))
+
+    def _velocity_zero(self, _key: int) -> None:
+        self._write("speed_setpoint", 0)
 
     @property
     def streaming(self) -> bool:
-        return self._stream.active
+        return self.stream[VELOCITY_STREAM].may_move
 
     @property
     def stream_locked(self) -> bool:
-        return self._stream.locked
+        return self.stream[VELOCITY_STREAM].locked
 
     @property
     def stream_rpm(self) -> int | None:
-        return self._stream.rpm
+        value = self.stream[VELOCITY_STREAM].value
+        return None if value is None else round(value)
 
     def velocity_stop(self) -> bool:
-        """The deadman: 0 rpm if a stream is commanding a speed; unlocks the stream."""
-        stream = self._stream
-        stream.locked = False
-        if not stream.active:
+        """0 rpm now if the stream may be turning the motor (the deadman, shutdown)."""
+        if not self.streaming:
+            self.stream[VELOCITY_STREAM].locked = False
             return False
-        try:
-            self._write("speed_setpoint", 0)
-        except LinkError:
-            stream.rpm = None
-            raise
-        stream.active, stream.rpm = False, 0
-        return True
+        return self.stream.stop(VELOCITY_STREAM)
 
     # ------------------------------------------------------------------ lifeguard
     def arm_lifeguard(self, time_ms: int) -> None:
@@ -515,16 +512,6 @@ def disable_all(broadcast: RegisterIO) -> None:
 
 
 # ---------------------------------------------------------------- checks
-
-
-def _check_finite(what: str, value: float) -> None:
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise CommandRejected(f"{what} {value!r} is not a finite number")
-
-
-def _check_choice(what: str, value: int, allowed: tuple[int, ...]) -> None:
-    if isinstance(value, bool) or value not in allowed:
-        raise CommandRejected(f"{what} {value!r} refused: one of {list(allowed)}")
 
 
 def _check_lifeguard_ms(time_ms: int) -> None:

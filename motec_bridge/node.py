@@ -2,19 +2,19 @@
 
 One process, one serial port, one node per drive. ``main`` starts:
 
-- ``motec_bridge``: the bus. It owns the serial parameters (``serial_port``,
-  ``baudrate``, ``parity``, ``stopbits``, ``timeout_s``) and ``unit_ids``, opens the one
-  ``ModbusLink`` every drive shares, and offers ``~/disable_all`` (one broadcast write,
-  unit 0: 0x28 = 0 on every drive, unanswered).
-- ``motec_<id>`` per unit id: a ``BridgeNode`` on the shared link with its own
-  ``DeviceChannel`` (so its own backoff: a dead drive is retried on its own schedule,
-  the others keep their poll slots), poll thread, topics, services and parameters.
+- ``motec_bridge``: the bus owner (``bridge_core.node_base.BusNode``). It has the serial
+  parameters (``serial_port``, ``baudrate``, ``parity``, ``stopbits``, ``timeout_s``)
+  and ``unit_ids``, opens the one ``ModbusLink`` every drive shares, and offers
+  ``~/disable_all`` (one broadcast write, unit 0: 0x28 = 0 on every drive, unanswered).
+- ``motec_<id>`` per unit id: a ``BridgeNode`` given the shared link and its unit id as
+  Python values, with its own ``DeviceChannel`` (so its own backoff: a dead drive is
+  retried on its own schedule, the others keep their poll slots), poll thread, topics,
+  services and parameters. It declares no serial parameters (they are the bus's) and
+  never closes the link (the bus node does, after every drive stopped).
 
 Parameters: a params file's ``/**:`` block reaches every node of the process (bus and
 drives); a ``/**/motec_<id>:`` block overrides one drive; ``-p name:=value`` on the
-command line reaches every node. The bus parameters are read by ``motec_bridge`` only and
-copied into each drive node (which shows them, e.g. ``ros2 param get /motec_2
-serial_port``); ``unit_id`` is set from ``unit_ids``. See config/motec.yaml.
+command line reaches every node. See config/motec.yaml.
 
 Fairness: every transaction holds the link's PriorityLock (FIFO within a priority,
 commands first), so drives polling at the same rate take turns request by request.
@@ -26,34 +26,21 @@ x 2 pi (rad), velocity = 0xAF rpm x 2 pi / 60 / ``gear_ratio`` (rad/s); ``~/move
 
 from __future__ import annotations
 
-import threading
-import time
+import sys
 from collections.abc import Sequence
 from typing import Any
 
-import rclpy
-from rcl_interfaces.msg import ParameterType
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
-from rclpy.parameter import Parameter
-from rclpy.signals import SignalHandlerOptions
-from rclpy.utilities import try_shutdown
 from std_msgs.msg import Float64
 from std_srvs.srv import SetBool, Trigger
 
+from bridge_core.checks import board_zero_index
 from bridge_core.diagnostics import Level, Report
-from bridge_core.errors import CommandRejected, DeviceException, LinkError
-from bridge_core.link import DeviceChannel, ModbusLink, SerialSettings
-from bridge_core.node_base import (
-    BOOL,
-    DOUBLE,
-    INT,
-    STRING,
-    BridgeNode,
-    _descriptor,
-    interrupt_on_signals,
-)
+from bridge_core.errors import CommandRejected, ConfigurationError, DeviceException, LinkError
+from bridge_core.link import DeviceChannel, ModbusLink
+from bridge_core.node_base import BridgeNode, BusNode, spin_nodes
+from bridge_core.parameters import ParameterSpec
 from msg_defs.msg import MotecState
 from msg_defs.srv import PositionMove, SetControlMode, SetOutput, SetValue
 
@@ -62,6 +49,7 @@ from .device import (
     DEFAULT_MAX_SPEED_RPM,
     LIFEGUARD_MIN_MS,
     SPEED_LIMIT_RPM,
+    VELOCITY_STREAM,
     DriveScale,
     MotecDevice,
     MotecSnapshot,
@@ -80,11 +68,7 @@ DEVICE_NAME = "MOTEC β servo drive"
 BUS_NODE_NAME = "motec_bridge"
 DEFAULT_POLL_RATE_HZ = 10.0  # per drive; a poll is 4 reads (~15-25 ms at 115200 baud)
 DEFAULT_TIMEOUT_S = 0.1  # a reply is a few ms at 115200: a dead drive costs little bus time
-DEADMAN_PERIOD_MIN_S = 0.02
-DEADMAN_PERIOD_MAX_S = 0.1
 LIFEGUARD_CHECK_S = 0.05  # feed check period when the drive armed its lifeguard itself
-INT_ARRAY = ParameterType.PARAMETER_INTEGER_ARRAY
-BUS_PARAMETERS = ("serial_port", "baudrate", "parity", "stopbits", "timeout_s")
 
 
 def drive_node_name(unit_id: int) -> str:
@@ -94,84 +78,83 @@ def drive_node_name(unit_id: int) -> str:
 class MotecDriveNode(BridgeNode):
     """One drive on the shared bus."""
 
-    def __init__(
-        self,
-        unit_id: int,
-        link: ModbusLink,
-        bus_parameters: Sequence[Parameter] = (),
-        **kwargs: Any,
-    ) -> None:
-        overrides = [*bus_parameters, Parameter("unit_id", Parameter.Type.INTEGER, unit_id)]
+    def __init__(self, unit_id: int, link: ModbusLink, **kwargs: Any) -> None:
         super().__init__(
             drive_node_name(unit_id),
             transport="rtu",
             device_name=DEVICE_NAME,
             default_poll_rate_hz=DEFAULT_POLL_RATE_HZ,
-            default_baudrate=DEFAULT_BAUDRATE,
             link=link,
-            parameter_overrides=overrides,
+            unit_id=unit_id,
             **kwargs,
         )
         self.unit_id = unit_id
-        p = self.declare_parameter
-        p(
-            "counts_per_rev",
-            10000.0,
-            _descriptor("encoder counts per motor revolution", DOUBLE, 1.0, 1e9),
+        values = self.declare_specs(
+            [
+                ParameterSpec(
+                    "counts_per_rev", 10000.0, "encoder counts per motor revolution", 1.0, 1e9
+                ),
+                ParameterSpec(
+                    "gear_ratio", 1.0, "motor revolutions per joint revolution", 1e-6, 1e6
+                ),
+                ParameterSpec(
+                    "command_timeout_s",
+                    0.5,
+                    "cmd_velocity deadman: 0 rpm after this silence",
+                    0.05,
+                    60.0,
+                    live=True,
+                ),
+                ParameterSpec(
+                    "lifeguard_ms",
+                    0,
+                    f"drive watchdog (0x112): 0 = leave the drive's setting, else "
+                    f"{LIFEGUARD_MIN_MS}-65535 ms, armed on connect and fed by the bridge",
+                    0,
+                    65535,
+                ),
+                ParameterSpec(
+                    "max_speed_rpm",
+                    DEFAULT_MAX_SPEED_RPM,
+                    "largest |speed| a command may ask (rpm)",
+                    1,
+                    SPEED_LIMIT_RPM,
+                ),
+                ParameterSpec(
+                    "config_refresh_s",
+                    DEFAULT_CONFIG_REFRESH_S,
+                    "re-read 0x6D, 0x112, 0x114 this often",
+                    0.5,
+                    3600.0,
+                ),
+            ]
         )
-        p(
-            "gear_ratio",
-            1.0,
-            _descriptor("motor revolutions per joint revolution", DOUBLE, 1e-6, 1e6),
-        )
-        p(
-            "command_timeout_s",
-            0.5,
-            _descriptor("cmd_velocity deadman: 0 rpm after this silence", DOUBLE, 0.05, 60.0),
-        )
-        p(
-            "lifeguard_ms",
-            0,
-            _descriptor(
-                f"drive watchdog (0x112): 0 = leave the drive's setting, else "
-                f"{LIFEGUARD_MIN_MS}-65535 ms, armed on connect and fed by the bridge",
-                INT,
-                0,
-                65535,
-            ),
-        )
-        p(
-            "max_speed_rpm",
-            DEFAULT_MAX_SPEED_RPM,
-            _descriptor("largest |speed| a command may ask (rpm)", INT, 1, SPEED_LIMIT_RPM),
-        )
-        p(
-            "config_refresh_s",
-            DEFAULT_CONFIG_REFRESH_S,
-            _descriptor("re-read 0x6D, 0x112, 0x114 this often", DOUBLE, 0.5, 3600.0),
-        )
-        self.scale = DriveScale(
-            float(self.param("counts_per_rev")), float(self.param("gear_ratio"))
-        )
-        self.command_timeout_s = float(self.param("command_timeout_s"))
-        self.lifeguard_ms = int(self.param("lifeguard_ms"))
+        self.scale = DriveScale(float(values["counts_per_rev"]), float(values["gear_ratio"]))
+        self.lifeguard_ms = int(values["lifeguard_ms"])
         if 0 < self.lifeguard_ms < LIFEGUARD_MIN_MS:
-            raise ValueError(
+            raise ConfigurationError(
                 f"{self.get_name()}: lifeguard_ms {self.lifeguard_ms} is below "
                 f"{LIFEGUARD_MIN_MS} (0 = off)"
             )
         self.device = MotecDevice(
             self.channel,
-            max_speed_rpm=int(self.param("max_speed_rpm")),
-            config_refresh_s=float(self.param("config_refresh_s")),
+            max_speed_rpm=int(values["max_speed_rpm"]),
+            config_refresh_s=float(values["config_refresh_s"]),
+            velocity_timeout_s=float(values["command_timeout_s"]),
         )
         self.last_snapshot: MotecSnapshot | None = None
         self.lifeguard_error: str | None = None
-        self.velocity_seen: float | None = None
         self.joint_names = [f"{self.joint_prefix}drive_{unit_id}"]
         self.state_pub = self.create_publisher(MotecState, "~/state", 10)
         self._create_services()
-        self._create_velocity()
+        self.stream_topic(
+            self.device.stream,
+            Float64,
+            {VELOCITY_STREAM: "~/cmd_velocity"},
+            lambda _key, rad_s: f"cmd_velocity {rad_s} rad/s",
+            lambda msg: float(msg.data),
+            convert=lambda _key, rad_s: self.device.check_velocity(self.scale.to_rpm(rad_s)),
+        )
         self.lifeguard_group = MutuallyExclusiveCallbackGroup()
         period = (
             self.device.lifeguard_feed_period_s(self.lifeguard_ms) / 2
@@ -315,7 +298,7 @@ class MotecDriveNode(BridgeNode):
             SetOutput,
             "~/set_output",
             lambda r: f"set_output {r.index} {'on' if r.on else 'off'}",
-            lambda r: d.set_output(_only_board_zero(r.board, r.index), r.on),
+            lambda r: d.set_output(board_zero_index("drive", r.board, r.index), r.on),
         )
         self.command_service(
             SetValue,
@@ -338,53 +321,6 @@ class MotecDriveNode(BridgeNode):
         self.device.move(counts, relative=bool(r.relative), speed_rpm=rpm)
         return counts
 
-    # ------------------------------------------------------------ velocity + deadman
-    def _create_velocity(self) -> None:
-        self.create_subscription(
-            Float64,
-            "~/cmd_velocity",
-            self._on_cmd_velocity_msg,
-            10,
-            callback_group=self.command_group,
-        )
-        period = min(DEADMAN_PERIOD_MAX_S, max(DEADMAN_PERIOD_MIN_S, self.command_timeout_s / 5))
-        self.deadman_timer = self.create_timer(
-            period, self._deadman, callback_group=self.command_group
-        )
-
-    def _on_cmd_velocity_msg(self, msg: Any) -> None:
-        self._on_cmd_velocity(float(msg.data))
-
-    def _on_cmd_velocity(self, rad_s: float) -> None:
-        self.velocity_seen = time.monotonic()
-        ok, message, _ = self.run_command(
-            f"cmd_velocity {rad_s} rad/s",
-            lambda: self.device.velocity(self.scale.to_rpm(rad_s)),
-        )
-        if ok:
-            return
-        self.get_logger().warn(message, throttle_duration_sec=2.0)
-        if self.device.streaming:
-            # A refused value must not leave the motor running at the previous one.
-            self.run_command("cmd_velocity stop", self.device.velocity_stop)
-
-    def _deadman(self) -> None:
-        d = self.device
-        if not (d.streaming or d.stream_locked):
-            return
-        seen = self.velocity_seen
-        if seen is not None and time.monotonic() - seen <= self.command_timeout_s:
-            return
-        was_streaming = d.streaming
-        ok, message, _ = self.run_command("cmd_velocity deadman stop", d.velocity_stop)
-        if was_streaming:
-            if ok:
-                self.get_logger().info(
-                    f"no cmd_velocity for {self.command_timeout_s} s: speed setpoint 0"
-                )
-            else:
-                self.get_logger().warn(message, throttle_duration_sec=2.0)
-
     # ------------------------------------------------------------ lifeguard
     def _feed_lifeguard(self) -> None:
         if self.read_only or not self.channel.connected:
@@ -398,47 +334,24 @@ class MotecDriveNode(BridgeNode):
             self.get_logger().warn(f"lifeguard feed failed: {err}", throttle_duration_sec=5.0)
 
 
-class MotecBusNode(Node):
+class MotecBusNode(BusNode):
     """The serial bus shared by every drive node of the process."""
 
     def __init__(self, **kwargs: Any) -> None:
-        super().__init__(BUS_NODE_NAME, **kwargs)
-        p = self.declare_parameter
-        p("serial_port", "/dev/ttyUSB0", _descriptor("serial device path or pyserial URL", STRING))
-        p("baudrate", DEFAULT_BAUDRATE, _descriptor("serial baud rate", INT, 300, 4_000_000))
-        p("parity", "N", _descriptor("N, E or O", STRING))
-        p("stopbits", 1, _descriptor("1 or 2", INT, 1, 2))
-        p(
-            "timeout_s",
-            DEFAULT_TIMEOUT_S,
-            _descriptor("reply timeout per transaction", DOUBLE, 0.01, 10.0),
+        super().__init__(
+            BUS_NODE_NAME,
+            default_baudrate=DEFAULT_BAUDRATE,
+            default_timeout_s=DEFAULT_TIMEOUT_S,
+            unit_id_range=range(min(UNIT_IDS), max(UNIT_IDS) + 1),
+            **kwargs,
         )
-        p("unit_ids", [1], _descriptor("drives on the bus (1-31), one node each", INT_ARRAY))
-        p("read_only", False, _descriptor("refuse ~/disable_all", BOOL))
-        self.unit_ids = [int(u) for u in self.get_parameter("unit_ids").value]
-        if not self.unit_ids or len(set(self.unit_ids)) != len(self.unit_ids):
-            raise ValueError(f"unit_ids {self.unit_ids} must be distinct and not empty")
-        for unit in self.unit_ids:
-            if unit not in UNIT_IDS:
-                raise ValueError(f"unit id {unit} outside 1-31 (the manual's range)")
-        parity = str(self.get_parameter("parity").value).upper()
-        if parity not in ("N", "E", "O"):
-            raise ValueError(f"parity {parity!r} is not N, E or O")
-        self.read_only = bool(self.get_parameter("read_only").value)
-        self.settings = SerialSettings(
-            str(self.get_parameter("serial_port").value),
-            int(self.get_parameter("baudrate").value),
-            parity,
-            int(self.get_parameter("stopbits").value),
-            timeout_s=float(self.get_parameter("timeout_s").value),
+        values = self.declare_specs(
+            [ParameterSpec("read_only", False, "refuse ~/disable_all", live=True)]
         )
-        self.link = ModbusLink(self.settings)
+        self.read_only = bool(values["read_only"])
+        self.on_parameter("read_only", lambda value: setattr(self, "read_only", bool(value)))
         self.broadcast = DeviceChannel(self.link, BROADCAST_UNIT, retries=0)
         self.create_service(Trigger, "~/disable_all", self._disable_all)
-
-    def bus_parameters(self) -> list[Parameter]:
-        """The bus settings, for the drive nodes' own (informational) parameters."""
-        return [self.get_parameter(name) for name in BUS_PARAMETERS]
 
     def _disable_all(self, _request: Any, response: Any) -> Any:
         if self.read_only:
@@ -458,50 +371,17 @@ def _said(response: Any, what: str) -> None:
     response.message += f" ({what})"
 
 
-def _only_board_zero(board: int, index: int) -> int:
-    if board != 0:
-        raise CommandRejected(f"board {board} refused: the drive has one board (board 0)")
-    return index
+def build_nodes(nodes: list[Node]) -> None:
+    """The bus owner first, then one node per drive on its link."""
+    bus = MotecBusNode()
+    nodes.append(bus)
+    for unit in bus.unit_ids:
+        nodes.append(MotecDriveNode(unit, bus.link))
 
 
-def main(args: Sequence[str] | None = None) -> None:
-    # Our own SIGINT / SIGTERM handling: rclpy's would shut the context down while the
-    # drives' threads still publish; here the drives stop first, then the context.
-    rclpy.init(
-        args=list(args) if args is not None else None,
-        signal_handler_options=SignalHandlerOptions.NO,
-    )
-    interrupt_on_signals()
-    bus: MotecBusNode | None = None
-    drives: list[MotecDriveNode] = []
-    executor: MultiThreadedExecutor | None = None
-    try:
-        bus = MotecBusNode()
-        for unit in bus.unit_ids:
-            drives.append(MotecDriveNode(unit, bus.link, bus.bus_parameters()))
-        executor = MultiThreadedExecutor(num_threads=max(4, min(32, 2 + 3 * len(drives))))
-        for node in (bus, *drives):
-            executor.add_node(node)
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if executor is not None:
-            executor.shutdown()
-        # Stop every drive's threads at once: the context may already be shut down, and
-        # a drive still publishing while another one closes would log errors.
-        closers = [threading.Thread(target=drive.close) for drive in drives]
-        for closer in closers:
-            closer.start()
-        for closer in closers:
-            closer.join()
-        for drive in drives:
-            drive.destroy_node()
-        if bus is not None:
-            bus.link.close()
-            bus.destroy_node()
-        try_shutdown()
+def main(args: Sequence[str] | None = None) -> int:
+    return spin_nodes(build_nodes, args)
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

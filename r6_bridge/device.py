@@ -6,14 +6,15 @@ refused command writes nothing.
 
 from __future__ import annotations
 
-import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 from bridge_core.channel import Priority, RegisterIO
+from bridge_core.checks import check_whole_number
 from bridge_core.codec import Value, encode, int_to_words, words_to_int
 from bridge_core.errors import CommandRejected, FrameError, PollIncomplete
 from bridge_core.planner import ReadRequest, decode_reply, plan_reads
+from bridge_core.poller import holds, read_blocks
 from bridge_core.registers import MAX_READ_REGISTERS, MAX_WRITE_REGISTERS, WordOrder
 
 from .registers import (
@@ -41,6 +42,8 @@ I32_MIN, I32_MAX = -(1 << 31), (1 << 31) - 1
 # Registers in one upload frame: the manual's 256-byte frame cap and Modbus's 123 (FC 10).
 POINT_FRAME_MAX_REGISTERS = min(POINT_FRAME_MAX_BYTES // 2, MAX_WRITE_REGISTERS)
 POINT_FRAME_HEADER_REGISTERS = 2  # 30005 point count, 30006 clear flag
+# joint_states is stamped with the read time of the block holding the axis positions.
+STAMP_REGISTER = "axis_position_1"
 
 
 def mode_name(mode: int) -> str:
@@ -110,9 +113,9 @@ class R6Device:
         names += [f"axis_torque_{a}" for a in range(1, MAX_AXES + 1)]
         names += [f"axis_speed_{a}" for a in range(1, MAX_AXES + 1)]
         plan = plan_reads(R6_MAP, R6_MAP.select(names))
-        # The axis positions last: their read time stamps joint_states, and a position
-        # change then reaches the message soonest (p99 latency, bench/r6_bench.py).
-        plan.sort(key=lambda request: request.address == R6_MAP["axis_count"].address)
+        # The axis positions last, so a position change reaches joint_states soonest (p99
+        # latency, bench/r6_bench.py); the stamp is their own read time either way.
+        plan.sort(key=lambda request: holds(request, STAMP_REGISTER))
         return plan
 
     def read_counts(self) -> tuple[int, int]:
@@ -124,14 +127,10 @@ class R6Device:
         if self._plan is None or self._plan_counts is None:
             self._plan_counts = self.read_counts()
             self._plan = self.poll_plan(*self._plan_counts)
-        values: dict[str, object] = {}
-        read_time = 0.0
-        for request in self._plan:
-            read_time = time.time()  # ends as the read time of the axis positions (last)
-            words = self.io.read_registers(request.address, request.count, request.table)
-            values.update(decode_reply(request, words))
-        axis_count = int(values["axis_count"])  # type: ignore[call-overload]
-        boards = int(values["io_board_count"])  # type: ignore[call-overload]
+        stamp = STAMP_REGISTER if self._plan_counts[0] > 0 else None
+        values, read_time = read_blocks(self.io, self._plan, Priority.POLL, stamp)
+        axis_count = int(values["axis_count"])
+        boards = int(values["io_board_count"])
         if (axis_count, boards) != self._plan_counts:
             # Configuration changed: next poll reads the new set; this one is incomplete.
             self._plan_counts = (axis_count, boards)
@@ -143,10 +142,10 @@ class R6Device:
         nboards = min(boards, MAX_IO_BOARDS)
 
         def f(name: str) -> float:
-            return float(values[name])  # type: ignore[arg-type]
+            return float(values[name])
 
         def i(name: str) -> int:
-            return int(values[name])  # type: ignore[call-overload, no-any-return]
+            return int(values[name])
 
         return R6Snapshot(
             read_time=read_time,
@@ -169,7 +168,9 @@ class R6Device:
         )
 
     def invalidate_plan(self) -> None:
-        """Re-read the counts on the next poll (after a reconnect the device may differ)."""
+        """Re-read the counts on the next poll: after a reconnect the device may differ, and
+        a poll refused with ILLEGAL DATA ADDRESS means axes or boards went away (§3.1.8:
+        only the axes in use are valid), which the cached plan would read forever."""
         self._plan = None
         self._plan_counts = None
 
@@ -219,7 +220,7 @@ class R6Device:
 
     def read_counter(self, counter_id: int) -> tuple[int, int, int]:
         """§3.1.4: write the id to 2179, then read id, target and current (6 registers)."""
-        _check_range("counter id", counter_id, 0, U32_MAX)
+        check_whole_number("counter id", counter_id, 0, U32_MAX)
         address = R6_MAP["counter_select_id"].address
         self.io.write_registers(address, int_to_words(counter_id, 2, False, HIGH))
         words = self.io.read_registers(address, 6, priority=Priority.COMMAND)
@@ -263,14 +264,14 @@ class R6Device:
         """§3.3.1: all 32 outputs of one IO board (FC 10, 2 registers, high word first)."""
         if not 0 <= board < MAX_IO_BOARDS:
             raise CommandRejected(f"IO board {board} outside 0-{MAX_IO_BOARDS - 1}")
-        _check_range("output bits", bits, 0, U32_MAX)
+        check_whole_number("output bits", bits, 0, U32_MAX)
         reg = R6_MAP[f"io_board_output_{board}"]
         self.io.write_registers(reg.address, int_to_words(bits, 2, False, HIGH))
 
     def set_counter(self, counter_id: int, value: int) -> None:
         """§3.3.2: id, target (ignored by the host: 0) and current value, 6 registers."""
-        _check_range("counter id", counter_id, 0, U32_MAX)
-        _check_range("counter value", value, 0, U32_MAX)
+        check_whole_number("counter id", counter_id, 0, U32_MAX)
+        check_whole_number("counter value", value, 0, U32_MAX)
         words = [
             *int_to_words(counter_id, 2, False, HIGH),
             0,
@@ -295,7 +296,7 @@ class R6Device:
                     f"parameter {first_index + k} is read-only here: §3.3.4 gives the "
                     f"writable range as 20300-22229 (indexes 0-{PARAMETER_WRITE_LAST_INDEX})"
                 )
-            _check_range(f"parameter {first_index + k}", value, I32_MIN, I32_MAX)
+            check_whole_number(f"parameter {first_index + k}", value, I32_MIN, I32_MAX)
         words: list[int] = []
         for value in values:
             words += int_to_words(value, 2, True, HIGH)
@@ -309,17 +310,17 @@ class R6Device:
         The first frame clears the source (30006 = 1), later ones append (0). Returns the
         number of data frames sent.
         """
-        _check_range("data source id", data_source_id, 0, 0xFFFF)
+        check_whole_number("data source id", data_source_id, 0, 0xFFFF)
         if values_per_point not in POINT_VALUES_PER_POINT:
             raise CommandRejected(f"values_per_point must be one of {POINT_VALUES_PER_POINT}")
-        _check_range("axis mask", axis_mask, 0, POINT_AXIS_MASK_MAX)
+        check_whole_number("axis mask", axis_mask, 0, POINT_AXIS_MASK_MAX)
         if not values or len(values) % values_per_point:
             raise CommandRejected(
                 f"{len(values)} values is not a whole, non-zero number of "
                 f"{values_per_point}-value points"
             )
         for value in values:
-            _check_range("point value", value, I32_MIN, I32_MAX)
+            check_whole_number("point value", value, I32_MIN, I32_MAX)
         per_frame = (POINT_FRAME_MAX_REGISTERS - POINT_FRAME_HEADER_REGISTERS) // (
             2 * values_per_point
         )
@@ -340,13 +341,8 @@ class R6Device:
         return len(frames)
 
 
-def _check_range(what: str, value: int, low: int, high: int) -> None:
-    if not isinstance(value, int) or not low <= value <= high:
-        raise CommandRejected(f"{what} {value!r} outside {low}..{high}")
-
-
 def _check_parameter_index(index: int) -> None:
-    _check_range("parameter index", index, 0, PARAMETER_COUNT - 1)
+    check_whole_number("parameter index", index, 0, PARAMETER_COUNT - 1)
     if not parameter_offered(index):
         raise CommandRejected(
             f"parameter index {index} overlaps registers 22130-22131 "

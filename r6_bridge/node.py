@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Sequence
 from typing import Any
 
@@ -9,7 +10,8 @@ from geometry_msgs.msg import PoseStamped
 
 from bridge_core.diagnostics import Level, Report
 from bridge_core.errors import DeviceException, FrameError
-from bridge_core.node_base import DOUBLE_ARRAY, BridgeNode, _descriptor, float_list, spin_node
+from bridge_core.node_base import BridgeNode, spin_node
+from bridge_core.parameters import ParameterSpec, padded
 from bridge_core.units import DEG, MM, RPM_TO_RAD_S, euler_xyz_deg_to_quaternion
 from msg_defs.msg import R6State
 from msg_defs.srv import (
@@ -34,18 +36,24 @@ class R6BridgeNode(BridgeNode):
             default_poll_rate_hz=50.0,
             **kwargs,
         )
-        self.declare_parameter(
-            "gear_ratios",
-            [1.0] * MAX_AXES,
-            _descriptor("motor rpm per joint rpm, per axis", DOUBLE_ARRAY),
+        values = self.declare_specs(
+            [
+                ParameterSpec(
+                    "gear_ratios",
+                    [1.0] * MAX_AXES,
+                    "motor rpm per joint rpm, per axis",
+                    item_positive=True,
+                ),
+                ParameterSpec(
+                    "rated_torques",
+                    [1.0] * MAX_AXES,
+                    "rated torque (N m) per axis; effort = fraction x this",
+                    item_positive=True,
+                ),
+            ]
         )
-        self.declare_parameter(
-            "rated_torques",
-            [1.0] * MAX_AXES,
-            _descriptor("rated torque (N m) per axis; effort = fraction x this", DOUBLE_ARRAY),
-        )
-        self.gear_ratios = float_list(self.param("gear_ratios"), MAX_AXES, 1.0, "gear_ratios")
-        self.rated_torques = float_list(self.param("rated_torques"), MAX_AXES, 1.0, "rated_torques")
+        self.gear_ratios = padded(values["gear_ratios"], MAX_AXES, 1.0)
+        self.rated_torques = padded(values["rated_torques"], MAX_AXES, 1.0)
         self.device = R6Device(self.channel)
         self.firmware_version = ""
         self.last_snapshot: R6Snapshot | None = None
@@ -67,6 +75,9 @@ class R6BridgeNode(BridgeNode):
 
     def poll_device(self) -> R6Snapshot:
         return self.device.poll()
+
+    def replan(self) -> None:
+        self.device.invalidate_plan()
 
     def publish_snapshot(self, snapshot: R6Snapshot) -> None:
         self.last_snapshot = snapshot
@@ -188,9 +199,9 @@ class R6BridgeNode(BridgeNode):
         )
 
 
-def main(args: Sequence[str] | None = None) -> None:
-    spin_node(R6BridgeNode, args)
+def main(args: Sequence[str] | None = None) -> int:
+    return spin_node(R6BridgeNode, args)
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

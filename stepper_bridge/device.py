@@ -28,11 +28,20 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from bridge_core.channel import Priority, RegisterIO
+from bridge_core.checks import (
+    check_choice,
+    check_finite,
+    check_index,
+    check_range,
+    check_whole_number,
+)
 from bridge_core.codec import Value, decode, encode
 from bridge_core.config_cache import ConfigCache
 from bridge_core.errors import CommandRejected, LinkError
 from bridge_core.planner import ReadRequest, decode_reply, plan_reads
+from bridge_core.poller import read_blocks
 from bridge_core.registers import Register
+from bridge_core.stream_guard import StreamGuard
 
 from .registers import (
     ARC_MODE_CENTER,
@@ -62,6 +71,7 @@ SYSTEM_COMMANDS = (
 DESTRUCTIVE_COMMANDS = ("factory_reset", "clear_all_parameters")
 LIMIT_FIELDS = ("positive_limit_input", "negative_limit_input", "home_input")
 DEFAULT_CONFIG_REFRESH_S = 5.0
+DEFAULT_JOG_TIMEOUT_S = 0.5
 SPEED_MAX_RPM = 0xFFFF
 JOINT_TYPES = ("prismatic", "revolute")
 
@@ -124,6 +134,8 @@ def _config_names() -> list[str]:
 
 
 STATUS_PLAN: list[ReadRequest] = plan_reads(STEPPER_MAP, STEPPER_MAP.select(_status_names()))
+# joint_states is stamped with the read time of the block holding the coordinates.
+STAMP_REGISTER = motor_register(1, "coordinate")
 CONFIG_PLAN: list[ReadRequest] = plan_reads(STEPPER_MAP, STEPPER_MAP.select(_config_names()))
 
 
@@ -167,18 +179,6 @@ class JointScale:
 # ---------------------------------------------------------------- the device
 
 
-@dataclass
-class _Jog:
-    speed: int | None = None  # last speed written by a jog (None: unknown)
-    sign: int = 0  # -1 reverse, 0 stopped, +1 forward
-    locked: bool = False
-    # A jog write or a stop failed on the link: the motor may be running; the deadman
-    # keeps sending the stop coil until one is acknowledged.
-    stop_pending: bool = False
-    # A stop was acknowledged since the last motion command: further 0s send nothing.
-    stop_sent: bool = False
-
-
 class StepperDevice:
     """The stepper controller behind one Modbus channel."""
 
@@ -187,11 +187,22 @@ class StepperDevice:
         io: RegisterIO,
         *,
         config_refresh_s: float = DEFAULT_CONFIG_REFRESH_S,
+        jog_timeout_s: float = DEFAULT_JOG_TIMEOUT_S,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
         self.io = io
         self._cache = ConfigCache(CONFIG_PLAN, self._read, config_refresh_s, clock)
-        self._jogs = {m: _Jog() for m in range(1, MOTORS + 1)}
+        # The jog streams (one per motor) and the direction coil each motor was last sent
+        # by a jog: +1 forward, -1 reverse, 0 stopped, None unknown (a write was lost).
+        self.jogs: StreamGuard[int] = StreamGuard(
+            range(1, MOTORS + 1),
+            self._jog_send,
+            self._jog_stop_coil,
+            timeout_s=jog_timeout_s,
+            stop_when_idle=True,
+            clock=clock,
+        )
+        self._direction: dict[int, int | None] = dict.fromkeys(range(1, MOTORS + 1), 0)
 
     # ------------------------------------------------------------------ reads
     def _read(self, request: ReadRequest, priority: Priority) -> dict[str, Value]:
@@ -215,10 +226,9 @@ class StepperDevice:
     def invalidate_config(self) -> None:
         """Forget the cached configuration: the next poll reads it whole first."""
         self._cache.clear()
-        for jog in self._jogs.values():
-            # The speed register may have changed; a jog that was running is still
-            # "jogging" so that the node's deadman stops it once the link is back.
-            jog.speed = None
+        # The speed register may have changed; a jog that was running is still "jogging"
+        # so that the node's deadman stops it once the link is back.
+        self.jogs.forget_values()
 
     @property
     def has_config(self) -> bool:
@@ -263,10 +273,7 @@ class StepperDevice:
     def poll(self) -> StepperSnapshot:
         if not self.has_config:
             self.read_config()
-        read_time = time.time()
-        v: dict[str, Value] = {}
-        for request in STATUS_PLAN:
-            v.update(self._read(request, Priority.POLL))
+        v, read_time = read_blocks(self.io, STATUS_PLAN, Priority.POLL, STAMP_REGISTER)
         self._cache.refresh_step()  # one configuration request while a refresh is due
         return StepperSnapshot(
             read_time=read_time,
@@ -312,14 +319,13 @@ class StepperDevice:
         _check_motor(motor)
         if action not in MOTOR_ACTIONS:
             raise CommandRejected(f"unknown motor action {action!r}; known: {MOTOR_ACTIONS}")
-        jog = self._jogs[motor]
         try:
             self.io.write_coil(motor_coil(motor, action), True)
         finally:
             # A service overrides any jog: the next jog command is sent whole, and a 0 jog
             # then stops the motor once (it may be running the service's motion).
-            jog.speed, jog.sign, jog.stop_sent = None, 0, False
-            jog.locked = action == "stop"
+            self.jogs.taken_over(motor, locked=action == "stop")
+            self._direction[motor] = 0
 
     def set_motor_parameter(self, motor: int, field: str, value: float) -> None:
         """One basic parameter: FC 06 for a 16-bit one, FC 10 for lead / run distance.
@@ -430,67 +436,56 @@ class StepperDevice:
         self._write_values([("system_mode", int(mode))])
 
     # ------------------------------------------------------------------ jog
+    def check_jog(self, motor: int, rpm: float) -> float:
+        """A jog command's motor and speed; the speed rounded to the register's whole rpm."""
+        _check_motor(motor)
+        check_range("jog speed", rpm, -SPEED_MAX_RPM, SPEED_MAX_RPM, "rpm")
+        return float(round(rpm))
+
     def jog(self, motor: int, rpm: float) -> bool:
         """Run at ``rpm`` (sign = direction) until told otherwise; True if anything was sent."""
-        _check_motor(motor)
-        _check_finite("jog speed", rpm)
-        speed = round(abs(rpm))
-        if speed > SPEED_MAX_RPM:
-            raise CommandRejected(f"jog speed {rpm} rpm outside -65535..65535")
-        sign = 0 if speed == 0 else (1 if rpm > 0 else -1)
-        jog = self._jogs[motor]
-        if sign == 0:
-            jog.locked = False
-            if jog.sign == 0 and not jog.stop_pending and (jog.stop_sent or jog.speed is not None):
-                return False
-            self.jog_stop(motor, force=True)
-            return True
-        if jog.locked:
-            raise CommandRejected(
-                f"motor {motor} was stopped: send a 0 jog (or none for command_timeout_s) "
-                "before jogging it again"
-            )
-        if (jog.speed, jog.sign) == (speed, sign):
-            return False
+        return self.jogs.command(
+            motor,
+            self.check_jog(motor, rpm),
+            refuse_reason=f"motor {motor} was stopped: send a 0 jog (or none for "
+            "command_timeout_s) before jogging it again",
+        )
+
+    def _jog_send(self, motor: int, rpm: float, previous: float | None) -> None:
+        """Speed (40006+, adjustable while running) and direction coil, as needed.
+
+        A reversal, or a motor whose direction is unknown, gets the stop coil first.
+        """
+        speed, sign = round(abs(rpm)), (1 if rpm > 0 else -1)
+        direction = self._direction[motor]
         try:
-            if jog.sign == -sign:
+            if direction is None or direction == -sign:
                 self.io.write_coil(motor_coil(motor, "stop"), True)
-                jog.sign = 0
-            if jog.speed != speed:
+                self._direction[motor] = direction = 0
+            if previous is None or round(abs(previous)) != speed:
                 self._write_values([(motor_register(motor, "speed"), speed)])
-                jog.speed = speed
-            if jog.sign != sign:
+            if direction != sign:
                 self.io.write_coil(motor_coil(motor, "forward" if sign > 0 else "reverse"), True)
-                jog.sign = sign
+                self._direction[motor] = sign
         except LinkError:
-            # Unknown: the next command is sent whole, and the motor may be running.
-            jog.speed, jog.sign, jog.stop_pending = None, 0, True
+            self._direction[motor] = None
             raise
-        jog.stop_sent = False
-        return True
+
+    def _jog_stop_coil(self, motor: int) -> None:
+        self.io.write_coil(motor_coil(motor, "stop"), True)
+        self._direction[motor] = 0
 
     def jogging(self, motor: int) -> bool:
         """Running under a jog, or possibly so after a failed write (the deadman's cue)."""
-        jog = self._jogs[motor]
-        return jog.sign != 0 or jog.stop_pending
+        return self.jogs[motor].may_move
 
     def jog_locked(self, motor: int) -> bool:
-        return self._jogs[motor].locked
+        return self.jogs[motor].locked
 
-    def jog_stop(self, motor: int, *, force: bool = False) -> bool:
-        """Stop a jogging motor (the deadman); ``force`` sends the stop coil regardless."""
+    def jog_stop(self, motor: int) -> bool:
+        """Send the motor's stop coil now and end its jog."""
         _check_motor(motor)
-        jog = self._jogs[motor]
-        jog.locked = False
-        if not force and jog.sign == 0 and not jog.stop_pending:
-            return False
-        try:
-            self.io.write_coil(motor_coil(motor, "stop"), True)
-        except LinkError:
-            jog.stop_pending = True  # keep the deadman on it until a stop is acknowledged
-            raise
-        jog.sign, jog.stop_pending, jog.stop_sent = 0, False, True
-        return True
+        return self.jogs.stop(motor)
 
     # ------------------------------------------------------------------ all-motor commands
     def system_command(self, name: str) -> None:
@@ -501,12 +496,10 @@ class StepperDevice:
         finally:
             # The e-stop halts every jog and locks it; homing and return to zero take
             # the motors over, so the next jog command is sent whole.
-            if name == "emergency_stop":
-                for jog in self._jogs.values():
-                    jog.sign, jog.locked = 0, True
-            elif name in ("home_all", "return_to_zero"):
-                for jog in self._jogs.values():
-                    jog.speed, jog.sign = None, 0
+            if name in ("emergency_stop", "home_all", "return_to_zero"):
+                for motor in range(1, MOTORS + 1):
+                    self.jogs.taken_over(motor, locked=name == "emergency_stop")
+                    self._direction[motor] = 0
 
     def destructive_command(self, name: str, confirmation: str) -> None:
         """Factory reset (00073) or clear all parameters (00097): ``confirmation`` must
@@ -524,8 +517,7 @@ class StepperDevice:
 
     def set_output(self, output: int, on: bool) -> None:
         """Output 1-12: 0xFF00 to its ON coil, or to its OFF coil (00049-00072 in pairs)."""
-        if not isinstance(output, int) or not 1 <= output <= OUTPUTS:
-            raise CommandRejected(f"output {output!r} outside 1-{OUTPUTS}")
+        check_index("output", output, range(1, OUTPUTS + 1))
         self.io.write_coil(output_coil(output, bool(on)), True)
 
     def set_all_outputs(self, on: bool) -> None:
@@ -628,8 +620,7 @@ def _check_contiguous(regs: Sequence[Register]) -> None:
 
 
 def _check_motor(motor: int) -> None:
-    if isinstance(motor, bool) or not isinstance(motor, int) or not 1 <= motor <= MOTORS:
-        raise CommandRejected(f"motor {motor!r} outside 1-{MOTORS}")
+    check_index("motor", motor, range(1, MOTORS + 1))
 
 
 def _check_pair(pair: int) -> None:
@@ -639,25 +630,12 @@ def _check_pair(pair: int) -> None:
         )
 
 
-def _check_choice(what: str, value: int, allowed: Sequence[int]) -> None:
-    if isinstance(value, bool) or value not in allowed:
-        raise CommandRejected(f"{what} {value!r} refused: one of {list(allowed)}")
-
-
-def _check_finite(what: str, value: float) -> None:
-    if not isinstance(value, int | float) or not math.isfinite(value):
-        raise CommandRejected(f"{what} {value!r} is not a finite number")
+_check_choice = check_choice
+_check_finite = check_finite
 
 
 def _check_integer(what: str, value: float, low: int = 0, high: int = 0xFFFF) -> None:
-    if (
-        isinstance(value, bool)
-        or not isinstance(value, int | float)
-        or not math.isfinite(value)
-        or value != int(value)
-        or not low <= value <= high
-    ):
-        raise CommandRejected(f"{what} {value!r} outside the whole numbers {low}..{high}")
+    check_whole_number(what, value, low, high)
 
 
 def _check_points(points: Sequence[tuple[str, tuple[float, float]]]) -> None:

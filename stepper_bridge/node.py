@@ -14,18 +14,18 @@ when the link dropped is stopped as soon as the link is back).
 
 from __future__ import annotations
 
-import math
-import time
+import sys
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from rcl_interfaces.msg import ParameterType
 from std_msgs.msg import Float64
 from std_srvs.srv import SetBool
 
+from bridge_core.checks import board_zero_index
 from bridge_core.diagnostics import Level, Report
-from bridge_core.errors import CommandRejected
-from bridge_core.node_base import DOUBLE, DOUBLE_ARRAY, BridgeNode, _descriptor, spin_node
+from bridge_core.errors import CommandRejected, ConfigurationError
+from bridge_core.node_base import BridgeNode, spin_node
+from bridge_core.parameters import ParameterSpec, padded
 from msg_defs.msg import StepperState
 from msg_defs.srv import (
     ArcMove,
@@ -41,6 +41,7 @@ from msg_defs.srv import (
 
 from .device import (
     DESTRUCTIVE_COMMANDS,
+    JOINT_TYPES,
     SYSTEM_COMMANDS,
     JointScale,
     StepperDevice,
@@ -54,10 +55,7 @@ from .registers import (
     MOTORS,
 )
 
-STRING_ARRAY = ParameterType.PARAMETER_STRING_ARRAY
 DEFAULT_POLL_RATE_HZ = 3.0  # a poll takes ~0.29 s at 9600 baud (README)
-DEADMAN_PERIOD_MIN_S = 0.02
-DEADMAN_PERIOD_MAX_S = 0.1
 
 
 class StepperBridgeNode(BridgeNode):
@@ -70,38 +68,54 @@ class StepperBridgeNode(BridgeNode):
             default_baudrate=DEFAULT_BAUDRATE,
             **kwargs,
         )
-        p = self.declare_parameter
-        p(
-            "joint_types",
-            ["prismatic"] * MOTORS,
-            _descriptor("per motor: prismatic (m) or revolute (rad)", STRING_ARRAY),
+        values = self.declare_specs(
+            [
+                ParameterSpec(
+                    "joint_types",
+                    ["prismatic"] * MOTORS,
+                    "per motor: prismatic (m) or revolute (rad)",
+                ),
+                ParameterSpec(
+                    "units_per_meter",
+                    [1000.0] * MOTORS,
+                    "per prismatic motor: controller units per metre (1000: mm)",
+                    item_positive=True,
+                ),
+                ParameterSpec(
+                    "command_timeout_s",
+                    0.5,
+                    "jog deadman: stop a jogging motor after this silence",
+                    0.05,
+                    60.0,
+                    live=True,
+                ),
+                ParameterSpec(
+                    "config_refresh_s",
+                    5.0,
+                    "re-read the motor parameters this often",
+                    0.5,
+                    3600.0,
+                ),
+            ]
         )
-        p(
-            "units_per_meter",
-            [1000.0] * MOTORS,
-            _descriptor("per prismatic motor: controller units per metre (1000: mm)", DOUBLE_ARRAY),
-        )
-        p(
-            "command_timeout_s",
-            0.5,
-            _descriptor("jog deadman: stop a jogging motor after this silence", DOUBLE, 0.05, 60.0),
-        )
-        p(
-            "config_refresh_s",
-            5.0,
-            _descriptor("re-read the motor parameters this often", DOUBLE, 0.5, 3600.0),
-        )
-        self.scales = _joint_scales(self.param("joint_types"), self.param("units_per_meter"))
-        self.command_timeout_s = float(self.param("command_timeout_s"))
+        self.scales = _joint_scales(values["joint_types"], values["units_per_meter"])
         self.device = StepperDevice(
-            self.channel, config_refresh_s=float(self.param("config_refresh_s"))
+            self.channel,
+            config_refresh_s=float(values["config_refresh_s"]),
+            jog_timeout_s=float(values["command_timeout_s"]),
         )
         self.last_snapshot: StepperSnapshot | None = None
         self.joint_names = [f"{self.joint_prefix}motor_{m}" for m in range(1, MOTORS + 1)]
         self.state_pub = self.create_publisher(StepperState, "~/state", 10)
-        self.jog_seen: dict[int, float] = {}
         self._create_services()
-        self._create_jog()
+        self.stream_topic(
+            self.device.jogs,
+            Float64,
+            {n: f"~/motor_{n}/jog" for n in range(1, MOTORS + 1)},
+            lambda n, rpm: f"motor {n} jog {rpm} rpm",
+            lambda msg: float(msg.data),
+            convert=self.device.check_jog,
+        )
 
     # ------------------------------------------------------------ units
     def to_units(self, motor: int, si: float) -> float:
@@ -117,6 +131,10 @@ class StepperBridgeNode(BridgeNode):
 
     def poll_device(self) -> StepperSnapshot:
         return self.device.poll()
+
+    def replan(self) -> None:
+        # A refused status read: re-read the configuration before the next poll.
+        self.device.invalidate_config()
 
     def publish_snapshot(self, s: StepperSnapshot) -> None:
         self.last_snapshot = s
@@ -231,7 +249,7 @@ class StepperBridgeNode(BridgeNode):
             SetOutput,
             "~/set_output",
             lambda r: f"set_output {r.index} {'on' if r.on else 'off'}",
-            lambda r: d.set_output(_only_board_zero(r.board, r.index), r.on),
+            lambda r: d.set_output(board_zero_index("stepper controller", r.board, r.index), r.on),
         )
         self.command_service(
             SetBool,
@@ -305,77 +323,25 @@ class StepperBridgeNode(BridgeNode):
             r.speed_rpm,
         )
 
-    # ------------------------------------------------------------ jog
-    def _create_jog(self) -> None:
-        for n in range(1, MOTORS + 1):
-            self.create_subscription(
-                Float64,
-                f"~/motor_{n}/jog",
-                lambda msg, n=n: self._on_jog(n, float(msg.data)),  # type: ignore[misc]
-                10,
-                callback_group=self.command_group,
-            )
-        period = min(DEADMAN_PERIOD_MAX_S, max(DEADMAN_PERIOD_MIN_S, self.command_timeout_s / 5))
-        self.deadman_timer = self.create_timer(
-            period, self._deadman, callback_group=self.command_group
-        )
-
-    def _on_jog(self, motor: int, rpm: float) -> None:
-        self.jog_seen[motor] = time.monotonic()
-        ok, message, _ = self.run_command(
-            f"motor {motor} jog {rpm} rpm", lambda: self.device.jog(motor, rpm)
-        )
-        if ok:
-            return
-        self.get_logger().warn(message, throttle_duration_sec=2.0)
-        if self.device.jogging(motor):
-            # A refused value must not leave the motor running at the previous one.
-            self.run_command(f"motor {motor} jog stop", lambda: self.device.jog_stop(motor))
-
-    def _deadman(self) -> None:
-        now = time.monotonic()
-        for motor in range(1, MOTORS + 1):
-            if not (self.device.jogging(motor) or self.device.jog_locked(motor)):
-                continue
-            seen = self.jog_seen.get(motor)
-            if seen is not None and now - seen <= self.command_timeout_s:
-                continue
-            was_jogging = self.device.jogging(motor)
-            ok, message, _ = self.run_command(
-                f"motor {motor} jog deadman stop", _bind(self.device.jog_stop, motor)
-            )
-            if was_jogging:
-                if ok:
-                    self.get_logger().info(
-                        f"motor {motor}: no jog command for {self.command_timeout_s} s, stopped"
-                    )
-                else:
-                    self.get_logger().warn(message, throttle_duration_sec=2.0)
-
 
 def _bind(action: Callable[..., object], *args: Any) -> Callable[[], object]:
     return lambda: action(*args)
 
 
-def _only_board_zero(board: int, index: int) -> int:
-    if board != 0:
-        raise CommandRejected(f"board {board} refused: the controller has one board (board 0)")
-    return index
-
-
 def _joint_scales(types: Sequence[str], units_per_meter: Sequence[float]) -> list[JointScale]:
     types = list(types)[:MOTORS] + ["prismatic"] * (MOTORS - len(types))
-    units = [float(u) for u in units_per_meter][:MOTORS]
-    units += [1000.0] * (MOTORS - len(units))
-    for u in units:
-        if not math.isfinite(u) or u <= 0:
-            raise ValueError(f"units_per_meter must be positive and finite, got {u}")
+    for joint_type in types:
+        if joint_type not in JOINT_TYPES:
+            raise ConfigurationError(
+                f"joint_types: {joint_type!r} is not one of {', '.join(JOINT_TYPES)}"
+            )
+    units = padded(units_per_meter, MOTORS, 1000.0)
     return [JointScale(t, u) for t, u in zip(types, units, strict=True)]
 
 
-def main(args: Sequence[str] | None = None) -> None:
-    spin_node(StepperBridgeNode, args)
+def main(args: Sequence[str] | None = None) -> int:
+    return spin_node(StepperBridgeNode, args)
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -6,14 +6,15 @@ writes nothing; writes to channels the manual does not call valid never reach th
 
 from __future__ import annotations
 
-import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 from bridge_core.channel import Priority, RegisterIO
+from bridge_core.checks import check_index, check_whole_number
 from bridge_core.codec import Value, encode
 from bridge_core.errors import CommandRejected
-from bridge_core.planner import ReadRequest, decode_reply, plan_reads
+from bridge_core.planner import ReadRequest, plan_reads
+from bridge_core.poller import read_blocks
 
 from .registers import (
     COIL_FENCE_MODE,
@@ -154,30 +155,18 @@ class XArmDevice:
 
     # ------------------------------------------------------------------ polling
     def read_plan(
-        self, plan: Sequence[ReadRequest], priority: Priority
+        self, plan: Sequence[ReadRequest], priority: Priority, stamp: str | None = None
     ) -> tuple[dict[str, Value], float]:
-        """Values of a plan, and the wall-clock time its last request was sent."""
-        values: dict[str, Value] = {}
-        read_time = 0.0
-        for request in plan:
-            read_time = time.time()
-            if request.table.is_bit:
-                raw: Sequence[int] | Sequence[bool] = self.io.read_bits(
-                    request.address, request.count, request.table, priority=priority
-                )
-            else:
-                raw = self.io.read_registers(
-                    request.address, request.count, request.table, priority=priority
-                )
-            values.update(decode_reply(request, raw))
-        return values, read_time
+        """Values of a plan, and the wall-clock time the block holding ``stamp`` was read."""
+        return read_blocks(self.io, plan, priority, stamp)
 
     def read_named(self, *names: str) -> dict[str, Value]:
         plan = plan_reads(XARM_MAP, XARM_MAP.select(names))
         return self.read_plan(plan, Priority.COMMAND)[0]
 
     def poll(self) -> XArmSnapshot:
-        v, read_time = self.read_plan(POLL_PLAN, Priority.POLL)  # angles read last
+        # The angles are read last (a change reaches joint_states soonest) and stamp it.
+        v, read_time = self.read_plan(POLL_PLAN, Priority.POLL, _ANGLES[0])
 
         def floats(names: tuple[str, ...]) -> tuple[float, ...]:
             return tuple(float(v[n]) for n in names)
@@ -307,10 +296,7 @@ class XArmDevice:
         if not 1 <= len(projects) <= OFFLINE_TASK_MAX:
             raise CommandRejected(f"give 1-{OFFLINE_TASK_MAX} project numbers, not {len(projects)}")
         for number in projects:
-            if not isinstance(number, int) or not TASK_NUMBER_MIN <= number <= TASK_NUMBER_MAX:
-                raise CommandRejected(
-                    f"project number {number!r} outside {TASK_NUMBER_MIN}-{TASK_NUMBER_MAX}"
-                )
+            check_whole_number("project number", number, TASK_NUMBER_MIN, TASK_NUMBER_MAX)
         self.io.write_registers(OFFLINE_TASK_ADDRESS, list(projects))
 
 
@@ -319,8 +305,8 @@ def _signed(word: int) -> int:
 
 
 def _check_channel(what: str, index: int, valid: range) -> None:
-    if not isinstance(index, int) or index not in valid:
-        raise CommandRejected(
-            f"{what} {index!r} refused: "
-            f"the manual names only {valid.start}-{valid.stop - 1} as valid"
-        )
+    """Only the channels the manual calls valid (README "xArm decisions")."""
+    try:
+        check_index(what, index, valid)
+    except CommandRejected as err:
+        raise CommandRejected(f"{err}: the manual names only these as valid") from None

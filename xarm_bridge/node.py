@@ -2,14 +2,15 @@
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Callable, Sequence
 from typing import Any
 
 from geometry_msgs.msg import PoseStamped
 from std_srvs.srv import SetBool, Trigger
 
+from bridge_core.checks import board_zero_index
 from bridge_core.diagnostics import Level, Report
-from bridge_core.errors import CommandRejected
 from bridge_core.node_base import BridgeNode, spin_node
 from bridge_core.units import DEG, MM, euler_xyz_deg_to_quaternion
 from msg_defs.msg import XArmState
@@ -145,13 +146,13 @@ class XArmBridgeNode(BridgeNode):
             SetOutput,
             "~/set_digital_output",
             lambda r: f"set_digital_output {r.index} {'on' if r.on else 'off'}",
-            lambda r: d.set_digital_output(_only_board_zero(r.board, r.index), r.on),
+            lambda r: d.set_digital_output(_board_zero(r.board, r.index), r.on),
         )
         self.command_service(
             SetOutput,
             "~/set_tool_digital_output",
             lambda r: f"set_tool_digital_output {r.index} {'on' if r.on else 'off'}",
-            lambda r: d.set_tool_digital_output(_only_board_zero(r.board, r.index), r.on),
+            lambda r: d.set_tool_digital_output(_board_zero(r.board, r.index), r.on),
         )
         self.command_service(
             SetChannelValue,
@@ -187,15 +188,13 @@ def _call(action: Callable[[], tuple[int, int]]) -> Callable[[Any], tuple[int, i
     return lambda _request: action()
 
 
-def _only_board_zero(board: int, index: int) -> int:
-    if board != 0:
-        raise CommandRejected(f"board {board} refused: the xArm has one controller (board 0)")
-    return index
+def _board_zero(board: int, index: int) -> int:
+    return board_zero_index("xArm controller", board, index)
 
 
-def main(args: Sequence[str] | None = None) -> None:
-    spin_node(XArmBridgeNode, args)
+def main(args: Sequence[str] | None = None) -> int:
+    return spin_node(XArmBridgeNode, args)
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

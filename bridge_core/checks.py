@@ -1,0 +1,118 @@
+"""Checks every command runs on its inputs before the first write.
+
+One module, so every bridge refuses bad input the same way: a ``CommandRejected`` whose
+text names the value, what it is and the range it must lie in (the service reply shows it
+as is). ``bool`` is never taken for a number (``True`` is not motor 1), NaN and infinities
+never pass a range, and a value that would overflow a conversion (``1e308`` rad to encoder
+counts) is refused here, never an ``OverflowError`` with a traceback.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Sequence
+from typing import TypeVar
+
+from .errors import CommandRejected
+from .registers import ValueType
+
+Choice = TypeVar("Choice")
+
+
+def _is_number(value: object) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+def check_finite(what: str, value: float) -> float:
+    """A finite number (int or float, not bool); returns it as a float."""
+    if not _is_number(value) or not math.isfinite(value):
+        raise CommandRejected(f"{what} {value!r} is not a finite number")
+    return float(value)
+
+
+def check_range(what: str, value: float, low: float, high: float, unit: str = "") -> float:
+    """A finite number within ``low..high`` (inclusive); returns it unchanged."""
+    check_finite(what, value)
+    if not low <= value <= high:
+        suffix = f" {unit}" if unit else ""
+        raise CommandRejected(f"{what} {value!r}{suffix} outside {low:g}..{high:g}{suffix}")
+    return value
+
+
+def check_whole_number(what: str, value: float, low: int, high: int) -> int:
+    """A whole number within ``low..high`` (``3.0`` passes as 3, ``3.5`` does not)."""
+    if (
+        not _is_number(value)
+        or not math.isfinite(value)
+        or value != int(value)
+        or not low <= value <= high
+    ):
+        raise CommandRejected(f"{what} {value!r} outside the whole numbers {low}..{high}")
+    return int(value)
+
+
+def check_raw(what: str, value: float, value_type: ValueType) -> int:
+    """A whole number that fits ``value_type``'s raw range (e.g. i32 for a register)."""
+    return check_whole_number(what, value, value_type.raw_min, value_type.raw_max)
+
+
+def check_choice(what: str, value: Choice, allowed: Iterable[Choice]) -> Choice:
+    """One of ``allowed``; the message lists them."""
+    options = list(allowed)
+    if isinstance(value, bool) and not all(isinstance(o, bool) for o in options):
+        raise CommandRejected(f"{what} {value!r} refused: one of {options}")
+    if value not in options:
+        raise CommandRejected(f"{what} {value!r} refused: one of {options}")
+    return value
+
+
+def check_index(what: str, value: int, valid: range | Sequence[int]) -> int:
+    """A channel, output, motor or board number among ``valid`` (a range is shown as a..b)."""
+    if isinstance(value, bool) or not isinstance(value, int) or value not in valid:
+        if isinstance(valid, range) and valid.step == 1 and len(valid):
+            shown = f"{valid.start}-{valid.stop - 1}"
+        else:
+            shown = ", ".join(str(v) for v in valid)
+        raise CommandRejected(f"{what} {value!r} outside {shown}")
+    return value
+
+
+def check_board(board: int, device: str, boards: int = 1) -> int:
+    """Board number of a device with ``boards`` IO boards numbered from 0."""
+    if isinstance(board, bool) or not isinstance(board, int) or not 0 <= board < boards:
+        known = "board 0" if boards == 1 else f"boards 0-{boards - 1}"
+        raise CommandRejected(
+            f"board {board!r} refused: the {device} has {boards} board{'s' * (boards > 1)} "
+            f"({known})"
+        )
+    return board
+
+
+def board_zero_index(device: str, board: int, index: int) -> int:
+    """``index`` of a request that names a board, on a device with one board (board 0)."""
+    check_board(board, device)
+    return index
+
+
+def check_converted(what: str, value: float, low: float, high: float) -> float:
+    """The result of a unit conversion (e.g. rad -> counts) before it is rounded.
+
+    A huge input turns into ``inf`` or a number no register can hold; refuse it with the
+    input's name instead of letting ``round()`` raise ``OverflowError``.
+    """
+    if not math.isfinite(value) or not low <= value <= high:
+        raise CommandRejected(f"{what} is out of range ({value:g} outside {low:g}..{high:g})")
+    return value
+
+
+__all__ = [
+    "board_zero_index",
+    "check_board",
+    "check_choice",
+    "check_converted",
+    "check_finite",
+    "check_index",
+    "check_range",
+    "check_raw",
+    "check_whole_number",
+]

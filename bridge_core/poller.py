@@ -1,0 +1,268 @@
+"""The poll loop every bridge shares, in plain Python (clock injectable, no rclpy).
+
+What it owns (DESIGN §1 "poller"):
+
+- pacing: one poll per period, never bursting to catch up after an overrun;
+- the "may attempt" guard: a device that is down is probed only when its reconnect
+  backoff has elapsed, and ``link_up`` runs before the first poll after a (re)connect;
+- outcomes: a ``PollIncomplete`` skips one cycle; a device exception (the device answered,
+  but refused part of the poll) makes the device re-derive its plan from its configuration
+  (R6: re-read the axis and board counts, §3.1.8) instead of failing forever; a lost
+  link is reported once per loss; any other error is reported and never ends the loop;
+- the hand-off to the publisher thread: the newest snapshots wait in a short queue
+  (the oldest is dropped when the publisher falls behind), so building and publishing the
+  messages overlaps the device's time to answer the next request.
+
+``read_blocks`` is how a device reads its plan: it returns the values and the wall-clock
+time the reply of the block holding a named register (the joint positions) arrived, so
+every snapshot is stamped with the read time of its positions (DESIGN §2), not with the
+time of the first or last request of the poll.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import enum
+import queue
+import threading
+import time
+import traceback
+from collections.abc import Callable, Sequence
+from typing import Generic, Protocol, TypeVar
+
+from .channel import Priority, RegisterIO
+from .codec import Value
+from .diagnostics import RateTracker
+from .errors import DeviceException, LinkError, PollIncomplete
+from .planner import ReadRequest, decode_reply
+
+Snapshot = TypeVar("Snapshot")
+PUBLISH_BACKLOG = 8  # snapshots waiting for the publisher before the oldest is dropped
+PUBLISH_WAIT_S = 0.1  # how often the idle publisher thread looks at its stop flag
+THREAD_JOIN_S = 5.0
+POLL_RATE_MIN_HZ = 0.01
+
+
+class PollOutcome(enum.Enum):
+    SKIPPED = "skipped"  # backing off a device that is down
+    PUBLISHED = "published"
+    INCOMPLETE = "incomplete"  # no consistent snapshot this cycle (e.g. re-planned)
+    REFUSED = "refused"  # the device answered a poll request with an exception
+    LINK_LOST = "link lost"
+    FAILED = "failed"  # an unexpected error (a bug, a value no message holds)
+
+
+class PollChannel(Protocol):
+    """What the poller needs of a ``DeviceChannel``."""
+
+    @property
+    def connected(self) -> bool: ...
+    def may_attempt(self) -> bool: ...
+
+
+def read_blocks(
+    io: RegisterIO,
+    plan: Sequence[ReadRequest],
+    priority: Priority = Priority.POLL,
+    stamp_register: str | None = None,
+    clock: Callable[[], float] = time.time,
+) -> tuple[dict[str, Value], float]:
+    """Read every block of ``plan``; the values, and the time ``stamp_register`` was read.
+
+    The time is taken when the reply to the block holding ``stamp_register`` arrived: the
+    device sampled the registers between that request's arrival and its reply, so the
+    stamp is within one transaction time of the read, also when that block or any other
+    one was retried. Without ``stamp_register`` it is the time of the last reply.
+    """
+    values: dict[str, Value] = {}
+    read_time = 0.0
+    stamped = False
+    for request in plan:
+        if request.table.is_bit:
+            raw: Sequence[int] | Sequence[bool] = io.read_bits(
+                request.address, request.count, request.table, priority=priority
+            )
+        else:
+            raw = io.read_registers(
+                request.address, request.count, request.table, priority=priority
+            )
+        if not stamped:
+            read_time = clock()
+            stamped = stamp_register is not None and holds(request, stamp_register)
+        values.update(decode_reply(request, raw))
+    if stamp_register is not None and not stamped:
+        raise ValueError(f"no block of the plan holds {stamp_register!r}")
+    return values, read_time
+
+
+def holds(request: ReadRequest, register_name: str) -> bool:
+    return any(reg.name == register_name for reg in request.registers)
+
+
+def next_deadline(deadline: float, now: float, period_s: float) -> float:
+    """The next poll time: one period on, or now after an overrun (never a burst)."""
+    deadline += period_s
+    return now if deadline <= now else deadline
+
+
+class Poller(Generic[Snapshot]):
+    """Polls a device on its own thread and hands snapshots to a publisher thread."""
+
+    def __init__(
+        self,
+        channel: PollChannel,
+        poll: Callable[[], Snapshot],
+        publish: Callable[[Snapshot], None],
+        *,
+        rate_hz: float,
+        link_up: Callable[[], None] = lambda: None,
+        replan: Callable[[], None] = lambda: None,
+        report: Callable[[PollOutcome, str], None] = lambda _outcome, _text: None,
+        connected_changed: Callable[[bool], None] = lambda _up: None,
+        name: str = "bridge",
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.channel = channel
+        self._poll = poll
+        self._publish = publish
+        self._link_up = link_up
+        self._replan = replan
+        self._report = report
+        self._connected_changed = connected_changed
+        self._clock = clock
+        self.rate_hz = rate_hz
+        self.rate = RateTracker(clock=clock)
+        self.failures = 0
+        self.snapshots_dropped = 0
+        self.last_error: str | None = None
+        self._reported_up: bool | None = None
+        self._snapshots: queue.Queue[Snapshot] = queue.Queue(maxsize=PUBLISH_BACKLOG)
+        self._stop = threading.Event()
+        self._wake = threading.Event()
+        self._threads = [
+            threading.Thread(target=self._poll_loop, name=f"{name}-poll", daemon=True),
+            threading.Thread(target=self._publish_loop, name=f"{name}-publish", daemon=True),
+        ]
+
+    @property
+    def rate_hz(self) -> float:
+        return self._rate_hz
+
+    @rate_hz.setter
+    def rate_hz(self, value: float) -> None:
+        """Live: the loop takes the new period from its next cycle on."""
+        if not value >= POLL_RATE_MIN_HZ:  # also refuses NaN
+            raise ValueError(f"poll rate {value} Hz is below {POLL_RATE_MIN_HZ}")
+        self._rate_hz = float(value)
+        with contextlib.suppress(AttributeError):  # not yet during __init__
+            self._wake.set()
+
+    # ------------------------------------------------------------ one cycle
+    def tick(self) -> PollOutcome:
+        """One poll attempt; its snapshot (if any) goes to the publisher's queue."""
+        if not self.channel.may_attempt():
+            return PollOutcome.SKIPPED
+        try:
+            if not self.channel.connected:
+                self._link_up()
+            snapshot = self._poll()
+        except PollIncomplete as err:
+            self._report(PollOutcome.INCOMPLETE, str(err))
+            return PollOutcome.INCOMPLETE
+        except DeviceException as err:
+            # The device is there but refused part of the poll: its configuration may
+            # have changed (fewer axes, a board removed). Re-derive the plan from it.
+            self.failures += 1
+            self.last_error = f"poll refused by the device: {err}"
+            self._replan()
+            self._report(PollOutcome.REFUSED, self.last_error)
+            return PollOutcome.REFUSED
+        except LinkError as err:
+            self.failures += 1
+            self.last_error = str(err)
+            if self._reported_up is not False:
+                self._report(PollOutcome.LINK_LOST, str(err))
+            self._set_up(False)
+            return PollOutcome.LINK_LOST
+        except Exception as err:  # a device fault must never end the loop
+            self.failures += 1
+            self.last_error = f"poll failed: {err}"
+            self._report(PollOutcome.FAILED, f"{self.last_error}\n{traceback.format_exc()}")
+            return PollOutcome.FAILED
+        self._set_up(True)
+        self.last_error = None
+        self.rate.tick()
+        self._hand_off(snapshot)
+        return PollOutcome.PUBLISHED
+
+    def _set_up(self, up: bool) -> None:
+        if up != self._reported_up:
+            self._reported_up = up
+            self._connected_changed(up)
+
+    def _hand_off(self, snapshot: Snapshot) -> None:
+        try:
+            self._snapshots.put_nowait(snapshot)
+        except queue.Full:  # the publisher fell behind: drop the oldest, keep the newest
+            with contextlib.suppress(queue.Empty):
+                self._snapshots.get_nowait()
+                self.snapshots_dropped += 1
+            with contextlib.suppress(queue.Full):
+                self._snapshots.put_nowait(snapshot)
+
+    def publish_pending(self, wait_s: float = 0.0) -> int:
+        """Publish the queued snapshots (the publisher thread; tests call it directly)."""
+        published = 0
+        while True:
+            try:
+                snapshot = (
+                    self._snapshots.get(timeout=wait_s)
+                    if wait_s and not published
+                    else self._snapshots.get_nowait()
+                )
+            except queue.Empty:
+                return published
+            try:
+                self._publish(snapshot)
+            except Exception as err:  # a value the message cannot hold must not kill it
+                self.last_error = f"publishing failed: {err}"
+                self._report(PollOutcome.FAILED, f"{self.last_error}\n{traceback.format_exc()}")
+            published += 1
+
+    # ------------------------------------------------------------ threads
+    def start(self) -> None:
+        if self._stop.is_set():
+            return
+        for thread in self._threads:
+            if not thread.is_alive():
+                thread.start()
+
+    def stop(self, join_s: float = THREAD_JOIN_S) -> None:
+        """Stop both threads; returns once they ended (or ``join_s`` passed)."""
+        self._stop.set()
+        self._wake.set()
+        for thread in self._threads:
+            if thread.is_alive() and thread is not threading.current_thread():
+                thread.join(join_s)
+
+    @property
+    def running(self) -> bool:
+        return any(thread.is_alive() for thread in self._threads)
+
+    def _poll_loop(self) -> None:
+        deadline = self._clock()
+        while not self._stop.is_set():
+            self.tick()
+            deadline = next_deadline(deadline, self._clock(), 1.0 / self._rate_hz)
+            delay = deadline - self._clock()
+            if delay > 0:
+                self._wake.clear()
+                if self._wake.wait(delay):  # woken: stop, or a new rate
+                    deadline = self._clock()
+
+    def _publish_loop(self) -> None:
+        while not self._stop.is_set():
+            self.publish_pending(PUBLISH_WAIT_S)
+
+
+__all__ = ["PollOutcome", "Poller", "holds", "next_deadline", "read_blocks"]

@@ -1,0 +1,203 @@
+"""The one guard for jog / velocity command streams (DESIGN §2 "deadman").
+
+A stream is a topic that sets a speed until told otherwise: stepper ``~/motor_<n>/jog``,
+MOTEC ``~/cmd_velocity``. Each stream key (a motor number, a drive) has the same rules:
+
+- only the newest command counts; a repeat of the value being commanded writes nothing;
+- 0 stops (once: further 0s write nothing until something moves again; see
+  ``stop_when_idle`` for a 0 to a stream that commanded nothing);
+- after a stop by a service or an e-stop the stream is *locked*: non-zero commands are
+  refused until a 0 arrives or the stream was silent for ``timeout_s``;
+- a write that failed on the link leaves a *stop pending*: the motor may be running, so
+  the deadman keeps sending the stop until one is acknowledged;
+- the deadman stops any stream that was silent for ``timeout_s``;
+- ``stop_all()`` stops every stream that may be moving (the node calls it on shutdown).
+
+The guard knows no device: ``send(key, value, previous)`` writes a non-zero speed (the
+previous one commanded, or ``None`` when unknown, e.g. after a lost write or a
+reconnect), ``stop(key)`` writes the stop. Both raise ``LinkError`` when the link fails.
+Plain Python with an injectable clock. Every operation holds the guard's lock (a stop
+from a parameter change or shutdown never interleaves with a command's writes).
+"""
+
+from __future__ import annotations
+
+import functools
+import threading
+import time
+from collections.abc import Callable, Hashable, Iterable
+from dataclasses import dataclass
+from typing import Any, Generic, TypeVar
+
+from .errors import BridgeError, CommandRejected, LinkError
+
+Key = TypeVar("Key", bound=Hashable)
+Result = TypeVar("Result")
+
+
+@dataclass
+class StreamState:
+    """What the guard knows of one stream."""
+
+    value: float | None = None  # last non-zero value written (None: unknown / not moving)
+    active: bool = False  # a non-zero command is in force (or may be: see stop_pending)
+    locked: bool = False  # stopped by a service: refuse motion until 0 or silence
+    stop_pending: bool = False  # a write failed: keep stopping until one is acknowledged
+    stop_sent: bool = False  # a stop was acknowledged since the last motion
+    last_seen: float | None = None  # clock() of the last command received
+
+    @property
+    def may_move(self) -> bool:
+        """The deadman's cue: moving under this stream, or possibly so."""
+        return self.active or self.stop_pending
+
+
+def _locked(method: Callable[..., Result]) -> Callable[..., Result]:
+    @functools.wraps(method)
+    def locked(self: StreamGuard[Any], *args: Any, **kwargs: Any) -> Result:
+        with self.lock:
+            return method(self, *args, **kwargs)
+
+    return locked
+
+
+class StreamGuard(Generic[Key]):
+    def __init__(
+        self,
+        keys: Iterable[Key],
+        send: Callable[[Key, float, float | None], None],
+        stop: Callable[[Key], None],
+        *,
+        timeout_s: float,
+        stop_when_idle: bool = True,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        # stop_when_idle: the first 0 of a stream that commanded nothing still sends the
+        # stop (the stepper: the motor may run from a service); False: a 0 only ends the
+        # stream's own motion (MOTEC: 0xAE is also a position move's speed limit).
+        self.stop_when_idle = stop_when_idle
+        self._send = send
+        self._stop = stop
+        self.timeout_s = timeout_s
+        self._clock = clock
+        self.streams: dict[Key, StreamState] = {key: StreamState() for key in keys}
+        self.lock = threading.RLock()
+
+    def __getitem__(self, key: Key) -> StreamState:
+        try:
+            return self.streams[key]
+        except KeyError:
+            raise CommandRejected(f"no stream {key!r}") from None
+
+    # ------------------------------------------------------------ commands
+    def seen(self, key: Key) -> None:
+        """A command arrived (even one that will be refused): the deadman counts from here."""
+        self[key].last_seen = self._clock()
+
+    @_locked
+    def command(self, key: Key, value: float, *, refuse_reason: str = "") -> bool:
+        """Apply the newest command of a stream; True if anything was written."""
+        stream = self[key]
+        if value == 0:
+            stream.locked = False
+            if not stream.may_move and (stream.stop_sent or not self.stop_when_idle):
+                return False
+            self.stop(key)
+            return True
+        if stream.locked:
+            raise CommandRejected(
+                refuse_reason
+                or "the motion was stopped: send 0 (or nothing for the command timeout) "
+                "before commanding it again"
+            )
+        if stream.active and not stream.stop_pending and stream.value == value:
+            return False
+        previous = stream.value if stream.active else None
+        try:
+            self._send(key, value, previous)
+        except LinkError:
+            # The write may or may not have landed: the motor may be turning.
+            stream.value, stream.active, stream.stop_pending = None, True, True
+            raise
+        stream.value, stream.active = value, True
+        stream.stop_pending, stream.stop_sent = False, False
+        return True
+
+    @_locked
+    def stop(self, key: Key) -> bool:
+        """Send the stream's stop now (a 0 command, the deadman, shutdown)."""
+        stream = self[key]
+        stream.locked = False
+        try:
+            self._stop(key)
+        except LinkError:
+            stream.stop_pending = True  # keep the deadman on it until a stop is acknowledged
+            raise
+        stream.value, stream.active = None, False
+        stream.stop_pending, stream.stop_sent = False, True
+        return True
+
+    @_locked
+    def taken_over(self, key: Key, *, locked: bool) -> None:
+        """Another command (a service, an e-stop, a mode change) now owns the motion.
+
+        The stream forgets what it commanded, so its next command is sent whole; with
+        ``locked`` (a stop) motion commands are refused until 0 or silence.
+        """
+        stream = self[key]
+        stream.value, stream.active, stream.stop_sent = None, False, False
+        stream.stop_pending = False
+        stream.locked = locked
+
+    @_locked
+    def forget_values(self) -> None:
+        """The device may hold other speeds (reconnect): send the next command whole.
+
+        A stream that was moving stays ``active``, so the deadman stops it once the link
+        is back.
+        """
+        for stream in self.streams.values():
+            stream.value = None
+
+    # ------------------------------------------------------------ deadman
+    @_locked
+    def due(self) -> list[Key]:
+        """Streams the deadman must act on: moving (or locked) and silent for timeout_s."""
+        now = self._clock()
+        due: list[Key] = []
+        for key, stream in self.streams.items():
+            if not (stream.may_move or stream.locked):
+                continue
+            if stream.last_seen is not None and now - stream.last_seen <= self.timeout_s:
+                continue
+            due.append(key)
+        return due
+
+    @_locked
+    def expire(self, key: Key) -> bool:
+        """The deadman for one silent stream: stop it if it may move, else just unlock.
+
+        True if a stop was sent (and acknowledged).
+        """
+        stream = self[key]
+        if not stream.may_move:
+            stream.locked = False
+            return False
+        return self.stop(key)
+
+    def moving(self) -> list[Key]:
+        return [key for key, stream in self.streams.items() if stream.may_move]
+
+    @_locked
+    def stop_all(self) -> list[tuple[Key, BridgeError]]:
+        """Stop every stream that may move; every stop is tried. Returns the failures."""
+        failures: list[tuple[Key, BridgeError]] = []
+        for key in self.moving():
+            try:
+                self.stop(key)
+            except BridgeError as err:
+                failures.append((key, err))
+        return failures
+
+
+__all__ = ["StreamGuard", "StreamState"]
