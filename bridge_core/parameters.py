@@ -47,7 +47,9 @@ class ParameterSpec:
             raise ValueError(f"parameter {self.name}: give both ends of the range or neither")
         if self.low is not None and self.kind not in (int, float):
             raise ValueError(f"parameter {self.name}: a range needs a number")
-        self.validate(self.default)
+        reason = self.validate(self.default)
+        if reason is not None:
+            raise ValueError(f"parameter {self.name}: default refused: {reason}")
 
     def coerce(self, value: ParameterValue) -> ParameterValue:
         """An integer for a double parameter becomes that double (and int lists likewise)."""

@@ -275,3 +275,43 @@ def test_poll_plan_reads_every_block_as_the_manual_does() -> None:
         assert len(widths) == 1, request
         if widths == {4}:
             assert request.count == 4
+
+
+@pytest.mark.parametrize(
+    ("count", "fewer"),
+    [("axis_count", 4), ("io_board_count", 1)],
+    ids=["axes", "boards"],
+)
+def test_poller_recovers_when_axes_or_boards_go_away(
+    r6: tuple[R6Device, R6SimDevice, DeviceChannel], count: str, fewer: int
+) -> None:
+    """§3.1.8: only the axes (and boards) in use are valid; after the count drops the
+    cached plan reads removed rows, the controller answers 0x02, and the poller must
+    re-derive the plan from the counts instead of failing forever (issue: 0 joint_states
+    while connected)."""
+    from bridge_core.poller import Poller, PollOutcome
+
+    device, sim, channel = r6
+    sim.tick = lambda dt: None  # type: ignore[method-assign]
+    published: list[object] = []
+    poller = Poller(
+        channel,
+        device.poll,
+        published.append,
+        rate_hz=10.0,
+        link_up=device.invalidate_plan,
+        replan=device.invalidate_plan,
+    )
+    assert poller.tick() is PollOutcome.PUBLISHED
+    sim.set(count, fewer)
+    outcomes = [poller.tick() for _ in range(3)]
+    assert outcomes[0] is PollOutcome.REFUSED  # the old plan reads a removed row
+    assert outcomes[-1] is PollOutcome.PUBLISHED
+    assert channel.connected
+    poller.publish_pending()
+    newest = published[-1]
+    assert getattr(newest, count) == fewer
+    if count == "axis_count":
+        assert len(newest.axis_positions_deg) == fewer  # type: ignore[attr-defined]
+    else:
+        assert len(newest.io_board_inputs) == fewer  # type: ignore[attr-defined]

@@ -1,0 +1,86 @@
+"""One way to refuse bad input: known vectors for every check."""
+
+from __future__ import annotations
+
+import pytest
+
+from bridge_core.checks import (
+    board_zero_index,
+    check_choice,
+    check_converted,
+    check_finite,
+    check_index,
+    check_range,
+    check_raw,
+    check_whole_number,
+)
+from bridge_core.errors import CommandRejected
+from bridge_core.registers import ValueType
+
+
+@pytest.mark.parametrize("value", [float("nan"), float("inf"), -float("inf"), True, "1", None])
+def test_finite_refuses(value: object) -> None:
+    with pytest.raises(CommandRejected, match="is not a finite number"):
+        check_finite("speed", value)  # type: ignore[arg-type]
+
+
+def test_range_names_value_and_bounds() -> None:
+    assert check_range("speed", 3000, -3000, 3000, "rpm") == 3000
+    with pytest.raises(CommandRejected, match=r"speed 3001 rpm outside -3000\.\.3000 rpm"):
+        check_range("speed", 3001, -3000, 3000, "rpm")
+    with pytest.raises(CommandRejected):
+        check_range("speed", float("nan"), -1, 1)
+
+
+@pytest.mark.parametrize(
+    ("value", "ok"),
+    [
+        (3, True),
+        (3.0, True),
+        (3.5, False),
+        (True, False),
+        (-1, False),
+        (65536, False),
+        (1e308, False),
+    ],
+)
+def test_whole_number(value: float, ok: bool) -> None:
+    if ok:
+        assert check_whole_number("microstep", value, 0, 0xFFFF) == 3
+    else:
+        with pytest.raises(CommandRejected, match="outside the whole numbers 0..65535"):
+            check_whole_number("microstep", value, 0, 0xFFFF)
+
+
+def test_raw_limits_come_from_the_value_type() -> None:
+    assert check_raw("value", -(2**31), ValueType.I32) == -(2**31)
+    with pytest.raises(CommandRejected, match="2147483647"):
+        check_raw("value", 2**31, ValueType.I32)
+    with pytest.raises(CommandRejected, match="0..65535"):
+        check_raw("value", -1, ValueType.U16)
+
+
+def test_choice_and_index() -> None:
+    assert check_choice("mode", 1, (1, 2)) == 1
+    with pytest.raises(CommandRejected, match=r"mode True refused: one of \[1, 2\]"):
+        check_choice("mode", True, (1, 2))
+    assert check_index("output", 12, range(1, 13)) == 12
+    with pytest.raises(CommandRejected, match="output 13 outside 1-12"):
+        check_index("output", 13, range(1, 13))
+    with pytest.raises(CommandRejected, match="motor True outside 1-5"):
+        check_index("motor", True, range(1, 6))
+
+
+def test_board_zero() -> None:
+    assert board_zero_index("drive", 0, 2) == 2
+    with pytest.raises(
+        CommandRejected, match=r"board 1 refused: the drive has 1 board \(board 0\)"
+    ):
+        board_zero_index("drive", 1, 2)
+
+
+def test_converted_overflow_is_a_refusal() -> None:
+    counts = 1e308 / 6.283 * 10000.0  # ~move 1e308 rad: inf
+    with pytest.raises(CommandRejected, match="position 1e308 rad in counts is out of range"):
+        check_converted("position 1e308 rad in counts", counts, -(2**31), 2**31 - 1)
+    assert check_converted("x", 5.0, 0, 10) == 5.0

@@ -1,0 +1,42 @@
+"""Parameter specs: types, coercion of integers for doubles, ranges, choices."""
+
+from __future__ import annotations
+
+import pytest
+
+from bridge_core.parameters import ParameterSpec, padded
+
+
+def test_integer_for_a_double_is_taken_as_that_double() -> None:
+    spec = ParameterSpec("poll_rate_hz", 20.0, "polls per second", 0.1, 1000.0, live=True)
+    assert spec.kind is float
+    coerced = spec.coerce(20)
+    assert coerced == 20.0 and isinstance(coerced, float)
+    assert spec.coerce(True) is True  # a bool is no number; ROS refuses its type
+    assert ParameterSpec("ratios", [1.0], "x").coerce([1, 2]) == [1.0, 2.0]
+
+
+def test_validate_range_choices_and_positive_items() -> None:
+    rate = ParameterSpec("poll_rate_hz", 20.0, "polls", 0.1, 1000.0)
+    assert rate.validate(5.0) is None
+    assert rate.validate(0.0) == "poll_rate_hz 0.0 outside 0.1..1000"
+    assert rate.validate(float("nan")) is not None
+    parity = ParameterSpec("parity", "N", "parity", choices=("N", "E", "O"))
+    assert parity.validate("e") is None
+    assert parity.validate("X") == "parity 'X' is not one of N, E, O"
+    ratios = ParameterSpec("gear_ratios", [1.0], "per axis", item_positive=True)
+    assert ratios.validate([1.0, 2.5]) is None
+    assert ratios.validate([1.0, 0.0]) is not None
+    assert ratios.validate([float("inf")]) is not None
+
+
+def test_bad_specs_are_refused_when_written() -> None:
+    with pytest.raises(ValueError, match="both ends"):
+        ParameterSpec("x", 1.0, "x", low=0.0)
+    with pytest.raises(ValueError, match="outside"):
+        ParameterSpec("x", 5.0, "x", 0.0, 1.0)  # a default outside its own range
+
+
+def test_padded() -> None:
+    assert padded([2, 3], 4, 1.0) == [2.0, 3.0, 1.0, 1.0]
+    assert padded([1.0] * 9, 2, 1.0) == [1.0, 1.0]

@@ -1,0 +1,254 @@
+"""The poller with a fake device and a fake clock (no ROS, no sockets)."""
+
+from __future__ import annotations
+
+import pytest
+
+from bridge_core.channel import Priority
+from bridge_core.errors import DeviceException, LinkTimeout, PollIncomplete
+from bridge_core.planner import plan_reads
+from bridge_core.poller import Poller, PollOutcome, next_deadline, read_blocks
+from bridge_core.registers import Register, RegisterMap, Table, ValueType
+
+
+class FakeClock:
+    def __init__(self) -> None:
+        self.now = 1000.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+class FakeChannel:
+    """may_attempt / connected as a DeviceChannel would report them."""
+
+    def __init__(self) -> None:
+        self.connected = False
+        self.backoff_elapsed = True
+
+    def may_attempt(self) -> bool:
+        return self.connected or self.backoff_elapsed
+
+
+class FakeDevice:
+    """Raises the queued errors one poll at a time, else returns a counter snapshot."""
+
+    def __init__(self, channel: FakeChannel) -> None:
+        self.channel = channel
+        self.errors: list[Exception] = []
+        self.polls = 0
+        self.link_ups = 0
+        self.replans = 0
+
+    def poll(self) -> int:
+        self.polls += 1
+        if self.errors:
+            error = self.errors.pop(0)
+            if not isinstance(error, DeviceException | PollIncomplete):
+                self.channel.connected = False
+            raise error
+        self.channel.connected = True
+        return self.polls
+
+    def link_up(self) -> None:
+        self.link_ups += 1
+
+    def replan(self) -> None:
+        self.replans += 1
+
+
+def make(
+    channel: FakeChannel, device: FakeDevice, published: list[int], events: list[PollOutcome]
+) -> Poller[int]:
+    return Poller(
+        channel,
+        device.poll,
+        published.append,
+        rate_hz=10.0,
+        link_up=device.link_up,
+        replan=device.replan,
+        report=lambda outcome, _text: events.append(outcome),
+        clock=FakeClock(),
+    )
+
+
+def test_publishes_and_reports_connected_once() -> None:
+    channel = FakeChannel()
+    device = FakeDevice(channel)
+    published: list[int] = []
+    ups: list[bool] = []
+    poller = Poller(
+        channel, device.poll, published.append, rate_hz=5.0, connected_changed=ups.append
+    )
+    assert poller.tick() is PollOutcome.PUBLISHED
+    assert poller.tick() is PollOutcome.PUBLISHED
+    assert poller.publish_pending() == 2
+    assert published == [1, 2]
+    assert ups == [True]  # a change, not every poll
+
+
+def test_device_exception_replans_instead_of_failing_forever() -> None:
+    channel = FakeChannel()
+    device = FakeDevice(channel)
+    events: list[PollOutcome] = []
+    published: list[int] = []
+    poller = make(channel, device, published, events)
+    assert poller.tick() is PollOutcome.PUBLISHED
+    device.errors.append(DeviceException(3, 2))  # ILLEGAL DATA ADDRESS: an axis went away
+    assert poller.tick() is PollOutcome.REFUSED
+    assert device.replans == 1
+    assert poller.last_error is not None and "ILLEGAL DATA ADDRESS" in poller.last_error
+    assert poller.tick() is PollOutcome.PUBLISHED
+    assert poller.last_error is None and poller.failures == 1
+    assert events == [PollOutcome.REFUSED]
+
+
+def test_link_loss_reported_once_and_backoff_respected() -> None:
+    channel = FakeChannel()
+    device = FakeDevice(channel)
+    events: list[PollOutcome] = []
+    ups: list[bool] = []
+    poller = Poller(
+        channel,
+        device.poll,
+        lambda _s: None,
+        rate_hz=10.0,
+        link_up=device.link_up,
+        report=lambda outcome, _text: events.append(outcome),
+        connected_changed=ups.append,
+    )
+    assert poller.tick() is PollOutcome.PUBLISHED
+    assert device.link_ups == 1  # before the first poll
+    device.errors += [LinkTimeout("no reply"), LinkTimeout("no reply")]
+    assert poller.tick() is PollOutcome.LINK_LOST
+    channel.backoff_elapsed = False
+    assert poller.tick() is PollOutcome.SKIPPED
+    assert device.polls == 2  # nothing attempted while backing off
+    channel.backoff_elapsed = True
+    assert poller.tick() is PollOutcome.LINK_LOST
+    assert events == [PollOutcome.LINK_LOST]  # once per loss, not per probe
+    assert poller.tick() is PollOutcome.PUBLISHED
+    assert device.link_ups == 3  # first poll, then each probe of the down device
+    assert ups == [True, False, True]
+
+
+def test_incomplete_and_unexpected_errors_never_end_polling() -> None:
+    channel = FakeChannel()
+    device = FakeDevice(channel)
+    events: list[PollOutcome] = []
+    poller = make(channel, device, [], events)
+    device.errors += [PollIncomplete("re-planned"), ZeroDivisionError("bug")]
+    channel.connected = True
+    assert poller.tick() is PollOutcome.INCOMPLETE
+    assert poller.tick() is PollOutcome.FAILED
+    assert poller.tick() is PollOutcome.PUBLISHED
+    assert events == [PollOutcome.INCOMPLETE, PollOutcome.FAILED]
+
+
+def test_a_slow_publisher_keeps_the_newest_snapshots() -> None:
+    channel = FakeChannel()
+    device = FakeDevice(channel)
+    published: list[int] = []
+    poller = make(channel, device, published, [])
+    for _ in range(20):
+        poller.tick()
+    poller.publish_pending()
+    assert published == list(range(13, 21))  # PUBLISH_BACKLOG newest
+    assert poller.snapshots_dropped == 12
+
+
+def test_publish_failure_is_reported_not_raised() -> None:
+    channel = FakeChannel()
+    device = FakeDevice(channel)
+    events: list[PollOutcome] = []
+
+    def publish(_snapshot: int) -> None:
+        raise OverflowError("value does not fit the message")
+
+    poller = Poller(
+        channel,
+        device.poll,
+        publish,
+        rate_hz=10.0,
+        report=lambda outcome, _text: events.append(outcome),
+    )
+    poller.tick()
+    assert poller.publish_pending() == 1
+    assert events == [PollOutcome.FAILED]
+    assert poller.last_error is not None and "publishing failed" in poller.last_error
+
+
+def test_pacing_never_bursts_after_an_overrun() -> None:
+    assert next_deadline(10.0, 10.02, 0.1) == pytest.approx(10.1)
+    assert next_deadline(10.0, 10.35, 0.1) == 10.35  # overrun: poll now, no catch-up burst
+
+
+def test_rate_is_live_and_validated() -> None:
+    channel = FakeChannel()
+    poller = make(channel, FakeDevice(channel), [], [])
+    poller.rate_hz = 2.5
+    assert poller.rate_hz == 2.5
+    for bad in (0.0, -1.0, float("nan")):
+        with pytest.raises(ValueError):
+            poller.rate_hz = bad
+
+
+# ---------------------------------------------------------------- read_blocks
+
+MAP = RegisterMap(
+    "test",
+    (
+        Register("status", 0, ValueType.U16, "test"),
+        Register("position", 10, ValueType.I32, "test"),
+        Register("speed", 20, ValueType.U16, "test"),
+    ),
+)
+
+
+class TimedIO:
+    """Answers reads with zeros and advances a fake clock by each request's duration."""
+
+    def __init__(self, clock: FakeClock, durations: dict[int, float]) -> None:
+        self.clock = clock
+        self.durations = durations
+        self.reads: list[tuple[int, float]] = []
+
+    def read_registers(
+        self,
+        address: int,
+        count: int,
+        table: Table = Table.HOLDING,
+        priority: Priority = Priority.POLL,
+    ) -> list[int]:
+        self.clock.now += self.durations.get(address, 0.001)
+        self.reads.append((address, self.clock.now))
+        return [0] * count
+
+    def read_bits(
+        self,
+        address: int,
+        count: int,
+        table: Table = Table.COIL,
+        priority: Priority = Priority.POLL,
+    ) -> list[bool]:
+        raise AssertionError("no bit reads in this map")
+
+
+def test_stamp_is_the_read_time_of_the_position_block_not_the_first_or_last() -> None:
+    clock = FakeClock()
+    # The first block is slow (retried), the last one slower still.
+    io = TimedIO(clock, {0: 0.5, 10: 0.002, 20: 0.7})
+    requests = plan_reads(MAP, MAP.select(["status", "position", "speed"]))
+    assert [r.address for r in requests] == [0, 10, 20]
+    values, stamp = read_blocks(io, requests, stamp_register="position", clock=clock)  # type: ignore[arg-type]
+    position_reply = dict(io.reads)[10]
+    assert stamp == position_reply
+    assert values == {"status": 0, "position": 0, "speed": 0}
+
+
+def test_stamp_register_must_be_in_the_plan() -> None:
+    clock = FakeClock()
+    io = TimedIO(clock, {})
+    requests = plan_reads(MAP, MAP.select(["status"]))
+    with pytest.raises(ValueError, match="position"):
+        read_blocks(io, requests, stamp_register="position", clock=clock)  # type: ignore[arg-type]

@@ -1,0 +1,148 @@
+"""The stream guard (jog / cmd_velocity rules) with a fake device and a fake clock."""
+
+from __future__ import annotations
+
+import pytest
+
+from bridge_core.errors import CommandRejected, LinkTimeout
+from bridge_core.stream_guard import StreamGuard
+
+
+class Clock:
+    def __init__(self) -> None:
+        self.now = 0.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+class Motors:
+    """Records sends and stops; the next ``fail`` writes time out."""
+
+    def __init__(self) -> None:
+        self.log: list[tuple[str, int, float | None, float | None]] = []
+        self.fail = 0
+
+    def _maybe_fail(self) -> None:
+        if self.fail:
+            self.fail -= 1
+            raise LinkTimeout("no reply")
+
+    def send(self, key: int, value: float, previous: float | None) -> None:
+        self._maybe_fail()
+        self.log.append(("send", key, value, previous))
+
+    def stop(self, key: int) -> None:
+        self._maybe_fail()
+        self.log.append(("stop", key, None, None))
+
+
+def make(stop_when_idle: bool = True) -> tuple[StreamGuard[int], Motors, Clock]:
+    motors, clock = Motors(), Clock()
+    guard = StreamGuard(
+        (1, 2),
+        motors.send,
+        motors.stop,
+        timeout_s=0.5,
+        stop_when_idle=stop_when_idle,
+        clock=clock,
+    )
+    return guard, motors, clock
+
+
+def test_newest_value_counts_and_repeats_write_nothing() -> None:
+    guard, motors, _ = make()
+    assert guard.command(1, 100.0)
+    assert not guard.command(1, 100.0)
+    assert guard.command(1, 120.0)
+    assert motors.log == [("send", 1, 100.0, None), ("send", 1, 120.0, 100.0)]
+
+
+def test_zero_stops_once() -> None:
+    guard, motors, _ = make()
+    guard.command(1, 50.0)
+    assert guard.command(1, 0.0)
+    assert not guard.command(1, 0.0) and not guard.command(1, 0.0)
+    assert [entry[0] for entry in motors.log] == ["send", "stop"]
+
+
+def test_first_zero_of_an_idle_stream_depends_on_the_device() -> None:
+    stepper, stepper_motors, _ = make(stop_when_idle=True)
+    assert stepper.command(2, 0.0)  # the motor may run from a service: stop it
+    motec, motec_motors, _ = make(stop_when_idle=False)
+    assert not motec.command(2, 0.0)  # 0xAE also limits a position move: leave it
+    assert stepper_motors.log == [("stop", 2, None, None)] and motec_motors.log == []
+
+
+def test_lock_after_a_service_stop_until_zero_or_silence() -> None:
+    guard, _, clock = make()
+    guard.command(1, 50.0)
+    guard.taken_over(1, locked=True)
+    with pytest.raises(CommandRejected, match="stopped"):
+        guard.command(1, 60.0)
+    guard.seen(1)
+    clock.now += 0.6
+    assert guard.due() == [1]
+    assert not guard.expire(1)  # locked but not moving: silence only unlocks
+    assert guard.command(1, 60.0)
+    guard.taken_over(1, locked=True)
+    assert guard.command(1, 0.0)  # a 0 unlocks, and stops once (the service may have moved it)
+    assert guard.command(1, 70.0)
+
+
+def test_lost_write_leaves_a_stop_pending_until_acknowledged() -> None:
+    guard, motors, _ = make()
+    motors.fail = 1
+    with pytest.raises(LinkTimeout):
+        guard.command(1, 80.0)
+    assert guard[1].may_move and guard[1].stop_pending
+    motors.fail = 1
+    with pytest.raises(LinkTimeout):
+        guard.stop(1)
+    assert guard[1].may_move  # still the deadman's
+    assert guard.stop(1)
+    assert not guard[1].may_move
+    # After the lost write the next command is sent whole (previous unknown).
+    guard.command(1, 80.0)
+    assert motors.log[-1] == ("send", 1, 80.0, None)
+
+
+def test_deadman_stops_silent_streams_only() -> None:
+    guard, motors, clock = make()
+    guard.seen(1)
+    guard.command(1, 30.0)
+    guard.seen(2)
+    guard.command(2, 40.0)
+    clock.now = 0.4
+    guard.seen(2)
+    clock.now = 0.6
+    assert guard.due() == [1]
+    assert guard.expire(1)
+    assert guard.moving() == [2]
+    assert motors.log[-1] == ("stop", 1, None, None)
+
+
+def test_stop_all_tries_every_stream_and_returns_failures() -> None:
+    guard, motors, _ = make()
+    guard.command(1, 10.0)
+    guard.command(2, 20.0)
+    motors.fail = 1  # the first stop is lost
+    failures = guard.stop_all()
+    assert [key for key, _ in failures] == [1]
+    assert guard.moving() == [1]  # still pending: a later stop_all retries it
+    assert guard.stop_all() == [] and guard.moving() == []
+
+
+def test_forget_values_keeps_the_deadman_on_a_moving_stream() -> None:
+    guard, motors, _ = make()
+    guard.command(1, 10.0)
+    guard.forget_values()  # reconnect: the device may hold another speed
+    assert guard[1].may_move
+    guard.command(1, 10.0)  # not a repeat any more: sent whole
+    assert motors.log[-1] == ("send", 1, 10.0, None)
+
+
+def test_unknown_stream_is_refused() -> None:
+    guard, _, _ = make()
+    with pytest.raises(CommandRejected, match="no stream 9"):
+        guard.command(9, 1.0)
