@@ -18,8 +18,8 @@ relay holds a reply until t3.5 after the request, as a real RTU device must wait
 The simulators tick their devices' motion every 0.1 s instead of 10 ms
 (``--sim-tick-s``): nothing moves here, and 100 Hz ticks of 8 drives take CPU from the
 client on a 2-vCPU machine that a real drive would not (see ``SIM_TICK_S``).
-Each drive gets a poll thread of its own that paces and guards polls as
-``BridgeNode._poll_loop`` / ``_poll_tick`` do (``NodePoller``; no ROS, nothing
+Each drive gets the nodes' own poller (``bridge_core.poller.Poller``):
+pacing, backoff guard and re-plan (``NodePoller``; no ROS, nothing
 published), with the nodes' default channel settings.
 
 Parts:
@@ -71,10 +71,9 @@ import multiprocessing
 import platform
 import statistics
 import sys
-import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -91,8 +90,8 @@ from bench.line_relay import (  # noqa: E402
     transactions,
 )
 from bench.rtu_wire import transaction_wire_s  # noqa: E402
-from bridge_core.errors import LinkError  # noqa: E402
 from bridge_core.link import DeviceChannel, ModbusLink, SerialSettings  # noqa: E402
+from bridge_core.poller import Poller  # noqa: E402
 from bridge_core.serial_timing import silence_s  # noqa: E402
 from motec_bridge.device import MotecDevice  # noqa: E402
 from stepper_bridge.device import StepperDevice  # noqa: E402
@@ -188,60 +187,45 @@ def line(
 # ---------------------------------------------------------------- the nodes' poll threads
 
 
-@dataclass
 class NodePoller:
-    """One device's poll thread, paced and guarded as ``BridgeNode`` does it.
+    """One device's poll thread: the nodes' own ``bridge_core.poller.Poller`` (pacing,
+    backoff guard, ``invalidate_config`` before the first poll after (re)connecting),
+    with the poll wrapped to record when each attempt started and each success ended."""
 
-    ``_poll_loop``: a poll every 1 / rate s, an overrun carries on without bursting;
-    ``_poll_tick``: skip while the channel's backoff says so, ``on_link_up`` (both nodes:
-    ``invalidate_config``) before the first poll after (re)connecting, count failures.
-    """
+    def __init__(self, name: str, channel: DeviceChannel, device: Device, rate_hz: float) -> None:
+        self.name = name
+        self.channel = channel
+        self.device = device
+        self.attempts: list[float] = []  # poll starts (monotonic)
+        self.completed: list[float] = []  # successful poll ends
+        self.poller: Poller[object] = Poller(
+            channel,
+            self._poll,
+            lambda _snapshot: None,
+            rate_hz=rate_hz,
+            link_up=device.invalidate_config,
+            replan=device.invalidate_config,
+            name=name,
+        )
 
-    name: str
-    channel: DeviceChannel
-    device: Device
-    rate_hz: float
-    attempts: list[float] = field(default_factory=list)  # poll starts (monotonic)
-    completed: list[float] = field(default_factory=list)  # successful poll ends
-    failures: int = 0
-    _stop: threading.Event = field(default_factory=threading.Event)
-    _thread: threading.Thread | None = None
+    def _poll(self) -> object:
+        self.attempts.append(time.monotonic())
+        snapshot = self.device.poll()
+        self.completed.append(time.monotonic())
+        return snapshot
+
+    @property
+    def failures(self) -> int:
+        return self.poller.failures
 
     def start(self) -> None:
-        self._thread = threading.Thread(target=self._loop, name=f"{self.name}-poll", daemon=True)
-        self._thread.start()
+        self.poller.start()
 
     def stop(self) -> None:
-        self._stop.set()
+        self.poller.stop(join_s=0.0)
 
     def join(self) -> None:
-        if self._thread is not None:
-            self._thread.join(10)
-
-    def _loop(self) -> None:
-        period = 1.0 / self.rate_hz
-        next_time = time.monotonic()
-        while not self._stop.is_set():
-            self._tick()
-            next_time += period
-            now = time.monotonic()
-            if next_time <= now:
-                next_time = now
-            else:
-                self._stop.wait(next_time - now)
-
-    def _tick(self) -> None:
-        if not self.channel.may_attempt():
-            return
-        self.attempts.append(time.monotonic())
-        try:
-            if not self.channel.connected:
-                self.device.invalidate_config()
-            self.device.poll()
-        except LinkError:
-            self.failures += 1
-            return
-        self.completed.append(time.monotonic())
+        self.poller.stop()
 
     def rate_in(self, start: float, end: float) -> float:
         return sum(start < t <= end for t in self.completed) / (end - start)

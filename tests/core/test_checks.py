@@ -48,7 +48,7 @@ def test_whole_number(value: float, ok: bool) -> None:
     if ok:
         assert check_whole_number("microstep", value, 0, 0xFFFF) == 3
     else:
-        with pytest.raises(CommandRejected, match="outside the whole numbers 0..65535"):
+        with pytest.raises(CommandRejected, match=r"outside the whole numbers 0\.\.65535"):
             check_whole_number("microstep", value, 0, 0xFFFF)
 
 
@@ -56,7 +56,7 @@ def test_raw_limits_come_from_the_value_type() -> None:
     assert check_raw("value", -(2**31), ValueType.I32) == -(2**31)
     with pytest.raises(CommandRejected, match="2147483647"):
         check_raw("value", 2**31, ValueType.I32)
-    with pytest.raises(CommandRejected, match="0..65535"):
+    with pytest.raises(CommandRejected, match=r"0\.\.65535"):
         check_raw("value", -1, ValueType.U16)
 
 
