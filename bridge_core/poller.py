@@ -27,14 +27,15 @@ import queue
 import threading
 import time
 import traceback
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from typing import Generic, Protocol, TypeVar
 
 from .channel import Priority, RegisterIO
 from .codec import Value
 from .diagnostics import RateTracker
 from .errors import DeviceException, LinkError, PollIncomplete
-from .planner import ReadRequest, decode_reply
+from .planner import ReadRequest, decode_reply, plan_reads
+from .registers import RegisterMap
 
 Snapshot = TypeVar("Snapshot")
 PUBLISH_BACKLOG = 8  # snapshots waiting for the publisher before the oldest is dropped
@@ -93,6 +94,13 @@ def read_blocks(
     if stamp_register is not None and not stamped:
         raise ValueError(f"no block of the plan holds {stamp_register!r}")
     return values, read_time
+
+
+def read_named(io: RegisterIO, register_map: RegisterMap, names: Iterable[str]) -> dict[str, Value]:
+    """Values of named registers, at command priority, in as few requests as the device
+    allows (the map's limits); the read a service makes on request."""
+    plan = plan_reads(register_map, register_map.select(list(names)))
+    return read_blocks(io, plan, Priority.COMMAND)[0]
 
 
 def holds(request: ReadRequest, register_name: str) -> bool:
@@ -265,4 +273,4 @@ class Poller(Generic[Snapshot]):
             self.publish_pending(PUBLISH_WAIT_S)
 
 
-__all__ = ["PollOutcome", "Poller", "holds", "next_deadline", "read_blocks"]
+__all__ = ["PollOutcome", "Poller", "holds", "next_deadline", "read_blocks", "read_named"]

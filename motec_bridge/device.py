@@ -46,7 +46,7 @@ from bridge_core.codec import Value, encode
 from bridge_core.config_cache import ConfigCache
 from bridge_core.errors import CommandRejected
 from bridge_core.planner import ReadRequest, decode_reply, plan_reads
-from bridge_core.poller import read_blocks
+from bridge_core.poller import read_blocks, read_named
 from bridge_core.stream_guard import StreamGuard
 
 from .registers import (
@@ -296,10 +296,7 @@ class MotecDevice:
         return Modes(int(v["operation_mode"]), int(v["control_mode"]), bool(v["enable"]))
 
     def read_named(self, *names: str) -> dict[str, Value]:
-        values: dict[str, Value] = {}
-        for request in plan_reads(MOTEC_MAP, MOTEC_MAP.select(names)):
-            values.update(self._read(request, Priority.COMMAND))
-        return values
+        return read_named(self.io, MOTEC_MAP, names)
 
     def read_outputs(self) -> tuple[bool, ...]:
         """OUTPUT1-3 with FC 01 (§3.3.1)."""

@@ -13,8 +13,8 @@ from bridge_core.channel import Priority, RegisterIO
 from bridge_core.checks import check_whole_number
 from bridge_core.codec import Value, encode, int_to_words, words_to_int
 from bridge_core.errors import CommandRejected, FrameError, PollIncomplete
-from bridge_core.planner import ReadRequest, decode_reply, plan_reads
-from bridge_core.poller import holds, read_blocks
+from bridge_core.planner import ReadRequest, plan_reads
+from bridge_core.poller import holds, read_blocks, read_named
 from bridge_core.registers import MAX_READ_REGISTERS, MAX_WRITE_REGISTERS, WordOrder
 
 from .registers import (
@@ -189,14 +189,7 @@ class R6Device:
         return data.rstrip(b"\x00").decode("latin-1")
 
     def read_named(self, *names: str) -> dict[str, Value]:
-        """Values of named registers, read in as few requests as the device allows."""
-        values: dict[str, Value] = {}
-        for request in plan_reads(R6_MAP, R6_MAP.select(names)):
-            words = self.io.read_registers(
-                request.address, request.count, request.table, priority=Priority.COMMAND
-            )
-            values.update(decode_reply(request, words))
-        return values
+        return read_named(self.io, R6_MAP, names)
 
     def read_mode(self) -> int:
         return int(self.read_named("mode")["mode"])

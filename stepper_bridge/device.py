@@ -39,7 +39,7 @@ from bridge_core.codec import Value, decode, encode
 from bridge_core.config_cache import ConfigCache
 from bridge_core.errors import CommandRejected, LinkError
 from bridge_core.planner import ReadRequest, decode_reply, plan_reads
-from bridge_core.poller import read_blocks
+from bridge_core.poller import read_blocks, read_named
 from bridge_core.registers import Register
 from bridge_core.stream_guard import StreamGuard
 
@@ -217,11 +217,7 @@ class StepperDevice:
         return self.config
 
     def read_named(self, *names: str) -> dict[str, Value]:
-        """Values of named registers, in as few requests as the device allows."""
-        values: dict[str, Value] = {}
-        for request in plan_reads(STEPPER_MAP, STEPPER_MAP.select(names)):
-            values.update(self._read(request, Priority.COMMAND))
-        return values
+        return read_named(self.io, STEPPER_MAP, names)
 
     def invalidate_config(self) -> None:
         """Forget the cached configuration: the next poll reads it whole first."""

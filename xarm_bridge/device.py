@@ -14,7 +14,7 @@ from bridge_core.checks import check_index, check_whole_number
 from bridge_core.codec import Value, encode
 from bridge_core.errors import CommandRejected
 from bridge_core.planner import ReadRequest, plan_reads
-from bridge_core.poller import read_blocks
+from bridge_core.poller import read_blocks, read_named
 
 from .registers import (
     COIL_FENCE_MODE,
@@ -161,8 +161,7 @@ class XArmDevice:
         return read_blocks(self.io, plan, priority, stamp)
 
     def read_named(self, *names: str) -> dict[str, Value]:
-        plan = plan_reads(XARM_MAP, XARM_MAP.select(names))
-        return self.read_plan(plan, Priority.COMMAND)[0]
+        return read_named(self.io, XARM_MAP, names)
 
     def poll(self) -> XArmSnapshot:
         # The angles are read last (a change reaches joint_states soonest) and stamp it.
