@@ -1,0 +1,77 @@
+"""Every motion the bridge starts, the bridge stops: also when it is told to exit.
+
+The stepper has no watchdog of its own: a jogging motor runs until a stop coil or a limit
+switch. The bridge process gets SIGINT (Ctrl-C) or SIGTERM while motor 1 jogs with a
+deadman far longer than the test; the simulator's write log must end with motor 1's stop
+coil and the motor must stand still.
+"""
+
+from __future__ import annotations
+
+import signal
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from std_msgs.msg import Float64
+
+from bridge_core.registers import Table
+from msg_defs.msg import StepperState
+from stepper_bridge.registers import motor_coil
+from stepper_bridge.sim import StepperSimDevice, make_simulator
+
+from .support.ros import Bridge, Client, node_process, ros_client, wait_for
+from .support.serial_pair import socat_pair
+
+pytestmark = pytest.mark.ros
+
+BAUD = 115200
+EXIT_TIMEOUT_S = 20.0
+
+
+@pytest.fixture(scope="module")
+def client() -> Iterator[Client]:
+    with ros_client("shutdown_client") as c:
+        yield c
+
+
+@pytest.fixture
+def sim() -> Iterator[tuple[StepperSimDevice, str]]:
+    simulator = make_simulator(reply_delay_s=0.0)
+    with socat_pair() as (bridge_end, device_end, _):
+        simulator.start_serial(device_end, BAUD)
+        device = simulator.device
+        assert isinstance(device, StepperSimDevice)
+        try:
+            yield device, bridge_end
+        finally:
+            simulator.stop()
+
+
+@pytest.mark.parametrize("signal_number", [signal.SIGINT, signal.SIGTERM], ids=["int", "term"])
+def test_exit_stops_a_jogging_motor(
+    sim: tuple[StepperSimDevice, str], client: Client, tmp_path: Path, signal_number: int
+) -> None:
+    device, port = sim
+    params = {
+        "serial_port": port,
+        "baudrate": BAUD,
+        "poll_rate_hz": 20.0,
+        "timeout_s": 1.0,
+        "command_timeout_s": 60.0,  # the deadman must not be what stops it
+    }
+    b = Bridge(client, f"/shutdown_{signal_number}", "stepper_bridge", StepperState)
+    extra = ["-r", f"__ns:={b.ns}"]
+    with node_process("stepper_bridge.node", params, tmp_path, extra) as proc:
+        b.wait_connected(True, timeout=30)
+        jog = client.node.create_publisher(Float64, f"{b.ns}/stepper_bridge/motor_1/jog", 10)
+        wait_for(lambda: jog.get_subscription_count() > 0, 30, "the jog subscription")
+        jog.publish(Float64(data=300.0))
+        client.wait_message(b.state, lambda m: m.running[0], timeout=30)
+        writes_before = len(device.write_log)
+        proc.send_signal(signal_number)
+        assert proc.wait(EXIT_TIMEOUT_S) == 0
+        stop_coil = motor_coil(1, "stop")
+        late = [(r.table, r.address) for r in device.write_log[writes_before:]]
+        assert late == [(Table.COIL, stop_coil)]
+        assert device.motion[1] is None  # the simulated motor stands still
