@@ -46,10 +46,10 @@ from rclpy.utilities import try_shutdown
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 
-from .channel import Priority
+from .channel import DeviceChannel, Priority
 from .diagnostics import Level, RateTracker, Report, link_report
 from .errors import CommandRejected, DeviceException, LinkError, PollIncomplete
-from .link import DeviceChannel, ModbusLink, SerialSettings, TcpSettings
+from .transport import ModbusLink, SerialSettings, TcpSettings
 
 T = TypeVar("T")
 DIAGNOSTICS_PERIOD_S = 1.0

@@ -42,9 +42,9 @@ from rclpy.utilities import try_shutdown
 from std_msgs.msg import Float64
 from std_srvs.srv import SetBool, Trigger
 
+from bridge_core.channel import DeviceChannel
 from bridge_core.diagnostics import Level, Report
 from bridge_core.errors import CommandRejected, DeviceException, LinkError
-from bridge_core.link import DeviceChannel, ModbusLink, SerialSettings
 from bridge_core.node_base import (
     BOOL,
     DOUBLE,
@@ -54,6 +54,7 @@ from bridge_core.node_base import (
     _descriptor,
     interrupt_on_signals,
 )
+from bridge_core.transport import ModbusLink, SerialSettings
 from msg_defs.msg import MotecState
 from msg_defs.srv import PositionMove, SetControlMode, SetOutput, SetValue
 

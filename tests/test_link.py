@@ -8,16 +8,8 @@ from collections.abc import Iterator
 
 import pytest
 
+from bridge_core.channel import Backoff, DeviceChannel, Priority, PriorityLock
 from bridge_core.errors import DeviceException, FrameError, LinkDown, LinkTimeout
-from bridge_core.link import (
-    Backoff,
-    DeviceChannel,
-    ModbusLink,
-    Priority,
-    PriorityLock,
-    SerialSettings,
-    TcpSettings,
-)
 from bridge_core.registers import (
     Access,
     DeviceLimits,
@@ -27,6 +19,7 @@ from bridge_core.registers import (
     register_array,
 )
 from bridge_core.sim_base import SimulatedDevice, Simulator
+from bridge_core.transport import ModbusLink, SerialSettings, TcpSettings
 
 from .support.serial_pair import socat_pair
 

@@ -14,7 +14,8 @@ from typing import Any
 
 import pytest
 
-from bridge_core.link import DeviceChannel, ModbusLink, TcpSettings
+from bridge_core.channel import DeviceChannel
+from bridge_core.transport import ModbusLink, TcpSettings
 from r6_bridge.device import R6Device
 
 from .support.replay import ReplayServer, Step, pdu_of
