@@ -9,6 +9,26 @@ translated here into ``bridge_core.errors``.
 under the caller's hold of its ``lock``. The policy (retries, backoff, health, priorities)
 is ``bridge_core.channel.DeviceChannel``'s. The request dataclasses are defined in the
 pymodbus-free ``bridge_core.requests`` and re-exported here.
+
+How pymodbus 3.16.1's sync clients report a failed transaction, and what it becomes here,
+told apart by exception type (never by the message text):
+
+- no reply, or not all of it, within the timeout: the transaction manager catches its own
+  ``TimeoutError`` and raises ``ModbusIOException`` built from the request (``fcode`` is
+  the request's function code) -> ``LinkTimeout``;
+- a reply from another unit id, or (TCP) with another transaction id: pymodbus's framer
+  skips it and reads on (so it used to surface as a timeout, or as a ``ModbusIOException``
+  of the same shape for a unit-0 request or a transaction id of 0). Our own checks see it
+  first and raise ``ReplyFromOtherUnit`` / ``ReplyFromOtherTransaction``
+  (``CheckedTcpClient`` below, ``serial_timing.TimedSerialClient`` on RTU) -> ``FrameError``;
+- an RTU reply that fails its CRC: skipped by the framer too; ``TimedSerialClient``
+  raises ``ReplyCrcError`` -> ``FrameError``;
+- a complete frame whose PDU pymodbus cannot decode: ``ModbusIOException`` from the framer
+  without a function code (``fcode is None``) -> ``FrameError``;
+- refused, closed or broken connection: ``ConnectionException`` or ``OSError`` ->
+  ``LinkDown`` (the client is closed);
+- a Modbus exception reply is not an error to pymodbus; ``execute`` raises
+  ``DeviceException`` for it.
 """
 
 from __future__ import annotations
@@ -16,8 +36,9 @@ from __future__ import annotations
 import logging
 from contextlib import suppress
 from dataclasses import dataclass
+from typing import Any
 
-from pymodbus.client import ModbusSerialClient, ModbusTcpClient
+from pymodbus.client import ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
 
 from .channel import PriorityLock
@@ -35,9 +56,10 @@ from .requests import (
     WriteRegister,
     WriteRegisters,
 )
-from .serial_timing import TimedSerialClient
+from .serial_timing import ReplyFrameError, ReplyFromOtherUnit, TimedSerialClient
 
 __all__ = [
+    "CheckedTcpClient",
     "LinkSettings",
     "MaskWriteRegister",
     "ModbusLink",
@@ -45,6 +67,7 @@ __all__ = [
     "ReadRegisters",
     "ReadWriteRegisters",
     "Reply",
+    "ReplyFromOtherTransaction",
     "Request",
     "SerialSettings",
     "TcpSettings",
@@ -88,6 +111,64 @@ class SerialSettings:
 LinkSettings = TcpSettings | SerialSettings
 
 
+# ---------------------------------------------------------------- TCP reply check
+
+# MBAP header: transaction id (2), protocol id (2), length (2), unit id (1).
+MBAP_HEADER_LEN = 7
+MBAP_TID = slice(0, 2)
+MBAP_UNIT = 6
+
+
+class ReplyFromOtherTransaction(ReplyFrameError):
+    """A TCP reply carried another transaction id than the request (a stale or foreign reply)."""
+
+    def __init__(self, expected: int, received: int) -> None:
+        self.expected = expected
+        self.received = received
+        super().__init__(
+            f"reply has transaction id {received}, request had transaction id {expected}"
+        )
+
+
+class CheckedTcpClient(ModbusTcpClient):
+    """``ModbusTcpClient`` that reports a reply to another unit or transaction at once.
+
+    pymodbus 3.16's framer skips such a reply and keeps reading until the timeout. This
+    client remembers the MBAP header of the request it sent and compares the first reply
+    header with it: another transaction id raises ``ReplyFromOtherTransaction``, another
+    unit id ``ReplyFromOtherUnit`` (both ``ReplyFrameError``, so the transport reports a
+    ``FrameError`` and the channel drops the socket). Same constructor as the base class.
+    """
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._request_header = b""
+        self._reply_header = b""
+
+    def send(self, request: bytes, addr: tuple[Any, ...] | None = None) -> int:
+        self._request_header = bytes(request[:MBAP_HEADER_LEN])
+        self._reply_header = b""
+        return int(super().send(request, addr))
+
+    def recv(self, size: int | None) -> bytes:
+        data: bytes = super().recv(size)
+        missing = MBAP_HEADER_LEN - len(self._reply_header)
+        if data and missing > 0 and len(self._request_header) == MBAP_HEADER_LEN:
+            self._reply_header += data[:missing]
+            if len(self._reply_header) == MBAP_HEADER_LEN:
+                self._check_reply_header()
+        return data
+
+    def _check_reply_header(self) -> None:
+        sent, got = self._request_header, self._reply_header
+        if got[MBAP_TID] != sent[MBAP_TID]:
+            raise ReplyFromOtherTransaction(
+                int.from_bytes(sent[MBAP_TID], "big"), int.from_bytes(got[MBAP_TID], "big")
+            )
+        if got[MBAP_UNIT] != sent[MBAP_UNIT]:
+            raise ReplyFromOtherUnit(sent[MBAP_UNIT], got[MBAP_UNIT])
+
+
 # ---------------------------------------------------------------- link
 
 
@@ -99,9 +180,9 @@ class ModbusLink:
         self.lock = PriorityLock()
         self.is_serial = isinstance(settings, SerialSettings)
         # retries=0: retrying is DeviceChannel's decision (reads only, never writes).
-        self._client: ModbusTcpClient | ModbusSerialClient
+        self._client: CheckedTcpClient | TimedSerialClient
         if isinstance(settings, TcpSettings):
-            self._client = ModbusTcpClient(
+            self._client = CheckedTcpClient(
                 settings.host, port=settings.port, timeout=settings.timeout_s, retries=0
             )
         else:
@@ -135,7 +216,7 @@ class ModbusLink:
     def close(self) -> None:
         self._open = False
         with suppress(OSError):
-            self._client.close()  # type: ignore[no-untyped-call]
+            self._client.close()
 
     def execute(self, unit_id: int, request: Request) -> Reply:
         """One transaction; pymodbus errors come out as ``LinkError`` subclasses."""
@@ -146,10 +227,11 @@ class ModbusLink:
         except ConnectionException as err:
             self.close()
             raise LinkDown(f"connection to {self.describe()} lost: {err}") from err
+        except ReplyFrameError as err:  # our own checks: CRC, unit id, transaction id
+            raise FrameError(f"unit {unit_id}: mismatched reply: {err.string}") from err
         except ModbusIOException as err:
-            text = str(err)
-            if "device id" in text or "transaction id" in text:
-                raise FrameError(f"unit {unit_id}: mismatched reply: {text}") from err
+            if err.fcode is None:  # the framer's "unable to decode": a reply came
+                raise FrameError(f"unit {unit_id}: undecodable reply: {err.string}") from err
             raise LinkTimeout(
                 f"unit {unit_id}: no reply within {self.settings.timeout_s} s"
             ) from err
