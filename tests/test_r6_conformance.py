@@ -1,6 +1,6 @@
 """Every example frame of the R6 manual, byte-exact, over a real TCP socket.
 
-The bridge's device layer (through the real pymodbus client of ``bridge_core.link``) talks
+The bridge's device layer (through the real pymodbus client of ``bridge_core.transport``) talks
 to a replay peer that checks each request PDU against the manual and answers with the
 manual's reply; the decoded values must be the ones the manual states. Frames are copied
 as printed (MBAP header included) and the header is dropped: our transaction ids differ,
