@@ -223,7 +223,8 @@ def run_worker(args: argparse.Namespace) -> None:
 
         close: Callable[[], None] = client.close
     else:
-        from bridge_core.link import DeviceChannel, ModbusLink, TcpSettings
+        from bridge_core.channel import DeviceChannel
+        from bridge_core.transport import ModbusLink, TcpSettings
 
         module = importlib.import_module(f"{profile.package}.device")
         link = ModbusLink(TcpSettings("127.0.0.1", args.port, 1.0))

@@ -90,9 +90,10 @@ from bench.line_relay import (  # noqa: E402
     transactions,
 )
 from bench.rtu_wire import transaction_wire_s  # noqa: E402
-from bridge_core.link import DeviceChannel, ModbusLink, SerialSettings  # noqa: E402
+from bridge_core.channel import DeviceChannel  # noqa: E402
 from bridge_core.poller import Poller  # noqa: E402
 from bridge_core.serial_timing import silence_s  # noqa: E402
+from bridge_core.transport import ModbusLink, SerialSettings  # noqa: E402
 from motec_bridge.device import MotecDevice  # noqa: E402
 from stepper_bridge.device import StepperDevice  # noqa: E402
 from stepper_bridge.registers import REPLY_DELAY_S as STEPPER_REPLY_DELAY_S  # noqa: E402

@@ -1,4 +1,6 @@
-"""Shared plumbing of the Modbus bridges: register maps, codec, read planner, link, node base.
+"""Shared plumbing of the Modbus bridges: register maps, codec, read planner, channel and
+transport, node base.
 
-Only ``link`` and ``sim_base`` import pymodbus; only ``node_base`` and ``recorder`` import rclpy.
+Only ``transport``, ``serial_timing`` and ``sim_base`` import pymodbus; only ``node_base`` and
+``recorder`` import rclpy.
 """

@@ -1,27 +1,61 @@
-"""What a device model needs from a link, without importing the link.
+"""The link policy, without pymodbus: what a device model needs and how a device is served.
 
-Device modules (``device.py``) talk to this Protocol, so they stay free of pymodbus and
-can be driven by ``bridge_core.link.DeviceChannel`` or by any fake in a test.
+- ``RegisterIO``: the Modbus operations a device model (``device.py``) uses, so device
+  modules stay free of pymodbus and can be driven by ``DeviceChannel`` or by any fake.
+- ``PriorityLock``: one transaction at a time on a link, commands before polls, FIFO within
+  a priority (so several drives on one bus take turns fairly).
+- ``DeviceChannel``: one unit id on a ``Transport`` (``bridge_core.transport.ModbusLink``),
+  with its own health, capped exponential reconnect ``Backoff`` and ``LinkStats``, so a dead
+  drive on a shared RS-485 bus backs off on its own while the others keep their rate.
+
+Nothing here imports pymodbus or ``bridge_core.transport``; errors arrive already
+translated into ``bridge_core.errors`` types.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import heapq
+import itertools
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass, field
 from enum import IntEnum
 from typing import Protocol
 
+from .errors import DeviceException, FrameError, LinkDown, LinkError, LinkTimeout
 from .registers import Table
+from .requests import (
+    MaskWriteRegister,
+    ReadBits,
+    ReadRegisters,
+    ReadWriteRegisters,
+    Reply,
+    Request,
+    WriteCoil,
+    WriteCoils,
+    WriteRegister,
+    WriteRegisters,
+)
+
+# First reconnect delay; it doubles per failure up to the node's reconnect_max_s.
+RECONNECT_INITIAL_S = 0.25
+LATENCY_SAMPLES = 512
+UNIT_ID_MIN = 0
+UNIT_ID_MAX = 247
 
 
 class Priority(IntEnum):
-    """Commands go before polls on a link (``link.PriorityLock``)."""
+    """Commands go before polls on a link (``PriorityLock``)."""
 
     COMMAND = 0
     POLL = 1
 
 
 class RegisterIO(Protocol):
-    """The Modbus operations a device model uses (``bridge_core.link.DeviceChannel``)."""
+    """The Modbus operations a device model uses (``DeviceChannel``)."""
 
     def read_registers(
         self, address: int, count: int, table: Table = ..., priority: Priority = ...
@@ -37,3 +71,285 @@ class RegisterIO(Protocol):
     def read_write_registers(
         self, read_address: int, read_count: int, write_address: int, values: Sequence[int]
     ) -> list[int]: ...
+
+
+class PriorityLock:
+    """A mutex that hands over to waiting commands first, then in arrival order."""
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition()
+        self._busy = False
+        self._waiting: list[tuple[int, int]] = []
+        self._tickets = itertools.count()
+
+    def acquire(self, priority: Priority) -> None:
+        with self._cond:
+            if self._busy or self._waiting:
+                me = (int(priority), next(self._tickets))
+                heapq.heappush(self._waiting, me)
+                while self._busy or self._waiting[0] != me:
+                    self._cond.wait()
+                heapq.heappop(self._waiting)
+            self._busy = True
+
+    def release(self) -> None:
+        with self._cond:
+            self._busy = False
+            if self._waiting:
+                self._cond.notify_all()
+
+    @contextmanager
+    def hold(self, priority: Priority) -> Iterator[None]:
+        self.acquire(priority)
+        try:
+            yield
+        finally:
+            self.release()
+
+
+class Transport(Protocol):
+    """The link a ``DeviceChannel`` runs on (``bridge_core.transport.ModbusLink``).
+
+    ``execute`` raises only ``bridge_core.errors`` types: ``LinkDown`` (not open, refused,
+    lost), ``LinkTimeout`` (no reply), ``FrameError`` (a reply that is not the answer) and
+    ``DeviceException`` (the device answered with an exception).
+    """
+
+    @property
+    def lock(self) -> PriorityLock: ...
+    @property
+    def is_serial(self) -> bool: ...
+    @property
+    def is_open(self) -> bool: ...
+    def describe(self) -> str: ...
+    def open(self) -> None: ...
+    def close(self) -> None: ...
+    def execute(self, unit_id: int, request: Request) -> Reply: ...
+
+
+class Backoff:
+    """Capped exponential delay between reconnect attempts."""
+
+    def __init__(
+        self, initial_s: float, max_s: float, clock: Callable[[], float] = time.monotonic
+    ) -> None:
+        self.initial_s = min(initial_s, max_s)
+        self.max_s = max_s
+        self._clock = clock
+        self.failures = 0
+        self.next_attempt = 0.0
+
+    @property
+    def delay_s(self) -> float:
+        if self.failures == 0:
+            return 0.0
+        return float(min(self.max_s, self.initial_s * 2 ** (self.failures - 1)))
+
+    def failed(self) -> None:
+        self.failures += 1
+        self.next_attempt = self._clock() + self.delay_s
+
+    def succeeded(self) -> None:
+        self.failures = 0
+        self.next_attempt = 0.0
+
+    def ready(self) -> bool:
+        return self._clock() >= self.next_attempt
+
+
+@dataclass
+class LinkStats:
+    """Counters for diagnostics; written under the link lock, read from any thread."""
+
+    transactions: int = 0
+    timeouts: int = 0
+    exceptions: int = 0
+    frame_errors: int = 0
+    reconnects: int = 0
+    connect_failures: int = 0
+    last_error: str = ""
+    last_error_time: float = 0.0
+    latencies_s: deque[float] = field(default_factory=lambda: deque(maxlen=LATENCY_SAMPLES))
+
+
+class DeviceChannel:
+    """One device (unit id) on a link: transactions, health and reconnect policy."""
+
+    def __init__(
+        self,
+        link: Transport,
+        unit_id: int,
+        *,
+        retries: int = 1,
+        reconnect_max_s: float = 5.0,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        if not UNIT_ID_MIN <= unit_id <= UNIT_ID_MAX:
+            raise ValueError(f"unit id {unit_id} outside {UNIT_ID_MIN}..{UNIT_ID_MAX}")
+        self.link = link
+        self.unit_id = unit_id
+        self.retries = retries
+        self.backoff = Backoff(RECONNECT_INITIAL_S, reconnect_max_s, clock)
+        self.stats = LinkStats()
+        self._connected = False
+        self._ever_connected = False
+        # Bumped whenever the device is marked down: a command started on an older epoch
+        # must not run on a link that was lost (and maybe reopened) meanwhile.
+        self._epoch = 0
+        self._session = threading.local()
+
+    @property
+    def connected(self) -> bool:
+        """True while the device's last transaction succeeded (or answered an exception)."""
+        return self._connected
+
+    def may_attempt(self) -> bool:
+        """Whether a poll should try the device now (connected, or backoff elapsed)."""
+        return self._connected or self.backoff.ready()
+
+    @contextmanager
+    def command_session(self) -> Iterator[None]:
+        """Tie this thread's transactions to the connection they started on.
+
+        Inside it, every transaction is refused (``LinkDown``, nothing sent) once the
+        device was marked down after the session began, even if a poll has reconnected
+        since: DESIGN §2, nothing is queued across a reconnect. The node's command guard
+        wraps each command in one; polls and link-up probes run outside.
+        """
+        self._session.epoch = self._epoch if self._connected else -1
+        try:
+            yield
+        finally:
+            self._session.epoch = None
+
+    def mark_down(self, error: LinkError | str) -> None:
+        self._epoch += 1
+        text = str(error)
+        self.stats.last_error = text
+        self.stats.last_error_time = time.time()
+        if self._connected or self.backoff.ready():
+            self.backoff.failed()
+        self._connected = False
+        if not self.link.is_serial:
+            # TCP: drop the socket so a late reply cannot be taken for the next answer.
+            self.link.close()
+
+    def transact(self, request: Request, priority: Priority = Priority.POLL) -> Reply:
+        """Run one request; reads are retried ``retries`` times, writes never are.
+
+        Nor are probes of a device that is down: on a shared RS-485 bus every retry of a
+        dead drive holds the bus for another timeout while the live drives wait.
+        """
+        attempts = 1 if request.is_write or not self._connected else 1 + self.retries
+        lock = self.link.lock
+        lock.acquire(priority)  # acquire/release, not a context manager: the poll hot path
+        try:
+            session = getattr(self._session, "epoch", None)
+            if session is not None and (session != self._epoch or not self._connected):
+                raise LinkDown(
+                    f"{self.describe()}: the link was lost while the command waited; not sent"
+                )
+            last: LinkError = LinkDown("no attempt made")
+            for _ in range(attempts):
+                try:
+                    if not self.link.is_open:
+                        self.link.open()
+                    started = time.perf_counter()
+                    reply = self.link.execute(self.unit_id, request)
+                except DeviceException as err:
+                    # The device is alive and said no: not a link failure.
+                    self.stats.exceptions += 1
+                    self.stats.last_error = str(err)
+                    self.stats.last_error_time = time.time()
+                    self._note_alive()
+                    raise
+                except LinkTimeout as err:
+                    self.stats.timeouts += 1
+                    last = err
+                    if not self.link.is_serial:
+                        self.link.close()
+                except FrameError as err:
+                    self.stats.frame_errors += 1
+                    last = err
+                    if not self.link.is_serial:
+                        self.link.close()
+                except LinkDown as err:
+                    self.stats.connect_failures += 1
+                    last = err
+                    break
+                else:
+                    stats = self.stats
+                    stats.transactions += 1
+                    stats.latencies_s.append(time.perf_counter() - started)
+                    if not self._connected:
+                        self._note_alive()
+                    return reply
+            self.mark_down(last)
+            raise last
+        finally:
+            lock.release()
+
+    def _note_alive(self) -> None:
+        if not self._connected:
+            if self._ever_connected:
+                self.stats.reconnects += 1
+            self._ever_connected = True
+        self._connected = True
+        self.backoff.succeeded()
+
+    # Convenience wrappers, named after the Modbus functions they send.
+    def read_registers(
+        self,
+        address: int,
+        count: int,
+        table: Table = Table.HOLDING,
+        priority: Priority = Priority.POLL,
+    ) -> list[int]:
+        reply = self.transact(ReadRegisters(address, count, table), priority)
+        assert isinstance(reply, list)
+        if len(reply) != count:
+            if len(reply) < count:
+                raise FrameError(f"short reply: {len(reply)} of {count} registers")
+            reply = reply[:count]
+        return reply  # type: ignore[return-value]
+
+    def read_bits(
+        self,
+        address: int,
+        count: int,
+        table: Table = Table.COIL,
+        priority: Priority = Priority.POLL,
+    ) -> list[bool]:
+        reply = self.transact(ReadBits(address, count, table), priority)
+        assert isinstance(reply, list)
+        return reply  # type: ignore[return-value]  # execute() made them bools already
+
+    def write_register(self, address: int, value: int) -> None:
+        self.transact(WriteRegister(address, value), Priority.COMMAND)
+
+    def write_registers(self, address: int, values: Sequence[int]) -> None:
+        self.transact(WriteRegisters(address, tuple(values)), Priority.COMMAND)
+
+    def write_coil(self, address: int, on: bool) -> None:
+        self.transact(WriteCoil(address, on), Priority.COMMAND)
+
+    def write_coils(self, address: int, values: Sequence[bool]) -> None:
+        self.transact(WriteCoils(address, tuple(values)), Priority.COMMAND)
+
+    def mask_write_register(self, address: int, and_mask: int, or_mask: int) -> None:
+        """FC 0x16: register = (register AND and_mask) OR (or_mask AND NOT and_mask)."""
+        self.transact(MaskWriteRegister(address, and_mask, or_mask), Priority.COMMAND)
+
+    def read_write_registers(
+        self, read_address: int, read_count: int, write_address: int, values: Sequence[int]
+    ) -> list[int]:
+        """FC 0x17: write, then read, in one round trip (the write happens first)."""
+        reply = self.transact(
+            ReadWriteRegisters(read_address, read_count, write_address, tuple(values)),
+            Priority.COMMAND,
+        )
+        assert isinstance(reply, list)
+        return [int(v) for v in reply[:read_count]]
+
+    def describe(self) -> str:
+        return f"{self.link.describe()} unit {self.unit_id}"

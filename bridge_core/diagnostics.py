@@ -13,7 +13,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from enum import IntEnum
 
-from .link import DeviceChannel
+from .channel import DeviceChannel
 
 RATE_WINDOW_S = 5.0
 

@@ -50,13 +50,13 @@ from rclpy.utilities import try_shutdown
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 
-from .channel import Priority
+from .channel import DeviceChannel, Priority
 from .diagnostics import Level, Report, link_report
 from .errors import CommandRejected, ConfigurationError, DeviceException, LinkError
-from .link import DeviceChannel, ModbusLink, SerialSettings, TcpSettings
 from .parameters import ParameterSpec, ParameterValue
 from .poller import Poller, PollOutcome
 from .stream_guard import StreamGuard
+from .transport import ModbusLink, SerialSettings, TcpSettings
 
 T = TypeVar("T")
 DIAGNOSTICS_PERIOD_S = 1.0

@@ -10,8 +10,12 @@ in shared/notes/pymodbus-and-timing.md):
   which costs 4-8 ms per transaction at 9600 baud and 1-2 ms at 115200.
 
 ``TimedSerialClient`` fixes both and keeps the rest of pymodbus: its framer and CRC check
-decide whether a reply is good, its transaction manager does retries and id checks, and
-the client's ``timeout`` still bounds the wait for a reply. Override points:
+decide whether a reply is good, its transaction manager does retries, and the client's
+``timeout`` still bounds the wait for a reply. pymodbus's framer silently skips a frame
+that fails its CRC or comes from another unit id and reads on, so a bad reply would only
+surface as a timeout: once the framer has rejected what arrived, this client raises its
+own ``ReplyCrcError`` / ``ReplyFromOtherUnit`` (both ``ReplyFrameError``), which the
+transport reports as a ``FrameError`` by type. Override points:
 
 - ``send``: waits for the silence (draining stray bytes, which restart it), writes, and
   works out from the request frame how long the reply will be;
@@ -35,7 +39,7 @@ from typing import Any
 
 import serial
 from pymodbus.client import ModbusSerialClient
-from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
+from pymodbus.exceptions import ConnectionException, ModbusException
 from pymodbus.framer import FramerRTU
 
 _log = logging.getLogger(__name__)
@@ -151,7 +155,30 @@ def reply_length(request: bytes, header: bytes) -> int | None:
 
 
 class ReplyFrameError(ModbusException):
-    """A reply arrived but its frame was bad (the link reports it as a frame error)."""
+    """A reply arrived but is not the answer to the request (the transport: ``FrameError``).
+
+    Raised only by our own checks (here and in ``transport.CheckedTcpClient``), never by
+    pymodbus, so the transport tells it from pymodbus's own errors by its type.
+    """
+
+
+class ReplyCrcError(ReplyFrameError):
+    """An RTU reply failed its CRC check."""
+
+    def __init__(self, frame: bytes) -> None:
+        self.frame = frame
+        super().__init__(f"reply failed the CRC check: {frame.hex(' ')}")
+
+
+class ReplyFromOtherUnit(ReplyFrameError):
+    """A reply came from another unit (device) id than the request was for."""
+
+    def __init__(self, expected: int, received: int) -> None:
+        self.expected = expected
+        self.received = received
+        super().__init__(
+            f"reply came from device id {received}, request was for device id {expected}"
+        )
 
 
 class TimedSerialClient(ModbusSerialClient):
@@ -312,14 +339,12 @@ class TimedSerialClient(ModbusSerialClient):
         if len(previous) >= MIN_FRAME_LEN and not FramerRTU.check_CRC(
             previous[:-CRC_LEN], int.from_bytes(previous[-CRC_LEN:], "big")
         ):
-            raise ReplyFrameError(f"reply failed the CRC check: {previous.hex(' ')}")
+            raise ReplyCrcError(previous)
         if previous and previous[0] != unit:
             if frame := self._read_frame():
                 self._returned = frame
                 return frame
-            raise ModbusIOException(
-                f"reply came from device id {previous[0]}, request was for device id {unit}"
-            )
+            raise ReplyFromOtherUnit(unit, previous[0])
         return b""
 
     def _read_exact(self, count: int) -> bytes:

@@ -35,12 +35,13 @@ from rclpy.node import Node
 from std_msgs.msg import Float64
 from std_srvs.srv import SetBool, Trigger
 
+from bridge_core.channel import DeviceChannel
 from bridge_core.checks import board_zero_index
 from bridge_core.diagnostics import Level, Report
 from bridge_core.errors import CommandRejected, ConfigurationError, DeviceException, LinkError
-from bridge_core.link import DeviceChannel, ModbusLink
 from bridge_core.node_base import BridgeNode, BusNode, spin_nodes
 from bridge_core.parameters import ParameterSpec
+from bridge_core.transport import ModbusLink
 from msg_defs.msg import MotecState
 from msg_defs.srv import PositionMove, SetControlMode, SetOutput, SetValue
 

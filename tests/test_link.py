@@ -1,23 +1,22 @@
-"""The link layer: lock ordering, backoff, faults over TCP and RTU (real sockets and ptys)."""
+"""The link layer: lock ordering, backoff, faults over TCP and RTU (real sockets and ptys).
+
+The error translation tests drive the real pymodbus clients against replay peers on a
+socket or a pty and check the ``bridge_core.errors`` type and the cause behind it.
+"""
 
 from __future__ import annotations
 
+import socket
 import threading
 import time
 from collections.abc import Iterator
+from contextlib import contextmanager
 
 import pytest
+from pymodbus.exceptions import ModbusIOException
 
+from bridge_core.channel import Backoff, DeviceChannel, Priority, PriorityLock
 from bridge_core.errors import DeviceException, FrameError, LinkDown, LinkTimeout
-from bridge_core.link import (
-    Backoff,
-    DeviceChannel,
-    ModbusLink,
-    Priority,
-    PriorityLock,
-    SerialSettings,
-    TcpSettings,
-)
 from bridge_core.registers import (
     Access,
     DeviceLimits,
@@ -26,8 +25,20 @@ from bridge_core.registers import (
     ValueType,
     register_array,
 )
+from bridge_core.serial_timing import ReplyCrcError, ReplyFromOtherUnit
 from bridge_core.sim_base import SimulatedDevice, Simulator
+from bridge_core.transport import (
+    ModbusLink,
+    ReadRegisters,
+    ReplyFromOtherTransaction,
+    SerialSettings,
+    TcpSettings,
+)
 
+from .support.replay import ReplayServer
+from .support.replay import Step as TcpStep
+from .support.rtu_replay import RtuReplay, rtu_frame
+from .support.rtu_replay import Step as RtuStep
 from .support.serial_pair import socat_pair
 
 TEST_MAP = RegisterMap(
@@ -202,19 +213,17 @@ def test_rtu_several_units_on_one_pty_bus() -> None:
             sim.stop()
 
 
-def test_rtu_reply_from_the_wrong_unit_is_a_frame_error() -> None:
-    # A misconfigured drive that answers as unit 3 when asked as unit 1.
+def test_rtu_unit_nobody_serves_times_out_and_the_served_one_answers() -> None:
+    # Only unit 3 is on the bus. (A reply *from* the wrong unit: the replay tests below.)
     sim_device = SimulatedDevice(TEST_MAP, 3)
     sim = Simulator([sim_device])
     with socat_pair() as (bridge_end, device_end, _):
         sim.start_serial(device_end, baudrate=115200)
         try:
             link = ModbusLink(SerialSettings(bridge_end, 115200, timeout_s=0.3))
-            # The server only answers unit 3; ask unit 3, then check the id check itself by
-            # talking to unit 3 through a channel that believes it is unit 1 is impossible
-            # with pymodbus' framer (it drops foreign ids), so a foreign reply is a timeout.
+            # The simulator ignores requests for unit 1: silence, so a timeout.
             channel = DeviceChannel(link, 1, retries=0)
-            with pytest.raises((LinkTimeout, FrameError)):
+            with pytest.raises(LinkTimeout):
                 channel.read_registers(0, 1)
             assert DeviceChannel(link, 3).read_registers(0, 1) == [0]
             link.close()
@@ -264,3 +273,145 @@ def test_a_command_that_waited_through_a_link_loss_is_not_sent(
     with channel.command_session():
         channel.write_register(3, 9)
     assert [r.values for r in sim.device.write_log] == [(9,)]
+
+
+# ---------------------------------------------------------------- error translation, by type
+
+READ_ONE = bytes.fromhex("01 03 0000 0001")  # unit 1, FC 03, address 0, one register
+ANSWER_7 = bytes.fromhex("01 03 02 0007")
+TCP_TIMEOUT_S = 2.0  # long, so a reply that is reported at once cannot pass for a timeout
+RTU_BAUD = 115200
+
+
+@contextmanager
+def tcp_replay(steps: list[TcpStep]) -> Iterator[tuple[ModbusLink, ReplayServer]]:
+    server = ReplayServer(steps)
+    link = ModbusLink(TcpSettings(port=server.port, timeout_s=TCP_TIMEOUT_S))
+    try:
+        yield link, server
+    finally:
+        link.close()
+        server.close()
+    assert server.mismatches == []
+
+
+@contextmanager
+def rtu_replay(steps: list[RtuStep]) -> Iterator[ModbusLink]:
+    with socat_pair() as (bridge_end, device_end, _):
+        peer = RtuReplay(device_end, steps, RTU_BAUD)
+        link = ModbusLink(SerialSettings(bridge_end, RTU_BAUD, timeout_s=0.3))
+        try:
+            yield link
+        finally:
+            link.close()
+            peer.close()
+        assert peer.mismatches == []
+
+
+def test_tcp_silence_is_a_timeout(tcp_sim: tuple[Simulator, int]) -> None:
+    sim, port = tcp_sim
+    link = ModbusLink(TcpSettings(port=port, timeout_s=0.2))
+    link.open()
+    sim.withhold_replies = True
+    started = time.monotonic()
+    with pytest.raises(LinkTimeout) as caught:
+        link.execute(1, ReadRegisters(0, 1))
+    assert time.monotonic() - started >= 0.15
+    assert isinstance(caught.value.__cause__, ModbusIOException)
+    link.close()
+
+
+@pytest.mark.parametrize(
+    ("reply", "reply_tid", "cause"),
+    [
+        (bytes.fromhex("02 03 02 0007"), None, ReplyFromOtherUnit),
+        (ANSWER_7, 0x4242, ReplyFromOtherTransaction),  # e.g. a stale reply
+        (ANSWER_7, 0, ReplyFromOtherTransaction),
+    ],
+    ids=["wrong-unit", "wrong-transaction", "transaction-0"],
+)
+def test_tcp_mismatched_reply_is_a_frame_error_at_once(
+    reply: bytes, reply_tid: int | None, cause: type[Exception]
+) -> None:
+    with tcp_replay([TcpStep(READ_ONE, reply, "mismatched reply", reply_tid)]) as (link, _):
+        channel = DeviceChannel(link, 1, retries=0)
+        started = time.monotonic()
+        with pytest.raises(FrameError) as caught:
+            channel.read_registers(0, 1)
+        # pymodbus alone skips such a reply and waits out the timeout.
+        assert time.monotonic() - started < TCP_TIMEOUT_S / 2
+        assert isinstance(caught.value.__cause__, cause)
+        assert channel.stats.frame_errors == 1 and channel.stats.timeouts == 0
+        assert not link.is_open  # TCP: the socket is dropped with whatever else is in it
+
+
+def test_tcp_undecodable_reply_is_a_frame_error() -> None:
+    # Function 0x64 is in no table of pymodbus's decoder.
+    with tcp_replay([TcpStep(READ_ONE, bytes.fromhex("01 64 02 0007"), "unknown fc")]) as (
+        link,
+        _,
+    ):
+        link.open()
+        with pytest.raises(FrameError, match="undecodable"):
+            link.execute(1, ReadRegisters(0, 1))
+
+
+def test_tcp_good_reply_passes_the_header_check() -> None:
+    steps = [TcpStep(READ_ONE, ANSWER_7, "first"), TcpStep(READ_ONE, ANSWER_7, "second")]
+    with tcp_replay(steps) as (link, _):
+        channel = DeviceChannel(link, 1, retries=0)
+        assert channel.read_registers(0, 1) == [7]
+        assert channel.read_registers(0, 1) == [7]  # next transaction id, same check
+
+
+def test_refused_connection_is_link_down() -> None:
+    with socket.socket() as probe:  # a port nothing listens on once the probe is closed
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    link = ModbusLink(TcpSettings(port=port, timeout_s=0.5))
+    with pytest.raises(LinkDown):
+        link.open()
+    assert not link.is_open
+    channel = DeviceChannel(link, 1, retries=2)
+    with pytest.raises(LinkDown):
+        channel.read_registers(0, 1)
+    assert channel.stats.connect_failures == 1 and channel.stats.timeouts == 0
+
+
+def test_rtu_silence_is_a_timeout() -> None:
+    request = rtu_frame(1, "03 0000 0001")
+    steps = [RtuStep(request, b"", "silent"), RtuStep(request, rtu_frame(1, "03 02 0008"), "ok")]
+    with rtu_replay(steps) as link:
+        channel = DeviceChannel(link, 1, retries=0)
+        with pytest.raises(LinkTimeout) as caught:
+            channel.read_registers(0, 1)
+        assert isinstance(caught.value.__cause__, ModbusIOException)
+        assert channel.stats.timeouts == 1 and channel.stats.frame_errors == 0
+        assert channel.read_registers(0, 1) == [8]
+
+
+def _bad_crc(frame: bytes) -> bytes:
+    return frame[:-1] + bytes([frame[-1] ^ 0xFF])
+
+
+@pytest.mark.parametrize(
+    ("reply", "cause"),
+    [
+        (_bad_crc(rtu_frame(1, "03 02 0007")), ReplyCrcError),
+        (rtu_frame(2, "03 02 0007"), ReplyFromOtherUnit),
+    ],
+    ids=["bad-crc", "wrong-unit"],
+)
+def test_rtu_bad_reply_is_a_frame_error_and_the_port_stays_open(
+    reply: bytes, cause: type[Exception]
+) -> None:
+    request = rtu_frame(1, "03 0000 0001")
+    steps = [RtuStep(request, reply, "bad"), RtuStep(request, rtu_frame(1, "03 02 0008"), "ok")]
+    with rtu_replay(steps) as link:
+        channel = DeviceChannel(link, 1, retries=0)
+        with pytest.raises(FrameError) as caught:
+            channel.read_registers(0, 1)
+        assert isinstance(caught.value.__cause__, cause)
+        assert channel.stats.frame_errors == 1 and channel.stats.timeouts == 0
+        assert link.is_open  # RTU: the port stays open for the other drives on the bus
+        assert channel.read_registers(0, 1) == [8]

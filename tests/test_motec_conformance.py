@@ -18,10 +18,10 @@ from typing import Any
 import pytest
 from pymodbus.framer import FramerRTU
 
-from bridge_core.channel import Priority
+from bridge_core.channel import DeviceChannel, Priority
 from bridge_core.errors import CommandRejected, DeviceException
-from bridge_core.link import DeviceChannel, ModbusLink, SerialSettings
 from bridge_core.registers import Table, ValueType, WordOrder
+from bridge_core.transport import ModbusLink, SerialSettings
 from motec_bridge.device import (
     CONFIG_PLAN,
     MODE_PLAN,

@@ -10,10 +10,10 @@ from dataclasses import dataclass
 
 import pytest
 
-from bridge_core.channel import Priority
+from bridge_core.channel import DeviceChannel, Priority
 from bridge_core.errors import DeviceException, LinkTimeout
-from bridge_core.link import DeviceChannel, ModbusLink, SerialSettings
 from bridge_core.registers import Table
+from bridge_core.transport import ModbusLink, SerialSettings
 from motec_bridge.device import MotecDevice, disable_all
 from motec_bridge.registers import (
     CONTROL_MODE_POSITION,

@@ -1,6 +1,6 @@
 """Every example frame of the R6 manual, byte-exact, over a real TCP socket.
 
-The bridge's device layer (through the real pymodbus client of ``bridge_core.link``) talks
+The bridge's device layer (through the real pymodbus client of ``bridge_core.transport``) talks
 to a replay peer that checks each request PDU against the manual and answers with the
 manual's reply; the decoded values must be the ones the manual states. Frames are copied
 as printed (MBAP header included) and the header is dropped: our transaction ids differ,
@@ -14,7 +14,8 @@ from typing import Any
 
 import pytest
 
-from bridge_core.link import DeviceChannel, ModbusLink, TcpSettings
+from bridge_core.channel import DeviceChannel
+from bridge_core.transport import ModbusLink, TcpSettings
 from r6_bridge.device import R6Device
 
 from .support.replay import ReplayServer, Step, pdu_of

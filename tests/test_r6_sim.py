@@ -9,9 +9,10 @@ from collections.abc import Iterator
 
 import pytest
 
+from bridge_core.channel import DeviceChannel
 from bridge_core.errors import CommandRejected, DeviceException
-from bridge_core.link import DeviceChannel, ModbusLink, TcpSettings
 from bridge_core.registers import Table
+from bridge_core.transport import ModbusLink, TcpSettings
 from r6_bridge.device import R6Device
 from r6_bridge.registers import NOT_OFFERED, R6_MAP
 from r6_bridge.sim import MANUAL_VERSION, R6SimDevice, make_simulator

@@ -31,18 +31,8 @@ from bench.line_relay import (
     request_gaps,
     silence_violations,
 )
+from bridge_core.channel import DeviceChannel
 from bridge_core.errors import DeviceException, FrameError, LinkTimeout
-from bridge_core.link import (
-    DeviceChannel,
-    MaskWriteRegister,
-    ModbusLink,
-    ReadBits,
-    ReadRegisters,
-    ReadWriteRegisters,
-    SerialSettings,
-    WriteCoil,
-    WriteCoils,
-)
 from bridge_core.registers import (
     Access,
     DeviceLimits,
@@ -59,6 +49,16 @@ from bridge_core.serial_timing import (
     silence_s,
 )
 from bridge_core.sim_base import SimulatedDevice, Simulator
+from bridge_core.transport import (
+    MaskWriteRegister,
+    ModbusLink,
+    ReadBits,
+    ReadRegisters,
+    ReadWriteRegisters,
+    SerialSettings,
+    WriteCoil,
+    WriteCoils,
+)
 
 FRAMER = FramerRTU(DecodePDU(False))
 WORDS = 16

@@ -18,10 +18,11 @@ import pytest
 import serial
 from pymodbus.framer import FramerRTU
 
+from bridge_core.channel import DeviceChannel
 from bridge_core.errors import CommandRejected
-from bridge_core.link import DeviceChannel, ModbusLink, SerialSettings
 from bridge_core.registers import Table
 from bridge_core.sim_base import Simulator
+from bridge_core.transport import ModbusLink, SerialSettings
 from stepper_bridge.device import JointScale, StepperDevice
 from stepper_bridge.registers import STEPPER_MAP, UNDEFINED_HOLDING, holding
 from stepper_bridge.sim import START_POSITION, StepperSimDevice, make_simulator

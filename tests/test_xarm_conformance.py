@@ -12,8 +12,9 @@ from typing import Any
 
 import pytest
 
+from bridge_core.channel import DeviceChannel
 from bridge_core.errors import DeviceException
-from bridge_core.link import DeviceChannel, ModbusLink, TcpSettings
+from bridge_core.transport import ModbusLink, TcpSettings
 from xarm_bridge.device import XArmDevice
 
 from .support.replay import ReplayServer, Step, pdu_of

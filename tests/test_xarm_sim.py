@@ -9,9 +9,10 @@ from collections.abc import Iterator
 
 import pytest
 
+from bridge_core.channel import DeviceChannel
 from bridge_core.errors import CommandRejected
-from bridge_core.link import DeviceChannel, ModbusLink, TcpSettings
 from bridge_core.registers import Table
+from bridge_core.transport import ModbusLink, TcpSettings
 from xarm_bridge.device import XArmDevice, error_text
 from xarm_bridge.registers import XARM_MAP
 from xarm_bridge.sim import IN_MOTION, PAUSED, SLEEPING, STOPPED, XArmSimDevice, make_simulator

@@ -2,8 +2,9 @@
 
 Like minimalmodbus's recorded-frame fake serial, but on TCP: each step names the request
 PDU the bridge must send (unit id + function code + data, byte-exact) and the reply PDU
-to answer with. The MBAP transaction id is echoed, so the client's own numbering does not
-matter; every mismatch is recorded for the test to assert on.
+to answer with. The MBAP transaction id is echoed (unless a step names another, to play a
+stale reply), so the client's own numbering does not matter; every mismatch is recorded
+for the test to assert on.
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ class Step:
     request: bytes  # unit id + PDU
     reply: bytes  # unit id + PDU
     meaning: str = ""
+    reply_tid: int | None = None  # None: echo the request's transaction id
 
 
 @dataclass
@@ -79,7 +81,8 @@ class ReplayServer:
                     self.mismatches.append(
                         f"{step.meaning}: expected {step.request.hex(' ')}, got {body.hex(' ')}"
                     )
-                reply = struct.pack(">HHH", tid, 0, len(step.reply)) + step.reply
+                reply_tid = tid if step.reply_tid is None else step.reply_tid
+                reply = struct.pack(">HHH", reply_tid, 0, len(step.reply)) + step.reply
                 conn.sendall(reply)
 
     def close(self) -> None:

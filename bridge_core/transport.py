@@ -1,0 +1,295 @@
+"""The transport: one pymodbus client (TCP or RTU) behind a small interface.
+
+Together with ``serial_timing`` (our RTU client) and ``sim_base`` (the simulators) this is
+the only module that imports pymodbus; its API moves between minor versions (see
+shared/notes/pymodbus-and-timing.md), so the version is pinned and every pymodbus error is
+translated here into ``bridge_core.errors``.
+
+``ModbusLink`` is only the pipe: open, close, and ``execute`` one request for one unit id
+under the caller's hold of its ``lock``. The policy (retries, backoff, health, priorities)
+is ``bridge_core.channel.DeviceChannel``'s. The request dataclasses are defined in the
+pymodbus-free ``bridge_core.requests`` and re-exported here.
+
+How pymodbus 3.16.1's sync clients report a failed transaction, and what it becomes here,
+told apart by exception type (never by the message text):
+
+- no reply, or not all of it, within the timeout: the transaction manager catches its own
+  ``TimeoutError`` and raises ``ModbusIOException`` built from the request (``fcode`` is
+  the request's function code) -> ``LinkTimeout``;
+- a reply from another unit id, or (TCP) with another transaction id: pymodbus's framer
+  skips it and reads on (so it used to surface as a timeout, or as a ``ModbusIOException``
+  of the same shape for a unit-0 request or a transaction id of 0). Our own checks see it
+  first and raise ``ReplyFromOtherUnit`` / ``ReplyFromOtherTransaction``
+  (``CheckedTcpClient`` below, ``serial_timing.TimedSerialClient`` on RTU) -> ``FrameError``;
+- an RTU reply that fails its CRC: skipped by the framer too; ``TimedSerialClient``
+  raises ``ReplyCrcError`` -> ``FrameError``;
+- a complete frame whose PDU pymodbus cannot decode: ``ModbusIOException`` from the framer
+  without a function code (``fcode is None``) -> ``FrameError``;
+- refused, closed or broken connection: ``ConnectionException`` or ``OSError`` ->
+  ``LinkDown`` (the client is closed);
+- a Modbus exception reply is not an error to pymodbus; ``execute`` raises
+  ``DeviceException`` for it.
+"""
+
+from __future__ import annotations
+
+import logging
+from contextlib import suppress
+from dataclasses import dataclass
+from typing import Any
+
+from pymodbus.client import ModbusTcpClient
+from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
+
+from .channel import PriorityLock
+from .errors import DeviceException, FrameError, LinkDown, LinkTimeout
+from .registers import Table
+from .requests import (
+    MaskWriteRegister,
+    ReadBits,
+    ReadRegisters,
+    ReadWriteRegisters,
+    Reply,
+    Request,
+    WriteCoil,
+    WriteCoils,
+    WriteRegister,
+    WriteRegisters,
+)
+from .serial_timing import ReplyFrameError, ReplyFromOtherUnit, TimedSerialClient
+
+__all__ = [
+    "CheckedTcpClient",
+    "LinkSettings",
+    "MaskWriteRegister",
+    "ModbusLink",
+    "ReadBits",
+    "ReadRegisters",
+    "ReadWriteRegisters",
+    "Reply",
+    "ReplyFromOtherTransaction",
+    "Request",
+    "SerialSettings",
+    "TcpSettings",
+    "WriteCoil",
+    "WriteCoils",
+    "WriteRegister",
+    "WriteRegisters",
+]
+
+# pymodbus logs every refused connect and timeout on its own (and repeats itself); the
+# channel counts and reports them in diagnostics, so its logger only speaks when critical.
+logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
+
+
+# ---------------------------------------------------------------- settings
+
+
+@dataclass(frozen=True)
+class TcpSettings:
+    host: str = "127.0.0.1"
+    port: int = 502
+    timeout_s: float = 0.5
+
+    def describe(self) -> str:
+        return f"tcp://{self.host}:{self.port}"
+
+
+@dataclass(frozen=True)
+class SerialSettings:
+    port: str
+    baudrate: int = 9600
+    parity: str = "N"
+    stopbits: int = 1
+    bytesize: int = 8
+    timeout_s: float = 0.5
+
+    def describe(self) -> str:
+        return f"{self.port}@{self.baudrate}{self.bytesize}{self.parity}{self.stopbits}"
+
+
+LinkSettings = TcpSettings | SerialSettings
+
+
+# ---------------------------------------------------------------- TCP reply check
+
+# MBAP header: transaction id (2), protocol id (2), length (2), unit id (1).
+MBAP_HEADER_LEN = 7
+MBAP_TID = slice(0, 2)
+MBAP_UNIT = 6
+
+
+class ReplyFromOtherTransaction(ReplyFrameError):
+    """A TCP reply carried another transaction id than the request (a stale or foreign reply)."""
+
+    def __init__(self, expected: int, received: int) -> None:
+        self.expected = expected
+        self.received = received
+        super().__init__(
+            f"reply has transaction id {received}, request had transaction id {expected}"
+        )
+
+
+class CheckedTcpClient(ModbusTcpClient):
+    """``ModbusTcpClient`` that reports a reply to another unit or transaction at once.
+
+    pymodbus 3.16's framer skips such a reply and keeps reading until the timeout. This
+    client remembers the MBAP header of the request it sent and compares the first reply
+    header with it: another transaction id raises ``ReplyFromOtherTransaction``, another
+    unit id ``ReplyFromOtherUnit`` (both ``ReplyFrameError``, so the transport reports a
+    ``FrameError`` and the channel drops the socket). Same constructor as the base class.
+    """
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._request_header = b""
+        self._reply_header = b""
+
+    def send(self, request: bytes, addr: tuple[Any, ...] | None = None) -> int:
+        self._request_header = bytes(request[:MBAP_HEADER_LEN])
+        self._reply_header = b""
+        return int(super().send(request, addr))
+
+    def recv(self, size: int | None) -> bytes:
+        data: bytes = super().recv(size)
+        missing = MBAP_HEADER_LEN - len(self._reply_header)
+        if data and missing > 0 and len(self._request_header) == MBAP_HEADER_LEN:
+            self._reply_header += data[:missing]
+            if len(self._reply_header) == MBAP_HEADER_LEN:
+                self._check_reply_header()
+        return data
+
+    def _check_reply_header(self) -> None:
+        sent, got = self._request_header, self._reply_header
+        if got[MBAP_TID] != sent[MBAP_TID]:
+            raise ReplyFromOtherTransaction(
+                int.from_bytes(sent[MBAP_TID], "big"), int.from_bytes(got[MBAP_TID], "big")
+            )
+        if got[MBAP_UNIT] != sent[MBAP_UNIT]:
+            raise ReplyFromOtherUnit(sent[MBAP_UNIT], got[MBAP_UNIT])
+
+
+# ---------------------------------------------------------------- link
+
+
+class ModbusLink:
+    """One client and its transaction lock. Callers hold ``lock`` around ``execute``."""
+
+    def __init__(self, settings: LinkSettings) -> None:
+        self.settings = settings
+        self.lock = PriorityLock()
+        self.is_serial = isinstance(settings, SerialSettings)
+        # retries=0: retrying is DeviceChannel's decision (reads only, never writes).
+        self._client: CheckedTcpClient | TimedSerialClient
+        if isinstance(settings, TcpSettings):
+            self._client = CheckedTcpClient(
+                settings.host, port=settings.port, timeout=settings.timeout_s, retries=0
+            )
+        else:
+            self._client = TimedSerialClient(
+                settings.port,
+                baudrate=settings.baudrate,
+                parity=settings.parity,
+                stopbits=settings.stopbits,
+                bytesize=settings.bytesize,
+                timeout=settings.timeout_s,
+                retries=0,
+            )
+        self._open = False
+
+    def describe(self) -> str:
+        return self.settings.describe()
+
+    @property
+    def is_open(self) -> bool:
+        return self._open
+
+    def open(self) -> None:
+        try:
+            ok = self._client.connect()
+        except (OSError, ModbusException) as err:
+            raise LinkDown(f"cannot open {self.describe()}: {err}") from err
+        if not ok:
+            raise LinkDown(f"cannot open {self.describe()}")
+        self._open = True
+
+    def close(self) -> None:
+        self._open = False
+        with suppress(OSError):
+            self._client.close()
+
+    def execute(self, unit_id: int, request: Request) -> Reply:
+        """One transaction; pymodbus errors come out as ``LinkError`` subclasses."""
+        if not self._open:
+            raise LinkDown(f"{self.describe()} is not open")
+        try:
+            response = self._send(unit_id, request)
+        except ConnectionException as err:
+            self.close()
+            raise LinkDown(f"connection to {self.describe()} lost: {err}") from err
+        except ReplyFrameError as err:  # our own checks: CRC, unit id, transaction id
+            raise FrameError(f"unit {unit_id}: mismatched reply: {err.string}") from err
+        except ModbusIOException as err:
+            if err.fcode is None:  # the framer's "unable to decode": a reply came
+                raise FrameError(f"unit {unit_id}: undecodable reply: {err.string}") from err
+            raise LinkTimeout(
+                f"unit {unit_id}: no reply within {self.settings.timeout_s} s"
+            ) from err
+        except ModbusException as err:
+            raise FrameError(f"unit {unit_id}: {err}") from err
+        except OSError as err:
+            self.close()
+            raise LinkDown(f"{self.describe()}: {err}") from err
+        if response is None:  # broadcast: no reply expected
+            return None
+        if response.isError():
+            raise DeviceException(
+                int(response.function_code) & 0x7F, int(getattr(response, "exception_code", 0))
+            )
+        if isinstance(request, ReadBits):
+            bits: list[bool] = response.bits[: request.count]  # pymodbus: already bools
+            return bits
+        if isinstance(request, ReadRegisters | ReadWriteRegisters):
+            registers: list[int] = response.registers  # pymodbus decodes them to ints
+            return registers
+        return None
+
+    def _send(self, unit_id: int, request: Request):  # type: ignore[no-untyped-def]
+        c = self._client
+        broadcast = unit_id == 0
+        match request:
+            case ReadRegisters(address, count, Table.HOLDING):
+                return c.read_holding_registers(address, count=count, device_id=unit_id)
+            case ReadRegisters(address, count, Table.INPUT):
+                return c.read_input_registers(address, count=count, device_id=unit_id)
+            case ReadBits(address, count, Table.COIL):
+                return c.read_coils(address, count=count, device_id=unit_id)
+            case ReadBits(address, count, Table.DISCRETE_INPUT):
+                return c.read_discrete_inputs(address, count=count, device_id=unit_id)
+            case WriteRegister(address, value):
+                return c.write_register(
+                    address, value, device_id=unit_id, no_response_expected=broadcast
+                )
+            case WriteRegisters(address, values):
+                return c.write_registers(
+                    address, list(values), device_id=unit_id, no_response_expected=broadcast
+                )
+            case WriteCoil(address, on):
+                return c.write_coil(address, on, device_id=unit_id, no_response_expected=broadcast)
+            case WriteCoils(address, values):
+                return c.write_coils(
+                    address, list(values), device_id=unit_id, no_response_expected=broadcast
+                )
+            case MaskWriteRegister(address, and_mask, or_mask):
+                return c.mask_write_register(
+                    address=address, and_mask=and_mask, or_mask=or_mask, device_id=unit_id
+                )
+            case ReadWriteRegisters(read_address, read_count, write_address, values):
+                return c.readwrite_registers(
+                    read_address=read_address,
+                    read_count=read_count,
+                    write_address=write_address,
+                    values=list(values),
+                    device_id=unit_id,
+                )
+        raise ValueError(f"unsupported request {request!r}")
