@@ -360,6 +360,12 @@ class BridgeNode(ParameterNode):
         msg.effort = [float(v) for v in effort]
         return msg
 
+    def stamped(self, msg: Any, wall_time: float) -> Any:
+        """``msg`` with its header stamped with ``wall_time`` and the node's frame_id."""
+        msg.header.stamp = self.stamp(wall_time)
+        msg.header.frame_id = self.frame_id
+        return msg
+
     @property
     def poll_rate_hz(self) -> float:
         return self.poller.rate_hz
@@ -652,6 +658,14 @@ class BusNode(ParameterNode):
             self.link.close()
 
 
+def copy_fields(msg: Any, source: Any, names: Iterable[str]) -> Any:
+    """Copy same-named fields from a snapshot into a message (tuples become lists)."""
+    for name in names:
+        value = getattr(source, name)
+        setattr(msg, name, list(value) if isinstance(value, tuple) else value)
+    return msg
+
+
 def _one_line(err: BaseException) -> str:
     return " ".join(str(err).split())
 
@@ -736,6 +750,7 @@ __all__ = [
     "Level",
     "ParameterNode",
     "Report",
+    "copy_fields",
     "interrupt_on_signals",
     "spin_node",
     "spin_nodes",

@@ -170,15 +170,21 @@ class ReplyCrcError(ReplyFrameError):
         super().__init__(f"reply failed the CRC check: {frame.hex(' ')}")
 
 
-class ReplyFromOtherUnit(ReplyFrameError):
-    """A reply came from another unit (device) id than the request was for."""
+class ReplyMismatch(ReplyFrameError):
+    """A reply that answers another request: a header field differs from the request's."""
+
+    field = "id"
 
     def __init__(self, expected: int, received: int) -> None:
         self.expected = expected
         self.received = received
-        super().__init__(
-            f"reply came from device id {received}, request was for device id {expected}"
-        )
+        super().__init__(f"reply has {self.field} {received}, request had {self.field} {expected}")
+
+
+class ReplyFromOtherUnit(ReplyMismatch):
+    """A reply came from another unit (device) id than the request was for."""
+
+    field = "device id"
 
 
 class TimedSerialClient(ModbusSerialClient):

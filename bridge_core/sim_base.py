@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import dataclasses
 import json
 import shutil
 import signal
@@ -34,7 +35,7 @@ from pymodbus.exceptions import NoSuchIdException
 from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 
 from .codec import Value, decode, encode
-from .registers import DeviceLimits, Register, RegisterMap, Table, ValueType
+from .registers import DeviceLimits, RegisterMap, Table, ValueType
 
 FUNCTION_TABLES: dict[int, Table] = {
     1: Table.COIL,
@@ -153,16 +154,7 @@ class SimulatedDevice:
     def set(self, name: str, value: Value) -> None:
         """Set a value as the device itself would (no write-range check, no log)."""
         reg = self.map[name]
-        unchecked = Register(
-            name=reg.name,
-            address=reg.address,
-            value_type=reg.value_type,
-            doc=reg.doc,
-            table=reg.table,
-            word_order=reg.word_order,
-            scale=reg.scale,
-            length=reg.length,
-        )
+        unchecked = dataclasses.replace(reg, minimum=None, maximum=None)
         self.set_words(reg.table, reg.address, encode(unchecked, value))
 
     def set_words(self, table: Table, address: int, values: Sequence[int]) -> None:

@@ -41,40 +41,20 @@ from typing import Any
 from pymodbus.client import ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
 
+from . import requests as rq
 from .channel import PriorityLock
 from .errors import DeviceException, FrameError, LinkDown, LinkTimeout
 from .registers import Table
-from .requests import (
-    MaskWriteRegister,
-    ReadBits,
-    ReadRegisters,
-    ReadWriteRegisters,
-    Reply,
-    Request,
-    WriteCoil,
-    WriteCoils,
-    WriteRegister,
-    WriteRegisters,
-)
-from .serial_timing import ReplyFrameError, ReplyFromOtherUnit, TimedSerialClient
+from .requests import Reply, Request
+from .serial_timing import ReplyFrameError, ReplyFromOtherUnit, ReplyMismatch, TimedSerialClient
 
 __all__ = [
     "CheckedTcpClient",
     "LinkSettings",
-    "MaskWriteRegister",
     "ModbusLink",
-    "ReadBits",
-    "ReadRegisters",
-    "ReadWriteRegisters",
-    "Reply",
     "ReplyFromOtherTransaction",
-    "Request",
     "SerialSettings",
     "TcpSettings",
-    "WriteCoil",
-    "WriteCoils",
-    "WriteRegister",
-    "WriteRegisters",
 ]
 
 # pymodbus logs every refused connect and timeout on its own (and repeats itself); the
@@ -119,15 +99,10 @@ MBAP_TID = slice(0, 2)
 MBAP_UNIT = 6
 
 
-class ReplyFromOtherTransaction(ReplyFrameError):
+class ReplyFromOtherTransaction(ReplyMismatch):
     """A TCP reply carried another transaction id than the request (a stale or foreign reply)."""
 
-    def __init__(self, expected: int, received: int) -> None:
-        self.expected = expected
-        self.received = received
-        super().__init__(
-            f"reply has transaction id {received}, request had transaction id {expected}"
-        )
+    field = "transaction id"
 
 
 class CheckedTcpClient(ModbusTcpClient):
@@ -246,10 +221,10 @@ class ModbusLink:
             raise DeviceException(
                 int(response.function_code) & 0x7F, int(getattr(response, "exception_code", 0))
             )
-        if isinstance(request, ReadBits):
+        if isinstance(request, rq.ReadBits):
             bits: list[bool] = response.bits[: request.count]  # pymodbus: already bools
             return bits
-        if isinstance(request, ReadRegisters | ReadWriteRegisters):
+        if isinstance(request, rq.ReadRegisters | rq.ReadWriteRegisters):
             registers: list[int] = response.registers  # pymodbus decodes them to ints
             return registers
         return None
@@ -258,33 +233,33 @@ class ModbusLink:
         c = self._client
         broadcast = unit_id == 0
         match request:
-            case ReadRegisters(address, count, Table.HOLDING):
+            case rq.ReadRegisters(address, count, Table.HOLDING):
                 return c.read_holding_registers(address, count=count, device_id=unit_id)
-            case ReadRegisters(address, count, Table.INPUT):
+            case rq.ReadRegisters(address, count, Table.INPUT):
                 return c.read_input_registers(address, count=count, device_id=unit_id)
-            case ReadBits(address, count, Table.COIL):
+            case rq.ReadBits(address, count, Table.COIL):
                 return c.read_coils(address, count=count, device_id=unit_id)
-            case ReadBits(address, count, Table.DISCRETE_INPUT):
+            case rq.ReadBits(address, count, Table.DISCRETE_INPUT):
                 return c.read_discrete_inputs(address, count=count, device_id=unit_id)
-            case WriteRegister(address, value):
+            case rq.WriteRegister(address, value):
                 return c.write_register(
                     address, value, device_id=unit_id, no_response_expected=broadcast
                 )
-            case WriteRegisters(address, values):
+            case rq.WriteRegisters(address, values):
                 return c.write_registers(
                     address, list(values), device_id=unit_id, no_response_expected=broadcast
                 )
-            case WriteCoil(address, on):
+            case rq.WriteCoil(address, on):
                 return c.write_coil(address, on, device_id=unit_id, no_response_expected=broadcast)
-            case WriteCoils(address, values):
+            case rq.WriteCoils(address, values):
                 return c.write_coils(
                     address, list(values), device_id=unit_id, no_response_expected=broadcast
                 )
-            case MaskWriteRegister(address, and_mask, or_mask):
+            case rq.MaskWriteRegister(address, and_mask, or_mask):
                 return c.mask_write_register(
                     address=address, and_mask=and_mask, or_mask=or_mask, device_id=unit_id
                 )
-            case ReadWriteRegisters(read_address, read_count, write_address, values):
+            case rq.ReadWriteRegisters(read_address, read_count, write_address, values):
                 return c.readwrite_registers(
                     read_address=read_address,
                     read_count=read_count,

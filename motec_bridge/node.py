@@ -39,7 +39,7 @@ from bridge_core.channel import DeviceChannel
 from bridge_core.checks import board_zero_index
 from bridge_core.diagnostics import Level, Report
 from bridge_core.errors import CommandRejected, ConfigurationError, DeviceException, LinkError
-from bridge_core.node_base import BridgeNode, BusNode, spin_nodes
+from bridge_core.node_base import BridgeNode, BusNode, copy_fields, spin_nodes
 from bridge_core.parameters import ParameterSpec
 from bridge_core.transport import ModbusLink
 from msg_defs.msg import MotecState
@@ -70,6 +70,25 @@ BUS_NODE_NAME = "motec_bridge"
 DEFAULT_POLL_RATE_HZ = 10.0  # per drive; a poll is 4 reads (~15-25 ms at 115200 baud)
 DEFAULT_TIMEOUT_S = 0.1  # a reply is a few ms at 115200: a dead drive costs little bus time
 LIFEGUARD_CHECK_S = 0.05  # feed check period when the drive armed its lifeguard itself
+
+
+# MotecState fields copied as they are from the snapshot and its configuration.
+STATE_FIELDS = (
+    "motion_mode",
+    "target_distance",
+    "fault_code",
+    "position_setpoint",
+    "position_actual",
+    "speed_setpoint_rpm",
+    "speed_actual_rpm",
+    "moving",
+    "inputs",
+    "outputs",
+    "input_word",
+    "output_word",
+    "analog_input",
+)
+CONFIG_FIELDS = ("analog_max_speed_rpm", "lifeguard_time_ms", "lifeguard_mode", "lifeguard_armed")
 
 
 def drive_node_name(unit_id: int) -> str:
@@ -191,33 +210,15 @@ class MotecDriveNode(BridgeNode):
                 [self.scale.velocity(s.speed_actual_rpm)],
             )
         )
-        m = MotecState()
-        m.header.stamp = self.stamp(s.read_time)
-        m.header.frame_id = self.frame_id
+        m = copy_fields(self.stamped(MotecState(), s.read_time), s, STATE_FIELDS)
+        copy_fields(m, s.config, CONFIG_FIELDS)
         m.unit_id = self.unit_id
         m.operation_mode = s.modes.operation_mode
         m.operation_mode_name = operation_mode_name(s.modes.operation_mode)
         m.control_mode = s.modes.control_mode
         m.control_mode_name = control_mode_name(s.modes.control_mode)
         m.enabled = s.modes.enabled
-        m.motion_mode = s.motion_mode
-        m.target_distance = s.target_distance
-        m.fault_code = s.fault_code
         m.fault_text = fault_text(s.fault_code)
-        m.position_setpoint = s.position_setpoint
-        m.position_actual = s.position_actual
-        m.speed_setpoint_rpm = s.speed_setpoint_rpm
-        m.speed_actual_rpm = s.speed_actual_rpm
-        m.moving = s.moving
-        m.inputs = list(s.inputs)
-        m.outputs = list(s.outputs)
-        m.input_word = s.input_word
-        m.output_word = s.output_word
-        m.analog_input = s.analog_input
-        m.analog_max_speed_rpm = s.config.analog_max_speed_rpm
-        m.lifeguard_time_ms = s.config.lifeguard_time_ms
-        m.lifeguard_mode = s.config.lifeguard_mode
-        m.lifeguard_armed = s.config.lifeguard_armed
         self.state_pub.publish(m)
 
     def lifeguard_time_ms(self) -> int:

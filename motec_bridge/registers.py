@@ -84,6 +84,8 @@ decisions):
 
 from __future__ import annotations
 
+import functools
+
 from bridge_core.registers import (
     Access,
     DeviceLimits,
@@ -133,29 +135,9 @@ I16_MAX = (1 << 15) - 1
 U16_MAX = 0xFFFF
 
 
-def _reg(
-    name: str,
-    address: int,
-    value_type: ValueType,
-    doc: str,
-    *,
-    access: Access = R,
-    unit: str = "",
-    minimum: float | None = None,
-    maximum: float | None = None,
-    description: str = "",
-) -> Register:
-    return Register(
-        name=name,
-        address=address,
-        value_type=value_type,
-        doc=doc,
-        access=access,
-        unit=unit,
-        minimum=minimum,
-        maximum=maximum,
-        description=description,
-    )
+# A MOTEC register: (name, address, value type, manual reference, ...), read-only unless
+# said otherwise; 32-bit values high word first (the Register default, decision 2).
+_reg = functools.partial(Register, access=R)
 
 
 def _build() -> tuple[Register, ...]:

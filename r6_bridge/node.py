@@ -10,7 +10,7 @@ from geometry_msgs.msg import PoseStamped
 
 from bridge_core.diagnostics import Level, Report
 from bridge_core.errors import DeviceException, FrameError
-from bridge_core.node_base import BridgeNode, spin_node
+from bridge_core.node_base import BridgeNode, copy_fields, spin_node
 from bridge_core.parameters import ParameterSpec, padded
 from bridge_core.units import DEG, MM, RPM_TO_RAD_S, euler_xyz_deg_to_quaternion
 from msg_defs.msg import R6State
@@ -25,6 +25,23 @@ from msg_defs.srv import (
 
 from .device import R6Device, R6Snapshot
 from .registers import COMMANDS, MAX_AXES
+
+# R6State fields copied as they are from the snapshot (same names, same units).
+STATE_FIELDS = (
+    "mode",
+    "mode_name",
+    "alarm_code",
+    "moving",
+    "homed",
+    "global_speed_percent",
+    "current_cycle_time_ms",
+    "last_cycle_time_ms",
+    "machine_id",
+    "axis_count",
+    "io_board_count",
+    "io_board_inputs",
+    "io_board_outputs",
+)
 
 
 class R6BridgeNode(BridgeNode):
@@ -95,28 +112,10 @@ class R6BridgeNode(BridgeNode):
                 [t * self.rated_torques[a] for a, t in enumerate(snapshot.axis_torques_rated)],
             )
         )
-        stamp = self.stamp(snapshot.read_time)
-        state = R6State()
-        state.header.stamp = stamp
-        state.header.frame_id = self.frame_id
-        state.mode = snapshot.mode
-        state.mode_name = snapshot.mode_name
-        state.alarm_code = snapshot.alarm_code
-        state.moving = snapshot.moving
-        state.homed = snapshot.homed
-        state.global_speed_percent = snapshot.global_speed_percent
-        state.current_cycle_time_ms = snapshot.current_cycle_time_ms
-        state.last_cycle_time_ms = snapshot.last_cycle_time_ms
-        state.machine_id = snapshot.machine_id
-        state.axis_count = snapshot.axis_count
-        state.io_board_count = snapshot.io_board_count
-        state.io_board_inputs = list(snapshot.io_board_inputs)
-        state.io_board_outputs = list(snapshot.io_board_outputs)
+        state = copy_fields(self.stamped(R6State(), snapshot.read_time), snapshot, STATE_FIELDS)
         self.state_pub.publish(state)
 
-        pose = PoseStamped()
-        pose.header.stamp = stamp
-        pose.header.frame_id = self.frame_id
+        pose = self.stamped(PoseStamped(), snapshot.read_time)
         world = snapshot.world
         pose.pose.position.x = world["x"] * MM
         pose.pose.position.y = world["y"] * MM

@@ -24,7 +24,7 @@ from std_srvs.srv import SetBool
 from bridge_core.checks import board_zero_index
 from bridge_core.diagnostics import Level, Report
 from bridge_core.errors import CommandRejected, ConfigurationError
-from bridge_core.node_base import BridgeNode, spin_node
+from bridge_core.node_base import BridgeNode, copy_fields, spin_node
 from bridge_core.parameters import ParameterSpec, padded
 from msg_defs.msg import StepperState
 from msg_defs.srv import (
@@ -56,6 +56,23 @@ from .registers import (
 )
 
 DEFAULT_POLL_RATE_HZ = 3.0  # a poll takes ~0.29 s at 9600 baud (README)
+
+
+# StepperState fields copied from the snapshot, and per-motor configuration fields.
+STATE_FIELDS = ("running", "coordinates", "inputs", "outputs")
+MOTOR_FIELDS = (
+    "step_angle_deg",
+    "microstep",
+    "start_frequency_hz",
+    "accel_frequency_hz",
+    "direction",
+    "speed_rpm",
+    "lead",
+    "run_distance",
+    "positive_limit_input",
+    "negative_limit_input",
+    "home_input",
+)
 
 
 class StepperBridgeNode(BridgeNode):
@@ -141,26 +158,10 @@ class StepperBridgeNode(BridgeNode):
         motors = s.config.motors
         positions = [self.scales[k].to_si(s.coordinates[k], motors[k].lead) for k in range(MOTORS)]
         self.joint_states_pub.publish(self.joint_state(s.read_time, self.joint_names, positions))
-        m = StepperState()
-        m.header.stamp = self.stamp(s.read_time)
-        m.header.frame_id = self.frame_id
-        m.system_mode = s.config.system_mode
-        m.running = list(s.running)
-        m.coordinates = list(s.coordinates)
-        m.inputs = list(s.inputs)
-        m.outputs = list(s.outputs)
-        m.step_angle_deg = [c.step_angle_deg for c in motors]
-        m.microstep = [c.microstep for c in motors]
-        m.start_frequency_hz = [c.start_frequency_hz for c in motors]
-        m.accel_frequency_hz = [c.accel_frequency_hz for c in motors]
-        m.direction = [c.direction for c in motors]
-        m.speed_rpm = [c.speed_rpm for c in motors]
-        m.lead = [c.lead for c in motors]
-        m.run_distance = [c.run_distance for c in motors]
-        m.positive_limit_input = [c.positive_limit_input for c in motors]
-        m.negative_limit_input = [c.negative_limit_input for c in motors]
-        m.home_input = [c.home_input for c in motors]
-        m.homing_order = list(s.config.homing_order)
+        m = copy_fields(self.stamped(StepperState(), s.read_time), s, STATE_FIELDS)
+        copy_fields(m, s.config, ("system_mode", "homing_order"))
+        for name in MOTOR_FIELDS:  # one list per field, an item per motor
+            setattr(m, name, [getattr(c, name) for c in motors])
         self.state_pub.publish(m)
 
     def device_report(self) -> Report | None:

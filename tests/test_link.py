@@ -25,11 +25,13 @@ from bridge_core.registers import (
     ValueType,
     register_array,
 )
+from bridge_core.requests import (
+    ReadRegisters,
+)
 from bridge_core.serial_timing import ReplyCrcError, ReplyFromOtherUnit
 from bridge_core.sim_base import SimulatedDevice, Simulator
 from bridge_core.transport import (
     ModbusLink,
-    ReadRegisters,
     ReplyFromOtherTransaction,
     SerialSettings,
     TcpSettings,

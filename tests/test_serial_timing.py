@@ -41,6 +41,14 @@ from bridge_core.registers import (
     ValueType,
     register_array,
 )
+from bridge_core.requests import (
+    MaskWriteRegister,
+    ReadBits,
+    ReadRegisters,
+    ReadWriteRegisters,
+    WriteCoil,
+    WriteCoils,
+)
 from bridge_core.serial_timing import (
     BROADCAST_TURNAROUND_S,
     TimedSerialClient,
@@ -50,14 +58,8 @@ from bridge_core.serial_timing import (
 )
 from bridge_core.sim_base import SimulatedDevice, Simulator
 from bridge_core.transport import (
-    MaskWriteRegister,
     ModbusLink,
-    ReadBits,
-    ReadRegisters,
-    ReadWriteRegisters,
     SerialSettings,
-    WriteCoil,
-    WriteCoils,
 )
 
 FRAMER = FramerRTU(DecodePDU(False))

@@ -11,7 +11,7 @@ from std_srvs.srv import SetBool, Trigger
 
 from bridge_core.checks import board_zero_index
 from bridge_core.diagnostics import Level, Report
-from bridge_core.node_base import BridgeNode, spin_node
+from bridge_core.node_base import BridgeNode, copy_fields, spin_node
 from bridge_core.units import DEG, MM, euler_xyz_deg_to_quaternion
 from msg_defs.msg import XArmState
 from msg_defs.srv import RunOfflineTask, SetChannelValue, SetInteger, SetOutput
@@ -23,6 +23,30 @@ from .registers import JOINTS, WORLD
 def _pose6(values: dict[str, float]) -> list[float]:
     """x y z (mm) roll pitch yaw (deg) -> m and rad."""
     return [values[a] * (MM if k < 3 else DEG) for k, a in enumerate(WORLD)]
+
+
+# XArmState fields copied as they are from the snapshot (same names, same units).
+STATE_FIELDS = (
+    "mode",
+    "state",
+    "error_code",
+    "warning_code",
+    "brakes",
+    "enabled",
+    "reduced_mode",
+    "fence_mode",
+    "paused",
+    "stopped",
+    "motion_modes",
+    "counter",
+    "digital_inputs",
+    "digital_outputs",
+    "tool_digital_inputs",
+    "tool_digital_outputs",
+    "analog_inputs",
+    "tool_analog_inputs",
+    "analog_outputs",
+)
 
 
 class XArmBridgeNode(BridgeNode):
@@ -55,10 +79,7 @@ class XArmBridgeNode(BridgeNode):
                 [v * DEG for v in s.joint_speeds_deg_s],
             )
         )
-        stamp = self.stamp(s.read_time)
-        pose = PoseStamped()
-        pose.header.stamp = stamp
-        pose.header.frame_id = self.frame_id
+        pose = self.stamped(PoseStamped(), s.read_time)
         p = s.tcp_pose
         pose.pose.position.x, pose.pose.position.y, pose.pose.position.z = (
             p["x"] * MM,
@@ -69,28 +90,12 @@ class XArmBridgeNode(BridgeNode):
         o.x, o.y, o.z, o.w = euler_xyz_deg_to_quaternion(p["roll"], p["pitch"], p["yaw"])
         self.pose_pub.publish(pose)
 
-        m = XArmState()
-        m.header.stamp = stamp
-        m.header.frame_id = self.frame_id
-        m.mode, m.state, m.state_name = s.mode, s.state, state_name(s.state)
-        m.error_code, m.error_text = s.error_code, error_text(s.error_code)
-        m.warning_code, m.warning_text = s.warning_code, warning_text(s.warning_code)
-        m.brakes, m.enabled = list(s.brakes), list(s.enabled)
-        m.reduced_mode, m.fence_mode, m.paused, m.stopped = (
-            s.reduced_mode,
-            s.fence_mode,
-            s.paused,
-            s.stopped,
-        )
-        m.motion_modes = list(s.motion_modes)
+        m = copy_fields(self.stamped(XArmState(), s.read_time), s, STATE_FIELDS)
+        m.state_name = state_name(s.state)
+        m.error_text = error_text(s.error_code)
+        m.warning_text = warning_text(s.warning_code)
         m.joint_temperatures = list(s.joint_temperatures_c)
         m.tcp_speed = s.tcp_speed_mm_s * MM
-        m.counter = s.counter
-        m.digital_inputs, m.digital_outputs = list(s.digital_inputs), list(s.digital_outputs)
-        m.tool_digital_inputs = list(s.tool_digital_inputs)
-        m.tool_digital_outputs = list(s.tool_digital_outputs)
-        m.analog_inputs, m.tool_analog_inputs = list(s.analog_inputs), list(s.tool_analog_inputs)
-        m.analog_outputs = list(s.analog_outputs)
         m.tcp_load_mass = s.tcp_load_mass_kg
         m.tcp_load_center = [c * MM for c in s.tcp_load_center_mm]
         m.tcp_offset = _pose6(s.tcp_offset)
