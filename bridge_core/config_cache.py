@@ -12,9 +12,11 @@ import math
 import time
 from collections.abc import Callable, Sequence
 
-from .channel import Priority
+from .channel import Priority, RegisterIO
 from .codec import Value
+from .errors import CommandRejected
 from .planner import ReadRequest
+from .poller import read_blocks
 
 ReadFunction = Callable[[ReadRequest, Priority], dict[str, Value]]
 
@@ -66,3 +68,51 @@ class ConfigCache:
     def note_written(self, name: str, value: Value) -> None:
         if name in self.values:
             self.values[name] = value
+
+
+class ConfiguredDevice:
+    """Base of a device model whose configuration is cached (stepper, MOTEC).
+
+    Reads go through ``read_request`` (bit or register table); ``poll_status`` reads the
+    status plan stamped by its position block, after reading the configuration whole when
+    it is missing and before one refresh request when one is due.
+    """
+
+    def __init__(
+        self,
+        io: RegisterIO,
+        config_plan: Sequence[ReadRequest],
+        refresh_s: float,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.io = io
+        self._cache = ConfigCache(config_plan, self.read_request, refresh_s, clock)
+
+    def read_request(self, request: ReadRequest, priority: Priority) -> dict[str, Value]:
+        return read_blocks(self.io, (request,), priority)[0]
+
+    def read_whole_config(self, priority: Priority = Priority.POLL) -> None:
+        self._cache.read_all(priority)
+
+    @property
+    def has_config(self) -> bool:
+        return self._cache.complete
+
+    def cached(self, what: str) -> dict[str, Value]:
+        """The cached configuration values; refused until they were read."""
+        if not self.has_config:
+            raise CommandRejected(f"the {what}'s configuration has not been read yet")
+        return self._cache.values
+
+    def forget_config(self) -> None:
+        """The device may have changed (reconnect): the next poll reads it whole first."""
+        self._cache.clear()
+
+    def poll_status(
+        self, plan: Sequence[ReadRequest], stamp_register: str
+    ) -> tuple[dict[str, Value], float]:
+        if not self.has_config:
+            self.read_whole_config()
+        values, read_time = read_blocks(self.io, plan, Priority.POLL, stamp_register)
+        self._cache.refresh_step()  # one configuration request while a refresh is due
+        return values, read_time

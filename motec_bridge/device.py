@@ -43,10 +43,10 @@ from bridge_core.checks import (
     check_whole_number,
 )
 from bridge_core.codec import Value, encode
-from bridge_core.config_cache import ConfigCache
+from bridge_core.config_cache import ConfiguredDevice
 from bridge_core.errors import CommandRejected
-from bridge_core.planner import ReadRequest, decode_reply, plan_reads
-from bridge_core.poller import read_blocks, read_named
+from bridge_core.planner import ReadRequest, plan_reads
+from bridge_core.poller import read_named
 from bridge_core.stream_guard import StreamGuard
 
 from .registers import (
@@ -224,7 +224,7 @@ class DriveScale:
 # ---------------------------------------------------------------- the device
 
 
-class MotecDevice:
+class MotecDevice(ConfiguredDevice):
     """One MOTEC β drive behind one Modbus channel (one unit id on the shared bus)."""
 
     def __init__(
@@ -238,10 +238,9 @@ class MotecDevice:
     ) -> None:
         if not 1 <= max_speed_rpm <= SPEED_LIMIT_RPM:
             raise ValueError(f"max_speed_rpm {max_speed_rpm} outside 1..{SPEED_LIMIT_RPM}")
-        self.io = io
         self.max_speed_rpm = max_speed_rpm
         self._clock = clock
-        self._cache = ConfigCache(CONFIG_PLAN, self._read, config_refresh_s, clock)
+        super().__init__(io, CONFIG_PLAN, config_refresh_s, clock)
         # cmd_velocity: one stream (this drive). A 0 ends only the stream's own motion:
         # 0xAE is also a position move's speed limit (README "MOTEC decisions").
         self.stream: StreamGuard[int] = StreamGuard(
@@ -255,33 +254,20 @@ class MotecDevice:
         self.last_write = -math.inf  # clock() of the last successful write
 
     # ------------------------------------------------------------------ reads
-    def _read(self, request: ReadRequest, priority: Priority) -> dict[str, Value]:
-        if request.table.is_bit:
-            bits = self.io.read_bits(request.address, request.count, request.table, priority)
-            return decode_reply(request, bits)
-        words = self.io.read_registers(request.address, request.count, request.table, priority)
-        return decode_reply(request, words)
-
     def read_config(self, priority: Priority = Priority.POLL) -> MotecConfig:
-        self._cache.read_all(priority)
+        self.read_whole_config(priority)
         return self.config
 
     def invalidate_config(self) -> None:
         """Forget the configuration (link came up): the next poll reads it first."""
-        self._cache.clear()
+        self.forget_config()
         # A stream that was running stays "active" so the node's deadman stops it once
         # the link is back; the speed the drive holds is unknown.
         self.stream.forget_values()
 
     @property
-    def has_config(self) -> bool:
-        return self._cache.complete
-
-    @property
     def config(self) -> MotecConfig:
-        if not self.has_config:
-            raise CommandRejected("the drive's configuration has not been read yet")
-        v = self._cache.values
+        v = self.cached("drive")
         return MotecConfig(
             analog_max_speed_rpm=int(v["analog_max_speed"]),
             lifeguard_time_ms=int(v["lifeguard_time"]),
@@ -292,7 +278,7 @@ class MotecDevice:
         """0x24-0x29 now, at command priority (one FC 03)."""
         v: dict[str, Value] = {}
         for request in MODE_PLAN:
-            v.update(self._read(request, Priority.COMMAND))
+            v.update(self.read_request(request, Priority.COMMAND))
         return Modes(int(v["operation_mode"]), int(v["control_mode"]), bool(v["enable"]))
 
     def read_named(self, *names: str) -> dict[str, Value]:
@@ -309,10 +295,7 @@ class MotecDevice:
         return tuple(bool(values[f"input_{n}"]) for n in range(1, INPUTS + 1))
 
     def poll(self) -> MotecSnapshot:
-        if not self.has_config:
-            self.read_config()
-        v, read_time = read_blocks(self.io, STATUS_PLAN, Priority.POLL, STAMP_REGISTER)
-        self._cache.refresh_step()  # one configuration request while a refresh is due
+        v, read_time = self.poll_status(STATUS_PLAN, STAMP_REGISTER)
         return MotecSnapshot(
             read_time=read_time,
             modes=Modes(int(v["operation_mode"]), int(v["control_mode"]), bool(v["enable"])),

@@ -36,10 +36,10 @@ from bridge_core.checks import (
     check_whole_number,
 )
 from bridge_core.codec import Value, decode, encode
-from bridge_core.config_cache import ConfigCache
+from bridge_core.config_cache import ConfiguredDevice
 from bridge_core.errors import CommandRejected, LinkError
-from bridge_core.planner import ReadRequest, decode_reply, plan_reads
-from bridge_core.poller import read_blocks, read_named
+from bridge_core.planner import ReadRequest, plan_reads
+from bridge_core.poller import read_named
 from bridge_core.registers import Register
 from bridge_core.stream_guard import StreamGuard
 
@@ -179,7 +179,7 @@ class JointScale:
 # ---------------------------------------------------------------- the device
 
 
-class StepperDevice:
+class StepperDevice(ConfiguredDevice):
     """The stepper controller behind one Modbus channel."""
 
     def __init__(
@@ -190,8 +190,7 @@ class StepperDevice:
         jog_timeout_s: float = DEFAULT_JOG_TIMEOUT_S,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
-        self.io = io
-        self._cache = ConfigCache(CONFIG_PLAN, self._read, config_refresh_s, clock)
+        super().__init__(io, CONFIG_PLAN, config_refresh_s, clock)
         # The jog streams (one per motor) and the direction coil each motor was last sent
         # by a jog: +1 forward, -1 reverse, 0 stopped, None unknown (a write was lost).
         self.jogs: StreamGuard[int] = StreamGuard(
@@ -205,15 +204,9 @@ class StepperDevice:
         self._direction: dict[int, int | None] = dict.fromkeys(range(1, MOTORS + 1), 0)
 
     # ------------------------------------------------------------------ reads
-    def _read(self, request: ReadRequest, priority: Priority) -> dict[str, Value]:
-        words = self.io.read_registers(
-            request.address, request.count, request.table, priority=priority
-        )
-        return decode_reply(request, words)
-
     def read_config(self, priority: Priority = Priority.POLL) -> StepperConfig:
         """Read the whole configuration (on link up, and whenever asked)."""
-        self._cache.read_all(priority)
+        self.read_whole_config(priority)
         return self.config
 
     def read_named(self, *names: str) -> dict[str, Value]:
@@ -221,20 +214,14 @@ class StepperDevice:
 
     def invalidate_config(self) -> None:
         """Forget the cached configuration: the next poll reads it whole first."""
-        self._cache.clear()
+        self.forget_config()
         # The speed register may have changed; a jog that was running is still "jogging"
         # so that the node's deadman stops it once the link is back.
         self.jogs.forget_values()
 
     @property
-    def has_config(self) -> bool:
-        return self._cache.complete
-
-    @property
     def config(self) -> StepperConfig:
-        if not self.has_config:
-            raise CommandRejected("the controller's configuration has not been read yet")
-        v = self._cache.values
+        v = self.cached("controller")
 
         def i(name: str) -> int:
             return int(v[name])
@@ -267,10 +254,7 @@ class StepperDevice:
         return self.config.motors[motor - 1].lead
 
     def poll(self) -> StepperSnapshot:
-        if not self.has_config:
-            self.read_config()
-        v, read_time = read_blocks(self.io, STATUS_PLAN, Priority.POLL, STAMP_REGISTER)
-        self._cache.refresh_step()  # one configuration request while a refresh is due
+        v, read_time = self.poll_status(STATUS_PLAN, STAMP_REGISTER)
         return StepperSnapshot(
             read_time=read_time,
             coordinates=tuple(
