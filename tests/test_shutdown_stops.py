@@ -1,9 +1,9 @@
 """Every motion the bridge starts, the bridge stops: also when it is told to exit.
 
 The stepper has no watchdog of its own: a jogging motor runs until a stop coil or a limit
-switch. The bridge process gets SIGINT (Ctrl-C) or SIGTERM while motor 1 jogs with a
-deadman far longer than the test; the simulator's write log must end with motor 1's stop
-coil and the motor must stand still.
+switch; a MOTEC drive without its lifeguard keeps the last speed. The bridge process gets
+SIGINT (Ctrl-C) or SIGTERM while a motor moves under a stream whose deadman is far longer
+than the test; the writes after the signal must be exactly the stop.
 """
 
 from __future__ import annotations
@@ -14,9 +14,12 @@ from pathlib import Path
 
 import pytest
 from std_msgs.msg import Float64
+from std_srvs.srv import SetBool
 
 from bridge_core.registers import Table
-from msg_defs.msg import StepperState
+from motec_bridge.sim import make_simulator as make_motec_simulator
+from msg_defs.msg import MotecState, StepperState
+from msg_defs.srv import SetControlMode
 from stepper_bridge.registers import motor_coil
 from stepper_bridge.sim import StepperSimDevice, make_simulator
 
@@ -75,3 +78,52 @@ def test_exit_stops_a_jogging_motor(
         late = [(r.table, r.address) for r in device.write_log[writes_before:]]
         assert late == [(Table.COIL, stop_coil)]
         assert device.motion[1] is None  # the simulated motor stands still
+
+
+@pytest.mark.parametrize("signal_number", [signal.SIGINT, signal.SIGTERM], ids=["int", "term"])
+def test_exit_zeroes_a_motec_velocity_stream(
+    client: Client, tmp_path: Path, signal_number: int
+) -> None:
+    """MOTEC in velocity control with no lifeguard (the default): the drive would keep
+    turning at the last speed; the bridge writes 0xAE = 0 on its way out."""
+    simulator = make_motec_simulator([1])
+    with socat_pair() as (bridge_end, device_end, _):
+        simulator.start_serial(device_end, BAUD)
+        drive = simulator.drive(1)
+        try:
+            namespace = f"/shutdown_motec_{signal_number}"
+            params = {
+                "serial_port": bridge_end,
+                "baudrate": BAUD,
+                "unit_ids": [1],
+                "poll_rate_hz": 20.0,
+                "timeout_s": 1.0,
+                "command_timeout_s": 60.0,
+            }
+            state = f"{namespace}/motec_1/state"
+            client.subscribe(MotecState, state)
+            with node_process(
+                "motec_bridge.node", params, tmp_path, ["-r", f"__ns:={namespace}"]
+            ) as proc:
+                client.wait_message(state, timeout=30)
+                for name, srv, fields in (
+                    ("set_control_mode", SetControlMode, {"mode": SetControlMode.Request.VELOCITY}),
+                    ("enable", SetBool, {"data": True}),
+                ):
+                    request = srv.Request()
+                    for key, value in fields.items():
+                        setattr(request, key, value)
+                    reply = client.call(srv, f"{namespace}/motec_1/{name}", request, timeout=30)
+                    assert reply.success, reply.message
+                pub = client.node.create_publisher(Float64, f"{namespace}/motec_1/cmd_velocity", 10)
+                wait_for(lambda: pub.get_subscription_count() > 0, 30, "cmd_velocity")
+                pub.publish(Float64(data=10.0))  # rad/s: ~95 rpm
+                client.wait_message(state, lambda m: m.speed_actual_rpm > 50, timeout=30)
+                writes_before = len(drive.write_log)
+                proc.send_signal(signal_number)
+                assert proc.wait(EXIT_TIMEOUT_S) == 0
+                late = [(r.address, r.values) for r in drive.write_log[writes_before:]]
+                assert late == [(0xAE, (0,))]
+                client.node.destroy_publisher(pub)
+        finally:
+            simulator.stop()
