@@ -99,6 +99,56 @@ def read_write_log(path: Path) -> list[WriteRecord]:
     return [WriteRecord.from_json(line) for line in path.read_text().splitlines() if line]
 
 
+@dataclass(frozen=True)
+class ReadRecord:
+    """One read request as the device handled it (``time``: wall clock when its values
+    were taken), refused ones included; tests order a node's stamps against these."""
+
+    time: float
+    unit_id: int
+    function_code: int
+    table: Table
+    address: int
+    count: int
+
+    def covers(self, table: Table, address: int) -> bool:
+        return self.table is table and self.address <= address < self.address + self.count
+
+    def to_json(self) -> str:
+        return json.dumps(
+            {
+                "time": self.time,
+                "unit_id": self.unit_id,
+                "function_code": self.function_code,
+                "table": self.table.value,
+                "address": self.address,
+                "count": self.count,
+            }
+        )
+
+    @classmethod
+    def from_json(cls, line: str) -> ReadRecord:
+        data = json.loads(line)
+        return cls(
+            time=data["time"],
+            unit_id=data["unit_id"],
+            function_code=data["function_code"],
+            table=Table(data["table"]),
+            address=data["address"],
+            count=data["count"],
+        )
+
+
+def read_read_log(path: Path) -> list[ReadRecord]:
+    """The records of a ``--read-log`` file (complete lines only: the simulator may be
+    writing the next one)."""
+    if not path.exists():
+        return []
+    text = path.read_text()
+    lines = text.splitlines() if text.endswith("\n") else text.splitlines()[:-1]
+    return [ReadRecord.from_json(line) for line in lines if line]
+
+
 # A hook sees a write before it lands and may refuse it with an exception code.
 WriteGuard = Callable[[WriteRecord], int | None]
 WriteHook = Callable[[WriteRecord], None]
@@ -142,6 +192,11 @@ class SimulatedDevice:
         self.write_guards: list[WriteGuard] = []
         self.write_hooks: list[WriteHook] = []
         self.log_file: IO[str] | None = None
+        # Read log, off by default (one record per read request when on): ``read_log``
+        # in memory while ``log_reads`` is set, and/or JSON lines to ``read_log_file``.
+        self.log_reads = False
+        self.read_log: list[ReadRecord] = []
+        self.read_log_file: IO[str] | None = None
         # Fault injection: address ranges that answer with a given exception code.
         self.forced_exceptions: list[tuple[Table, range, int]] = []
 
@@ -198,6 +253,9 @@ class SimulatedDevice:
 
     def read(self, function_code: int, address: int, count: int) -> list[int] | int:
         table = FUNCTION_TABLES[function_code]
+        if self.log_reads or self.read_log_file is not None:
+            record = ReadRecord(time.time(), self.unit_id, function_code, table, address, count)
+            self._log_read(record)
         limit = self.limits.max_read_bits if table.is_bit else self.limits.max_read_registers
         if count > limit:
             return ILLEGAL_ADDRESS
@@ -206,6 +264,14 @@ class SimulatedDevice:
             if code is not None:
                 return code
             return [self.words[(table, address + i)] for i in range(count)]
+
+    def _log_read(self, record: ReadRecord) -> None:
+        with self.lock:
+            if self.log_reads:
+                self.read_log.append(record)
+            if self.read_log_file is not None:
+                self.read_log_file.write(record.to_json() + "\n")
+                self.read_log_file.flush()
 
     def write(self, function_code: int, address: int, values: Sequence[int]) -> int | None:
         table = FUNCTION_TABLES[function_code]
@@ -457,6 +523,26 @@ class PtyPair:
             self.proc.terminate()
             self.proc.wait(5)
         self._tmp.cleanup()
+
+
+def add_log_arguments(parser: argparse.ArgumentParser) -> None:
+    """The simulators' log options: accepted writes, and (off by default) read requests."""
+    parser.add_argument("--write-log", type=Path, help="append every accepted write (JSON lines)")
+    parser.add_argument(
+        "--read-log",
+        type=Path,
+        help="append every read request with the time it was handled (JSON lines)",
+    )
+
+
+def open_logs(args: argparse.Namespace, sim: Simulator) -> list[IO[str]]:
+    """Attach ``--write-log`` / ``--read-log`` files to every unit; the files to close."""
+    write_log = args.write_log.open("a") if args.write_log else None
+    read_log = args.read_log.open("a") if args.read_log else None
+    for device in sim.devices.values():
+        device.log_file = write_log
+        device.read_log_file = read_log
+    return [f for f in (write_log, read_log) if f is not None]
 
 
 def add_serial_arguments(

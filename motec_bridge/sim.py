@@ -40,7 +40,6 @@ import math
 import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 
 from bridge_core.codec import decode
 from bridge_core.registers import Table
@@ -51,7 +50,9 @@ from bridge_core.sim_base import (
     SimulatedDevice,
     Simulator,
     WriteRecord,
+    add_log_arguments,
     add_serial_arguments,
+    open_logs,
     serve_serial_until_signalled,
 )
 
@@ -421,7 +422,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument(
         "--fault", type=_fault, action="append", default=[], help="latch a fault: UNIT:CODE"
     )
-    parser.add_argument("--write-log", type=Path, help="append every accepted write (JSON lines)")
+    add_log_arguments(parser)
     args = parser.parse_args(argv)
     if args.reply_delay_ms < 0:
         parser.error("--reply-delay-ms must be >= 0")
@@ -438,9 +439,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         if unit not in sim.drives:
             parser.error(f"--fault: no drive {unit} on the bus")
         sim.drive(unit).inject_fault(code)
-    log = args.write_log.open("a") if args.write_log else None
-    for drive in sim.drives.values():
-        drive.log_file = log
+    logs = open_logs(args, sim)
     ids = ",".join(str(u) for u in args.unit_ids)
     try:
         serve_serial_until_signalled(
@@ -452,7 +451,7 @@ def main(argv: Sequence[str] | None = None) -> None:
             ),
         )
     finally:
-        if log is not None:
+        for log in logs:
             log.close()
 
 

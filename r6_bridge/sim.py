@@ -27,6 +27,8 @@ from bridge_core.sim_base import (
     SimulatedDevice,
     Simulator,
     WriteRecord,
+    add_log_arguments,
+    open_logs,
     serve_until_signalled,
 )
 
@@ -218,7 +220,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--running", action="store_true", help="start with the axes moving")
     parser.add_argument("--mode", type=int, default=2, help="1 manual, 2 auto, 3 configuration")
     parser.add_argument("--alarm", type=int, default=0, help="start with this alarm code")
-    parser.add_argument("--write-log", type=Path, help="append every accepted write (JSON lines)")
+    add_log_arguments(parser)
     parser.add_argument("--port-file", type=Path, help="write the bound port here once listening")
     args = parser.parse_args(argv)
     sim = make_simulator(args.axes, args.io_boards)
@@ -227,8 +229,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     device.set("mode", args.mode)
     device.set_alarm(args.alarm)
     device.running = args.running and not args.alarm
-    if args.write_log:
-        device.log_file = args.write_log.open("a")
+    open_logs(args, sim)
     port = sim.start_tcp(args.host, args.port)
     serve_until_signalled(sim, f"r6_sim listening on {args.host}:{port}", args.port_file)
 

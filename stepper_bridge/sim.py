@@ -38,7 +38,6 @@ import argparse
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
-from pathlib import Path
 
 from bridge_core.codec import decode
 from bridge_core.registers import Table
@@ -48,7 +47,9 @@ from bridge_core.sim_base import (
     SimulatedDevice,
     Simulator,
     WriteRecord,
+    add_log_arguments,
     add_serial_arguments,
+    open_logs,
     serve_serial_until_signalled,
 )
 
@@ -480,15 +481,14 @@ def main(argv: Sequence[str] | None = None) -> None:
         help="delay before every reply (manual: at least 35 ms on RS-485)",
     )
     parser.add_argument("--travel", type=float, default=TRAVEL, help="positive limit, units")
-    parser.add_argument("--write-log", type=Path, help="append every accepted write (JSON lines)")
+    add_log_arguments(parser)
     args = parser.parse_args(argv)
     if args.reply_delay_ms < 0:
         parser.error("--reply-delay-ms must be >= 0")
     sim = make_simulator(args.unit_id, args.reply_delay_ms / 1000.0, args.travel)
     device = sim.device
     assert isinstance(device, StepperSimDevice)
-    if args.write_log:
-        device.log_file = args.write_log.open("a")
+    open_logs(args, sim)
     serve_serial_until_signalled(
         sim,
         args,

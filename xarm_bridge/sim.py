@@ -26,6 +26,8 @@ from bridge_core.sim_base import (
     SimulatedDevice,
     Simulator,
     WriteRecord,
+    add_log_arguments,
+    open_logs,
     serve_until_signalled,
 )
 
@@ -211,15 +213,14 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--host", default="127.0.0.1")
     parser.add_argument("--port", type=int, default=5021, help="0 picks a free port")
     parser.add_argument("--error", type=int, default=0, help="start with this error code")
-    parser.add_argument("--write-log", type=Path, help="append every accepted write (JSON lines)")
+    add_log_arguments(parser)
     parser.add_argument("--port-file", type=Path, help="write the bound port here once listening")
     args = parser.parse_args(argv)
     sim = make_simulator()
     device = sim.device
     assert isinstance(device, XArmSimDevice)
     device.set_error(args.error)
-    if args.write_log:
-        device.log_file = args.write_log.open("a")
+    open_logs(args, sim)
     port = sim.start_tcp(args.host, args.port)
     serve_until_signalled(sim, f"xarm_sim listening on {args.host}:{port}", args.port_file)
 

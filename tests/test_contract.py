@@ -1,0 +1,503 @@
+"""The behaviour every bridge promises (DESIGN §2), checked once for all four bridges.
+
+Each test runs against the table in ``tests/support/bridges.py``: the simulator in its
+own process (write and read requests logged to files, SIGKILL-able), the node in
+another, an rclpy client here. Waits are on conditions; "nothing was written" is always
+acknowledged by a later round trip (a successful write that must be the only new one,
+or a reply that could only come after the refused call was handled).
+
+Tests 1, 3, 4 and 8 share one simulator + node per bridge (they restore what they
+change); the others start their own.
+"""
+
+from __future__ import annotations
+
+import importlib
+import itertools
+import json
+import re
+import statistics
+import subprocess
+import sys
+import time
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml  # type: ignore[import-untyped]
+from diagnostic_msgs.msg import DiagnosticArray
+from rcl_interfaces.srv import GetParameters, ListParameters, SetParameters
+from rclpy.node import NodeNameNonExistentError
+from rclpy.parameter import Parameter, parameter_value_to_python
+from std_msgs.msg import Bool
+
+from .support.bridges import BRIDGES, BridgeInfo, Call, SimProcess
+from .support.ros import (
+    LATCHED,
+    ROOT,
+    Bridge,
+    Client,
+    node_process,
+    ros_client,
+    start_bridge,
+    values_of,
+    wait_for,
+)
+
+pytestmark = pytest.mark.ros
+
+TIMEOUT = 30.0
+IDS = [info.key for info in BRIDGES]
+SHARED_POLL_RATE_HZ = 20  # an int on purpose: `-p poll_rate_hz:=20` must be taken
+NOT_DEVICE_SERVICES = ("rcl_interfaces/", "type_description_interfaces/", "lifecycle_msgs/")
+
+
+def stamp_of(msg: Any) -> float:
+    return float(msg.header.stamp.sec) + float(msg.header.stamp.nanosec) * 1e-9
+
+
+def python_value(value: Any) -> Any:
+    """A parameter value as plain Python (arrays as lists)."""
+    if isinstance(value, str | bytes | bool | int | float) or value is None:
+        return value
+    return list(value)
+
+
+def changed(value: Any) -> Any:
+    """Another value of the same type (a refusal must not depend on the value)."""
+    if isinstance(value, bool):
+        return not value
+    if isinstance(value, int):
+        return value + 1
+    if isinstance(value, float):
+        return value * 2 + 1
+    if isinstance(value, str):
+        return value + "_changed"
+    return [changed(item) for item in value]
+
+
+@dataclass
+class Running:
+    """One simulator and one bridge process, and how to talk to the bridge's nodes."""
+
+    info: BridgeInfo
+    sim: SimProcess
+    bridge: Bridge
+    proc: subprocess.Popen[bytes]
+    client: Client
+
+    def path(self, node: str | None = None) -> str:
+        return f"{self.bridge.ns}/{node or self.info.node_name}"
+
+    def call(self, call: Call, node: str | None = None) -> Any:
+        return self.client.call(
+            call.srv_type, f"{self.path(node)}/{call.service}", call.request(), TIMEOUT
+        )
+
+    def set_params(self, node: str | None = None, **values: Any) -> list[Any]:
+        """SetParameters, one parameter per entry; the results in order."""
+        request = SetParameters.Request()
+        request.parameters = [
+            Parameter(name, value=value).to_parameter_msg() for name, value in values.items()
+        ]
+        reply = self.client.call(SetParameters, f"{self.path(node)}/set_parameters", request)
+        return list(reply.results)
+
+    def get_params(self, names: Sequence[str], node: str | None = None) -> list[Any]:
+        """GetParameters: the values as plain Python (every name must be declared)."""
+        request = GetParameters.Request()
+        request.names = list(names)
+        reply = self.client.call(GetParameters, f"{self.path(node)}/get_parameters", request)
+        assert len(reply.values) == len(names), f"{node}: not all of {names} are declared"
+        return [python_value(parameter_value_to_python(v)) for v in reply.values]
+
+    def list_params(self, node: str | None = None) -> set[str]:
+        """ListParameters: the names a node declared."""
+        reply = self.client.call(
+            ListParameters, f"{self.path(node)}/list_parameters", ListParameters.Request()
+        )
+        return set(reply.result.names)
+
+    def statuses(self, since: float = 0.0) -> list[Any]:
+        """This node's diagnostic statuses (matched by name and by its device's line)."""
+        return [
+            status
+            for array in self.client.received("/diagnostics", since)
+            for status in array.status
+            if status.name.startswith(f"{self.info.node_name}:")
+            and self.sim.hardware_marker in status.hardware_id
+        ]
+
+    def wait_target_rate(self, text: str, since: float) -> None:
+        wait_for(
+            lambda: any(
+                values_of(s).get("target poll rate (Hz)") == text for s in self.statuses(since)
+            ),
+            TIMEOUT,
+            f"diagnostics 'target poll rate (Hz)' = {text}",
+        )
+
+    def joint_states(self, since: float = 0.0) -> list[Any]:
+        return self.client.received(self.bridge.joint_states, since)
+
+    def writes(self) -> list[tuple[int, int, int, tuple[int, ...]]]:
+        return [(w.unit_id, w.function_code, w.address, w.values) for w in self.sim.writes()]
+
+    def good_write(self) -> tuple[int, int, int, tuple[int, ...]]:
+        return (self.info.unit_id, *self.info.good_write)
+
+
+@contextmanager
+def running(info: BridgeInfo, client: Client, workdir: Path, **params: Any) -> Iterator[Running]:
+    """Start the simulator, then the node against it; wait until it is connected."""
+    sim = SimProcess(info, workdir)
+    sim.start()
+    try:
+        all_params = {"reconnect_max_s": 1.0, **info.params, **sim.address_params(), **params}
+        with start_bridge(
+            client, workdir, info.module, info.node_name, info.state_type, all_params
+        ) as (bridge, proc):
+            bridge.wait_connected(True, timeout=TIMEOUT)
+            client.wait_message(bridge.joint_states, timeout=TIMEOUT)
+            yield Running(info, sim, bridge, proc, client)
+    finally:
+        sim.stop()
+
+
+@pytest.fixture(scope="module")
+def client() -> Iterator[Client]:
+    with ros_client("contract_client") as c:
+        c.subscribe(DiagnosticArray, "/diagnostics")
+        yield c
+
+
+@pytest.fixture(scope="module", params=BRIDGES, ids=IDS)
+def shared(
+    request: pytest.FixtureRequest, client: Client, tmp_path_factory: pytest.TempPathFactory
+) -> Iterator[Running]:
+    """One simulator + node per bridge for the tests that restore what they change."""
+    info: BridgeInfo = request.param
+    workdir = tmp_path_factory.mktemp(f"contract_{info.key}")
+    with running(info, client, workdir, poll_rate_hz=SHARED_POLL_RATE_HZ) as r:
+        yield r
+
+
+each_bridge = pytest.mark.parametrize("info", BRIDGES, ids=IDS)
+
+
+# ---------------------------------------------------------------- 1. refusals
+def test_refused_value_writes_nothing(shared: Running) -> None:
+    """An out-of-range value: success=False, one line, and no write (the next, good
+    call's write is the only new record: it went after the refused one on the wire)."""
+    r = shared
+    before = len(r.writes())
+    reply = r.call(r.info.bad)
+    assert not reply.success, reply.message
+    assert reply.message.strip() and "\n" not in reply.message, repr(reply.message)
+    assert "refused" in reply.message, reply.message
+    reply = r.call(r.info.good)
+    assert reply.success, reply.message
+    assert r.writes()[before:] == [r.good_write()]
+
+
+# ---------------------------------------------------------------- 2. read_only at start-up
+def write_services(r: Running) -> list[tuple[str, str, Any]]:
+    """Every device service of the bridge's nodes from the ROS graph: (node, name, type),
+    without the parameter / type-description services and the ones that only read."""
+
+    def listing() -> list[tuple[str, str, str]]:
+        found: list[tuple[str, str, str]] = []
+        for node in r.info.nodes:
+            try:
+                services = r.client.node.get_service_names_and_types_by_node(node, r.bridge.ns)
+            except NodeNameNonExistentError:  # not (or, briefly, no longer) in our graph
+                return []
+            found += [(node, name, types[0]) for name, types in services]
+        return sorted(found)
+
+    # Discovery delivers the endpoints over some time: take the list once it is stable.
+    last: list[tuple[str, str, str]] = []
+    since = time.monotonic()
+
+    def stable() -> bool:
+        nonlocal last, since
+        now = listing()
+        if now != last:
+            last, since = now, time.monotonic()
+        names = {name for _node, name, _type in now}
+        every_node = all(
+            any(n == node and not t.startswith(NOT_DEVICE_SERVICES) for n, _name, t in now)
+            for node in r.info.nodes
+        )
+        return (
+            time.monotonic() - since > 1.0
+            and every_node
+            and f"{r.path()}/{r.info.good.service}" in names
+        )
+
+    wait_for(stable, TIMEOUT, "a stable list of the bridge's services")
+    services = []
+    for node, name, type_name in last:
+        if type_name.startswith(NOT_DEVICE_SERVICES):
+            continue
+        if name.rsplit("/", 1)[1] in r.info.read_services:
+            continue
+        package, kind, srv = type_name.split("/")
+        services.append((node, name, getattr(importlib.import_module(f"{package}.{kind}"), srv)))
+    return services
+
+
+@each_bridge
+def test_read_only_at_startup_refuses_every_write(
+    info: BridgeInfo, client: Client, tmp_path: Path
+) -> None:
+    """read_only:=true on the command line: each write service says so, nothing is written."""
+    with running(info, client, tmp_path, read_only=True) as r:
+        services = write_services(r)
+        assert len(services) >= 3, services
+        for _node, name, srv_type in services:
+            reply = client.call(srv_type, name, srv_type.Request(), TIMEOUT)
+            assert not reply.success, (name, reply.message)
+            assert "read_only" in reply.message, (name, reply.message)
+        for call in info.read_services.values():  # reads still reach the device
+            reply = r.call(call)
+            assert reply.success, (call.service, reply.message)
+        for node in info.nodes:
+            assert r.get_params(["read_only"], node) == [True]
+        # Every refusal was answered before this point; a write would be logged by now.
+        assert r.writes() == []
+
+
+# ---------------------------------------------------------------- 3. read_only at run time
+def test_read_only_set_at_runtime(shared: Running) -> None:
+    """SetParameters read_only=true is applied before it answers successful: the very
+    next write is refused and writes nothing; false lets writes through again."""
+    r = shared
+    try:
+        for _ in range(3):
+            before = len(r.writes())
+            (result,) = r.set_params(read_only=True)
+            assert result.successful, result.reason
+            reply = r.call(r.info.good)
+            assert not reply.success and "read_only" in reply.message, reply.message
+            assert r.get_params(["read_only"]) == [True]
+            (result,) = r.set_params(read_only=False)
+            assert result.successful, result.reason
+            reply = r.call(r.info.good)
+            assert reply.success, reply.message
+            assert r.writes()[before:] == [r.good_write()]  # the refused call wrote nothing
+    finally:
+        r.set_params(read_only=False)
+
+
+# ---------------------------------------------------------------- 4. parameters are honest
+def test_startup_only_parameters_refused_live_poll_rate_applied(shared: Running) -> None:
+    """Start-up-only parameters refuse a set (with a reason) and keep their value;
+    poll_rate_hz given as an int at start-up was taken, and a set to 5.0 is applied."""
+    r = shared
+    groups = [(r.info.node_name, r.info.startup_only)]
+    if r.info.bus_node is not None:
+        groups.append((r.info.bus_node, r.info.bus_startup_only))
+    for node, names in groups:
+        current = r.get_params(names, node)
+        assert None not in current, dict(zip(names, current, strict=True))
+        for name, value in zip(names, current, strict=True):
+            (result,) = r.set_params(node, **{name: changed(value)})
+            assert not result.successful, f"{node}: {name} was accepted"
+            assert result.reason.strip(), f"{node}: {name} refused without a reason"
+        assert r.get_params(names, node) == current
+
+    assert r.get_params(["poll_rate_hz"]) == [float(SHARED_POLL_RATE_HZ)]
+    r.wait_target_rate(f"{SHARED_POLL_RATE_HZ:.2f}", 0.0)
+    try:
+        (result,) = r.set_params(poll_rate_hz=5.0)
+        assert result.successful, result.reason
+        applied = time.monotonic()
+        assert r.get_params(["poll_rate_hz"]) == [5.0]
+        r.wait_target_rate("5.00", applied)
+        # The poller follows: joint_states now come ~0.2 s apart (not 0.05 s); a loaded
+        # machine can only make the gaps longer.
+        since = time.monotonic() + 0.3  # after any snapshot of the old rate in flight
+        wait_for(lambda: len(r.joint_states(since)) >= 7, TIMEOUT, "7 joint_states at 5 Hz")
+        stamps = [stamp_of(m) for m in r.joint_states(since)[:7]]
+        gaps = [b - a for a, b in itertools.pairwise(stamps)]
+        assert statistics.median(gaps) >= 0.15, gaps
+    finally:
+        r.set_params(poll_rate_hz=float(SHARED_POLL_RATE_HZ))
+
+
+# ---------------------------------------------------------------- 5. mistyped parameters
+MISTYPED = [
+    pytest.param(info, name, value, id=f"{info.key}-{name}")
+    for info in BRIDGES
+    for name, value in info.mistyped
+]
+
+
+@pytest.mark.parametrize(("info", "name", "value"), MISTYPED)
+def test_mistyped_startup_parameter_exits_2(
+    info: BridgeInfo, name: str, value: str, tmp_path: Path
+) -> None:
+    """A value of the wrong type: exit code 2 and one line naming it, no traceback."""
+    result = subprocess.run(
+        [sys.executable, "-m", info.module, "--ros-args", "-p", f"{name}:={value}"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=TIMEOUT * 2,
+    )
+    output = result.stdout + result.stderr
+    assert result.returncode == 2, output
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1, output
+    assert name in lines[0] and value in lines[0], lines[0]
+    assert "Traceback" not in output, output
+
+
+# ---------------------------------------------------------------- 6. example YAML
+def applies_to(key: str, node: str) -> bool:
+    """Whether a params-file block (``/**`` or ``/**/<node>``) reaches ``node``."""
+    return key == "/**" or key.rsplit("/", 1)[-1] == node
+
+
+@each_bridge
+def test_example_yaml_configures_the_node(info: BridgeInfo, client: Client, tmp_path: Path) -> None:
+    """config/<device>.yaml loads with --params-file; the nodes report its values.
+
+    Only the device address is replaced (the simulator's port or pty); the serial line
+    and the unit ids come from the file.
+    """
+    text = (ROOT / "config" / info.config).read_text()
+    config = yaml.safe_load(text)
+    sim = SimProcess(info, tmp_path / "sim")
+    address_key = "port" if info.transport == "tcp" else "serial_port"
+    address = sim.address_params()[address_key]
+    nodes = [info.node_name]
+    for block in config.values():
+        values = block["ros__parameters"]
+        if address_key in values:
+            values[address_key] = address
+        if "baudrate" in values:
+            sim.baudrate = int(values["baudrate"])
+        if "unit_ids" in values:  # MOTEC: one node per drive of the file, the bus node
+            units = [int(u) for u in values["unit_ids"]]
+            sim.extra_args = ("--unit-ids", ",".join(str(u) for u in units))
+            nodes = [f"motec_{u}" for u in units]
+    if info.bus_node is not None:
+        nodes.append(info.bus_node)
+    # The file as a user has it, only the address line changed (a YAML dump could lose
+    # quotes that matter to ROS's parser, e.g. parity "N").
+    text, count = re.subn(
+        rf"^(\s*{address_key}:\s*)\S+", lambda m: m.group(1) + json.dumps(address), text, flags=re.M
+    )
+    assert count == 1, f"{info.config} has no single {address_key} line"
+    params_file = tmp_path / info.config
+    params_file.write_text(text)
+    expected: dict[str, dict[str, Any]] = {
+        node: {
+            name: value
+            for key, block in config.items()
+            if applies_to(key, node)
+            for name, value in block["ros__parameters"].items()
+        }
+        for node in nodes
+    }
+
+    namespace = f"/contract_yaml_{info.key}"
+    connected = f"{namespace}/{info.node_name}/connected"
+    client.subscribe(Bool, connected, LATCHED)
+    sim.start()
+    try:
+        extra = ["--params-file", str(params_file), "-r", f"__ns:={namespace}"]
+        with node_process(info.module, {}, tmp_path, extra) as proc:
+            client.wait_message(connected, lambda m: m.data, TIMEOUT)
+            r = Running(
+                info, sim, Bridge(client, namespace, info.node_name, info.state_type), proc, client
+            )
+            found: set[str] = set()
+            for node, wanted in expected.items():
+                names = sorted(set(wanted) & r.list_params(node))  # bus vs drive settings
+                got = dict(zip(names, r.get_params(names, node), strict=True))
+                for name in names:
+                    assert got[name] == wanted[name], (node, name, got[name], wanted[name])
+                found.update(names)
+            every = {name for wanted in expected.values() for name in wanted}
+            assert found == every, f"parameters of the file no node declares: {every - found}"
+            assert proc.poll() is None
+    finally:
+        sim.stop()
+
+
+# ---------------------------------------------------------------- 7. simulator killed
+@each_bridge
+def test_simulator_killed_and_restarted(info: BridgeInfo, client: Client, tmp_path: Path) -> None:
+    """SIGKILL mid-poll: connected false and no fresh joint_states while down; after a
+    restart at the same port / pty path: connected true and joint_states again.
+
+    "Fresh" is judged by order, not by a tolerance: the node publishes connected=false
+    only after its last successful poll, so every stamp it publishes must be older than
+    the moment that message reached us (a reply in flight at the kill may still be
+    stamped a little after the kill itself).
+    """
+    rate = 50.0 if info.transport == "tcp" else 20.0
+    with running(info, client, tmp_path, poll_rate_hz=rate, timeout_s=0.3) as r:
+        b = r.bridge
+        killed = time.monotonic()
+        r.sim.kill()
+        b.wait_connected(False, since=killed, timeout=TIMEOUT)
+        down = time.monotonic()
+        # Stay down through two diagnostics periods (ERROR both times).
+        wait_for(
+            lambda: sum(s.level == bytes([2]) for s in r.statuses(down)) >= 2,
+            TIMEOUT,
+            "two ERROR diagnostics while the device is down",
+        )
+        wall_minus_monotonic = time.time() - time.monotonic()
+        went_down = min(
+            t for t, msg in list(client.messages[b.connected]) if t >= killed and not msg.data
+        )
+        went_down_wall = went_down + wall_minus_monotonic
+        for topic in (b.joint_states, b.state):
+            fresh = [m for m in client.received(topic, killed) if stamp_of(m) >= went_down_wall]
+            assert fresh == [], f"{topic}: stamps after the node reported the link down"
+        assert r.proc.poll() is None
+
+        restarted_wall, restarted = time.time(), time.monotonic()
+        r.sim.start()
+        b.wait_connected(True, since=restarted, timeout=TIMEOUT)
+        client.wait_message(
+            b.joint_states, lambda m: stamp_of(m) > restarted_wall, TIMEOUT, since=restarted
+        )
+        assert r.proc.poll() is None
+
+
+# ---------------------------------------------------------------- 8. stamp = read time
+def test_stamp_is_the_read_time_of_the_position_block(shared: Running) -> None:
+    """Each joint_states stamp t lies between the handling of a read request covering the
+    position register (t1) and the next read request of that unit (t3): the bridge
+    stamps when the position block's reply arrived, not at the start or end of a poll."""
+    r = shared
+    reg = r.info.position_register
+    since = time.monotonic()
+    wait_for(lambda: len(r.joint_states(since)) >= 5, TIMEOUT, "5 joint_states")
+    stamps = [stamp_of(m) for m in r.joint_states(since)[:5]]
+
+    def unit_reads() -> list[Any]:
+        return [rec for rec in r.sim.reads() if rec.unit_id == r.info.unit_id]
+
+    wait_for(
+        lambda: any(rec.time > max(stamps) for rec in unit_reads()),
+        TIMEOUT,
+        "a read request after the last stamp",
+    )
+    reads = unit_reads()
+    for t in stamps:
+        covering = [
+            i for i, rec in enumerate(reads) if rec.covers(reg.table, reg.address) and rec.time <= t
+        ]
+        assert covering, f"no read of {reg.name} before the stamp {t}"
+        t1, t3 = reads[covering[-1]].time, reads[covering[-1] + 1].time
+        assert t1 <= t <= t3, (t1, t, t3)
