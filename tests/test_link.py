@@ -8,12 +8,12 @@ from collections.abc import Iterator
 
 import pytest
 
+from bridge_core.channel import Priority
 from bridge_core.errors import DeviceException, FrameError, LinkDown, LinkTimeout
 from bridge_core.link import (
     Backoff,
     DeviceChannel,
     ModbusLink,
-    Priority,
     PriorityLock,
     SerialSettings,
     TcpSettings,
