@@ -3,7 +3,6 @@ simulator's drives on a real socat pty pair, driven by an rclpy client in this p
 
 from __future__ import annotations
 
-import itertools
 import math
 import signal
 import time
@@ -30,6 +29,7 @@ from .support.ros import (
     Client,
     node_process,
     ros_client,
+    unique_namespace,
     values_of,
     wait_for,
     wait_subscribed,
@@ -46,7 +46,6 @@ TIMEOUT_S = 1.0
 COMMAND_TIMEOUT_S = 1.5
 LIFEGUARD_MS = 1000
 H, C = Table.HOLDING, Table.COIL
-_NAMESPACES = itertools.count()
 
 
 class MotecBridge:
@@ -174,7 +173,7 @@ def motec(
     extra: Sequence[str] = (),
     namespace: str | None = None,
 ) -> Iterator[tuple[MotecBridge, Any]]:
-    namespace = namespace or f"/motec_test{next(_NAMESPACES)}"
+    namespace = namespace or unique_namespace("motec_test")
     port = port or str(params["serial_port"])
     bridge = MotecBridge(client, namespace, port, units, str(params.get("joint_prefix", "")))
     log_dir.mkdir(parents=True, exist_ok=True)
@@ -329,7 +328,7 @@ def test_a_drive_removed_and_back(bus, client: Client, tmp_path: Path) -> None: 
 def test_lifeguard_fault_after_the_bridge_dies(bus, client: Client, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     sim, port = bus
     params = bridge_params(port, unit_ids=[1, 2], lifeguard_ms=LIFEGUARD_MS)
-    namespace = "/motec_lifeguard"
+    namespace = unique_namespace("motec_lifeguard")  # the same for both bridges
     drive = sim.drive(1)
     with motec(client, tmp_path / "first", params, units=[1, 2], namespace=namespace) as (b, proc):
         b.wait_connected(1, True)

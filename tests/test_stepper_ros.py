@@ -36,6 +36,7 @@ from .support.ros import (
     Client,
     ros_client,
     start_bridge,
+    unique_namespace,
     values_of,
     wait_for,
     wait_subscribed,
@@ -100,6 +101,11 @@ def diagnostic(b: Bridge, predicate: Callable[[Any], bool], since: float) -> Any
     return wait_for(find, WAIT_S, "a matching diagnostic status")
 
 
+def stamp_s(msg: Any) -> float:
+    """A message's header stamp (the poll's wall-clock read time) in seconds."""
+    return float(msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9)
+
+
 def writes(device: StepperSimDevice) -> list[tuple[int, Table, int, tuple[int, ...]]]:
     return [(r.function_code, r.table, r.address, r.values) for r in device.write_log]
 
@@ -156,12 +162,15 @@ def test_topics_jog_and_deadman(sim, client: Client, tmp_path: Path) -> None:  #
             (5, Table.COIL, 1, (1,)),
             (5, Table.COIL, 4, (1,)),
         ]
-        # The motor rests: five polls after the stop show it still, at one coordinate.
-        stopped = time.monotonic()
-        wait_for(lambda: len(client.received(b.state, stopped)) >= 5, WAIT_S, "five polls")
-        rest = client.received(b.state, stopped)
-        assert {m.coordinates[0] for m in rest} == {rest[0].coordinates[0]}
-        assert not any(m.running[0] for m in rest)
+
+        # The motor rests: five polls that began after the stop (by their stamps; states
+        # polled before it may still be on their way) show it still, at one coordinate.
+        def rest() -> list[Any]:
+            return [m for m in client.received(b.state) if stamp_s(m) > stop.time]
+
+        wait_for(lambda: len(rest()) >= 5, WAIT_S, "five polls after the stop")
+        assert {m.coordinates[0] for m in rest()} == {rest()[0].coordinates[0]}
+        assert not any(m.running[0] for m in rest())
         # Jog 0 after the stop writes nothing (already stopped): the next jog, handled after
         # it, writes only its forward coil (speed unchanged), and a 0 then stops it.
         for rpm in (0.0, 600.0, 0.0):
@@ -377,14 +386,15 @@ def test_example_yaml_configures_the_node(sim, client: Client, tmp_path: Path) -
     )
     params = tmp_path / "stepper.yaml"
     params.write_text(config)
-    client.subscribe(JointState, "/yaml_stepper/joint_states")
+    ns = unique_namespace("yaml_stepper")
+    client.subscribe(JointState, f"{ns}/joint_states")
     with node_process(
         "stepper_bridge.node",
         {},
         tmp_path,
-        ["--params-file", str(params), "-r", "__ns:=/yaml_stepper"],
+        ["--params-file", str(params), "-r", f"__ns:={ns}"],
     ) as proc:
-        msg = client.wait_message("/yaml_stepper/joint_states")
+        msg = client.wait_message(f"{ns}/joint_states")
         assert msg.name == [f"motor_{m}" for m in range(1, 6)]
         assert msg.position[4] == pytest.approx(math.pi / 2)  # joint_types: motor 5 revolute
         assert proc.poll() is None

@@ -270,6 +270,12 @@ class Bridge:
 _NAMESPACE_COUNTER = iter(range(1_000_000))
 
 
+def unique_namespace(stem: str) -> str:
+    """A namespace no other test, nor another test run on this machine, uses: a ROS
+    domain id (1-100 by pid) may be shared with a concurrent run."""
+    return f"/{stem}_{os.getpid()}_{next(_NAMESPACE_COUNTER)}"
+
+
 @contextmanager
 def start_bridge(
     client: Client,
@@ -280,7 +286,7 @@ def start_bridge(
     params: dict[str, Any],
 ) -> Iterator[tuple[Bridge, subprocess.Popen[bytes]]]:
     """A bridge node in its own process under a fresh namespace; asserts it did not die."""
-    namespace = f"/{node_name}_test{next(_NAMESPACE_COUNTER)}"
+    namespace = unique_namespace(f"{node_name}_test")
     bridge = Bridge(client, namespace, node_name, state_type)
     with node_process(module, params, log_dir, ["-r", f"__ns:={namespace}"]) as proc:
         yield bridge, proc
