@@ -113,8 +113,16 @@ class Client:
     def subscribe_log(self) -> None:
         """Collect ``/rosout`` (every node's log lines), for waits on what a node logged."""
         if ROSOUT not in self.messages:
+            # Transient local like each node's /rosout publisher: a line logged before
+            # this reader matched that (new) publisher is delivered on matching.
             self.subscribe(
-                Log, ROSOUT, QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+                Log,
+                ROSOUT,
+                QoSProfile(
+                    depth=1000,
+                    reliability=ReliabilityPolicy.RELIABLE,
+                    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+                ),
             )
 
     def wait_log(self, logger: str, text: str, since: float = 0.0, timeout: float = WAIT_S) -> Any:
