@@ -44,7 +44,7 @@ UNITS = [1, 2, 3]
 # delay a reply or a message by: a live drive must never look dead, a stream never silent.
 TIMEOUT_S = 1.0
 COMMAND_TIMEOUT_S = 1.5
-LIFEGUARD_MS = 1000
+LIFEGUARD_MS = 2000  # the drive faults after this long without a write
 H, C = Table.HOLDING, Table.COIL
 
 
