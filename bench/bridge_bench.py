@@ -202,7 +202,7 @@ def run_worker(args: argparse.Namespace) -> None:
         from pymodbus.client import ModbusTcpClient
 
         client = ModbusTcpClient("127.0.0.1", port=args.port, timeout=1.0, retries=0)
-        if not client.connect():
+        if not client.connect():  # type: ignore[no-untyped-call]  # untyped in pymodbus
             raise SystemExit(f"bare loop: cannot connect to 127.0.0.1:{args.port}")
         read = {  # FC 01 / 02 / 03 / 04, as the node's link issues them
             "coil": (client.read_coils, True),
@@ -430,10 +430,11 @@ class BenchClient:
 
     def __init__(self, name: str) -> None:
         import rclpy
+        from rclpy.context import Context
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.node import Node
 
-        self.context = rclpy.Context()
+        self.context = Context()
         rclpy.init(context=self.context)
         self.node = Node(name, context=self.context)
         self.executor = SingleThreadedExecutor(context=self.context)
@@ -449,11 +450,11 @@ class BenchClient:
                 return
 
     def close(self) -> None:
-        import rclpy
+        from rclpy.utilities import try_shutdown
 
         self.executor.shutdown()
         self.node.destroy_node()
-        rclpy.try_shutdown(context=self.context)
+        try_shutdown(context=self.context)
         self._thread.join(5)
 
 

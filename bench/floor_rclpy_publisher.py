@@ -25,6 +25,7 @@ from geometry_msgs.msg import PoseStamped
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.time import Time
+from rclpy.utilities import ok, try_shutdown
 from sensor_msgs.msg import JointState
 
 from msg_defs.msg import R6State, XArmState
@@ -130,7 +131,7 @@ def make_executor(kind: str):  # type: ignore[no-untyped-def]
         # What the bridges use (bridge_core.node_base.spin_node).
         return MultiThreadedExecutor(num_threads=3)
     if kind == "events":
-        from rclpy.experimental import EventsExecutor
+        from rclpy.experimental.events_executor import EventsExecutor
 
         return EventsExecutor()
     raise ValueError(kind)
@@ -146,14 +147,14 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--executor", choices=("single", "multi", "events"), default="single")
     args = parser.parse_args(own)
     rclpy.init(args=[sys.argv[0], *ros_args])
-    node = FloorPublisher(args.rate, args.device)
+    node: Node = FloorPublisher(args.rate, args.device)
     executor = make_executor(args.executor)
     executor.add_node(node)
     print(f"floor publisher at {args.rate} Hz ({args.executor} executor)", flush=True)
     try:
         if args.executor == "events":
             # The experimental EventsExecutor's spin() does not return on SIGINT here.
-            while rclpy.ok():
+            while ok():
                 executor.spin_once(timeout_sec=0.2)
         else:
             executor.spin()
@@ -162,7 +163,7 @@ def main(argv: list[str] | None = None) -> None:
     finally:
         executor.shutdown()
         node.destroy_node()
-        rclpy.try_shutdown()
+        try_shutdown()
 
 
 if __name__ == "__main__":

@@ -341,8 +341,10 @@ def check_relay(
 
 
 def print_check(results: Sequence[TransferCheck]) -> None:
-    print(f"{'baud':>7} {'case':>9} {'bytes':>5} {'theory ms':>10} {'median ms':>10} "
-          f"{'error ms':>9} {'p90 ms':>8}")
+    print(
+        f"{'baud':>7} {'case':>9} {'bytes':>5} {'theory ms':>10} {'median ms':>10} "
+        f"{'error ms':>9} {'p90 ms':>8}"
+    )
     for r in results:
         print(
             f"{r.baudrate:>7} {r.case:>9} {r.size:>5} {r.theory_s * 1e3:>10.3f} "

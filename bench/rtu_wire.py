@@ -291,9 +291,7 @@ def main(argv: list[str] | None = None) -> int:
                 "when": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
                 "machine": platform.platform(),
                 "duration_s": duration,
-                "relay_check": [
-                    {**asdict(r), "error_s": r.error_s} for r in relay
-                ],
+                "relay_check": [{**asdict(r), "error_s": r.error_s} for r in relay],
                 "cases": rows,
             },
             indent=1,

@@ -38,7 +38,7 @@ from contextlib import suppress
 from dataclasses import dataclass
 from typing import Any
 
-from pymodbus.client import ModbusTcpClient
+from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
 
 from . import requests as rq
@@ -155,7 +155,7 @@ class ModbusLink:
         self.lock = PriorityLock()
         self.is_serial = isinstance(settings, SerialSettings)
         # retries=0: retrying is DeviceChannel's decision (reads only, never writes).
-        self._client: CheckedTcpClient | TimedSerialClient
+        self._client: ModbusTcpClient | ModbusSerialClient
         if isinstance(settings, TcpSettings):
             self._client = CheckedTcpClient(
                 settings.host, port=settings.port, timeout=settings.timeout_s, retries=0
@@ -191,7 +191,7 @@ class ModbusLink:
     def close(self) -> None:
         self._open = False
         with suppress(OSError):
-            self._client.close()
+            self._client.close()  # type: ignore[no-untyped-call]  # untyped in pymodbus 3.16
 
     def execute(self, unit_id: int, request: Request) -> Reply:
         """One transaction; pymodbus errors come out as ``LinkError`` subclasses."""

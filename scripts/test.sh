@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Set up the environment (scripts/setup.sh, a quick no-op when nothing changed), then run
 # pytest from the repo root; arguments are passed to pytest. ruff and mypy check the
-# Python packages first (LINT=0 skips them).
+# Python packages, tests/ and bench/ first, and ruff format --check the whole tree
+# (LINT=0 skips them).
 set -euo pipefail
 
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -23,6 +24,18 @@ if [[ "${LINT:-1}" == 1 ]]; then
         echo "test: mypy ${pkgs[*]}"
         .venv/bin/mypy "${pkgs[@]}"
     fi
+    extra=()
+    for p in tests bench; do
+        [[ -d "$p" ]] && extra+=("$p")
+    done
+    if ((${#extra[@]})); then
+        echo "test: ruff check ${extra[*]}"
+        .venv/bin/ruff check "${extra[@]}"
+        echo "test: mypy ${extra[*]}"
+        .venv/bin/mypy "${extra[@]}"
+    fi
+    echo "test: ruff format --check"
+    .venv/bin/ruff format --check
 fi
 
 rc=0

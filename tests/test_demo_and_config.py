@@ -13,7 +13,7 @@ from sensor_msgs.msg import JointState
 
 from r6_bridge.sim import make_simulator
 
-from .support.ros import ROOT, node_process, ros_client
+from .support.ros import ROOT, node_process, ros_client, unique_namespace
 
 pytestmark = pytest.mark.ros
 
@@ -65,11 +65,12 @@ def test_example_yaml_configures_the_node(tmp_path: Path) -> None:
     params.write_text(config)
     try:
         with ros_client() as client:
-            client.subscribe(JointState, "/yaml/joint_states")
+            ns = unique_namespace("yaml")
+            client.subscribe(JointState, f"{ns}/joint_states")
             with node_process(
-                "r6_bridge.node", {}, tmp_path, ["--params-file", str(params), "-r", "__ns:=/yaml"]
+                "r6_bridge.node", {}, tmp_path, ["--params-file", str(params), "-r", f"__ns:={ns}"]
             ):
-                msg = client.wait_message("/yaml/joint_states")
+                msg = client.wait_message(f"{ns}/joint_states")
                 assert msg.name[0] == "left_joint_1"
                 assert all(math.isfinite(p) for p in msg.position)
                 assert time.time() - msg.header.stamp.sec < 10

@@ -5,7 +5,7 @@ from __future__ import annotations
 import socket
 import struct
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 
 import pytest
 
@@ -117,8 +117,8 @@ def test_commands_write_the_manual_registers(
     ],
 )
 def test_out_of_range_commands_write_nothing(
-    r6: tuple[R6Device, R6SimDevice, DeviceChannel], call, match
-) -> None:  # type: ignore[no-untyped-def]
+    r6: tuple[R6Device, R6SimDevice, DeviceChannel], call: Callable[[R6Device], object], match: str
+) -> None:
     device, sim, channel = r6
     before = channel.stats.transactions
     with pytest.raises(CommandRejected, match=match):
@@ -134,7 +134,9 @@ def test_simulator_refuses_what_the_device_refuses(sim: tuple[R6SimDevice, int])
         reply = raw_request(port, pdu)
         return reply[2] if reply[1] & 0x80 else None
 
-    read = lambda a, n: bytes([3]) + struct.pack(">HH", a, n)  # noqa: E731
+    def read(address: int, count: int) -> bytes:
+        return bytes([3]) + struct.pack(">HH", address, count)
+
     assert exception_code(read(2268, 12)) is None  # 6 axes, whole
     assert exception_code(read(2269, 2)) == 2  # starts inside axis 0's pair
     assert exception_code(read(2268, 3)) == 2  # cuts axis 1

@@ -18,12 +18,12 @@ from .support.ros import ROOT, node_process
 pytestmark = pytest.mark.ros
 
 
-def test_bag_of_a_running_bridge(tmp_path: Path) -> None:
+def test_bag_of_a_running_bridge(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     simulator = make_simulator(axis_count=4)
     port = simulator.start_tcp()
     device = simulator.device
     assert isinstance(device, R6SimDevice)
-    device.tick = lambda dt: None  # hold the values still
+    monkeypatch.setattr(device, "tick", lambda dt: None)  # hold the values still
     device.set("axis_position_2", 30.0)
     device.set("mode", 1)
     bag = tmp_path / "bag"

@@ -30,19 +30,33 @@ from msg_defs.srv import (
 )
 from stepper_bridge.sim import START_POSITION, StepperSimDevice, make_simulator
 
-from .support.ros import Bridge, Client, ros_client, start_bridge, values_of, wait_for
+from .support.ros import (
+    WAIT_S,
+    Bridge,
+    Client,
+    ros_client,
+    start_bridge,
+    unique_namespace,
+    values_of,
+    wait_for,
+    wait_subscribed,
+)
 from .support.serial_pair import socat_pair
 
 pytestmark = pytest.mark.ros
 
 BAUD = 115200
-COMMAND_TIMEOUT_S = 0.5
+# Reply timeout and jog deadman far above what scheduling on a loaded machine can delay a
+# reply or a jog message by: a live device must never look dead, a jog never silent.
+TIMEOUT_S = 1.0
+COMMAND_TIMEOUT_S = 1.5
 
 
 @pytest.fixture(scope="module")
 def client() -> Iterator[Client]:
     with ros_client("stepper_client") as c:
         c.subscribe(DiagnosticArray, "/diagnostics")
+        c.subscribe_log()
         yield c
 
 
@@ -67,7 +81,7 @@ def bridge(
         "serial_port": port,
         "baudrate": BAUD,
         "poll_rate_hz": 20.0,
-        "timeout_s": 0.3,
+        "timeout_s": TIMEOUT_S,
         "reconnect_max_s": 1.0,
         "command_timeout_s": COMMAND_TIMEOUT_S,
     }
@@ -84,7 +98,12 @@ def diagnostic(b: Bridge, predicate: Callable[[Any], bool], since: float) -> Any
                 return status
         return None
 
-    return wait_for(find, 15.0, "a matching diagnostic status")
+    return wait_for(find, WAIT_S, "a matching diagnostic status")
+
+
+def stamp_s(msg: Any) -> float:
+    """A message's header stamp (the poll's wall-clock read time) in seconds."""
+    return float(msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9)
 
 
 def writes(device: StepperSimDevice) -> list[tuple[int, Table, int, tuple[int, ...]]]:
@@ -114,22 +133,26 @@ def test_topics_jog_and_deadman(sim, client: Client, tmp_path: Path) -> None:  #
         assert list(st.coordinates) == pytest.approx([0.0, 2.5, 0.0, 0.0, -12.5])
         assert st.lead[1] == pytest.approx(5.0) and st.microstep[0] == 8
         assert list(st.home_input) == [2, 4, 6, 8, 10] and st.system_mode == 0
-        status = diagnostic(b, lambda s: s.level == b"\x00", started)
+        # The device's own keys come with the first snapshot.
+        status = diagnostic(
+            b, lambda s: s.level == b"\x00" and "system mode" in values_of(s), started
+        )
         assert values_of(status)["system mode"] == "0"
 
         # Jog motor 1 at 600 rpm (50 mm/s) for a while: the position moves.
         jog = client.node.create_publisher(Float64, f"{b.ns}/stepper_bridge/motor_1/jog", 10)
-        wait_for(lambda: jog.get_subscription_count() > 0, 10, "the jog subscription")
-        first = client.wait_message(b.joint_states, since=time.monotonic()).position[0]
+        wait_subscribed(jog)
+        jogging = time.monotonic()
+        first = client.wait_message(b.joint_states, since=jogging).position[0]
         deadline = time.monotonic() + 1.0
         while time.monotonic() < deadline:
             jog.publish(Float64(data=600.0))
             last_sent = time.time()
             time.sleep(0.05)
-        moving = client.wait_message(b.joint_states, since=time.monotonic()).position[0]
-        assert moving > first + 0.02  # > 20 mm in about a second
+        # > 20 mm at 50 mm/s
+        client.wait_message(b.joint_states, lambda m: m.position[0] > first + 0.02, since=jogging)
         # Silence: the deadman stops the motor after command_timeout_s.
-        client.wait_message(b.state, lambda m: not m.running[0], timeout=5, since=time.monotonic())
+        wait_for(lambda: len(device.write_log) >= 3, WAIT_S, "the deadman's stop")
         stop = device.write_log[-1]
         assert (stop.table, stop.address) == (Table.COIL, 4)
         assert stop.time - last_sent >= COMMAND_TIMEOUT_S * 0.9
@@ -139,13 +162,21 @@ def test_topics_jog_and_deadman(sim, client: Client, tmp_path: Path) -> None:  #
             (5, Table.COIL, 1, (1,)),
             (5, Table.COIL, 4, (1,)),
         ]
-        resting = device.coordinate(1)
-        time.sleep(0.3)
-        assert device.coordinate(1) == resting
-        # Jog 0 after the stop writes nothing more (already stopped).
-        jog.publish(Float64(data=0.0))
-        time.sleep(0.3)
-        assert len(device.write_log) == 3
+
+        # The motor rests: five polls that began after the stop (by their stamps; states
+        # polled before it may still be on their way) show it still, at one coordinate.
+        def rest() -> list[Any]:
+            return [m for m in client.received(b.state) if stamp_s(m) > stop.time]
+
+        wait_for(lambda: len(rest()) >= 5, WAIT_S, "five polls after the stop")
+        assert {m.coordinates[0] for m in rest()} == {rest()[0].coordinates[0]}
+        assert not any(m.running[0] for m in rest())
+        # Jog 0 after the stop writes nothing (already stopped): the next jog, handled after
+        # it, writes only its forward coil (speed unchanged), and a 0 then stops it.
+        for rpm in (0.0, 600.0, 0.0):
+            jog.publish(Float64(data=rpm))
+        wait_for(lambda: len(device.write_log) >= 5, WAIT_S, "the jog after the 0 and its stop")
+        assert writes(device)[3:] == [(5, Table.COIL, 1, (1,)), (5, Table.COIL, 4, (1,))]
         client.node.destroy_publisher(jog)
 
 
@@ -305,13 +336,19 @@ def test_refusals_write_nothing(sim, client: Client, tmp_path: Path) -> None:  #
             reply = b.call(srv, name, **fields)
             assert not reply.success, name
             assert "refused" in reply.message and reason in reply.message, reply.message
-        jog = client.node.create_publisher(Float64, f"{b.ns}/stepper_bridge/motor_1/jog", 10)
-        wait_for(lambda: jog.get_subscription_count() > 0, 10, "the jog subscription")
-        for value in (math.nan, math.inf, 1e6):
-            jog.publish(Float64(data=value))
-        time.sleep(0.5)
-        client.node.destroy_publisher(jog)
         assert device.write_log == []
+        # Refused jogs write nothing: the first write is that of the valid jog after them.
+        jog = client.node.create_publisher(Float64, f"{b.ns}/stepper_bridge/motor_1/jog", 10)
+        wait_subscribed(jog)
+        for value in (math.nan, math.inf, 1e6, 100.0, 0.0):
+            jog.publish(Float64(data=value))
+        wait_for(lambda: len(device.write_log) >= 3, WAIT_S, "the valid jog and its stop")
+        client.node.destroy_publisher(jog)
+        assert writes(device) == [
+            (6, Table.HOLDING, 5, (100,)),
+            (5, Table.COIL, 1, (1,)),
+            (5, Table.COIL, 4, (1,)),
+        ]
 
 
 def test_read_only_refuses_every_write(sim, client: Client, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
@@ -328,9 +365,10 @@ def test_read_only_refuses_every_write(sim, client: Client, tmp_path: Path) -> N
         for reply in replies:
             assert not reply.success and "read_only" in reply.message, reply.message
         jog = client.node.create_publisher(Float64, f"{b.ns}/stepper_bridge/motor_1/jog", 10)
-        wait_for(lambda: jog.get_subscription_count() > 0, 10, "the jog subscription")
+        wait_subscribed(jog)
+        t = time.monotonic()
         jog.publish(Float64(data=100.0))
-        time.sleep(0.5)
+        client.wait_log(f"{b.ns[1:]}.{b.node_name}", "motor 1 jog 100.0 rpm refused: read_only", t)
         client.node.destroy_publisher(jog)
         assert device.write_log == []
 
@@ -348,14 +386,15 @@ def test_example_yaml_configures_the_node(sim, client: Client, tmp_path: Path) -
     )
     params = tmp_path / "stepper.yaml"
     params.write_text(config)
-    client.subscribe(JointState, "/yaml_stepper/joint_states")
+    ns = unique_namespace("yaml_stepper")
+    client.subscribe(JointState, f"{ns}/joint_states")
     with node_process(
         "stepper_bridge.node",
         {},
         tmp_path,
-        ["--params-file", str(params), "-r", "__ns:=/yaml_stepper"],
+        ["--params-file", str(params), "-r", f"__ns:={ns}"],
     ) as proc:
-        msg = client.wait_message("/yaml_stepper/joint_states")
+        msg = client.wait_message(f"{ns}/joint_states")
         assert msg.name == [f"motor_{m}" for m in range(1, 6)]
         assert msg.position[4] == pytest.approx(math.pi / 2)  # joint_types: motor 5 revolute
         assert proc.poll() is None

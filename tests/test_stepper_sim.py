@@ -52,7 +52,7 @@ class Rig:
         """Send a raw frame (CRC added) through the bridge's end and return the reply."""
         self.link.close()
         frame = frame_without_crc + FramerRTU.compute_CRC(frame_without_crc).to_bytes(2, "big")
-        with serial.Serial(self.link.settings.port, BAUD, timeout=1.0) as port:  # type: ignore[union-attr]
+        with serial.Serial(self.link.settings.port, BAUD, timeout=1.0) as port:
             port.write(frame)
             head = bytes(port.read(5))
             if len(head) < 5 or head[1] & 0x80:

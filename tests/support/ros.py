@@ -18,14 +18,21 @@ from pathlib import Path
 from typing import Any
 
 import rclpy
+from rcl_interfaces.msg import Log
+from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.utilities import try_shutdown
 
 ROOT = Path(__file__).resolve().parents[2]
 LATCHED = QoSProfile(
     depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL
 )
+# Every wait is bounded by this unless a test says otherwise: long enough for a shared,
+# loaded CI machine (a wait returns as soon as its condition holds).
+WAIT_S = 20.0
+ROSOUT = "/rosout"
 
 
 def wait_for(predicate: Callable[[], Any], timeout: float, what: str) -> Any:
@@ -39,11 +46,20 @@ def wait_for(predicate: Callable[[], Any], timeout: float, what: str) -> Any:
         time.sleep(0.01)
 
 
+def wait_subscribed(publisher: Any, timeout: float = WAIT_S) -> None:
+    """Until ``publisher`` has matched a subscription (a node's command topic)."""
+    wait_for(
+        lambda: publisher.get_subscription_count() > 0,
+        timeout,
+        f"a subscriber of {publisher.topic_name}",
+    )
+
+
 class Client:
     """An rclpy node spinning on its own thread, collecting messages per topic."""
 
     def __init__(self, name: str = "test_client") -> None:
-        self.context = rclpy.Context()
+        self.context = Context()
         rclpy.init(context=self.context)
         self.node = Node(name, context=self.context)
         self.executor = SingleThreadedExecutor(context=self.context)
@@ -83,7 +99,7 @@ class Client:
         self,
         topic: str,
         predicate: Callable[[Any], bool] = lambda m: True,
-        timeout: float = 15.0,
+        timeout: float = WAIT_S,
         since: float = 0.0,
     ) -> Any:
         def find() -> Any:
@@ -94,7 +110,34 @@ class Client:
 
         return wait_for(find, timeout, f"a matching message on {topic}")
 
-    def call(self, srv_type: Any, name: str, request: Any, timeout: float = 15.0) -> Any:
+    def subscribe_log(self) -> None:
+        """Collect ``/rosout`` (every node's log lines), for waits on what a node logged."""
+        if ROSOUT not in self.messages:
+            # Transient local like each node's /rosout publisher: a line logged before
+            # this reader matched that (new) publisher is delivered on matching.
+            self.subscribe(
+                Log,
+                ROSOUT,
+                QoSProfile(
+                    depth=1000,
+                    reliability=ReliabilityPolicy.RELIABLE,
+                    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+                ),
+            )
+
+    def wait_log(self, logger: str, text: str, since: float = 0.0, timeout: float = WAIT_S) -> Any:
+        """A ``/rosout`` line of a logger whose name contains ``logger`` and whose message
+        contains ``text`` (call ``subscribe_log`` before the node starts)."""
+
+        def find() -> Any:
+            for msg in self.received(ROSOUT, since):
+                if logger in msg.name and text in msg.msg:
+                    return msg
+            return None
+
+        return wait_for(find, timeout, f"a log line of {logger} containing {text!r}")
+
+    def call(self, srv_type: Any, name: str, request: Any, timeout: float = WAIT_S) -> Any:
         client = self.node.create_client(srv_type, name)
         try:
             wait_for(lambda: client.service_is_ready(), timeout, f"service {name}")
@@ -107,7 +150,7 @@ class Client:
     def close(self) -> None:
         self.executor.shutdown()
         self.node.destroy_node()
-        rclpy.try_shutdown(context=self.context)
+        try_shutdown(context=self.context)
         self._thread.join(5)
 
 
@@ -205,20 +248,40 @@ class Bridge:
             if status.name.startswith(f"{self.node_name}:")
         ]
 
-    def wait_diagnostic(self, level: int, since: float, port: int, timeout: float = 15.0) -> Any:
+    def wait_diagnostic(
+        self,
+        level: int,
+        since: float,
+        port: int,
+        timeout: float = WAIT_S,
+        where: Callable[[dict[str, str]], bool] = lambda values: True,
+    ) -> Any:
+        """The newest status at ``level`` for ``port`` whose key-value pairs pass ``where``
+        (a device's own keys appear only once its first snapshot was published)."""
+
         def find() -> Any:
             for status in reversed(self.diagnostics(since)):
-                if f":{port} " in status.hardware_id and status.level == bytes([level]):
+                if (
+                    f":{port} " in status.hardware_id
+                    and status.level == bytes([level])
+                    and where(values_of(status))
+                ):
                     return status
             return None
 
         return wait_for(find, timeout, f"diagnostics level {level} for port {port}")
 
-    def wait_connected(self, value: bool, since: float = 0.0, timeout: float = 15.0) -> None:
+    def wait_connected(self, value: bool, since: float = 0.0, timeout: float = WAIT_S) -> None:
         self.client.wait_message(self.connected, lambda m: m.data == value, timeout, since)
 
 
 _NAMESPACE_COUNTER = iter(range(1_000_000))
+
+
+def unique_namespace(stem: str) -> str:
+    """A namespace no other test, nor another test run on this machine, uses: a ROS
+    domain id (1-100 by pid) may be shared with a concurrent run."""
+    return f"/{stem}_{os.getpid()}_{next(_NAMESPACE_COUNTER)}"
 
 
 @contextmanager
@@ -231,7 +294,7 @@ def start_bridge(
     params: dict[str, Any],
 ) -> Iterator[tuple[Bridge, subprocess.Popen[bytes]]]:
     """A bridge node in its own process under a fresh namespace; asserts it did not die."""
-    namespace = f"/{node_name}_test{next(_NAMESPACE_COUNTER)}"
+    namespace = unique_namespace(f"{node_name}_test")
     bridge = Bridge(client, namespace, node_name, state_type)
     with node_process(module, params, log_dir, ["-r", f"__ns:={namespace}"]) as proc:
         yield bridge, proc
