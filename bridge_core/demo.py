@@ -53,6 +53,7 @@ from pathlib import Path
 from typing import Any
 
 DEFAULT_DOMAIN_ID = 42
+CONNECT_TIMEOUT_S = 30.0
 ROOT = Path(__file__).resolve().parent.parent
 ENTRY_POINT_GROUP = "modbus_bridges.demo"
 PROJECT_NAME = "modbus-ros-bridges"
@@ -198,6 +199,22 @@ class Monitor:
         finally:
             self.node.destroy_client(client)
 
+    def wait_connected(self, devices: Sequence[DemoDevice], timeout: float) -> list[str]:
+        """Spin until every node says ``~/connected`` true; the nodes that did not."""
+        topics = [
+            f"/{device.name.lower()}/{node}/connected"
+            for device in devices
+            for node in device.nodes
+        ]
+        end = time.monotonic() + timeout
+
+        def waiting() -> list[str]:
+            return [t for t in topics if not getattr(self.latest.get(t), "data", False)]
+
+        while waiting() and time.monotonic() < end:
+            self.spin_for(0.1)
+        return waiting()
+
     def close(self) -> None:
         from rclpy.utilities import try_shutdown
 
@@ -293,6 +310,10 @@ def main(argv: Sequence[str] | None = None, modules: Sequence[str] | None = None
                 ros_args += ["-p", f"{key}:={value}"]
             spawn(device.node_name, ["-m", device.node_module, *ros_args])
         monitor = Monitor(devices)
+        # The start services need a connected device: on a busy machine the simulators
+        # and bridges take a while to come up, and a service called earlier is refused.
+        for topic in monitor.wait_connected(devices, CONNECT_TIMEOUT_S):
+            print(f"  {topic}: not connected after {CONNECT_TIMEOUT_S:.0f} s", flush=True)
         for device in devices:
             for service, type_name, fields in device.start_services:
                 print(

@@ -33,6 +33,9 @@ DEMO = DemoDevice(
     node_params=lambda pty: {
         "serial_port": str(pty),
         "baudrate": 115200,
+        # A simulator in another process on a busy machine may answer late: the drives'
+        # 0.1 s default (a real bus at 115200) would take that for a dead drive.
+        "timeout_s": 1.0,
         "unit_ids": "[" + ",".join(str(u) for u in UNITS) + "]",
     },
     state_type="msg_defs/msg/MotecState",

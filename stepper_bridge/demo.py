@@ -21,7 +21,7 @@ DEMO = DemoDevice(
     # The manual's line: 9600 baud 8N1, replies after 35 ms (the simulator's default).
     sim_args=lambda pty: ["-m", "stepper_bridge.sim", "--pty", str(pty)],
     node_module="stepper_bridge.node",
-    node_params=lambda pty: {"serial_port": str(pty), "baudrate": 9600},
+    node_params=lambda pty: {"serial_port": str(pty), "baudrate": 9600, "timeout_s": 1.0},
     state_type="msg_defs/msg/StepperState",
     format_state=format_state,
     start_services=[
