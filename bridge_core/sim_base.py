@@ -545,6 +545,21 @@ def open_logs(args: argparse.Namespace, sim: Simulator) -> list[IO[str]]:
     return [f for f in (write_log, read_log) if f is not None]
 
 
+def add_tcp_arguments(parser: argparse.ArgumentParser, default_port: int) -> None:
+    """The TCP simulators' options: where to listen, the logs, the port file."""
+    parser.add_argument("--host", default="127.0.0.1")
+    parser.add_argument("--port", type=int, default=default_port, help="0 picks a free port")
+    add_log_arguments(parser)
+    parser.add_argument("--port-file", type=Path, help="write the bound port here once listening")
+
+
+def serve_tcp_until_signalled(sim: Simulator, args: argparse.Namespace, name: str) -> None:
+    """Attach the logs, listen on ``args.host:args.port`` and serve until SIGINT/SIGTERM."""
+    open_logs(args, sim)
+    port = sim.start_tcp(args.host, args.port)
+    serve_until_signalled(sim, f"{name} listening on {args.host}:{port}", args.port_file)
+
+
 def add_serial_arguments(
     parser: argparse.ArgumentParser, default_baudrate: int, example: str
 ) -> None:

@@ -16,7 +16,6 @@ from __future__ import annotations
 import argparse
 import math
 from collections.abc import Sequence
-from pathlib import Path
 
 from bridge_core.codec import int_to_words, words_to_int
 from bridge_core.registers import Table, WordOrder
@@ -27,9 +26,8 @@ from bridge_core.sim_base import (
     SimulatedDevice,
     Simulator,
     WriteRecord,
-    add_log_arguments,
-    open_logs,
-    serve_until_signalled,
+    add_tcp_arguments,
+    serve_tcp_until_signalled,
 )
 
 from .registers import COMMANDS, MAX_AXES, MAX_IO_BOARDS, R6_MAP
@@ -213,15 +211,12 @@ def make_simulator(axis_count: int = 6, io_board_count: int = 1) -> Simulator:
 
 def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description="Huacheng R6 Modbus TCP simulator")
-    parser.add_argument("--host", default="127.0.0.1")
-    parser.add_argument("--port", type=int, default=5020, help="0 picks a free port")
+    add_tcp_arguments(parser, default_port=5020)
     parser.add_argument("--axes", type=int, default=6)
     parser.add_argument("--io-boards", type=int, default=1)
     parser.add_argument("--running", action="store_true", help="start with the axes moving")
     parser.add_argument("--mode", type=int, default=2, help="1 manual, 2 auto, 3 configuration")
     parser.add_argument("--alarm", type=int, default=0, help="start with this alarm code")
-    add_log_arguments(parser)
-    parser.add_argument("--port-file", type=Path, help="write the bound port here once listening")
     args = parser.parse_args(argv)
     sim = make_simulator(args.axes, args.io_boards)
     device = sim.device
@@ -229,9 +224,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     device.set("mode", args.mode)
     device.set_alarm(args.alarm)
     device.running = args.running and not args.alarm
-    open_logs(args, sim)
-    port = sim.start_tcp(args.host, args.port)
-    serve_until_signalled(sim, f"r6_sim listening on {args.host}:{port}", args.port_file)
+    serve_tcp_until_signalled(sim, args, "r6_sim")
 
 
 if __name__ == "__main__":

@@ -16,7 +16,6 @@ from __future__ import annotations
 import argparse
 import math
 from collections.abc import Sequence
-from pathlib import Path
 
 from bridge_core.registers import Table
 from bridge_core.sim_base import (
@@ -26,9 +25,8 @@ from bridge_core.sim_base import (
     SimulatedDevice,
     Simulator,
     WriteRecord,
-    add_log_arguments,
-    open_logs,
-    serve_until_signalled,
+    add_tcp_arguments,
+    serve_tcp_until_signalled,
 )
 
 from .registers import (
@@ -210,19 +208,14 @@ def make_simulator() -> Simulator:
 
 def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description="UFactory xArm Modbus TCP simulator")
-    parser.add_argument("--host", default="127.0.0.1")
-    parser.add_argument("--port", type=int, default=5021, help="0 picks a free port")
+    add_tcp_arguments(parser, default_port=5021)
     parser.add_argument("--error", type=int, default=0, help="start with this error code")
-    add_log_arguments(parser)
-    parser.add_argument("--port-file", type=Path, help="write the bound port here once listening")
     args = parser.parse_args(argv)
     sim = make_simulator()
     device = sim.device
     assert isinstance(device, XArmSimDevice)
     device.set_error(args.error)
-    open_logs(args, sim)
-    port = sim.start_tcp(args.host, args.port)
-    serve_until_signalled(sim, f"xarm_sim listening on {args.host}:{port}", args.port_file)
+    serve_tcp_until_signalled(sim, args, "xarm_sim")
 
 
 if __name__ == "__main__":
