@@ -57,8 +57,32 @@ TICK_S = 0.01
 ECHO_FUNCTIONS = frozenset({5, 6})
 
 
+class _JsonRecord:
+    """A log record as one JSON line (``table`` by name, tuples as lists)."""
+
+    def to_json(self) -> str:
+        data = dataclasses.asdict(self)  # type: ignore[call-overload]
+        data["table"] = data["table"].value
+        return json.dumps({k: list(v) if isinstance(v, tuple) else v for k, v in data.items()})
+
+    @classmethod
+    def from_json(cls, line: str) -> Any:
+        data = json.loads(line)
+        data["table"] = Table(data["table"])
+        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in data.items()})
+
+
+def _read_lines(path: Path) -> list[str]:
+    """The complete lines of a log file (the simulator may be writing the next one)."""
+    if not path.exists():
+        return []
+    text = path.read_text()
+    lines = text.splitlines() if text.endswith("\n") else text.splitlines()[:-1]
+    return [line for line in lines if line]
+
+
 @dataclass(frozen=True)
-class WriteRecord:
+class WriteRecord(_JsonRecord):
     """One accepted write, as the device saw it."""
 
     time: float
@@ -68,39 +92,13 @@ class WriteRecord:
     address: int
     values: tuple[int, ...]
 
-    def to_json(self) -> str:
-        return json.dumps(
-            {
-                "time": self.time,
-                "unit_id": self.unit_id,
-                "function_code": self.function_code,
-                "table": self.table.value,
-                "address": self.address,
-                "values": list(self.values),
-            }
-        )
-
-    @classmethod
-    def from_json(cls, line: str) -> WriteRecord:
-        data = json.loads(line)
-        return cls(
-            time=data["time"],
-            unit_id=data["unit_id"],
-            function_code=data["function_code"],
-            table=Table(data["table"]),
-            address=data["address"],
-            values=tuple(data["values"]),
-        )
-
 
 def read_write_log(path: Path) -> list[WriteRecord]:
-    if not path.exists():
-        return []
-    return [WriteRecord.from_json(line) for line in path.read_text().splitlines() if line]
+    return [WriteRecord.from_json(line) for line in _read_lines(path)]
 
 
 @dataclass(frozen=True)
-class ReadRecord:
+class ReadRecord(_JsonRecord):
     """One read request as the device handled it (``time``: wall clock when its values
     were taken), refused ones included; tests order a node's stamps against these."""
 
@@ -114,39 +112,10 @@ class ReadRecord:
     def covers(self, table: Table, address: int) -> bool:
         return self.table is table and self.address <= address < self.address + self.count
 
-    def to_json(self) -> str:
-        return json.dumps(
-            {
-                "time": self.time,
-                "unit_id": self.unit_id,
-                "function_code": self.function_code,
-                "table": self.table.value,
-                "address": self.address,
-                "count": self.count,
-            }
-        )
-
-    @classmethod
-    def from_json(cls, line: str) -> ReadRecord:
-        data = json.loads(line)
-        return cls(
-            time=data["time"],
-            unit_id=data["unit_id"],
-            function_code=data["function_code"],
-            table=Table(data["table"]),
-            address=data["address"],
-            count=data["count"],
-        )
-
 
 def read_read_log(path: Path) -> list[ReadRecord]:
-    """The records of a ``--read-log`` file (complete lines only: the simulator may be
-    writing the next one)."""
-    if not path.exists():
-        return []
-    text = path.read_text()
-    lines = text.splitlines() if text.endswith("\n") else text.splitlines()[:-1]
-    return [ReadRecord.from_json(line) for line in lines if line]
+    """The records of a ``--read-log`` file."""
+    return [ReadRecord.from_json(line) for line in _read_lines(path)]
 
 
 # A hook sees a write before it lands and may refuse it with an exception code.
