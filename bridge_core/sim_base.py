@@ -543,6 +543,7 @@ def add_serial_arguments(
     parser.add_argument("--baudrate", type=int, default=default_baudrate)
     parser.add_argument("--parity", default="N", choices=("N", "E", "O"))
     parser.add_argument("--stopbits", type=int, default=1, choices=(1, 2))
+    add_log_arguments(parser)
 
 
 def serve_serial_until_signalled(
@@ -550,8 +551,10 @@ def serve_serial_until_signalled(
 ) -> None:
     """Serve on ``args.serial`` or a new pty pair (``args.pty``) until SIGINT/SIGTERM.
 
-    ``banner(where)`` is the line printed once listening; the pty pair is closed after.
+    ``banner(where)`` is the line printed once listening; the logs (``--write-log``,
+    ``--read-log``) are attached first, and the pty pair and logs are closed after.
     """
+    logs = open_logs(args, sim)
     pair = PtyPair(args.pty) if args.pty else None
     try:
         port = str(pair.device_end) if pair else args.serial
@@ -561,3 +564,5 @@ def serve_serial_until_signalled(
         sim.stop()
         if pair is not None:
             pair.close()
+        for log in logs:
+            log.close()

@@ -50,9 +50,7 @@ from bridge_core.sim_base import (
     SimulatedDevice,
     Simulator,
     WriteRecord,
-    add_log_arguments,
     add_serial_arguments,
-    open_logs,
     serve_serial_until_signalled,
 )
 
@@ -422,7 +420,6 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument(
         "--fault", type=_fault, action="append", default=[], help="latch a fault: UNIT:CODE"
     )
-    add_log_arguments(parser)
     args = parser.parse_args(argv)
     if args.reply_delay_ms < 0:
         parser.error("--reply-delay-ms must be >= 0")
@@ -439,20 +436,15 @@ def main(argv: Sequence[str] | None = None) -> None:
         if unit not in sim.drives:
             parser.error(f"--fault: no drive {unit} on the bus")
         sim.drive(unit).inject_fault(code)
-    logs = open_logs(args, sim)
     ids = ",".join(str(u) for u in args.unit_ids)
-    try:
-        serve_serial_until_signalled(
-            sim,
-            args,
-            lambda where: (
-                f"motec_sim listening on {where} (units {ids}, {args.baudrate} "
-                f"baud, reply delay {args.reply_delay_ms:g} ms)"
-            ),
-        )
-    finally:
-        for log in logs:
-            log.close()
+    serve_serial_until_signalled(
+        sim,
+        args,
+        lambda where: (
+            f"motec_sim listening on {where} (units {ids}, {args.baudrate} "
+            f"baud, reply delay {args.reply_delay_ms:g} ms)"
+        ),
+    )
 
 
 if __name__ == "__main__":

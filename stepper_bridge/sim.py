@@ -47,9 +47,7 @@ from bridge_core.sim_base import (
     SimulatedDevice,
     Simulator,
     WriteRecord,
-    add_log_arguments,
     add_serial_arguments,
-    open_logs,
     serve_serial_until_signalled,
 )
 
@@ -481,14 +479,12 @@ def main(argv: Sequence[str] | None = None) -> None:
         help="delay before every reply (manual: at least 35 ms on RS-485)",
     )
     parser.add_argument("--travel", type=float, default=TRAVEL, help="positive limit, units")
-    add_log_arguments(parser)
     args = parser.parse_args(argv)
     if args.reply_delay_ms < 0:
         parser.error("--reply-delay-ms must be >= 0")
     sim = make_simulator(args.unit_id, args.reply_delay_ms / 1000.0, args.travel)
     device = sim.device
     assert isinstance(device, StepperSimDevice)
-    open_logs(args, sim)
     serve_serial_until_signalled(
         sim,
         args,
