@@ -17,7 +17,7 @@ from msg_defs.msg import XArmState
 from msg_defs.srv import RunOfflineTask, SetChannelValue, SetInteger, SetOutput
 from xarm_bridge.sim import IN_MOTION, PAUSED, SLEEPING, STOPPED, XArmSimDevice, make_simulator
 
-from .support.ros import Client, ros_client, start_bridge, values_of
+from ..support.ros import Client, ros_client, start_bridge, values_of
 
 pytestmark = pytest.mark.ros
 

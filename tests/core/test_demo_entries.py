@@ -10,7 +10,7 @@ import pytest
 
 from bridge_core import demo
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_every_bridge_demo_module_is_declared() -> None:

@@ -18,7 +18,7 @@ from bridge_core.channel import DeviceChannel
 from bridge_core.transport import ModbusLink, TcpSettings
 from r6_bridge.device import R6Device
 
-from .support.replay import ReplayServer, Step, pdu_of
+from ..support.replay import ReplayServer, Step, pdu_of
 
 VERSION_REPLY = (
     "0x00 0x00 0x00 0x00 0x00 0x2c 0x01 0x03 0x2a "

@@ -17,7 +17,7 @@ from bridge_core.errors import DeviceException
 from bridge_core.transport import ModbusLink, TcpSettings
 from xarm_bridge.device import XArmDevice
 
-from .support.replay import ReplayServer, Step, pdu_of
+from ..support.replay import ReplayServer, Step, pdu_of
 
 
 def run(

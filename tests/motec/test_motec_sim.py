@@ -29,7 +29,7 @@ from motec_bridge.sim import (
     make_simulator,
 )
 
-from .support.serial_pair import socat_pair
+from ..support.serial_pair import socat_pair
 
 BAUD = 115200
 UNITS = (1, 2, 3)

@@ -27,7 +27,7 @@ from stepper_bridge.device import JointScale, StepperDevice
 from stepper_bridge.registers import STEPPER_MAP, UNDEFINED_HOLDING, holding
 from stepper_bridge.sim import START_POSITION, StepperSimDevice, make_simulator
 
-from .support.serial_pair import socat_pair
+from ..support.serial_pair import socat_pair
 
 BAUD = 115200
 
@@ -413,7 +413,7 @@ def test_stepper_sim_cli_on_its_own_pty(tmp_path: Path) -> None:
     """`stepper_sim --pty LINK`: socat pty pair, 9600 baud, the manual's 35 ms reply delay."""
     from bridge_core.sim_base import read_write_log
 
-    from .support.ros import ROOT
+    from ..support.ros import ROOT
 
     link_path, log = tmp_path / "stepper", tmp_path / "writes.jsonl"
     proc = subprocess.Popen(

@@ -28,8 +28,8 @@ from std_srvs.srv import Trigger
 from msg_defs.msg import StepperState
 from stepper_bridge.sim import StepperSimDevice, make_simulator
 
-from .support.ros import WAIT_S, Bridge, Client, ros_client, start_bridge, values_of, wait_for
-from .support.serial_pair import socat_pair
+from ..support.ros import WAIT_S, Bridge, Client, ros_client, start_bridge, values_of, wait_for
+from ..support.serial_pair import socat_pair
 
 pytestmark = pytest.mark.ros
 

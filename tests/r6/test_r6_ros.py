@@ -31,8 +31,8 @@ from msg_defs.srv import (
 from r6_bridge.registers import COMMANDS
 from r6_bridge.sim import R6SimDevice, make_simulator
 
-from .conftest import free_port
-from .support.ros import Client, ros_client, start_bridge, values_of
+from ..conftest import free_port
+from ..support.ros import Client, ros_client, start_bridge, values_of
 
 pytestmark = pytest.mark.ros
 

@@ -39,8 +39,8 @@ from motec_bridge.registers import (
     output_coil,
 )
 
-from .support.rtu_replay import RtuReplay, Step
-from .support.serial_pair import socat_pair
+from ..support.rtu_replay import RtuReplay, Step
+from ..support.serial_pair import socat_pair
 
 BAUD = 115200
 UNIT = 3

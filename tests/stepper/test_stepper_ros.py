@@ -30,7 +30,7 @@ from msg_defs.srv import (
 )
 from stepper_bridge.sim import START_POSITION, StepperSimDevice, make_simulator
 
-from .support.ros import (
+from ..support.ros import (
     WAIT_S,
     Bridge,
     Client,
@@ -41,7 +41,7 @@ from .support.ros import (
     wait_for,
     wait_subscribed,
 )
-from .support.serial_pair import socat_pair
+from ..support.serial_pair import socat_pair
 
 pytestmark = pytest.mark.ros
 
@@ -376,7 +376,7 @@ def test_read_only_refuses_every_write(sim, client: Client, tmp_path: Path) -> N
 def test_example_yaml_configures_the_node(sim, client: Client, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     from sensor_msgs.msg import JointState
 
-    from .support.ros import ROOT, node_process
+    from ..support.ros import ROOT, node_process
 
     device, port = sim
     device.position[5] = START_POSITION + 1.25  # a quarter turn at lead 5.00

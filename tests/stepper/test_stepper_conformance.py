@@ -34,8 +34,8 @@ from stepper_bridge.registers import (
     motor_register,
 )
 
-from .support.rtu_replay import RtuReplay, Step
-from .support.serial_pair import socat_pair
+from ..support.rtu_replay import RtuReplay, Step
+from ..support.serial_pair import socat_pair
 
 BAUD = 115200
 

@@ -22,7 +22,7 @@ from motec_bridge.sim import MotecSimDrive, MotecSimulator, make_simulator
 from msg_defs.msg import MotecState
 from msg_defs.srv import PositionMove, SetControlMode, SetOutput, SetValue
 
-from .support.ros import (
+from ..support.ros import (
     LATCHED,
     ROOT,
     WAIT_S,
@@ -34,7 +34,7 @@ from .support.ros import (
     wait_for,
     wait_subscribed,
 )
-from .support.serial_pair import socat_pair
+from ..support.serial_pair import socat_pair
 
 pytestmark = pytest.mark.ros
 

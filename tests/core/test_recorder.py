@@ -13,7 +13,7 @@ from rosbags.rosbag2 import Reader
 from bridge_core.recorder import typestore_for
 from r6_bridge.sim import R6SimDevice, make_simulator
 
-from .support.ros import ROOT, node_process
+from ..support.ros import ROOT, node_process
 
 pytestmark = pytest.mark.ros
 
