@@ -431,7 +431,7 @@ class StepperDevice(ConfiguredDevice):
             "command_timeout_s) before jogging it again",
         )
 
-    def _jog_send(self, motor: int, rpm: float, previous: float | None) -> None:
+    def _jog_send(self, motor: int, rpm: float, _previous: float | None) -> None:
         """Speed (40006+, adjustable while running) and direction coil, as needed.
 
         A reversal, or a motor whose direction is unknown, gets the stop coil first.
@@ -442,8 +442,11 @@ class StepperDevice(ConfiguredDevice):
             if direction is None or direction == -sign:
                 self.io.write_coil(motor_coil(motor, "stop"), True)
                 self._direction[motor] = direction = 0
-            if previous is None or round(abs(previous)) != speed:
-                self._write_values([(motor_register(motor, "speed"), speed)])
+            # The speed register keeps its value across stops: write it only when the
+            # value the cache holds (read from the device, or our own last write) differs.
+            speed_register = motor_register(motor, "speed")
+            if self._cache.values.get(speed_register) != speed:
+                self._write_values([(speed_register, speed)])
             if direction != sign:
                 self.io.write_coil(motor_coil(motor, "forward" if sign > 0 else "reverse"), True)
                 self._direction[motor] = sign
