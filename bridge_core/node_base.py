@@ -424,7 +424,8 @@ class BridgeNode(ParameterNode):
         except DeviceException as err:
             return False, f"{what}: the device answered {err}", None
         except LinkError as err:
-            self._publish_connected(self.channel.connected)
+            if not self.channel.connected:
+                self.poller.link_lost(f"{what}: {err}")
             hint = " (it may or may not have been executed)" if writes else ""
             return False, f"{what} failed: {err}{hint}", None
         except Exception as err:

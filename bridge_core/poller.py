@@ -144,6 +144,7 @@ class Poller(Generic[Snapshot]):
         self.snapshots_dropped = 0
         self.last_error: str | None = None
         self._reported_up: bool | None = None
+        self._state_lock = threading.Lock()
         self._snapshots: queue.Queue[Snapshot] = queue.Queue(maxsize=PUBLISH_BACKLOG)
         self._stop = threading.Event()
         self._wake = threading.Event()
@@ -188,9 +189,7 @@ class Poller(Generic[Snapshot]):
         except LinkError as err:
             self.failures += 1
             self.last_error = str(err)
-            if self._reported_up is not False:
-                self._report(PollOutcome.LINK_LOST, str(err))
-            self._set_up(False)
+            self.link_lost(str(err))
             return PollOutcome.LINK_LOST
         except Exception as err:  # a device fault must never end the loop
             self.failures += 1
@@ -203,10 +202,21 @@ class Poller(Generic[Snapshot]):
         self._hand_off(snapshot)
         return PollOutcome.PUBLISHED
 
+    def link_lost(self, text: str) -> None:
+        """The link was lost (by a poll, or by a command on the same channel): report it
+        once, and say connected again after the next good poll."""
+        with self._state_lock:
+            first = self._reported_up is not False
+        if first:
+            self._report(PollOutcome.LINK_LOST, text)
+        self._set_up(False)
+
     def _set_up(self, up: bool) -> None:
-        if up != self._reported_up:
+        with self._state_lock:
+            if up == self._reported_up:
+                return
             self._reported_up = up
-            self._connected_changed(up)
+        self._connected_changed(up)
 
     def _hand_off(self, snapshot: Snapshot) -> None:
         try:

@@ -252,3 +252,25 @@ def test_stamp_register_must_be_in_the_plan() -> None:
     requests = plan_reads(MAP, MAP.select(["status"]))
     with pytest.raises(ValueError, match="position"):
         read_blocks(io, requests, stamp_register="position", clock=clock)  # type: ignore[arg-type]
+
+
+def test_a_command_that_loses_the_link_is_followed_by_connected_again() -> None:
+    """A command's LinkError marks the link down; the next good poll must say up again
+    (two owners of the connected state once left it false while polls succeeded)."""
+    channel = FakeChannel()
+    device = FakeDevice(channel)
+    ups: list[bool] = []
+    events: list[PollOutcome] = []
+    poller = Poller(
+        channel,
+        device.poll,
+        lambda _s: None,
+        rate_hz=10.0,
+        connected_changed=ups.append,
+        report=lambda outcome, _text: events.append(outcome),
+    )
+    assert poller.tick() is PollOutcome.PUBLISHED
+    poller.link_lost("stop: no reply")  # what the node does after a failed command
+    assert poller.tick() is PollOutcome.PUBLISHED
+    assert ups == [True, False, True]
+    assert events == [PollOutcome.LINK_LOST]
