@@ -24,7 +24,7 @@ from stepper_bridge.registers import motor_coil
 from stepper_bridge.sim import StepperSimDevice, make_simulator
 
 from .support.ros import Bridge, Client, node_process, ros_client, wait_for
-from .support.serial_pair import socat_pair
+from .support.serial_pair import served_on_pty
 
 pytestmark = pytest.mark.ros
 
@@ -41,14 +41,10 @@ def client() -> Iterator[Client]:
 @pytest.fixture
 def sim() -> Iterator[tuple[StepperSimDevice, str]]:
     simulator = make_simulator(reply_delay_s=0.0)
-    with socat_pair() as (bridge_end, device_end, _):
-        simulator.start_serial(device_end, BAUD)
-        device = simulator.device
-        assert isinstance(device, StepperSimDevice)
-        try:
-            yield device, bridge_end
-        finally:
-            simulator.stop()
+    device = simulator.device
+    assert isinstance(device, StepperSimDevice)
+    with served_on_pty(simulator, BAUD) as bridge_end:
+        yield device, bridge_end
 
 
 @pytest.mark.parametrize("signal_number", [signal.SIGINT, signal.SIGTERM], ids=["int", "term"])
@@ -87,43 +83,39 @@ def test_exit_zeroes_a_motec_velocity_stream(
     """MOTEC in velocity control with no lifeguard (the default): the drive would keep
     turning at the last speed; the bridge writes 0xAE = 0 on its way out."""
     simulator = make_motec_simulator([1])
-    with socat_pair() as (bridge_end, device_end, _):
-        simulator.start_serial(device_end, BAUD)
-        drive = simulator.drive(1)
-        try:
-            namespace = f"/shutdown_motec_{signal_number}"
-            params = {
-                "serial_port": bridge_end,
-                "baudrate": BAUD,
-                "unit_ids": [1],
-                "poll_rate_hz": 20.0,
-                "timeout_s": 1.0,
-                "command_timeout_s": 60.0,
-            }
-            state = f"{namespace}/motec_1/state"
-            client.subscribe(MotecState, state)
-            with node_process(
-                "motec_bridge.node", params, tmp_path, ["-r", f"__ns:={namespace}"]
-            ) as proc:
-                client.wait_message(state, timeout=30)
-                for name, srv, fields in (
-                    ("set_control_mode", SetControlMode, {"mode": SetControlMode.Request.VELOCITY}),
-                    ("enable", SetBool, {"data": True}),
-                ):
-                    request = srv.Request()
-                    for key, value in fields.items():
-                        setattr(request, key, value)
-                    reply = client.call(srv, f"{namespace}/motec_1/{name}", request, timeout=30)
-                    assert reply.success, reply.message
-                pub = client.node.create_publisher(Float64, f"{namespace}/motec_1/cmd_velocity", 10)
-                wait_for(lambda: pub.get_subscription_count() > 0, 30, "cmd_velocity")
-                pub.publish(Float64(data=10.0))  # rad/s: ~95 rpm
-                client.wait_message(state, lambda m: m.speed_actual_rpm > 50, timeout=30)
-                writes_before = len(drive.write_log)
-                proc.send_signal(signal_number)
-                assert proc.wait(EXIT_TIMEOUT_S) == 0
-                late = [(r.address, r.values) for r in drive.write_log[writes_before:]]
-                assert late == [(0xAE, (0,))]
-                client.node.destroy_publisher(pub)
-        finally:
-            simulator.stop()
+    drive = simulator.drive(1)
+    with served_on_pty(simulator, BAUD) as bridge_end:
+        namespace = f"/shutdown_motec_{signal_number}"
+        params = {
+            "serial_port": bridge_end,
+            "baudrate": BAUD,
+            "unit_ids": [1],
+            "poll_rate_hz": 20.0,
+            "timeout_s": 1.0,
+            "command_timeout_s": 60.0,
+        }
+        state = f"{namespace}/motec_1/state"
+        client.subscribe(MotecState, state)
+        with node_process(
+            "motec_bridge.node", params, tmp_path, ["-r", f"__ns:={namespace}"]
+        ) as proc:
+            client.wait_message(state, timeout=30)
+            for name, srv, fields in (
+                ("set_control_mode", SetControlMode, {"mode": SetControlMode.Request.VELOCITY}),
+                ("enable", SetBool, {"data": True}),
+            ):
+                request = srv.Request()
+                for key, value in fields.items():
+                    setattr(request, key, value)
+                reply = client.call(srv, f"{namespace}/motec_1/{name}", request, timeout=30)
+                assert reply.success, reply.message
+            pub = client.node.create_publisher(Float64, f"{namespace}/motec_1/cmd_velocity", 10)
+            wait_for(lambda: pub.get_subscription_count() > 0, 30, "cmd_velocity")
+            pub.publish(Float64(data=10.0))  # rad/s: ~95 rpm
+            client.wait_message(state, lambda m: m.speed_actual_rpm > 50, timeout=30)
+            writes_before = len(drive.write_log)
+            proc.send_signal(signal_number)
+            assert proc.wait(EXIT_TIMEOUT_S) == 0
+            late = [(r.address, r.values) for r in drive.write_log[writes_before:]]
+            assert late == [(0xAE, (0,))]
+            client.node.destroy_publisher(pub)

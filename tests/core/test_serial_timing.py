@@ -187,9 +187,11 @@ def test_reply_length_unknowns_and_broadcast() -> None:
 def test_relay_transfer_times_match_theory() -> None:
     results = check_relay(baudrates=(9600, 115200), sizes=(8, 103), repeats=7, pause_s=0.005)
     for r in results:
-        # Medians, generous: ~+0.1 ms per frame on an idle machine, several ms on one whose
-        # CPUs are saturated. A relay that did not pace would be early by the frame time.
-        assert -0.3e-3 < r.error_s < 10e-3 + 0.25 * r.theory_s, r
+        # The relay paces: a frame is never delivered before its wire time (a relay that
+        # did not pace would be early by the whole frame time). How late it is depends on
+        # the machine's load: that figure is `python bench/line_relay.py --check`'s, not
+        # a test's (no wall-clock upper bounds in tests).
+        assert r.error_s > -0.3e-3, r
 
 
 def test_relay_flags_a_request_inside_the_silence() -> None:

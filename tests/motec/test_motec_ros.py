@@ -34,7 +34,7 @@ from ..support.ros import (
     wait_for,
     wait_subscribed,
 )
-from ..support.serial_pair import socat_pair
+from ..support.serial_pair import served_on_pty
 
 pytestmark = pytest.mark.ros
 
@@ -140,12 +140,8 @@ def client() -> Iterator[Client]:
 def bus() -> Iterator[tuple[MotecSimulator, str]]:
     """Three drives on one simulated bus at the device end of a socat pty pair."""
     simulator = make_simulator(UNITS)
-    with socat_pair() as (bridge_end, device_end, _):
-        simulator.start_serial(device_end, BAUD)
-        try:
-            yield simulator, bridge_end
-        finally:
-            simulator.stop()
+    with served_on_pty(simulator, BAUD) as bridge_end:
+        yield simulator, bridge_end
 
 
 def bridge_params(port: str, **params: Any) -> dict[str, Any]:

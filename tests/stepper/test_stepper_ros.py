@@ -41,7 +41,7 @@ from ..support.ros import (
     wait_for,
     wait_subscribed,
 )
-from ..support.serial_pair import socat_pair
+from ..support.serial_pair import served_on_pty
 
 pytestmark = pytest.mark.ros
 
@@ -64,14 +64,10 @@ def client() -> Iterator[Client]:
 def sim() -> Iterator[tuple[StepperSimDevice, str]]:
     """The simulator on one end of a socat pty pair; yields it and the bridge's end."""
     simulator = make_simulator(reply_delay_s=0.0)
-    with socat_pair() as (bridge_end, device_end, _):
-        simulator.start_serial(device_end, BAUD)
-        device = simulator.device
-        assert isinstance(device, StepperSimDevice)
-        try:
-            yield device, bridge_end
-        finally:
-            simulator.stop()
+    device = simulator.device
+    assert isinstance(device, StepperSimDevice)
+    with served_on_pty(simulator, BAUD) as bridge_end:
+        yield device, bridge_end
 
 
 def bridge(

@@ -8,7 +8,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from bridge_core.sim_base import PtyPair
+from bridge_core.sim_base import PtyPair, Simulator
 
 
 @contextmanager
@@ -20,3 +20,17 @@ def socat_pair() -> Iterator[tuple[str, str, subprocess.Popen[bytes]]]:
             yield str(pair.link), str(pair.device_end), pair.proc
         finally:
             pair.close()
+
+
+@contextmanager
+def served_on_pty(simulator: Simulator, baudrate: int) -> Iterator[str]:
+    """``simulator`` serving the device end of a fresh pty pair; yields the bridge's end.
+
+    The simulator is stopped (and the pair closed) on the way out.
+    """
+    with socat_pair() as (bridge_end, device_end, _):
+        simulator.start_serial(device_end, baudrate)
+        try:
+            yield bridge_end
+        finally:
+            simulator.stop()
