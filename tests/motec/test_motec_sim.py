@@ -32,6 +32,7 @@ from motec_bridge.sim import (
 from ..support.serial_pair import socat_pair
 
 BAUD = 115200
+LIFEGUARD_TEST_MS = 1000
 UNITS = (1, 2, 3)
 DT = 0.01
 
@@ -205,7 +206,7 @@ def test_three_drives_move_independently(bus: Bus) -> None:
     d1.set_control_mode(CONTROL_MODE_POSITION)
     d1.enable(True)
     d1.move(20000, relative=True)
-    deadline = time.monotonic() + 5
+    deadline = time.monotonic() + 30
     while (s := d1.poll()).position_actual != 20000 or s.moving:
         assert time.monotonic() < deadline, s
         time.sleep(0.02)
@@ -274,17 +275,19 @@ def test_lifeguard_over_the_bus(bus: Bus) -> None:
     d = bus.devices[1]
     d.set_control_mode(CONTROL_MODE_VELOCITY)
     d.enable(True)
-    d.arm_lifeguard(100)
-    deadline = time.monotonic() + 0.4
+    # 1 s, fed every few ms: a loaded machine's scheduling stalls stay far below it.
+    d.arm_lifeguard(LIFEGUARD_TEST_MS)
+    deadline = time.monotonic() + 2 * LIFEGUARD_TEST_MS / 1000
     while time.monotonic() < deadline:  # the bridge's feed keeps it alive
-        d.feed_lifeguard(100)
+        d.feed_lifeguard(LIFEGUARD_TEST_MS)
         time.sleep(0.01)
     assert d.poll().fault_code == 0
-    deadline = time.monotonic() + 0.4
-    while time.monotonic() < deadline:  # polls alone do not
-        s = d.poll()
+    deadline = time.monotonic() + 30
+    while (s := d.poll()).fault_code == 0:  # polls alone do not
+        assert time.monotonic() < deadline, "the lifeguard did not fire"
+        time.sleep(0.05)
     assert s.fault_code == LIFEGUARD_FAULT_CODE and not s.modes.enabled
-    assert s.config.lifeguard_armed and s.config.lifeguard_time_ms == 100
+    assert s.config.lifeguard_armed and s.config.lifeguard_time_ms == LIFEGUARD_TEST_MS
     with pytest.raises(DeviceException, match="ILLEGAL DATA VALUE"):
         d.enable(True)
     d.enable(False)
