@@ -81,6 +81,14 @@ EXTRA: dict[Table, Iterable[int]] = {
 }
 
 
+# The relay's timestamps are good to ~20 us on an idle machine; with the CPUs saturated
+# (CI runs beside other jobs) its own scheduling blurs them by tens of us. A request the
+# client sends too early is early by far more (stock pymodbus: most of t3.5), so the
+# tests allow a tenth of t3.5; bench/rtu_wire.py reports the exact figures.
+def wire_tolerance(line: LineRelay) -> float:
+    return 0.1 * line.silence_s
+
+
 def frame(pdu: ModbusPDU) -> bytes:
     return bytes(FRAMER.buildFrame(pdu))
 
@@ -294,7 +302,7 @@ def test_units_read_and_write_through_channels(
     frames = line.frames()
     requests = [f for f in frames if f.direction == REQUEST]
     assert len(requests) == 23
-    assert silence_violations(frames, line.silence_s) == []
+    assert silence_violations(frames, line.silence_s, wire_tolerance(line)) == []
 
 
 def test_no_request_inside_the_silence_at_9600() -> None:
@@ -314,7 +322,7 @@ def test_no_request_inside_the_silence_at_9600() -> None:
             link.close()
             sim.stop()
     assert len(request_gaps(frames)) == 8 * 3 - 1
-    assert silence_violations(frames, line.silence_s) == []
+    assert silence_violations(frames, line.silence_s, wire_tolerance(line)) == []
 
 
 def test_broadcast_expects_no_reply_and_waits_the_turnaround(
@@ -350,7 +358,7 @@ def test_withheld_reply_times_out_and_the_next_works(
     time.sleep(0.15)  # backoff
     assert ch.read_registers(0, 2) == [200, 201]
     assert ch.connected and ch.stats.reconnects == 1
-    assert silence_violations(line.frames(), line.silence_s) == []
+    assert silence_violations(line.frames(), line.silence_s, wire_tolerance(line)) == []
 
 
 # ---------------------------------------------------------------- scripted faults
