@@ -23,7 +23,7 @@ from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from enum import IntEnum
-from typing import Protocol
+from typing import Any, Protocol
 
 from .errors import DeviceException, FrameError, LinkDown, LinkError, LinkTimeout
 from .registers import Table
@@ -305,13 +305,7 @@ class DeviceChannel:
         table: Table = Table.HOLDING,
         priority: Priority = Priority.POLL,
     ) -> list[int]:
-        reply = self.transact(ReadRegisters(address, count, table), priority)
-        assert isinstance(reply, list)
-        if len(reply) != count:
-            if len(reply) < count:
-                raise FrameError(f"short reply: {len(reply)} of {count} registers")
-            reply = reply[:count]
-        return reply  # type: ignore[return-value]
+        return _exactly(self.transact(ReadRegisters(address, count, table), priority), count)
 
     def read_bits(
         self,
@@ -320,9 +314,8 @@ class DeviceChannel:
         table: Table = Table.COIL,
         priority: Priority = Priority.POLL,
     ) -> list[bool]:
-        reply = self.transact(ReadBits(address, count, table), priority)
-        assert isinstance(reply, list)
-        return reply  # type: ignore[return-value]  # execute() made them bools already
+        # execute() made them bools already.
+        return _exactly(self.transact(ReadBits(address, count, table), priority), count)
 
     def write_register(self, address: int, value: int) -> None:
         self.transact(WriteRegister(address, value), Priority.COMMAND)
@@ -353,3 +346,14 @@ class DeviceChannel:
 
     def describe(self) -> str:
         return f"{self.link.describe()} unit {self.unit_id}"
+
+
+def _exactly(reply: object, count: int) -> list[Any]:
+    """The first ``count`` values of a read's reply; a shorter reply is a FrameError.
+
+    A longer one is cut: bits come padded to whole bytes, and a device may send more.
+    """
+    assert isinstance(reply, list)
+    if len(reply) < count:
+        raise FrameError(f"short reply: {len(reply)} of {count} values")
+    return reply[:count]

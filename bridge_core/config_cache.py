@@ -11,12 +11,17 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Sequence
+from typing import Any, Generic, TypeVar
 
 from .channel import Priority, RegisterIO
 from .codec import Value
 from .errors import CommandRejected
 from .planner import ReadRequest
-from .poller import read_blocks
+from .poller import read_blocks, read_named
+from .registers import RegisterMap
+from .stream_guard import StreamGuard
+
+ConfigT = TypeVar("ConfigT")
 
 ReadFunction = Callable[[ReadRequest, Priority], dict[str, Value]]
 
@@ -70,23 +75,51 @@ class ConfigCache:
             self.values[name] = value
 
 
-class ConfiguredDevice:
+class ConfiguredDevice(Generic[ConfigT]):
     """Base of a device model whose configuration is cached (stepper, MOTEC).
 
     Reads go through ``read_request`` (bit or register table); ``poll_status`` reads the
     status plan stamped by its position block, after reading the configuration whole when
-    it is missing and before one refresh request when one is due.
+    it is missing and before one refresh request when one is due. A subclass builds its
+    typed ``config`` from ``cached()`` and lists its command streams in ``streams``.
     """
 
     def __init__(
         self,
         io: RegisterIO,
+        register_map: RegisterMap,
         config_plan: Sequence[ReadRequest],
         refresh_s: float,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
         self.io = io
+        self.register_map = register_map
+        self.streams: list[StreamGuard[Any]] = []
         self._cache = ConfigCache(config_plan, self.read_request, refresh_s, clock)
+
+    @property
+    def config(self) -> ConfigT:
+        """The cached configuration, typed; refused (CommandRejected) until it was read."""
+        raise NotImplementedError
+
+    def read_config(self, priority: Priority = Priority.POLL) -> ConfigT:
+        """Read the whole configuration now (on link up, and whenever asked)."""
+        self.read_whole_config(priority)
+        return self.config
+
+    def read_named(self, *names: str) -> dict[str, Value]:
+        return read_named(self.io, self.register_map, names)
+
+    def invalidate_config(self) -> None:
+        """The device may have changed (link came up, a refused read): read it whole next.
+
+        A stream that was running stays "active", so that the node's deadman stops it once
+        the link is back; only the values it last sent are forgotten (the device may hold
+        others now).
+        """
+        self.forget_config()
+        for stream in self.streams:
+            stream.forget_values()
 
     def read_request(self, request: ReadRequest, priority: Priority) -> dict[str, Value]:
         return read_blocks(self.io, (request,), priority)[0]

@@ -67,17 +67,19 @@ def _free_port() -> int:
 
 @dataclass
 class DemoDevice:
-    """One simulator + bridge pair and how to show its state."""
+    """One simulator + bridge pair and how to show its state.
+
+    The pair is ``<package>.sim`` and ``<package>.node`` (node name = package), both told
+    where the device is: a free TCP port (``--port`` / ``port``) or, with ``serial``, the
+    path of a pty the simulator creates for the bridge's end (``--pty`` / ``serial_port``).
+    """
 
     name: str
-    node_name: str
-    # Both take where the device is: a TCP port, or (serial=True) the path of a pty the
-    # simulator creates for the bridge's end.
-    sim_args: Callable[[Any], list[str]]
-    node_module: str
-    node_params: Callable[[Any], dict[str, Any]]
+    package: str
     state_type: str  # "package/msg/Type"
     format_state: Callable[[Any], str]
+    sim_args: list[str] = field(default_factory=list)  # besides where
+    node_params: dict[str, Any] = field(default_factory=dict)  # besides where
     start_services: list[tuple[str, str, dict[str, Any]]] = field(default_factory=list)
     serial: bool = False
     # Nodes with a ~/state of their own, when one process runs several (MOTEC: one per
@@ -87,8 +89,23 @@ class DemoDevice:
     order: int = 100
 
     @property
+    def node_name(self) -> str:
+        return self.package
+
+    @property
     def nodes(self) -> list[str]:
         return self.state_nodes or [self.node_name]
+
+    def simulator_command(self, where: Any) -> list[str]:
+        flag = "--pty" if self.serial else "--port"
+        return ["-m", f"{self.package}.sim", flag, str(where), *self.sim_args]
+
+    def node_command(self, where: Any) -> list[str]:
+        params = {"serial_port": str(where)} if self.serial else {"port": where}
+        ros_args = ["--ros-args", "-r", f"__ns:=/{self.name.lower()}"]
+        for key, value in {**params, **self.node_params}.items():
+            ros_args += ["-p", f"{key}:={value}"]
+        return ["-m", f"{self.package}.node", *ros_args]
 
 
 def entry_specs(root: Path = ROOT) -> list[str]:
@@ -303,12 +320,8 @@ def main(argv: Sequence[str] | None = None, modules: Sequence[str] | None = None
     try:
         for device in devices:
             where: Any = logs / f"{device.name.lower()}.pty" if device.serial else _free_port()
-            spawn(f"{device.name.lower()}_sim", device.sim_args(where))
-            params = device.node_params(where)
-            ros_args = ["--ros-args", "-r", f"__ns:=/{device.name.lower()}"]
-            for key, value in params.items():
-                ros_args += ["-p", f"{key}:={value}"]
-            spawn(device.node_name, ["-m", device.node_module, *ros_args])
+            spawn(f"{device.name.lower()}_sim", device.simulator_command(where))
+            spawn(device.node_name, device.node_command(where))
         monitor = Monitor(devices)
         # The start services need a connected device: on a busy machine the simulators
         # and bridges take a while to come up, and a service called earlier is refused.

@@ -27,7 +27,8 @@ import sys
 import threading
 import traceback
 from collections.abc import Callable, Iterable, Sequence
-from typing import Any, TypeVar
+from dataclasses import dataclass
+from typing import Any, Generic, TypeVar
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -59,6 +60,7 @@ from .stream_guard import StreamGuard
 from .transport import ModbusLink, SerialSettings, TcpSettings
 
 T = TypeVar("T")
+SnapshotT = TypeVar("SnapshotT")
 DIAGNOSTICS_PERIOD_S = 1.0
 JOINT_STATES_DEPTH = 10
 PARITIES = ("N", "E", "O")
@@ -94,14 +96,28 @@ def descriptor(spec: ParameterSpec) -> ParameterDescriptor:
     return result
 
 
-def transport_specs(
-    transport: str, *, default_port: int, default_baudrate: int, default_timeout_s: float
-) -> list[ParameterSpec]:
+@dataclass(frozen=True)
+class DeviceDefaults:
+    """A kind of device as its bridge knows it: its name and the defaults of its parameters.
+
+    One value per bridge (e.g. ``R6_DEFAULTS``), so that the node, the bus owner and the
+    docs agree on them; users override each default with a ROS parameter.
+    """
+
+    device_name: str
+    transport: str  # "tcp" or "rtu"
+    poll_rate_hz: float = 20.0
+    port: int = 502
+    baudrate: int = 9600
+    timeout_s: float = 0.5
+
+
+def transport_specs(defaults: DeviceDefaults) -> list[ParameterSpec]:
     """Where the device is: the parameters of a node (or bus) that opens its own link."""
-    if transport == "tcp":
+    if defaults.transport == "tcp":
         specs = [
             ParameterSpec("host", "127.0.0.1", "device IP address or host name"),
-            ParameterSpec("port", default_port, "Modbus TCP port", 1, 65535),
+            ParameterSpec("port", defaults.port, "Modbus TCP port", 1, 65535),
         ]
     else:
         specs = [
@@ -110,13 +126,13 @@ def transport_specs(
                 "/dev/ttyUSB0",
                 "serial device path or pyserial URL (e.g. socket://host:port)",
             ),
-            ParameterSpec("baudrate", default_baudrate, "serial baud rate", 300, 4_000_000),
+            ParameterSpec("baudrate", defaults.baudrate, "serial baud rate", 300, 4_000_000),
             ParameterSpec("parity", "N", "serial parity", choices=PARITIES),
             ParameterSpec("stopbits", 1, "serial stop bits", 1, 2),
         ]
     return [
         *specs,
-        ParameterSpec("timeout_s", default_timeout_s, "reply timeout per transaction", 0.01, 10.0),
+        ParameterSpec("timeout_s", defaults.timeout_s, "reply timeout per transaction", 0.01, 10.0),
     ]
 
 
@@ -214,30 +230,28 @@ class ParameterNode(Node):
                 self.get_logger().info(f"parameter {parameter.name} set to {parameter.value!r}")
 
 
-class BridgeNode(ParameterNode):
+class BridgeNode(ParameterNode, Generic[SnapshotT]):
     """Base of the bridge nodes; subclasses poll, publish and add services.
 
     The node opens its own link from its transport parameters, unless it is given
     ``link`` and ``unit_id`` (a device on a bus a ``BusNode`` owns): then it declares
-    no transport parameters and never closes the link.
+    no transport parameters and never closes the link. ``last_snapshot`` is the latest
+    poll's, set before ``publish_snapshot`` runs (diagnostics and services read it).
     """
 
     def __init__(
         self,
         node_name: str,
+        defaults: DeviceDefaults,
         *,
-        transport: str,
-        device_name: str,
-        default_poll_rate_hz: float = 20.0,
-        default_port: int = 502,
-        default_baudrate: int = 9600,
-        default_timeout_s: float = 0.5,
         link: ModbusLink | None = None,
         unit_id: int | None = None,
         **node_kwargs: Any,
     ) -> None:
         super().__init__(node_name, **node_kwargs)
-        self.device_name = device_name
+        self.device_name = defaults.device_name
+        self.last_snapshot: SnapshotT | None = None
+        self.joint_names: list[str] = []
         self.command_group = MutuallyExclusiveCallbackGroup()
         self.diagnostics_group = MutuallyExclusiveCallbackGroup()
         self.stream_guards: list[StreamGuard[Any]] = []
@@ -246,7 +260,7 @@ class BridgeNode(ParameterNode):
             *channel_specs(),
             ParameterSpec(
                 "poll_rate_hz",
-                default_poll_rate_hz,
+                defaults.poll_rate_hz,
                 "full-state polls per second",
                 0.1,
                 1000.0,
@@ -260,12 +274,7 @@ class BridgeNode(ParameterNode):
         ]
         if link is None:
             specs = [
-                *transport_specs(
-                    transport,
-                    default_port=default_port,
-                    default_baudrate=default_baudrate,
-                    default_timeout_s=default_timeout_s,
-                ),
+                *transport_specs(defaults),
                 ParameterSpec("unit_id", 1, "Modbus unit (slave) id", *UNIT_ID_RANGE),
                 *specs,
             ]
@@ -286,7 +295,7 @@ class BridgeNode(ParameterNode):
             retries=int(values["retries"]),
             reconnect_max_s=float(values["reconnect_max_s"]),
         )
-        self.hardware_id = f"{device_name}@{self.channel.describe()}"
+        self.hardware_id = f"{self.device_name}@{self.channel.describe()}"
 
         self.joint_states_pub = self.create_publisher(
             JointState, "joint_states", JOINT_STATES_DEPTH
@@ -301,10 +310,10 @@ class BridgeNode(ParameterNode):
         self._connected_published: bool | None = None
         self._connected_lock = threading.Lock()
         self._publish_connected(False)
-        self.poller: Poller[Any] = Poller(
+        self.poller: Poller[SnapshotT] = Poller(
             self.channel,
             self.poll_device,
-            self.publish_snapshot,
+            self._publish,
             rate_hz=float(values["poll_rate_hz"]),
             link_up=self.on_link_up,
             replan=self.replan,
@@ -324,11 +333,11 @@ class BridgeNode(ParameterNode):
     def param(self, name: str) -> Any:
         return self.get_parameter(name).value
 
-    def poll_device(self) -> Any:
+    def poll_device(self) -> SnapshotT:
         """Read the device's state; raise LinkError on failure."""
         raise NotImplementedError
 
-    def publish_snapshot(self, snapshot: Any) -> None:
+    def publish_snapshot(self, snapshot: SnapshotT) -> None:
         raise NotImplementedError
 
     def on_link_up(self) -> None:
@@ -344,21 +353,21 @@ class BridgeNode(ParameterNode):
     def stamp(self, wall_time: float) -> Any:
         return Time(nanoseconds=int(wall_time * 1e9)).to_msg()
 
-    def joint_state(
+    def publish_joints(
         self,
         wall_time: float,
-        names: Sequence[str],
         position: Sequence[float],
         velocity: Sequence[float] = (),
         effort: Sequence[float] = (),
-    ) -> JointState:
+    ) -> None:
+        """``joint_states`` for ``joint_names``, in SI units (REP 103), stamped ``wall_time``."""
         msg = JointState()
         msg.header.stamp = self.stamp(wall_time)
-        msg.name = list(names)
+        msg.name = list(self.joint_names)
         msg.position = [float(v) for v in position]
         msg.velocity = [float(v) for v in velocity]
         msg.effort = [float(v) for v in effort]
-        return msg
+        self.joint_states_pub.publish(msg)
 
     def stamped(self, msg: Any, wall_time: float) -> Any:
         """``msg`` with its header stamped with ``wall_time`` and the node's frame_id."""
@@ -371,6 +380,10 @@ class BridgeNode(ParameterNode):
         return self.poller.rate_hz
 
     # ------------------------------------------------------------ polling
+    def _publish(self, snapshot: SnapshotT) -> None:
+        self.last_snapshot = snapshot
+        self.publish_snapshot(snapshot)
+
     def _start_polling(self) -> None:
         self._poll_starter.cancel()
         self.poller.start()
@@ -624,21 +637,15 @@ class BusNode(ParameterNode):
     def __init__(
         self,
         node_name: str,
+        defaults: DeviceDefaults,
         *,
-        default_baudrate: int,
-        default_timeout_s: float,
         unit_id_range: range,
         **node_kwargs: Any,
     ) -> None:
         super().__init__(node_name, **node_kwargs)
         values = self.declare_specs(
             [
-                *transport_specs(
-                    "rtu",
-                    default_port=0,
-                    default_baudrate=default_baudrate,
-                    default_timeout_s=default_timeout_s,
-                ),
+                *transport_specs(defaults),
                 ParameterSpec("unit_ids", [1], "devices on the bus, one node each"),
             ]
         )

@@ -157,9 +157,13 @@ def register_array(
     doc: str,
     *,
     first_index: int = 1,
+    description_format: str = "",
     **fields: object,
 ) -> list[Register]:
-    """Registers ``{name}_{i}`` laid out back to back, e.g. one per axis."""
+    """Registers ``{name}_{i}`` laid out back to back, e.g. one per axis.
+
+    ``description_format`` names each one after the manual, e.g. ``"OUTPUT{index}"``.
+    """
     step = value_type.words
     return [
         Register(
@@ -167,6 +171,7 @@ def register_array(
             address=first_address + i * step,
             value_type=value_type,
             doc=doc,
+            description=description_format.format(index=first_index + i),
             **fields,  # type: ignore[arg-type]
         )
         for i in range(count)

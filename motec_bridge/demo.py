@@ -20,18 +20,9 @@ def format_state(state: Any) -> str:
 
 DEMO = DemoDevice(
     name="MOTEC",
-    node_name="motec_bridge",
-    sim_args=lambda pty: [
-        "-m",
-        "motec_bridge.sim",
-        "--pty",
-        str(pty),
-        "--unit-ids",
-        ",".join(str(u) for u in UNITS),
-    ],
-    node_module="motec_bridge.node",
-    node_params=lambda pty: {
-        "serial_port": str(pty),
+    package="motec_bridge",
+    sim_args=["--unit-ids", ",".join(str(u) for u in UNITS)],
+    node_params={
         "baudrate": 115200,
         # A simulator in another process on a busy machine may answer late: the drives'
         # 0.1 s default (a real bus at 115200) would take that for a dead drive.

@@ -46,7 +46,6 @@ from bridge_core.codec import Value, encode
 from bridge_core.config_cache import ConfiguredDevice
 from bridge_core.errors import CommandRejected
 from bridge_core.planner import ReadRequest, plan_reads
-from bridge_core.poller import read_named
 from bridge_core.stream_guard import StreamGuard
 
 from .registers import (
@@ -224,7 +223,7 @@ class DriveScale:
 # ---------------------------------------------------------------- the device
 
 
-class MotecDevice(ConfiguredDevice):
+class MotecDevice(ConfiguredDevice[MotecConfig]):
     """One MOTEC β drive behind one Modbus channel (one unit id on the shared bus)."""
 
     def __init__(
@@ -240,7 +239,7 @@ class MotecDevice(ConfiguredDevice):
             raise ValueError(f"max_speed_rpm {max_speed_rpm} outside 1..{SPEED_LIMIT_RPM}")
         self.max_speed_rpm = max_speed_rpm
         self._clock = clock
-        super().__init__(io, CONFIG_PLAN, config_refresh_s, clock)
+        super().__init__(io, MOTEC_MAP, CONFIG_PLAN, config_refresh_s, clock)
         # cmd_velocity: one stream (this drive). A 0 ends only the stream's own motion:
         # 0xAE is also a position move's speed limit (README "MOTEC decisions").
         self.stream: StreamGuard[int] = StreamGuard(
@@ -251,20 +250,10 @@ class MotecDevice(ConfiguredDevice):
             stop_when_idle=False,
             clock=clock,
         )
+        self.streams.append(self.stream)
         self.last_write = -math.inf  # clock() of the last successful write
 
     # ------------------------------------------------------------------ reads
-    def read_config(self, priority: Priority = Priority.POLL) -> MotecConfig:
-        self.read_whole_config(priority)
-        return self.config
-
-    def invalidate_config(self) -> None:
-        """Forget the configuration (link came up): the next poll reads it first."""
-        self.forget_config()
-        # A stream that was running stays "active" so the node's deadman stops it once
-        # the link is back; the speed the drive holds is unknown.
-        self.stream.forget_values()
-
     @property
     def config(self) -> MotecConfig:
         v = self.cached("drive")
@@ -280,9 +269,6 @@ class MotecDevice(ConfiguredDevice):
         for request in MODE_PLAN:
             v.update(self.read_request(request, Priority.COMMAND))
         return Modes(int(v["operation_mode"]), int(v["control_mode"]), bool(v["enable"]))
-
-    def read_named(self, *names: str) -> dict[str, Value]:
-        return read_named(self.io, MOTEC_MAP, names)
 
     def read_outputs(self) -> tuple[bool, ...]:
         """OUTPUT1-3 with FC 01 (§3.3.1)."""

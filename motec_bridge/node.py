@@ -39,7 +39,7 @@ from bridge_core.channel import DeviceChannel
 from bridge_core.checks import board_zero_index
 from bridge_core.diagnostics import Level, Report
 from bridge_core.errors import CommandRejected, ConfigurationError, DeviceException, LinkError
-from bridge_core.node_base import BridgeNode, BusNode, copy_fields, spin_nodes
+from bridge_core.node_base import BridgeNode, BusNode, DeviceDefaults, copy_fields, spin_nodes
 from bridge_core.parameters import ParameterSpec
 from bridge_core.transport import ModbusLink
 from msg_defs.msg import MotecState
@@ -65,10 +65,14 @@ from .registers import (
     operation_mode_name,
 )
 
-DEVICE_NAME = "MOTEC β servo drive"
 BUS_NODE_NAME = "motec_bridge"
-DEFAULT_POLL_RATE_HZ = 10.0  # per drive; a poll is 4 reads (~15-25 ms at 115200 baud)
-DEFAULT_TIMEOUT_S = 0.1  # a reply is a few ms at 115200: a dead drive costs little bus time
+MOTEC_DEFAULTS = DeviceDefaults(
+    "MOTEC β servo drive",
+    "rtu",
+    poll_rate_hz=10.0,  # per drive; a poll is 4 reads (~15-25 ms at 115200 baud)
+    baudrate=DEFAULT_BAUDRATE,
+    timeout_s=0.1,  # a reply is a few ms at 115200: a dead drive costs little bus time
+)
 LIFEGUARD_CHECK_S = 0.05  # feed check period when the drive armed its lifeguard itself
 
 
@@ -95,18 +99,12 @@ def drive_node_name(unit_id: int) -> str:
     return f"motec_{unit_id}"
 
 
-class MotecDriveNode(BridgeNode):
+class MotecDriveNode(BridgeNode[MotecSnapshot]):
     """One drive on the shared bus."""
 
     def __init__(self, unit_id: int, link: ModbusLink, **kwargs: Any) -> None:
         super().__init__(
-            drive_node_name(unit_id),
-            transport="rtu",
-            device_name=DEVICE_NAME,
-            default_poll_rate_hz=DEFAULT_POLL_RATE_HZ,
-            link=link,
-            unit_id=unit_id,
-            **kwargs,
+            drive_node_name(unit_id), MOTEC_DEFAULTS, link=link, unit_id=unit_id, **kwargs
         )
         self.unit_id = unit_id
         values = self.declare_specs(
@@ -162,7 +160,6 @@ class MotecDriveNode(BridgeNode):
             config_refresh_s=float(values["config_refresh_s"]),
             velocity_timeout_s=float(values["command_timeout_s"]),
         )
-        self.last_snapshot: MotecSnapshot | None = None
         self.lifeguard_error: str | None = None
         self.joint_names = [f"{self.joint_prefix}drive_{unit_id}"]
         self.state_pub = self.create_publisher(MotecState, "~/state", 10)
@@ -201,14 +198,10 @@ class MotecDriveNode(BridgeNode):
         return self.device.poll()
 
     def publish_snapshot(self, s: MotecSnapshot) -> None:
-        self.last_snapshot = s
-        self.joint_states_pub.publish(
-            self.joint_state(
-                s.read_time,
-                self.joint_names,
-                [self.scale.position(s.position_actual)],
-                [self.scale.velocity(s.speed_actual_rpm)],
-            )
+        self.publish_joints(
+            s.read_time,
+            [self.scale.position(s.position_actual)],
+            [self.scale.velocity(s.speed_actual_rpm)],
         )
         m = copy_fields(self.stamped(MotecState(), s.read_time), s, STATE_FIELDS)
         copy_fields(m, s.config, CONFIG_FIELDS)
@@ -342,8 +335,7 @@ class MotecBusNode(BusNode):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(
             BUS_NODE_NAME,
-            default_baudrate=DEFAULT_BAUDRATE,
-            default_timeout_s=DEFAULT_TIMEOUT_S,
+            MOTEC_DEFAULTS,
             unit_id_range=range(min(UNIT_IDS), max(UNIT_IDS) + 1),
             **kwargs,
         )

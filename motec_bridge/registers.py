@@ -93,6 +93,7 @@ from bridge_core.registers import (
     RegisterMap,
     Table,
     ValueType,
+    register_array,
 )
 
 RW = Access.READ_WRITE
@@ -310,30 +311,26 @@ def _build() -> tuple[Register, ...]:
             description="9999 = lifeguard on (with a non-zero time)",
         ),
     ]
-    regs += [
-        Register(
-            name=f"output_{n}",
-            address=n - 1,
-            value_type=ValueType.BOOL,
-            doc="§3.3.1 (FC 01), §3.3.3 (FC 05)",
-            table=Table.COIL,
-            access=RW,
-            description=f"OUTPUT{n}",
-        )
-        for n in range(1, OUTPUTS + 1)
-    ]
-    regs += [
-        Register(
-            name=f"input_{n}",
-            address=n - 1,
-            value_type=ValueType.BOOL,
-            doc="§3.3.2 (FC 02)",
-            table=Table.DISCRETE_INPUT,
-            access=R,
-            description=f"INPUT{n}",
-        )
-        for n in range(1, INPUTS + 1)
-    ]
+    regs += register_array(
+        "output",
+        0,
+        OUTPUTS,
+        ValueType.BOOL,
+        "§3.3.1 (FC 01), §3.3.3 (FC 05)",
+        description_format="OUTPUT{index}",
+        table=Table.COIL,
+        access=RW,
+    )
+    regs += register_array(
+        "input",
+        0,
+        INPUTS,
+        ValueType.BOOL,
+        "§3.3.2 (FC 02)",
+        description_format="INPUT{index}",
+        table=Table.DISCRETE_INPUT,
+        access=R,
+    )
     return tuple(regs)
 
 

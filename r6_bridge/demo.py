@@ -18,12 +18,10 @@ def format_state(state: Any) -> str:
 
 DEMO = DemoDevice(
     name="R6",
-    node_name="r6_bridge",
-    sim_args=lambda port: ["-m", "r6_bridge.sim", "--port", str(port)],
-    node_module="r6_bridge.node",
-    node_params=lambda port: {"port": port, "poll_rate_hz": 50.0},
+    package="r6_bridge",
     state_type="msg_defs/msg/R6State",
     format_state=format_state,
+    node_params={"poll_rate_hz": 50.0},
     start_services=[
         ("set_global_speed", "msg_defs/srv/SetValue", {"value": 80.0}),
         ("start", "std_srvs/srv/Trigger", {}),

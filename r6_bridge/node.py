@@ -10,7 +10,7 @@ from geometry_msgs.msg import PoseStamped
 
 from bridge_core.diagnostics import Level, Report
 from bridge_core.errors import DeviceException, FrameError
-from bridge_core.node_base import BridgeNode, copy_fields, spin_node
+from bridge_core.node_base import BridgeNode, DeviceDefaults, copy_fields, spin_node
 from bridge_core.parameters import ParameterSpec, padded
 from bridge_core.units import DEG, MM, RPM_TO_RAD_S, euler_xyz_deg_to_quaternion
 from msg_defs.msg import R6State
@@ -44,15 +44,14 @@ STATE_FIELDS = (
 )
 
 
-class R6BridgeNode(BridgeNode):
+R6_DEFAULTS = DeviceDefaults("Huacheng R6", "tcp", poll_rate_hz=50.0)
+
+
+class R6BridgeNode(BridgeNode[R6Snapshot]):
+    """The R6 controller: one node per controller, on its own TCP link."""
+
     def __init__(self, **kwargs: Any) -> None:
-        super().__init__(
-            "r6_bridge",
-            transport="tcp",
-            device_name="Huacheng R6",
-            default_poll_rate_hz=50.0,
-            **kwargs,
-        )
+        super().__init__("r6_bridge", R6_DEFAULTS, **kwargs)
         values = self.declare_specs(
             [
                 ParameterSpec(
@@ -73,7 +72,6 @@ class R6BridgeNode(BridgeNode):
         self.rated_torques = padded(values["rated_torques"], MAX_AXES, 1.0)
         self.device = R6Device(self.channel)
         self.firmware_version = ""
-        self.last_snapshot: R6Snapshot | None = None
 
         self.state_pub = self.create_publisher(R6State, "~/state", 10)
         self.pose_pub = self.create_publisher(PoseStamped, "~/tcp_pose", 10)
@@ -97,20 +95,17 @@ class R6BridgeNode(BridgeNode):
         self.device.invalidate_plan()
 
     def publish_snapshot(self, snapshot: R6Snapshot) -> None:
-        self.last_snapshot = snapshot
-        n = len(snapshot.axis_positions_deg)
-        names = [f"{self.joint_prefix}joint_{a}" for a in range(1, n + 1)]
-        self.joint_states_pub.publish(
-            self.joint_state(
-                snapshot.read_time,
-                names,
-                [deg * DEG for deg in snapshot.axis_positions_deg],
-                [
-                    rpm * RPM_TO_RAD_S / self.gear_ratios[a]
-                    for a, rpm in enumerate(snapshot.axis_speeds_rpm)
-                ],
-                [t * self.rated_torques[a] for a, t in enumerate(snapshot.axis_torques_rated)],
-            )
+        axes = len(snapshot.axis_positions_deg)  # the controller's axis count, may change
+        if len(self.joint_names) != axes:
+            self.joint_names = [f"{self.joint_prefix}joint_{a}" for a in range(1, axes + 1)]
+        self.publish_joints(
+            snapshot.read_time,
+            [deg * DEG for deg in snapshot.axis_positions_deg],
+            [
+                rpm * RPM_TO_RAD_S / self.gear_ratios[a]
+                for a, rpm in enumerate(snapshot.axis_speeds_rpm)
+            ],
+            [t * self.rated_torques[a] for a, t in enumerate(snapshot.axis_torques_rated)],
         )
         state = copy_fields(self.stamped(R6State(), snapshot.read_time), snapshot, STATE_FIELDS)
         self.state_pub.publish(state)

@@ -60,6 +60,13 @@ POINT_DATA_FIRST = 30007
 POINT_DATA_LAST = 40000
 POINT_FRAME_MAX_BYTES = 256  # §3.3.5: split frames above 256 bytes
 
+# §5's coil table: (name, first coil, count, the manual's rows and output names, octal).
+COIL_BANKS = (
+    ("y_output", 0, 160, "§5 rows 0-159 (Y010-Y247)"),
+    ("m_output", 160, 96, "§5 rows 160-255 (M010-M147)"),
+    ("eu_output", 256, 32, "§5 rows 256-287 (EUY010-EUY047)"),
+)
+
 MODE_NAMES = {1: "manual", 2: "auto", 3: "configuration"}
 
 # Command registers 20000-20006 (§3.2.1, §4): any value executes; FC 06 only.
@@ -361,36 +368,17 @@ def _build() -> tuple[Register, ...]:
         ),
     ]
     # §5: coils, 0xFF00 = on, 0x0000 = off.
-    regs += register_array(
-        "y_output",
-        0,
-        160,
-        ValueType.BOOL,
-        "§5 rows 0-159 (Y010-Y247)",
-        first_index=0,
-        table=Table.COIL,
-        access=Access.READ_WRITE,
-    )
-    regs += register_array(
-        "m_output",
-        160,
-        96,
-        ValueType.BOOL,
-        "§5 rows 160-255 (M010-M147)",
-        first_index=0,
-        table=Table.COIL,
-        access=Access.READ_WRITE,
-    )
-    regs += register_array(
-        "eu_output",
-        256,
-        32,
-        ValueType.BOOL,
-        "§5 rows 256-287 (EUY010-EUY047)",
-        first_index=0,
-        table=Table.COIL,
-        access=Access.READ_WRITE,
-    )
+    for name, first, count, doc in COIL_BANKS:
+        regs += register_array(
+            name,
+            first,
+            count,
+            ValueType.BOOL,
+            doc,
+            first_index=0,
+            table=Table.COIL,
+            access=Access.READ_WRITE,
+        )
     return tuple(regs)
 
 

@@ -17,13 +17,11 @@ def format_state(state: Any) -> str:
 
 DEMO = DemoDevice(
     name="Stepper",
-    node_name="stepper_bridge",
-    # The manual's line: 9600 baud 8N1, replies after 35 ms (the simulator's default).
-    sim_args=lambda pty: ["-m", "stepper_bridge.sim", "--pty", str(pty)],
-    node_module="stepper_bridge.node",
-    node_params=lambda pty: {"serial_port": str(pty), "baudrate": 9600, "timeout_s": 1.0},
+    package="stepper_bridge",
     state_type="msg_defs/msg/StepperState",
     format_state=format_state,
+    # The manual's line: 9600 baud 8N1, replies after 35 ms (the simulator's default).
+    node_params={"baudrate": 9600, "timeout_s": 1.0},
     start_services=[
         ("motor_1/forward", "std_srvs/srv/Trigger", {}),
         ("motor_3/reverse", "std_srvs/srv/Trigger", {}),

@@ -27,7 +27,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
-from bridge_core.channel import Priority, RegisterIO
+from bridge_core.channel import RegisterIO
 from bridge_core.checks import (
     check_choice,
     check_finite,
@@ -39,7 +39,6 @@ from bridge_core.codec import Value, decode, encode
 from bridge_core.config_cache import ConfiguredDevice
 from bridge_core.errors import CommandRejected, LinkError
 from bridge_core.planner import ReadRequest, plan_reads
-from bridge_core.poller import read_named
 from bridge_core.registers import Register
 from bridge_core.stream_guard import StreamGuard
 
@@ -179,7 +178,7 @@ class JointScale:
 # ---------------------------------------------------------------- the device
 
 
-class StepperDevice(ConfiguredDevice):
+class StepperDevice(ConfiguredDevice[StepperConfig]):
     """The stepper controller behind one Modbus channel."""
 
     def __init__(
@@ -190,7 +189,7 @@ class StepperDevice(ConfiguredDevice):
         jog_timeout_s: float = DEFAULT_JOG_TIMEOUT_S,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
-        super().__init__(io, CONFIG_PLAN, config_refresh_s, clock)
+        super().__init__(io, STEPPER_MAP, CONFIG_PLAN, config_refresh_s, clock)
         # The jog streams (one per motor) and the direction coil each motor was last sent
         # by a jog: +1 forward, -1 reverse, 0 stopped, None unknown (a write was lost).
         self.jogs: StreamGuard[int] = StreamGuard(
@@ -201,24 +200,10 @@ class StepperDevice(ConfiguredDevice):
             stop_when_idle=True,
             clock=clock,
         )
+        self.streams.append(self.jogs)
         self._direction: dict[int, int | None] = dict.fromkeys(range(1, MOTORS + 1), 0)
 
     # ------------------------------------------------------------------ reads
-    def read_config(self, priority: Priority = Priority.POLL) -> StepperConfig:
-        """Read the whole configuration (on link up, and whenever asked)."""
-        self.read_whole_config(priority)
-        return self.config
-
-    def read_named(self, *names: str) -> dict[str, Value]:
-        return read_named(self.io, STEPPER_MAP, names)
-
-    def invalidate_config(self) -> None:
-        """Forget the cached configuration: the next poll reads it whole first."""
-        self.forget_config()
-        # The speed register may have changed; a jog that was running is still "jogging"
-        # so that the node's deadman stops it once the link is back.
-        self.jogs.forget_values()
-
     @property
     def config(self) -> StepperConfig:
         v = self.cached("controller")

@@ -24,7 +24,7 @@ from std_srvs.srv import SetBool
 from bridge_core.checks import board_zero_index
 from bridge_core.diagnostics import Level, Report
 from bridge_core.errors import CommandRejected, ConfigurationError
-from bridge_core.node_base import BridgeNode, copy_fields, spin_node
+from bridge_core.node_base import BridgeNode, DeviceDefaults, copy_fields, spin_node
 from bridge_core.parameters import ParameterSpec, padded
 from msg_defs.msg import StepperState
 from msg_defs.srv import (
@@ -55,9 +55,6 @@ from .registers import (
     MOTORS,
 )
 
-DEFAULT_POLL_RATE_HZ = 3.0  # a poll takes ~0.29 s at 9600 baud (README)
-
-
 # StepperState fields copied from the snapshot, and per-motor configuration fields.
 STATE_FIELDS = ("running", "coordinates", "inputs", "outputs")
 MOTOR_FIELDS = (
@@ -75,16 +72,19 @@ MOTOR_FIELDS = (
 )
 
 
-class StepperBridgeNode(BridgeNode):
+STEPPER_DEFAULTS = DeviceDefaults(
+    "stepper controller",
+    "rtu",
+    poll_rate_hz=3.0,  # a poll takes ~0.29 s at 9600 baud (README)
+    baudrate=DEFAULT_BAUDRATE,
+)
+
+
+class StepperBridgeNode(BridgeNode[StepperSnapshot]):
+    """The 5-axis stepper controller: one node per controller, on its own serial line."""
+
     def __init__(self, **kwargs: Any) -> None:
-        super().__init__(
-            "stepper_bridge",
-            transport="rtu",
-            device_name="stepper controller",
-            default_poll_rate_hz=DEFAULT_POLL_RATE_HZ,
-            default_baudrate=DEFAULT_BAUDRATE,
-            **kwargs,
-        )
+        super().__init__("stepper_bridge", STEPPER_DEFAULTS, **kwargs)
         values = self.declare_specs(
             [
                 ParameterSpec(
@@ -121,7 +121,6 @@ class StepperBridgeNode(BridgeNode):
             config_refresh_s=float(values["config_refresh_s"]),
             jog_timeout_s=float(values["command_timeout_s"]),
         )
-        self.last_snapshot: StepperSnapshot | None = None
         self.joint_names = [f"{self.joint_prefix}motor_{m}" for m in range(1, MOTORS + 1)]
         self.state_pub = self.create_publisher(StepperState, "~/state", 10)
         self._create_services()
@@ -154,10 +153,9 @@ class StepperBridgeNode(BridgeNode):
         self.device.invalidate_config()
 
     def publish_snapshot(self, s: StepperSnapshot) -> None:
-        self.last_snapshot = s
         motors = s.config.motors
         positions = [self.scales[k].to_si(s.coordinates[k], motors[k].lead) for k in range(MOTORS)]
-        self.joint_states_pub.publish(self.joint_state(s.read_time, self.joint_names, positions))
+        self.publish_joints(s.read_time, positions)
         m = copy_fields(self.stamped(StepperState(), s.read_time), s, STATE_FIELDS)
         copy_fields(m, s.config, ("system_mode", "homing_order"))
         for name in MOTOR_FIELDS:  # one list per field, an item per motor

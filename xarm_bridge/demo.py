@@ -19,12 +19,10 @@ def format_state(state: Any) -> str:
 
 DEMO = DemoDevice(
     name="xArm",
-    node_name="xarm_bridge",
-    sim_args=lambda port: ["-m", "xarm_bridge.sim", "--port", str(port)],
-    node_module="xarm_bridge.node",
-    node_params=lambda port: {"port": port, "poll_rate_hz": 50.0},
+    package="xarm_bridge",
     state_type="msg_defs/msg/XArmState",
     format_state=format_state,
+    node_params={"poll_rate_hz": 50.0},
     start_services=[
         ("set_digital_output", "msg_defs/srv/SetOutput", {"board": 0, "index": 2, "on": True}),
         ("run_offline_task", "msg_defs/srv/RunOfflineTask", {"projects": [1, 2, 3, 4, 5, 6]}),

@@ -11,7 +11,7 @@ from std_srvs.srv import SetBool, Trigger
 
 from bridge_core.checks import board_zero_index
 from bridge_core.diagnostics import Level, Report
-from bridge_core.node_base import BridgeNode, copy_fields, spin_node
+from bridge_core.node_base import BridgeNode, DeviceDefaults, copy_fields, spin_node
 from bridge_core.units import DEG, MM, euler_xyz_deg_to_quaternion
 from msg_defs.msg import XArmState
 from msg_defs.srv import RunOfflineTask, SetChannelValue, SetInteger, SetOutput
@@ -49,17 +49,15 @@ STATE_FIELDS = (
 )
 
 
-class XArmBridgeNode(BridgeNode):
+XARM_DEFAULTS = DeviceDefaults("UFactory xArm", "tcp", poll_rate_hz=50.0)
+
+
+class XArmBridgeNode(BridgeNode[XArmSnapshot]):
+    """The xArm controller: one node per arm, on its own TCP link."""
+
     def __init__(self, **kwargs: Any) -> None:
-        super().__init__(
-            "xarm_bridge",
-            transport="tcp",
-            device_name="UFactory xArm",
-            default_poll_rate_hz=50.0,
-            **kwargs,
-        )
+        super().__init__("xarm_bridge", XARM_DEFAULTS, **kwargs)
         self.device = XArmDevice(self.channel)
-        self.last_snapshot: XArmSnapshot | None = None
         self.joint_names = [f"{self.joint_prefix}joint{j}" for j in range(1, JOINTS + 1)]
         self.state_pub = self.create_publisher(XArmState, "~/state", 10)
         self.pose_pub = self.create_publisher(PoseStamped, "~/tcp_pose", 10)
@@ -70,14 +68,10 @@ class XArmBridgeNode(BridgeNode):
         return self.device.poll()
 
     def publish_snapshot(self, s: XArmSnapshot) -> None:
-        self.last_snapshot = s
-        self.joint_states_pub.publish(
-            self.joint_state(
-                s.read_time,
-                self.joint_names,
-                [a * DEG for a in s.joint_angles_deg],
-                [v * DEG for v in s.joint_speeds_deg_s],
-            )
+        self.publish_joints(
+            s.read_time,
+            [a * DEG for a in s.joint_angles_deg],
+            [v * DEG for v in s.joint_speeds_deg_s],
         )
         pose = self.stamped(PoseStamped(), s.read_time)
         p = s.tcp_pose

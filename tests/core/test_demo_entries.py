@@ -27,8 +27,20 @@ def test_entries_load_in_their_order() -> None:
     devices = demo.load_devices(demo.entry_specs(ROOT))
     assert [d.name for d in devices] == ["R6", "xArm", "Stepper", "MOTEC"]
     for device in devices:
-        assert device.node_module.split(".")[0] == device.node_name
-        assert "-m" in device.sim_args("/tmp/x" if device.serial else 1502)
+        where = "/tmp/x.pty" if device.serial else 1502
+        assert device.simulator_command(where)[:4] == [
+            "-m",
+            f"{device.package}.sim",
+            "--pty" if device.serial else "--port",
+            str(where),
+        ]
+        node = device.node_command(where)
+        assert node[:2] == ["-m", f"{device.package}.node"]
+        assert f"__ns:=/{device.name.lower()}" in node
+        # where the device is, as the node's transport parameter; the entry cannot override it
+        where_param = f"serial_port:={where}" if device.serial else f"port:={where}"
+        assert node.count(where_param) == 1
+        assert not {"port", "serial_port"} & device.node_params.keys()
 
 
 def test_explicit_modules_and_bad_specs() -> None:

@@ -364,6 +364,25 @@ def test_tcp_good_reply_passes_the_header_check() -> None:
         assert channel.read_registers(0, 1) == [7]  # next transaction id, same check
 
 
+def test_short_replies_are_frame_errors_and_padding_is_cut() -> None:
+    steps = [
+        # FC 03, two registers asked, one sent.
+        TcpStep(bytes.fromhex("01 03 0000 0002"), bytes.fromhex("01 03 02 0007"), "1 of 2"),
+        # FC 01, ten coils asked, one byte (eight coils) sent.
+        TcpStep(bytes.fromhex("01 01 0000 000A"), bytes.fromhex("01 01 01 FF"), "8 of 10"),
+        # FC 01, three coils asked, one byte sent: its five padding bits are not coils.
+        TcpStep(bytes.fromhex("01 01 0000 0003"), bytes.fromhex("01 01 01 05"), "3 + pad"),
+    ]
+    with tcp_replay(steps) as (link, server):
+        channel = DeviceChannel(link, 1, retries=0)
+        with pytest.raises(FrameError, match="short reply: 1 of 2"):
+            channel.read_registers(0, 2)
+        with pytest.raises(FrameError, match="short reply: 8 of 10"):
+            channel.read_bits(0, 10)
+        assert channel.read_bits(0, 3) == [True, False, True]
+        assert not server.mismatches
+
+
 def test_refused_connection_is_link_down() -> None:
     with socket.socket() as probe:  # a port nothing listens on once the probe is closed
         probe.bind(("127.0.0.1", 0))
