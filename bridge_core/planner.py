@@ -35,6 +35,11 @@ class ReadRequest:
         return BlockDecoder(self)
 
     @functools.cached_property
+    def names(self) -> frozenset[str]:
+        """The names of the registers it serves (a poll asks every cycle: cached)."""
+        return frozenset(reg.name for reg in self.registers)
+
+    @functools.cached_property
     def bit_offsets(self) -> tuple[tuple[str, int], ...]:
         return tuple((reg.name, reg.address - self.address) for reg in self.registers)
 

@@ -104,7 +104,7 @@ def read_named(io: RegisterIO, register_map: RegisterMap, names: Iterable[str]) 
 
 
 def holds(request: ReadRequest, register_name: str) -> bool:
-    return any(reg.name == register_name for reg in request.registers)
+    return register_name in request.names
 
 
 def next_deadline(deadline: float, now: float, period_s: float) -> float:
