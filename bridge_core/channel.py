@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 from enum import IntEnum
 from typing import Any, Protocol
 
-from .errors import DeviceException, FrameError, LinkDown, LinkError, LinkTimeout
+from .errors import DeviceException, FrameError, LinkDown, LinkError, LinkTimeout, NotSent
 from .registers import Table
 from .requests import (
     MaskWriteRegister,
@@ -193,6 +193,9 @@ class DeviceChannel:
         self.stats = LinkStats()
         self._connected = False
         self._ever_connected = False
+        # Bumped each time the device comes up (by a poll, or by a stop sent while down):
+        # the poller runs its link-up work once per generation.
+        self.generation = 0
         # Bumped whenever the device is marked down: a command started on an older epoch
         # must not run on a link that was lost (and maybe reopened) meanwhile.
         self._epoch = 0
@@ -246,14 +249,17 @@ class DeviceChannel:
         try:
             session = getattr(self._session, "epoch", None)
             if session is not None and (session != self._epoch or not self._connected):
-                raise LinkDown(
+                raise NotSent(
                     f"{self.describe()}: the link was lost while the command waited; not sent"
                 )
             last: LinkError = LinkDown("no attempt made")
             for _ in range(attempts):
                 try:
                     if not self.link.is_open:
-                        self.link.open()
+                        try:
+                            self.link.open()
+                        except LinkDown as err:
+                            raise NotSent(str(err)) from err
                     started = time.perf_counter()
                     reply = self.link.execute(self.unit_id, request)
                 except DeviceException as err:
@@ -294,6 +300,7 @@ class DeviceChannel:
             if self._ever_connected:
                 self.stats.reconnects += 1
             self._ever_connected = True
+            self.generation += 1
         self._connected = True
         self.backoff.succeeded()
 

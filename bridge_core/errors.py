@@ -32,6 +32,12 @@ class LinkDown(LinkError):
     """The link is not connected, or the connection was lost."""
 
 
+class NotSent(LinkDown):
+    """Nothing went on the wire: the link could not be opened, or a command that waited
+    through a link loss was withdrawn. (Any other LinkError on a write may or may not
+    have reached the device.)"""
+
+
 class LinkTimeout(LinkError):
     """The device did not answer within the timeout."""
 

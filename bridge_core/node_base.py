@@ -21,6 +21,7 @@ Every other parameter is read-only after start-up.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import signal
 import sys
@@ -53,7 +54,7 @@ from std_msgs.msg import Bool
 
 from .channel import DeviceChannel, Priority
 from .diagnostics import Level, Report, link_report
-from .errors import CommandRejected, ConfigurationError, DeviceException, LinkError
+from .errors import CommandRejected, ConfigurationError, DeviceException, LinkError, NotSent
 from .parameters import ParameterSpec, ParameterValue
 from .poller import Poller, PollOutcome
 from .stream_guard import StreamGuard
@@ -315,7 +316,7 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
             self.poll_device,
             self._publish,
             rate_hz=float(values["poll_rate_hz"]),
-            link_up=self.on_link_up,
+            link_up=self._link_up,
             replan=self.replan,
             report=self._poll_report,
             connected_changed=self._poll_connected,
@@ -345,6 +346,16 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
 
     def replan(self) -> None:
         """The device refused part of a poll: re-derive what to read from its configuration."""
+
+    def _link_up(self) -> None:
+        """Before the first poll after a (re)connect: pending stops first, then the node's
+        ``on_link_up``. A stop that failed while the link was down goes out before any
+        poll; if it fails again the link is still down and the poller says so."""
+        for guard in self.stream_guards:
+            for key in guard.pending_stops():
+                guard.stop(key)
+                self.get_logger().info(f"stream {key}: the pending stop was sent on reconnect")
+        self.on_link_up()
 
     def device_report(self) -> Report | None:
         """The device's own status (alarm code and its meaning) for diagnostics."""
@@ -419,18 +430,30 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
 
     # ------------------------------------------------------------ commands
     def run_command(
-        self, what: str, action: Callable[[], T], *, writes: bool = True, stop: bool = False
+        self,
+        what: str,
+        action: Callable[[], T],
+        *,
+        writes: bool = True,
+        stop: bool = False,
+        own_motion: bool = False,
     ) -> tuple[bool, str, T | None]:
         """Guard and run one command: (success, message, result). Never raises.
 
-        ``stop``: ends a motion the bridge started (deadman), allowed under read_only.
+        ``stop``: a command that ends motion (stop, e-stop, disable, a stream's stop). It
+        is attempted on the wire at once even while the link is marked down (one try,
+        nothing queued, the answer says what happened); every other command is refused
+        while the link is down. ``own_motion``: a stop of motion this node started
+        (a stream's stop, the deadman): allowed under read_only too.
         """
-        if writes and self.read_only and not stop:
+        if writes and self.read_only and not own_motion:
             return False, f"{what} refused: read_only is set, nothing was written", None
-        if not self.channel.connected:
+        if not stop and not self.channel.connected:
             return False, f"{what} refused: not connected to {self.channel.describe()}", None
         try:
-            with self.channel.command_session():
+            # A stop is not tied to the connection it started on (command_session): it
+            # must go out on whatever link there is now.
+            with contextlib.nullcontext() if stop else self.channel.command_session():
                 result = action()
         except CommandRejected as err:
             return False, f"{what} refused: {err}", None
@@ -439,7 +462,10 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
         except LinkError as err:
             if not self.channel.connected:
                 self.poller.link_lost(f"{what}: {err}")
-            hint = " (it may or may not have been executed)" if writes else ""
+            if isinstance(err, NotSent):
+                hint = "; nothing was sent"
+            else:
+                hint = " (it may or may not have been executed)" if writes else ""
             return False, f"{what} failed: {err}{hint}", None
         except Exception as err:
             self.get_logger().error(f"{what} failed: {err}\n{traceback.format_exc()}")
@@ -454,18 +480,23 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
         action: Callable[[Any], T],
         *,
         writes: bool = True,
+        stop: bool | Callable[[Any], bool] = False,
         fill: Callable[[Any, T], None] | None = None,
     ) -> None:
         """A service that runs one guarded command per request.
 
         ``describe(request)`` names the command in the reply message, ``action(request)``
         does it through the device layer, ``fill(response, result)`` copies a result into
-        the response on success.
+        the response on success. ``stop`` (or ``stop(request)``, e.g. a disable): the
+        command ends motion, so it is tried even while the link is down (``run_command``).
         """
 
         def handle(request: Any, response: Any) -> Any:
             ok, message, result = self.run_command(
-                describe(request), lambda: action(request), writes=writes
+                describe(request),
+                lambda: action(request),
+                writes=writes,
+                stop=stop(request) if callable(stop) else stop,
             )
             response.success, response.message = ok, message
             if ok and fill is not None:
@@ -474,11 +505,15 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
 
         self.create_service(srv_type, name, handle, callback_group=self.command_group)
 
-    def trigger_service(self, name: str, what: str, action: Callable[[], object]) -> None:
+    def trigger_service(
+        self, name: str, what: str, action: Callable[[], object], *, stop: bool = False
+    ) -> None:
         """A std_srvs/Trigger service that runs one guarded command."""
         from std_srvs.srv import Trigger
 
-        self.command_service(Trigger, name, lambda _request: what, lambda _request: action())
+        self.command_service(
+            Trigger, name, lambda _request: what, lambda _request: action(), stop=stop
+        )
 
     # ------------------------------------------------------------ command streams
     def stream_topic(
@@ -547,19 +582,25 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
         self, guard: StreamGuard[T], key: T, message: str, what: Callable[[T, float], str]
     ) -> None:
         self.get_logger().warn(message, throttle_duration_sec=2.0)
-        if guard[key].may_move:
-            # A refused value must not leave the motor running at the previous one.
+        stream = guard[key]
+        if stream.may_move and not stream.stop_pending:
+            # A refused value must not leave the motor running at the previous one. A stop
+            # already pending is the deadman's: it retries at its own period, not per message.
             self.run_command(
                 f"{what(key, 0.0)} (stop after a refused command)",
                 lambda: guard.stop(key),
                 stop=True,
+                own_motion=True,
             )
 
     def _deadman(self, guard: StreamGuard[T], what: Callable[[T, float], str]) -> None:
         for key in guard.due():
             was_moving = guard[key].may_move
             ok, message, _ = self.run_command(
-                f"{what(key, 0.0)} (deadman)", functools.partial(guard.expire, key), stop=True
+                f"{what(key, 0.0)} (deadman)",
+                functools.partial(guard.expire, key),
+                stop=True,
+                own_motion=True,
             )
             if not was_moving:
                 continue

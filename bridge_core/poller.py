@@ -58,6 +58,8 @@ class PollChannel(Protocol):
 
     @property
     def connected(self) -> bool: ...
+    @property
+    def generation(self) -> int: ...  # bumped each time the device comes up
     def may_attempt(self) -> bool: ...
 
 
@@ -144,6 +146,7 @@ class Poller(Generic[Snapshot]):
         self.snapshots_dropped = 0
         self.last_error: str | None = None
         self._reported_up: bool | None = None
+        self._generation = -1  # the channel generation whose link-up work was done
         self._state_lock = threading.Lock()
         self._snapshots: queue.Queue[Snapshot] = queue.Queue(maxsize=PUBLISH_BACKLOG)
         self._stop = threading.Event()
@@ -172,7 +175,9 @@ class Poller(Generic[Snapshot]):
         if not self.channel.may_attempt():
             return PollOutcome.SKIPPED
         try:
-            if not self.channel.connected:
+            # Link-up work once per connection, also when a command (a stop sent while
+            # the link was down) reconnected it between two polls.
+            if not self.channel.connected or self.channel.generation != self._generation:
                 self._link_up()
             snapshot = self._poll()
         except PollIncomplete as err:
@@ -196,6 +201,7 @@ class Poller(Generic[Snapshot]):
             self.last_error = f"poll failed: {err}"
             self._report(PollOutcome.FAILED, f"{self.last_error}\n{traceback.format_exc()}")
             return PollOutcome.FAILED
+        self._generation = self.channel.generation
         self._set_up(True)
         self.last_error = None
         self.rate.tick()

@@ -162,16 +162,21 @@ class StreamGuard(Generic[Key]):
     # ------------------------------------------------------------ deadman
     @_locked
     def due(self) -> list[Key]:
-        """Streams the deadman must act on: moving (or locked) and silent for timeout_s."""
+        """Streams the deadman must act on: a stop pending (at once, every period until
+        one is acknowledged), or moving (or locked) and silent for timeout_s."""
         now = self._clock()
         due: list[Key] = []
         for key, stream in self.streams.items():
             if not (stream.may_move or stream.locked):
                 continue
-            if stream.last_seen is not None and now - stream.last_seen <= self.timeout_s:
-                continue
-            due.append(key)
+            silent = stream.last_seen is None or now - stream.last_seen > self.timeout_s
+            if silent or stream.stop_pending:
+                due.append(key)
         return due
+
+    def pending_stops(self) -> list[Key]:
+        """Streams whose stop failed on the link and was not acknowledged since."""
+        return [key for key, stream in self.streams.items() if stream.stop_pending]
 
     @_locked
     def expire(self, key: Key) -> bool:

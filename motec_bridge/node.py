@@ -271,6 +271,7 @@ class MotecDriveNode(BridgeNode[MotecSnapshot]):
             "~/enable",
             lambda r: f"enable {'on' if r.data else 'off'}",
             lambda r: d.enable(bool(r.data)),
+            stop=lambda r: not r.data,  # a disable ends motion: tried even while down
         )
         self.command_service(
             SetControlMode,
@@ -285,7 +286,9 @@ class MotecDriveNode(BridgeNode[MotecSnapshot]):
             self._move,
             fill=lambda response, counts: setattr(response, "counts", counts),
         )
-        self.command_service(Trigger, "~/stop", lambda _r: "stop", lambda _r: d.stop(), fill=_said)
+        self.command_service(
+            Trigger, "~/stop", lambda _r: "stop", lambda _r: d.stop(), stop=True, fill=_said
+        )
         self.command_service(
             Trigger, "~/save_to_flash", lambda _r: "save_to_flash", lambda _r: d.save_to_flash()
         )

@@ -24,7 +24,7 @@ from msg_defs.srv import (
 )
 
 from .device import R6Device, R6Snapshot
-from .registers import COMMANDS, MAX_AXES
+from .registers import COMMANDS, MAX_AXES, STOP_COMMANDS
 
 # R6State fields copied as they are from the snapshot (same names, same units).
 STATE_FIELDS = (
@@ -149,7 +149,12 @@ class R6BridgeNode(BridgeNode[R6Snapshot]):
     def _create_services(self) -> None:
         d = self.device
         for name in COMMANDS:
-            self.trigger_service(f"~/{name}", name, lambda n=name: d.command(n))  # type: ignore[misc]
+            self.trigger_service(
+                f"~/{name}",
+                name,
+                lambda n=name: d.command(n),  # type: ignore[misc]
+                stop=name in STOP_COMMANDS,
+            )
         self.command_service(
             SetValue,
             "~/set_global_speed",

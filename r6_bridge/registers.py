@@ -80,6 +80,9 @@ COMMANDS: dict[str, int] = {
     "clear_alarm_and_continue": 20006,
 }
 
+# The commands that end motion: tried on the wire even while the link is marked down.
+STOP_COMMANDS = frozenset({"stop", "pause", "stop_button"})
+
 # Rows the host's network port does not offer (seeds README; §4 "主机网口不支持" etc.).
 NOT_OFFERED: dict[str, range] = {
     "mold number (主机网口不支持)": range(65, 130),

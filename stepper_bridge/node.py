@@ -204,6 +204,7 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
                     f"{ns}/{action}",
                     f"motor {n} {action}",
                     _bind(d.motor_action, n, action),
+                    stop=action == "stop",
                 )
             self.command_service(
                 MoveBy,
@@ -236,7 +237,12 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
                 ),
             )
         for name in SYSTEM_COMMANDS:
-            self.trigger_service(f"~/{name}", name, _bind(d.system_command, name))
+            self.trigger_service(
+                f"~/{name}",
+                name,
+                _bind(d.system_command, name),
+                stop=name == "emergency_stop",
+            )
         for name in DESTRUCTIVE_COMMANDS:
             self.command_service(
                 ConfirmedCommand,
@@ -274,7 +280,9 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
         self.command_service(
             ArcMove, "~/arc_move", lambda r: f"arc_move pair {r.pair}", self._arc_move
         )
-        self.trigger_service("~/stop_interpolation", "stop_interpolation", d.stop_interpolation)
+        self.trigger_service(
+            "~/stop_interpolation", "stop_interpolation", d.stop_interpolation, stop=True
+        )
 
     def _pair_units(
         self, pair: int, point: Sequence[float], what: str

@@ -129,8 +129,14 @@ class XArmBridgeNode(BridgeNode[XArmSnapshot]):
         def fill_state(response: Any, result: tuple[int, int]) -> None:
             response.message += state_after(result)
 
-        for name, action in (("pause", d.pause), ("stop", d.stop), ("resume", d.resume)):
-            self.command_service(Trigger, f"~/{name}", _named(name), _call(action), fill=fill_state)
+        for name, action, stops in (
+            ("pause", d.pause, True),
+            ("stop", d.stop, True),
+            ("resume", d.resume, False),
+        ):
+            self.command_service(
+                Trigger, f"~/{name}", _named(name), _call(action), stop=stops, fill=fill_state
+            )
         self.command_service(
             SetInteger, "~/set_mode", lambda r: f"set_mode {r.value}", lambda r: d.set_mode(r.value)
         )

@@ -20,11 +20,22 @@ class FakeClock:
 
 
 class FakeChannel:
-    """may_attempt / connected as a DeviceChannel would report them."""
+    """may_attempt / connected / generation as a DeviceChannel would report them."""
 
     def __init__(self) -> None:
-        self.connected = False
+        self._connected = False
+        self.generation = 0
         self.backoff_elapsed = True
+
+    @property
+    def connected(self) -> bool:
+        return self._connected
+
+    @connected.setter
+    def connected(self, up: bool) -> None:
+        if up and not self._connected:
+            self.generation += 1  # as DeviceChannel._note_alive
+        self._connected = up
 
     def may_attempt(self) -> bool:
         return self.connected or self.backoff_elapsed
@@ -274,3 +285,24 @@ def test_a_command_that_loses_the_link_is_followed_by_connected_again() -> None:
     assert poller.tick() is PollOutcome.PUBLISHED
     assert ups == [True, False, True]
     assert events == [PollOutcome.LINK_LOST]
+
+
+def test_a_stop_that_reconnected_between_polls_still_gets_the_link_up_work() -> None:
+    """A stop sent while the link was down may reconnect it before the next poll: the
+    poller must still run link_up (re-read the configuration) once for that connection."""
+    channel = FakeChannel()
+    device = FakeDevice(channel)
+    published: list[int] = []
+    events: list[PollOutcome] = []
+    poller = make(channel, device, published, events)
+    assert poller.tick() is PollOutcome.PUBLISHED
+    assert device.link_ups == 1
+    assert poller.tick() is PollOutcome.PUBLISHED
+    assert device.link_ups == 1  # same connection: no link-up work
+    device.errors.append(LinkTimeout("gone"))
+    assert poller.tick() is PollOutcome.LINK_LOST
+    channel.connected = True  # a stop command got through: a new connection
+    assert poller.tick() is PollOutcome.PUBLISHED
+    assert device.link_ups == 2
+    assert poller.tick() is PollOutcome.PUBLISHED
+    assert device.link_ups == 2

@@ -107,6 +107,24 @@ def test_lost_write_leaves_a_stop_pending_until_acknowledged() -> None:
     assert motors.log[-1] == ("send", 1, 80.0, None)
 
 
+def test_a_pending_stop_is_due_at_once_until_acknowledged() -> None:
+    """The deadman retries a lost stop every period, not only after the stream fell
+    silent: commands may keep arriving (refused while the link is down)."""
+    guard, motors, clock = make()
+    guard.seen(1)
+    guard.command(1, 30.0)
+    assert guard.due() == [] and guard.pending_stops() == []
+    motors.fail = 1
+    with pytest.raises(LinkTimeout):
+        guard.stop(1)
+    clock.now = 0.1
+    guard.seen(1)  # still commanded: not silent
+    assert guard.due() == [1] and guard.pending_stops() == [1]
+    assert guard.expire(1)
+    assert motors.log[-1] == ("stop", 1, None, None)
+    assert guard.due() == [] and guard.pending_stops() == []
+
+
 def test_deadman_stops_silent_streams_only() -> None:
     guard, motors, clock = make()
     guard.seen(1)

@@ -251,6 +251,49 @@ def test_disconnected_bridge_refuses_and_connects_later(bridge_factory, client: 
             simulator.stop()
 
 
+def test_a_stop_goes_out_while_the_link_is_marked_down(bridge_factory, client: Client) -> None:  # type: ignore[no-untyped-def]
+    """A stop does not wait for the reconnect backoff (issue 9): with the next probe seconds
+    away, ``~/start`` is refused as not connected and ``~/stop`` right after reaches the
+    controller; the poller then does its link-up work and publishes at once."""
+    port = free_port()
+    started = time.monotonic()
+    with bridge_factory(port, reconnect_max_s=60.0) as (bridge, proc):
+        # Nothing listens: let the backoff grow until the next probe is >= 4 s away.
+        bridge.wait_diagnostic(
+            2, started, port, where=lambda v: float(v["reconnect backoff (s)"]) >= 4.0
+        )
+        simulator = make_simulator()
+        simulator.start_tcp(port=port)
+        try:
+            device = simulator.device
+            assert isinstance(device, R6SimDevice)
+            reply = bridge.call(Trigger, "start")
+            assert not reply.success and "not connected" in reply.message
+            stopped = time.monotonic()
+            reply = bridge.call(Trigger, "stop")
+            assert reply.success, reply.message
+            assert [(w.address, w.table) for w in device.write_log] == [
+                (COMMANDS["stop"], Table.HOLDING)
+            ]
+            # The stop reconnected the link: polls resume without waiting for the backoff.
+            bridge.wait_connected(True, since=stopped)
+            client.wait_message(bridge.joint_states, since=stopped)
+            assert proc.poll() is None
+        finally:
+            simulator.stop()
+
+
+def test_a_stop_while_the_device_is_gone_says_it_failed(bridge_factory, client: Client) -> None:  # type: ignore[no-untyped-def]
+    port = free_port()
+    with bridge_factory(port) as (bridge, _):
+        bridge.wait_connected(False)
+        reply = bridge.call(Trigger, "stop")
+        # Tried on the wire (not "refused: not connected"), and the answer says it failed.
+        assert not reply.success
+        assert reply.message.startswith("stop failed: cannot open")
+        assert reply.message.endswith("nothing was sent")
+
+
 def test_withheld_replies_and_exception_replies(  # type: ignore[no-untyped-def]
     sim, simulator: tuple[Simulator, int], bridge_factory, client: Client
 ) -> None:

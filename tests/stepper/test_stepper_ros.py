@@ -176,6 +176,45 @@ def test_topics_jog_and_deadman(sim, client: Client, tmp_path: Path) -> None:  #
         client.node.destroy_publisher(jog)
 
 
+def test_a_deadman_stop_lost_in_an_outage_is_the_first_request_when_the_line_is_back(
+    client: Client, tmp_path: Path
+) -> None:
+    """Issue 9: the deadman's stop, lost while the line is silent, stays pending and is the
+    first request the controller handles when the line comes back (before any poll)."""
+    simulator = make_simulator(reply_delay_s=0.0)
+    device = simulator.device
+    assert isinstance(device, StepperSimDevice)
+    device.log_reads = True
+    stop_coil = (Table.COIL, 4)  # motor 1 stop: coil 00005
+    with served_on_pty(simulator, BAUD) as port, bridge(client, tmp_path, port) as (b, proc):
+        b.wait_connected(True)
+        jog = client.node.create_publisher(Float64, f"{b.ns}/stepper_bridge/motor_1/jog", 10)
+        wait_subscribed(jog)
+        jog.publish(Float64(data=100.0))
+        wait_for(lambda: device.motion[1] is not None, WAIT_S, "motor 1 jogging")
+        # The line goes silent (the controller hears nothing); the jog falls silent too.
+        simulator.withhold_replies = True
+        cut = time.monotonic()
+        client.wait_log("stepper_bridge", "(deadman) failed", since=cut)
+        assert device.motion[1] is not None  # the stop did not get through: still running
+        writes_before, reads_before = len(device.write_log), len(device.read_log)
+        simulator.withhold_replies = False
+        wait_for(
+            lambda: stop_coil in [(r.table, r.address) for r in device.write_log[writes_before:]],
+            WAIT_S,
+            "the pending stop after the line came back",
+        )
+        stop = next(
+            r for r in device.write_log[writes_before:] if (r.table, r.address) == stop_coil
+        )
+        assert device.write_log[writes_before] is stop  # no other write before it
+        assert all(r.time >= stop.time for r in device.read_log[reads_before:])  # nor a poll
+        assert device.motion[1] is None
+        b.wait_connected(True, since=cut)
+        assert proc.poll() is None
+        client.node.destroy_publisher(jog)
+
+
 def test_services_write_what_they_should(sim, client: Client, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     device, port = sim
     device.set("motor1_speed", 1200)  # 100 mm/s: move_by finishes quickly
