@@ -422,11 +422,14 @@ def test_refusals_read_only_and_params_file(bus, client: Client, tmp_path: Path)
         t = time.monotonic()
         sim.unplug(2)
         b.wait_connected(2, False, since=t)
-        reply = b.call(2, Trigger, "stop")
+        reply = b.call(2, SetBool, "enable", data=True)
         assert not reply.success and "not connected" in reply.message
+        # A stop is tried on the wire even so (issue 9), and says it failed.
+        reply = b.call(2, Trigger, "stop")
+        assert not reply.success and reply.message.startswith("stop failed:"), reply.message
         sim.plug(2)
         b.wait_connected(2, True, since=time.monotonic())
-        b.acknowledged(2)  # the refused stop would have run by now
+        b.acknowledged(2)  # the refused enable would have run by now
         for unit in UNITS:
             assert sim.drive(unit).write_log == [], unit
 

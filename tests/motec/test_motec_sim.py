@@ -32,7 +32,7 @@ from motec_bridge.sim import (
 from ..support.serial_pair import socat_pair
 
 BAUD = 115200
-LIFEGUARD_TEST_MS = 1000
+LIFEGUARD_TEST_MS = 2000  # a feed stalled by a saturated machine must not trip it
 UNITS = (1, 2, 3)
 DT = 0.01
 
@@ -275,7 +275,7 @@ def test_lifeguard_over_the_bus(bus: Bus) -> None:
     d = bus.devices[1]
     d.set_control_mode(CONTROL_MODE_VELOCITY)
     d.enable(True)
-    # 1 s, fed every few ms: a loaded machine's scheduling stalls stay far below it.
+    # 2 s, fed every few ms: a loaded machine's scheduling stalls stay far below it.
     d.arm_lifeguard(LIFEGUARD_TEST_MS)
     deadline = time.monotonic() + 2 * LIFEGUARD_TEST_MS / 1000
     while time.monotonic() < deadline:  # the bridge's feed keeps it alive
