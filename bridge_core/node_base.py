@@ -68,6 +68,7 @@ PARITIES = ("N", "E", "O")
 UNIT_ID_RANGE = (0, 247)
 DEADMAN_PERIOD_MIN_S = 0.02
 DEADMAN_PERIOD_MAX_S = 0.1
+STREAM_DEPTH = 1  # command streams: only the newest message matters
 EXIT_CONFIGURATION_ERROR = 2
 
 _KINDS: dict[type, int] = {
@@ -254,8 +255,11 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
         self.last_snapshot: SnapshotT | None = None
         self.joint_names: list[str] = []
         self.command_group = MutuallyExclusiveCallbackGroup()
+        # Command stream arrivals: recorded at once, never behind a write (stream_topic).
+        self.stream_inbox_group = MutuallyExclusiveCallbackGroup()
         self.diagnostics_group = MutuallyExclusiveCallbackGroup()
         self.stream_guards: list[StreamGuard[Any]] = []
+        self.stream_refusals = 0  # stream commands refused (diagnostics)
 
         specs = [
             *channel_specs(),
@@ -526,61 +530,90 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
         *,
         convert: Callable[[T, float], float] = lambda _key, value: value,
         timeout_parameter: str = "command_timeout_s",
+        rate_parameter: str = "command_rate_hz",
     ) -> None:
         """Command topics of one guard (jog, cmd_velocity) with their deadman.
 
-        Each message is handled through the guard (newest value counts, a refused value
-        stops what the stream had started); a timer stops streams that fell silent; the
-        guard's timeout follows the live ``timeout_parameter``; ``close()`` stops them all.
-        ``convert`` checks a message's value and turns it into the guard's units (inside
-        the command guard: a bad value is a refusal, not an exception in a callback).
+        Arrival and writing are apart. A message is only recorded (``guard.offer``: newest
+        value per stream, the deadman counts from its arrival) in a callback group of its
+        own with a depth-1 subscription, so a flood costs no bus time and never waits
+        behind a write. The writer runs in the command group, woken by each arrival and by
+        the deadman timer: it applies what the guard says is ``ready`` (a 0 at once, other
+        values at most ``rate_parameter`` times a second per stream) through the command
+        guard (a refused value stops what the stream had started). The timer also stops
+        streams that fell silent. Both parameters are live; ``close()`` stops every stream.
+        ``convert`` checks a value and turns it into the guard's units (inside the command
+        guard: a bad value is a refusal, not an exception in a callback).
         """
         self.stream_guards.append(guard)
+
+        def write_ready() -> None:
+            self._write_ready(guard, convert, what)
+
+        writer = self.create_guard_condition(write_ready, callback_group=self.command_group)
         for key, topic in topics.items():
             self.create_subscription(
                 msg_type,
                 topic,
-                self._stream_callback(guard, key, value_of, convert, what),
-                10,
-                callback_group=self.command_group,
+                self._stream_callback(guard, key, value_of, writer.trigger),
+                STREAM_DEPTH,
+                callback_group=self.stream_inbox_group,
             )
 
         def period() -> float:
             return min(DEADMAN_PERIOD_MAX_S, max(DEADMAN_PERIOD_MIN_S, guard.timeout_s / 5))
 
-        timer = self.create_timer(
-            period(), lambda: self._deadman(guard, what), callback_group=self.command_group
-        )
+        def tick() -> None:
+            write_ready()  # values held back by the rate limit
+            self._deadman(guard, what)
+
+        timer = self.create_timer(period(), tick, callback_group=self.command_group)
 
         def set_timeout(value: float) -> None:
             guard.timeout_s = float(value)
             timer.timer_period_ns = int(period() * 1e9)
             timer.reset()
 
+        def set_rate(rate_hz: float) -> None:
+            guard.min_interval_s = 1.0 / float(rate_hz)
+
         self.on_parameter(timeout_parameter, set_timeout)
+        self.on_parameter(rate_parameter, set_rate)
+        set_rate(self.param(rate_parameter))
 
     def _stream_callback(
         self,
         guard: StreamGuard[T],
         key: T,
         value_of: Callable[[Any], float],
+        wake_writer: Callable[[], None],
+    ) -> Callable[[Any], None]:
+        def arrived(msg: Any) -> None:
+            guard.offer(key, value_of(msg))
+            wake_writer()
+
+        return arrived
+
+    def _write_ready(
+        self,
+        guard: StreamGuard[T],
         convert: Callable[[T, float], float],
         what: Callable[[T, float], str],
-    ) -> Callable[[Any], None]:
-        def handle(msg: Any) -> None:
-            value = value_of(msg)
-            guard.seen(key)
+    ) -> None:
+        for key in guard.ready():
+            value = guard.take(key)
+            if value is None:
+                continue
             ok, message, _ = self.run_command(
-                what(key, value), lambda: guard.command(key, convert(key, value))
+                what(key, value), functools.partial(_apply, guard, key, value, convert)
             )
             if not ok:
                 self._stream_refused(guard, key, message, what)
 
-        return handle
-
     def _stream_refused(
         self, guard: StreamGuard[T], key: T, message: str, what: Callable[[T, float], str]
     ) -> None:
+        self.stream_refusals += 1
         self.get_logger().warn(message, throttle_duration_sec=2.0)
         stream = guard[key]
         if stream.may_move and not stream.stop_pending:
@@ -637,6 +670,8 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
         level, message, values = link.level, link.message, list(link.values)
         values.append(("snapshots dropped (publisher behind)", str(poller.snapshots_dropped)))
         values.append(("read_only", str(self.read_only).lower()))
+        if self.stream_guards:
+            values.append(("stream commands refused", str(self.stream_refusals)))
         if self.channel.connected and poller.last_error:
             # Connected but no fresh state: as bad as a lost link for a consumer.
             level, message = Level.ERROR, poller.last_error
@@ -705,6 +740,13 @@ class BusNode(ParameterNode):
     def close(self) -> None:
         with self.link.lock.hold(Priority.COMMAND):
             self.link.close()
+
+
+def _apply(
+    guard: StreamGuard[T], key: T, value: float, convert: Callable[[T, float], float]
+) -> bool:
+    """One stream command: checked and converted, then through the guard."""
+    return guard.command(key, convert(key, value))
 
 
 def copy_fields(msg: Any, source: Any, names: Iterable[str]) -> Any:

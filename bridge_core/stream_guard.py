@@ -3,14 +3,19 @@
 A stream is a topic that sets a speed until told otherwise: stepper ``~/motor_<n>/jog``,
 MOTEC ``~/cmd_velocity``. Each stream key (a motor number, a drive) has the same rules:
 
-- only the newest command counts; a repeat of the value being commanded writes nothing;
+- only the newest command counts: commands are ``offer``ed as they arrive and coalesce (a
+  newer value replaces one not yet written), and the writer ``take``s what is ``ready``;
+  a repeat of the value being commanded writes nothing;
+- non-zero values are written at most once per ``min_interval_s`` per stream (what the
+  bus can carry); a 0 is ready at once;
 - 0 stops (once: further 0s write nothing until something moves again; see
   ``stop_when_idle`` for a 0 to a stream that commanded nothing);
 - after a stop by a service or an e-stop the stream is *locked*: non-zero commands are
   refused until a 0 arrives or the stream was silent for ``timeout_s``;
 - a write that failed on the link leaves a *stop pending*: the motor may be running, so
   the deadman keeps sending the stop until one is acknowledged;
-- the deadman stops any stream that was silent for ``timeout_s``;
+- the deadman stops any stream that was silent for ``timeout_s``, counted from the
+  newest command's arrival (not from when it was handled);
 - ``stop_all()`` stops every stream that may be moving (the node calls it on shutdown).
 
 The guard knows no device: ``send(key, value, previous)`` writes a non-zero speed (the
@@ -23,6 +28,7 @@ from a parameter change or shutdown never interleaves with a command's writes).
 from __future__ import annotations
 
 import functools
+import math
 import threading
 import time
 from collections.abc import Callable, Hashable, Iterable
@@ -45,6 +51,8 @@ class StreamState:
     stop_pending: bool = False  # a write failed: keep stopping until one is acknowledged
     stop_sent: bool = False  # a stop was acknowledged since the last motion
     last_seen: float | None = None  # clock() of the last command received
+    offered: float | None = None  # the newest command received and not yet applied
+    last_send: float = -math.inf  # clock() of the last non-zero value written
 
     @property
     def may_move(self) -> bool:
@@ -70,6 +78,7 @@ class StreamGuard(Generic[Key]):
         *,
         timeout_s: float,
         stop_when_idle: bool = True,
+        min_interval_s: float = 0.0,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
         # stop_when_idle: the first 0 of a stream that commanded nothing still sends the
@@ -82,6 +91,10 @@ class StreamGuard(Generic[Key]):
         self._clock = clock
         self.streams: dict[Key, StreamState] = {key: StreamState() for key in keys}
         self.lock = threading.RLock()
+        self.min_interval_s = min_interval_s
+        # Arrivals take only this lock, never ``lock`` (held through a write on the wire):
+        # a command arriving while another is written is recorded at once.
+        self._inbox_lock = threading.Lock()
 
     def __getitem__(self, key: Key) -> StreamState:
         try:
@@ -93,6 +106,33 @@ class StreamGuard(Generic[Key]):
     def seen(self, key: Key) -> None:
         """A command arrived (even one that will be refused): the deadman counts from here."""
         self[key].last_seen = self._clock()
+
+    def offer(self, key: Key, value: float) -> None:
+        """A command arrived: it replaces any value of the stream not yet applied, and the
+        deadman counts from now."""
+        stream = self[key]
+        with self._inbox_lock:
+            stream.offered = value
+            stream.last_seen = self._clock()
+
+    def ready(self) -> list[Key]:
+        """Streams with an offered value that may be applied now: a 0 at once, any other
+        value once ``min_interval_s`` passed since the stream's last write."""
+        now = self._clock()
+        with self._inbox_lock:
+            return [
+                key
+                for key, stream in self.streams.items()
+                if stream.offered is not None
+                and (stream.offered == 0 or now - stream.last_send >= self.min_interval_s)
+            ]
+
+    def take(self, key: Key) -> float | None:
+        """The stream's newest offered value (None if there is none), now no longer offered."""
+        stream = self[key]
+        with self._inbox_lock:
+            value, stream.offered = stream.offered, None
+        return value
 
     @_locked
     def command(self, key: Key, value: float, *, refuse_reason: str = "") -> bool:
@@ -113,6 +153,7 @@ class StreamGuard(Generic[Key]):
         if stream.active and not stream.stop_pending and stream.value == value:
             return False
         previous = stream.value if stream.active else None
+        stream.last_send = self._clock()  # an attempt counts: a dead link is not flooded
         try:
             self._send(key, value, previous)
         except LinkError:

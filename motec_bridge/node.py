@@ -66,6 +66,10 @@ from .registers import (
 )
 
 BUS_NODE_NAME = "motec_bridge"
+# A speed write is one FC 06 of ~2-3 ms at 115200 baud: 20 a second per drive cost a few
+# percent of the bus that every drive's polls share.
+VELOCITY_WRITE_RATE_HZ = 20.0
+
 MOTEC_DEFAULTS = DeviceDefaults(
     "MOTEC β servo drive",
     "rtu",
@@ -121,6 +125,14 @@ class MotecDriveNode(BridgeNode[MotecSnapshot]):
                     "cmd_velocity deadman: 0 rpm after this silence",
                     0.05,
                     60.0,
+                    live=True,
+                ),
+                ParameterSpec(
+                    "command_rate_hz",
+                    VELOCITY_WRITE_RATE_HZ,
+                    "cmd_velocity: most speed changes written per second (a 0 at once)",
+                    0.5,
+                    1000.0,
                     live=True,
                 ),
                 ParameterSpec(

@@ -72,6 +72,11 @@ MOTOR_FIELDS = (
 )
 
 
+# A jog speed change is one FC 06 of ~52 ms at 9600 baud with the manual's 35 ms reply
+# delay (plus a direction coil when it reverses): 5 a second per motor leave the polls
+# most of the line.
+JOG_WRITE_RATE_HZ = 5.0
+
 STEPPER_DEFAULTS = DeviceDefaults(
     "stepper controller",
     "rtu",
@@ -104,6 +109,14 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
                     "jog deadman: stop a jogging motor after this silence",
                     0.05,
                     60.0,
+                    live=True,
+                ),
+                ParameterSpec(
+                    "command_rate_hz",
+                    JOG_WRITE_RATE_HZ,
+                    "jog: most speed changes written per second per motor (a 0 at once)",
+                    0.5,
+                    100.0,
                     live=True,
                 ),
                 ParameterSpec(

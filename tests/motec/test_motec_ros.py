@@ -32,6 +32,7 @@ from ..support.ros import (
     unique_namespace,
     values_of,
     wait_for,
+    wait_stream_refusals,
     wait_subscribed,
 )
 from ..support.serial_pair import served_on_pty
@@ -284,6 +285,59 @@ def test_three_drives_topics_services_and_deadman(bus, client: Client, tmp_path:
     assert writes(sim.drive(3)) == [(5, C, 0, (1,))]  # OUTPUT1 on
 
 
+def test_cmd_velocity_floods_are_coalesced_and_rate_limited(
+    bus: tuple[MotecSimulator, str], client: Client, tmp_path: Path
+) -> None:
+    """Issue 9: a command stream keeps only its newest value and writes at most
+    ``command_rate_hz`` speeds a second; a flood costs no drive its link, and the deadman
+    stop after it is the last write (counted from the last message's arrival)."""
+    sim, port = bus
+    rate_hz = 10.0
+    drive = sim.drive(2)
+    with motec(client, tmp_path, bridge_params(port, command_rate_hz=rate_hz)) as (b, proc):
+        for unit in UNITS:
+            b.wait_connected(unit, True)
+        b.ok(2, SetControlMode, "set_control_mode", mode=SetControlMode.Request.VELOCITY)
+        b.ok(2, SetBool, "enable", data=True)
+        pub = client.node.create_publisher(Float64, f"{b.ns}/motec_2/cmd_velocity", 10)
+        wait_subscribed(pub)
+
+        def flood(value: Callable[[int], float], seconds: float) -> tuple[int, float, float]:
+            sent, first = 0, time.time()
+            end = time.monotonic() + seconds
+            while time.monotonic() < end:
+                pub.publish(Float64(data=value(sent)))
+                sent += 1
+                time.sleep(0.001)
+            return sent, first, time.time()
+
+        # A constant value: one write, however many messages.
+        start = time.monotonic()
+        before = len(drive.write_log)
+        sent, _, _ = flood(lambda _n: 2 * math.pi, 1.0)
+        assert sent > 200, "not a flood"
+        b.wait_state(2, lambda m: m.speed_actual_rpm == 60, since=time.monotonic())
+        assert writes(drive)[before:] == [(6, H, 0xAE, (60,))]
+        # A varying one (1.0-5.9 rad/s, never 0): speeds at most rate_hz a second.
+        before = len(drive.write_log)
+        sent, first, last = flood(lambda n: 1.0 + (n % 50) / 10, 1.5)
+        assert sent > 300, "not a flood"
+        wait_for(lambda: (6, H, 0xAE, (0,)) in writes(drive)[before:], WAIT_S, "the deadman's stop")
+        during = writes(drive)[before:]
+        stop_index = during.index((6, H, 0xAE, (0,)))
+        speeds = during[:stop_index]
+        assert speeds and all(w[2] == 0xAE for w in speeds)
+        # One write per 1/rate_hz at most: over the flood and the last value's wait.
+        assert len(speeds) <= rate_hz * (last - first + 1.0) + 1, len(speeds)
+        stop = drive.write_log[before + stop_index]
+        assert stop.time - last >= COMMAND_TIMEOUT_S * 0.9
+        assert during[stop_index + 1 :] == []  # nothing after the stop (so far)
+        for unit in UNITS:  # no drive lost its link to the flood
+            assert all(m.data for m in client.received(b.connected(unit), since=start))
+        client.node.destroy_publisher(pub)
+        assert proc.poll() is None
+
+
 def test_a_drive_removed_and_back(bus, client: Client, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     sim, port = bus
     with motec(client, tmp_path, bridge_params(port)) as (b, proc):
@@ -407,16 +461,17 @@ def test_refusals_read_only_and_params_file(bus, client: Client, tmp_path: Path)
         # The drive itself refuses to enable with a latched fault.
         reply = b.call(1, SetBool, "enable", data=True)
         assert not reply.success and "ILLEGAL DATA VALUE" in reply.message
-        # Velocity commands outside velocity control, or read_only: nothing written. The
-        # node logs the first refusal; a service round trip after it covers the others.
+        # Velocity commands outside velocity control, or read_only: nothing written. Each
+        # refused value is waited for by the drive node's refusal count before the next
+        # (a command stream keeps only its newest value).
         for unit in (1, 3):
             t = time.monotonic()
             pub = client.node.create_publisher(Float64, f"{b.ns}/motec_{unit}/cmd_velocity", 10)
             wait_subscribed(pub)
-            for value in (1.0, math.nan, 1e6):
+            for refused, value in enumerate((1.0, math.nan, 1e6), start=1):
                 pub.publish(Float64(data=value))
+                wait_stream_refusals(client, f"motec_{unit}", refused, time.monotonic())
             client.wait_log(f"{b.ns[1:]}.motec_{unit}", "cmd_velocity 1.0 rad/s refused", t)
-            b.acknowledged(unit)
             client.node.destroy_publisher(pub)
         # A disconnected drive.
         t = time.monotonic()

@@ -39,6 +39,7 @@ from ..support.ros import (
     unique_namespace,
     values_of,
     wait_for,
+    wait_stream_refusals,
     wait_subscribed,
 )
 from ..support.serial_pair import served_on_pty
@@ -167,11 +168,14 @@ def test_topics_jog_and_deadman(sim, client: Client, tmp_path: Path) -> None:  #
         wait_for(lambda: len(rest()) >= 5, WAIT_S, "five polls after the stop")
         assert {m.coordinates[0] for m in rest()} == {rest()[0].coordinates[0]}
         assert not any(m.running[0] for m in rest())
-        # Jog 0 after the stop writes nothing (already stopped): the next jog, handled after
-        # it, writes only its forward coil (speed unchanged), and a 0 then stops it.
-        for rpm in (0.0, 600.0, 0.0):
+        # Jog 0 after the stop writes nothing (already stopped; it may also be coalesced
+        # with the 600 right after it): the next jog writes only its forward coil (speed
+        # unchanged), and a 0 then stops it.
+        for rpm in (0.0, 600.0):
             jog.publish(Float64(data=rpm))
-        wait_for(lambda: len(device.write_log) >= 5, WAIT_S, "the jog after the 0 and its stop")
+        wait_for(lambda: len(device.write_log) >= 4, WAIT_S, "the jog after the 0")
+        jog.publish(Float64(data=0.0))
+        wait_for(lambda: len(device.write_log) >= 5, WAIT_S, "the stop by the 0")
         assert writes(device)[3:] == [(5, Table.COIL, 1, (1,)), (5, Table.COIL, 4, (1,))]
         client.node.destroy_publisher(jog)
 
@@ -372,12 +376,18 @@ def test_refusals_write_nothing(sim, client: Client, tmp_path: Path) -> None:  #
             assert not reply.success, name
             assert "refused" in reply.message and reason in reply.message, reply.message
         assert device.write_log == []
-        # Refused jogs write nothing: the first write is that of the valid jog after them.
+        # Refused jogs write nothing (each one waited for by the node's refusal count): the
+        # first write is that of the valid jog after them.
         jog = client.node.create_publisher(Float64, f"{b.ns}/stepper_bridge/motor_1/jog", 10)
         wait_subscribed(jog)
-        for value in (math.nan, math.inf, 1e6, 100.0, 0.0):
+        for refused, value in enumerate((math.nan, math.inf, 1e6), start=1):
             jog.publish(Float64(data=value))
-        wait_for(lambda: len(device.write_log) >= 3, WAIT_S, "the valid jog and its stop")
+            wait_stream_refusals(client, "stepper_bridge", refused, time.monotonic())
+        assert device.write_log == []
+        jog.publish(Float64(data=100.0))
+        wait_for(lambda: len(device.write_log) >= 2, WAIT_S, "the valid jog")
+        jog.publish(Float64(data=0.0))
+        wait_for(lambda: len(device.write_log) >= 3, WAIT_S, "its stop")
         client.node.destroy_publisher(jog)
         assert writes(device) == [
             (6, Table.HOLDING, 5, (100,)),

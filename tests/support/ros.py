@@ -275,6 +275,35 @@ class Bridge:
         self.client.wait_message(self.connected, lambda m: m.data == value, timeout, since)
 
 
+def wait_status(
+    client: Client,
+    node_name: str,
+    where: Callable[[dict[str, str]], bool],
+    since: float,
+    timeout: float = WAIT_S,
+) -> Any:
+    """The newest ``/diagnostics`` status of ``node_name`` (any namespace) received after
+    ``since`` whose key-value pairs pass ``where``."""
+
+    def find() -> Any:
+        for array in reversed(client.received("/diagnostics", since)):
+            for status in array.status:
+                if status.name.startswith(f"{node_name}:") and where(values_of(status)):
+                    return status
+        return None
+
+    return wait_for(find, timeout, f"a diagnostics status of {node_name}")
+
+
+def wait_stream_refusals(client: Client, node_name: str, count: int, since: float) -> None:
+    """Until ``node_name`` reports ``count`` refused stream commands in all: each refused
+    message was handled (a command stream keeps only its newest value, so a test sends a
+    refused value and waits for it before the next)."""
+    wait_status(
+        client, node_name, lambda v: int(v.get("stream commands refused", -1)) >= count, since
+    )
+
+
 _NAMESPACE_COUNTER = iter(range(1_000_000))
 
 
