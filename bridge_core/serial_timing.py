@@ -58,6 +58,9 @@ BROADCAST_TURNAROUND_S = 0.1
 # A frame whose length is unknown (fallback paths only) ends after this much silence at
 # least: USB adapters deliver bytes in bursts, so the wire's 3.5 characters is too short.
 FALLBACK_FRAME_GAP_S = 0.005
+# How long a request may wait for room in the port's output buffer (it is empty between
+# transactions: a frame that cannot leave in this time means a stuck port or adapter).
+WRITE_STALL_S = 1.0
 # time.sleep overshoots by ~50-100 us (timer slack); the last stretch of a silence wait
 # is spun on the clock so the request leaves within a few us of the silence's end.
 SPIN_S = 100e-6
@@ -187,6 +190,33 @@ class ReplyFromOtherUnit(ReplyMismatch):
     field = "device id"
 
 
+def write_all(fd: int, data: bytes, stall_s: float, clock: Any = time.monotonic) -> int:
+    """Write every byte of ``data`` to the (non-blocking) descriptor ``fd``.
+
+    A write is judged by the bytes that left: pyserial's ``write`` with a write timeout
+    checks its deadline after ``os.write`` returned and raises SerialTimeoutException for
+    a frame that was in fact written whole whenever the process was descheduled for
+    longer than the timeout (issue 9: a flood on a loaded machine closed live links).
+    Here only a buffer that stays full for ``stall_s`` is an error.
+    """
+    view = memoryview(data)
+    written = 0
+    deadline = clock() + stall_s
+    while written < len(data):
+        try:
+            written += os.write(fd, view[written:])
+            continue
+        except BlockingIOError:
+            pass
+        remaining = deadline - clock()
+        if remaining <= 0:
+            raise serial.SerialTimeoutException(
+                f"{written} of {len(data)} bytes written: the output buffer stayed full"
+            )
+        select.select([], [fd], [], remaining)
+    return written
+
+
 class TimedSerialClient(ModbusSerialClient):
     """``ModbusSerialClient`` that keeps the RTU inter-frame silence and reads by length.
 
@@ -257,12 +287,11 @@ class TimedSerialClient(ModbusSerialClient):
         try:
             self._wait_for_silence()
             started = time.monotonic()
-            size = self.socket.write(request) or 0
-        except (BlockingIOError, InterruptedError):
+            assert self._fd is not None  # _timed
+            size = write_all(self._fd, request, WRITE_STALL_S)
+        except InterruptedError:
             raise
-        except serial.SerialTimeoutException:
-            raise ConnectionException(str(self)) from None
-        except OSError:
+        except (serial.SerialTimeoutException, OSError):
             self.close()
             raise ConnectionException(str(self)) from None
         # write() returns once the bytes are queued; the last one leaves n chars later.

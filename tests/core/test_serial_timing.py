@@ -17,6 +17,7 @@ import tty
 from collections.abc import Iterable, Iterator
 
 import pytest
+import serial
 from pymodbus.framer import FramerRTU
 from pymodbus.pdu import DecodePDU, ExceptionResponse, ModbusPDU
 from pymodbus.pdu import bit_message as bits
@@ -55,6 +56,7 @@ from bridge_core.serial_timing import (
     expected_reply_length,
     reply_length,
     silence_s,
+    write_all,
 )
 from bridge_core.sim_base import SimulatedDevice, Simulator
 from bridge_core.transport import (
@@ -440,3 +442,44 @@ def test_a_late_reply_is_not_taken_for_the_next_one() -> None:
             assert ch.read_registers(0, 2) == [20, 21]
         finally:
             link.close()
+
+
+class JumpingClock:
+    """Time that has passed ``jump_s`` after its first reading: the process was
+    descheduled right after the write began."""
+
+    def __init__(self, jump_s: float) -> None:
+        self.readings = 0
+        self.jump_s = jump_s
+
+    def __call__(self) -> float:
+        self.readings += 1
+        return 0.0 if self.readings == 1 else self.jump_s
+
+
+def test_a_frame_written_whole_is_written_however_late_the_process_ran() -> None:
+    """pyserial raised SerialTimeoutException for such a frame (its deadline is checked
+    after os.write returned); write_all judges by the bytes that left."""
+    read_end, write_end = os.pipe()
+    try:
+        os.set_blocking(write_end, False)
+        frame = bytes.fromhex("02 06 00 AE 00 3C 69 F0")
+        assert write_all(write_end, frame, 0.1, JumpingClock(10.0)) == len(frame)
+        assert os.read(read_end, 64) == frame
+    finally:
+        os.close(read_end)
+        os.close(write_end)
+
+
+def test_an_output_buffer_that_stays_full_is_an_error() -> None:
+    read_end, write_end = os.pipe()
+    try:
+        os.set_blocking(write_end, False)
+        with pytest.raises(BlockingIOError):
+            while True:  # fill the pipe: nobody reads it
+                os.write(write_end, bytes(4096))
+        with pytest.raises(serial.SerialTimeoutException, match="0 of 8 bytes written"):
+            write_all(write_end, bytes(8), 0.1, JumpingClock(10.0))
+    finally:
+        os.close(read_end)
+        os.close(write_end)
