@@ -112,6 +112,8 @@ class DeviceDefaults:
     port: int = 502
     baudrate: int = 9600
     timeout_s: float = 0.5
+    timeout_min_s: float = 0.01  # a reply timeout below this can never be met
+    frame_gap_s: float = 0.0  # RTU: least silence between frames beyond t3.5
 
 
 def transport_specs(defaults: DeviceDefaults) -> list[ParameterSpec]:
@@ -131,10 +133,23 @@ def transport_specs(defaults: DeviceDefaults) -> list[ParameterSpec]:
             ParameterSpec("baudrate", defaults.baudrate, "serial baud rate", 300, 4_000_000),
             ParameterSpec("parity", "N", "serial parity", choices=PARITIES),
             ParameterSpec("stopbits", 1, "serial stop bits", 1, 2),
+            ParameterSpec(
+                "frame_gap_s",
+                defaults.frame_gap_s,
+                "least silence between frames beyond the 3.5 characters of Modbus RTU",
+                0.0,
+                1.0,
+            ),
         ]
     return [
         *specs,
-        ParameterSpec("timeout_s", defaults.timeout_s, "reply timeout per transaction", 0.01, 10.0),
+        ParameterSpec(
+            "timeout_s",
+            defaults.timeout_s,
+            "reply timeout per transaction",
+            defaults.timeout_min_s,
+            10.0,
+        ),
     ]
 
 
@@ -160,6 +175,7 @@ def link_settings(values: dict[str, Any]) -> TcpSettings | SerialSettings:
         str(values["parity"]).upper(),
         int(values["stopbits"]),
         timeout_s=float(values["timeout_s"]),
+        frame_gap_s=float(values["frame_gap_s"]),
     )
 
 

@@ -220,7 +220,8 @@ def write_all(fd: int, data: bytes, stall_s: float, clock: Any = time.monotonic)
 class TimedSerialClient(ModbusSerialClient):
     """``ModbusSerialClient`` that keeps the RTU inter-frame silence and reads by length.
 
-    Same constructor as ``ModbusSerialClient``, plus ``broadcast_turnaround_s``.
+    Same constructor as ``ModbusSerialClient``, plus ``broadcast_turnaround_s`` and
+    ``min_frame_gap_s`` (a longer silence between frames than t3.5).
     """
 
     def __init__(
@@ -228,12 +229,17 @@ class TimedSerialClient(ModbusSerialClient):
         port: str,
         *,
         broadcast_turnaround_s: float = BROADCAST_TURNAROUND_S,
+        min_frame_gap_s: float = 0.0,
         **kwargs: Any,
     ) -> None:
         super().__init__(port, **kwargs)
         params = self.comm_params
         self.char_s = char_time_s(params.baudrate, params.bytesize, params.parity, params.stopbits)
-        self.silence_s = silence_s(params.baudrate, params.bytesize, params.parity, params.stopbits)
+        # The silence kept between frames: t3.5, or longer for a device that needs it.
+        self.silence_s = max(
+            silence_s(params.baudrate, params.bytesize, params.parity, params.stopbits),
+            min_frame_gap_s,
+        )
         self.broadcast_turnaround_s = max(broadcast_turnaround_s, self.silence_s)
         self._fd: int | None = None
         self._poller = select.poll()

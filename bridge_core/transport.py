@@ -83,6 +83,9 @@ class SerialSettings:
     stopbits: int = 1
     bytesize: int = 8
     timeout_s: float = 0.5
+    # Least silence between two frames on the line, when a device needs more than the
+    # 3.5 characters Modbus RTU requires (0: t3.5 only).
+    frame_gap_s: float = 0.0
 
     def describe(self) -> str:
         return f"{self.port}@{self.baudrate}{self.bytesize}{self.parity}{self.stopbits}"
@@ -169,6 +172,7 @@ class ModbusLink:
                 bytesize=settings.bytesize,
                 timeout=settings.timeout_s,
                 retries=0,
+                min_frame_gap_s=settings.frame_gap_s,
             )
         self._open = False
 

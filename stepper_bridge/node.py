@@ -77,11 +77,18 @@ MOTOR_FIELDS = (
 # most of the line.
 JOG_WRITE_RATE_HZ = 5.0
 
+# §3: "485 接口通信时每帧数据响应时间不能低于 35ms" (replies take at least 35 ms). The
+# largest read (49 registers, a 103-byte reply) takes 107 ms at 9600 baud more, so a
+# reply timeout below 0.15 s cannot be met: refused at start. The other reading (the host
+# must leave 35 ms between frames) is served by ``frame_gap_s`` (default 0: t3.5).
+TIMEOUT_MIN_S = 0.15
+
 STEPPER_DEFAULTS = DeviceDefaults(
     "stepper controller",
     "rtu",
     poll_rate_hz=3.0,  # a poll takes ~0.29 s at 9600 baud (README)
     baudrate=DEFAULT_BAUDRATE,
+    timeout_min_s=TIMEOUT_MIN_S,
 )
 
 

@@ -40,3 +40,16 @@ def test_bad_specs_are_refused_when_written() -> None:
 def test_padded() -> None:
     assert padded([2, 3], 4, 1.0) == [2.0, 3.0, 1.0, 1.0]
     assert padded([1.0] * 9, 2, 1.0) == [1.0, 1.0]
+
+
+def test_the_stepper_refuses_a_reply_timeout_its_replies_cannot_meet() -> None:
+    """§3: replies take at least 35 ms, the largest 107 ms more at 9600 baud."""
+    from bridge_core.node_base import transport_specs
+    from stepper_bridge.node import STEPPER_DEFAULTS, TIMEOUT_MIN_S
+
+    specs = {spec.name: spec for spec in transport_specs(STEPPER_DEFAULTS)}
+    timeout = specs["timeout_s"]
+    assert timeout.validate(0.1) is not None and str(TIMEOUT_MIN_S) in str(timeout.validate(0.1))
+    assert timeout.validate(TIMEOUT_MIN_S) is None
+    assert specs["frame_gap_s"].validate(0.035) is None
+    assert specs["frame_gap_s"].default == 0.0

@@ -327,6 +327,30 @@ def test_no_request_inside_the_silence_at_9600() -> None:
     assert silence_violations(frames, line.silence_s, wire_tolerance(line)) == []
 
 
+def test_a_longer_frame_gap_is_kept_before_every_request() -> None:
+    """frame_gap_s (a device that needs more than t3.5, e.g. the stepper's 35 ms reading):
+    every request starts at least that long after the previous frame on the line."""
+    gap_s = 0.035
+    sim = Simulator([SimulatedDevice(TEST_MAP, 1)])
+    with LineRelay(115200, device_turnaround_s=silence_s(115200)) as line:
+        sim.start_serial(line.device_path, baudrate=115200)
+        settings = SerialSettings(line.client_path, 115200, timeout_s=0.5, frame_gap_s=gap_s)
+        link = ModbusLink(settings)
+        try:
+            channel = DeviceChannel(link, 1, retries=0)
+            for _ in range(6):
+                channel.read_registers(0, 2)
+                channel.write_register(1, 3)
+            frames = line.frames()
+        finally:
+            link.close()
+            sim.stop()
+    assert len(request_gaps(frames)) == 11
+    assert silence_violations(frames, gap_s, wire_tolerance(line)) == []
+    # ... and without it only t3.5 (1.75 ms at 115200) is kept: the rule has teeth.
+    assert silence_s(115200) < gap_s / 10
+
+
 def test_broadcast_expects_no_reply_and_waits_the_turnaround(
     bus_115200: tuple[LineRelay, Simulator, ModbusLink],
 ) -> None:
