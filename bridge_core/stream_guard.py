@@ -107,13 +107,20 @@ class StreamGuard(Generic[Key]):
         """A command arrived (even one that will be refused): the deadman counts from here."""
         self[key].last_seen = self._clock()
 
-    def offer(self, key: Key, value: float) -> None:
+    def offer(self, key: Key, value: float) -> bool:
         """A command arrived: it replaces any value of the stream not yet applied, and the
-        deadman counts from now."""
+        deadman counts from now. True when it may be applied at once (wake the writer);
+        False when it waits for the rate limit or repeats the value in force (the
+        writer's periodic pass takes it)."""
         stream = self[key]
+        now = self._clock()
         with self._inbox_lock:
             stream.offered = value
-            stream.last_seen = self._clock()
+            stream.last_seen = now
+            if value == 0:
+                return True
+            repeat = stream.active and not stream.stop_pending and stream.value == value
+            return not repeat and now - stream.last_send >= self.min_interval_s
 
     def ready(self) -> list[Key]:
         """Streams with an offered value that may be applied now: a 0 at once, any other
