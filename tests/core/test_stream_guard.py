@@ -164,3 +164,22 @@ def test_unknown_stream_is_refused() -> None:
     guard, _, _ = make()
     with pytest.raises(CommandRejected, match="no stream 9"):
         guard.command(9, 1.0)
+
+
+def test_offers_coalesce_and_wake_the_writer_only_when_a_write_may_go() -> None:
+    guard, motors, clock = make()
+    guard.min_interval_s = 0.1
+    assert guard.offer(1, 50.0)  # first value: at once
+    assert guard.ready() == [1] and guard.take(1) == 50.0
+    guard.command(1, 50.0)
+    assert not guard.offer(1, 50.0)  # a repeat: the periodic pass drops it
+    clock.now = 0.05
+    assert not guard.offer(1, 60.0)  # inside the interval: waits
+    assert not guard.offer(1, 70.0)  # ... and replaces the 60
+    assert guard.ready() == []
+    assert guard.offer(1, 0.0)  # a 0 goes at once, and overtakes the 70
+    assert guard.ready() == [1] and guard.take(1) == 0.0
+    assert guard.take(1) is None
+    clock.now = 0.2
+    assert guard.offer(1, 80.0)  # interval passed
+    assert motors.log == [("send", 1, 50.0, None)]
