@@ -211,15 +211,23 @@ class DeviceChannel:
         return self._connected or self.backoff.ready()
 
     @contextmanager
-    def command_session(self) -> Iterator[None]:
+    def command_session(self, *, probe: bool = False) -> Iterator[None]:
         """Tie this thread's transactions to the connection they started on.
 
         Inside it, every transaction is refused (``LinkDown``, nothing sent) once the
         device was marked down after the session began, even if a poll has reconnected
         since: DESIGN §2, nothing is queued across a reconnect. The node's command guard
-        wraps each command in one; polls and link-up probes run outside.
+        wraps each command in one, the poller each poll that starts on a live link (its
+        rest is not sent once a command lost the link); stops run outside.
+
+        ``probe``: for a poll that starts while the device is down: its transactions may
+        reconnect, but are refused once the device is marked down again after the session
+        began (a stop that failed meanwhile is pending, and goes first on the next try).
         """
-        self._session.epoch = self._epoch if self._connected else -1
+        if probe:
+            self._session.epoch = (self._epoch, False)
+        else:
+            self._session.epoch = (self._epoch if self._connected else -1, True)
         try:
             yield
         finally:
@@ -248,7 +256,9 @@ class DeviceChannel:
         lock.acquire(priority)  # acquire/release, not a context manager: the poll hot path
         try:
             session = getattr(self._session, "epoch", None)
-            if session is not None and (session != self._epoch or not self._connected):
+            if session is not None and (
+                session[0] != self._epoch or (session[1] and not self._connected)
+            ):
                 raise NotSent(
                     f"{self.describe()}: the link was lost while the command waited; not sent"
                 )

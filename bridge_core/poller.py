@@ -28,6 +28,7 @@ import threading
 import time
 import traceback
 from collections.abc import Callable, Iterable, Sequence
+from contextlib import AbstractContextManager
 from typing import Generic, Protocol, TypeVar
 
 from .channel import Priority, RegisterIO
@@ -61,6 +62,7 @@ class PollChannel(Protocol):
     @property
     def generation(self) -> int: ...  # bumped each time the device comes up
     def may_attempt(self) -> bool: ...
+    def command_session(self, *, probe: bool = False) -> AbstractContextManager[None]: ...
 
 
 def read_blocks(
@@ -179,7 +181,12 @@ class Poller(Generic[Snapshot]):
             # the link was down) reconnected it between two polls.
             if not self.channel.connected or self.channel.generation != self._generation:
                 self._link_up()
-            snapshot = self._poll()
+            # A poll stops at its next request once the link is marked down after it began
+            # (a command or a stop failed meanwhile): what the link sends first when it is
+            # back is then the link-up work (pending stops first), not the poll's rest. A
+            # poll that starts while the link is down is the probe that may reconnect it.
+            with self.channel.command_session(probe=not self.channel.connected):
+                snapshot = self._poll()
         except PollIncomplete as err:
             self._report(PollOutcome.INCOMPLETE, str(err))
             return PollOutcome.INCOMPLETE

@@ -176,11 +176,10 @@ class StreamGuard(Generic[Key]):
         """Send the stream's stop now (a 0 command, the deadman, shutdown)."""
         stream = self[key]
         stream.locked = False
-        try:
-            self._stop(key)
-        except LinkError:
-            stream.stop_pending = True  # keep the deadman on it until a stop is acknowledged
-            raise
+        # Pending from the first attempt on (not only once it failed): a reconnect that
+        # looks for pending stops while this one is on the wire waits for it, then tries.
+        stream.stop_pending = True  # until a stop is acknowledged: the deadman keeps on it
+        self._stop(key)
         stream.value, stream.active = None, False
         stream.stop_pending, stream.stop_sent = False, True
         return True

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+
 import pytest
 
 from bridge_core.channel import Priority
@@ -36,6 +38,9 @@ class FakeChannel:
         if up and not self._connected:
             self.generation += 1  # as DeviceChannel._note_alive
         self._connected = up
+
+    def command_session(self, *, probe: bool = False) -> contextlib.AbstractContextManager[None]:
+        return contextlib.nullcontext()
 
     def may_attempt(self) -> bool:
         return self.connected or self.backoff_elapsed
@@ -306,3 +311,79 @@ def test_a_stop_that_reconnected_between_polls_still_gets_the_link_up_work() -> 
     assert device.link_ups == 2
     assert poller.tick() is PollOutcome.PUBLISHED
     assert device.link_ups == 2
+
+
+class ScriptedTransport:
+    """A Transport that answers every read with zeros and records what it was sent."""
+
+    def __init__(self) -> None:
+        from bridge_core.channel import PriorityLock
+
+        self.lock = PriorityLock()
+        self.is_serial = True
+        self.is_open = True
+        self.sent: list[object] = []
+
+    def describe(self) -> str:
+        return "scripted"
+
+    def open(self) -> None:
+        self.is_open = True
+
+    def close(self) -> None:
+        self.is_open = False
+
+    def execute(self, unit_id: int, request: object) -> list[int]:
+        self.sent.append(request)
+        return [0] * int(getattr(request, "count", 1))
+
+
+def test_a_poll_stops_at_its_next_request_once_a_command_lost_the_link() -> None:
+    """The rest of a poll is not sent after the link was marked down mid-poll: when the
+    link is back, the first thing sent is the link-up work (pending stops first)."""
+    from bridge_core.channel import DeviceChannel
+
+    transport = ScriptedTransport()
+    channel = DeviceChannel(transport, 1, retries=0)
+    channel.read_registers(0, 1)  # connected
+    requests_before = len(transport.sent)
+
+    def poll() -> int:
+        channel.read_registers(0, 1)
+        channel.mark_down("a command timed out")  # another thread's command, meanwhile
+        channel.read_registers(1, 1)  # must not be sent
+        return 1
+
+    events: list[PollOutcome] = []
+    poller = Poller(
+        channel,
+        poll,
+        lambda _snapshot: None,
+        rate_hz=10.0,
+        report=lambda outcome, _text: events.append(outcome),
+        clock=FakeClock(),
+    )
+    assert poller.tick() is PollOutcome.LINK_LOST
+    assert len(transport.sent) == requests_before + 1
+
+
+def test_a_probe_poll_yields_to_a_stop_that_failed_while_it_waited() -> None:
+    """A poll that starts while the link is down may reconnect it, unless the link was
+    marked down again meanwhile (a deadman stop failed: it is pending and goes first)."""
+    from bridge_core.channel import DeviceChannel
+
+    transport = ScriptedTransport()
+    channel = DeviceChannel(transport, 1, retries=0)  # never connected: polls are probes
+
+    def poll() -> int:
+        channel.mark_down("the deadman's stop timed out")  # another thread, meanwhile
+        channel.read_registers(0, 1)
+        return 1
+
+    poller = Poller(channel, poll, lambda _snapshot: None, rate_hz=10.0, clock=FakeClock())
+    assert poller.tick() is PollOutcome.LINK_LOST
+    assert transport.sent == []
+    # Without a stop failing meanwhile, the probe (once the backoff allows) reconnects.
+    channel.backoff.succeeded()
+    poller = Poller(channel, lambda: channel.read_registers(0, 1)[0], lambda _s: None, rate_hz=10.0)
+    assert poller.tick() is PollOutcome.PUBLISHED and channel.connected
