@@ -35,6 +35,7 @@ import math
 import os
 import select
 import time
+from collections.abc import Callable
 from typing import Any
 
 import serial
@@ -190,7 +191,9 @@ class ReplyFromOtherUnit(ReplyMismatch):
     field = "device id"
 
 
-def write_all(fd: int, data: bytes, stall_s: float, clock: Any = time.monotonic) -> int:
+def write_all(
+    fd: int, data: bytes, stall_s: float, clock: Callable[[], float] = time.monotonic
+) -> int:
     """Write every byte of ``data`` to the (non-blocking) descriptor ``fd``.
 
     A write is judged by the bytes that left: pyserial's ``write`` with a write timeout

@@ -48,7 +48,7 @@ class StreamState:
     value: float | None = None  # last non-zero value written (None: unknown / not moving)
     active: bool = False  # a non-zero command is in force (or may be: see stop_pending)
     locked: bool = False  # stopped by a service: refuse motion until 0 or silence
-    stop_pending: bool = False  # a write failed: keep stopping until one is acknowledged
+    stop_pending: bool = False  # a stop is on the wire or was lost: until one is acknowledged
     stop_sent: bool = False  # a stop was acknowledged since the last motion
     last_seen: float | None = None  # clock() of the last command received
     offered: float | None = None  # the newest command received and not yet applied
@@ -103,10 +103,6 @@ class StreamGuard(Generic[Key]):
             raise CommandRejected(f"no stream {key!r}") from None
 
     # ------------------------------------------------------------ commands
-    def seen(self, key: Key) -> None:
-        """A command arrived (even one that will be refused): the deadman counts from here."""
-        self[key].last_seen = self._clock()
-
     def offer(self, key: Key, value: float) -> bool:
         """A command arrived: it replaces any value of the stream not yet applied, and the
         deadman counts from now. True when it may be applied at once (wake the writer);
@@ -117,22 +113,21 @@ class StreamGuard(Generic[Key]):
         with self._inbox_lock:
             stream.offered = value
             stream.last_seen = now
-            if value == 0:
-                return True
             repeat = stream.active and not stream.stop_pending and stream.value == value
-            return not repeat and now - stream.last_send >= self.min_interval_s
+            return self._may_write(stream, now) and not repeat
 
     def ready(self) -> list[Key]:
         """Streams with an offered value that may be applied now: a 0 at once, any other
         value once ``min_interval_s`` passed since the stream's last write."""
         now = self._clock()
         with self._inbox_lock:
-            return [
-                key
-                for key, stream in self.streams.items()
-                if stream.offered is not None
-                and (stream.offered == 0 or now - stream.last_send >= self.min_interval_s)
-            ]
+            return [key for key, stream in self.streams.items() if self._may_write(stream, now)]
+
+    def _may_write(self, stream: StreamState, now: float) -> bool:
+        """The rate rule for the stream's offered value (call under ``_inbox_lock``)."""
+        if stream.offered is None:
+            return False
+        return stream.offered == 0 or now - stream.last_send >= self.min_interval_s
 
     def take(self, key: Key) -> float | None:
         """The stream's newest offered value (None if there is none), now no longer offered."""
@@ -222,7 +217,7 @@ class StreamGuard(Generic[Key]):
         return due
 
     def pending_stops(self) -> list[Key]:
-        """Streams whose stop failed on the link and was not acknowledged since."""
+        """Streams whose stop is on the wire or was lost, and not acknowledged since."""
         return [key for key, stream in self.streams.items() if stream.stop_pending]
 
     @_locked

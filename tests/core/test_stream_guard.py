@@ -80,7 +80,7 @@ def test_lock_after_a_service_stop_until_zero_or_silence() -> None:
     guard.taken_over(1, locked=True)
     with pytest.raises(CommandRejected, match="stopped"):
         guard.command(1, 60.0)
-    guard.seen(1)
+    guard.offer(1, 60.0)
     clock.now += 0.6
     assert guard.due() == [1]
     assert not guard.expire(1)  # locked but not moving: silence only unlocks
@@ -111,14 +111,14 @@ def test_a_pending_stop_is_due_at_once_until_acknowledged() -> None:
     """The deadman retries a lost stop every period, not only after the stream fell
     silent: commands may keep arriving (refused while the link is down)."""
     guard, motors, clock = make()
-    guard.seen(1)
+    guard.offer(1, 30.0)
     guard.command(1, 30.0)
     assert guard.due() == [] and guard.pending_stops() == []
     motors.fail = 1
     with pytest.raises(LinkTimeout):
         guard.stop(1)
     clock.now = 0.1
-    guard.seen(1)  # still commanded: not silent
+    guard.offer(1, 30.0)  # still commanded: not silent
     assert guard.due() == [1] and guard.pending_stops() == [1]
     assert guard.expire(1)
     assert motors.log[-1] == ("stop", 1, None, None)
@@ -127,12 +127,12 @@ def test_a_pending_stop_is_due_at_once_until_acknowledged() -> None:
 
 def test_deadman_stops_silent_streams_only() -> None:
     guard, motors, clock = make()
-    guard.seen(1)
+    guard.offer(1, 30.0)
     guard.command(1, 30.0)
-    guard.seen(2)
+    guard.offer(2, 40.0)
     guard.command(2, 40.0)
     clock.now = 0.4
-    guard.seen(2)
+    guard.offer(2, 40.0)
     clock.now = 0.6
     assert guard.due() == [1]
     assert guard.expire(1)
