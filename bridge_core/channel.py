@@ -48,10 +48,16 @@ UNIT_ID_MAX = 247
 
 
 class Priority(IntEnum):
-    """Commands go before polls on a link (``PriorityLock``)."""
+    """Who goes first on a link (``PriorityLock``): watchdog feeds, commands, polls.
 
-    COMMAND = 0
-    POLL = 1
+    A feed goes before commands so that the longest it can wait for the line is one
+    transaction per device on the link (the bound ``lifeguard_ms`` is checked against);
+    it is one short write to a live device, so a stop waits a few ms for it at most.
+    """
+
+    KEEPALIVE = 0
+    COMMAND = 1
+    POLL = 2
 
 
 class RegisterIO(Protocol):
@@ -63,7 +69,7 @@ class RegisterIO(Protocol):
     def read_bits(
         self, address: int, count: int, table: Table = ..., priority: Priority = ...
     ) -> list[bool]: ...
-    def write_register(self, address: int, value: int) -> None: ...
+    def write_register(self, address: int, value: int, priority: Priority = ...) -> None: ...
     def write_registers(self, address: int, values: Sequence[int]) -> None: ...
     def write_coil(self, address: int, on: bool) -> None: ...
     def write_coils(self, address: int, values: Sequence[bool]) -> None: ...
@@ -249,9 +255,25 @@ class DeviceChannel:
         """Run one request; reads are retried ``retries`` times, writes never are.
 
         Nor are probes of a device that is down: on a shared RS-485 bus every retry of a
-        dead drive holds the bus for another timeout while the live drives wait.
+        dead drive holds the bus for another timeout while the live drives wait. Each
+        attempt takes the link lock on its own, so a feed or a command that queued up
+        meanwhile goes between a failed attempt and its retry: no request ever waits for
+        more than one timeout of another device.
         """
         attempts = 1 if request.is_write or not self._connected else 1 + self.retries
+        last: LinkError = LinkDown("no attempt made")
+        for attempt in range(attempts):
+            outcome = self._attempt(request, priority, final=attempt == attempts - 1)
+            if not isinstance(outcome, LinkError):
+                return outcome
+            last = outcome
+            if isinstance(outcome, LinkDown):
+                break
+        raise last
+
+    def _attempt(self, request: Request, priority: Priority, *, final: bool) -> Reply | LinkError:
+        """One try under the link lock: the reply, or the link error (the device is marked
+        down after the ``final`` try fails, or at once if the link itself is down)."""
         lock = self.link.lock
         lock.acquire(priority)  # acquire/release, not a context manager: the poll hot path
         try:
@@ -262,46 +284,41 @@ class DeviceChannel:
                 raise NotSent(
                     f"{self.describe()}: the link was lost while the command waited; not sent"
                 )
-            last: LinkError = LinkDown("no attempt made")
-            for _ in range(attempts):
-                try:
-                    if not self.link.is_open:
-                        try:
-                            self.link.open()
-                        except LinkDown as err:
-                            raise NotSent(str(err)) from err
-                    started = time.perf_counter()
-                    reply = self.link.execute(self.unit_id, request)
-                except DeviceException as err:
-                    # The device is alive and said no: not a link failure.
-                    self.stats.exceptions += 1
-                    self.stats.last_error = str(err)
-                    self.stats.last_error_time = time.time()
-                    self._note_alive()
-                    raise
-                except LinkTimeout as err:
+            try:
+                if not self.link.is_open:
+                    try:
+                        self.link.open()
+                    except LinkDown as err:
+                        raise NotSent(str(err)) from err
+                started = time.perf_counter()
+                reply = self.link.execute(self.unit_id, request)
+            except DeviceException as err:
+                # The device is alive and said no: not a link failure.
+                self.stats.exceptions += 1
+                self.stats.last_error = str(err)
+                self.stats.last_error_time = time.time()
+                self._note_alive()
+                raise
+            except (LinkTimeout, FrameError) as err:
+                if isinstance(err, LinkTimeout):
                     self.stats.timeouts += 1
-                    last = err
-                    if not self.link.is_serial:
-                        self.link.close()
-                except FrameError as err:
-                    self.stats.frame_errors += 1
-                    last = err
-                    if not self.link.is_serial:
-                        self.link.close()
-                except LinkDown as err:
-                    self.stats.connect_failures += 1
-                    last = err
-                    break
                 else:
-                    stats = self.stats
-                    stats.transactions += 1
-                    stats.latencies_s.append(time.perf_counter() - started)
-                    if not self._connected:
-                        self._note_alive()
-                    return reply
-            self.mark_down(last)
-            raise last
+                    self.stats.frame_errors += 1
+                if not self.link.is_serial:
+                    self.link.close()
+                if final:
+                    self.mark_down(err)
+                return err
+            except LinkDown as err:
+                self.stats.connect_failures += 1
+                self.mark_down(err)
+                return err
+            stats = self.stats
+            stats.transactions += 1
+            stats.latencies_s.append(time.perf_counter() - started)
+            if not self._connected:
+                self._note_alive()
+            return reply
         finally:
             lock.release()
 
@@ -334,8 +351,10 @@ class DeviceChannel:
         # execute() made them bools already.
         return _exactly(self.transact(ReadBits(address, count, table), priority), count)
 
-    def write_register(self, address: int, value: int) -> None:
-        self.transact(WriteRegister(address, value), Priority.COMMAND)
+    def write_register(
+        self, address: int, value: int, priority: Priority = Priority.COMMAND
+    ) -> None:
+        self.transact(WriteRegister(address, value), priority)
 
     def write_registers(self, address: int, values: Sequence[int]) -> None:
         self.transact(WriteRegisters(address, tuple(values)), Priority.COMMAND)

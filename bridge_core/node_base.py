@@ -76,6 +76,7 @@ STREAM_DEPTH = 1  # command streams: only the newest message matters
 # 0.5 ms.
 GIL_SWITCH_INTERVAL_S = 0.0005
 EXIT_CONFIGURATION_ERROR = 2
+EXIT_FATAL_ERROR = 1  # a bug or an error nothing handled: motion stopped, then exit
 
 _KINDS: dict[type, int] = {
     bool: ParameterType.PARAMETER_BOOL,
@@ -192,6 +193,7 @@ class ParameterNode(Node):
         super().__init__(node_name, **node_kwargs)
         self._specs: dict[str, ParameterSpec] = {}
         self._appliers: dict[str, Callable[[Any], None]] = {}
+        self._writers: dict[str, Callable[[Any], str | None]] = {}
         self.add_pre_set_parameters_callback(self._coerce_parameters)
         self.add_on_set_parameters_callback(self._check_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
@@ -227,6 +229,15 @@ class ParameterNode(Node):
             raise ValueError(f"parameter {name} is start-up only")
         self._appliers[name] = apply
 
+    def on_parameter_write(self, name: str, write: Callable[[Any], str | None]) -> None:
+        """A live parameter applied by writing to the device: ``write(value)`` runs while
+        the set is checked and returns None once the device took it, or the reason it did
+        not (the set is then refused and the parameter keeps its value). Of several
+        parameters set at once, the ones written before a refusal stay written."""
+        if not self._specs[name].live:
+            raise ValueError(f"parameter {name} is start-up only")
+        self._writers[name] = write
+
     def _coerce_parameters(self, parameters: list[Parameter]) -> list[Parameter]:
         out = []
         for parameter in parameters:
@@ -243,6 +254,10 @@ class ParameterNode(Node):
                 continue
             reason = spec.validate(parameter.value)
             if reason is not None:
+                return SetParametersResult(successful=False, reason=reason)
+        for parameter in parameters:
+            write = self._writers.get(parameter.name)
+            if write is not None and (reason := write(parameter.value)) is not None:
                 return SetParametersResult(successful=False, reason=reason)
         return SetParametersResult(successful=True)
 
@@ -671,8 +686,12 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
         """Stop everything this node's streams started; tried on the wire even while the
         link is marked down (no connected guard, no command session)."""
         for guard in self.stream_guards:
-            for key, err in guard.stop_all():
+            moving = guard.moving()
+            failed = guard.stop_all()
+            for key, err in failed:
                 self.get_logger().error(f"stopping stream {key} failed: {err}")
+            for key in set(moving) - {key for key, _ in failed}:
+                self.get_logger().info(f"stream {key}: stopped")
 
     # ------------------------------------------------------------ diagnostics
     def publish_diagnostics(self) -> None:
@@ -846,6 +865,15 @@ def spin_nodes(
     except (ConfigurationError, ParameterException) as err:
         print(f"error: {_one_line(err)}", file=sys.stderr)
         code = EXIT_CONFIGURATION_ERROR
+    except Exception as err:
+        # An error no callback handled (a bug): every motion is stopped below before the
+        # process ends, and the traceback is kept, since it is what a bug report needs.
+        traceback.print_exc()
+        print(
+            f"fatal error: {_one_line(err)}; stopping every motion, then exiting",
+            file=sys.stderr,
+        )
+        code = EXIT_FATAL_ERROR
     finally:
         if executor is not None:
             executor.shutdown()

@@ -68,6 +68,9 @@ SPIN_S = 100e-6
 
 # ---------------------------------------------------------------- frame layout
 
+# The longest RTU frame (spec §2.5.1: 256 bytes, address and CRC included).
+MAX_RTU_FRAME_BYTES = 256
+
 BROADCAST_UNIT = 0
 EXCEPTION_FLAG = 0x80
 # unit id + function code: enough to tell a normal reply from an exception reply.
@@ -111,6 +114,28 @@ def silence_s(baudrate: int, bytesize: int = 8, parity: str = "N", stopbits: int
     if baudrate > FIXED_TIMING_ABOVE_BAUD:
         return SILENCE_FIXED_S
     return SILENCE_CHARS * char_time_s(baudrate, bytesize, parity, stopbits)
+
+
+def longest_hold_s(
+    baudrate: int,
+    timeout_s: float,
+    *,
+    frame_gap_s: float = 0.0,
+    bytesize: int = 8,
+    parity: str = "N",
+    stopbits: int = 1,
+) -> float:
+    """The longest one transaction can hold the line (``TimedSerialClient``).
+
+    The silence before the request (t3.5, or a longer ``frame_gap_s``), the longest
+    request frame, then the reply timeout, counted from the request's last byte: a reply
+    must be complete by then, so a transaction that gets its answer is never longer than
+    one that times out. (After a broadcast the next request also waits
+    ``BROADCAST_TURNAROUND_S``; the bridges broadcast only to release every drive.)
+    """
+    char = char_time_s(baudrate, bytesize, parity, stopbits)
+    silence = max(silence_s(baudrate, bytesize, parity, stopbits), frame_gap_s)
+    return silence + MAX_RTU_FRAME_BYTES * char + timeout_s
 
 
 def expected_reply_length(request: bytes) -> int | None:

@@ -46,7 +46,13 @@ from .channel import PriorityLock
 from .errors import DeviceException, FrameError, LinkDown, LinkTimeout
 from .registers import Table
 from .requests import Reply, Request
-from .serial_timing import ReplyFrameError, ReplyFromOtherUnit, ReplyMismatch, TimedSerialClient
+from .serial_timing import (
+    ReplyFrameError,
+    ReplyFromOtherUnit,
+    ReplyMismatch,
+    TimedSerialClient,
+    longest_hold_s,
+)
 
 __all__ = [
     "CheckedTcpClient",
@@ -74,6 +80,10 @@ class TcpSettings:
     def describe(self) -> str:
         return f"tcp://{self.host}:{self.port}"
 
+    def longest_hold_s(self) -> float:
+        """The longest one transaction holds the link: its reply timeout (a reconnect aside)."""
+        return self.timeout_s
+
 
 @dataclass(frozen=True)
 class SerialSettings:
@@ -89,6 +99,17 @@ class SerialSettings:
 
     def describe(self) -> str:
         return f"{self.port}@{self.baudrate}{self.bytesize}{self.parity}{self.stopbits}"
+
+    def longest_hold_s(self) -> float:
+        """The longest one transaction can hold this line (``serial_timing.longest_hold_s``)."""
+        return longest_hold_s(
+            self.baudrate,
+            self.timeout_s,
+            frame_gap_s=self.frame_gap_s,
+            bytesize=self.bytesize,
+            parity=self.parity,
+            stopbits=self.stopbits,
+        )
 
 
 LinkSettings = TcpSettings | SerialSettings

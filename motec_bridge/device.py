@@ -21,9 +21,10 @@ motor. ``velocity_stop`` (the deadman) writes 0 rpm; the drive ramps down by its
 acceleration (§4.2).
 
 Lifeguard (§3.4): ``arm_lifeguard(ms)`` writes 0x112 = ms then 0x114 = 9999 (the
-manual's two FC 06 frames); ``feed_lifeguard`` rewrites 0x112 when no other write went
-to the drive for a feed period, so the drive's watchdog only fires when the bridge is
-gone (or the bus is).
+manual's two FC 06 frames), ``disarm_lifeguard`` 0x114 = 0; ``feed_lifeguard`` rewrites
+0x112 (at ``Priority.KEEPALIVE``, before commands and polls) when no other write went to
+the drive for a feed period, so the drive's watchdog only fires when the bridge is gone
+(or the bus is). ``lifeguard_min_ms`` is the shortest lifeguard time a bus can keep fed.
 """
 
 from __future__ import annotations
@@ -45,6 +46,7 @@ from bridge_core.checks import (
 from bridge_core.codec import Value, encode
 from bridge_core.config_cache import ConfiguredDevice
 from bridge_core.errors import CommandRejected
+from bridge_core.keepalive import FEED_WAKE_S
 from bridge_core.planner import ReadRequest, plan_reads
 from bridge_core.stream_guard import StreamGuard
 
@@ -55,6 +57,7 @@ from .registers import (
     ENABLE_ON,
     INPUTS,
     LIFEGUARD_ACTIVE,
+    LIFEGUARD_MODE_OFF,
     MOTEC_MAP,
     MOTION_ABSOLUTE,
     MOTION_RELATIVE,
@@ -300,12 +303,12 @@ class MotecDevice(ConfiguredDevice[MotecConfig]):
         )
 
     # ------------------------------------------------------------------ writes
-    def _write(self, name: str, value: Value) -> None:
+    def _write(self, name: str, value: Value, priority: Priority = Priority.COMMAND) -> None:
         """One value: FC 06 for a 16-bit register, FC 16 for a 32-bit one (§3.1)."""
         reg = MOTEC_MAP[name]
         words = encode(reg, value)
         if len(words) == 1:
-            self.io.write_register(reg.address, words[0])
+            self.io.write_register(reg.address, words[0], priority)
         else:
             self.io.write_registers(reg.address, words)
         self.last_write = self._clock()
@@ -366,6 +369,15 @@ class MotecDevice(ConfiguredDevice[MotecConfig]):
             )
         if limit:
             self._write("speed_setpoint", limit)
+        else:
+            # 0: the drive's own speed limit. After a velocity session 0xAE holds that
+            # session's last speed, often 0, and a move limited to 0 rpm never happens.
+            held = int(self.read_named("speed_setpoint")["speed_setpoint"])
+            if held <= 0:
+                raise CommandRejected(
+                    f"max velocity 0 keeps the drive's speed limit 0xAE, which is {held} rpm: "
+                    f"the move could not run; give a max velocity > 0"
+                )
         self._write("motion_mode", MOTION_RELATIVE if relative else MOTION_ABSOLUTE)
         self._write("target_distance", counts)
         self._write("start", START_MOVE)
@@ -457,17 +469,52 @@ class MotecDevice(ConfiguredDevice[MotecConfig]):
         self._write("lifeguard_time", int(time_ms))
         self._write("lifeguard_mode", LIFEGUARD_ACTIVE)
 
-    def lifeguard_feed_period_s(self, time_ms: int) -> float:
-        return time_ms / 1000.0 / FEEDS_PER_PERIOD
+    def disarm_lifeguard(self) -> None:
+        """0x114 = 0: any mode but 9999 leaves the lifeguard off (§3.4); 0x112 is kept."""
+        self._write("lifeguard_mode", LIFEGUARD_MODE_OFF)
+
+    def next_feed(self, time_ms: int) -> float:
+        """When the lifeguard needs its next write (``clock()`` time): a feed period after
+        the last write of any kind."""
+        return self.last_write + lifeguard_feed_period_s(time_ms)
 
     def feed_lifeguard(self, time_ms: int) -> bool:
         """Rewrite 0x112 if nothing was written to the drive for a feed period."""
         if time_ms <= 0:
             return False
-        if self._clock() - self.last_write < self.lifeguard_feed_period_s(time_ms):
+        if self._clock() < self.next_feed(time_ms):
             return False
-        self._write("lifeguard_time", int(time_ms))
+        self._write("lifeguard_time", int(time_ms), Priority.KEEPALIVE)
         return True
+
+
+def lifeguard_feed_period_s(time_ms: int) -> float:
+    return time_ms / 1000.0 / FEEDS_PER_PERIOD
+
+
+def lifeguard_min_ms(drives: int, hold_s: float) -> int:
+    """The shortest lifeguard time the bridge can keep fed on a bus (README "Lifeguard").
+
+    A feed falls due ``time / FEEDS_PER_PERIOD`` after the drive's last write, starts up
+    to ``FEED_WAKE_S`` late, then waits for the line: for the transaction in progress and
+    for the feeds of the other drives queued before it (feeds go first), each at most
+    ``hold_s`` (``SerialSettings.longest_hold_s``: silence, the longest frame, the reply
+    timeout). The gap between two writes to a live drive stays within the time if
+        time / 3 + FEED_WAKE_S + drives x hold_s <= time,
+    i.e. time >= 1.5 x (FEED_WAKE_S + drives x hold_s) with 3 feeds per period.
+    """
+    gap_s = FEED_WAKE_S + drives * hold_s
+    bound_ms = gap_s * FEEDS_PER_PERIOD / (FEEDS_PER_PERIOD - 1) * 1000.0
+    return max(LIFEGUARD_MIN_MS, math.ceil(round(bound_ms, 6)))  # 90.00000000000001 is 90
+
+
+def lifeguard_bound_text(drives: int, hold_s: float) -> str:
+    """The formula of ``lifeguard_min_ms`` with this bus's numbers, for messages."""
+    return (
+        f"{FEEDS_PER_PERIOD / (FEEDS_PER_PERIOD - 1):g} x ({FEED_WAKE_S:g} s wake-up + "
+        f"{drives} drive(s) x {hold_s:.3f} s, the longest transaction on this line: "
+        f"silence, the longest frame, timeout_s)"
+    )
 
 
 def disable_all(broadcast: RegisterIO) -> None:
@@ -502,4 +549,7 @@ __all__ = [
     "MotecDevice",
     "MotecSnapshot",
     "disable_all",
+    "lifeguard_bound_text",
+    "lifeguard_feed_period_s",
+    "lifeguard_min_ms",
 ]

@@ -30,7 +30,6 @@ import sys
 from collections.abc import Sequence
 from typing import Any
 
-from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
 from std_msgs.msg import Float64
 from std_srvs.srv import SetBool, Trigger
@@ -39,6 +38,7 @@ from bridge_core.channel import DeviceChannel
 from bridge_core.checks import board_zero_index
 from bridge_core.diagnostics import Level, Report
 from bridge_core.errors import CommandRejected, ConfigurationError, DeviceException, LinkError
+from bridge_core.keepalive import Keepalive
 from bridge_core.node_base import BridgeNode, BusNode, DeviceDefaults, copy_fields, spin_nodes
 from bridge_core.parameters import ParameterSpec
 from bridge_core.transport import ModbusLink
@@ -48,13 +48,14 @@ from msg_defs.srv import PositionMove, SetControlMode, SetOutput, SetValue
 from .device import (
     DEFAULT_CONFIG_REFRESH_S,
     DEFAULT_MAX_SPEED_RPM,
-    LIFEGUARD_MIN_MS,
     SPEED_LIMIT_RPM,
     VELOCITY_STREAM,
     DriveScale,
     MotecDevice,
     MotecSnapshot,
     disable_all,
+    lifeguard_bound_text,
+    lifeguard_min_ms,
 )
 from .registers import (
     BROADCAST_UNIT,
@@ -77,7 +78,6 @@ MOTEC_DEFAULTS = DeviceDefaults(
     baudrate=DEFAULT_BAUDRATE,
     timeout_s=0.1,  # a reply is a few ms at 115200: a dead drive costs little bus time
 )
-LIFEGUARD_CHECK_S = 0.05  # feed check period when the drive armed its lifeguard itself
 
 
 # MotecState fields copied as they are from the snapshot and its configuration.
@@ -106,11 +106,17 @@ def drive_node_name(unit_id: int) -> str:
 class MotecDriveNode(BridgeNode[MotecSnapshot]):
     """One drive on the shared bus."""
 
-    def __init__(self, unit_id: int, link: ModbusLink, **kwargs: Any) -> None:
+    def __init__(
+        self, unit_id: int, link: ModbusLink, *, drives_on_bus: int = 1, **kwargs: Any
+    ) -> None:
         super().__init__(
             drive_node_name(unit_id), MOTEC_DEFAULTS, link=link, unit_id=unit_id, **kwargs
         )
         self.unit_id = unit_id
+        # The shortest lifeguard time this bus can keep fed (README "Lifeguard").
+        hold_s = link.settings.longest_hold_s()
+        self.lifeguard_floor_ms = lifeguard_min_ms(drives_on_bus, hold_s)
+        self.lifeguard_bound = lifeguard_bound_text(drives_on_bus, hold_s)
         values = self.declare_specs(
             [
                 ParameterSpec(
@@ -138,10 +144,12 @@ class MotecDriveNode(BridgeNode[MotecSnapshot]):
                 ParameterSpec(
                     "lifeguard_ms",
                     0,
-                    f"drive watchdog (0x112): 0 = leave the drive's setting, else "
-                    f"{LIFEGUARD_MIN_MS}-65535 ms, armed on connect and fed by the bridge",
+                    f"drive watchdog 0x112/0x114: armed on connect and fed by the bridge; at "
+                    f"least {self.lifeguard_floor_ms} ms on this bus = {self.lifeguard_bound}. "
+                    f"0 at start: leave the drive's own setting; set to 0 at run time: disarm",
                     0,
                     65535,
+                    live=True,
                 ),
                 ParameterSpec(
                     "max_speed_rpm",
@@ -161,11 +169,8 @@ class MotecDriveNode(BridgeNode[MotecSnapshot]):
         )
         self.scale = DriveScale(float(values["counts_per_rev"]), float(values["gear_ratio"]))
         self.lifeguard_ms = int(values["lifeguard_ms"])
-        if 0 < self.lifeguard_ms < LIFEGUARD_MIN_MS:
-            raise ConfigurationError(
-                f"{self.get_name()}: lifeguard_ms {self.lifeguard_ms} is below "
-                f"{LIFEGUARD_MIN_MS} (0 = off)"
-            )
+        if reason := self._lifeguard_refusal(self.lifeguard_ms):
+            raise ConfigurationError(f"{self.get_name()}: {reason}")
         self.device = MotecDevice(
             self.channel,
             max_speed_rpm=int(values["max_speed_rpm"]),
@@ -184,15 +189,15 @@ class MotecDriveNode(BridgeNode[MotecSnapshot]):
             lambda msg: float(msg.data),
             convert=lambda _key, rad_s: self.device.check_velocity(self.scale.to_rpm(rad_s)),
         )
-        self.lifeguard_group = MutuallyExclusiveCallbackGroup()
-        period = (
-            self.device.lifeguard_feed_period_s(self.lifeguard_ms) / 2
-            if self.lifeguard_ms
-            else LIFEGUARD_CHECK_S
+        self.on_parameter_write("lifeguard_ms", self._set_lifeguard)
+        # Fed from a thread of its own, not an executor timer (bridge_core.keepalive).
+        self.keepalive = Keepalive(
+            f"{self.get_name()}-lifeguard",
+            self._next_feed,
+            self._feed_lifeguard,
+            lambda err: self.get_logger().error(f"lifeguard feed failed: {err}"),
         )
-        self.lifeguard_timer = self.create_timer(
-            period, self._feed_lifeguard, callback_group=self.lifeguard_group
-        )
+        self.keepalive.start()
 
     # ------------------------------------------------------------ polling
     def on_link_up(self) -> None:
@@ -261,6 +266,7 @@ class MotecDriveNode(BridgeNode[MotecSnapshot]):
             ("speed (rpm)", str(s.speed_actual_rpm)),
             ("analog input (raw)", str(s.analog_input)),
             ("lifeguard", lifeguard),
+            ("lifeguard_ms floor on this bus", f"{self.lifeguard_floor_ms} ms"),
             ("cmd_velocity", stream),
         ]
         if s.fault_code:
@@ -269,6 +275,18 @@ class MotecDriveNode(BridgeNode[MotecSnapshot]):
             )
         if self.lifeguard_error:
             return Report(Level.WARN, self.lifeguard_error, values)
+        if (
+            s.config.lifeguard_armed
+            and not self.read_only
+            and s.config.lifeguard_time_ms < self.lifeguard_floor_ms
+        ):
+            return Report(
+                Level.WARN,
+                f"the drive's lifeguard time {s.config.lifeguard_time_ms} ms is below "
+                f"{self.lifeguard_floor_ms} ms, the longest feed gap this bus can cause: "
+                f"it may trip (set lifeguard_ms)",
+                values,
+            )
         if s.config.lifeguard_armed and self.read_only:
             return Report(
                 Level.WARN, "the drive's lifeguard is armed but read_only stops the feed", values
@@ -332,16 +350,54 @@ class MotecDriveNode(BridgeNode[MotecSnapshot]):
         return counts
 
     # ------------------------------------------------------------ lifeguard
-    def _feed_lifeguard(self) -> None:
+    def _lifeguard_refusal(self, time_ms: int) -> str | None:
+        """Why ``time_ms`` cannot be kept fed on this bus (None: it can, or 0 = off)."""
+        if time_ms == 0 or time_ms >= self.lifeguard_floor_ms:
+            return None
+        return (
+            f"lifeguard_ms {time_ms} is below {self.lifeguard_floor_ms} ms, the longest the "
+            f"bridge may go without writing to a drive on this bus = {self.lifeguard_bound}; "
+            f"give at least {self.lifeguard_floor_ms}, or lower timeout_s (0 = off)"
+        )
+
+    def _set_lifeguard(self, time_ms: int) -> str | None:
+        """A run-time ``lifeguard_ms``: arm / re-arm the drive now, or disarm it (0)."""
+        if reason := self._lifeguard_refusal(time_ms):
+            return reason
+        what = f"lifeguard_ms {time_ms}"
+        ok, message, _ = self.run_command(
+            what,
+            lambda: (
+                self.device.arm_lifeguard(time_ms) if time_ms else self.device.disarm_lifeguard()
+            ),
+        )
+        if not ok:
+            return message
+        self.lifeguard_ms = time_ms
+        self.lifeguard_error = None
+        self.keepalive.wake()
+        return None
+
+    def _next_feed(self) -> float | None:
         if self.read_only or not self.channel.connected:
-            return
+            return None
         time_ms = self.lifeguard_time_ms()
-        if not time_ms:
-            return
+        return self.device.next_feed(time_ms) if time_ms else None
+
+    def _feed_lifeguard(self) -> None:
+        time_ms = self.lifeguard_time_ms()
         try:
-            self.device.feed_lifeguard(time_ms)
+            # Not across a reconnect: on_link_up arms the drive again first.
+            with self.channel.command_session():
+                self.device.feed_lifeguard(time_ms)
         except LinkError as err:  # the poll reports the link; nothing else to do here
             self.get_logger().warn(f"lifeguard feed failed: {err}", throttle_duration_sec=5.0)
+
+    def close(self) -> None:
+        try:
+            super().close()  # stops first
+        finally:
+            self.keepalive.close()
 
 
 class MotecBusNode(BusNode):
@@ -385,7 +441,7 @@ def build_nodes(nodes: list[Node]) -> None:
     bus = MotecBusNode()
     nodes.append(bus)
     for unit in bus.unit_ids:
-        nodes.append(MotecDriveNode(unit, bus.link))
+        nodes.append(MotecDriveNode(unit, bus.link, drives_on_bus=len(bus.unit_ids)))
 
 
 def main(args: Sequence[str] | None = None) -> int:

@@ -125,6 +125,9 @@ STOP_MOVE = 0  # decision: 0x29 is the "运动/停止寄存器"
 SAVE_TO_FLASH = 1  # §3.5
 LIFEGUARD_ACTIVE = 9999  # §3.4: "参数Pr.276为9999时 ... 启动lifeguard功能" (0x270F, §3.4.2)
 LIFEGUARD_OFF_MS = 0  # §3.4: "当Pr.274为非零值 ..."
+# §3.4 arms the lifeguard only with Pr.276 = 9999; any other mode leaves it off. The
+# bridge writes 0 to disarm (the manual names no "off" value).
+LIFEGUARD_MODE_OFF = 0
 FAULT_NONE = 0  # §4.3: "0—无故障"
 FAULT_PRESENT = 1  # §4.3: "1—有故障"
 FAULT_TEXTS = {FAULT_NONE: "no fault (无故障)", FAULT_PRESENT: "fault (有故障)"}
@@ -370,6 +373,7 @@ __all__ = [
     "CONTROL_MODE_VELOCITY",
     "DEFAULT_BAUDRATE",
     "LIFEGUARD_ACTIVE",
+    "LIFEGUARD_MODE_OFF",
     "MOTEC_LIMITS",
     "MOTEC_MAP",
     "OPERATION_MODE_NETWORK",

@@ -15,9 +15,11 @@ silent; the choices are listed in the README's MOTEC section):
 - powers up in operation mode 1 (not network), position control, released, at position
   0, no fault; motion over Modbus needs network mode (§4): elsewhere the motor stays;
 - position control: 0x29 = 1 starts a trapezoidal move (ramps at ``accel_rpm_s`` up to
-  |0xAE| rpm, or ``move_speed_rpm`` when 0xAE is 0) to setpoint + distance (0x2D = 0) or
-  to the distance as a target (0x2D = 1); 0x29 = 0 decelerates to a stop. Starting
-  without network mode, position control and enable answers 0x03;
+  |0xAE| rpm) to setpoint + distance (0x2D = 0) or to the distance as a target (0x2D = 1);
+  0x29 = 0 decelerates to a stop. With 0xAE = 0 the move is started and never gets
+  anywhere (0x29 reads 1, the motor stands): the manual gives no other meaning for a 0
+  speed limit. 0xAE holds ``move_speed_rpm`` at power-up (the manual gives no power-up
+  value). Starting without network mode, position control and enable answers 0x03;
 - velocity control: the speed ramps to 0xAE at ``accel_rpm_s`` (§4.2) while enabled;
 - releasing (0x28 = 0) stops the motor at once (it coasts in reality) and clears a
   latched fault; enabling while a fault is latched answers 0x03;
@@ -140,6 +142,7 @@ class MotecSimDrive(SimulatedDevice):
         with self.lock:
             self.set("operation_mode", POWER_UP_OPERATION_MODE)
             self.set("control_mode", CONTROL_MODE_POSITION)
+            self.set("speed_setpoint", round(move_speed_rpm))
             self._update_registers()
 
     # ------------------------------------------------------------ for tests / the CLI
@@ -248,8 +251,7 @@ class MotecSimDrive(SimulatedDevice):
             target = distance
         else:
             target = self.position + distance
-        limit = abs(self.value("speed_setpoint")) or self.move_speed_rpm
-        self.move = Move(target, float(limit))
+        self.move = Move(target, float(abs(self.value("speed_setpoint"))))
 
     def _trip(self, code: int) -> None:
         self.fault = code
@@ -416,7 +418,12 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--reply-delay-ms", type=float, default=0.0)
     parser.add_argument("--counts-per-rev", type=int, default=DEFAULT_COUNTS_PER_REV)
     parser.add_argument("--accel-rpm-s", type=float, default=DEFAULT_ACCEL_RPM_S)
-    parser.add_argument("--move-speed-rpm", type=float, default=DEFAULT_MOVE_SPEED_RPM)
+    parser.add_argument(
+        "--move-speed-rpm",
+        type=float,
+        default=DEFAULT_MOVE_SPEED_RPM,
+        help="speed limit 0xAE at power-up (a move runs at |0xAE|)",
+    )
     parser.add_argument(
         "--fault", type=_fault, action="append", default=[], help="latch a fault: UNIT:CODE"
     )

@@ -119,3 +119,33 @@ def test_exit_zeroes_a_motec_velocity_stream(
             late = [(r.address, r.values) for r in drive.write_log[writes_before:]]
             assert late == [(0xAE, (0,))]
             client.node.destroy_publisher(pub)
+
+
+def test_a_fatal_error_stops_the_motion_before_the_process_ends(
+    sim: tuple[StepperSimDevice, str], client: Client, tmp_path: Path
+) -> None:
+    """An error no callback handles (a bug) ends spin: the jog it left running is stopped
+    on the wire, the process says so and exits 1 (tests/support/fatal_bridge.py)."""
+    device, port = sim
+    params = {
+        "serial_port": port,
+        "baudrate": BAUD,
+        "poll_rate_hz": 20.0,
+        "timeout_s": 1.0,
+        "command_timeout_s": 60.0,  # the deadman must not be what stops it
+    }
+    b = Bridge(client, "/shutdown_fatal", "stepper_bridge", StepperState)
+    extra = ["-r", f"__ns:={b.ns}"]
+    with node_process("tests.support.fatal_bridge", params, tmp_path, extra) as proc:
+        b.wait_connected(True, timeout=30)
+        jog = client.node.create_publisher(Float64, f"{b.ns}/stepper_bridge/motor_1/jog", 10)
+        wait_for(lambda: jog.get_subscription_count() > 0, 30, "the jog subscription")
+        jog.publish(Float64(data=300.0))
+        assert proc.wait(EXIT_TIMEOUT_S) == 1
+        client.node.destroy_publisher(jog)
+    forward, stop = motor_coil(1, "forward"), motor_coil(1, "stop")
+    coils = [r.address for r in device.write_log if r.table == Table.COIL]
+    assert forward in coils and coils[-1] == stop, coils  # it ran, and the stop came last
+    assert device.motion[1] is None
+    log = (tmp_path / "tests_support_fatal_bridge.log").read_text()
+    assert "fatal error: injected" in log and "stream 1: stopped" in log, log

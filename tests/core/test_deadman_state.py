@@ -7,6 +7,7 @@ from typing import Any
 
 import pytest
 
+from bridge_core.channel import Priority
 from bridge_core.errors import LinkTimeout
 from bridge_core.registers import Table
 from motec_bridge.device import MotecDevice
@@ -30,7 +31,9 @@ class FlakyIO:
     def write_coil(self, address: int, on: bool) -> None:
         self._write("coil", address, on)
 
-    def write_register(self, address: int, value: int) -> None:
+    def write_register(
+        self, address: int, value: int, priority: Priority = Priority.COMMAND
+    ) -> None:
         self._write("register", address, value)
         self.registers[address] = value
 

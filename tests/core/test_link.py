@@ -25,9 +25,7 @@ from bridge_core.registers import (
     ValueType,
     register_array,
 )
-from bridge_core.requests import (
-    ReadRegisters,
-)
+from bridge_core.requests import ReadRegisters, Reply, Request
 from bridge_core.serial_timing import ReplyCrcError, ReplyFromOtherUnit
 from bridge_core.sim_base import SimulatedDevice, Simulator
 from bridge_core.transport import (
@@ -63,7 +61,7 @@ def wait_until(predicate, timeout: float = 10.0) -> None:  # type: ignore[no-unt
         time.sleep(0.005)
 
 
-def test_priority_lock_serves_commands_first_then_fifo() -> None:
+def test_priority_lock_serves_feeds_then_commands_first_then_fifo() -> None:
     lock = PriorityLock()
     order: list[str] = []
     holder_in = threading.Event()
@@ -86,6 +84,7 @@ def test_priority_lock_serves_commands_first_then_fifo() -> None:
         ("poll-2", Priority.POLL),
         ("command-1", Priority.COMMAND),
         ("command-2", Priority.COMMAND),
+        ("feed-1", Priority.KEEPALIVE),
     ]:
         t = threading.Thread(target=waiter, args=(name, priority))
         t.start()
@@ -95,7 +94,77 @@ def test_priority_lock_serves_commands_first_then_fifo() -> None:
     release.set()
     for t in threads:
         t.join(5)
-    assert order == ["command-1", "command-2", "poll-1", "poll-2"]
+    assert order == ["feed-1", "command-1", "command-2", "poll-1", "poll-2"]
+
+
+class ScriptedBus:
+    """A Transport whose replies are scripted per unit: a value, an error to raise, or
+    an Event to block on first (so a test can queue other requests behind one)."""
+
+    def __init__(self) -> None:
+        self.lock = PriorityLock()
+        self.is_serial = True
+        self.is_open = True
+        self.executed: list[tuple[int, Request]] = []
+        self.script: dict[int, list[object]] = {}
+        self.entered = threading.Event()
+
+    def describe(self) -> str:
+        return "scripted bus"
+
+    def open(self) -> None:
+        self.is_open = True
+
+    def close(self) -> None:
+        self.is_open = False
+
+    def execute(self, unit_id: int, request: Request) -> Reply:
+        self.executed.append((unit_id, request))
+        script = self.script.get(unit_id)
+        step = script.pop(0) if script else [0]
+        if isinstance(step, threading.Event):
+            self.entered.set()
+            assert step.wait(10), "the test never let the request finish"
+            raise LinkTimeout(f"unit {unit_id}: no reply")
+        if isinstance(step, Exception):
+            raise step
+        return None if request.is_write else list(step)  # type: ignore[call-overload]
+
+
+def test_a_retry_lets_a_queued_feed_go_first() -> None:
+    """A read of a device that just died is retried, but each attempt takes the lock on
+    its own: a watchdog feed to a live device queued during the first timeout goes
+    before the retry, so no request waits for more than one timeout."""
+    bus = ScriptedBus()
+    dying = DeviceChannel(bus, 7, retries=1)
+    live = DeviceChannel(bus, 1, retries=1)
+    dying.read_registers(0, 1)  # connected: its reads get a retry
+    bus.executed.clear()
+    timeout = threading.Event()
+    bus.script[7] = [timeout, LinkTimeout("unit 7: no reply")]
+    failed: list[BaseException] = []
+
+    def poll_dying() -> None:
+        try:
+            dying.read_registers(0, 1)
+        except LinkTimeout as err:
+            failed.append(err)
+
+    poller = threading.Thread(target=poll_dying)
+    poller.start()
+    assert bus.entered.wait(10)
+    feeder = threading.Thread(target=lambda: live.write_register(3, 9, Priority.KEEPALIVE))
+    feeder.start()
+    wait_until(lambda: len(bus.lock._waiting) == 1)
+    timeout.set()
+    poller.join(10)
+    feeder.join(10)
+    assert [(unit, type(r).__name__) for unit, r in bus.executed] == [
+        (7, "ReadRegisters"),
+        (1, "WriteRegister"),
+        (7, "ReadRegisters"),
+    ]
+    assert failed and not dying.connected and live.connected
 
 
 def test_backoff_doubles_up_to_the_cap() -> None:

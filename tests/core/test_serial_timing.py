@@ -54,6 +54,7 @@ from bridge_core.serial_timing import (
     BROADCAST_TURNAROUND_S,
     TimedSerialClient,
     expected_reply_length,
+    longest_hold_s,
     reply_length,
     silence_s,
     write_all,
@@ -106,6 +107,17 @@ def test_silence_follows_the_character_time_and_is_fixed_above_19200() -> None:
     assert silence_s(38400) == silence_s(115200) == pytest.approx(0.00175)
     client = TimedSerialClient("/dev/null", baudrate=9600, parity="E")
     assert client.silence_s == pytest.approx(3.5 * 11 / 9600)
+
+
+def test_longest_hold_is_silence_longest_frame_and_timeout() -> None:
+    # 115200 8N1: the fixed 1.75 ms silence, 256 characters of 10 bits, the timeout.
+    assert longest_hold_s(115200, 0.1) == pytest.approx(0.00175 + 256 * 10 / 115200 + 0.1)
+    # 9600 8E1 with a 50 ms frame gap (longer than t3.5 = 4.0 ms): the gap counts.
+    assert longest_hold_s(9600, 0.2, frame_gap_s=0.05, parity="E") == pytest.approx(
+        0.05 + 256 * 11 / 9600 + 0.2
+    )
+    settings = SerialSettings("/dev/null", 9600, "E", timeout_s=0.2, frame_gap_s=0.05)
+    assert settings.longest_hold_s() == longest_hold_s(9600, 0.2, frame_gap_s=0.05, parity="E")
 
 
 # (request, normal reply) pairs, both encoded by pymodbus itself.

@@ -29,6 +29,8 @@ from motec_bridge.device import (
     DriveScale,
     MotecDevice,
     disable_all,
+    lifeguard_bound_text,
+    lifeguard_min_ms,
 )
 from motec_bridge.registers import (
     CONTROL_MODE_POSITION,
@@ -121,6 +123,11 @@ def test_position_mode_sequence_of_section_4_1() -> None:
         modes_read(0, CONTROL_MODE_POSITION, 0),
         echo("06 00 28 00 01", "step 4: enable"),
         modes_read(0, CONTROL_MODE_POSITION, 1),
+        Step(
+            frame("03 00 AE 00 01"),
+            frame("03 02 02 58"),
+            "no max velocity given: the drive's own speed limit 0xAE is read (600 rpm)",
+        ),
         echo("06 00 2D 00 00", "step 3: relative"),
         Step(
             frame("10 00 26 00 02 04 12 34 56 78"),
@@ -347,21 +354,30 @@ def test_poll_plans() -> None:
 class FakeIO:
     """A RegisterIO that answers mode reads with ``modes`` and records writes."""
 
-    def __init__(self, operation: int = 0, control: int = 2, enabled: int = 1) -> None:
+    def __init__(
+        self, operation: int = 0, control: int = 2, enabled: int = 1, speed_limit: int = 0
+    ) -> None:
         self.modes = [operation, control, 0, 0, enabled, 0]
+        self.speed_limit = speed_limit  # 0xAE
         self.writes: list[tuple[str, int, Any]] = []
+        self.priorities: list[Priority] = []
 
     def read_registers(
         self, address: int, count: int, table: Table = Table.HOLDING, priority: Any = None
     ) -> list[int]:
+        if (address, count) == (0xAE, 1):
+            return [self.speed_limit & 0xFFFF]
         assert (address, count) == (0x24, 6)
         return list(self.modes)
 
     def read_bits(self, *args: Any, **kwargs: Any) -> list[bool]:
         raise AssertionError("no bit reads expected")
 
-    def write_register(self, address: int, value: int) -> None:
+    def write_register(
+        self, address: int, value: int, priority: Priority = Priority.COMMAND
+    ) -> None:
         self.writes.append(("06", address, value))
+        self.priorities.append(priority)
 
     def write_registers(self, address: int, values: Sequence[int]) -> None:
         self.writes.append(("16", address, list(values)))
@@ -390,6 +406,8 @@ class FakeIO:
         ((1, 2, 1), lambda d: d.move(10, relative=True), "network mode"),
         ((0, 1, 1), lambda d: d.move(10, relative=True), "position control"),
         ((0, 2, 0), lambda d: d.move(10, relative=True), "disabled"),
+        # max velocity 0 keeps 0xAE, which FakeIO holds at 0: the move could not run.
+        ((0, 2, 1), lambda d: d.move(10, relative=True), "0xAE, which is 0 rpm"),
         ((0, 1, 0), lambda d: d.velocity(100), "velocity control"),
         ((0, 2, 1), lambda d: d.velocity(100), "velocity control"),
         ((0, 1, 1), lambda d: d.velocity(math.inf), "finite"),
@@ -428,6 +446,36 @@ def test_stop_outside_network_mode_releases_the_drive() -> None:
     io = FakeIO(1, CONTROL_MODE_POSITION, 1)
     assert "released" in MotecDevice(io).stop()
     assert io.writes == [("06", 0x28, 0)]
+
+
+def test_a_move_without_a_speed_limit_keeps_the_drives_own() -> None:
+    io = FakeIO(speed_limit=600)
+    MotecDevice(io).move(-10, relative=True)
+    assert io.writes == [("06", 0x2D, 0), ("16", 0x26, [0xFFFF, 0xFFF6]), ("06", 0x29, 1)]
+    io = FakeIO(speed_limit=-300)  # left negative by a velocity session
+    with pytest.raises(CommandRejected, match="which is -300 rpm"):
+        MotecDevice(io).move(10, relative=True)
+    assert io.writes == []
+
+
+def test_lifeguard_floor_follows_the_bus() -> None:
+    # 1.5 x (0.05 s wake-up + drives x the longest transaction), in whole ms.
+    assert lifeguard_min_ms(3, 0.124) == 633
+    assert lifeguard_min_ms(1, 0.124) == 261
+    assert lifeguard_min_ms(1, 0.01) == 90
+    # The defaults of config/motec.yaml: 3 drives, 115200 8N1, timeout_s 0.1.
+    hold = SerialSettings("/dev/null", 115200, timeout_s=0.1).longest_hold_s()
+    assert lifeguard_min_ms(3, hold) == math.ceil(1.5 * (0.05 + 3 * hold) * 1000) == 633
+    assert "3 drive(s) x 0.124 s" in lifeguard_bound_text(3, hold)
+
+
+def test_lifeguard_disarm_and_feeds_go_first() -> None:
+    io = FakeIO()
+    d = MotecDevice(io)
+    assert d.feed_lifeguard(500)
+    d.disarm_lifeguard()
+    assert io.writes == [("06", 0x112, 500), ("06", 0x114, 0)]
+    assert io.priorities == [Priority.KEEPALIVE, Priority.COMMAND]
 
 
 def test_lifeguard_feed_only_when_nothing_else_was_written() -> None:

@@ -3,8 +3,11 @@ simulator's drives on a real socat pty pair, driven by an rclpy client in this p
 
 from __future__ import annotations
 
+import itertools
 import math
 import signal
+import subprocess
+import sys
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
@@ -13,11 +16,15 @@ from typing import Any
 
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
+from rcl_interfaces.srv import SetParameters
+from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, Float64
 from std_srvs.srv import SetBool, Trigger
 
 from bridge_core.registers import Table
+from bridge_core.transport import SerialSettings
+from motec_bridge.device import lifeguard_min_ms
 from motec_bridge.sim import MotecSimDrive, MotecSimulator, make_simulator
 from msg_defs.msg import MotecState
 from msg_defs.srv import PositionMove, SetControlMode, SetOutput, SetValue
@@ -28,6 +35,7 @@ from ..support.ros import (
     WAIT_S,
     Client,
     node_process,
+    ros_args,
     ros_client,
     unique_namespace,
     values_of,
@@ -45,7 +53,15 @@ UNITS = [1, 2, 3]
 # delay a reply or a message by: a live drive must never look dead, a stream never silent.
 TIMEOUT_S = 1.0
 COMMAND_TIMEOUT_S = 1.5
-LIFEGUARD_MS = 2000  # the drive faults after this long without a write
+
+
+def lifeguard_floor_ms(drives: int, timeout_s: float = TIMEOUT_S) -> int:
+    """The shortest lifeguard time the bridge accepts on the tests' bus (README "Lifeguard")."""
+    return lifeguard_min_ms(drives, SerialSettings("", BAUD, timeout_s=timeout_s).longest_hold_s())
+
+
+# The drive faults after this long without a write: two drives, 1 s timeouts.
+LIFEGUARD_MS = lifeguard_floor_ms(2) + 100
 H, C = Table.HOLDING, Table.COIL
 
 
@@ -121,6 +137,14 @@ class MotecBridge:
             return None
 
         return wait_for(find, WAIT_S, f"a matching diagnostic status of motec_{unit}")
+
+    def set_param(self, unit: int, name: str, value: Any) -> Any:
+        """SetParameters on drive ``unit``'s node: its one result."""
+        request = SetParameters.Request()
+        request.parameters = [Parameter(name, value=value).to_parameter_msg()]
+        reply = self.client.call(SetParameters, f"{self.ns}/motec_{unit}/set_parameters", request)
+        (result,) = reply.results
+        return result
 
     def acknowledged(self, unit: int) -> None:
         """A round trip through drive ``unit``'s command callbacks (a refused request that
@@ -416,6 +440,122 @@ def test_lifeguard_fault_after_the_bridge_dies(bus, client: Client, tmp_path: Pa
         b.wait_diagnostic(1, level(0), since=t)
 
 
+def test_lifeguard_armed_changed_and_disarmed_at_run_time(
+    bus: tuple[MotecSimulator, str], client: Client, tmp_path: Path
+) -> None:
+    """Issue 9: lifeguard_ms is live: a set arms, re-arms or (0) disarms the drive at
+    once, and is refused with the reason, writing nothing, when it is too small for the
+    bus, under read_only, or while the drive does not answer."""
+    sim, port = bus
+    drive = sim.drive(1)
+    floor = lifeguard_floor_ms(len(UNITS))
+    armed, changed = floor + 100, floor + 900
+    with motec(client, tmp_path, bridge_params(port)) as (b, _):
+        b.wait_connected(1, True)
+        b.ok(1, SetControlMode, "set_control_mode", mode=SetControlMode.Request.VELOCITY)
+        before = len(drive.write_log)
+        result = b.set_param(1, "lifeguard_ms", armed)
+        assert result.successful, result.reason
+        assert writes(drive)[before:] == [(6, H, 0x112, (armed,)), (6, H, 0x114, (9999,))]
+        t = time.monotonic()
+        st = b.wait_state(1, lambda m: m.lifeguard_armed, since=t)
+        assert st.lifeguard_time_ms == armed
+        wait_for(lambda: (6, H, 0x112, (armed,)) in writes(drive)[before + 2 :], WAIT_S, "a feed")
+
+        before = len(drive.write_log)
+        result = b.set_param(1, "lifeguard_ms", changed)
+        assert result.successful, result.reason
+        assert writes(drive)[before : before + 2] == [
+            (6, H, 0x112, (changed,)),
+            (6, H, 0x114, (9999,)),
+        ]
+        wait_for(lambda: (6, H, 0x112, (changed,)) in writes(drive)[before + 2 :], WAIT_S, "feed")
+
+        # Too small for three drives at 1 s timeouts: refused with the formula, nothing sent.
+        before = len(drive.write_log)
+        result = b.set_param(1, "lifeguard_ms", floor - 1)
+        assert not result.successful
+        assert f"below {floor} ms" in result.reason and "3 drive(s)" in result.reason
+        b.set_param(1, "read_only", True)
+        result = b.set_param(1, "lifeguard_ms", armed)
+        assert not result.successful and "read_only" in result.reason, result.reason
+        b.set_param(1, "read_only", False)
+        assert all(w[2] != 0x114 for w in writes(drive)[before:])
+
+        # 0 disarms: 0x114 = 0, and the feeds stop.
+        result = b.set_param(1, "lifeguard_ms", 0)
+        assert result.successful, result.reason
+        assert (6, H, 0x114, (0,)) in writes(drive)[before:]
+        t = time.monotonic()
+        b.wait_state(1, lambda m: not m.lifeguard_armed and m.lifeguard_mode == 0, since=t)
+        disarmed = len(drive.write_log)
+        # More than a feed period of the old time later (by poll stamps), no feed went out.
+        b.wait_joints(1, 2, time.monotonic() + changed / 1000.0 / 3 + 0.2)
+        assert writes(drive)[disarmed:] == []
+
+        # A drive that does not answer: refused, nothing sent (and nothing to send to).
+        drive_3 = sim.drive(3)
+        t = time.monotonic()
+        sim.unplug(3)
+        b.wait_connected(3, False, since=t)
+        result = b.set_param(3, "lifeguard_ms", armed)
+        assert not result.successful and "not connected" in result.reason, result.reason
+        sim.plug(3)
+        assert all(w[2] not in (0x112, 0x114) for w in writes(drive_3))
+
+
+def test_a_lifeguard_too_short_for_the_bus_is_refused_at_start() -> None:
+    """One line with the formula, exit code 2, before anything is sent."""
+    floor = lifeguard_floor_ms(3)
+    params = {"unit_ids": UNITS, "baudrate": BAUD, "timeout_s": TIMEOUT_S}
+    params["lifeguard_ms"] = floor - 1
+    result = subprocess.run(
+        [sys.executable, "-m", "motec_bridge.node", *ros_args(params)],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=WAIT_S * 2,
+    )
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert result.returncode == 2 and len(lines) == 1, result.stdout + result.stderr
+    assert f"lifeguard_ms {floor - 1} is below {floor} ms" in lines[0], lines[0]
+    assert "3 drive(s) x 1.024 s" in lines[0], lines[0]
+
+
+def test_a_dead_drive_never_starves_the_lifeguard_of_the_others(
+    client: Client, tmp_path: Path
+) -> None:
+    """Issue 9: three drives, lifeguard_ms at the shortest the bridge accepts; drive 3
+    dies (first while still marked connected: a read and its retry; then every reconnect
+    probe holds the line for a whole timeout): drives 1 and 2 never go a lifeguard time
+    without a write, and never trip."""
+    timeout_s = 0.5  # the dead drive's probes hold the line this long each
+    lifeguard_ms = lifeguard_floor_ms(3, timeout_s)
+    simulator = make_simulator(UNITS)
+    params = bridge_params("", timeout_s=timeout_s, lifeguard_ms=lifeguard_ms)
+    with served_on_pty(simulator, BAUD) as port:
+        params["serial_port"] = port
+        with motec(client, tmp_path, params) as (b, proc):
+            for unit in UNITS:
+                b.wait_connected(unit, True)
+            for unit in (1, 2):  # the lifeguard watches drives in network mode
+                b.ok(unit, SetControlMode, "set_control_mode", mode=SetControlMode.Request.VELOCITY)
+                b.ok(unit, SetBool, "enable", data=True)
+            simulator.unplug(3)
+            t = time.monotonic()
+            b.wait_connected(3, False, since=t)
+            # Three lifeguard times of probes of the dead drive, counted by polls of drive 1.
+            b.wait_joints(1, 3, time.monotonic() + 3 * lifeguard_ms / 1000.0)
+            assert proc.poll() is None
+    for unit in (1, 2):
+        drive = simulator.drive(unit)
+        times = [r.time for r in drive.write_log if r.time >= t]
+        gaps = [later - earlier for earlier, later in itertools.pairwise(times)]
+        assert len(times) >= 6, times  # fed all along
+        assert max(gaps) < lifeguard_ms / 1000.0, (unit, max(gaps), lifeguard_ms)
+        assert drive.lifeguard_trips == 0 and drive.fault == 0 and drive.enabled
+
+
 def test_refusals_read_only_and_params_file(bus, client: Client, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     sim, port = bus
     sim.drive(2).set_position(25000)  # 2.5 motor turns = a quarter joint turn at gear 10
@@ -423,7 +563,7 @@ def test_refusals_read_only_and_params_file(bus, client: Client, tmp_path: Path)
     config = (ROOT / "config" / "motec.yaml").read_text()
     for old, new in (
         ('"/dev/ttyUSB0"', f'"{port}"'),
-        ("lifeguard_ms: 500", "lifeguard_ms: 0"),
+        ("lifeguard_ms: 1000", "lifeguard_ms: 0"),
         ("poll_rate_hz: 10.0", "poll_rate_hz: 20.0"),
         ("timeout_s: 0.1 ", f"timeout_s: {TIMEOUT_S} "),
     ):

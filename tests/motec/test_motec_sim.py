@@ -189,7 +189,9 @@ def bus() -> Iterator[Bus]:
     sim = make_simulator(UNITS)
     with socat_pair() as (bridge_end, device_end, _):
         sim.start_serial(device_end, BAUD)
-        link = ModbusLink(SerialSettings(bridge_end, BAUD, timeout_s=0.1))
+        # Far above a reply's few ms: the simulator shares this process, and a loaded
+        # machine can stall its thread for tens of ms.
+        link = ModbusLink(SerialSettings(bridge_end, BAUD, timeout_s=0.5))
         channels = {u: DeviceChannel(link, u, retries=0) for u in (*UNITS, 9)}
         try:
             yield Bus(sim, link, {u: MotecDevice(channels[u]) for u in UNITS}, channels)
