@@ -80,7 +80,13 @@ class StreamGuard(Generic[Key]):
         stop_when_idle: bool = True,
         min_interval_s: float = 0.0,
         clock: Callable[[], float] = time.monotonic,
+        after_stop: Callable[[list[Key]], None] | None = None,
     ) -> None:
+        # after_stop(keys): called (under the lock) once the stops of ``stop`` or
+        # ``stop_all`` were acknowledged, with the keys stopped (``stop_all``: after every
+        # stop, so follow-up writes never delay another stream's stop). It must not raise:
+        # the stops already happened (the stepper restores speeds its jogs changed).
+        self._after_stop = after_stop
         # stop_when_idle: the first 0 of a stream that commanded nothing still sends the
         # stop (the stepper: the motor may run from a service); False: a 0 only ends the
         # stream's own motion (MOTEC: 0xAE is also a position move's speed limit).
@@ -169,6 +175,15 @@ class StreamGuard(Generic[Key]):
     @_locked
     def stop(self, key: Key) -> bool:
         """Send the stream's stop now (a 0 command, the deadman, shutdown)."""
+        self._stop_one(key)
+        self._stopped([key])
+        return True
+
+    def _stopped(self, keys: list[Key]) -> None:
+        if self._after_stop is not None:
+            self._after_stop(keys)
+
+    def _stop_one(self, key: Key) -> None:
         stream = self[key]
         stream.locked = False
         # Pending from the first attempt on (not only once it failed): a reconnect that
@@ -177,7 +192,6 @@ class StreamGuard(Generic[Key]):
         self._stop(key)
         stream.value, stream.active = None, False
         stream.stop_pending, stream.stop_sent = False, True
-        return True
 
     @_locked
     def taken_over(self, key: Key, *, locked: bool) -> None:
@@ -237,13 +251,19 @@ class StreamGuard(Generic[Key]):
 
     @_locked
     def stop_all(self) -> list[tuple[Key, BridgeError]]:
-        """Stop every stream that may move; every stop is tried. Returns the failures."""
+        """Stop every stream that may move; every stop is tried. Returns the failures.
+
+        ``after_stop`` runs once, after all of them (also when none was moving).
+        """
         failures: list[tuple[Key, BridgeError]] = []
+        stopped: list[Key] = []
         for key in self.moving():
             try:
-                self.stop(key)
+                self._stop_one(key)
+                stopped.append(key)
             except BridgeError as err:
                 failures.append((key, err))
+        self._stopped(stopped)
         return failures
 
 

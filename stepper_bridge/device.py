@@ -17,6 +17,15 @@ forward / reverse coil (a reversal sends the stop coil first); 0 sends the stop 
 A command equal to the last one writes nothing. After a stop (the motor's stop service
 or the emergency stop) jogging is locked until a 0 command (or the node's deadman) so a
 joystick still held cannot restart a motor that was just stopped.
+
+The speed register is also the configured speed of single runs, forward / reverse,
+homing and the interpolation approach, so a jog gives it back: the value before the jog's
+first speed write (from the configuration cache) is written back (FC 06, which starts no
+motion) after the jog's stop (its 0, the deadman, the motor's stop service, the
+e-stop, shutdown), and before a command that runs the motor from its configuration
+(single run, forward, reverse, home, home all, return to zero, line / arc) or saves the
+parameters. A failed restore after a stop is recorded (``speed_restore_failures``),
+never raised, and retried at the next stop or such command.
 """
 
 from __future__ import annotations
@@ -37,7 +46,7 @@ from bridge_core.checks import (
 )
 from bridge_core.codec import Value, decode, encode
 from bridge_core.config_cache import ConfiguredDevice
-from bridge_core.errors import CommandRejected, LinkError
+from bridge_core.errors import CommandRejected, DeviceException, LinkError
 from bridge_core.planner import ReadRequest, plan_reads
 from bridge_core.registers import Register
 from bridge_core.stream_guard import StreamGuard
@@ -48,6 +57,7 @@ from .registers import (
     DISTANCE_SCALE,
     INPUTS,
     INTERPOLATION_PAIRS,
+    INTERPOLATION_PAIRS_POINT_ROWS,
     MOTOR_ACTIONS,
     MOTOR_FIELD_NAMES,
     MOTORS,
@@ -132,6 +142,8 @@ def _config_names() -> list[str]:
     return names
 
 
+# Speed register name -> its motor (a speed written by a command is the configured one).
+_SPEED_REGISTERS = {motor_register(m, "speed"): m for m in range(1, MOTORS + 1)}
 STATUS_PLAN: list[ReadRequest] = plan_reads(STEPPER_MAP, STEPPER_MAP.select(_status_names()))
 # joint_states is stamped with the read time of the block holding the coordinates.
 STAMP_REGISTER = motor_register(1, "coordinate")
@@ -146,33 +158,84 @@ class JointScale:
     """Device units <-> SI for one motor (README "joint positions").
 
     prismatic: metres = units / ``units_per_meter`` (1000 when the user's unit is mm);
-    revolute: radians = units / lead x 2 pi (lead = units per motor revolution).
+    revolute: radians = units / ``units_per_revolution`` x 2 pi, the user units per JOINT
+    revolution (a reduction makes it lead x ratio); 0 takes the lead read from the device
+    (units per MOTOR revolution: no reduction).
     """
 
     joint_type: str = "prismatic"
     units_per_meter: float = 1000.0
+    units_per_revolution: float = 0.0
 
     def __post_init__(self) -> None:
         if self.joint_type not in JOINT_TYPES:
             raise ValueError(f"joint type {self.joint_type!r} is not one of {JOINT_TYPES}")
         if not math.isfinite(self.units_per_meter) or self.units_per_meter <= 0:
             raise ValueError(f"units_per_meter must be positive, got {self.units_per_meter}")
+        if not math.isfinite(self.units_per_revolution) or self.units_per_revolution < 0:
+            raise ValueError(
+                f"units_per_revolution must be 0 (the lead) or positive, "
+                f"got {self.units_per_revolution}"
+            )
+
+    def needs_lead(self) -> bool:
+        """Whether the conversion depends on the lead read from the device."""
+        return self.joint_type == "revolute" and self.units_per_revolution == 0
+
+    def units_per_si(self, lead: float) -> float | None:
+        """Controller units per metre (prismatic) or per radian (revolute); None when a
+        revolute joint takes the lead and the device's lead is unset (0)."""
+        if self.joint_type == "prismatic":
+            return self.units_per_meter
+        per_revolution = self.units_per_revolution or lead
+        if per_revolution <= 0:
+            return None
+        return per_revolution / (2.0 * math.pi)
 
     def to_si(self, units: float, lead: float) -> float:
-        if self.joint_type == "prismatic":
-            return units / self.units_per_meter
-        if lead <= 0:
+        factor = self.units_per_si(lead)
+        if factor is None:
             return math.nan  # the device's lead is unset: no angle
-        return units / lead * 2.0 * math.pi
+        return units / factor
 
     def to_units(self, si: float, lead: float) -> float:
         if not math.isfinite(si):
             raise CommandRejected(f"{si} is not a finite distance")
-        if self.joint_type == "prismatic":
-            return si * self.units_per_meter
-        if lead <= 0:
+        factor = self.units_per_si(lead)
+        if factor is None:
             raise CommandRejected("the motor's lead is 0: a revolute angle cannot be converted")
-        return si / (2.0 * math.pi) * lead
+        return si * factor
+
+
+def check_pair_reading(pair: int, scales: Sequence[JointScale], leads: Sequence[float]) -> None:
+    """Refuse an interpolation pair whose SI -> units conversion depends on which of the
+    manual's two readings of the type is right (registers.INTERPOLATION_PAIRS).
+
+    A coordinate position (first or second) is ambiguous when the readings name different
+    motors for it (types 2 and 3: motor 1 or 2 first). The pair is allowed when, for each
+    such position, those motors have the same joint type and convert with the same factor
+    (units_per_meter, or units_per_revolution / the device's lead): then the values
+    written are the same under either reading. ``scales`` and ``leads`` are per motor 1-5.
+    """
+    if pair not in INTERPOLATION_PAIRS:
+        return  # refused with the full message where it is written
+    taken, other = INTERPOLATION_PAIRS[pair], INTERPOLATION_PAIRS_POINT_ROWS[pair]
+    for a, b in zip(taken, other, strict=True):
+        if a == b:
+            continue
+        first, second = scales[a - 1], scales[b - 1]
+        same = first.joint_type == second.joint_type and first.units_per_si(
+            leads[a - 1]
+        ) == second.units_per_si(leads[b - 1])
+        if not same:
+            low, high = sorted((a, b))
+            raise CommandRejected(
+                f"pair {pair} is motors {taken[0]}+{taken[1]} by the manual's 40182/40202 "
+                f"rows but {other[0]}+{other[1]} by its point rows, and motors {low} and "
+                f"{high} convert differently: until hardware confirms the reading, give "
+                f"motors {low} and {high} the same joint_types, units_per_meter / "
+                "units_per_revolution (and lead), or use pair 1"
+            )
 
 
 # ---------------------------------------------------------------- the device
@@ -199,9 +262,21 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
             timeout_s=jog_timeout_s,
             stop_when_idle=True,
             clock=clock,
+            after_stop=self._restore_after_stop,
         )
         self.streams.append(self.jogs)
         self._direction: dict[int, int | None] = dict.fromkeys(range(1, MOTORS + 1), 0)
+        # The speed register (40006+) is the motor's configured speed for single runs,
+        # forward / reverse, homing and the interpolation approach; a jog writes its own
+        # speed there. The configured value, kept from before a jog's first speed write
+        # until it is written back (None: the register holds the configured speed).
+        self._configured_speed: dict[int, int | None] = dict.fromkeys(range(1, MOTORS + 1))
+        # Motors whose speed restore failed, with the reason (diagnostics; retried).
+        self.speed_restore_failures: dict[int, str] = {}
+        # Told of each failed restore (the node logs it); must not raise.
+        self.on_speed_restore_failure: Callable[[int, int, LinkError], None] = (
+            lambda _motor, _rpm, _err: None
+        )
 
     # ------------------------------------------------------------------ reads
     @property
@@ -252,12 +327,13 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
         )
 
     # ------------------------------------------------------------------ write helpers
-    def _write_values(self, values: Sequence[tuple[str, Value]]) -> None:
+    def _write_values(self, values: Sequence[tuple[str, Value]], *, jog: bool = False) -> None:
         """Consecutive registers in one write (FC 06 for one register, else FC 10).
 
         ``values`` must be contiguous and in address order; each is range-checked by the
         map before anything is sent. The cache follows a successful write; after a
-        failed one a configuration refresh is started.
+        failed one a configuration refresh is started. A speed written by anything but a
+        jog (``jog``) is the motor's new configured speed: a jog's restore writes it.
         """
         regs = [STEPPER_MAP[name] for name, _ in values]
         words: list[int] = []
@@ -274,6 +350,9 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
             raise
         for reg, (_, value) in zip(regs, values, strict=True):
             self._cache.note_written(reg.name, _as_read(reg, value))
+            motor = _SPEED_REGISTERS.get(reg.name)
+            if motor is not None and not jog and self._configured_speed[motor] is not None:
+                self._configured_speed[motor] = int(value)
 
     def _coil(self, name: str) -> None:
         self.io.write_coil(STEPPER_MAP[name].address, True)
@@ -284,13 +363,20 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
         _check_motor(motor)
         if action not in MOTOR_ACTIONS:
             raise CommandRejected(f"unknown motor action {action!r}; known: {MOTOR_ACTIONS}")
-        try:
-            self.io.write_coil(motor_coil(motor, action), True)
-        finally:
-            # A service overrides any jog: the next jog command is sent whole, and a 0 jog
-            # then stops the motor once (it may be running the service's motion).
-            self.jogs.taken_over(motor, locked=action == "stop")
-            self._direction[motor] = 0
+        with self.jogs.lock:
+            if action != "stop":
+                # The motion runs at the speed register: a jog's speed is undone first
+                # (the service takes the motor over from any jog).
+                self.restore_speeds([motor], include_jogging=True)
+            try:
+                self.io.write_coil(motor_coil(motor, action), True)
+            finally:
+                # A service overrides any jog: the next jog command is sent whole, and a 0
+                # jog then stops the motor once (it may be running the service's motion).
+                self.jogs.taken_over(motor, locked=action == "stop")
+                self._direction[motor] = 0
+            if action == "stop":
+                self._restore_after_stop([motor])
 
     def set_motor_parameter(self, motor: int, field: str, value: float) -> None:
         """One basic parameter: FC 06 for a 16-bit one, FC 10 for lead / run distance.
@@ -431,7 +517,9 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
             # value the cache holds (read from the device, or our own last write) differs.
             speed_register = motor_register(motor, "speed")
             if self._cache.values.get(speed_register) != speed:
-                self._write_values([(speed_register, speed)])
+                if self._configured_speed[motor] is None:
+                    self._configured_speed[motor] = self._speed_before_jog(motor)
+                self._write_values([(speed_register, speed)], jog=True)
             if direction != sign:
                 self.io.write_coil(motor_coil(motor, "forward" if sign > 0 else "reverse"), True)
                 self._direction[motor] = sign
@@ -442,6 +530,52 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
     def _jog_stop_coil(self, motor: int) -> None:
         self.io.write_coil(motor_coil(motor, "stop"), True)
         self._direction[motor] = 0
+
+    # ------------------------------------------------------------------ jog speed restore
+    def _speed_before_jog(self, motor: int) -> int:
+        """The configured speed, from the cache (or the device when the cache lacks it)."""
+        name = motor_register(motor, "speed")
+        value = self._cache.values.get(name)
+        if value is None:
+            value = self.read_named(name)[name]
+        return int(value)
+
+    def restore_pending(self) -> dict[int, int]:
+        """Motors whose speed register may hold a jog's speed: motor -> configured rpm."""
+        return {m: rpm for m, rpm in self._configured_speed.items() if rpm is not None}
+
+    def restore_speeds(self, motors: Sequence[int], *, include_jogging: bool = False) -> None:
+        """Write the configured speed back to each of ``motors`` whose jog changed it.
+
+        A plain FC 06 of the speed register: it starts no motion ("运行中可以调节": it
+        only sets the speed of a motion that runs). A motor still jogging is skipped
+        unless ``include_jogging`` (a command is taking it over). Raises LinkError.
+        """
+        with self.jogs.lock:
+            for motor in motors:
+                rpm = self._configured_speed[motor]
+                if rpm is None or (self.jogging(motor) and not include_jogging):
+                    continue
+                # Written even when the cache holds it: a jog's write that failed on the
+                # link may still have landed (the cache follows acknowledged writes only).
+                self._write_values([(motor_register(motor, "speed"), rpm)], jog=True)
+                self._configured_speed[motor] = None
+                self.speed_restore_failures.pop(motor, None)
+
+    def _restore_after_stop(self, _stopped: Sequence[int]) -> None:
+        """After stops (a jog's 0, the deadman, a stop service, the e-stop, shutdown):
+        every motor no longer jogging gets its configured speed back, including retries of
+        restores that failed before. A failure is recorded and reported, never raised: the
+        stop itself was acknowledged."""
+        for motor in sorted(self.restore_pending()):
+            try:
+                self.restore_speeds([motor])
+            except LinkError as err:
+                rpm = self._configured_speed[motor] or 0
+                self.speed_restore_failures[motor] = f"{rpm} rpm not restored: {err}"
+                self.on_speed_restore_failure(motor, rpm, err)
+                if not isinstance(err, DeviceException):
+                    break  # the link is failing: the rest stay pending, no more timeouts
 
     def jogging(self, motor: int) -> bool:
         """Running under a jog, or possibly so after a failed write (the deadman's cue)."""
@@ -459,15 +593,29 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
     def system_command(self, name: str) -> None:
         if name not in SYSTEM_COMMANDS:
             raise CommandRejected(f"unknown command {name!r}; known: {SYSTEM_COMMANDS}")
-        try:
-            self._coil(name)
-        finally:
-            # The e-stop halts every jog and locks it; homing and return to zero take
-            # the motors over, so the next jog command is sent whole.
-            if name in ("emergency_stop", "home_all", "return_to_zero"):
-                for motor in range(1, MOTORS + 1):
-                    self.jogs.taken_over(motor, locked=name == "emergency_stop")
-                    self._direction[motor] = 0
+        takes_over = name in ("emergency_stop", "home_all", "return_to_zero")
+        with self.jogs.lock:
+            if name == "save_parameters":
+                # Saving a jog's speed would make it the configured one for good.
+                jogging = [m for m in self.restore_pending() if self.jogging(m)]
+                if jogging:
+                    raise CommandRejected(
+                        f"motor(s) {', '.join(map(str, jogging))} jogging with a jog speed "
+                        "in the speed register: stop the jog before save_parameters"
+                    )
+            if name in ("home_all", "return_to_zero", "save_parameters"):
+                self.restore_speeds(list(range(1, MOTORS + 1)), include_jogging=True)
+            try:
+                self._coil(name)
+            finally:
+                # The e-stop halts every jog and locks it; homing and return to zero take
+                # the motors over, so the next jog command is sent whole.
+                if takes_over:
+                    for motor in range(1, MOTORS + 1):
+                        self.jogs.taken_over(motor, locked=name == "emergency_stop")
+                        self._direction[motor] = 0
+            if name == "emergency_stop":
+                self._restore_after_stop(list(range(1, MOTORS + 1)))
 
     def destructive_command(self, name: str, confirmation: str) -> None:
         """Factory reset (00073) or clear all parameters (00097): ``confirmation`` must
@@ -482,6 +630,10 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
             self._coil(name)
         finally:
             self._cache.refresh_soon()
+        # Every parameter was replaced: no configured speed is left to restore.
+        for motor in range(1, MOTORS + 1):
+            self._configured_speed[motor] = None
+        self.speed_restore_failures.clear()
 
     def set_output(self, output: int, on: bool) -> None:
         """Output 1-12: 0xFF00 to its ON coil, or to its OFF coil (00049-00072 in pairs)."""
@@ -506,6 +658,8 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
         _check_points(points)
         if _same(start, end):
             raise CommandRejected("line start and end are the same point")
+        # The motors first run to the start each at its own speed (40202 note 2).
+        self._restore_for_interpolation(pair)
         self._write_values(
             [
                 ("line_pair", pair),
@@ -543,6 +697,7 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
             raise CommandRejected("an arc needs three different points (manual: 三点确定圆弧)")
         if mode == ARC_MODE_THREE_POINTS and _collinear(start, via, end):
             raise CommandRejected("start, via and end are on one line: no arc passes them")
+        self._restore_for_interpolation(pair)
         self._write_values(
             [
                 ("arc_pair", pair),
@@ -560,6 +715,12 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
             ]
         )
         self._coil("arc_start")
+
+    def _restore_for_interpolation(self, pair: int) -> None:
+        """The pair's motors (under either reading) that a jog left at its speed, unless
+        still jogging, get their configured speed back before the approach runs."""
+        motors = set(INTERPOLATION_PAIRS[pair]) | set(INTERPOLATION_PAIRS_POINT_ROWS[pair])
+        self.restore_speeds(sorted(motors))
 
     def stop_interpolation(self) -> None:
         """Arc stop (00101) and line stop (00103); both are tried even if one fails."""

@@ -2,18 +2,26 @@
 
 Units: ``joint_states`` and every positional command (``move_by``, ``line_move``,
 ``arc_move``) are SI per motor: a prismatic motor's coordinate (user units) / its
-``units_per_meter`` in metres, a revolute motor's coordinate / lead x 2 pi in radians,
-with the lead read from the controller (40007+). ``configure`` and ``~/state`` keep the
-controller's own units (user units, rpm, Hz, degrees of step angle).
+``units_per_meter`` in metres, a revolute motor's coordinate / ``units_per_revolution``
+x 2 pi in radians (units per joint revolution; 0 takes the lead read from the controller,
+40007+, i.e. no reduction). ``configure`` and ``~/state`` keep the controller's own units
+(user units, rpm, Hz, degrees of step angle).
 
 Jog: ``~/motor_<n>/jog`` (std_msgs/Float64, motor rpm, sign = direction, 0 = stop) with a
 deadman: when no jog message arrived for ``command_timeout_s`` the bridge sends the
 motor's stop coil itself, and keeps trying until the link lets it (a jog that was running
-when the link dropped is stopped as soon as the link is back).
+when the link dropped is stopped as soon as the link is back). A jog writes its speed to
+the motor's speed register; when the jog ends (0, deadman, stop service, e-stop,
+shutdown) the configured speed is written back after the stop (a failure is logged and
+shown in diagnostics, and retried).
+
+Interpolation pairs: types 2 and 3 are refused unless motors 1 and 2 convert alike (the
+manual's two readings of the type, README stepper decision 11).
 """
 
 from __future__ import annotations
 
+import math
 import sys
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -46,6 +54,7 @@ from .device import (
     JointScale,
     StepperDevice,
     StepperSnapshot,
+    check_pair_reading,
 )
 from .registers import (
     DEFAULT_BAUDRATE,
@@ -111,6 +120,12 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
                     item_positive=True,
                 ),
                 ParameterSpec(
+                    "units_per_revolution",
+                    [0.0] * MOTORS,
+                    "per revolute motor: controller units per joint revolution "
+                    "(0: the lead read from the controller, i.e. no reduction)",
+                ),
+                ParameterSpec(
                     "command_timeout_s",
                     0.5,
                     "jog deadman: stop a jogging motor after this silence",
@@ -135,12 +150,15 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
                 ),
             ]
         )
-        self.scales = _joint_scales(values["joint_types"], values["units_per_meter"])
+        self.scales = _joint_scales(
+            values["joint_types"], values["units_per_meter"], values["units_per_revolution"]
+        )
         self.device = StepperDevice(
             self.channel,
             config_refresh_s=float(values["config_refresh_s"]),
             jog_timeout_s=float(values["command_timeout_s"]),
         )
+        self.device.on_speed_restore_failure = self._speed_restore_failed
         self.joint_names = [f"{self.joint_prefix}motor_{m}" for m in range(1, MOTORS + 1)]
         self.state_pub = self.create_publisher(StepperState, "~/state", 10)
         self._create_services()
@@ -156,9 +174,17 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
     # ------------------------------------------------------------ units
     def to_units(self, motor: int, si: float) -> float:
         """SI (m or rad) -> controller units for ``motor``."""
-        scale = self.scales[motor - 1]
-        lead = self.device.lead(motor) if scale.joint_type == "revolute" else 0.0
-        return scale.to_units(float(si), lead)
+        return self.scales[motor - 1].to_units(float(si), self._lead(motor))
+
+    def _lead(self, motor: int) -> float:
+        """The device's lead where the motor's conversion needs it (else 0, unused)."""
+        return self.device.lead(motor) if self.scales[motor - 1].needs_lead() else 0.0
+
+    def _speed_restore_failed(self, motor: int, rpm: int, err: Exception) -> None:
+        self.get_logger().warn(
+            f"motor {motor}: writing back its configured speed {rpm} rpm after the jog "
+            f"failed: {err}; retried at the next stop or motion command"
+        )
 
     # ------------------------------------------------------------ polling
     def on_link_up(self) -> None:
@@ -195,15 +221,29 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
                 ", ".join(str(n) for n in range(1, MOTORS + 1) if self.device.jogging(n)) or "none",
             ),
         ]
+        failures = dict(self.device.speed_restore_failures)  # a copy: commands change it
+        values.append(
+            (
+                "jog speed restore failed",
+                "; ".join(f"motor {m}: {why}" for m, why in sorted(failures.items())) or "none",
+            )
+        )
         unknown = [
             str(k + 1)
             for k in range(MOTORS)
-            if self.scales[k].joint_type == "revolute" and s.config.motors[k].lead <= 0
+            if self.scales[k].needs_lead() and s.config.motors[k].lead <= 0
         ]
         if unknown:
             return Report(
                 Level.WARN,
                 f"lead 0 on revolute motor(s) {', '.join(unknown)}: position unknown (NaN)",
+                values,
+            )
+        if failures:
+            return Report(
+                Level.WARN,
+                f"motor(s) {', '.join(map(str, sorted(failures)))}: the configured speed "
+                "could not be written back after a jog (it is retried)",
                 values,
             )
         if s.config.system_mode:
@@ -304,6 +344,11 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
             "~/stop_interpolation", "stop_interpolation", d.stop_interpolation, stop=True
         )
 
+    def _check_pair_reading(self, pair: int) -> None:
+        """Types 2 and 3 only while the manual's two readings convert alike."""
+        leads = [self._lead(m) for m in range(1, MOTORS + 1)]
+        check_pair_reading(pair, self.scales, leads)
+
     def _pair_units(
         self, pair: int, point: Sequence[float], what: str
     ) -> tuple[float, float] | None:
@@ -324,12 +369,14 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
 
     def _line_move(self, r: Any) -> None:
         self._check_interpolation_allowed()
+        self._check_pair_reading(r.pair)
         start = self._pair_units(r.pair, r.start, "start") or (0.0, 0.0)
         end = self._pair_units(r.pair, r.end, "end") or (0.0, 0.0)
         self.device.line_move(r.pair, start, end, r.speed_rpm)
 
     def _arc_move(self, r: Any) -> None:
         self._check_interpolation_allowed()
+        self._check_pair_reading(r.pair)
         points = [
             self._pair_units(r.pair, p, what) or (0.0, 0.0)
             for p, what in (
@@ -355,7 +402,12 @@ def _bind(action: Callable[..., object], *args: Any) -> Callable[[], object]:
     return lambda: action(*args)
 
 
-def _joint_scales(types: Sequence[str], units_per_meter: Sequence[float]) -> list[JointScale]:
+def _joint_scales(
+    types: Sequence[str],
+    units_per_meter: Sequence[float],
+    units_per_revolution: Sequence[float] = (),
+) -> list[JointScale]:
+    """Per-motor scales from the start-up parameters; a bad value is a ConfigurationError."""
     types = list(types)[:MOTORS] + ["prismatic"] * (MOTORS - len(types))
     for joint_type in types:
         if joint_type not in JOINT_TYPES:
@@ -363,7 +415,14 @@ def _joint_scales(types: Sequence[str], units_per_meter: Sequence[float]) -> lis
                 f"joint_types: {joint_type!r} is not one of {', '.join(JOINT_TYPES)}"
             )
     units = padded(units_per_meter, MOTORS, 1000.0)
-    return [JointScale(t, u) for t, u in zip(types, units, strict=True)]
+    per_revolution = padded(units_per_revolution, MOTORS, 0.0)
+    for value in per_revolution:
+        if not math.isfinite(value) or value < 0:
+            raise ConfigurationError(
+                f"units_per_revolution: every value must be 0 (the lead) or positive and "
+                f"finite, got {value!r}"
+            )
+    return [JointScale(t, u, r) for t, u, r in zip(types, units, per_revolution, strict=True)]
 
 
 def main(args: Sequence[str] | None = None) -> int:

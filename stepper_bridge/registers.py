@@ -36,6 +36,10 @@ Readings taken (also in README "stepper decisions"):
   status registers 40124-40172. Undefined rows (40051-40080, 40096-40107, 40118-40123,
   40137-40147, 40160-40167, 40173-40176, 40215-40299) are not in the map: the planner
   never reads through them and the simulator answers 0x02.
+- Interpolation pair types (40182 / 40202): the type rows say 1 = motors 1+2, 2 = 1+3,
+  3 = 2+3; the point rows below them say 2 = 2+3, 3 = 1+3. The type rows are taken (see
+  INTERPOLATION_PAIRS); types 2 and 3 are refused by the node while the two readings would
+  convert the first coordinate differently.
 - Value ranges: where the manual gives one (direction 0/1, input numbers 1-13 or 0 for
   none, homing order 0-5, interpolation type 0-3, arc mode and direction 0/1, device id
   1-255, system mode 0-5, baud rates 4800/9600/19200/38400) it is enforced; elsewhere the
@@ -116,8 +120,20 @@ SYSTEM_COILS: dict[str, int] = {
 }
 OUTPUT_COIL_FIRST = 49  # 00049-00072: output n on = 49 + 2(n-1), off = 50 + 2(n-1)
 
-# Interpolation pairs (40182 / 40202): type -> (first motor, second motor); 0 = none.
+# Interpolation pairs: type -> (first motor, second motor), 0 = none. The manual reads the
+# type two ways (README stepper decision 11):
+# - the type rows 40182 and 40202: "设定1表示电机1、2实现插补;设定2表示电机1,3实现插补;
+#   设定3表示2,3电机插补" (1 = motors 1+2, 2 = 1+3, 3 = 2+3);
+# - every point row (40184-40199, 40203-40210): first coordinate "若为类型 1、3,则为 1 号
+#   电机...;若为类型 2, 则为 2 号电机", second "若为类型 1,则为 2 号电机...;若为类型2、3,
+#   则为3号电机" (1 = 1+2, 2 = 2+3, 3 = 1+3).
+# The bridge takes the type rows: they define the register written, say it identically
+# twice, and name the pairs in order. Only the first coordinate of types 2 and 3 differs
+# (motor 1 or 2); until hardware confirms the reading the node refuses those types unless
+# motors 1 and 2 convert SI -> units alike (stepper_bridge.device.check_pair_reading).
 INTERPOLATION_PAIRS: dict[int, tuple[int, int]] = {1: (1, 2), 2: (1, 3), 3: (2, 3)}
+# The point rows' reading, kept to tell which motors the two readings disagree on.
+INTERPOLATION_PAIRS_POINT_ROWS: dict[int, tuple[int, int]] = {1: (1, 2), 2: (2, 3), 3: (1, 3)}
 ARC_MODE_CENTER = 0  # 40183 = 0: start, end and centre points
 ARC_MODE_THREE_POINTS = 1  # 40183 = 1: start, end and a middle point
 # §5(1) "其中4号电机不能运行" during line or arc interpolation.
@@ -282,7 +298,8 @@ def _build() -> tuple[Register, ...]:
     regs += [
         _reg("arc_pair", 40182, minimum=0, maximum=3, description="0 none, 1: 1+2, 2: 1+3, 3: 2+3"),
         _reg("arc_mode", 40183, minimum=0, maximum=1, description="0 start/end/centre, 1 3 points"),
-        _point("arc_start_a", 40184, "first motor's start (type 1, 3: motor 1; 2: motor 2)"),
+        # Point descriptions follow the type rows' reading (INTERPOLATION_PAIRS).
+        _point("arc_start_a", 40184, "first motor's start (type 1, 2: motor 1; 3: motor 2)"),
         _point("arc_start_b", 40186, "second motor's start (type 1: motor 2; 2, 3: motor 3)"),
         _point("arc_end_a", 40188, "first motor's end"),
         _point("arc_end_b", 40190, "second motor's end"),
@@ -296,8 +313,8 @@ def _build() -> tuple[Register, ...]:
     # Line interpolation, 40202-40211.
     regs += [
         _reg("line_pair", 40202, minimum=0, maximum=3, description="as arc_pair"),
-        _point("line_start_a", 40203, "first motor's start"),
-        _point("line_start_b", 40205, "second motor's start"),
+        _point("line_start_a", 40203, "first motor's start (type 1, 2: motor 1; 3: motor 2)"),
+        _point("line_start_b", 40205, "second motor's start (type 1: motor 2; 2, 3: motor 3)"),
         _point("line_end_a", 40207, "first motor's end"),
         _point("line_end_b", 40209, "second motor's end"),
         _reg("line_speed", 40211, unit="rpm", minimum=0, maximum=U16_MAX),

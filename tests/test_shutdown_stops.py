@@ -3,7 +3,8 @@
 The stepper has no watchdog of its own: a jogging motor runs until a stop coil or a limit
 switch; a MOTEC drive without its lifeguard keeps the last speed. The bridge process gets
 SIGINT (Ctrl-C) or SIGTERM while a motor moves under a stream whose deadman is far longer
-than the test; the writes after the signal must be exactly the stop.
+than the test; the writes after the signal must be exactly the stop (the stepper: then
+the motor's configured speed written back over the jog's, a plain register write).
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from bridge_core.registers import Table
 from motec_bridge.sim import make_simulator as make_motec_simulator
 from msg_defs.msg import MotecState, StepperState
 from msg_defs.srv import SetControlMode
-from stepper_bridge.registers import motor_coil
+from stepper_bridge.registers import STEPPER_MAP, motor_coil
 from stepper_bridge.sim import StepperSimDevice, make_simulator
 
 from .support.ros import Bridge, Client, node_process, ros_client, wait_for
@@ -71,8 +72,9 @@ def test_exit_stops_a_jogging_motor(
         proc.send_signal(signal_number)
         assert proc.wait(EXIT_TIMEOUT_S) == 0
         stop_coil = motor_coil(1, "stop")
-        late = [(r.table, r.address) for r in device.write_log[writes_before:]]
-        assert late == [(Table.COIL, stop_coil)]
+        late = [(r.table, r.address, r.values) for r in device.write_log[writes_before:]]
+        speed_register = STEPPER_MAP["motor1_speed"].address
+        assert late == [(Table.COIL, stop_coil, (1,)), (Table.HOLDING, speed_register, (60,))]
         assert device.motion[1] is None  # the simulated motor stands still
 
 

@@ -183,3 +183,32 @@ def test_offers_coalesce_and_wake_the_writer_only_when_a_write_may_go() -> None:
     clock.now = 0.2
     assert guard.offer(1, 80.0)  # interval passed
     assert motors.log == [("send", 1, 50.0, None)]
+
+
+def test_after_stop_follows_the_acknowledged_stops() -> None:
+    """after_stop (the stepper's speed restore) runs after the stops it follows: once per
+    stop(), once after all of stop_all()'s stops, never for a stop that failed."""
+    motors, clock = Motors(), Clock()
+    after: list[list[int]] = []
+
+    def follow(keys: list[int]) -> None:
+        motors.log.append(("after", len(after), None, None))
+        after.append(keys)
+
+    guard = StreamGuard(
+        (1, 2), motors.send, motors.stop, timeout_s=0.5, clock=clock, after_stop=follow
+    )
+    guard.command(1, 100.0)
+    guard.command(2, 100.0)
+    guard.stop_all()
+    assert [entry[0] for entry in motors.log] == ["send", "send", "stop", "stop", "after"]
+    assert after == [[1, 2]]
+    guard.command(1, 100.0)
+    assert guard.command(1, 0.0)
+    assert after[-1] == [1]
+    guard.command(2, 100.0)
+    motors.fail = 1
+    with pytest.raises(LinkTimeout):
+        guard.stop(2)
+    assert len(after) == 2  # the failed stop is followed by nothing
+    assert guard.stop_all() == [] and after[-1] == [2]

@@ -172,10 +172,18 @@ def test_outputs_are_coil_pairs() -> None:
 
 
 def test_jog_is_speed_then_direction_coil() -> None:
+    """Without a configuration read yet, the jog reads the configured speed first (to write
+    it back after the stop)."""
     steps = [
+        (
+            with_crc("01 03 00 05 00 01"),
+            with_crc("01 03 02 00 3C"),
+            "motor 1 speed (40006): 60 rpm configured",
+        ),
         echo(with_crc("01 06 00 05 00 78"), "motor 1 speed 120 rpm"),
         echo(with_crc("01 05 00 02 FF 00"), "motor 1 reverse"),
         echo(with_crc("01 05 00 04 FF 00"), "motor 1 stop"),
+        echo(with_crc("01 06 00 05 00 3C"), "motor 1 speed 60 rpm again"),
     ]
 
     def act(d: StepperDevice) -> None:

@@ -148,16 +148,19 @@ def test_topics_jog_and_deadman(sim, client: Client, tmp_path: Path) -> None:  #
             time.sleep(0.05)
         # > 20 mm at 50 mm/s
         client.wait_message(b.joint_states, lambda m: m.position[0] > first + 0.02, since=jogging)
-        # Silence: the deadman stops the motor after command_timeout_s.
-        wait_for(lambda: len(device.write_log) >= 3, WAIT_S, "the deadman's stop")
-        stop = device.write_log[-1]
+        # Silence: the deadman stops the motor after command_timeout_s, then writes the
+        # configured speed (60 rpm, the simulator's) back.
+        wait_for(lambda: len(device.write_log) >= 4, WAIT_S, "the deadman's stop and restore")
+        stop = device.write_log[2]
         assert (stop.table, stop.address) == (Table.COIL, 4)
         assert stop.time - last_sent >= COMMAND_TIMEOUT_S * 0.9
-        # Speed once, forward once (20 identical messages), then the deadman's stop coil.
+        # Speed once, forward once (20 identical messages), the deadman's stop coil, the
+        # configured speed back.
         assert writes(device) == [
             (6, Table.HOLDING, 5, (600,)),
             (5, Table.COIL, 1, (1,)),
             (5, Table.COIL, 4, (1,)),
+            (6, Table.HOLDING, 5, (60,)),
         ]
 
         # The motor rests: five polls that began after the stop (by their stamps; states
@@ -169,15 +172,91 @@ def test_topics_jog_and_deadman(sim, client: Client, tmp_path: Path) -> None:  #
         assert {m.coordinates[0] for m in rest()} == {rest()[0].coordinates[0]}
         assert not any(m.running[0] for m in rest())
         # Jog 0 after the stop writes nothing (already stopped; it may also be coalesced
-        # with the 600 right after it): the next jog writes only its forward coil (speed
-        # unchanged), and a 0 then stops it.
+        # with the 600 right after it): the next jog writes its speed and forward coil,
+        # and a 0 then stops it and writes the configured speed back.
         for rpm in (0.0, 600.0):
             jog.publish(Float64(data=rpm))
-        wait_for(lambda: len(device.write_log) >= 4, WAIT_S, "the jog after the 0")
+        wait_for(lambda: len(device.write_log) >= 6, WAIT_S, "the jog after the 0")
         jog.publish(Float64(data=0.0))
-        wait_for(lambda: len(device.write_log) >= 5, WAIT_S, "the stop by the 0")
-        assert writes(device)[3:] == [(5, Table.COIL, 1, (1,)), (5, Table.COIL, 4, (1,))]
+        wait_for(lambda: len(device.write_log) >= 8, WAIT_S, "the stop by the 0 and restore")
+        assert writes(device)[4:] == [
+            (6, Table.HOLDING, 5, (600,)),
+            (5, Table.COIL, 1, (1,)),
+            (5, Table.COIL, 4, (1,)),
+            (6, Table.HOLDING, 5, (60,)),
+        ]
+        assert device.get("motor1_speed") == 60
         client.node.destroy_publisher(jog)
+
+
+def test_a_jog_gives_the_configured_speed_back(sim, client: Client, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    """Issue 9 item 6: the jog's speed is not left in the speed register. After the stop
+    service the configured speed is written back, a move_by then runs at it; a refused
+    restore is logged and in diagnostics, never fails the stop, and is retried before the
+    next move_by's single run."""
+    device, port = sim
+    H, C = Table.HOLDING, Table.COIL  # noqa: N806
+    device.set("motor1_speed", 1200)  # configured: 100 mm/s
+    single_run_speeds: list[int] = []  # motor's speed register when its single run starts
+
+    def at_single_run(record: Any) -> None:
+        if (record.table, record.address) in ((C, 0), (C, 5)):
+            motor = 1 + record.address // 5
+            single_run_speeds.append(int(device.get(f"motor{motor}_speed")))
+
+    device.write_hooks.append(at_single_run)
+    with bridge(client, tmp_path, port) as (b, _):
+        b.wait_connected(True)
+        client.wait_message(b.state)
+        jog = client.node.create_publisher(Float64, f"{b.ns}/stepper_bridge/motor_1/jog", 10)
+        wait_subscribed(jog)
+        jog.publish(Float64(data=300.0))
+        wait_for(lambda: len(device.write_log) >= 2, WAIT_S, "the jog's speed and coil")
+        assert b.call(Trigger, "motor_1/stop").success
+        assert writes(device) == [
+            (6, H, 5, (300,)),
+            (5, C, 1, (1,)),
+            (5, C, 4, (1,)),  # the stop first
+            (6, H, 5, (1200,)),  # then the configured speed, a plain FC 06
+        ]
+        reply = b.call(MoveBy, "motor_1/move_by", distance=0.001)
+        assert reply.success, reply.message
+        assert single_run_speeds == [1200]
+        client.node.destroy_publisher(jog)
+
+        # Motor 2 (configured 60 rpm): the restore is refused by the device.
+        refused = (6, H, 15, (60,))
+        device.write_guards.append(
+            lambda r: 0x04 if (r.function_code, r.table, r.address, r.values) == refused else None
+        )
+        jog2 = client.node.create_publisher(Float64, f"{b.ns}/stepper_bridge/motor_2/jog", 10)
+        wait_subscribed(jog2)
+        before = len(device.write_log)
+        jog2.publish(Float64(data=240.0))
+        wait_for(lambda: len(device.write_log) >= before + 2, WAIT_S, "motor 2 jogging")
+        failed = time.monotonic()
+        jog2.publish(Float64(data=0.0))
+        client.wait_log("stepper_bridge", "motor 2: writing back its configured speed 60 rpm")
+        assert writes(device)[before:] == [(6, H, 15, (240,)), (5, C, 6, (1,)), (5, C, 9, (1,))]
+        assert device.motion[2] is None  # stopped all the same
+        status = diagnostic(b, lambda s: "written back" in s.message, failed)
+        assert status.level == b"\x01"
+        assert "60 rpm not restored" in values_of(status)["jog speed restore failed"]
+        # The device takes it again: the next move_by writes it before its single run.
+        device.write_guards.clear()
+        before = len(device.write_log)
+        reply = b.call(MoveBy, "motor_2/move_by", distance=0.001)
+        assert reply.success, reply.message
+        assert writes(device)[before:] == [
+            (6, H, 14, (0,)),
+            (16, H, 18, (100, 0)),
+            (6, H, 15, (60,)),
+            (5, C, 5, (1,)),
+        ]
+        assert single_run_speeds == [1200, 60]
+        healed = time.monotonic()
+        diagnostic(b, lambda s: values_of(s).get("jog speed restore failed") == "none", healed)
+        client.node.destroy_publisher(jog2)
 
 
 def test_a_deadman_stop_lost_in_an_outage_is_the_first_request_when_the_line_is_back(
@@ -267,9 +346,9 @@ def test_services_write_what_they_should(sim, client: Client, tmp_path: Path) ->
         ok(
             LineMove,
             "line_move",
-            pair=LineMove.Request.PAIR_MOTORS_1_3,
-            start=[0.001, 0.002],
-            end=[0.003, -0.004],
+            pair=LineMove.Request.PAIR_MOTORS_1_2,
+            start=[0.001, math.pi / 2],
+            end=[0.003, -math.pi],
             speed_rpm=100,
         )
         ok(
@@ -314,7 +393,8 @@ def test_services_write_what_they_should(sim, client: Client, tmp_path: Path) ->
             (5, C, 97, (1,)),
             (16, H, 176, (2, 1, 0, 0, 0)),
             (6, H, 299, (0,)),
-            (16, H, 201, (2, 100, 0, 200, 0, 300, 0, 0xFE70, 0xFFFF, 100)),  # 40202-40211
+            # 40202-40211: motor 1 in mm x100, motor 2 revolute at lead 5 (-2.50: 0xFF06)
+            (16, H, 201, (1, 100, 0, 125, 0, 300, 0, 0xFF06, 0xFFFF, 100)),
             (5, C, 101, (1,)),
             (
                 16,
@@ -387,13 +467,120 @@ def test_refusals_write_nothing(sim, client: Client, tmp_path: Path) -> None:  #
         jog.publish(Float64(data=100.0))
         wait_for(lambda: len(device.write_log) >= 2, WAIT_S, "the valid jog")
         jog.publish(Float64(data=0.0))
-        wait_for(lambda: len(device.write_log) >= 3, WAIT_S, "its stop")
+        wait_for(lambda: len(device.write_log) >= 4, WAIT_S, "its stop and speed restore")
         client.node.destroy_publisher(jog)
         assert writes(device) == [
             (6, Table.HOLDING, 5, (100,)),
             (5, Table.COIL, 1, (1,)),
             (5, Table.COIL, 4, (1,)),
+            (6, Table.HOLDING, 5, (60,)),
         ]
+
+
+def test_revolute_joints_with_a_reduction(sim, client: Client, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    """units_per_revolution: lead 5 per motor turn, 50 per joint turn (1:10). A coordinate
+    of 25 is pi rad; move_by and interpolation points convert the same way. Motors 1 and 2
+    alike: pairs 2 and 3 convert identically under both readings and are allowed."""
+    device, port = sim
+    H = Table.HOLDING  # noqa: N806
+    device.position[1] = START_POSITION + 25.0
+    device.position[2] = START_POSITION + 50.0
+    with bridge(
+        client,
+        tmp_path,
+        port,
+        joint_types=["revolute", "revolute", "prismatic", "prismatic", "revolute"],
+        units_per_revolution=[50.0, 50.0, 0.0, 0.0, 0.0],
+    ) as (b, _):
+        js = client.wait_message(b.joint_states)
+        assert list(js.position[:2]) == pytest.approx([math.pi, 2 * math.pi])
+        device.position[5] = START_POSITION + 2.5  # motor 5: 0 = the lead, no reduction
+        client.wait_message(b.joint_states, lambda m: m.position[4] == pytest.approx(math.pi))
+        reply = b.call(MoveBy, "motor_1/move_by", distance=-math.pi / 2)  # 12.50 units
+        assert reply.success, reply.message
+        for pair in (LineMove.Request.PAIR_MOTORS_1_3, LineMove.Request.PAIR_MOTORS_2_3):
+            reply = b.call(
+                LineMove, "line_move", pair=pair, start=[math.pi, 0.001], end=[0.0, 0.002]
+            )
+            assert not reply.success and "speed" in reply.message  # speed 0: pair passed
+        reply = b.call(
+            LineMove,
+            "line_move",
+            pair=LineMove.Request.PAIR_MOTORS_1_3,
+            start=[math.pi, 0.001],  # 25.00 units; motor 3 in mm: 1.00
+            end=[-math.pi / 2, 0.002],  # -12.50: 0xFB1E 0xFFFF
+            speed_rpm=30,
+        )
+        assert reply.success, reply.message
+        assert writes(device) == [
+            (6, H, 4, (1,)),
+            (16, H, 8, (1250, 0)),
+            (5, Table.COIL, 0, (1,)),
+            (16, H, 201, (2, 2500, 0, 100, 0, 0xFB1E, 0xFFFF, 200, 0, 30)),
+            (5, Table.COIL, 101, (1,)),  # coil 00102: line start
+        ]
+
+
+def test_pairs_read_two_ways_need_alike_motors(sim, client: Client, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    """Pairs 2 and 3 (motor 1 or 2 first, by the manual's two readings) are refused, with
+    what to do, while motors 1 and 2 convert differently; nothing is written, and pair 1
+    goes through."""
+    device, port = sim
+    units_per_meter = [1000.0, 500.0, 1000.0, 1000.0, 1000.0]
+    with bridge(client, tmp_path, port, units_per_meter=units_per_meter) as (b, _):
+        b.wait_connected(True)
+        client.wait_message(b.state)
+        arc = {"end": [0.01, 0.0], "center": [0.005, 0.0], "speed_rpm": 10}
+        for srv, name, pair, fields in (
+            (LineMove, "line_move", LineMove.Request.PAIR_MOTORS_1_3, {"end": [0.01, 0.0]}),
+            (LineMove, "line_move", LineMove.Request.PAIR_MOTORS_2_3, {"end": [0.01, 0.0]}),
+            (ArcMove, "arc_move", ArcMove.Request.PAIR_MOTORS_1_3, arc),
+            (ArcMove, "arc_move", ArcMove.Request.PAIR_MOTORS_2_3, arc),
+        ):
+            reply = b.call(srv, name, pair=pair, **fields)
+            assert not reply.success, name
+            message = reply.message
+            assert "refused" in message and "until hardware confirms" in message, message
+            assert "motors 1 and 2" in message and "\n" not in message, message
+        reply = b.call(
+            LineMove,
+            "line_move",
+            pair=LineMove.Request.PAIR_MOTORS_1_2,
+            start=[0.001, 0.001],
+            end=[0.002, 0.004],
+            speed_rpm=10,
+        )
+        assert reply.success, reply.message
+        # The first write is pair 1's: motor 1 in mm, motor 2 at 500 units per metre.
+        assert writes(device) == [
+            (16, Table.HOLDING, 201, (1, 100, 0, 50, 0, 200, 0, 200, 0, 10)),
+            (5, Table.COIL, 101, (1,)),  # coil 00102: line start
+        ]
+
+
+def test_a_negative_units_per_revolution_is_refused_at_start() -> None:
+    import subprocess
+    import sys
+
+    from ..support.ros import ROOT
+
+    result = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "stepper_bridge.node",
+            "--ros-args",
+            "-p",
+            "units_per_revolution:=[0.0, -50.0]",
+        ],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert result.returncode == 2, result.stdout + result.stderr
+    assert len(lines) == 1 and "units_per_revolution" in lines[0] and "-50.0" in lines[0], lines
 
 
 def test_read_only_refuses_every_write(sim, client: Client, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]

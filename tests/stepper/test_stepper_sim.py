@@ -19,11 +19,11 @@ import serial
 from pymodbus.framer import FramerRTU
 
 from bridge_core.channel import DeviceChannel
-from bridge_core.errors import CommandRejected
+from bridge_core.errors import CommandRejected, LinkError
 from bridge_core.registers import Table
 from bridge_core.sim_base import Simulator
 from bridge_core.transport import ModbusLink, SerialSettings
-from stepper_bridge.device import JointScale, StepperDevice
+from stepper_bridge.device import JointScale, StepperDevice, check_pair_reading
 from stepper_bridge.registers import STEPPER_MAP, UNDEFINED_HOLDING, holding
 from stepper_bridge.sim import START_POSITION, StepperSimDevice, make_simulator
 
@@ -126,7 +126,135 @@ def test_jog_runs_at_the_speed_and_stops(rig: Rig) -> None:
         (5, Table.COIL, 4, (1,)),
         (5, Table.COIL, 2, (1,)),
         (5, Table.COIL, 4, (1,)),
+        (6, Table.HOLDING, 5, (60,)),  # after the stop: the configured speed back
     ]
+    assert rig.fake.get("motor1_speed") == 60
+
+
+H, C = Table.HOLDING, Table.COIL
+SPEED_1 = (6, H, 5, (60,))  # motor 1's configured speed (the simulator's 60 rpm) back
+
+
+def speed_at_single_run(rig: Rig, motor: int) -> list[int]:
+    """The motor's speed register each time its single-run coil is written (the speed the
+    simulator runs the move at)."""
+    seen: list[int] = []
+    run_once = (C, (motor - 1) * 5)
+
+    def hook(record: Any) -> None:
+        if (record.table, record.address) == run_once:
+            seen.append(int(rig.fake.get(f"motor{motor}_speed")))
+
+    rig.fake.write_hooks.append(hook)
+    return seen
+
+
+def test_every_end_of_a_jog_gives_the_configured_speed_back(rig: Rig) -> None:
+    d = rig.device
+    d.read_config()
+    ends: list[tuple[str, Callable[[], object]]] = [
+        ("a 0", lambda: d.jog(1, 0.0)),
+        ("the stop service", lambda: d.motor_action(1, "stop")),
+        ("the e-stop", lambda: d.system_command("emergency_stop")),
+        ("the deadman / shutdown", lambda: d.jogs.stop_all()),
+        ("the deadman", lambda: d.jogs.expire(1)),
+    ]
+    for what, end in ends:
+        d.jog(1, 0.0)  # releases a lock left by the previous stop
+        before = len(rig.fake.write_log)
+        assert d.jog(1, 300.0)
+        end()
+        late = rig.writes()[before:]
+        assert late[0] == (6, H, 5, (300,)), what
+        assert late[-2:] == [(5, C, 4, (1,)), SPEED_1] or late[-2:] == [(5, C, 41, (1,)), SPEED_1]
+        assert rig.fake.get("motor1_speed") == 60 and not d.restore_pending(), what
+        assert d.poll().config.motors[0].speed_rpm == 60, what
+
+
+def test_a_move_by_after_a_jog_runs_at_the_configured_speed(rig: Rig) -> None:
+    d = rig.device
+    d.read_config()
+    seen = speed_at_single_run(rig, 1)
+    d.jog(1, 600.0)
+    d.jog(1, 0.0)
+    d.move_by(1, 1.0)
+    assert seen == [60]
+    # A move_by while the jog runs takes the motor over: the speed goes back first.
+    wait_until(lambda: idle(rig))
+    d.jog(1, 600.0)
+    before = len(rig.fake.write_log)
+    d.move_by(1, 1.0)
+    assert rig.writes()[before:] == [
+        (6, H, 4, (0,)),
+        (16, H, 8, (100, 0)),
+        SPEED_1,
+        (5, C, 0, (1,)),
+    ]
+    assert seen == [60, 60] and not d.restore_pending()
+
+
+def test_stop_all_stops_every_jog_before_any_restore(rig: Rig) -> None:
+    d = rig.device
+    d.read_config()
+    d.jog(1, 300.0)
+    d.jog(2, -300.0)
+    before = len(rig.fake.write_log)
+    assert d.jogs.stop_all() == []
+    assert rig.writes()[before:] == [(5, C, 4, (1,)), (5, C, 9, (1,)), SPEED_1, (6, H, 15, (60,))]
+
+
+def test_a_jog_that_keeps_the_speed_restores_nothing(rig: Rig) -> None:
+    d = rig.device
+    d.read_config()
+    d.jog(1, 60.0)  # the configured speed: only the forward coil
+    d.jog(1, 0.0)
+    assert rig.writes() == [(5, C, 1, (1,)), (5, C, 4, (1,))]
+
+
+def test_a_speed_configured_during_a_jog_is_the_one_restored(rig: Rig) -> None:
+    d = rig.device
+    d.read_config()
+    d.jog(1, 300.0)
+    d.set_speed(1, 120)  # the user's new configured speed (also the running jog's now)
+    d.jog(1, 0.0)
+    assert rig.writes()[-2:] == [(5, C, 4, (1,)), (6, H, 5, (120,))]
+
+
+def test_save_parameters_is_refused_while_a_jog_speed_is_in_the_register(rig: Rig) -> None:
+    d = rig.device
+    d.read_config()
+    d.jog(1, 300.0)
+    before = len(rig.fake.write_log)
+    with pytest.raises(CommandRejected, match="stop the jog before save_parameters"):
+        d.system_command("save_parameters")
+    assert len(rig.fake.write_log) == before and rig.fake.saves == 0
+    d.jog(1, 0.0)
+    d.system_command("save_parameters")
+    assert rig.fake.saves == 1 and rig.fake.get("motor1_speed") == 60
+
+
+def test_a_failed_restore_never_fails_the_stop_and_is_retried(rig: Rig) -> None:
+    d = rig.device
+    d.read_config()
+    reported: list[tuple[int, int]] = []
+    d.on_speed_restore_failure = lambda motor, rpm, _err: reported.append((motor, rpm))
+    refused = (6, H, 5, (60,))
+    rig.fake.write_guards.append(
+        lambda r: 0x04 if (r.function_code, r.table, r.address, r.values) == refused else None
+    )
+    d.jog(1, 300.0)
+    assert d.jog(1, 0.0)  # the stop went out: no exception
+    assert rig.fake.motion[1] is None and rig.fake.get("motor1_speed") == 300
+    assert reported == [(1, 60)] and "60 rpm not restored" in d.speed_restore_failures[1]
+    # Still refused: a move_by fails before its single run (it would run at 300 rpm).
+    before = len(rig.fake.write_log)
+    with pytest.raises(LinkError):
+        d.move_by(1, 1.0)
+    assert (5, C, 0, (1,)) not in rig.writes()[before:]
+    rig.fake.write_guards.clear()
+    seen = speed_at_single_run(rig, 1)
+    d.move_by(1, 1.0)
+    assert seen == [60] and not d.speed_restore_failures and not d.restore_pending()
 
 
 def test_homing_limits_and_zero(rig: Rig) -> None:
@@ -407,6 +535,70 @@ def test_joint_scale() -> None:
         rev.to_units(1.0, 0.0)
     with pytest.raises(ValueError):
         JointScale("helical")
+
+
+def test_joint_scale_with_a_reduction() -> None:
+    """units_per_revolution: user units per joint revolution (lead 5 per motor turn, 1:10)."""
+    geared = JointScale("revolute", units_per_revolution=50.0)
+    assert geared.to_si(25.0, 5.0) == pytest.approx(math.pi)
+    assert geared.to_units(math.pi, 5.0) == pytest.approx(25.0)
+    assert geared.to_si(25.0, 0.0) == pytest.approx(math.pi)  # the lead is not used
+    assert not geared.needs_lead() and JointScale("revolute").needs_lead()
+    assert JointScale("revolute", units_per_revolution=0.0).to_si(2.5, 5.0) == pytest.approx(
+        math.pi
+    )  # 0: the lead, as before
+    for bad in (-1.0, math.nan, math.inf):
+        with pytest.raises(ValueError, match="units_per_revolution"):
+            JointScale("revolute", units_per_revolution=bad)
+
+
+MM = JointScale("prismatic", 1000.0)
+LEADS = [5.0] * 5
+
+
+def scales(**by_motor: JointScale) -> list[JointScale]:
+    """Five prismatic mm scales, some replaced (``m2=...``)."""
+    out = [MM] * 5
+    for key, scale in by_motor.items():
+        out[int(key[1:]) - 1] = scale
+    return out
+
+
+def test_pair_1_is_read_alike_and_always_allowed() -> None:
+    check_pair_reading(1, scales(m2=JointScale("revolute")), LEADS)
+    check_pair_reading(1, scales(m1=JointScale("prismatic", 1.0)), LEADS)
+
+
+@pytest.mark.parametrize("pair", [2, 3])
+def test_pairs_the_readings_disagree_on_need_motors_1_and_2_alike(pair: int) -> None:
+    check_pair_reading(pair, scales(), LEADS)  # all mm: the same values either way
+    # Motor 3 is the second motor under both readings: its scale does not matter.
+    check_pair_reading(pair, scales(m3=JointScale("prismatic", 1.0)), LEADS)
+    refusals = [
+        (scales(m2=JointScale("prismatic", 500.0)), LEADS),
+        (scales(m1=JointScale("revolute"), m2=JointScale("prismatic")), LEADS),
+        (scales(m1=JointScale("revolute"), m2=JointScale("revolute")), [5.0, 6.0, 5.0, 5.0, 5.0]),
+        (
+            scales(m1=JointScale("revolute", units_per_revolution=50.0), m2=JointScale("revolute")),
+            LEADS,
+        ),
+    ]
+    for motor_scales, leads in refusals:
+        with pytest.raises(CommandRejected, match="until hardware confirms") as refused:
+            check_pair_reading(pair, motor_scales, leads)
+        assert "\n" not in str(refused.value) and "pair 1" in str(refused.value)
+    # Revolute alike: the same lead read from the device, or the same units per joint
+    # revolution (then the lead is not used), or one's units_per_revolution = the other's lead.
+    rev = JointScale("revolute")
+    geared = JointScale("revolute", units_per_revolution=50.0)
+    check_pair_reading(pair, scales(m1=rev, m2=rev), LEADS)
+    check_pair_reading(pair, scales(m1=geared, m2=geared), [5.0, 6.0, 5.0, 5.0, 5.0])
+    check_pair_reading(pair, scales(m1=geared, m2=rev), [5.0, 50.0, 5.0, 5.0, 5.0])
+
+
+def test_unknown_pairs_are_left_to_the_device_layer() -> None:
+    for pair in (0, 4):
+        check_pair_reading(pair, scales(m2=JointScale("revolute")), LEADS)
 
 
 def test_stepper_sim_cli_on_its_own_pty(tmp_path: Path) -> None:

@@ -133,7 +133,14 @@ BRIDGES: tuple[BridgeInfo, ...] = (
         position_register=STEPPER_MAP["motor1_coordinate"],
         unit_id=1,
         config="stepper.yaml",
-        startup_only=("serial_port", "baudrate", "parity", "unit_id", "joint_types"),
+        startup_only=(
+            "serial_port",
+            "baudrate",
+            "parity",
+            "unit_id",
+            "joint_types",
+            "units_per_revolution",
+        ),
         mistyped=(("baudrate", "fast"), ("poll_rate_hz", "fast")),
     ),
     BridgeInfo(
