@@ -95,7 +95,7 @@ def run(timeout_s: float, seconds: float) -> list[tuple[str, int, list[str]]]:
             for phase in ("all alive", f"drive {DEAD} dead"):
                 if phase != "all alive":
                     simulator.unplug(DEAD)
-                start = time.monotonic()
+                start = time.time()  # the simulator stamps its write log with time.time()
                 trips = {u: simulator.drive(u).lifeguard_trips for u in WATCHED}
                 time.sleep(seconds)
                 cells = []
@@ -104,12 +104,23 @@ def run(timeout_s: float, seconds: float) -> list[tuple[str, int, list[str]]]:
                     times = [r.time for r in drive.write_log if r.time >= start]
                     gaps = [b - a for a, b in itertools.pairwise(times)] or [seconds]
                     worst, p99 = max(gaps), percentile(gaps, 0.99)
+                    if worst > lifeguard_ms / 1000.0:
+                        at = times[gaps.index(worst)] - start
+                        print(
+                            f"{phase}, drive {unit}: {worst:.3f} s without a write from +{at:.3f} s"
+                        )
                     cells.append(
                         f"{statistics.median(gaps) * 1000:6.0f} {p99 * 1000:6.0f}"
                         f" {worst * 1000:6.0f} {worst * 100000 / lifeguard_ms:4.0f}%"
                         f" {drive.lifeguard_trips - trips[unit]:3d}"
                     )
                 rows.append((phase, lifeguard_ms, cells))
+        log = (Path(logs) / "motec_bridge_node.log").read_text()
+        losses = [
+            line for line in log.splitlines() if " lost" in line and f"unit {DEAD}" not in line
+        ]
+        for line in losses:  # a live drive that looked dead: its feeds stop until it is back
+            print(f"timeout_s {timeout_s}: {line}")
     return rows
 
 

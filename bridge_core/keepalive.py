@@ -16,8 +16,10 @@ import threading
 import time
 from collections.abc import Callable
 
-# Allowance for the feeding thread waking late (scheduler, GIL) plus the feed's own frame.
-FEED_WAKE_S = 0.05
+# Allowance for the feeding thread waking late plus the feed's own frame. A wake-up takes
+# well under 10 ms on an idle host, but this is not a real-time OS: the scheduler, the GIL
+# and a busy machine (measured with bench/lifeguard_gaps.py --burners 2) take their share.
+FEED_WAKE_S = 0.1
 # How often the thread looks again while nothing is to be fed (not armed, link down).
 IDLE_CHECK_S = 0.05
 JOIN_TIMEOUT_S = 5.0

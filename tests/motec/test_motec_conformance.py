@@ -459,13 +459,13 @@ def test_a_move_without_a_speed_limit_keeps_the_drives_own() -> None:
 
 
 def test_lifeguard_floor_follows_the_bus() -> None:
-    # 1.5 x (0.05 s wake-up + drives x the longest transaction), in whole ms.
-    assert lifeguard_min_ms(3, 0.124) == 633
-    assert lifeguard_min_ms(1, 0.124) == 261
-    assert lifeguard_min_ms(1, 0.01) == 90
+    # 1.5 x (0.1 s wake-up + drives x the longest transaction), in whole ms.
+    assert lifeguard_min_ms(3, 0.124) == 708
+    assert lifeguard_min_ms(1, 0.124) == 336
+    assert lifeguard_min_ms(1, 0.01) == 165
     # The defaults of config/motec.yaml: 3 drives, 115200 8N1, timeout_s 0.1.
     hold = SerialSettings("/dev/null", 115200, timeout_s=0.1).longest_hold_s()
-    assert lifeguard_min_ms(3, hold) == math.ceil(1.5 * (0.05 + 3 * hold) * 1000) == 633
+    assert lifeguard_min_ms(3, hold) == math.ceil(1.5 * (0.1 + 3 * hold) * 1000) == 708
     assert "3 drive(s) x 0.124 s" in lifeguard_bound_text(3, hold)
 
 
