@@ -130,7 +130,7 @@ class Transport(Protocol):
     def describe(self) -> str: ...
     def open(self) -> None: ...
     def close(self) -> None: ...
-    def execute(self, unit_id: int, request: Request) -> Reply: ...
+    def execute(self, unit_id: int, request: Request, timeout_s: float | None = None) -> Reply: ...
 
 
 class Backoff:
@@ -188,6 +188,7 @@ class DeviceChannel:
         *,
         retries: int = 1,
         reconnect_max_s: float = 5.0,
+        down_write_timeout_s: float | None = None,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
         if not UNIT_ID_MIN <= unit_id <= UNIT_ID_MAX:
@@ -195,6 +196,10 @@ class DeviceChannel:
         self.link = link
         self.unit_id = unit_id
         self.retries = retries
+        # Reply timeout of a write to a device marked down (only stops are sent then): a
+        # stop repeated while the line is dead must not be the one still waiting out a long
+        # timeout when the line comes back (None: the link's timeout).
+        self.down_write_timeout_s = down_write_timeout_s
         self.backoff = Backoff(RECONNECT_INITIAL_S, reconnect_max_s, clock)
         self.stats = LinkStats()
         self._connected = False
@@ -291,7 +296,10 @@ class DeviceChannel:
                     except LinkDown as err:
                         raise NotSent(str(err)) from err
                 started = time.perf_counter()
-                reply = self.link.execute(self.unit_id, request)
+                if request.is_write and not self._connected and self.down_write_timeout_s:
+                    reply = self.link.execute(self.unit_id, request, self.down_write_timeout_s)
+                else:
+                    reply = self.link.execute(self.unit_id, request)
             except DeviceException as err:
                 # The device is alive and said no: not a link failure.
                 self.stats.exceptions += 1

@@ -121,6 +121,10 @@ class DeviceDefaults:
     timeout_s: float = 0.5
     timeout_min_s: float = 0.01  # a reply timeout below this can never be met
     frame_gap_s: float = 0.0  # RTU: least silence between frames beyond t3.5
+    # RTU: reply timeout of a stop sent while the device is marked down (None: timeout_s).
+    # Short, so that a stop repeated over a dead line is not still waiting out a long
+    # timeout when the line comes back (issue 9: a stop within 0.3 s of the line's return).
+    stop_timeout_s: float | None = None
 
 
 def transport_specs(defaults: DeviceDefaults) -> list[ParameterSpec]:
@@ -292,6 +296,9 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
         self.last_snapshot: SnapshotT | None = None
         self.joint_names: list[str] = []
         self.command_group = MutuallyExclusiveCallbackGroup()
+        # Stop services: never queued behind a command or a deadman retry that waits out a
+        # timeout on a dead link (a stop is attempted on the wire at once).
+        self.stop_group = MutuallyExclusiveCallbackGroup()
         # Command stream arrivals: recorded at once, never behind a write (stream_topic).
         self.stream_inbox_group = MutuallyExclusiveCallbackGroup()
         self.diagnostics_group = MutuallyExclusiveCallbackGroup()
@@ -331,11 +338,15 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
         if unit_id is None:
             raise ValueError("a node on a shared link needs its unit_id")
         self.link = link
+        stop_timeout_s = defaults.stop_timeout_s
+        if stop_timeout_s is not None:
+            stop_timeout_s = min(stop_timeout_s, link.settings.timeout_s)
         self.channel = DeviceChannel(
             link,
             unit_id,
             retries=int(values["retries"]),
             reconnect_max_s=float(values["reconnect_max_s"]),
+            down_write_timeout_s=stop_timeout_s,
         )
         self.hardware_id = f"{self.device_name}@{self.channel.describe()}"
 
@@ -529,7 +540,8 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
         ``describe(request)`` names the command in the reply message, ``action(request)``
         does it through the device layer, ``fill(response, result)`` copies a result into
         the response on success. ``stop`` (or ``stop(request)``, e.g. a disable): the
-        command ends motion, so it is tried even while the link is down (``run_command``).
+        command ends motion, so it is tried even while the link is down (``run_command``),
+        and the service runs in ``stop_group``, never behind another command.
         """
 
         def handle(request: Any, response: Any) -> Any:
@@ -544,7 +556,8 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
                 fill(response, result)  # type: ignore[arg-type]
             return response
 
-        self.create_service(srv_type, name, handle, callback_group=self.command_group)
+        group = self.stop_group if stop else self.command_group
+        self.create_service(srv_type, name, handle, callback_group=group)
 
     def trigger_service(
         self, name: str, what: str, action: Callable[[], object], *, stop: bool = False
@@ -837,7 +850,7 @@ def spin_nodes(
     build: Callable[[list[Node]], None],
     args: Sequence[str] | None = None,
     *,
-    threads: Callable[[int], int] = lambda nodes: max(3, min(32, 2 + 3 * nodes)),
+    threads: Callable[[int], int] = lambda nodes: max(4, min(32, 2 + 4 * nodes)),
 ) -> int:
     """rclpy demo-style main for one process of bridge nodes; returns the exit code.
 

@@ -279,6 +279,9 @@ class TimedSerialClient(ModbusSerialClient):
         self._expected: int | None = None
         self._deadline = 0.0
         self._returned: bytes | None = None
+        # A reply timeout for the next transactions instead of the client's ``timeout``
+        # (None: the client's); set by ``ModbusLink.execute(timeout_s=...)``.
+        self.reply_timeout_s: float | None = None
 
     # ------------------------------------------------------------ connection
     def connect(self) -> bool:
@@ -332,7 +335,10 @@ class TimedSerialClient(ModbusSerialClient):
         sent_at = max(time.monotonic(), started + len(request) * self.char_s)
         self._request = bytes(request)
         self._expected = expected_reply_length(self._request)
-        self._deadline = sent_at + self.comm_params.timeout_connect
+        timeout = self.reply_timeout_s
+        if timeout is None:
+            timeout = self.comm_params.timeout_connect
+        self._deadline = sent_at + timeout
         self._returned = None
         if self._expected == 0:
             self._ready_at = sent_at + self.broadcast_turnaround_s
@@ -417,11 +423,15 @@ class TimedSerialClient(ModbusSerialClient):
         return b""
 
     def _read_exact(self, count: int) -> bytes:
-        """Read ``count`` bytes, returning early only at the reply deadline."""
+        """Read ``count`` bytes, returning early only at the reply deadline.
+
+        Past the deadline, what is already in the buffer is still taken: a thread that
+        runs late on a loaded host must not call a reply that arrived a timeout.
+        """
         buf = bytearray()
         while len(buf) < count:
-            remaining = self._deadline - time.monotonic()
-            if remaining <= 0 or not (chunk := self._read_some(count - len(buf), remaining)):
+            remaining = max(0.0, self._deadline - time.monotonic())
+            if not (chunk := self._read_some(count - len(buf), remaining)):
                 break
             buf += chunk
         return bytes(buf)
@@ -432,9 +442,11 @@ class TimedSerialClient(ModbusSerialClient):
         buf = bytearray()
         while True:
             remaining = self._deadline - time.monotonic()
-            if remaining <= 0 or not (chunk := self._read_some(256, min(gap, remaining))):
+            if not (chunk := self._read_some(256, min(gap, max(0.0, remaining)))):
                 break
             buf += chunk
+            if remaining <= 0:
+                break  # past the deadline: what was there, once (a babbling line ends too)
         return bytes(buf)
 
     def _read_some(self, count: int, wait_s: float) -> bytes:

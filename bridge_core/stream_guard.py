@@ -184,8 +184,9 @@ class StreamGuard(Generic[Key]):
             self._after_stop(keys)
 
     def _stop_one(self, key: Key) -> None:
+        # The lock is left as it is: a stop sent again after a stop service failed keeps
+        # the stream locked (a 0 unlocks in ``command``, silence in ``expire``).
         stream = self[key]
-        stream.locked = False
         # Pending from the first attempt on (not only once it failed): a reconnect that
         # looks for pending stops while this one is on the wire waits for it, then tries.
         stream.stop_pending = True  # until a stop is acknowledged: the deadman keeps on it
@@ -204,6 +205,17 @@ class StreamGuard(Generic[Key]):
         stream.value, stream.active, stream.stop_sent = None, False, False
         stream.stop_pending = False
         stream.locked = locked
+
+    @_locked
+    def stop_failed(self, key: Key) -> None:
+        """Another command's stop (a stop service, an e-stop) failed on the link: the
+        stream is locked, and if it may be moving its own stop is pending (sent before any
+        poll when the link is back, and by the deadman meanwhile), as after a lost
+        deadman stop. Never ``taken_over``: that would forget a motor still running."""
+        stream = self[key]
+        stream.locked = True
+        if stream.may_move:
+            stream.stop_pending = True
 
     @_locked
     def forget_values(self) -> None:
@@ -236,13 +248,16 @@ class StreamGuard(Generic[Key]):
 
     @_locked
     def expire(self, key: Key) -> bool:
-        """The deadman for one silent stream: stop it if it may move, else just unlock.
+        """The deadman for one stream ``due``: stop it if it may move; unlock it once it is
+        silent ("until a 0 or silence"). A stop only pending (commands still coming) is sent
+        again and the lock kept, so a joystick still held cannot restart the motor.
 
         True if a stop was sent (and acknowledged).
         """
         stream = self[key]
-        if not stream.may_move:
+        if stream.last_seen is None or self._clock() - stream.last_seen > self.timeout_s:
             stream.locked = False
+        if not stream.may_move:
             return False
         return self.stop(key)
 

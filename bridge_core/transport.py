@@ -218,10 +218,16 @@ class ModbusLink:
         with suppress(OSError):
             self._client.close()  # type: ignore[no-untyped-call]  # untyped in pymodbus 3.16
 
-    def execute(self, unit_id: int, request: Request) -> Reply:
-        """One transaction; pymodbus errors come out as ``LinkError`` subclasses."""
+    def execute(self, unit_id: int, request: Request, timeout_s: float | None = None) -> Reply:
+        """One transaction; pymodbus errors come out as ``LinkError`` subclasses.
+
+        ``timeout_s``: a shorter reply timeout for this one (RTU; a TCP link keeps its own).
+        """
         if not self._open:
             raise LinkDown(f"{self.describe()} is not open")
+        timed = isinstance(self._client, TimedSerialClient) and timeout_s is not None
+        if timed:
+            self._client.reply_timeout_s = timeout_s  # type: ignore[union-attr]
         try:
             response = self._send(unit_id, request)
         except ConnectionException as err:
@@ -232,14 +238,16 @@ class ModbusLink:
         except ModbusIOException as err:
             if err.fcode is None:  # the framer's "unable to decode": a reply came
                 raise FrameError(f"unit {unit_id}: undecodable reply: {err.string}") from err
-            raise LinkTimeout(
-                f"unit {unit_id}: no reply within {self.settings.timeout_s} s"
-            ) from err
+            waited = timeout_s if timed else self.settings.timeout_s
+            raise LinkTimeout(f"unit {unit_id}: no reply within {waited} s") from err
         except ModbusException as err:
             raise FrameError(f"unit {unit_id}: {err}") from err
         except OSError as err:
             self.close()
             raise LinkDown(f"{self.describe()}: {err}") from err
+        finally:
+            if timed:
+                self._client.reply_timeout_s = None  # type: ignore[union-attr]
         if response is None:  # broadcast: no reply expected
             return None
         if response.isError():

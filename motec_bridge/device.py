@@ -45,7 +45,7 @@ from bridge_core.checks import (
 )
 from bridge_core.codec import Value, encode
 from bridge_core.config_cache import ConfiguredDevice
-from bridge_core.errors import CommandRejected
+from bridge_core.errors import CommandRejected, LinkError
 from bridge_core.keepalive import FEED_WAKE_S
 from bridge_core.planner import ReadRequest, plan_reads
 from bridge_core.stream_guard import StreamGuard
@@ -340,9 +340,12 @@ class MotecDevice(ConfiguredDevice[MotecConfig]):
         §4.2 step 4 says enabling starts the motor at the set speed, and a bridge's enable
         must not start motion by itself."""
         if not on:
-            try:
-                self._write("enable", ENABLE_OFF)
-            finally:
+            with self.stream.lock:
+                try:
+                    self._write("enable", ENABLE_OFF)
+                except LinkError:
+                    self.stream.stop_failed(VELOCITY_STREAM)  # its own stop stays pending
+                    raise
                 self.stream.taken_over(VELOCITY_STREAM, locked=False)
             return
         modes = self.read_modes()
@@ -386,16 +389,23 @@ class MotecDevice(ConfiguredDevice[MotecConfig]):
         """Stop in the present mode: velocity -> 0xAE = 0 (ramps down, §4.2); position ->
         0x29 = 0 (the move / stop register); any other mode -> release (0x28 = 0), the
         only stop the manual gives for every mode. Returns what was done."""
-        modes = self.read_modes()
-        self.stream.taken_over(VELOCITY_STREAM, locked=True)
-        if modes.network and modes.control_mode == CONTROL_MODE_VELOCITY:
-            self._write("speed_setpoint", 0)
-            return "speed setpoint 0"
-        if modes.network and modes.control_mode == CONTROL_MODE_POSITION:
-            self._write("start", STOP_MOVE)
-            return "move stopped (0x29 = 0)"
-        self._write("enable", ENABLE_OFF)
-        return f"drive released ({modes.describe()}: no Modbus stop for that mode)"
+        with self.stream.lock:  # no cmd_velocity write between the stop and the lock
+            try:
+                modes = self.read_modes()
+                if modes.network and modes.control_mode == CONTROL_MODE_VELOCITY:
+                    self._write("speed_setpoint", 0)
+                    done = "speed setpoint 0"
+                elif modes.network and modes.control_mode == CONTROL_MODE_POSITION:
+                    self._write("start", STOP_MOVE)
+                    done = "move stopped (0x29 = 0)"
+                else:
+                    self._write("enable", ENABLE_OFF)
+                    done = f"drive released ({modes.describe()}: no Modbus stop for that mode)"
+            except LinkError:
+                self.stream.stop_failed(VELOCITY_STREAM)  # cmd_velocity's stop stays pending
+                raise
+            self.stream.taken_over(VELOCITY_STREAM, locked=True)
+            return done
 
     def save_to_flash(self) -> None:
         self._write("save_to_flash", SAVE_TO_FLASH)

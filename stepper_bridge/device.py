@@ -370,11 +370,17 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
                 self.restore_speeds([motor], include_jogging=True)
             try:
                 self.io.write_coil(motor_coil(motor, action), True)
-            finally:
-                # A service overrides any jog: the next jog command is sent whole, and a 0
-                # jog then stops the motor once (it may be running the service's motion).
-                self.jogs.taken_over(motor, locked=action == "stop")
+            except LinkError:
+                if action == "stop":
+                    self.jogs.stop_failed(motor)  # a jog it meant to end: its stop pending
+                    raise
+                self.jogs.taken_over(motor, locked=False)
                 self._direction[motor] = 0
+                raise
+            # A service overrides any jog: the next jog command is sent whole, and a 0 jog
+            # then stops the motor once (it may be running the service's motion).
+            self.jogs.taken_over(motor, locked=action == "stop")
+            self._direction[motor] = 0
             if action == "stop":
                 self._restore_after_stop([motor])
 
@@ -607,13 +613,20 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
                 self.restore_speeds(list(range(1, MOTORS + 1)), include_jogging=True)
             try:
                 self._coil(name)
-            finally:
-                # The e-stop halts every jog and locks it; homing and return to zero take
-                # the motors over, so the next jog command is sent whole.
-                if takes_over:
-                    for motor in range(1, MOTORS + 1):
-                        self.jogs.taken_over(motor, locked=name == "emergency_stop")
+            except LinkError:
+                for motor in range(1, MOTORS + 1):
+                    if name == "emergency_stop":
+                        self.jogs.stop_failed(motor)  # each jog's own stop stays pending
+                    elif takes_over:
+                        self.jogs.taken_over(motor, locked=False)
                         self._direction[motor] = 0
+                raise
+            # The e-stop halts every jog and locks it; homing and return to zero take the
+            # motors over, so the next jog command is sent whole.
+            if takes_over:
+                for motor in range(1, MOTORS + 1):
+                    self.jogs.taken_over(motor, locked=name == "emergency_stop")
+                    self._direction[motor] = 0
             if name == "emergency_stop":
                 self._restore_after_stop(list(range(1, MOTORS + 1)))
 

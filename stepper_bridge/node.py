@@ -98,6 +98,10 @@ STEPPER_DEFAULTS = DeviceDefaults(
     poll_rate_hz=3.0,  # a poll takes ~0.29 s at 9600 baud (README)
     baudrate=DEFAULT_BAUDRATE,
     timeout_min_s=TIMEOUT_MIN_S,
+    # A stop coil's reply is 8 bytes after the controller's <= 35 ms: the least timeout
+    # the manual's rule allows is plenty, and keeps a stop over a line that comes back
+    # within 0.3 s of it (bench/stop_after_outage.py).
+    stop_timeout_s=TIMEOUT_MIN_S,
 )
 
 

@@ -90,3 +90,39 @@ def test_motec_failed_first_velocity_write_keeps_the_deadman_on() -> None:
     assert device.streaming  # 0xAE may hold 100 rpm: the deadman must zero it
     assert device.velocity_stop() and not device.streaming
     assert io.writes[-1] == ("register", 0xAE, 0)
+
+
+@pytest.mark.parametrize("which", ["motor stop", "emergency stop"])
+def test_stepper_a_failed_stop_service_leaves_the_jogs_stop_pending(which: str) -> None:
+    """Issue 9: a stop service that fails on the link must not make the guard forget the
+    jog it meant to end: that jog's own stop stays pending (sent first when the link is
+    back) and the jog is locked, so a joystick still held cannot restart the motor."""
+    io = FlakyIO()
+    device = StepperDevice(io)  # type: ignore[arg-type]
+    assert device.jog(1, 100)
+    io.fail = 1
+    with pytest.raises(LinkTimeout):
+        if which == "motor stop":
+            device.motor_action(1, "stop")
+        else:
+            device.system_command("emergency_stop")
+    assert device.jogs.pending_stops() == [1] and device.jogging(1)
+    assert device.jogs[1].locked
+    before = len(io.writes)
+    assert device.jog_stop(1)  # what the reconnect (or the deadman) does
+    assert io.writes[before][0:2] == ("coil", 4)  # motor 1's stop coil (00005)
+    assert not device.jogging(1) and device.jogs.pending_stops() == []
+
+
+@pytest.mark.parametrize("which", ["stop", "disable"])
+def test_motec_a_failed_stop_service_leaves_the_streams_stop_pending(which: str) -> None:
+    io = FlakyIO()
+    device = MotecDevice(io)  # type: ignore[arg-type]
+    io.registers.update({0x24: 0, 0x25: 1, 0x28: 1})  # network, velocity control, enabled
+    assert device.velocity(100)
+    io.fail = 1
+    with pytest.raises(LinkTimeout):
+        device.stop() if which == "stop" else device.enable(False)
+    assert device.stream.pending_stops() == [0] and device.streaming
+    assert device.velocity_stop() and not device.streaming
+    assert io.writes[-1] == ("register", 0xAE, 0)

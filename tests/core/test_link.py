@@ -118,7 +118,7 @@ class ScriptedBus:
     def close(self) -> None:
         self.is_open = False
 
-    def execute(self, unit_id: int, request: Request) -> Reply:
+    def execute(self, unit_id: int, request: Request, timeout_s: float | None = None) -> Reply:
         self.executed.append((unit_id, request))
         script = self.script.get(unit_id)
         step = script.pop(0) if script else [0]
@@ -297,6 +297,34 @@ def test_rtu_unit_nobody_serves_times_out_and_the_served_one_answers() -> None:
             with pytest.raises(LinkTimeout):
                 channel.read_registers(0, 1)
             assert DeviceChannel(link, 3).read_registers(0, 1) == [0]
+            link.close()
+        finally:
+            sim.stop()
+
+
+def test_a_write_to_a_device_marked_down_waits_its_short_timeout() -> None:
+    """Issue 9: a stop sent while the device is marked down has its own short reply
+    timeout (down_write_timeout_s); reads, and writes to a live device, keep the link's."""
+    sim_device = SimulatedDevice(TEST_MAP, 3)
+    sim = Simulator([sim_device])
+    with socat_pair() as (bridge_end, device_end, _):
+        sim.start_serial(device_end, baudrate=115200)
+        try:
+            link = ModbusLink(SerialSettings(bridge_end, 115200, timeout_s=0.4))
+            channel = DeviceChannel(link, 3, retries=0, down_write_timeout_s=0.05)
+            channel.write_register(1, 5)  # connected from here on
+            sim.withhold_replies = True
+            with pytest.raises(LinkTimeout, match=r"within 0\.4 s"):
+                channel.write_register(1, 6)  # connected: the link's timeout
+            assert not channel.connected
+            with pytest.raises(LinkTimeout, match=r"within 0\.05 s"):
+                channel.write_register(1, 7)  # marked down: the short one
+            channel.backoff.succeeded()
+            with pytest.raises(LinkTimeout, match=r"within 0\.4 s"):
+                channel.read_registers(0, 1)  # a probe keeps the link's
+            sim.withhold_replies = False
+            channel.write_register(1, 8)  # a stop that gets through: up again
+            assert channel.connected and sim_device.get("word_1") == 8
             link.close()
         finally:
             sim.stop()

@@ -333,7 +333,7 @@ class ScriptedTransport:
     def close(self) -> None:
         self.is_open = False
 
-    def execute(self, unit_id: int, request: object) -> list[int]:
+    def execute(self, unit_id: int, request: object, timeout_s: float | None = None) -> list[int]:
         self.sent.append(request)
         return [0] * int(getattr(request, "count", 1))
 

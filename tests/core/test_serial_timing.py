@@ -480,6 +480,28 @@ def test_a_late_reply_is_not_taken_for_the_next_one() -> None:
             link.close()
 
 
+def test_a_reply_in_by_the_deadline_is_taken_however_late_the_thread_runs() -> None:
+    """Issue 9: under CPU load the reading thread may run only after the reply deadline,
+    with the whole reply waiting in the buffer. That is a reply, not a timeout: the line
+    decides, not the scheduler."""
+    master, slave = pty.openpty()
+    tty.setraw(slave)
+    client = TimedSerialClient(os.ttyname(slave), baudrate=115200, timeout=0.05)
+    try:
+        assert client.connect()
+        request = frame(regs.ReadHoldingRegistersRequest(address=0, count=2, dev_id=1))
+        reply = frame(regs.ReadHoldingRegistersResponse(registers=[7, 8], dev_id=1))
+        client.send(request)
+        assert read_exactly(master, len(request), timeout_s=1.0) == request
+        os.write(master, reply)
+        time.sleep(0.2)  # the thread "wakes" well after the 0.05 s deadline
+        assert client.recv(None) == reply
+    finally:
+        client.close()
+        os.close(master)
+        os.close(slave)
+
+
 class JumpingClock:
     """Time that has passed ``jump_s`` after its first reading: the process was
     descheduled right after the write began."""

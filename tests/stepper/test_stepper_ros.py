@@ -298,6 +298,52 @@ def test_a_deadman_stop_lost_in_an_outage_is_the_first_request_when_the_line_is_
         client.node.destroy_publisher(jog)
 
 
+def test_a_stop_service_that_fails_in_an_outage_leaves_the_jogs_stop_pending(
+    client: Client, tmp_path: Path
+) -> None:
+    """Issue 9: ~/motor_1/stop while the line is silent is tried at once and fails; the jog
+    it meant to end keeps its stop pending (the first request when the line is back) and
+    stays locked (a jog command is refused until a 0)."""
+    simulator = make_simulator(reply_delay_s=0.0)
+    device = simulator.device
+    assert isinstance(device, StepperSimDevice)
+    device.log_reads = True
+    stop_coil = (Table.COIL, 4)  # motor 1 stop: coil 00005
+    with (
+        served_on_pty(simulator, BAUD) as port,
+        bridge(client, tmp_path, port, command_timeout_s=60.0) as (b, proc),
+    ):
+        b.wait_connected(True)
+        jog = client.node.create_publisher(Float64, f"{b.ns}/stepper_bridge/motor_1/jog", 10)
+        wait_subscribed(jog)
+        jog.publish(Float64(data=100.0))
+        wait_for(lambda: device.motion[1] is not None, WAIT_S, "motor 1 jogging")
+        simulator.withhold_replies = True
+        reply = b.call(Trigger, "motor_1/stop")
+        assert not reply.success and "no reply" in reply.message, reply.message
+        assert device.motion[1] is not None  # it did not get through
+        writes_before, reads_before = len(device.write_log), len(device.read_log)
+        since = time.monotonic()
+        simulator.withhold_replies = False
+        wait_for(
+            lambda: stop_coil in [(r.table, r.address) for r in device.write_log[writes_before:]],
+            WAIT_S,
+            "the pending stop after the line came back",
+        )
+        stop = device.write_log[writes_before]
+        assert (stop.table, stop.address) == stop_coil  # no other write before it
+        assert all(r.time >= stop.time for r in device.read_log[reads_before:])  # nor a poll
+        assert device.motion[1] is None
+        # Locked: a jog command is refused (counted by the node), nothing written.
+        b.wait_connected(True, since=since)
+        after_stop = len(device.write_log)
+        jog.publish(Float64(data=100.0))
+        wait_stream_refusals(client, "stepper_bridge", 1, since)
+        assert all(r.table != Table.COIL for r in device.write_log[after_stop:])
+        assert device.motion[1] is None and proc.poll() is None
+        client.node.destroy_publisher(jog)
+
+
 def test_services_write_what_they_should(sim, client: Client, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     device, port = sim
     device.set("motor1_speed", 1200)  # 100 mm/s: move_by finishes quickly
