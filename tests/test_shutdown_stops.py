@@ -48,18 +48,22 @@ def sim() -> Iterator[tuple[StepperSimDevice, str]]:
         yield device, bridge_end
 
 
-@pytest.mark.parametrize("signal_number", [signal.SIGINT, signal.SIGTERM], ids=["int", "term"])
-def test_exit_stops_a_jogging_motor(
-    sim: tuple[StepperSimDevice, str], client: Client, tmp_path: Path, signal_number: int
-) -> None:
-    device, port = sim
-    params = {
+def stepper_params(port: str) -> dict[str, object]:
+    return {
         "serial_port": port,
         "baudrate": BAUD,
         "poll_rate_hz": 20.0,
         "timeout_s": 1.0,
         "command_timeout_s": 60.0,  # the deadman must not be what stops it
     }
+
+
+@pytest.mark.parametrize("signal_number", [signal.SIGINT, signal.SIGTERM], ids=["int", "term"])
+def test_exit_stops_a_jogging_motor(
+    sim: tuple[StepperSimDevice, str], client: Client, tmp_path: Path, signal_number: int
+) -> None:
+    device, port = sim
+    params = stepper_params(port)
     b = Bridge(client, f"/shutdown_{signal_number}", "stepper_bridge", StepperState)
     extra = ["-r", f"__ns:={b.ns}"]
     with node_process("stepper_bridge.node", params, tmp_path, extra) as proc:
@@ -129,13 +133,7 @@ def test_a_fatal_error_stops_the_motion_before_the_process_ends(
     """An error no callback handles (a bug) ends spin: the jog it left running is stopped
     on the wire, the process says so and exits 1 (tests/support/fatal_bridge.py)."""
     device, port = sim
-    params = {
-        "serial_port": port,
-        "baudrate": BAUD,
-        "poll_rate_hz": 20.0,
-        "timeout_s": 1.0,
-        "command_timeout_s": 60.0,  # the deadman must not be what stops it
-    }
+    params = stepper_params(port)
     b = Bridge(client, "/shutdown_fatal", "stepper_bridge", StepperState)
     extra = ["-r", f"__ns:={b.ns}"]
     with node_process("tests.support.fatal_bridge", params, tmp_path, extra) as proc:

@@ -259,6 +259,16 @@ def test_a_jog_gives_the_configured_speed_back(sim, client: Client, tmp_path: Pa
         client.node.destroy_publisher(jog2)
 
 
+def jog_motor_1(client: Client, b: Bridge, device: StepperSimDevice) -> Any:
+    """Connected, motor 1 jogging at 100 rpm; the jog publisher."""
+    b.wait_connected(True)
+    jog = client.node.create_publisher(Float64, f"{b.ns}/stepper_bridge/motor_1/jog", 10)
+    wait_subscribed(jog)
+    jog.publish(Float64(data=100.0))
+    wait_for(lambda: device.motion[1] is not None, WAIT_S, "motor 1 jogging")
+    return jog
+
+
 def test_a_deadman_stop_lost_in_an_outage_is_the_first_request_when_the_line_is_back(
     client: Client, tmp_path: Path
 ) -> None:
@@ -270,11 +280,7 @@ def test_a_deadman_stop_lost_in_an_outage_is_the_first_request_when_the_line_is_
     device.log_reads = True
     stop_coil = (Table.COIL, 4)  # motor 1 stop: coil 00005
     with served_on_pty(simulator, BAUD) as port, bridge(client, tmp_path, port) as (b, proc):
-        b.wait_connected(True)
-        jog = client.node.create_publisher(Float64, f"{b.ns}/stepper_bridge/motor_1/jog", 10)
-        wait_subscribed(jog)
-        jog.publish(Float64(data=100.0))
-        wait_for(lambda: device.motion[1] is not None, WAIT_S, "motor 1 jogging")
+        jog = jog_motor_1(client, b, device)
         # The line goes silent (the controller hears nothing); the jog falls silent too.
         simulator.withhold_replies = True
         cut = time.monotonic()
@@ -313,11 +319,7 @@ def test_a_stop_service_that_fails_in_an_outage_leaves_the_jogs_stop_pending(
         served_on_pty(simulator, BAUD) as port,
         bridge(client, tmp_path, port, command_timeout_s=60.0) as (b, proc),
     ):
-        b.wait_connected(True)
-        jog = client.node.create_publisher(Float64, f"{b.ns}/stepper_bridge/motor_1/jog", 10)
-        wait_subscribed(jog)
-        jog.publish(Float64(data=100.0))
-        wait_for(lambda: device.motion[1] is not None, WAIT_S, "motor 1 jogging")
+        jog = jog_motor_1(client, b, device)
         simulator.withhold_replies = True
         reply = b.call(Trigger, "motor_1/stop")
         assert not reply.success and "no reply" in reply.message, reply.message
