@@ -1,22 +1,29 @@
 #!/usr/bin/env python3
-"""A cmd_velocity flood against motec_bridge: poll rates kept, writes/s, stop delay.
+"""A command-stream flood: poll rates kept, writes/s, stop delay (MOTEC or stepper).
 
 Issue 9 measured, before command streams kept only their newest value: 1000 msg/s of a
-constant ``cmd_velocity`` on one drive dropped every drive's poll rate from 10 Hz to
-2.0-3.8 Hz and cost links; a varying flood kept writing for 0.84 s after the last message
-and stopped 1.34 s after it against a 0.5 s ``command_timeout_s``.
+constant ``cmd_velocity`` on one MOTEC drive dropped every drive's poll rate from 10 Hz to
+2.0-3.8 Hz and cost links; a varying stepper jog flood kept writing for 0.84 s after the
+last message and stopped 1.34 s after it against a 0.5 s ``command_timeout_s``.
 
-Setup: ``motec_bridge`` (three drives, the node's defaults: 10 Hz, 0.1 s timeout,
-``command_rate_hz`` 20, ``command_timeout_s`` 0.5) and the MOTEC simulator (three
-drives at 115200 baud on a socat pty pair, its write log in a file) each in a process of
-its own; this process publishes the flood (one rclpy publisher, paced at ``--rate``) and
-counts every drive's ``joint_states`` (one per poll). Phases: ``idle`` (no commands),
-``constant`` (drive 2, one value), ``varying`` (drive 2, a new value every message),
-then silence: the stop delay is the simulator's time of the deadman's 0xAE = 0 minus the
-last message's send time. Prints a table; asserts nothing. Only loopback and ptys;
-discovery on localhost.
+Setup (``--device``):
 
-    .venv/bin/python bench/stream_flood.py [--seconds 5] [--rate 1000]
+- ``motec``: ``motec_bridge`` with three drives at 115200 baud (the node's defaults:
+  10 Hz, 0.1 s timeout, ``command_rate_hz`` 20), the flood on drive 2's ``cmd_velocity``
+  (rad/s), its stop = 0xAE = 0;
+- ``stepper``: ``stepper_bridge`` at 9600 baud (the node's defaults: 3 Hz, 0.5 s timeout,
+  ``command_rate_hz`` 5) against a simulator with the manual's 35 ms reply delay, the
+  flood on motor 1's ``jog`` (rpm), its stop = motor 1's stop coil (00005);
+
+``command_timeout_s`` 0.5 for both; the bridge and the simulator (write log in a file)
+each in a process of its own on a socat pty pair; this process publishes the flood (one
+rclpy publisher, paced at ``--rate``) and counts ``joint_states`` per joint (one per
+poll). Phases: ``idle`` (no commands), ``constant`` (one value), ``varying`` (a new value
+every message), then silence: the stop delay is the simulator's time of the deadman's stop
+minus the last message's send time. Prints a table; asserts nothing. Only loopback and
+ptys; discovery on localhost.
+
+    .venv/bin/python bench/stream_flood.py [--device motec|stepper] [--seconds 5] [--rate 1000]
 """
 
 from __future__ import annotations
@@ -30,6 +37,8 @@ import sys
 import tempfile
 import time
 from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -38,30 +47,84 @@ sys.path.insert(0, str(ROOT))
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ.setdefault("ROS_DOMAIN_ID", "104")
 
-UNITS = (1, 2, 3)
-FLOODED = 2
-BAUD = 115200
 COMMAND_TIMEOUT_S = 0.5
-SPEED_REGISTER = 0xAE
 
 
-def drive_writes(write_log: Path) -> list[Any]:
-    """The simulator's accepted writes to the flooded drive, from its JSON-lines log."""
+@dataclass(frozen=True)
+class Target:
+    """One bridge under a flood: how to start it and what its stream and stop look like."""
+
+    module: str
+    sim_module: str
+    sim_args: tuple[str, ...]
+    baudrate: int
+    params: dict[str, Any]
+    node: str  # the node whose services set up the stream
+    topic: str  # the flooded topic, under the node
+    joints: tuple[str, ...]  # joint_states names counted (one per poll)
+    unit_id: int  # the simulator's unit whose writes count
+    setup: tuple[tuple[str, str, dict[str, Any]], ...]  # (service, type, fields) first
+    constant: float
+    varying: Callable[[int], float]  # never 0
+    is_stop: Callable[[Any], bool]  # a write-log record that is the stream's stop
+
+
+TARGETS = {
+    "motec": Target(
+        module="motec_bridge.node",
+        sim_module="motec_bridge.sim",
+        sim_args=("--unit-ids", "1,2,3"),
+        baudrate=115200,
+        params={"unit_ids": [1, 2, 3]},
+        node="motec_2",
+        topic="cmd_velocity",
+        joints=("drive_1", "drive_2", "drive_3"),
+        unit_id=2,
+        setup=(
+            ("set_control_mode", "msg_defs.srv.SetControlMode", {"mode": 1}),
+            ("enable", "std_srvs.srv.SetBool", {"data": True}),
+        ),
+        constant=2 * math.pi,
+        varying=lambda n: 1.0 + (n % 50) / 10,
+        is_stop=lambda r: r.address == 0xAE and r.values == (0,),
+    ),
+    "stepper": Target(
+        module="stepper_bridge.node",
+        sim_module="stepper_bridge.sim",
+        sim_args=(),
+        baudrate=9600,
+        params={},
+        node="stepper_bridge",
+        topic="motor_1/jog",
+        joints=("motor_1",),
+        unit_id=1,
+        setup=(),
+        constant=60.0,
+        varying=lambda n: 100.0 + n % 50,
+        is_stop=lambda r: r.table.value == "coil" and r.address == 4,  # 00005: motor 1 stop
+    ),
+}
+
+
+def stream_writes(write_log: Path, unit_id: int) -> list[Any]:
+    """The simulator's accepted writes to the flooded device, from its JSON-lines log."""
     from bridge_core.sim_base import read_write_log
 
     if not write_log.exists():
         return []
-    return [r for r in read_write_log(write_log) if r.unit_id == FLOODED]
+    return [r for r in read_write_log(write_log) if r.unit_id == unit_id]
 
 
-Row = tuple[str, dict[str, float], float, int]  # phase, polls/s per drive, writes/s, msg/s
+Row = tuple[str, dict[str, float], float, int]  # phase, polls/s per joint, writes/s, msg/s
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--device", choices=sorted(TARGETS), default="motec")
     parser.add_argument("--seconds", type=float, default=5.0, help="length of each phase")
     parser.add_argument("--rate", type=float, default=1000.0, help="flood messages/s")
     args = parser.parse_args()
+    target = TARGETS[args.device]
 
     from sensor_msgs.msg import JointState
 
@@ -78,18 +141,17 @@ def main() -> None:
     client.node.create_subscription(JointState, f"{ns}/joint_states", count, 100)
     try:
         with tempfile.TemporaryDirectory() as logs:
-            port, write_log = Path(logs) / "motec.pty", Path(logs) / "writes.jsonl"
+            port, write_log = Path(logs) / "sim.pty", Path(logs) / "writes.jsonl"
             sim = subprocess.Popen(
                 [
                     sys.executable,
                     "-m",
-                    "motec_bridge.sim",
+                    target.sim_module,
                     "--pty",
                     str(port),
                     "--baudrate",
-                    str(BAUD),
-                    "--unit-ids",
-                    ",".join(str(u) for u in UNITS),
+                    str(target.baudrate),
+                    *target.sim_args,
                     "--write-log",
                     str(write_log),
                 ],
@@ -97,7 +159,7 @@ def main() -> None:
             )
             try:
                 wait_for(port.exists, 30, "the simulator's pty")
-                rows, delay, after_last = run(args, client, ns, port, write_log, polls)
+                rows, delay, after_last = run(args, target, client, ns, port, write_log, polls)
             finally:
                 sim.send_signal(signal.SIGINT)
                 sim.wait(30)
@@ -105,15 +167,13 @@ def main() -> None:
         client.close()
 
     print(
-        f"motec_bridge, 3 drives at {BAUD} baud, flood on drive {FLOODED} "
+        f"{target.module}, {target.baudrate} baud, flood on {target.node}/{target.topic} "
         f"({args.seconds:.0f} s per phase, target {args.rate:.0f} msg/s)"
     )
-    print(f"{'phase':10s} {'msg/s':>6s} " + " ".join(f"{f'drive_{u} Hz':>11s}" for u in UNITS))
+    print(f"{'phase':10s} {'msg/s':>6s} " + " ".join(f"{f'{j} Hz':>12s}" for j in target.joints))
     for name, rates, writes_per_s, sent_per_s in rows:
-        line = " ".join(f"{rates[f'drive_{u}']:11.2f}" for u in UNITS)
-        print(
-            f"{name:10s} {sent_per_s:6d} {line}   writes/s on drive {FLOODED}: {writes_per_s:.1f}"
-        )
+        line = " ".join(f"{rates[j]:12.2f}" for j in target.joints)
+        print(f"{name:10s} {sent_per_s:6d} {line}   stream writes/s: {writes_per_s:.1f}")
     print(
         f"stop after the last message: {delay:.3f} s (command_timeout_s {COMMAND_TIMEOUT_S}); "
         f"writes after the last message: {after_last} (the stop included)"
@@ -122,6 +182,7 @@ def main() -> None:
 
 def run(
     args: argparse.Namespace,
+    target: Target,
     client: Any,
     ns: str,
     port: Path,
@@ -129,38 +190,39 @@ def run(
     polls: Counter[str],
 ) -> tuple[list[Row], float, int]:
     """The three phases and the stop; returns the rows, the stop delay, writes after."""
-    from std_msgs.msg import Float64
-    from std_srvs.srv import SetBool
+    import importlib
 
-    from msg_defs.srv import SetControlMode
+    from std_msgs.msg import Float64
+
     from tests.support.ros import node_process, wait_for, wait_subscribed
 
     rows: list[Row] = []
     params = {
         "serial_port": str(port),
-        "baudrate": BAUD,
-        "unit_ids": list(UNITS),
+        "baudrate": target.baudrate,
         "command_timeout_s": COMMAND_TIMEOUT_S,
+        **target.params,
     }
-    with node_process("motec_bridge.node", params, write_log.parent, ["-r", f"__ns:={ns}"]):
-        wait_for(lambda: all(polls[f"drive_{u}"] for u in UNITS), 60, "every drive polled")
 
-        def call(service: str, srv: Any, **fields: Any) -> None:
+    def writes() -> list[Any]:
+        return stream_writes(write_log, target.unit_id)
+
+    with node_process(target.module, params, write_log.parent, ["-r", f"__ns:={ns}"]):
+        wait_for(lambda: all(polls[j] for j in target.joints), 60, "every device polled")
+        for service, type_name, fields in target.setup:
+            module_name, class_name = type_name.rsplit(".", 1)
+            srv = getattr(importlib.import_module(module_name), class_name)
             request = srv.Request()
             for key, value in fields.items():
                 setattr(request, key, value)
-            reply = client.call(srv, f"{ns}/motec_{FLOODED}/{service}", request)
+            reply = client.call(srv, f"{ns}/{target.node}/{service}", request)
             assert reply.success, reply.message
-
-        call("set_control_mode", SetControlMode, mode=SetControlMode.Request.VELOCITY)
-        call("enable", SetBool, data=True)
-        topic = f"{ns}/motec_{FLOODED}/cmd_velocity"
-        publisher = client.node.create_publisher(Float64, topic, 10)
+        publisher = client.node.create_publisher(Float64, f"{ns}/{target.node}/{target.topic}", 10)
         wait_subscribed(publisher)
 
-        def phase(name: str, value: Any) -> float:
+        def phase(name: str, value: Callable[[int], float] | None) -> float:
             """Publish for --seconds (value None: nothing); returns the last send time."""
-            start_polls, start_writes = dict(polls), len(drive_writes(write_log))
+            start_polls, start_writes = dict(polls), len(writes())
             started = time.monotonic()
             sent, last = 0, 0.0
             while time.monotonic() < started + args.seconds:
@@ -172,31 +234,20 @@ def run(
                 sent += 1
                 time.sleep(max(0.0, started + sent / args.rate - time.monotonic()))
             span = time.monotonic() - started
-            rates = {
-                f"drive_{u}": (polls[f"drive_{u}"] - start_polls[f"drive_{u}"]) / span
-                for u in UNITS
-            }
-            writes = len(drive_writes(write_log)) - start_writes
-            rows.append((name, rates, writes / span, int(sent / span)))
+            rates = {j: (polls[j] - start_polls[j]) / span for j in target.joints}
+            rows.append((name, rates, (len(writes()) - start_writes) / span, int(sent / span)))
             return last
 
         phase("idle", None)
-        phase("constant", lambda _n: 2 * math.pi)
-        before = len(drive_writes(write_log))
-        last_sent = phase("varying", lambda n: 1.0 + (n % 50) / 10)
+        phase("constant", lambda _n: target.constant)
+        before = len(writes())
+        last_sent = phase("varying", target.varying)
 
         def stop_record() -> Any:
-            return next(
-                (
-                    r
-                    for r in drive_writes(write_log)[before:]
-                    if r.address == SPEED_REGISTER and r.values == (0,)
-                ),
-                None,
-            )
+            return next((r for r in writes()[before:] if target.is_stop(r)), None)
 
         stop = wait_for(stop_record, 30, "the deadman's stop")
-        after_last = sum(1 for r in drive_writes(write_log)[before:] if r.time > last_sent)
+        after_last = sum(1 for r in writes()[before:] if r.time > last_sent)
     return rows, stop.time - last_sent, after_last
 
 

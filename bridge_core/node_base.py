@@ -66,8 +66,12 @@ DIAGNOSTICS_PERIOD_S = 1.0
 JOINT_STATES_DEPTH = 10
 PARITIES = ("N", "E", "O")
 UNIT_ID_RANGE = (0, 247)
-DEADMAN_PERIOD_MIN_S = 0.02
-DEADMAN_PERIOD_MAX_S = 0.1
+# The deadman looks every command_timeout_s / DEADMAN_CHECKS (within these bounds): its
+# stop comes at most one period after the timeout (issue 9: within command_timeout_s and
+# one bus transaction of the last message).
+DEADMAN_CHECKS = 20
+DEADMAN_PERIOD_MIN_S = 0.01
+DEADMAN_PERIOD_MAX_S = 0.05
 STREAM_DEPTH = 1  # command streams: only the newest message matters
 # The poll threads wait on the line and then need the GIL for a moment; with Python's
 # default 5 ms switch interval, each such moment waits out a busy thread's whole slice
@@ -611,7 +615,9 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
             )
 
         def period() -> float:
-            return min(DEADMAN_PERIOD_MAX_S, max(DEADMAN_PERIOD_MIN_S, guard.timeout_s / 5))
+            return min(
+                DEADMAN_PERIOD_MAX_S, max(DEADMAN_PERIOD_MIN_S, guard.timeout_s / DEADMAN_CHECKS)
+            )
 
         def tick() -> None:
             write_ready()  # values held back by the rate limit

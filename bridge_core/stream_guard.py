@@ -38,6 +38,10 @@ from typing import Any, Generic, TypeVar
 from .errors import BridgeError, CommandRejected, LinkError
 
 Key = TypeVar("Key", bound=Hashable)
+
+# Least pause between two tries of a pending stop, from the end of one to the start of the
+# next: a stop repeated over a dead line must leave the shared bus to the live devices.
+STOP_RETRY_GAP_S = 0.05
 Result = TypeVar("Result")
 
 
@@ -53,6 +57,7 @@ class StreamState:
     last_seen: float | None = None  # clock() of the last command received
     offered: float | None = None  # the newest command received and not yet applied
     last_send: float = -math.inf  # clock() of the last non-zero value written
+    last_stop_try: float = -math.inf  # clock() when the last stop attempt ended
 
     @property
     def may_move(self) -> bool:
@@ -190,7 +195,10 @@ class StreamGuard(Generic[Key]):
         # Pending from the first attempt on (not only once it failed): a reconnect that
         # looks for pending stops while this one is on the wire waits for it, then tries.
         stream.stop_pending = True  # until a stop is acknowledged: the deadman keeps on it
-        self._stop(key)
+        try:
+            self._stop(key)
+        finally:
+            stream.last_stop_try = self._clock()
         stream.value, stream.active = None, False
         stream.stop_pending, stream.stop_sent = False, True
 
@@ -230,15 +238,18 @@ class StreamGuard(Generic[Key]):
     # ------------------------------------------------------------ deadman
     @_locked
     def due(self) -> list[Key]:
-        """Streams the deadman must act on: a stop pending (at once, every period until
-        one is acknowledged), or moving (or locked) and silent for timeout_s."""
+        """Streams the deadman must act on: a stop pending (again once ``STOP_RETRY_GAP_S``
+        passed since the last try ended, until one is acknowledged), or moving (or locked)
+        and silent for timeout_s."""
         now = self._clock()
         due: list[Key] = []
         for key, stream in self.streams.items():
             if not (stream.may_move or stream.locked):
                 continue
-            silent = stream.last_seen is None or now - stream.last_seen > self.timeout_s
-            if silent or stream.stop_pending:
+            if stream.stop_pending:
+                if now - stream.last_stop_try >= STOP_RETRY_GAP_S:
+                    due.append(key)
+            elif stream.last_seen is None or now - stream.last_seen > self.timeout_s:
                 due.append(key)
         return due
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from bridge_core.errors import CommandRejected, LinkTimeout
-from bridge_core.stream_guard import StreamGuard
+from bridge_core.stream_guard import STOP_RETRY_GAP_S, StreamGuard
 
 
 class Clock:
@@ -117,8 +117,10 @@ def test_a_pending_stop_is_due_at_once_until_acknowledged() -> None:
     motors.fail = 1
     with pytest.raises(LinkTimeout):
         guard.stop(1)
-    clock.now = 0.1
+    clock.now = 0.01
     guard.offer(1, 30.0)  # still commanded: not silent
+    assert guard.due() == [] and guard.pending_stops() == [1]  # the bus rests a moment
+    clock.now = 0.01 + STOP_RETRY_GAP_S
     assert guard.due() == [1] and guard.pending_stops() == [1]
     assert guard.expire(1)
     assert motors.log[-1] == ("stop", 1, None, None)
