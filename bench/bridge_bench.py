@@ -118,7 +118,7 @@ def _xarm_service(k: int, rng: random.Random) -> tuple[Any, str, int]:
     from msg_defs.srv import SetOutput
 
     request = SetOutput.Request()
-    request.board, request.index, request.on = 0, rng.randint(0, 15), k % 2 == 0
+    request.board, request.index, request.state = 0, rng.randint(0, 15), k % 2 == 0
     return request, "coil", request.index  # FC 05 to coil `index`
 
 

@@ -249,7 +249,7 @@ def render(monitor: Monitor, device: DemoDevice, rates: dict[str, float]) -> str
             (
                 s
                 for k, s in monitor.latest.items()
-                if k.startswith("diag:") and s.name.startswith(f"{node}:")
+                if k.startswith("diag:") and s.name.startswith(f"{ns}/{node}: ")
             ),
             None,
         )

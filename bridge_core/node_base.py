@@ -63,9 +63,13 @@ from .transport import ModbusLink, SerialSettings, TcpSettings
 T = TypeVar("T")
 SnapshotT = TypeVar("SnapshotT")
 DIAGNOSTICS_PERIOD_S = 1.0
+LINK_DOWN_LOG_PERIOD_S = 10.0  # while a device stays down, say so this often on the console
 JOINT_STATES_DEPTH = 10
 PARITIES = ("N", "E", "O")
 UNIT_ID_RANGE = (0, 247)
+# RTU: unit 0 is the broadcast address, and no device answers a broadcast (a bridge that
+# polls it never gets a reply). TCP devices often answer unit 0, so it stays allowed there.
+RTU_UNIT_ID_RANGE = (1, 247)
 # The deadman looks every command_timeout_s / DEADMAN_CHECKS (within these bounds): its
 # stop comes at most one period after the timeout (issue 9: within command_timeout_s and
 # one bus transaction of the last message).
@@ -328,7 +332,17 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
         if link is None:
             specs = [
                 *transport_specs(defaults),
-                ParameterSpec("unit_id", 1, "Modbus unit (slave) id", *UNIT_ID_RANGE),
+                ParameterSpec(
+                    "unit_id",
+                    1,
+                    "Modbus unit (slave) id"
+                    + (
+                        " (0 is the RTU broadcast: nobody answers)"
+                        if defaults.transport == "rtu"
+                        else ""
+                    ),
+                    *(RTU_UNIT_ID_RANGE if defaults.transport == "rtu" else UNIT_ID_RANGE),
+                ),
                 *specs,
             ]
         values = self.declare_specs(specs)
@@ -461,8 +475,15 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
             logger.info(text)
         elif outcome is PollOutcome.REFUSED:
             logger.warn(f"{text}; re-reading the device's configuration", throttle_duration_sec=5.0)
+        elif outcome is PollOutcome.UNREACHABLE:
+            logger.warn(f"cannot reach {self.channel.describe()}: {text}; retrying")
         elif outcome is PollOutcome.LINK_LOST:
-            logger.error(f"link to {self.channel.describe()} lost: {text}")
+            logger.error(f"link to {self.channel.describe()} lost: {text}; reconnecting")
+        elif outcome is PollOutcome.STILL_DOWN:
+            logger.warn(
+                f"{self.channel.describe()} still down: {text}",
+                throttle_duration_sec=LINK_DOWN_LOG_PERIOD_S,
+            )
         else:
             logger.error(text)
 
@@ -742,7 +763,8 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
                 level, message = device.level, device.message
         status = DiagnosticStatus(
             level=bytes([int(level)]),
-            name=f"{self.get_name()}: {self.device_name} Modbus bridge",
+            # The full name: two bridges of one kind in one domain differ by namespace.
+            name=f"{self.get_fully_qualified_name()}: {self.device_name} Modbus bridge",
             message=message,
             hardware_id=self.hardware_id,
             values=[KeyValue(key=k, value=v) for k, v in values],
@@ -852,6 +874,24 @@ def _close_all(nodes: Sequence[Node]) -> None:
         node.destroy_node()
 
 
+def _refuse_unused_parameters(nodes: Sequence[Node]) -> None:
+    """A ``-p`` or params-file value that no node of the process declares is a typo or a
+    parameter of another node (``unit_id`` on the MOTEC bus, whose drives are
+    ``unit_ids``): refused, since it would be silently ignored. A params file's ``/**``
+    block reaches every node, so a value counts as used when any node declares it."""
+    given: dict[str, Any] = {}
+    for node in nodes:
+        for name, parameter in getattr(node, "_parameter_overrides", {}).items():
+            given.setdefault(name, parameter.value)
+    unused = [name for name in given if not any(node.has_parameter(name) for node in nodes)]
+    if unused:
+        listed = ", ".join(f"{name}:={given[name]!r}" for name in sorted(unused))
+        names = ", ".join(node.get_name() for node in nodes)
+        raise ConfigurationError(
+            f"parameter {listed} is not one of this process's ({names}); check its name"
+        )
+
+
 def spin_nodes(
     build: Callable[[list[Node]], None],
     args: Sequence[str] | None = None,
@@ -875,6 +915,7 @@ def spin_nodes(
     code = 0
     try:
         build(nodes)
+        _refuse_unused_parameters(nodes)
         executor = MultiThreadedExecutor(num_threads=threads(len(nodes)))
         for node in nodes:
             executor.add_node(node)

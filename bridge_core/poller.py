@@ -51,6 +51,9 @@ class PollOutcome(enum.Enum):
     INCOMPLETE = "incomplete"  # no consistent snapshot this cycle (e.g. re-planned)
     REFUSED = "refused"  # the device answered a poll request with an exception
     LINK_LOST = "link lost"
+    # Reports only (tick() returns LINK_LOST for these too):
+    UNREACHABLE = "unreachable"  # the first failure of a device never reached
+    STILL_DOWN = "still down"  # each further failed attempt while it is down
     FAILED = "failed"  # an unexpected error (a bug, a value no message holds)
 
 
@@ -216,12 +219,17 @@ class Poller(Generic[Snapshot]):
         return PollOutcome.PUBLISHED
 
     def link_lost(self, text: str) -> None:
-        """The link was lost (by a poll, or by a command on the same channel): report it
-        once, and say connected again after the next good poll."""
+        """A poll or a command on the same channel failed on the link: reported as
+        UNREACHABLE (never up yet), LINK_LOST (it was up) or STILL_DOWN (each further
+        failed attempt: the node throttles those); connected again after a good poll."""
         with self._state_lock:
-            first = self._reported_up is not False
-        if first:
+            was_up = self._reported_up
+        if was_up is None:
+            self._report(PollOutcome.UNREACHABLE, text)
+        elif was_up:
             self._report(PollOutcome.LINK_LOST, text)
+        else:
+            self._report(PollOutcome.STILL_DOWN, text)
         self._set_up(False)
 
     def _set_up(self, up: bool) -> None:

@@ -34,6 +34,7 @@ told apart by exception type (never by the message text):
 from __future__ import annotations
 
 import logging
+import threading
 from contextlib import suppress
 from dataclasses import dataclass
 from typing import Any
@@ -63,9 +64,40 @@ __all__ = [
     "TcpSettings",
 ]
 
+
+class _LastConnectError(logging.Handler):
+    """Keeps pymodbus's last error message per thread, printed nowhere.
+
+    pymodbus 3.16's ``connect()`` catches the OS error of a failed open (``connection
+    refused``, ``no such file or directory``) and only logs it; ``ModbusLink.open`` takes
+    the reason from here so the bridge can say it (issue 11: "a link that cannot be
+    opened logs ... with the OS reason").
+    """
+
+    def __init__(self) -> None:
+        super().__init__(logging.ERROR)
+        self._local = threading.local()
+
+    def emit(self, record: logging.LogRecord) -> None:
+        message = record.getMessage()
+        # pymodbus says a message again only as "Repeating....", then not at all: the
+        # link keeps the reason it saw first (``ModbusLink.open``).
+        if not message.startswith("Repeating"):
+            self._local.message = message
+
+    def take(self) -> str:
+        message, self._local.message = getattr(self._local, "message", ""), ""
+        return str(message)
+
+
 # pymodbus logs every refused connect and timeout on its own (and repeats itself); the
-# channel counts and reports them in diagnostics, so its logger only speaks when critical.
-logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
+# channel counts and reports them in diagnostics, so its logger prints nothing itself:
+# its errors only reach _LAST_ERROR (the reason of a failed open).
+_LAST_ERROR = _LastConnectError()
+_pymodbus_logger = logging.getLogger("pymodbus")
+_pymodbus_logger.setLevel(logging.ERROR)
+_pymodbus_logger.propagate = False
+_pymodbus_logger.handlers = [_LAST_ERROR]
 
 
 # ---------------------------------------------------------------- settings
@@ -113,6 +145,16 @@ class SerialSettings:
 
 
 LinkSettings = TcpSettings | SerialSettings
+
+
+def _open_reason(message: str) -> str:
+    """The OS's words from pymodbus's "Connection to (host, port) failed: [Errno 111]
+    Connection refused" or pyserial's "[Errno 2] could not open port X: [Errno 2] No such
+    file or directory: 'X'": the text after the last errno, lower case."""
+    if "]" in message:
+        message = message.rsplit("]", 1)[1]
+    message = message.split(": '", 1)[0].strip(" :")
+    return message[:1].lower() + message[1:]
 
 
 # ---------------------------------------------------------------- TCP reply check
@@ -176,6 +218,7 @@ class ModbusLink:
 
     def __init__(self, settings: LinkSettings) -> None:
         self.settings = settings
+        self._open_failure = ""  # the OS's reason of the last failed open
         self.lock = PriorityLock()
         self.is_serial = isinstance(settings, SerialSettings)
         # retries=0: retrying is DeviceChannel's decision (reads only, never writes).
@@ -205,12 +248,15 @@ class ModbusLink:
         return self._open
 
     def open(self) -> None:
+        _LAST_ERROR.take()
         try:
             ok = self._client.connect()
         except (OSError, ModbusException) as err:
             raise LinkDown(f"cannot open {self.describe()}: {err}") from err
         if not ok:
-            raise LinkDown(f"cannot open {self.describe()}")
+            reason = _open_reason(_LAST_ERROR.take()) or self._open_failure
+            self._open_failure = reason
+            raise LinkDown(f"cannot open {self.describe()}" + (f": {reason}" if reason else ""))
         self._open = True
 
     def close(self) -> None:

@@ -164,8 +164,8 @@ class R6BridgeNode(BridgeNode[R6Snapshot]):
         self.command_service(
             SetOutput,
             "~/set_output",
-            lambda r: f"set_output board {r.board} point {r.index} {'on' if r.on else 'off'}",
-            lambda r: d.set_output(r.board, r.index, r.on),
+            lambda r: f"set_output board {r.board} point {r.index} {'on' if r.state else 'off'}",
+            lambda r: d.set_output(r.board, r.index, r.state),
         )
         self.command_service(
             SetCounter,

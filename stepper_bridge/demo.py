@@ -25,7 +25,7 @@ DEMO = DemoDevice(
     start_services=[
         ("motor_1/forward", "std_srvs/srv/Trigger", {}),
         ("motor_3/reverse", "std_srvs/srv/Trigger", {}),
-        ("set_output", "msg_defs/srv/SetOutput", {"board": 0, "index": 2, "on": True}),
+        ("set_output", "msg_defs/srv/SetOutput", {"board": 0, "index": 2, "state": True}),
     ],
     serial=True,
     order=30,

@@ -317,8 +317,10 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
         self.command_service(
             SetOutput,
             "~/set_output",
-            lambda r: f"set_output {r.index} {'on' if r.on else 'off'}",
-            lambda r: d.set_output(board_zero_index("stepper controller", r.board, r.index), r.on),
+            lambda r: f"set_output {r.index} {'on' if r.state else 'off'}",
+            lambda r: d.set_output(
+                board_zero_index("stepper controller", r.board, r.index), r.state
+            ),
         )
         self.command_service(
             SetBool,

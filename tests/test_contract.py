@@ -43,6 +43,7 @@ from .support.ros import (
     node_process,
     ros_client,
     start_bridge,
+    status_node,
     values_of,
     wait_for,
 )
@@ -127,7 +128,7 @@ class Running:
             status
             for array in self.client.received("/diagnostics", since)
             for status in array.status
-            if status.name.startswith(f"{self.info.node_name}:")
+            if status_node(status) == self.info.node_name
             and self.sim.hardware_marker in status.hardware_id
         ]
 
@@ -455,6 +456,8 @@ def test_simulator_killed_and_restarted(info: BridgeInfo, client: Client, tmp_pa
             TIMEOUT,
             "two ERROR diagnostics while the device is down",
         )
+        # Named with the node's full name: two bridges of a kind in a domain differ.
+        assert {s.name.split(": ", 1)[0] for s in r.statuses(down)} == {f"{b.ns}/{info.node_name}"}
         wall_minus_monotonic = time.time() - time.monotonic()
         went_down = min(
             t for t, msg in list(client.messages[b.connected]) if t >= killed and not msg.data

@@ -22,7 +22,18 @@ from bridge_core.sim_base import read_write_log
 from msg_defs.msg import R6State, XArmState
 
 from .conftest import free_port
-from .support.ros import ROOT, Client, ros_client, start_bridge, values_of
+from .support.ros import (
+    ROOT,
+    Client,
+    node_process,
+    ros_client,
+    start_bridge,
+    unique_namespace,
+    values_of,
+    wait_for,
+)
+
+WARN, INFO = 30, 20  # rcl_interfaces/msg/Log levels
 
 pytestmark = pytest.mark.ros
 
@@ -36,6 +47,7 @@ DEVICES = [
 def client() -> Iterator[Client]:
     with ros_client("fault_client") as c:
         c.subscribe(DiagnosticArray, "/diagnostics")
+        c.subscribe_log()
         yield c
 
 
@@ -110,3 +122,44 @@ def test_simulator_killed_and_restarted(
     finally:
         sim_proc.kill()
         sim_proc.wait(5)
+
+
+def test_a_device_never_reached_is_said_on_the_console(client: Client, tmp_path: Path) -> None:
+    """Issue 11: a bridge that cannot reach its device says so at once (WARN, with the OS
+    reason), again at most every 10 s while it lasts, and INFO once it is up."""
+    port = free_port()  # nothing listens there yet
+    where = f"tcp://127.0.0.1:{port} unit 1"
+    params = {"port": port, "timeout_s": 1.0, "reconnect_max_s": 0.5}
+    started = time.monotonic()
+    namespace = unique_namespace("unreachable")
+    with node_process("r6_bridge.node", params, tmp_path, ["-r", f"__ns:={namespace}"]) as node:
+        line = client.wait_log("r6_bridge", f"cannot reach {where}", since=started)
+        assert line.level == WARN and "connection refused" in line.msg, line.msg
+        still = client.wait_log("r6_bridge", f"{where} still down", since=started)
+        assert still.level == WARN and "connection refused" in still.msg, still.msg
+
+        def failed_connects() -> int:
+            for array in reversed(client.received("/diagnostics", started)):
+                for status in array.status:
+                    if status.hardware_id.endswith(where):
+                        return int(values_of(status)["failed connects"])
+            return 0
+
+        wait_for(lambda: failed_connects() >= 6, 60, "six failed connects")
+        elapsed = time.monotonic() - started
+        repeats = [m for m in client.received("/rosout", started) if f"{where} still down" in m.msg]
+        assert len(repeats) <= 1 + elapsed // 10, [m.msg for m in repeats]  # throttled
+        up = time.monotonic()
+        sim = subprocess.Popen(
+            [sys.executable, "-m", "r6_bridge.sim", "--port", str(port)],
+            cwd=ROOT,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+        )
+        try:
+            line = client.wait_log("r6_bridge", f"connected to {where}", since=up)
+            assert line.level == INFO
+            assert node.poll() is None
+        finally:
+            sim.kill()
+            sim.wait(5)

@@ -24,7 +24,7 @@ DEMO = DemoDevice(
     format_state=format_state,
     node_params={"poll_rate_hz": 50.0},
     start_services=[
-        ("set_digital_output", "msg_defs/srv/SetOutput", {"board": 0, "index": 2, "on": True}),
+        ("set_digital_output", "msg_defs/srv/SetOutput", {"board": 0, "index": 2, "state": True}),
         ("run_offline_task", "msg_defs/srv/RunOfflineTask", {"projects": [1, 2, 3, 4, 5, 6]}),
     ],
     order=20,

@@ -150,14 +150,14 @@ class XArmBridgeNode(BridgeNode[XArmSnapshot]):
         self.command_service(
             SetOutput,
             "~/set_digital_output",
-            lambda r: f"set_digital_output {r.index} {'on' if r.on else 'off'}",
-            lambda r: d.set_digital_output(_board_zero(r.board, r.index), r.on),
+            lambda r: f"set_digital_output {r.index} {'on' if r.state else 'off'}",
+            lambda r: d.set_digital_output(_board_zero(r.board, r.index), r.state),
         )
         self.command_service(
             SetOutput,
             "~/set_tool_digital_output",
-            lambda r: f"set_tool_digital_output {r.index} {'on' if r.on else 'off'}",
-            lambda r: d.set_tool_digital_output(_board_zero(r.board, r.index), r.on),
+            lambda r: f"set_tool_digital_output {r.index} {'on' if r.state else 'off'}",
+            lambda r: d.set_tool_digital_output(_board_zero(r.board, r.index), r.state),
         )
         self.command_service(
             SetChannelValue,

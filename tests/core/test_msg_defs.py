@@ -79,7 +79,7 @@ R6STATE_FIELDS = {
 REPLY = {"success": "boolean", "message": "string"}
 SERVICES: dict[str, tuple[dict[str, str], dict[str, str]]] = {
     "SetValue": ({"value": "double"}, REPLY),
-    "SetOutput": ({"board": "uint16", "index": "uint16", "on": "boolean"}, REPLY),
+    "SetOutput": ({"board": "uint16", "index": "uint16", "state": "boolean"}, REPLY),
     "SetCounter": ({"id": "uint32", "value": "uint32"}, REPLY),
     "ReadParameter": ({"index": "uint32"}, {**REPLY, "value": "int64"}),
     "WriteParameter": ({"index": "uint32", "value": "int64"}, REPLY),

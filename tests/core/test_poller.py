@@ -142,7 +142,8 @@ def test_link_loss_reported_once_and_backoff_respected() -> None:
     assert device.polls == 2  # nothing attempted while backing off
     channel.backoff_elapsed = True
     assert poller.tick() is PollOutcome.LINK_LOST
-    assert events == [PollOutcome.LINK_LOST]  # once per loss, not per probe
+    # The loss once, then each failed probe (the node throttles those on the console).
+    assert events == [PollOutcome.LINK_LOST, PollOutcome.STILL_DOWN]
     assert poller.tick() is PollOutcome.PUBLISHED
     assert device.link_ups == 3  # first poll, then each probe of the down device
     assert ups == [True, False, True]

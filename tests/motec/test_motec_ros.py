@@ -129,7 +129,7 @@ class MotecBridge:
             for array in reversed(self.client.received("/diagnostics", since)):
                 for status in array.status:
                     if (
-                        status.name.startswith(f"motec_{unit}:")
+                        status.name.startswith(f"{self.ns}/motec_{unit}: ")
                         and f"{self.port}@" in status.hardware_id
                         and predicate(status)
                     ):
@@ -149,7 +149,7 @@ class MotecBridge:
     def acknowledged(self, unit: int) -> None:
         """A round trip through drive ``unit``'s command callbacks (a refused request that
         writes nothing): its cmd_velocity messages that arrived before have been handled."""
-        reply = self.call(unit, SetOutput, "set_output", board=1, index=1, on=True)
+        reply = self.call(unit, SetOutput, "set_output", board=1, index=1, state=True)
         assert not reply.success and "refused" in reply.message, reply.message
 
 
@@ -250,7 +250,7 @@ def test_three_drives_topics_services_and_deadman(bus, client: Client, tmp_path:
         b.wait_state(1, lambda m: m.position_actual == 0 and not m.moving, since=t)
         assert "0x29 = 0" in b.ok(1, Trigger, "stop").message
         b.ok(1, Trigger, "save_to_flash")
-        b.ok(1, SetOutput, "set_output", board=0, index=2, on=True)
+        b.ok(1, SetOutput, "set_output", board=0, index=2, state=True)
         b.ok(1, SetValue, "set_analog_max_speed", value=1500.0)
         t = time.monotonic()
         st = b.wait_state(1, lambda m: m.outputs[1] and m.analog_max_speed_rpm == 1500, since=t)
@@ -258,7 +258,7 @@ def test_three_drives_topics_services_and_deadman(bus, client: Client, tmp_path:
         assert sim.drive(1).saves == 1
 
         # Drive 3: an output.
-        b.ok(3, SetOutput, "set_output", board=0, index=1, on=True)
+        b.ok(3, SetOutput, "set_output", board=0, index=1, state=True)
         b.wait_state(3, lambda m: m.outputs[0] and m.output_word == 1, since=time.monotonic())
 
         # Drive 2: velocity stream, then silence: the deadman sets 0 rpm.
@@ -587,8 +587,8 @@ def test_refusals_read_only_and_params_file(bus, client: Client, tmp_path: Path)
             (1, PositionMove, "move", {"position": 1.0, "max_velocity": 1e3}, "max_speed_rpm"),
             (1, PositionMove, "move", {"position": 1.0, "max_velocity": -1.0}, "negative"),
             (1, SetControlMode, "set_control_mode", {"mode": 3}, "control mode 3"),
-            (1, SetOutput, "set_output", {"board": 0, "index": 4, "on": True}, "output 4"),
-            (1, SetOutput, "set_output", {"board": 1, "index": 1, "on": True}, "board 1"),
+            (1, SetOutput, "set_output", {"board": 0, "index": 4, "state": True}, "output 4"),
+            (1, SetOutput, "set_output", {"board": 1, "index": 1, "state": True}, "board 1"),
             (1, SetValue, "set_analog_max_speed", {"value": 70000.0}, "outside"),
             (1, SetValue, "set_analog_max_speed", {"value": 1.5}, "whole number"),
             (3, SetBool, "enable", {"data": False}, "read_only"),

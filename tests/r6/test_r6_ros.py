@@ -143,7 +143,7 @@ def test_every_service_writes_its_registers(sim, bridge_factory) -> None:  # typ
             )
         device.write_log.clear()
         assert bridge.call(SetValue, "set_global_speed", value=25.5).success
-        assert bridge.call(SetOutput, "set_output", board=2, index=5, on=True).success
+        assert bridge.call(SetOutput, "set_output", board=2, index=5, state=True).success
         assert bridge.call(SetCounter, "set_counter", id=1, value=99).success
         assert bridge.call(WriteParameter, "write_parameter", index=3, value=-2).success
         reply = bridge.call(
@@ -173,8 +173,8 @@ REFUSALS: list[tuple[Any, str, dict[str, Any], str]] = [
     (SetValue, "set_global_speed", {"value": 100.5}, "outside"),
     (SetValue, "set_global_speed", {"value": -0.5}, "outside"),
     (SetValue, "set_global_speed", {"value": math.nan}, "outside"),
-    (SetOutput, "set_output", {"board": 4, "index": 0, "on": True}, "board 4"),
-    (SetOutput, "set_output", {"board": 0, "index": 32, "on": True}, "point 32"),
+    (SetOutput, "set_output", {"board": 4, "index": 0, "state": True}, "board 4"),
+    (SetOutput, "set_output", {"board": 0, "index": 32, "state": True}, "point 32"),
     (WriteParameter, "write_parameter", {"index": 1000, "value": 1}, "index"),
     (WriteParameter, "write_parameter", {"index": 0, "value": 2**31}, "outside"),
     (
@@ -212,7 +212,7 @@ def test_read_only_refuses_every_write(sim, bridge_factory) -> None:  # type: ig
             assert not reply.success and "read_only" in reply.message
         for reply in (
             bridge.call(SetValue, "set_global_speed", value=10.0),
-            bridge.call(SetOutput, "set_output", board=0, index=1, on=True),
+            bridge.call(SetOutput, "set_output", board=0, index=1, state=True),
             bridge.call(SetCounter, "set_counter", id=1, value=1),
             bridge.call(WriteParameter, "write_parameter", index=0, value=1),
             bridge.call(

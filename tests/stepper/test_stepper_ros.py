@@ -386,8 +386,8 @@ def test_services_write_what_they_should(sim, client: Client, tmp_path: Path) ->
         for name in ("zero_coordinates", "return_to_zero", "home_all", "save_parameters"):
             ok(Trigger, name)
         ok(Trigger, "emergency_stop")
-        ok(SetOutput, "set_output", board=0, index=4, on=True)
-        ok(SetOutput, "set_output", board=0, index=4, on=False)
+        ok(SetOutput, "set_output", board=0, index=4, state=True)
+        ok(SetOutput, "set_output", board=0, index=4, state=False)
         ok(SetBool, "set_all_outputs", data=True)
         ok(SetHomingOrder, "set_homing_order", motors=[2, 1])
         ok(SetInteger, "set_system_mode", value=0)
@@ -486,9 +486,9 @@ def test_refusals_write_nothing(sim, client: Client, tmp_path: Path) -> None:  #
                 "lead",
             ),
             (SetLimitInputs, "motor_1/set_limit_inputs", {"home": 14}, "home_input"),
-            (SetOutput, "set_output", {"board": 0, "index": 13, "on": True}, "output 13"),
-            (SetOutput, "set_output", {"board": 0, "index": 0, "on": True}, "output 0"),
-            (SetOutput, "set_output", {"board": 1, "index": 1, "on": True}, "board 1"),
+            (SetOutput, "set_output", {"board": 0, "index": 13, "state": True}, "output 13"),
+            (SetOutput, "set_output", {"board": 0, "index": 0, "state": True}, "output 0"),
+            (SetOutput, "set_output", {"board": 1, "index": 1, "state": True}, "board 1"),
             (SetHomingOrder, "set_homing_order", {"motors": [1, 2, 3, 4, 5, 1]}, "at most"),
             (SetHomingOrder, "set_homing_order", {"motors": [3, 3]}, "twice"),
             (SetInteger, "set_system_mode", {"value": 9}, "system mode 9"),
@@ -638,7 +638,7 @@ def test_read_only_refuses_every_write(sim, client: Client, tmp_path: Path) -> N
         replies = [b.call(Trigger, name) for name in ("motor_1/forward", "emergency_stop")]
         replies += [
             b.call(MoveBy, "motor_2/move_by", distance=0.01),
-            b.call(SetOutput, "set_output", board=0, index=1, on=True),
+            b.call(SetOutput, "set_output", board=0, index=1, state=True),
             b.call(ConfirmedCommand, "factory_reset", confirm="factory_reset"),
             b.call(SetBool, "set_all_outputs", data=False),
         ]

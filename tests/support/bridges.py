@@ -72,7 +72,7 @@ class BridgeInfo:
     bus_node: str | None = None  # MOTEC: the bus owner in the same process
     bus_startup_only: tuple[str, ...] = ()
     read_services: Mapping[str, Call] = field(default_factory=dict)  # no writes: allowed
-    mistyped: tuple[tuple[str, str], ...] = ()  # start-up parameters given a wrong type
+    mistyped: tuple[tuple[str, str], ...] = ()  # refused start-up values
 
     @property
     def nodes(self) -> tuple[str, ...]:
@@ -98,7 +98,7 @@ BRIDGES: tuple[BridgeInfo, ...] = (
         config="r6.yaml",
         startup_only=("host", "port", "unit_id", "timeout_s", "joint_prefix", "gear_ratios"),
         read_services={"read_parameter": Call("read_parameter", ReadParameter, {"index": 3})},
-        mistyped=(("port", "abc"), ("poll_rate_hz", "fast")),
+        mistyped=(("port", "abc"), ("poll_rate_hz", "fast"), ("pol_rate_hz", "5")),
     ),
     BridgeInfo(
         key="xarm",
@@ -116,7 +116,7 @@ BRIDGES: tuple[BridgeInfo, ...] = (
         unit_id=1,
         config="xarm.yaml",
         startup_only=("host", "port", "unit_id", "timeout_s", "joint_prefix"),
-        mistyped=(("port", "abc"), ("poll_rate_hz", "fast")),
+        mistyped=(("port", "abc"), ("poll_rate_hz", "fast"), ("port", "70000")),
     ),
     BridgeInfo(
         key="stepper",
@@ -127,9 +127,9 @@ BRIDGES: tuple[BridgeInfo, ...] = (
         sim_module="stepper_bridge.sim",
         sim_args=("--reply-delay-ms", "2"),
         params={"timeout_s": 0.3, "command_timeout_s": 0.5},
-        good=Call("set_output", SetOutput, {"board": 0, "index": 1, "on": True}),
+        good=Call("set_output", SetOutput, {"board": 0, "index": 1, "state": True}),
         good_write=(5, STEPPER_MAP["output_1_on"].address, (1,)),
-        bad=Call("set_output", SetOutput, {"board": 0, "index": 13, "on": True}),
+        bad=Call("set_output", SetOutput, {"board": 0, "index": 13, "state": True}),
         position_register=STEPPER_MAP["motor1_coordinate"],
         unit_id=1,
         config="stepper.yaml",
@@ -141,7 +141,7 @@ BRIDGES: tuple[BridgeInfo, ...] = (
             "joint_types",
             "units_per_revolution",
         ),
-        mistyped=(("baudrate", "fast"), ("poll_rate_hz", "fast")),
+        mistyped=(("baudrate", "fast"), ("poll_rate_hz", "fast"), ("unit_id", "0")),
     ),
     BridgeInfo(
         key="motec",
@@ -162,7 +162,7 @@ BRIDGES: tuple[BridgeInfo, ...] = (
         bus_node="motec_bridge",
         bus_startup_only=("serial_port", "baudrate", "unit_ids"),
         read_services={},
-        mistyped=(("baudrate", "fast"), ("poll_rate_hz", "fast")),
+        mistyped=(("baudrate", "fast"), ("poll_rate_hz", "fast"), ("unit_id", "300")),
     ),
 )
 

@@ -206,6 +206,11 @@ def node_process(
         log.close()
 
 
+def status_node(status: Any) -> str:
+    """The node name (no namespace) of a bridge's DiagnosticStatus ("/ns/node: ...")."""
+    return str(status.name).split(": ", 1)[0].rsplit("/", 1)[-1]
+
+
 def values_of(status: Any) -> dict[str, str]:
     """A DiagnosticStatus's key-value pairs as a dict."""
     return {kv.key: kv.value for kv in status.values}
@@ -245,7 +250,7 @@ class Bridge:
             status
             for array in self.client.received("/diagnostics", since)
             for status in array.status
-            if status.name.startswith(f"{self.node_name}:")
+            if status.name.startswith(f"{self.ns}/{self.node_name}: ")
         ]
 
     def wait_diagnostic(
@@ -288,7 +293,7 @@ def wait_status(
     def find() -> Any:
         for array in reversed(client.received("/diagnostics", since)):
             for status in array.status:
-                if status.name.startswith(f"{node_name}:") and where(values_of(status)):
+                if status_node(status) == node_name and where(values_of(status)):
                     return status
         return None
 

@@ -132,9 +132,11 @@ def test_services_write_what_they_should(sim, client: Client, tmp_path: Path) ->
             and device.arm_state == SLEEPING
         )
         assert call(client, b, SetInteger, "set_mode", value=1).success
-        assert call(client, b, SetOutput, "set_digital_output", board=0, index=7, on=True).success
         assert call(
-            client, b, SetOutput, "set_tool_digital_output", board=0, index=1, on=True
+            client, b, SetOutput, "set_digital_output", board=0, index=7, state=True
+        ).success
+        assert call(
+            client, b, SetOutput, "set_tool_digital_output", board=0, index=1, state=True
         ).success
         assert call(client, b, SetChannelValue, "set_analog_output", channel=1, value=2.5).success
         assert call(client, b, SetBool, "set_reduced_mode", data=True).success
@@ -159,12 +161,17 @@ def test_services_write_what_they_should(sim, client: Client, tmp_path: Path) ->
 
 
 REFUSALS: list[tuple[Any, str, dict[str, Any], str]] = [
-    (SetOutput, "set_digital_output", {"board": 0, "index": 16, "on": True}, "digital output 16"),
-    (SetOutput, "set_digital_output", {"board": 1, "index": 0, "on": True}, "board 1"),
+    (
+        SetOutput,
+        "set_digital_output",
+        {"board": 0, "index": 16, "state": True},
+        "digital output 16",
+    ),
+    (SetOutput, "set_digital_output", {"board": 1, "index": 0, "state": True}, "board 1"),
     (
         SetOutput,
         "set_tool_digital_output",
-        {"board": 0, "index": 2, "on": True},
+        {"board": 0, "index": 2, "state": True},
         "tool digital output 2",
     ),
     (SetChannelValue, "set_analog_output", {"channel": 2, "value": 1.0}, "analog output 2"),
@@ -197,8 +204,8 @@ def test_read_only_refuses_every_write(sim, client: Client, tmp_path: Path) -> N
         replies += [
             call(client, b, SetInteger, "set_mode", value=0),
             call(client, b, SetInteger, "set_state", value=0),
-            call(client, b, SetOutput, "set_digital_output", board=0, index=0, on=True),
-            call(client, b, SetOutput, "set_tool_digital_output", board=0, index=0, on=True),
+            call(client, b, SetOutput, "set_digital_output", board=0, index=0, state=True),
+            call(client, b, SetOutput, "set_tool_digital_output", board=0, index=0, state=True),
             call(client, b, SetChannelValue, "set_analog_output", channel=0, value=1.0),
             call(client, b, SetBool, "set_reduced_mode", data=True),
             call(client, b, SetBool, "set_fence_mode", data=True),

@@ -1,0 +1,142 @@
+"""The README's ros2 command lines, run as typed against the demo (issue 11).
+
+There is no ``ros2`` command here (PyPI wheels), so each line is done the way the CLI does
+it: its YAML read with ``yaml.safe_load`` (what ``ros2 service call`` / ``topic pub`` use)
+and set field by field on the request or message, the call made through rclpy. A key the
+interface does not have, or a value of the wrong type, fails (e.g. a field named ``on``:
+YAML reads that key as the boolean true).
+"""
+
+from __future__ import annotations
+
+import importlib
+import os
+import shlex
+import signal
+import subprocess
+import sys
+from collections.abc import Iterator
+from typing import Any
+
+import pytest
+import yaml  # type: ignore[import-untyped]
+from rcl_interfaces.srv import SetParameters
+from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+
+from .support.ros import ROOT, WAIT_S, Client, ros_client, wait_for, wait_subscribed
+
+pytestmark = pytest.mark.ros
+
+SECTION = "## From the ros2 command line"
+DEMO_S = 300  # the demo's --duration: far beyond the test, which stops it itself
+
+
+def readme_commands() -> list[list[str]]:
+    """The lines of the section's bash block, split as the shell splits them."""
+    text = (ROOT / "README.md").read_text()
+    section = text.split(SECTION, 1)[1].split("\n## ", 1)[0]
+    block = section.split("```bash\n", 1)[1].split("```", 1)[0]
+    return [shlex.split(line) for line in block.splitlines() if line.strip()]
+
+
+def interface(type_name: str) -> Any:
+    """``pkg/srv/Name`` or ``pkg/msg/Name`` -> the Python class."""
+    package, kind, name = type_name.split("/")
+    return getattr(importlib.import_module(f"{package}.{kind}"), name)
+
+
+def filled(instance: Any, text: str) -> Any:
+    """``instance`` with the fields of the YAML ``text`` set (the generated setters check
+    the types; a key the interface lacks is an error)."""
+    fields = yaml.safe_load(text) or {}
+    assert isinstance(fields, dict), text
+    known = instance.get_fields_and_field_types()
+    for key, value in fields.items():
+        assert isinstance(key, str) and key in known, f"{key!r} is not a field of {known}"
+        setattr(instance, key, value)
+    return instance
+
+
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Client]:
+    log = (tmp_path_factory.mktemp("demo") / "demo.out").open("wb")
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "bridge_core.demo", "--duration", str(DEMO_S)],
+        cwd=ROOT,
+        env=dict(os.environ),
+        stdout=log,
+        stderr=subprocess.STDOUT,
+    )
+    try:
+        with ros_client("readme_cli_client") as client:
+            yield client
+        assert proc.poll() is None, "the demo ended during the test"
+    finally:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(60)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(10)
+        log.close()
+
+
+def test_every_readme_command_line_works_as_typed(demo: Client) -> None:
+    client = demo
+    commands = readme_commands()
+    assert len(commands) >= 6, commands
+    for words in commands:
+        assert words[0] == "ros2", words
+        what = " ".join(words)
+        match words[1:3]:
+            case ["service", "call"]:
+                name, type_name, text = words[3:6]
+                srv = interface(type_name)
+                reply = client.call(srv, name, filled(srv.Request(), text), timeout=WAIT_S * 3)
+                assert reply.success, f"{what}: {reply.message}"
+            case ["topic", "pub"]:
+                assert words[3] == "--once", what
+                name, type_name, text = words[4:7]
+                msg_type = interface(type_name)
+                publisher = client.node.create_publisher(msg_type, name, 10)
+                wait_subscribed(publisher, timeout=WAIT_S * 3)
+                publisher.publish(filled(msg_type(), text))
+                client.node.destroy_publisher(publisher)
+            case ["topic", "echo"]:
+                name, flags = words[-1], words[3:-1]
+                qos = QoSProfile(depth=10)
+                for flag, value in zip(flags[::2], flags[1::2], strict=True):
+                    if flag == "--qos-durability":
+                        qos.durability = DurabilityPolicy[value.upper()]
+                    elif flag == "--qos-reliability":
+                        qos.reliability = ReliabilityPolicy[value.upper()]
+                    else:
+                        raise AssertionError(f"{what}: flag {flag} not handled here")
+
+                def topic_type(name: str = name) -> Any:
+                    types = dict(client.node.get_topic_names_and_types())
+                    return types.get(name, [None])[0]
+
+                type_name = wait_for(topic_type, WAIT_S * 3, f"{name} to appear")
+                client.subscribe(interface(type_name), name, qos)
+                client.wait_message(name, timeout=WAIT_S * 3)
+            case ["param", "set"]:
+                node, parameter, text = words[3:6]
+                request = SetParameters.Request()
+                value = yaml.safe_load(text)
+                request.parameters = [Parameter(parameter, value=value).to_parameter_msg()]
+                reply = client.call(SetParameters, f"{node}/set_parameters", request)
+                (result,) = reply.results
+                assert result.successful, f"{what}: {result.reason}"
+            case _:
+                raise AssertionError(f"{what}: not a command this test knows")
+
+
+def test_a_yaml_key_named_on_is_not_a_field_name() -> None:
+    """Why SetOutput's field is ``state``: the CLI's YAML turns ``on`` into True."""
+    from msg_defs.srv import SetOutput
+
+    with pytest.raises(AssertionError, match="True"):
+        filled(SetOutput.Request(), "{board: 0, index: 3, on: true}")
+    assert filled(SetOutput.Request(), "{board: 0, index: 3, state: true}").state is True
