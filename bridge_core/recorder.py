@@ -1,8 +1,10 @@
 """``bridge_record``: record chosen topics to a rosbag2 bag, for machines without ``ros2 bag``.
 
 Subscribes with ``raw=True`` and writes the CDR bytes as received, so nothing is decoded
-and re-encoded; the bag (MCAP by default, rosbag2 version 9) is written with the
-pure-Python ``rosbags`` library and plays back with ``ros2 bag play``. Types not in
+and re-encoded; each topic's offered QoS (its publishers') goes into the bag's metadata, as
+``ros2 bag record`` does, so a replay of a latched topic is latched; the bag (MCAP by
+default, rosbag2 version 9) is written with the pure-Python ``rosbags`` library and plays
+back with ``ros2 bag play``. Types not in
 rosbags' Jazzy typestore (our own ``msg_defs``) are registered from their ``.msg`` files.
 """
 
@@ -24,6 +26,14 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.utilities import ok as rclpy_ok
 from rclpy.utilities import try_shutdown
+from rosbags.interfaces import (
+    Qos,
+    QosDurability,
+    QosHistory,
+    QosLiveliness,
+    QosReliability,
+    QosTime,
+)
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
@@ -58,6 +68,27 @@ def typestore_for(type_names: Sequence[str]) -> Typestore:
     return store
 
 
+def _qos_time(duration: Any) -> QosTime:
+    nanoseconds = int(duration.nanoseconds)
+    return QosTime(nanoseconds // 1_000_000_000, nanoseconds % 1_000_000_000)
+
+
+def offered_qos(profile: QoSProfile) -> Qos:
+    """A publisher's QoS as rosbag2 stores it in the bag (``offered_qos_profiles``), so
+    that ``ros2 bag play`` offers it again: a latched topic replays latched."""
+    return Qos(
+        history=QosHistory(int(profile.history)),
+        depth=int(profile.depth),
+        reliability=QosReliability(int(profile.reliability)),
+        durability=QosDurability(int(profile.durability)),
+        deadline=_qos_time(profile.deadline),
+        lifespan=_qos_time(profile.lifespan),
+        liveliness=QosLiveliness(int(profile.liveliness)),
+        liveliness_lease_duration=_qos_time(profile.liveliness_lease_duration),
+        avoid_ros_namespace_conventions=bool(profile.avoid_ros_namespace_conventions),
+    )
+
+
 class Recorder(Node):
     """Subscribes to topics as they appear and writes every message to one bag."""
 
@@ -87,12 +118,16 @@ class Recorder(Node):
                 self._writer = Writer(self.output, version=9, storage_plugin=self.storage)
                 self._writer.open()
             for topic, type_name in types.items():
+                offered = [info.qos_profile for info in self.get_publishers_info_by_topic(topic)]
                 self._connections[topic] = self._writer.add_connection(
-                    topic, type_name, typestore=store
+                    topic,
+                    type_name,
+                    typestore=store,
+                    offered_qos_profiles=[offered_qos(profile) for profile in offered],
                 )
                 qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
-                if topic.endswith("/connected"):
-                    qos.durability = DurabilityPolicy.TRANSIENT_LOCAL
+                if any(q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in offered):
+                    qos.durability = DurabilityPolicy.TRANSIENT_LOCAL  # the latched value too
                 self.create_subscription(
                     message_class(type_name), topic, self._writer_for(topic), qos, raw=True
                 )

@@ -8,6 +8,9 @@ import sys
 from pathlib import Path
 
 import pytest
+import yaml  # type: ignore[import-untyped]
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
 from rosbags.rosbag2 import Reader
 
 from bridge_core.recorder import typestore_for
@@ -28,7 +31,12 @@ def test_bag_of_a_running_bridge(tmp_path: Path, monkeypatch: pytest.MonkeyPatch
     device.set("mode", 1)
     bag = tmp_path / "bag"
     ns = "/rec"
-    topics = [f"{ns}/joint_states", f"{ns}/r6_bridge/state", "/diagnostics"]
+    topics = [
+        f"{ns}/joint_states",
+        f"{ns}/r6_bridge/state",
+        "/diagnostics",
+        f"{ns}/r6_bridge/connected",
+    ]
     try:
         with node_process(
             "r6_bridge.node", {"port": port, "poll_rate_hz": 20.0}, tmp_path, ["-r", f"__ns:={ns}"]
@@ -63,6 +71,7 @@ def test_bag_of_a_running_bridge(tmp_path: Path, monkeypatch: pytest.MonkeyPatch
             f"{ns}/joint_states": "sensor_msgs/msg/JointState",
             f"{ns}/r6_bridge/state": "msg_defs/msg/R6State",
             "/diagnostics": "diagnostic_msgs/msg/DiagnosticArray",
+            f"{ns}/r6_bridge/connected": "std_msgs/msg/Bool",
         }
         for connection, _, raw in reader.messages():
             seen[connection.topic].append(store.deserialize_cdr(raw, connection.msgtype))
@@ -78,3 +87,24 @@ def test_bag_of_a_running_bridge(tmp_path: Path, monkeypatch: pytest.MonkeyPatch
     assert (state.mode, state.mode_name, state.axis_count) == (1, "manual", 4)  # type: ignore[attr-defined]
     hardware_ids = {s.hardware_id for d in diagnostics for s in d.status}  # type: ignore[attr-defined]
     assert f"Huacheng R6@tcp://127.0.0.1:{port} unit 1" in hardware_ids
+
+    # An independent reader (mcap + mcap-ros2-support): every message decodes from the
+    # schemas in the file, and the latched ~/connected keeps its offered QoS, so that
+    # `ros2 bag play` replays it latched (issue 11).
+    (mcap_file,) = bag.glob("*.mcap")
+    decoded: dict[str, int] = {}
+    qos_of: dict[str, list[dict[str, object]]] = {}
+    with mcap_file.open("rb") as stream:
+        mcap_reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        for _schema, channel, _message, ros_msg in mcap_reader.iter_decoded_messages():
+            decoded[channel.topic] = decoded.get(channel.topic, 0) + 1
+            assert ros_msg is not None
+            qos_of[channel.topic] = yaml.safe_load(channel.metadata["offered_qos_profiles"])
+    assert decoded[f"{ns}/joint_states"] == len(joint_states)
+    assert decoded[f"{ns}/r6_bridge/state"] == len(states)
+    assert decoded[f"{ns}/r6_bridge/connected"] >= 1  # the latched value, at least
+    (connected_qos,) = qos_of[f"{ns}/r6_bridge/connected"]
+    assert connected_qos["durability"] in (1, "transient_local"), connected_qos
+    assert connected_qos["reliability"] in (1, "reliable"), connected_qos
+    (joint_states_qos,) = qos_of[f"{ns}/joint_states"]
+    assert joint_states_qos["durability"] in (2, "volatile"), joint_states_qos
