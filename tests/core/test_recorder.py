@@ -108,3 +108,18 @@ def test_bag_of_a_running_bridge(tmp_path: Path, monkeypatch: pytest.MonkeyPatch
     assert connected_qos["reliability"] in (1, "reliable"), connected_qos
     (joint_states_qos,) = qos_of[f"{ns}/joint_states"]
     assert joint_states_qos["durability"] in (2, "volatile"), joint_states_qos
+
+    # bridge_plot draws it: a PNG, and the summary counts what the bag holds.
+    picture = tmp_path / "bag.png"
+    result = subprocess.run(
+        [sys.executable, "-m", "bridge_core.plot", str(bag), "-o", str(picture)],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert picture.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    samples = len(joint_states)
+    joints = ", ".join(f"joint_{n} ({samples})" for n in range(1, 5))
+    assert f"joints {joints}; link bands 1, diagnostics bands 1" in result.stdout, result.stdout
