@@ -53,7 +53,7 @@ env_hash() {
         for p in "${PACKAGES[@]}"; do
             if [[ -f "$p/__init__.py" ]]; then echo "package $p"; fi
         done
-        hash_files pyproject.toml scripts/setup.sh
+        hash_files pyproject.toml scripts/setup.sh scripts/ament_index.py
     } | sha256sum | cut -d' ' -f1
 }
 ENV_HASH="env $(env_hash)"
@@ -124,6 +124,7 @@ with open("msg_defs/pyproject.toml", "rb") as f:
     ((${#BUILD_REQS[@]})) || die "no build requirements found in msg_defs/pyproject.toml"
     step "installing modbus-ros-bridges[ros,dev] (editable) and msg_defs build requirements" \
         "${PIP[@]}" install -e ".[ros,dev]" "${BUILD_REQS[@]}"
+    step "marking the bridges in the ament index (ros2 run)" "$VPY" scripts/ament_index.py
     { grep '^msg_defs ' "$STAMP" || true; echo "$ENV_HASH"; } >"$STAMP.new"
     mv "$STAMP.new" "$STAMP"
 fi
