@@ -1,0 +1,47 @@
+"""The demo cell: the four simulators and their bridges, as ``bash scripts/demo.sh`` runs them.
+
+    ros2 launch launch/cell.launch.py
+
+Namespaces /r6, /xarm, /stepper and /motec; the R6 and xArm simulators on 127.0.0.1 ports
+5020 and 5021, the stepper and MOTEC simulators on socat pty pairs linked at
+/tmp/cell_stepper and /tmp/cell_motec (the bridges retry until they exist). Everything stays
+on this machine: set ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` before launching. Needs
+``launch_ros`` (tests/core/test_launch_files.py checks what this file names).
+"""
+
+from pathlib import Path
+
+from launch import LaunchDescription
+from launch.actions import ExecuteProcess
+from launch_ros.actions import Node
+
+CONFIG = Path(__file__).resolve().parent.parent / "config"
+STEPPER_PTY = "/tmp/cell_stepper"
+MOTEC_PTY = "/tmp/cell_motec"
+
+
+def bridge(package: str, namespace: str, config: str, **params: object) -> Node:
+    return Node(
+        package=package,
+        executable=package,
+        namespace=namespace,
+        parameters=[str(CONFIG / config), params],
+        output="screen",
+    )
+
+
+def generate_launch_description() -> LaunchDescription:
+    return LaunchDescription(
+        [
+            ExecuteProcess(cmd=["r6_sim", "--port", "5020", "--running"], output="screen"),
+            ExecuteProcess(cmd=["xarm_sim", "--port", "5021"], output="screen"),
+            ExecuteProcess(cmd=["stepper_sim", "--pty", STEPPER_PTY], output="screen"),
+            ExecuteProcess(
+                cmd=["motec_sim", "--pty", MOTEC_PTY, "--unit-ids", "1,2,3"], output="screen"
+            ),
+            bridge("r6_bridge", "/r6", "r6.yaml", host="127.0.0.1", port=5020),
+            bridge("xarm_bridge", "/xarm", "xarm.yaml", host="127.0.0.1", port=5021),
+            bridge("stepper_bridge", "/stepper", "stepper.yaml", serial_port=STEPPER_PTY),
+            bridge("motec_bridge", "/motec", "motec.yaml", serial_port=MOTEC_PTY, timeout_s=1.0),
+        ]
+    )

@@ -1,0 +1,34 @@
+"""Launch r6_bridge with config/r6.yaml: R6 robot controller (Modbus TCP).
+
+    ros2 launch launch/r6.launch.py host:=192.168.1.10 [namespace:=/cell]
+
+The parameters come from the example file, then the launch arguments. Needs `launch_ros`
+(a sourced ROS 2 Jazzy; the PyPI wheels in .venv have none: tests/core/test_launch_files.py
+checks what this file names). Keep ROS discovery local when everything is on one machine:
+`ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`.
+"""
+
+from pathlib import Path
+
+from launch import LaunchDescription
+from launch.actions import DeclareLaunchArgument
+from launch.substitutions import LaunchConfiguration
+from launch_ros.actions import Node
+
+CONFIG = Path(__file__).resolve().parent.parent / "config" / "r6.yaml"
+
+
+def generate_launch_description() -> LaunchDescription:
+    return LaunchDescription(
+        [
+            DeclareLaunchArgument("host", default_value="192.168.1.10"),
+            DeclareLaunchArgument("namespace", default_value=""),
+            Node(
+                package="r6_bridge",
+                executable="r6_bridge",
+                namespace=LaunchConfiguration("namespace"),
+                parameters=[str(CONFIG), {"host": LaunchConfiguration("host")}],
+                output="screen",
+            ),
+        ]
+    )

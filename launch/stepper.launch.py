@@ -1,0 +1,34 @@
+"""Launch stepper_bridge with config/stepper.yaml: 5-axis stepper controller (Modbus RTU).
+
+    ros2 launch launch/stepper.launch.py serial_port:=/dev/ttyUSB0 [namespace:=/cell]
+
+The parameters come from the example file, then the launch arguments. Needs `launch_ros`
+(a sourced ROS 2 Jazzy; the PyPI wheels in .venv have none: tests/core/test_launch_files.py
+checks what this file names). Keep ROS discovery local when everything is on one machine:
+`ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`.
+"""
+
+from pathlib import Path
+
+from launch import LaunchDescription
+from launch.actions import DeclareLaunchArgument
+from launch.substitutions import LaunchConfiguration
+from launch_ros.actions import Node
+
+CONFIG = Path(__file__).resolve().parent.parent / "config" / "stepper.yaml"
+
+
+def generate_launch_description() -> LaunchDescription:
+    return LaunchDescription(
+        [
+            DeclareLaunchArgument("serial_port", default_value="/dev/ttyUSB0"),
+            DeclareLaunchArgument("namespace", default_value=""),
+            Node(
+                package="stepper_bridge",
+                executable="stepper_bridge",
+                namespace=LaunchConfiguration("namespace"),
+                parameters=[str(CONFIG), {"serial_port": LaunchConfiguration("serial_port")}],
+                output="screen",
+            ),
+        ]
+    )

@@ -1,0 +1,81 @@
+"""The launch files name only what exists (issue 11).
+
+``launch_ros`` is not among the PyPI wheels here, so a launch file cannot be run. Each one
+is read as Python source instead: every ``Node(package=..., executable=...)`` must be a
+console script of that package (and reachable as ``ros2 run`` under the venv prefix),
+every ``ExecuteProcess`` command a console script of this project, every config file it
+builds a path to must exist. (With a sourced ROS 2 Jazzy, ``ros2 launch`` runs them.)
+"""
+
+from __future__ import annotations
+
+import ast
+import os
+import sys
+import tomllib
+from pathlib import Path
+
+from ..support.ros import ROOT
+
+LAUNCH = ROOT / "launch"
+BRIDGES = {"r6_bridge", "xarm_bridge", "stepper_bridge", "motec_bridge"}
+
+
+def console_scripts() -> dict[str, str]:
+    """executable -> package, from pyproject's ``[project.scripts]``."""
+    scripts = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["scripts"]
+    return {name: target.split(".", 1)[0] for name, target in scripts.items()}
+
+
+def calls(tree: ast.AST, name: str) -> list[ast.Call]:
+    return [
+        node
+        for node in ast.walk(tree)
+        if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == name
+    ]
+
+
+def keyword(call: ast.Call, name: str) -> ast.expr | None:
+    return next((k.value for k in call.keywords if k.arg == name), None)
+
+
+def test_every_launch_file_names_existing_packages_executables_and_files() -> None:
+    scripts = console_scripts()
+    files = sorted(LAUNCH.glob("*.launch.py"))
+    assert {f.name for f in files} >= {
+        "r6.launch.py",
+        "xarm.launch.py",
+        "stepper.launch.py",
+        "motec.launch.py",
+        "cell.launch.py",
+    }
+    launched: set[str] = set()
+    for path in files:
+        tree = ast.parse(path.read_text(), str(path))
+        assert any(
+            isinstance(node, ast.FunctionDef) and node.name == "generate_launch_description"
+            for node in tree.body
+        ), path
+        for call in calls(tree, "Node"):
+            package, executable = keyword(call, "package"), keyword(call, "executable")
+            if isinstance(package, ast.Constant) and isinstance(executable, ast.Constant):
+                assert scripts.get(str(executable.value)) == package.value, (path, ast.dump(call))
+                launched.add(str(package.value))
+        for call in calls(tree, "bridge"):  # cell.launch.py's helper: bridge(package, ...)
+            package = call.args[0]
+            config = call.args[2]
+            assert isinstance(package, ast.Constant) and isinstance(config, ast.Constant)
+            assert scripts.get(str(package.value)) == package.value, path
+            assert (ROOT / "config" / str(config.value)).exists(), (path, config.value)
+            launched.add(str(package.value))
+        for call in calls(tree, "ExecuteProcess"):
+            command = keyword(call, "cmd")
+            assert isinstance(command, ast.List) and isinstance(command.elts[0], ast.Constant)
+            assert command.elts[0].value in scripts, (path, command.elts[0].value)
+        for node in ast.walk(tree):  # "config" / "<name>.yaml" path joins
+            if isinstance(node, ast.Constant) and str(node.value).endswith(".yaml"):
+                assert (ROOT / "config" / str(node.value)).exists(), (path, node.value)
+    assert launched >= BRIDGES
+    for name in launched:  # what `ros2 run` / launch_ros resolve (scripts/ament_index.py)
+        resolved = Path(sys.prefix) / "lib" / name / name
+        assert os.access(resolved, os.X_OK), resolved
