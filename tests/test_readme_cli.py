@@ -15,6 +15,7 @@ import shlex
 import signal
 import subprocess
 import sys
+import time
 from collections.abc import Iterator
 from typing import Any
 
@@ -121,6 +122,16 @@ def test_every_readme_command_line_works_as_typed(demo: Client) -> None:
                 type_name = wait_for(topic_type, WAIT_S * 3, f"{name} to appear")
                 client.subscribe(interface(type_name), name, qos)
                 client.wait_message(name, timeout=WAIT_S * 3)
+            case ["topic", "hz"]:
+                # A rate needs a stream: ten messages in a row (no wall-clock figure here).
+                name = words[3]
+                client.subscribe(interface("sensor_msgs/msg/JointState"), name)
+                since = time.monotonic()
+
+                def ten(name: str = name, since: float = since) -> bool:
+                    return len(client.received(name, since)) >= 10
+
+                wait_for(ten, WAIT_S * 3, f"ten messages on {name}")
             case ["param", "set"]:
                 node, parameter, text = words[3:6]
                 request = SetParameters.Request()
