@@ -43,6 +43,7 @@ from rcl_interfaces.msg import (
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -198,8 +199,15 @@ def link_settings(values: dict[str, Any]) -> TcpSettings | SerialSettings:
     )
 
 
-class ParameterNode(Node):
-    """A node whose parameters are declared from specs and applied when they change."""
+AUTOSTART_SPEC = ParameterSpec(
+    "autostart", True, "configure and activate at start (false: wait for lifecycle transitions)"
+)
+
+
+class ParameterNode(LifecycleNode):
+    """A managed node whose parameters are declared from specs and applied when they
+    change. Lifecycle (REP-2002-style, ``rclpy.lifecycle``): ``autostart`` (default true)
+    configures and activates it at start, so plain use needs no lifecycle manager."""
 
     def __init__(self, node_name: str, **node_kwargs: Any) -> None:
         super().__init__(node_name, **node_kwargs)
@@ -328,6 +336,7 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
             ParameterSpec(
                 "read_only", False, "refuse every command that writes to the device", live=True
             ),
+            AUTOSTART_SPEC,
         ]
         if link is None:
             specs = [
@@ -347,6 +356,7 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
             ]
         values = self.declare_specs(specs)
         self.joint_prefix = str(values["joint_prefix"])
+        self.autostart = bool(values["autostart"])
         self.frame_id = str(values["frame_id"])
         self.read_only = bool(values["read_only"])
         self._owned_link: ModbusLink | None = None
@@ -392,6 +402,7 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
             connected_changed=self._poll_connected,
             name=node_name,
         )
+        self.poller.pause()  # polls and publishes only while the node is active (lifecycle)
         self.on_parameter("read_only", self._set_read_only)
         self.on_parameter("poll_rate_hz", lambda rate: setattr(self.poller, "rate_hz", rate))
         # Start polling once the executor runs, i.e. after the subclass finished __init__.
@@ -469,6 +480,50 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
         self._poll_starter.cancel()
         self.poller.start()
 
+    # ------------------------------------------------------------ lifecycle
+    # configure: nothing to open yet (the link opens with the first poll, and reconnects
+    # by itself); activate: poll, publish, accept commands; deactivate: stop every motion
+    # this node started, then no polls, no publishing, commands refused (stops are not);
+    # cleanup: close the link this node owns; shutdown (from any state): stop first.
+    @property
+    def active(self) -> bool:
+        return self.poller.active
+
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.get_logger().info(f"configured for {self.channel.describe()}")
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.poller.resume()
+        self.get_logger().info("active: polling, publishing, accepting commands")
+        return super().on_activate(state)
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.stop_motion()
+        self.poller.pause()
+        self.get_logger().info("inactive: motion stopped, not polling, commands refused")
+        return super().on_deactivate(state)
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._close_owned_link()
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.stop_motion()
+        self.poller.pause()
+        self._close_owned_link()
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.stop_motion()
+        self.poller.pause()
+        return TransitionCallbackReturn.SUCCESS
+
+    def _close_owned_link(self) -> None:
+        if self._owned_link is not None:
+            with self._owned_link.lock.hold(Priority.COMMAND):  # never mid-transaction
+                self._owned_link.close()
+
     def _poll_report(self, outcome: PollOutcome, text: str) -> None:
         logger = self.get_logger()
         if outcome is PollOutcome.INCOMPLETE:
@@ -523,6 +578,8 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
         while the link is down. ``own_motion``: a stop of motion this node started
         (a stream's stop, the deadman): allowed under read_only too.
         """
+        if not stop and not self.active:
+            return False, f"{what} refused: the node is not active (lifecycle)", None
         if writes and self.read_only and not own_motion:
             return False, f"{what} refused: read_only is set, nothing was written", None
         if not stop and not self.channel.connected:
@@ -735,6 +792,8 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
 
     # ------------------------------------------------------------ diagnostics
     def publish_diagnostics(self) -> None:
+        if not self.active:
+            return  # an inactive node publishes nothing
         try:
             self._publish_diagnostics()
         except Exception as err:  # diagnostics must never take the node down
@@ -780,9 +839,7 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
             self.stop_motion()
         finally:
             self.poller.stop()
-            if self._owned_link is not None:
-                with self._owned_link.lock.hold(Priority.COMMAND):  # never mid-transaction
-                    self._owned_link.close()
+            self._close_owned_link()
 
 
 class BusNode(ParameterNode):
@@ -806,8 +863,10 @@ class BusNode(ParameterNode):
             [
                 *transport_specs(defaults),
                 ParameterSpec("unit_ids", [1], "devices on the bus, one node each"),
+                AUTOSTART_SPEC,
             ]
         )
+        self.autostart = bool(values["autostart"])
         units = [int(u) for u in values["unit_ids"]]
         if not units or len(set(units)) != len(units):
             raise ConfigurationError(f"unit_ids {units} must be distinct and not empty")
@@ -916,6 +975,10 @@ def spin_nodes(
     try:
         build(nodes)
         _refuse_unused_parameters(nodes)
+        for node in nodes:  # the bus owner first, then its devices
+            if isinstance(node, LifecycleNode) and getattr(node, "autostart", False):
+                node.trigger_configure()
+                node.trigger_activate()
         executor = MultiThreadedExecutor(num_threads=threads(len(nodes)))
         for node in nodes:
             executor.add_node(node)

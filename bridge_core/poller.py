@@ -156,6 +156,11 @@ class Poller(Generic[Snapshot]):
         self._snapshots: queue.Queue[Snapshot] = queue.Queue(maxsize=PUBLISH_BACKLOG)
         self._stop = threading.Event()
         self._wake = threading.Event()
+        # Polls run only while active (a lifecycle node's "active" state); a tick holds
+        # _tick_lock, so pause() returns once no poll is under way any more.
+        self._active = threading.Event()
+        self._active.set()
+        self._tick_lock = threading.Lock()
         self._threads = [
             threading.Thread(target=self._poll_loop, name=f"{name}-poll", daemon=True),
             threading.Thread(target=self._publish_loop, name=f"{name}-publish", daemon=True),
@@ -261,6 +266,8 @@ class Poller(Generic[Snapshot]):
                 )
             except queue.Empty:
                 return published
+            if not self._active.is_set():
+                continue  # paused meanwhile: nothing more is published
             try:
                 self._publish(snapshot)
             except Exception as err:  # a value the message cannot hold must not kill it
@@ -288,10 +295,37 @@ class Poller(Generic[Snapshot]):
     def running(self) -> bool:
         return any(thread.is_alive() for thread in self._threads)
 
+    @property
+    def active(self) -> bool:
+        return self._active.is_set()
+
+    def pause(self) -> None:
+        """No more polls (and nothing more published) until ``resume``; returns once a
+        poll under way has ended. Snapshots not yet published are dropped."""
+        self._active.clear()
+        self._wake.set()
+        with self._tick_lock:
+            while True:
+                try:
+                    self._snapshots.get_nowait()
+                except queue.Empty:
+                    break
+
+    def resume(self) -> None:
+        self._active.set()
+        self._wake.set()
+
     def _poll_loop(self) -> None:
         deadline = self._clock()
         while not self._stop.is_set():
-            self.tick()
+            if not self._active.is_set():
+                self._wake.clear()
+                self._wake.wait(THREAD_JOIN_S)
+                deadline = self._clock()
+                continue
+            with self._tick_lock:
+                if self._active.is_set():
+                    self.tick()
             deadline = next_deadline(deadline, self._clock(), 1.0 / self._rate_hz)
             delay = deadline - self._clock()
             if delay > 0:

@@ -30,6 +30,7 @@ import sys
 from collections.abc import Sequence
 from typing import Any
 
+from rclpy.lifecycle import LifecycleState, TransitionCallbackReturn
 from rclpy.node import Node
 from std_msgs.msg import Float64
 from std_srvs.srv import SetBool, Trigger
@@ -189,6 +190,7 @@ class MotecDriveNode(BridgeNode[MotecSnapshot]):
             lambda msg: float(msg.data),
             convert=lambda _key, rad_s: self.device.check_velocity(self.scale.to_rpm(rad_s)),
         )
+        self.configured = False  # lifecycle: set by on_configure (autostart does it at once)
         self.on_parameter_write("lifeguard_ms", self._set_lifeguard)
         # Fed from a thread of its own, not an executor timer (bridge_core.keepalive).
         self.keepalive = Keepalive(
@@ -379,7 +381,7 @@ class MotecDriveNode(BridgeNode[MotecSnapshot]):
         return None
 
     def _next_feed(self) -> float | None:
-        if self.read_only or not self.channel.connected:
+        if self.read_only or not self.configured or not self.channel.connected:
             return None
         time_ms = self.lifeguard_time_ms()
         return self.device.next_feed(time_ms) if time_ms else None
@@ -392,6 +394,22 @@ class MotecDriveNode(BridgeNode[MotecSnapshot]):
                 self.device.feed_lifeguard(time_ms)
         except LinkError as err:  # the poll reports the link; nothing else to do here
             self.get_logger().warn(f"lifeguard feed failed: {err}", throttle_duration_sec=5.0)
+
+    # The lifeguard is fed while the node is configured (inactive too: it still owns the
+    # drive); cleanup ends the feeds, as an exit does, and the armed drive then faults.
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.configured = True
+        self.keepalive.wake()
+        return super().on_configure(state)
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.configured = False
+        return super().on_cleanup(state)
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        result = super().on_shutdown(state)  # stops first
+        self.configured = False
+        return result
 
     def close(self) -> None:
         try:
