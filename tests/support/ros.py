@@ -6,6 +6,7 @@ ros2 CLI here). Every wait is on a condition with a timeout; nothing sleeps blin
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
@@ -53,6 +54,12 @@ def wait_subscribed(publisher: Any, timeout: float = WAIT_S) -> None:
         timeout,
         f"a subscriber of {publisher.topic_name}",
     )
+
+
+# Services that only read (parameters, lifecycle state): safe to ask twice (Client.call).
+QUERY_SERVICES = frozenset(
+    {"GetParameters", "ListParameters", "DescribeParameters", "GetParameterTypes", "GetState"}
+)
 
 
 class Client:
@@ -138,14 +145,30 @@ class Client:
         return wait_for(find, timeout, f"a log line of {logger} containing {text!r}")
 
     def call(self, srv_type: Any, name: str, request: Any, timeout: float = WAIT_S) -> Any:
-        client = self.node.create_client(srv_type, name)
-        try:
-            wait_for(lambda: client.service_is_ready(), timeout, f"service {name}")
-            future = client.call_async(request)
-            wait_for(future.done, timeout, f"reply from {name}")
-            return future.result()
-        finally:
-            self.node.destroy_client(client)
+        """One service call from a fresh client.
+
+        A query (``QUERY_SERVICES``: nothing changes on the node) whose reply does not come
+        is asked once more: a fresh client may be "ready" before the server has matched
+        its reply reader (a DDS discovery race that a loaded machine makes likely), and
+        then the server's reply goes to no one. Commands are never sent twice.
+        """
+        attempts = 2 if srv_type.__name__ in QUERY_SERVICES else 1
+        for attempt in range(attempts):
+            client = self.node.create_client(srv_type, name)
+            try:
+                wait_for(client.service_is_ready, timeout, f"service {name}")
+                future = client.call_async(request)
+                if attempt + 1 < attempts:
+                    with contextlib.suppress(AssertionError):
+                        wait_for(future.done, timeout, f"reply from {name}")
+                    if future.done():
+                        return future.result()
+                    continue
+                wait_for(future.done, timeout, f"reply from {name}")
+                return future.result()
+            finally:
+                self.node.destroy_client(client)
+        raise AssertionError(f"no reply from {name}")
 
     def close(self) -> None:
         self.executor.shutdown()
