@@ -153,8 +153,11 @@ class MotecBridge:
         assert not reply.success and "refused" in reply.message, reply.message
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture
 def client() -> Iterator[Client]:
+    # One per test: the last test of the module, under heavy load, twice missed messages
+    # a long-lived client had subscribed to (cause not found; a fresh one carries none of
+    # the earlier tests' subscriptions and /rosout history).
     with ros_client("motec_client") as c:
         c.subscribe(DiagnosticArray, "/diagnostics")
         c.subscribe_log()
