@@ -499,8 +499,7 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
         return super().on_activate(state)
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self.stop_motion()
-        self.poller.pause()
+        self._halt()
         self.get_logger().info("inactive: motion stopped, not polling, commands refused")
         return super().on_deactivate(state)
 
@@ -509,15 +508,18 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
         return TransitionCallbackReturn.SUCCESS
 
     def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self.stop_motion()
-        self.poller.pause()
+        self._halt()
         self._close_owned_link()
         return TransitionCallbackReturn.SUCCESS
 
     def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._halt()
+        return TransitionCallbackReturn.SUCCESS
+
+    def _halt(self) -> None:
+        """Stop every motion this node started, then poll and publish no more."""
         self.stop_motion()
         self.poller.pause()
-        return TransitionCallbackReturn.SUCCESS
 
     def _close_owned_link(self) -> None:
         if self._owned_link is not None:
