@@ -117,7 +117,12 @@ def entry_specs(root: Path = ROOT) -> list[str]:
         if project.get("name") == PROJECT_NAME:
             table = project.get("entry-points", {}).get(ENTRY_POINT_GROUP, {})
             return [str(spec) for spec in table.values()]
-    return [ep.value for ep in entry_points(group=ENTRY_POINT_GROUP)]
+    # A name declared twice (a colcon install sourced over the editable install) is the
+    # same device: the first on the path wins, as for imports.
+    found: dict[str, str] = {}
+    for entry in entry_points(group=ENTRY_POINT_GROUP):
+        found.setdefault(entry.name, entry.value)
+    return list(found.values())
 
 
 def load_devices(specs: Iterable[str]) -> list[DemoDevice]:

@@ -43,6 +43,7 @@ from rcl_interfaces.msg import (
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -211,12 +212,35 @@ class ParameterNode(LifecycleNode):
 
     def __init__(self, node_name: str, **node_kwargs: Any) -> None:
         super().__init__(node_name, **node_kwargs)
+        change_state = self._service_change_state
+        change_state.callback = self._refuse_unavailable_transitions(change_state.callback)
         self._specs: dict[str, ParameterSpec] = {}
         self._appliers: dict[str, Callable[[Any], None]] = {}
         self._writers: dict[str, Callable[[Any], str | None]] = {}
         self.add_pre_set_parameters_callback(self._coerce_parameters)
         self.add_on_set_parameters_callback(self._check_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
+
+    def _refuse_unavailable_transitions(
+        self, change_state: Callable[[Any, Any], Any]
+    ) -> Callable[[Any, Any], Any]:
+        """rclpy (7.1) raises out of ``~/change_state`` when asked for a transition the
+        current state does not have (transition id 6 while unconfigured), which would end
+        the process: answer ``success: false`` instead, as rclcpp does."""
+
+        def guarded(request: Any, response: Any) -> Any:
+            try:
+                return change_state(request, response)
+            except _rclpy.RCLError:
+                state = self._state_machine.current_state[1]
+                transition = request.transition.label or request.transition.id
+                self.get_logger().warning(
+                    f"lifecycle: transition {transition} is not available in state {state}"
+                )
+                response.success = False
+                return response
+
+        return guarded
 
     def declare_specs(self, specs: Iterable[ParameterSpec]) -> dict[str, Any]:
         """Declare parameters; their start-up values by name.

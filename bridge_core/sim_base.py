@@ -326,6 +326,10 @@ class _MapContext(ModbusServerContext):
         return None if result is None else ExcCodes(result)
 
 
+class SimulatorStartError(RuntimeError):
+    """The server could not listen (port in use, serial port missing): a one-line exit."""
+
+
 class Simulator:
     """A pymodbus server for one or more simulated units, run on a background thread."""
 
@@ -391,7 +395,7 @@ class Simulator:
         if self._error is not None:
             self._thread.join()
             self._thread = None
-            raise RuntimeError(f"simulator failed to start: {self._error}") from self._error
+            raise SimulatorStartError(f"simulator failed to start: {self._error}") from self._error
 
     async def _main(
         self, make_server: Callable[[ModbusServerContext], Any], restrict_decoder: bool
@@ -525,7 +529,12 @@ def add_tcp_arguments(parser: argparse.ArgumentParser, default_port: int) -> Non
 def serve_tcp_until_signalled(sim: Simulator, args: argparse.Namespace, name: str) -> None:
     """Attach the logs, listen on ``args.host:args.port`` and serve until SIGINT/SIGTERM."""
     open_logs(args, sim)
-    port = sim.start_tcp(args.host, args.port)
+    try:
+        port = sim.start_tcp(args.host, args.port)
+    except SimulatorStartError as err:
+        raise SystemExit(
+            f"{name}: cannot listen on {args.host}:{args.port}: {err.__cause__}"
+        ) from None
     serve_until_signalled(sim, f"{name} listening on {args.host}:{port}", args.port_file)
 
 
@@ -558,7 +567,10 @@ def serve_serial_until_signalled(
     pair = PtyPair(args.pty) if args.pty else None
     try:
         port = str(pair.device_end) if pair else args.serial
-        sim.start_serial(port, args.baudrate, args.parity, args.stopbits)
+        try:
+            sim.start_serial(port, args.baudrate, args.parity, args.stopbits)
+        except SimulatorStartError as err:
+            raise SystemExit(f"cannot serve on {port}: {err.__cause__}") from None
         serve_until_signalled(sim, banner(str(args.pty) if pair else args.serial))
     finally:
         sim.stop()

@@ -1,6 +1,7 @@
 """The demo cell: the four simulators and their bridges, as ``bash scripts/demo.sh`` runs them.
 
-    ros2 launch launch/cell.launch.py
+    ros2 launch launch/cell.launch.py      (from this checkout)
+    ros2 launch bridge_core cell.launch.py (installed: the venv after setup, or colcon)
 
 Namespaces /r6, /xarm, /stepper and /motec; the R6 and xArm simulators on 127.0.0.1 ports
 5020 and 5021, the stepper and MOTEC simulators on socat pty pairs linked at
@@ -14,6 +15,7 @@ from pathlib import Path
 from launch import LaunchDescription
 from launch.actions import ExecuteProcess
 from launch_ros.actions import Node
+from launch_ros.substitutions import ExecutableInPackage
 
 CONFIG = Path(__file__).resolve().parent.parent / "config"
 STEPPER_PTY = "/tmp/cell_stepper"
@@ -30,15 +32,21 @@ def bridge(package: str, namespace: str, config: str, **params: object) -> Node:
     )
 
 
+def simulator(package: str, executable: str, *args: str) -> ExecuteProcess:
+    """A simulator, found like ``ros2 run`` finds it (``lib/<package>/``): in the venv or a
+    colcon install alike."""
+    return ExecuteProcess(
+        cmd=[ExecutableInPackage(executable=executable, package=package), *args], output="screen"
+    )
+
+
 def generate_launch_description() -> LaunchDescription:
     return LaunchDescription(
         [
-            ExecuteProcess(cmd=["r6_sim", "--port", "5020", "--running"], output="screen"),
-            ExecuteProcess(cmd=["xarm_sim", "--port", "5021"], output="screen"),
-            ExecuteProcess(cmd=["stepper_sim", "--pty", STEPPER_PTY], output="screen"),
-            ExecuteProcess(
-                cmd=["motec_sim", "--pty", MOTEC_PTY, "--unit-ids", "1,2,3"], output="screen"
-            ),
+            simulator("r6_bridge", "r6_sim", "--port", "5020", "--running"),
+            simulator("xarm_bridge", "xarm_sim", "--port", "5021"),
+            simulator("stepper_bridge", "stepper_sim", "--pty", STEPPER_PTY),
+            simulator("motec_bridge", "motec_sim", "--pty", MOTEC_PTY, "--unit-ids", "1,2,3"),
             bridge("r6_bridge", "/r6", "r6.yaml", host="127.0.0.1", port=5020),
             bridge("xarm_bridge", "/xarm", "xarm.yaml", host="127.0.0.1", port=5021),
             bridge("stepper_bridge", "/stepper", "stepper.yaml", serial_port=STEPPER_PTY),

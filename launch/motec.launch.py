@@ -2,11 +2,13 @@
 process: the bus node and a node per drive).
 
     ros2 launch launch/motec.launch.py serial_port:=/dev/ttyUSB0 [namespace:=/cell]
+    ros2 launch motec_bridge motec.launch.py serial_port:=/dev/ttyUSB0 [namespace:=/cell]
 
-The parameters come from the example file, then the launch arguments. Needs `launch_ros`
-(a sourced ROS 2 Jazzy; the PyPI wheels in .venv have none: tests/core/test_launch_files.py
-checks what this file names). Keep ROS discovery local when everything is on one machine:
-`ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`.
+The first form runs from this checkout, the second from an install (the venv after
+scripts/setup.sh, or a colcon install). The parameters come from the example file, then the
+launch arguments. Needs `launch_ros` (a sourced ROS 2 Jazzy; the PyPI wheels in .venv
+have none: tests/core/test_launch_files.py checks what this file names). Keep ROS
+discovery local when everything is on one machine: `ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`.
 """
 
 from pathlib import Path

@@ -1,11 +1,13 @@
 """Launch r6_bridge with config/r6.yaml: R6 robot controller (Modbus TCP).
 
     ros2 launch launch/r6.launch.py host:=192.168.1.10 [namespace:=/cell]
+    ros2 launch r6_bridge r6.launch.py host:=192.168.1.10 [namespace:=/cell]
 
-The parameters come from the example file, then the launch arguments. Needs `launch_ros`
-(a sourced ROS 2 Jazzy; the PyPI wheels in .venv have none: tests/core/test_launch_files.py
-checks what this file names). Keep ROS discovery local when everything is on one machine:
-`ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`.
+The first form runs from this checkout, the second from an install (the venv after
+scripts/setup.sh, or a colcon install). The parameters come from the example file, then the
+launch arguments. Needs `launch_ros` (a sourced ROS 2 Jazzy; the PyPI wheels in .venv
+have none: tests/core/test_launch_files.py checks what this file names). Keep ROS
+discovery local when everything is on one machine: `ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`.
 """
 
 from pathlib import Path

@@ -53,7 +53,7 @@ env_hash() {
         for p in "${PACKAGES[@]}"; do
             if [[ -f "$p/__init__.py" ]]; then echo "package $p"; fi
         done
-        hash_files pyproject.toml scripts/setup.sh scripts/ament_index.py
+        hash_files pyproject.toml scripts/setup.sh scripts/ament_index.py ros
     } | sha256sum | cut -d' ' -f1
 }
 ENV_HASH="env $(env_hash)"

@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # Set up the environment (scripts/setup.sh, a quick no-op when nothing changed), then run
 # pytest from the repo root; arguments are passed to pytest. ruff and mypy check the
-# Python packages, tests/ and bench/ first, and ruff format --check the whole tree
-# (LINT=0 skips them).
+# Python packages, tests/ and bench/ first (ruff only for launch/, ros/ and scripts/), and
+# ruff format --check the whole tree (LINT=0 skips them).
 set -euo pipefail
 
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -34,6 +34,8 @@ if [[ "${LINT:-1}" == 1 ]]; then
         echo "test: mypy ${extra[*]}"
         .venv/bin/mypy "${extra[@]}"
     fi
+    echo "test: ruff check launch ros scripts"
+    .venv/bin/ruff check launch ros scripts
     echo "test: ruff format --check"
     .venv/bin/ruff format --check
 fi

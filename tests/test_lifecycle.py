@@ -78,6 +78,10 @@ def test_a_managed_stepper_bridge_stops_its_jog_when_deactivated(
             reply = client.call(Trigger, f"{node}/motor_1/forward", Trigger.Request())
             assert not reply.success and "not active" in reply.message, reply.message
             assert device.read_log == [] and device.write_log == []  # nothing on the line
+            # A transition the state does not have is refused, and the node lives on.
+            assert not change(client, node, Transition.TRANSITION_INACTIVE_SHUTDOWN)
+            assert state(client, node) == "unconfigured"
+            assert proc.poll() is None
 
             assert change(client, node, Transition.TRANSITION_CONFIGURE)
             assert state(client, node) == "inactive"

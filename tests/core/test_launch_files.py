@@ -68,14 +68,44 @@ def test_every_launch_file_names_existing_packages_executables_and_files() -> No
             assert scripts.get(str(package.value)) == package.value, path
             assert (ROOT / "config" / str(config.value)).exists(), (path, config.value)
             launched.add(str(package.value))
+        for call in calls(tree, "simulator"):  # simulator(package, executable, *args)
+            package, executable = call.args[0], call.args[1]
+            assert isinstance(package, ast.Constant) and isinstance(executable, ast.Constant)
+            assert scripts.get(str(executable.value)) == package.value, (path, ast.dump(call))
+            launched.add(str(package.value))
         for call in calls(tree, "ExecuteProcess"):
             command = keyword(call, "cmd")
-            assert isinstance(command, ast.List) and isinstance(command.elts[0], ast.Constant)
-            assert command.elts[0].value in scripts, (path, command.elts[0].value)
+            assert isinstance(command, ast.List)
+            program = command.elts[0]
+            if isinstance(program, ast.Constant):  # a console script on PATH
+                assert program.value in scripts, (path, program.value)
+            else:  # found like ros2 run finds it; names checked at the simulator() calls
+                assert isinstance(program, ast.Call) and isinstance(program.func, ast.Name)
+                assert program.func.id == "ExecutableInPackage", (path, ast.dump(program))
         for node in ast.walk(tree):  # "config" / "<name>.yaml" path joins
             if isinstance(node, ast.Constant) and str(node.value).endswith(".yaml"):
                 assert (ROOT / "config" / str(node.value)).exists(), (path, node.value)
     assert launched >= BRIDGES
     for name in launched:  # what `ros2 run` / launch_ros resolve (scripts/ament_index.py)
-        resolved = Path(sys.prefix) / "lib" / name / name
-        assert os.access(resolved, os.X_OK), resolved
+        for script in (n for n, owner in scripts.items() if owner == name):
+            resolved = Path(sys.prefix) / "lib" / name / script
+            assert os.access(resolved, os.X_OK), resolved
+
+
+def test_ros2_launch_finds_each_launch_file_and_its_config_in_the_venv_share() -> None:
+    """``ros2 launch <package> <file>`` looks in ``share/<package>/`` (scripts/ament_index.py
+    links them there), and the file's ``../config`` is then the package's share too."""
+    for package in (*BRIDGES, "bridge_core"):
+        share = Path(sys.prefix) / "share" / package
+        launch_files = sorted(share.glob("launch/*.launch.py"))
+        assert launch_files, share
+        for launch_file in launch_files:
+            tree = ast.parse(launch_file.read_text(), str(launch_file))
+            configs = {
+                str(node.value)
+                for node in ast.walk(tree)
+                if isinstance(node, ast.Constant) and str(node.value).endswith(".yaml")
+            }
+            assert configs, launch_file
+            for config in configs:
+                assert (share / "config" / config).is_file(), (package, config)

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import socket
 import struct
+import subprocess
+import sys
 import time
 from collections.abc import Callable, Iterator
 
@@ -318,3 +320,19 @@ def test_poller_recovers_when_axes_or_boards_go_away(
         assert len(newest.axis_positions_deg) == fewer  # type: ignore[attr-defined]
     else:
         assert len(newest.io_board_inputs) == fewer  # type: ignore[attr-defined]
+
+
+def test_a_simulator_that_cannot_listen_says_so_in_one_line(
+    sim: tuple[R6SimDevice, int],
+) -> None:
+    """A port in use ends the simulator with exit 1 and a line naming the address."""
+    _, port = sim
+    result = subprocess.run(
+        [sys.executable, "-m", "r6_bridge.sim", "--port", str(port)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert result.returncode == 1, result.stdout + result.stderr
+    assert f"r6_sim: cannot listen on 127.0.0.1:{port}" in result.stderr
+    assert "Traceback" not in result.stderr
