@@ -1,28 +1,39 @@
 """Simulator of the R6 controller's Modbus TCP slave, on the shared simulator base.
 
-Behaviour (from the manual, plus what a test needs to see):
+Behaviour (from the manual; the readings taken where it is unclear are README "R6
+decisions" 6, 11 and 14-17, quoted again where they are coded):
 - serves exactly the §4/§5 map; undefined, reserved and "not offered" rows answer 0x02;
+- FC 04 reads the same rows as FC 03 (§4's title: "功能码 0x03、0x04、0x06、0x10 地址表定义");
 - 32-bit blocks must be read whole (from their first register, in pairs);
-- axis positions and IO boards beyond the configured counts answer 0x02 (§3.1.6, §3.1.8);
+- axis positions and IO boards beyond the configured counts answer 0x02 (§3.1.6, §3.1.8),
+  for the boards' FC 01 coils as for their FC 03 rows;
 - commands 20000-20006 only with FC 06 (§3.2.1), else 0x01;
-- start / single cycle make the axes move (speed scaled by the global speed), stop,
-  pause and stop-button halt them; an alarm halts them until cleared (20005 / 20006);
-- output point (20056-20058) sets the bit in the board's output word; counters, the
+- a program of steps (waypoints the axes move to, speed scaled by the global speed) runs
+  in cycles: start runs cycle after cycle, single cycle (20002) runs to the end of the
+  current cycle and stops; stop (20000) returns the program to its first step, pause
+  (20001) keeps the step it reached; an alarm halts the program where it is, 20006
+  clears it and continues that step, 20005 clears it and continues with the next step;
+- counter ids past the counter count read 0xFF bytes (§3.1.3);
+- §5's coils and §4's output rows 2227-2244 are one memory (coil 32·b + p is bit p of
+  board b's output word); output point (20056-20058) sets the same bits; counters, the
   parameter table and point upload keep what is written.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 from collections.abc import Sequence
 
 from bridge_core.codec import int_to_words, words_to_int
 from bridge_core.registers import Table, WordOrder
 from bridge_core.sim_base import (
+    FUNCTION_TABLES,
     ILLEGAL_ADDRESS,
     ILLEGAL_FUNCTION,
     ILLEGAL_VALUE,
+    ReadRecord,
     SimulatedDevice,
     Simulator,
     WriteRecord,
@@ -30,22 +41,73 @@ from bridge_core.sim_base import (
     serve_tcp_until_signalled,
 )
 
-from .registers import COMMANDS, MAX_AXES, MAX_IO_BOARDS, R6_MAP
+from .registers import COIL_BANKS, COMMANDS, MAX_AXES, MAX_COUNTERS, MAX_IO_BOARDS, R6_MAP
 
 HIGH = WordOrder.HIGH_FIRST
 MANUAL_VERSION = "AM8-QC-RXE-7.8.02-bate7_FAKE_TGF_ENCODER"  # §3.1.2 example
-AXIS_SPEED_DEG_S = 30.0  # at 100 % global speed
+AXIS_SPEED_DEG_S = 30.0  # axis 1 at 100 % global speed; axis a: 10 % less per axis
 OUTPUT_BOARD_TABLE_MAX = 7  # §4 row 20056 maximum
 DEFAULT_COUNTERS = {0: (10, 0), 1: (10, 5)}  # id: (target, current), §3.1.4 example
+# §3.1.3: "若实际数量少于请求的数量则将剩余的使用 0xFF 填充" (decision 6: every padding byte
+# is 0xFF, so a counter id past the count reads 0xFFFF 0xFFFF).
+COUNTER_PADDING_WORD = 0xFFFF
+POINTS_PER_BOARD = 32
+# §4 output rows: IO boards 0-4 (2227-2236), M boards 0-2 (2237-2242), EU board 0
+# (2243-2244), two registers per board, "16~31" in the first and "0~15" in the second.
+OUTPUT_ROWS = range(R6_MAP["io_board_output_0"].address, R6_MAP["eu_board_output"].end)
+# §5 coils: Y010-Y247 (0-159), M010-M147 (160-255), EUY010-EUY047 (256-287): 32 per board,
+# the same nine boards in the same order (the octal names count 32 outputs per board).
+OUTPUT_COILS = range(COIL_BANKS[0][1], COIL_BANKS[-1][1] + COIL_BANKS[-1][2])
+if len(OUTPUT_COILS) != len(OUTPUT_ROWS) * 16:
+    raise AssertionError("§5 coils and §4 output rows must cover the same boards")
+FIRST_POSITION = R6_MAP["axis_position_1"].address
+POSITION_ROWS_END = R6_MAP[f"axis_position_{MAX_AXES}"].end
+
+
+def axis_speed_deg_s(axis: int) -> float:
+    """Degrees per second of axis 1..8 at 100 % global speed (distinct per axis)."""
+    return round(AXIS_SPEED_DEG_S * (1.0 - 0.1 * (axis - 1)), 3)
+
+
+def _default_program() -> tuple[tuple[float, ...], ...]:
+    """Three steps per cycle: out, across, home (2 s, 4 s, 2 s at 100 % global speed; axis
+    1 swings +-60 deg). Long enough that a few seconds of watching see the axes move on."""
+    out = tuple(
+        (1.0 if a % 2 == 1 else -1.0) * 2.0 * axis_speed_deg_s(a) for a in range(1, MAX_AXES + 1)
+    )
+    return (out, tuple(-p for p in out), (0.0,) * MAX_AXES)
+
+
+DEFAULT_PROGRAM = _default_program()
+
+
+def coil_to_row_bit(coil: int) -> tuple[int, int]:
+    """The §4 output register and bit that hold §5 coil ``coil`` (one memory)."""
+    board, point = divmod(coil - OUTPUT_COILS.start, POINTS_PER_BOARD)
+    high_word = OUTPUT_ROWS.start + 2 * board  # "16~31" at the board's first register
+    return (high_word, point - 16) if point >= 16 else (high_word + 1, point)
+
+
+def row_first_coil(row: int) -> int:
+    """The §5 coil of bit 0 of §4 output register ``row``."""
+    board, second = divmod(row - OUTPUT_ROWS.start, 2)
+    return OUTPUT_COILS.start + POINTS_PER_BOARD * board + (0 if second else 16)
 
 
 class R6SimDevice(SimulatedDevice):
     def __init__(self, axis_count: int = 6, io_board_count: int = 1, unit_id: int = 1) -> None:
         super().__init__(R6_MAP, unit_id)
         self.running = False
+        # The program: one waypoint per step (degrees, axes 1-8); a test may shorten it.
+        self.program: tuple[tuple[float, ...], ...] = DEFAULT_PROGRAM
+        self.step = 0  # the step the program runs (or resumes at)
+        self.single_cycle = False  # stop at the end of the current cycle (20002)
+        self.halted_by_alarm = False  # an alarm stopped the running program
+        self.cycles_completed = 0
+        self._time_in_cycle_ms = 0.0
+        self._serving_fc04 = False
         self.counters: dict[int, list[int]] = {k: list(v) for k, v in DEFAULT_COUNTERS.items()}
         self.points: dict[int, list[int]] = {}
-        self.axis_directions = [1.0 if a % 2 == 0 else -1.0 for a in range(MAX_AXES)]
         self.write_guards.append(self._guard)
         self.write_hooks.append(self._on_write)
         self.set_version(MANUAL_VERSION)
@@ -56,7 +118,6 @@ class R6SimDevice(SimulatedDevice):
         self.set("homed", 1)
         self.set("global_speed", 50.0)
         self._publish_counters()
-        self._time_in_cycle_ms = 0.0
 
     def set_version(self, text: str) -> None:
         data = text.encode("latin-1")
@@ -64,31 +125,85 @@ class R6SimDevice(SimulatedDevice):
         self.set("version_length", len(data) + 1)
         self.set("version", text)
 
+    def set_counters(self, counters: dict[int, tuple[int, int]]) -> None:
+        """The controller's counters (id: (target, current)), as its program defines them."""
+        with self.lock:
+            self.counters = {k: list(v) for k, v in counters.items()}
+            self._publish_counters()
+
     def set_alarm(self, code: int) -> None:
+        """Raise (or, with 0, drop) an alarm; an alarm halts the program where it is."""
         with self.lock:
             self.set("alarm_code", code)
-            if code:
+            if code and self.running:
                 self.running = False
+                self.halted_by_alarm = True
+            elif not code:
+                self.halted_by_alarm = False
 
     @property
     def axis_count(self) -> int:
         return int(self.get("axis_count"))
 
+    # ------------------------------------------------------------ one output memory
+    def set_words(self, table: Table, address: int, values: Sequence[int]) -> None:
+        """Every store goes through here: keep §5's coils and §4's output rows one memory
+        (decision 17), whichever side a write, a command or the simulator itself changes."""
+        with self.lock:
+            super().set_words(table, address, values)
+            for offset, word in enumerate(values):
+                at = address + offset
+                if table is Table.COIL and at in OUTPUT_COILS:
+                    row, bit = coil_to_row_bit(at)
+                    old = self.words[(Table.HOLDING, row)]
+                    new = old | (1 << bit) if word else old & ~(1 << bit)
+                    super().set_words(Table.HOLDING, row, [new])
+                elif table is Table.HOLDING and at in OUTPUT_ROWS:
+                    bits = [(int(word) >> bit) & 1 for bit in range(16)]
+                    super().set_words(Table.COIL, row_first_coil(at), bits)
+
     # ------------------------------------------------------------ Modbus behaviour
     def read(self, function_code: int, address: int, count: int) -> list[int] | int:
         with self.lock:
-            axes = int(self.get("axis_count"))
-            boards = int(self.get("io_board_count"))
-            end = address + count
-            first_invalid_axis = R6_MAP["axis_position_1"].address + 2 * axes
-            if address < 2284 and end > first_invalid_axis and first_invalid_axis < 2284:
+            code = self._refused_by_counts(FUNCTION_TABLES[function_code], address, count)
+            if code is not None:
+                return code
+            if function_code != 4:
+                return super().read(function_code, address, count)
+            # §4 "功能码 0x03、0x04、0x06、0x10 地址表定义": FC 04 reads the FC 03 rows (the
+            # read log still says FC 04).
+            self._serving_fc04 = True
+            try:
+                return super().read(3, address, count)
+            finally:
+                self._serving_fc04 = False
+
+    def _log_read(self, record: ReadRecord) -> None:
+        if self._serving_fc04:
+            record = dataclasses.replace(record, function_code=4)
+        super()._log_read(record)
+
+    def _refused_by_counts(self, table: Table, address: int, count: int) -> int | None:
+        """§3.1.6 / §3.1.8: only the axes and IO boards in use are valid addresses."""
+        axes = int(self.get("axis_count"))
+        boards = int(self.get("io_board_count"))
+        end = address + count
+        if table is Table.COIL:
+            # The boards' coils are their output rows (decision 17): the same count rule.
+            first_invalid = OUTPUT_COILS.start + POINTS_PER_BOARD * boards
+            last = OUTPUT_COILS.start + POINTS_PER_BOARD * MAX_IO_BOARDS
+            if address < last and end > first_invalid and first_invalid < last:
                 return ILLEGAL_ADDRESS
-            for base in (2187, 2227):
-                first_invalid_board = base + 2 * boards
-                last = base + 2 * MAX_IO_BOARDS
-                if address < last and end > first_invalid_board and first_invalid_board < last:
-                    return ILLEGAL_ADDRESS
-            return super().read(function_code, address, count)
+            return None
+        first_invalid_axis = FIRST_POSITION + 2 * axes
+        if address < POSITION_ROWS_END and end > first_invalid_axis < POSITION_ROWS_END:
+            return ILLEGAL_ADDRESS
+        for base in (2187, 2227):
+            first_invalid_board = base + 2 * boards
+            last = base + 2 * MAX_IO_BOARDS
+            if address < last and end > first_invalid_board and first_invalid_board < last:
+                return ILLEGAL_ADDRESS
+        return None
 
     def _guard(self, record: WriteRecord) -> int | None:
         if record.table is Table.HOLDING:
@@ -142,22 +257,72 @@ class R6SimDevice(SimulatedDevice):
             stored = [] if clear == 1 else self.points.get(source, [])
             self.points[source] = stored + values[: count * per_point]
 
+    # ------------------------------------------------------------ the program
     def _command(self, address: int) -> None:
         name = {v: k for k, v in COMMANDS.items()}[address]
         alarm = int(self.get("alarm_code"))
         if name in ("start", "single_cycle"):
-            self.running = alarm == 0
-        elif name in ("stop", "pause", "stop_button"):
+            # An alarm blocks both until it is cleared. 20003 "启动按键" runs cycle after
+            # cycle; 20002 "进入单循环" runs to the end of the current cycle, then stops
+            # (decision 14). Either resumes at the step the program is at.
+            if alarm == 0:
+                self.running = True
+                self.single_cycle = name == "single_cycle"
+        elif name == "pause":
+            # 20001 "暂停当前动作(启动从当前步开始)": the step is kept.
             self.running = False
+        elif name in ("stop", "stop_button"):
+            # 20000 "立即停止当前动作(启动从头开始)": the next start begins at the first
+            # step; 20004 "stopButton:停止按键" is taken as the same stop (decision 15).
+            self.running = False
+            self._reset_program()
         elif name in ("clear_alarm_and_next", "clear_alarm_and_continue"):
+            # 20005 "清除报警后运行下一条指令", 20006 "清除报警并继续自动运行:(自动运行
+            # 状态下)" (decision 16): both clear the alarm; only a program the alarm halted
+            # runs on, 20006 at the step it stopped (in auto mode only), 20005 at the next.
+            halted = self.halted_by_alarm
             self.set("alarm_code", 0)
-            self.running = name == "clear_alarm_and_continue" and int(self.get("mode")) == 2
+            self.halted_by_alarm = False
+            if not halted:
+                return
+            if name == "clear_alarm_and_continue":
+                self.running = int(self.get("mode")) == 2
+            else:
+                self.running = not self._next_step()
+
+    def _reset_program(self) -> None:
+        self.step = 0
+        self.single_cycle = False
+        self.halted_by_alarm = False
+        self._time_in_cycle_ms = 0.0
+        self.set("current_cycle_time", 0)
+
+    def _next_step(self) -> bool:
+        """Go on to the next step; at the end of the program a cycle is complete.
+        Returns True when that ended a single cycle (the program stops)."""
+        self.step += 1
+        if self.step < len(self.program):
+            return False
+        self.step = 0
+        self.cycles_completed += 1
+        self.set("last_cycle_time", int(self._time_in_cycle_ms))
+        self._time_in_cycle_ms = 0.0
+        self.set("current_cycle_time", 0)
+        if self.single_cycle:
+            self.single_cycle = False
+            self.running = False
+            return True
+        return False
 
     def _publish_counters(self) -> None:
         ids = sorted(self.counters)
         self.set("counter_count", len(ids))
-        for k, counter_id in enumerate(ids):
-            self.set(f"counter_id_{k}", counter_id)
+        first = R6_MAP["counter_id_0"].address
+        words: list[int] = []
+        for counter_id in ids:
+            words += int_to_words(counter_id, 2, False, HIGH)
+        words += [COUNTER_PADDING_WORD] * (2 * MAX_COUNTERS - len(words))
+        self.set_words(Table.HOLDING, first, words)
         selected = int(self.get("counter_select_id"))
         target, current = self.counters.get(selected, [0, 0])
         self.set_words(
@@ -169,30 +334,34 @@ class R6SimDevice(SimulatedDevice):
 
     def tick(self, dt: float) -> None:
         with self.lock:
-            axes = int(self.get("axis_count"))
+            axes = min(int(self.get("axis_count")), MAX_AXES)
             speed_fraction = float(self.get("global_speed")) / 100.0
             moving = self.running and speed_fraction > 0
-            self.set("moving", 1 if moving else 0)
+            if self.step >= len(self.program):  # a test gave a shorter program
+                self.step = 0
+            target = self.program[self.step] if moving else ()
+            arrived = True
             for a in range(1, MAX_AXES + 1):
-                axis_speed = AXIS_SPEED_DEG_S * (1.0 - 0.1 * (a - 1))  # distinct per axis
-                deg_s = (
-                    axis_speed * speed_fraction * self.axis_directions[a - 1]
-                    if moving and a <= axes
-                    else 0.0
-                )
-                if deg_s:
-                    position = float(self.get(f"axis_position_{a}")) + deg_s * dt
-                    if abs(position) > 170.0:  # turn around before the joint limit
-                        self.axis_directions[a - 1] *= -1
-                    self.set(f"axis_position_{a}", round(position, 3))
+                deg_s = 0.0
+                if moving and a <= axes:
+                    position = float(self.get(f"axis_position_{a}"))
+                    left = round(target[a - 1] - position, 3)
+                    limit = axis_speed_deg_s(a) * speed_fraction
+                    if abs(left) > limit * dt:
+                        arrived = False
+                        deg_s = math.copysign(limit, left)
+                        self.set(f"axis_position_{a}", round(position + deg_s * dt, 3))
+                    elif left:
+                        deg_s = left / dt if dt > 0 else 0.0
+                        self.set(f"axis_position_{a}", target[a - 1])
                 self.set(f"axis_speed_{a}", round(deg_s * 60.0 / 360.0))
-                self.set(f"axis_torque_{a}", round(0.2 + 0.1 * math.sin(a), 3) if moving else 0.0)
+                self.set(f"axis_torque_{a}", round(0.2 + 0.1 * math.sin(a), 3) if deg_s else 0.0)
             if moving:
                 self._time_in_cycle_ms += dt * 1000.0
-                if self._time_in_cycle_ms > 5000.0:
-                    self.set("last_cycle_time", int(self._time_in_cycle_ms))
-                    self._time_in_cycle_ms = 0.0
                 self.set("current_cycle_time", int(self._time_in_cycle_ms))
+                if arrived:
+                    self._next_step()
+            self.set("moving", 1 if self.running and speed_fraction > 0 else 0)
             # The tool follows axes 1-3 loosely so the TCP pose changes too.
             p = [float(self.get(f"axis_position_{a}")) for a in (1, 2, 3)]
             self.set("world_x", round(400.0 + p[0], 3))

@@ -15,9 +15,9 @@ from bridge_core.channel import DeviceChannel
 from bridge_core.errors import CommandRejected, DeviceException
 from bridge_core.registers import Table
 from bridge_core.transport import ModbusLink, TcpSettings
-from r6_bridge.device import R6Device
-from r6_bridge.registers import NOT_OFFERED, R6_MAP
-from r6_bridge.sim import MANUAL_VERSION, R6SimDevice, make_simulator
+from r6_bridge.device import R6Device, R6Snapshot
+from r6_bridge.registers import MAX_AXES, NOT_OFFERED, R6_LIMITS, R6_MAP
+from r6_bridge.sim import MANUAL_VERSION, R6SimDevice, axis_speed_deg_s, make_simulator
 
 
 @pytest.fixture
@@ -150,8 +150,9 @@ def test_simulator_refuses_what_the_device_refuses(sim: tuple[R6SimDevice, int])
     assert exception_code(read(20000, 1)) == 2  # command registers are write-only
     # Commands only with FC 06 (§3.2.1).
     assert exception_code(bytes([16]) + struct.pack(">HHB", 20000, 1, 2) + b"\x00\x01") == 1
-    # FC 04 is not used by the bridge and not served.
-    assert exception_code(bytes([4]) + struct.pack(">HH", 2185, 1)) == 1
+    # FC 04 reads the FC 03 table (§4's title), so it refuses what FC 03 refuses.
+    assert exception_code(bytes([4]) + struct.pack(">HH", 2269, 2)) == 2
+    assert exception_code(bytes([4]) + struct.pack(">HH", 20000, 1)) == 2
     # Global speed above 1000 (§3.2.2).
     assert exception_code(bytes([6]) + struct.pack(">HH", 20200, 1001)) == 3
 
@@ -185,7 +186,10 @@ def test_axes_move_while_running_and_stop(r6: tuple[R6Device, R6SimDevice, Devic
     device.command("start")
     assert not sim.running  # an alarm blocks start until cleared
     device.command("clear_alarm_and_continue")
-    assert sim.running and sim.get("alarm_code") == 0
+    # Cleared, but the alarm did not halt a running program: nothing to continue.
+    assert not sim.running and sim.get("alarm_code") == 0
+    device.command("start")
+    assert sim.running
 
 
 def test_point_upload_reaches_the_simulator(
@@ -336,3 +340,235 @@ def test_a_simulator_that_cannot_listen_says_so_in_one_line(
     assert result.returncode == 1, result.stdout + result.stderr
     assert f"r6_sim: cannot listen on 127.0.0.1:{port}" in result.stderr
     assert "Traceback" not in result.stderr
+
+
+# ---------------------------------------------------------------- R6 behaviour (issue 10)
+WAIT_S = 30.0
+
+
+def wait_for_poll(
+    device: R6Device,
+    predicate: Callable[[R6Snapshot], bool],
+    what: str,
+    never: Callable[[R6Snapshot], bool] | None = None,
+) -> R6Snapshot:
+    """Poll over the socket until ``predicate`` holds (each poll is the pacing); no poll on
+    the way may satisfy ``never`` (e.g. an axis moving the wrong way first)."""
+    deadline = time.monotonic() + WAIT_S
+    while True:
+        snap = device.poll()
+        if predicate(snap):
+            return snap
+        if never is not None and never(snap):
+            pytest.fail(f"while waiting for {what}: {snap}")
+        if time.monotonic() > deadline:
+            pytest.fail(f"timed out waiting for {what}; last poll: {snap}")
+
+
+def timed_program(*seconds: float) -> tuple[tuple[float, ...], ...]:
+    """One waypoint per step: where each axis is after ``seconds`` of motion at 100 % global
+    speed from 0 (negative: the other way), so every axis arrives at the same time."""
+    return tuple(
+        tuple(round(axis_speed_deg_s(a) * t, 3) for a in range(1, MAX_AXES + 1)) for t in seconds
+    )
+
+
+def axis_1(snap: R6Snapshot) -> float:
+    return snap.axis_positions_deg[0]
+
+
+def test_single_cycle_runs_to_the_end_of_the_cycle_then_stops(
+    r6: tuple[R6Device, R6SimDevice, DeviceChannel],
+) -> None:
+    """20002 "进入单循环" (decision 14): one cycle, then the program stops at its end."""
+    device, sim, _ = r6
+    sim.program = timed_program(0.5, -1.0, 0.0)  # 0.5 + 1.5 + 1.0 s per cycle
+    sim.set("global_speed", 100.0)
+    device.command("single_cycle")
+    done = wait_for_poll(
+        device, lambda s: not s.moving and s.last_cycle_time_ms > 0, "the single cycle's end"
+    )
+    assert done.current_cycle_time_ms == 0 and done.alarm_code == 0
+    assert done.axis_positions_deg == (0.0,) * 6  # the program's last waypoint
+    assert not sim.running and sim.cycles_completed == 1 and sim.step == 0
+    # Sent while a continuous run is under way, it ends that run with the current cycle.
+    device.command("start")
+    wait_for_poll(device, lambda s: s.moving and axis_1(s) > 0, "the second cycle")
+    device.command("single_cycle")
+    done = wait_for_poll(device, lambda s: not s.moving, "the second cycle's end")
+    assert done.axis_positions_deg == (0.0,) * 6
+    assert sim.cycles_completed == 2
+    # 20003 runs cycle after cycle.
+    sim.program = timed_program(0.1, -0.2, 0.0)
+    device.command("start")
+    wait_for_poll(device, lambda s: sim.cycles_completed >= 5, "three more cycles")
+    assert sim.running
+
+
+def test_pause_resumes_at_the_step_and_stop_starts_from_the_first(
+    r6: tuple[R6Device, R6SimDevice, DeviceChannel],
+) -> None:
+    """20001 "暂停当前动作(启动从当前步开始)" keeps the step and the cycle; 20000
+    "立即停止当前动作(启动从头开始)" (and 20004, decision 15) start over."""
+    device, sim, _ = r6
+    sim.program = timed_program(0.2, -3.0, 0.0)  # step 1: out (+), step 2: a long way back
+    sim.set("global_speed", 100.0)
+    device.command("start")
+    wait_for_poll(device, lambda s: axis_1(s) < -3.0, "the second step")
+    device.command("pause")
+    paused = wait_for_poll(device, lambda s: not s.moving, "the pause")
+    assert paused.current_cycle_time_ms > 0
+    device.command("start")
+    # Resumed at the second step: on towards its waypoint (-), in the same cycle.
+    resumed = wait_for_poll(
+        device,
+        lambda s: axis_1(s) < axis_1(paused) - 3.0,
+        "the second step going on",
+        never=lambda s: axis_1(s) > axis_1(paused) + 0.5,
+    )
+    assert resumed.current_cycle_time_ms > paused.current_cycle_time_ms
+    for stop in ("stop", "stop_button"):
+        device.command(stop)
+        stopped = wait_for_poll(device, lambda s: not s.moving, stop)
+        assert stopped.current_cycle_time_ms == 0, stop  # the cycle is abandoned
+        assert sim.step == 0, stop
+        device.command("start")
+        # From the first step: back out towards its waypoint (+).
+        at = axis_1(stopped)
+
+        def back_out(s: R6Snapshot, at: float = at) -> bool:
+            return axis_1(s) > at + 3.0
+
+        def further_in(s: R6Snapshot, at: float = at) -> bool:
+            return axis_1(s) < at - 0.5
+
+        wait_for_poll(device, back_out, f"the first step after {stop}", never=further_in)
+        wait_for_poll(device, lambda s: axis_1(s) < -3.0, "the second step")
+
+
+def test_alarm_halts_20006_continues_the_step_20005_goes_on_with_the_next(
+    r6: tuple[R6Device, R6SimDevice, DeviceChannel],
+) -> None:
+    """20005 "清除报警后运行下一条指令", 20006 "清除报警并继续自动运行" (decision 16)."""
+    device, sim, _ = r6
+    sim.program = timed_program(0.2, -3.0, 0.0)
+    sim.set("global_speed", 100.0)
+    device.command("start")
+    wait_for_poll(device, lambda s: axis_1(s) < -3.0, "the second step")
+    sim.set_alarm(0x325)
+    halted = wait_for_poll(device, lambda s: not s.moving, "the alarm's halt")
+    assert halted.alarm_code == 0x325
+    device.command("start")
+    assert not sim.running  # an alarm blocks start until cleared
+    device.command("clear_alarm_and_continue")
+    wait_for_poll(
+        device,
+        lambda s: s.alarm_code == 0 and axis_1(s) < axis_1(halted) - 3.0,
+        "20006: the same step going on (-)",
+        never=lambda s: axis_1(s) > axis_1(halted) + 0.5,
+    )
+    sim.set_alarm(0x326)
+    halted = wait_for_poll(device, lambda s: not s.moving, "the second alarm's halt")
+    assert sim.step == 1
+    device.command("clear_alarm_and_next")
+    wait_for_poll(
+        device,
+        lambda s: s.alarm_code == 0 and s.moving and axis_1(s) > axis_1(halted) + 3.0,
+        "20005: the next step (towards 0, +)",
+        never=lambda s: axis_1(s) < axis_1(halted) - 0.5,
+    )
+    assert sim.step == 2 and sim.running
+    # 20006 continues only in auto mode (its "(自动运行状态下)"); the alarm is cleared.
+    sim.set_alarm(0x327)
+    wait_for_poll(device, lambda s: not s.moving, "the third alarm's halt")
+    sim.set("mode", 1)
+    device.command("clear_alarm_and_continue")
+    assert not sim.running and sim.get("alarm_code") == 0
+    # An alarm that halted nothing (the program stood still) leaves nothing to run on.
+    sim.set("mode", 2)
+    sim.set_alarm(0x328)
+    for clear in ("clear_alarm_and_next", "clear_alarm_and_continue"):
+        device.command(clear)
+        assert not sim.running and sim.get("alarm_code") == 0, clear
+        sim.set_alarm(0x328)
+
+
+def test_counter_ids_past_the_count_read_0xff(sim: tuple[R6SimDevice, int]) -> None:
+    """§3.1.3: "若实际数量少于请求的数量则将剩余的使用 0xFF 填充" (decision 6)."""
+    device, port = sim
+
+    def ids(first: int, count: int) -> bytes:
+        reply = raw_request(port, bytes([3]) + struct.pack(">HH", 131 + 2 * first, 2 * count))
+        assert reply[1:3] == bytes([3, 4 * count]), reply.hex()
+        return reply[3:]
+
+    assert ids(0, 4) == bytes.fromhex("00000000 00000001 ffffffff ffffffff")
+    assert ids(3, 2) == b"\xff" * 8  # wholly past the count: padded, not refused
+    assert ids(1022, 2) == b"\xff" * 8
+    device.set_counters({5: (1, 0), 9: (2, 0), 0x12345: (3, 1)})
+    assert ids(0, 4) == bytes.fromhex("00000005 00000009 00012345 ffffffff")
+    device.set_counters({})
+    assert ids(0, 1) == b"\xff" * 4
+
+
+def test_coils_and_output_rows_are_one_memory(
+    r6: tuple[R6Device, R6SimDevice, DeviceChannel], sim: tuple[R6SimDevice, int]
+) -> None:
+    """§5's FC 01/05 outputs (Y010…, M010…, EUY010…) and §4's output rows 2227-2244 are the
+    same outputs (decision 17): coil 32·board + point is bit `point` of the board's word."""
+    device, simulator, channel = r6
+    _, port = sim
+
+    def coil(address: int, on: bool) -> None:
+        pdu = bytes([5]) + struct.pack(">HH", address, 0xFF00 if on else 0)
+        assert raw_request(port, pdu)[1:] == pdu  # the echo
+
+    def rows(address: int) -> list[int]:
+        return channel.read_registers(address, 2)
+
+    coil(33, True)  # board 1, point 1: the low word's bit 1
+    coil(52, True)  # board 1, point 20: the high word's bit 4
+    assert rows(2229) == [0x0010, 0x0002]
+    assert device.poll().io_board_outputs[1] == 1 << 20 | 1 << 1
+    coil(33, False)
+    assert rows(2229) == [0x0010, 0x0000]
+    coil(160 + 32 + 5, True)  # M board 1, point 5 (rows 2239-2240)
+    coil(256 + 17, True)  # EU board, point 17 (rows 2243-2244)
+    assert rows(2239) == [0, 0x0020] and rows(2243) == [0x0002, 0]
+    # The other way: §3.3.1's whole-board write and §3.3.3's single point show as coils.
+    device.write_board_outputs(0, 0x8000_0001)
+    bits = channel.read_bits(0, 32)
+    assert [k for k, b in enumerate(bits) if b] == [0, 31]
+    reply = raw_request(port, bytes([1]) + struct.pack(">HH", 0, 32))
+    assert reply[1:] == bytes([1, 4, 0x01, 0, 0, 0x80])
+    device.set_output(1, 7, True)
+    assert [k for k, b in enumerate(channel.read_bits(32, 32)) if b] == [7, 20]
+    simulator.set("io_board_output_0", 0)  # and what the controller itself changes
+    assert not any(channel.read_bits(0, 32))
+    # Coils of IO boards not in use are refused like their rows (§3.1.6; 2 boards here).
+    reply = raw_request(port, bytes([1]) + struct.pack(">HH", 64, 1))
+    assert reply[1:] == bytes([0x81, 2])
+    assert raw_request(port, bytes([1]) + struct.pack(">HH", 160, 128))[1] == 1  # M, EU
+
+
+def test_fc04_reads_the_fc03_table(
+    r6: tuple[R6Device, R6SimDevice, DeviceChannel], sim: tuple[R6SimDevice, int]
+) -> None:
+    """§4 "功能码 0x03、0x04、0x06、0x10 地址表定义": FC 04 serves the same rows."""
+    assert 4 in R6_LIMITS.function_codes
+    _, simulator, channel = r6
+    _, port = sim
+    simulator.tick = lambda dt: None  # type: ignore[method-assign]  # hold the values still
+    simulator.set("axis_position_2", -12.5)
+    simulator.log_reads = True
+    for address, count in ((2185, 1), (2268, 12), (2397, 4), (1, 21), (131, 4), (20300, 2)):
+        holding = raw_request(port, bytes([3]) + struct.pack(">HH", address, count))
+        inputs = raw_request(port, bytes([4]) + struct.pack(">HH", address, count))
+        assert inputs[1] == 4 and inputs[2:] == holding[2:], (address, inputs.hex())
+    assert channel.read_registers(2270, 2, table=Table.INPUT) == [0xFFFF, 0xCF2C]
+    # The same refusals: a cut 32-bit value, a write-only row, an axis not in use.
+    for address, count in ((2269, 2), (20000, 1), (2280, 2)):
+        reply = raw_request(port, bytes([4]) + struct.pack(">HH", address, count))
+        assert reply[1:] == bytes([0x84, 2]), address
+    fc04 = [r for r in simulator.read_log if r.function_code == 4]
+    assert fc04 and all(r.table is Table.HOLDING for r in fc04)
