@@ -529,15 +529,18 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
 
     def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
         self._close_owned_link()
+        self.get_logger().info("unconfigured: link closed")
         return TransitionCallbackReturn.SUCCESS
 
     def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
         self._halt()
         self._close_owned_link()
+        self.get_logger().info("finalized: motion stopped, link closed (Ctrl-C ends the process)")
         return TransitionCallbackReturn.SUCCESS
 
     def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
         self._halt()
+        self.get_logger().error("lifecycle error: motion stopped, not polling")
         return TransitionCallbackReturn.SUCCESS
 
     def _halt(self) -> None:
