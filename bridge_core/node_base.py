@@ -26,6 +26,7 @@ import functools
 import signal
 import sys
 import threading
+import time
 import traceback
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
@@ -414,6 +415,7 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self._connected_published: bool | None = None
         self._connected_lock = threading.Lock()
+        self._down_said_at = 0.0  # monotonic time the console last said the link is down
         self._publish_connected(False)
         self.poller: Poller[SnapshotT] = Poller(
             self.channel,
@@ -529,15 +531,18 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
 
     def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
         self._close_owned_link()
+        self.get_logger().info("unconfigured: link closed")
         return TransitionCallbackReturn.SUCCESS
 
     def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
         self._halt()
         self._close_owned_link()
+        self.get_logger().info("finalized: motion stopped, link closed (Ctrl-C ends the process)")
         return TransitionCallbackReturn.SUCCESS
 
     def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
         self._halt()
+        self.get_logger().error("lifecycle error: motion stopped, not polling")
         return TransitionCallbackReturn.SUCCESS
 
     def _halt(self) -> None:
@@ -558,13 +563,17 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
             logger.warn(f"{text}; re-reading the device's configuration", throttle_duration_sec=5.0)
         elif outcome is PollOutcome.UNREACHABLE:
             logger.warn(f"cannot reach {self.channel.describe()}: {text}; retrying")
+            self._down_said_at = time.monotonic()
         elif outcome is PollOutcome.LINK_LOST:
             logger.error(f"link to {self.channel.describe()} lost: {text}; reconnecting")
+            self._down_said_at = time.monotonic()
         elif outcome is PollOutcome.STILL_DOWN:
-            logger.warn(
-                f"{self.channel.describe()} still down: {text}",
-                throttle_duration_sec=LINK_DOWN_LOG_PERIOD_S,
-            )
+            # Every LINK_DOWN_LOG_PERIOD_S after the line that said it went down (rclpy's
+            # own throttle would say it again on the first retry).
+            now = time.monotonic()
+            if now - self._down_said_at >= LINK_DOWN_LOG_PERIOD_S:
+                logger.warn(f"{self.channel.describe()} still down: {text}")
+                self._down_said_at = now
         else:
             logger.error(text)
 

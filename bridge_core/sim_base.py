@@ -2,7 +2,9 @@
 
 Each simulated unit (``SimulatedDevice``) serves exactly the addresses its map defines
 (exception 0x02 elsewhere), refuses requests that cut a multi-register value in two,
-refuses function codes the device lacks (0x01), keeps a write log the tests assert on,
+refuses function codes the device lacks (``FC|0x80, 0x01``, over TCP and RTU alike:
+``strict_decoder``), takes only FF00 / 0000 on FC 05 (0x03 otherwise), keeps a write log
+the tests assert on,
 and calls behaviour hooks (device ``sim.py`` modules make axes move, alarms appear ...).
 A multi-drop server stays silent for unit ids it does not own, as an RS-485 device does.
 
@@ -20,6 +22,7 @@ import dataclasses
 import json
 import shutil
 import signal
+import struct
 import subprocess
 import tempfile
 import threading
@@ -32,6 +35,9 @@ from typing import IO, Any
 from pymodbus.constants import ExcCodes
 from pymodbus.datastore import ModbusServerContext
 from pymodbus.exceptions import NoSuchIdException
+from pymodbus.pdu import ExceptionResponse, ModbusPDU
+from pymodbus.pdu.bit_message import WriteSingleCoilRequest
+from pymodbus.pdu.decoders import DecodePDU
 from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 
 from .codec import Value, decode, encode
@@ -55,6 +61,11 @@ ILLEGAL_VALUE = int(ExcCodes.ILLEGAL_VALUE)
 DEVICE_FAILURE = int(ExcCodes.DEVICE_FAILURE)
 TICK_S = 0.01
 ECHO_FUNCTIONS = frozenset({5, 6})
+# FC 05's only values (Modbus application protocol §6.5; stepper manual §5(2) "其它所有值
+# 均为非法的,并且对线圈不起作用"): anything else is ILLEGAL DATA VALUE and writes nothing.
+COIL_ON, COIL_OFF = 0xFF00, 0x0000
+# Function codes 1-127 are requests; 128 and up are exception replies.
+LAST_FUNCTION_CODE = 0x7F
 
 
 class _JsonRecord:
@@ -296,6 +307,13 @@ class _MapContext(ModbusServerContext):
             raise NoSuchIdException(f"unit {device_id} silent")
         return sim.devices[device_id]
 
+    async def refuse(self, device_id: int, function_code: int, code: ExcCodes) -> ExcCodes:
+        """An exception reply from the unit, with its reply delay; a unit that is not
+        there stays silent (``NoSuchIdException``), as for every other request."""
+        self._device(device_id, function_code)
+        await self._sim.delay()
+        return code
+
     async def async_getValues(  # noqa: N802 - pymodbus name
         self, device_id: int, func_code: int, address: int, count: int = 1
     ) -> Any:
@@ -324,6 +342,73 @@ class _MapContext(ModbusServerContext):
             return ExcCodes.ILLEGAL_FUNCTION
         result = device.write(func_code, address, [int(v) for v in values])
         return None if result is None else ExcCodes(result)
+
+
+def _refusing(base: type[ModbusPDU], function_code: int, frame_size: int) -> type[ModbusPDU]:
+    """A request class for a function code the device does not have: framed like
+    ``base`` (an RTU server needs its frame size), answered ``FC|0x80, 0x01``.
+
+    Without it pymodbus answers 07/08/11/2B itself, and a TCP server answers a code it
+    cannot decode with function byte 0x80 (no code), which a client takes for a timeout.
+    """
+
+    def decode(self: ModbusPDU, data: bytes) -> None:
+        """Not parsed: the request is refused whatever it holds."""
+
+    async def datastore_update(self: ModbusPDU, context: Any, device_id: int) -> ModbusPDU:
+        code = await context.refuse(device_id, function_code, ExcCodes.ILLEGAL_FUNCTION)
+        return ExceptionResponse(function_code, code)
+
+    return type(
+        f"Refused{function_code:02X}",
+        (base,),
+        {
+            "function_code": function_code,
+            "rtu_frame_size": frame_size,
+            "sub_function_code": -1,  # no sub-function table lookup (FC 08, 2B)
+            "decode_sub_function_code": classmethod(lambda cls, data: -1),
+            "decode": decode,
+            "datastore_update": datastore_update,
+        },
+    )
+
+
+class _StrictWriteSingleCoil(WriteSingleCoilRequest):
+    """FC 05 with a value other than FF00 / 0000: ILLEGAL DATA VALUE, nothing written
+    (pymodbus itself takes any non-zero value for ON)."""
+
+    value = COIL_OFF
+
+    def decode(self, data: bytes) -> None:
+        super().decode(data)
+        self.value = struct.unpack(">H", data[2:4])[0]
+
+    async def datastore_update(self, context: Any, device_id: int) -> ModbusPDU:
+        if self.value not in (COIL_ON, COIL_OFF):
+            code = await context.refuse(device_id, self.function_code, ExcCodes.ILLEGAL_VALUE)
+            return ExceptionResponse(self.function_code, code)
+        return await super().datastore_update(context, device_id)
+
+
+def strict_decoder(decoder: DecodePDU, allowed: Iterable[int], *, tcp: bool) -> None:
+    """Make a pymodbus server's decoder answer like the device: every function code
+    outside ``allowed`` is ILLEGAL FUNCTION with the code echoed (TCP: any code 1-127;
+    RTU: the codes pymodbus can frame, as a real slave can only answer what it can
+    frame), and FC 05 takes only FF00 / 0000."""
+    allowed = set(allowed)
+    table = dict(decoder.pdu_table)
+    codes = range(1, LAST_FUNCTION_CODE + 1) if tcp else sorted(table)
+    for code in codes:
+        if code in allowed:
+            continue
+        request, response = table.get(code, (ModbusPDU, ModbusPDU))
+        # FC 2B's size is known only to its sub-function classes (all one size).
+        sizes = {sub.rtu_frame_size for sub, _ in decoder.pdu_sub_table.get(code, {}).values()}
+        frame_size = request.rtu_frame_size or (sizes.pop() if len(sizes) == 1 else 0)
+        table[code] = (_refusing(request, code, frame_size), response)
+    if 5 in allowed:
+        table[5] = (_StrictWriteSingleCoil, table[5][1])
+    decoder.pdu_table = table
 
 
 class SimulatorStartError(RuntimeError):
@@ -358,7 +443,7 @@ class Simulator:
         """Serve Modbus TCP on ``host:port`` (0 = a free port); returns the port."""
         self._start(
             lambda ctx: ModbusTcpServer(ctx, address=(host, port), ignore_missing_devices=True),
-            restrict_decoder=True,
+            tcp=True,
         )
         return self.port
 
@@ -374,18 +459,17 @@ class Simulator:
                 stopbits=stopbits,
                 ignore_missing_devices=True,
                 broadcast_enable=True,
-            )
+            ),
+            tcp=False,
         )
 
-    def _start(
-        self, make_server: Callable[[ModbusServerContext], Any], restrict_decoder: bool = False
-    ) -> None:
+    def _start(self, make_server: Callable[[ModbusServerContext], Any], *, tcp: bool) -> None:
         if self._thread is not None:
             raise RuntimeError("simulator already running")
         self._ready.clear()
         self._error = None
         self._thread = threading.Thread(
-            target=lambda: asyncio.run(self._main(make_server, restrict_decoder)),
+            target=lambda: asyncio.run(self._main(make_server, tcp)),
             name="modbus-sim",
             daemon=True,
         )
@@ -397,24 +481,13 @@ class Simulator:
             self._thread = None
             raise SimulatorStartError(f"simulator failed to start: {self._error}") from self._error
 
-    async def _main(
-        self, make_server: Callable[[ModbusServerContext], Any], restrict_decoder: bool
-    ) -> None:
+    async def _main(self, make_server: Callable[[ModbusServerContext], Any], tcp: bool) -> None:
         self._loop = asyncio.get_running_loop()
         self._stop = asyncio.Event()
         try:
             server = make_server(_MapContext(self))
-            if restrict_decoder:
-                # Decode only the function codes the devices have, so any other one gets
-                # ILLEGAL FUNCTION from the server itself, like the real device (pymodbus
-                # otherwise answers e.g. FC 0x2B/0x08 on its own, without the datastore).
-                # TCP only: an RTU server needs the decoder to find where a frame ends,
-                # and the datastore already answers 0x01 for the data function codes.
-                allowed = set().union(*(d.limits.function_codes for d in self.devices.values()))
-                decoder = server.decoder
-                decoder.pdu_table = {
-                    code: entry for code, entry in decoder.pdu_table.items() if code in allowed
-                }
+            allowed = set().union(*(d.limits.function_codes for d in self.devices.values()))
+            strict_decoder(server.decoder, allowed, tcp=tcp)
             await server.serve_forever(background=True)
             transport = getattr(server, "transport", None)
             sockets = getattr(transport, "sockets", None)

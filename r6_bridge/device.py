@@ -247,7 +247,7 @@ class R6Device:
             raise CommandRejected(
                 f"output board {board} refused: only general IO boards "
                 f"{OUTPUT_BOARDS_ACCEPTED.start}-{OUTPUT_BOARDS_ACCEPTED.stop - 1} are accepted "
-                "(the manual numbers M/EUIO boards two ways and the host port lacks M values)"
+                "(the manual numbers the M and EUIO boards two ways: README R6 decision 3)"
             )
         if point not in OUTPUT_POINTS:
             raise CommandRejected(f"output point {point} outside 0-31")

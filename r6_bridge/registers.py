@@ -4,26 +4,13 @@ Source: "R6 系统-ModbusTCP 从站使用说明书" V3.0 (shared/seeds/000_2d9ab
 Section names below: §2 data format, §3.x examples, §4 the FC 03/04/06/10 address table,
 §5 the FC 01/05 coil table.
 
-Readings taken where the manual contradicts itself (also in README "R6 decisions"):
-
-- Word order: 32- and 64-bit values are HIGH word first everywhere (§2 items 3-4, the §4
-  table "高位" at the lower address, the §3.1.4 counter-id write "高16bit 放在前", and the
-  §3.1.3 reply "00000000 00000001" = ids 0 and 1). §3.1.3's "低 16 位存于小地址" and
-  §3.1.6's "必须是板的输入低 16 位开始" are taken as errors.
-- Mode 2185: 1 = manual, 2 = auto (table), 3 = configuration (§3.1.5 example).
-- Output-point board 20056: only boards 0-3 are accepted. §3.3.3 says 0-3 IO, 4-6 M,
-  7 EUIO; the table says 0-4 IO, 5-7 M, 8 EUIO with a maximum of 7; 2186 says at most
-  4 boards are in use. Boards 0-3 are general IO boards under every reading; M values are
-  not offered by the host's network port.
-- Global speed 20200: one 16-bit register written with FC 06, 0-1000 = 0.0-100.0 %
-  (§3.2.2 and its example), not the table's "32 位".
-- Parameter table: 1000 int32 values from 20300, index i at 20300 + 2i (§3.3.4 "1000 个值"),
-  so the table's end "22229 / 0x56D5" is taken as a typo for 22299. The photo / mold rows
-  22130-22131 fall inside it and are "主机不支持": never used.
-- §4 hex column typos (M board outputs 2239-2242 show 8BD-8C0): the decimal column wins.
-- Torque: 2580 = rated torque (§3.1.13), so the engineering value is a fraction of rated.
-- Point data (30007+): int32 high word first like every 32-bit value (§4 "轴 1 数据高位");
-  the manual gives no unit, so values go out raw.
+The readings taken where the manual contradicts itself, or says nothing, are recorded once,
+with the manual's words, in README.md "R6 decisions where the manual contradicts itself";
+comments here cite them by number. What this map encodes: 32/64-bit values high word first
+(decision 1), the mode names (2), output boards 0-3 only (3), global speed as one 16-bit
+register (4), the parameter table read to 22299 but written only to 22229 (5), the decimal
+column over the hex column (10), the rows the host does not offer left out (11), torque as a
+fraction of rated (13), world U, V, W in degrees (14), point data raw (15).
 """
 
 from __future__ import annotations
@@ -46,13 +33,13 @@ MAX_COUNTERS = 1024
 MAX_VERSION_BYTES = 128
 PARAMETER_COUNT = 1000
 # §3.3.4 gives the writable range as "0x4f4c (20300)~0x56d5 (22229)": index 964 is the last
-# whole value inside it. Indexes 965-999 (DESIGN's 0-999) are read, never written.
+# whole value inside it. Indexes 965-999 (DESIGN's 0-999) are read, never written (decision 5).
 PARAMETER_WRITE_LAST_INDEX = (22229 - 20300) // 2
 PARAMETER_BASE = 20300
 TORQUE_RATED_RAW = 2580  # §3.1.13: 2580 = one times rated torque
 POSITION_SCALE = 1000  # §3.1.8 / §3.1.9: value x 1000 as int32
 GLOBAL_SPEED_SCALE = 10  # §3.2.2: 0-1000 = 0.0-100.0 %
-OUTPUT_BOARDS_ACCEPTED = range(0, 4)  # decision, see module docstring
+OUTPUT_BOARDS_ACCEPTED = range(0, 4)  # README R6 decision 3
 OUTPUT_POINTS = range(0, 32)
 POINT_VALUES_PER_POINT = (4, 6)  # §4 30003: "6 个数据为一点 还是 4 个"
 POINT_AXIS_MASK_MAX = 0x3F  # §4 30004: bits 0-5 = axes 1-6
@@ -193,6 +180,7 @@ def _build() -> tuple[Register, ...]:
             unit="deg",
         ),
     ]
+    # §3.1.9 says "单位为 mm" for all eight; U, V, W are read as degrees (decision 14).
     for i, (axis, unit) in enumerate(
         [
             ("x", "mm"),

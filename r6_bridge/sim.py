@@ -148,7 +148,7 @@ class R6SimDevice(SimulatedDevice):
     # ------------------------------------------------------------ one output memory
     def set_words(self, table: Table, address: int, values: Sequence[int]) -> None:
         """Every store goes through here: keep §5's coils and §4's output rows one memory
-        (decision 17), whichever side a write, a command or the simulator itself changes."""
+        (decision 19), whichever side a write, a command or the simulator itself changes."""
         with self.lock:
             super().set_words(table, address, values)
             for offset, word in enumerate(values):
@@ -189,7 +189,7 @@ class R6SimDevice(SimulatedDevice):
         boards = int(self.get("io_board_count"))
         end = address + count
         if table is Table.COIL:
-            # The boards' coils are their output rows (decision 17): the same count rule.
+            # The boards' coils are their output rows (decision 19): the same count rule.
             first_invalid = OUTPUT_COILS.start + POINTS_PER_BOARD * boards
             last = OUTPUT_COILS.start + POINTS_PER_BOARD * MAX_IO_BOARDS
             if address < last and end > first_invalid and first_invalid < last:
@@ -264,7 +264,7 @@ class R6SimDevice(SimulatedDevice):
         if name in ("start", "single_cycle"):
             # An alarm blocks both until it is cleared. 20003 "启动按键" runs cycle after
             # cycle; 20002 "进入单循环" runs to the end of the current cycle, then stops
-            # (decision 14). Either resumes at the step the program is at.
+            # (decision 16). Either resumes at the step the program is at.
             if alarm == 0:
                 self.running = True
                 self.single_cycle = name == "single_cycle"
@@ -273,12 +273,12 @@ class R6SimDevice(SimulatedDevice):
             self.running = False
         elif name in ("stop", "stop_button"):
             # 20000 "立即停止当前动作(启动从头开始)": the next start begins at the first
-            # step; 20004 "stopButton:停止按键" is taken as the same stop (decision 15).
+            # step; 20004 "stopButton:停止按键" is taken as the same stop (decision 17).
             self.running = False
             self._reset_program()
         elif name in ("clear_alarm_and_next", "clear_alarm_and_continue"):
             # 20005 "清除报警后运行下一条指令", 20006 "清除报警并继续自动运行:(自动运行
-            # 状态下)" (decision 16): both clear the alarm; only a program the alarm halted
+            # 状态下)" (decision 18): both clear the alarm; only a program the alarm halted
             # runs on, 20006 at the step it stopped (in auto mode only), 20005 at the next.
             halted = self.halted_by_alarm
             self.set("alarm_code", 0)

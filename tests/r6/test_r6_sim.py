@@ -380,7 +380,7 @@ def axis_1(snap: R6Snapshot) -> float:
 def test_single_cycle_runs_to_the_end_of_the_cycle_then_stops(
     r6: tuple[R6Device, R6SimDevice, DeviceChannel],
 ) -> None:
-    """20002 "进入单循环" (decision 14): one cycle, then the program stops at its end."""
+    """20002 "进入单循环" (decision 16): one cycle, then the program stops at its end."""
     device, sim, _ = r6
     sim.program = timed_program(0.5, -1.0, 0.0)  # 0.5 + 1.5 + 1.0 s per cycle
     sim.set("global_speed", 100.0)
@@ -409,7 +409,7 @@ def test_pause_resumes_at_the_step_and_stop_starts_from_the_first(
     r6: tuple[R6Device, R6SimDevice, DeviceChannel],
 ) -> None:
     """20001 "暂停当前动作(启动从当前步开始)" keeps the step and the cycle; 20000
-    "立即停止当前动作(启动从头开始)" (and 20004, decision 15) start over."""
+    "立即停止当前动作(启动从头开始)" (and 20004, decision 17) start over."""
     device, sim, _ = r6
     sim.program = timed_program(0.2, -3.0, 0.0)  # step 1: out (+), step 2: a long way back
     sim.set("global_speed", 100.0)
@@ -449,7 +449,7 @@ def test_pause_resumes_at_the_step_and_stop_starts_from_the_first(
 def test_alarm_halts_20006_continues_the_step_20005_goes_on_with_the_next(
     r6: tuple[R6Device, R6SimDevice, DeviceChannel],
 ) -> None:
-    """20005 "清除报警后运行下一条指令", 20006 "清除报警并继续自动运行" (decision 16)."""
+    """20005 "清除报警后运行下一条指令", 20006 "清除报警并继续自动运行" (decision 18)."""
     device, sim, _ = r6
     sim.program = timed_program(0.2, -3.0, 0.0)
     sim.set("global_speed", 100.0)
@@ -515,7 +515,7 @@ def test_coils_and_output_rows_are_one_memory(
     r6: tuple[R6Device, R6SimDevice, DeviceChannel], sim: tuple[R6SimDevice, int]
 ) -> None:
     """§5's FC 01/05 outputs (Y010…, M010…, EUY010…) and §4's output rows 2227-2244 are the
-    same outputs (decision 17): coil 32·board + point is bit `point` of the board's word."""
+    same outputs (decision 19): coil 32·board + point is bit `point` of the board's word."""
     device, simulator, channel = r6
     _, port = sim
 
