@@ -38,6 +38,8 @@ from .registers import (
 
 HIGH = WordOrder.HIGH_FIRST
 U32_MAX = 0xFFFF_FFFF
+# §3.1.3: ids past the counter count are padded with 0xFF bytes.
+COUNTER_ID_PADDING = U32_MAX
 I32_MIN, I32_MAX = -(1 << 31), (1 << 31) - 1
 # Registers in one upload frame: the manual's 256-byte frame cap and Modbus's 123 (FC 10).
 POINT_FRAME_MAX_REGISTERS = min(POINT_FRAME_MAX_BYTES // 2, MAX_WRITE_REGISTERS)
@@ -209,16 +211,26 @@ class R6Device:
             ids += [words_to_int(words[k : k + 2], False, HIGH) for k in range(0, n, 2)]
             address += n
             remaining -= n
-        return ids
+        # A count that shrank between the two reads pads the rest with 0xFF (§3.1.3).
+        return [counter_id for counter_id in ids if counter_id != COUNTER_ID_PADDING]
 
     def read_counter(self, counter_id: int) -> tuple[int, int, int]:
-        """§3.1.4: write the id to 2179, then read id, target and current (6 registers)."""
-        check_whole_number("counter id", counter_id, 0, U32_MAX)
+        """§3.1.4: write the id to 2179, then read id, target and current (6 registers).
+
+        The id read back must be the one written: another client selecting a counter in
+        between would otherwise hand us its counter's values."""
+        check_whole_number("counter id", counter_id, 0, COUNTER_ID_PADDING - 1)
         address = R6_MAP["counter_select_id"].address
         self.io.write_registers(address, int_to_words(counter_id, 2, False, HIGH))
         words = self.io.read_registers(address, 6, priority=Priority.COMMAND)
+        selected = words_to_int(words[0:2], False, HIGH)
+        if selected != counter_id:
+            raise CommandRejected(
+                f"counter {counter_id}: the controller answered for counter {selected} "
+                "(another client selected a counter in between); try again"
+            )
         return (
-            words_to_int(words[0:2], False, HIGH),
+            selected,
             words_to_int(words[2:4], False, HIGH),
             words_to_int(words[4:6], False, HIGH),
         )

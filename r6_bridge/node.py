@@ -15,6 +15,8 @@ from bridge_core.parameters import ParameterSpec, padded
 from bridge_core.units import DEG, MM, RPM_TO_RAD_S, euler_xyz_deg_to_quaternion
 from msg_defs.msg import R6State
 from msg_defs.srv import (
+    ListCounters,
+    ReadCounter,
     ReadParameter,
     SetCounter,
     SetOutput,
@@ -174,6 +176,21 @@ class R6BridgeNode(BridgeNode[R6Snapshot]):
             lambda r: d.set_counter(r.id, r.value),
         )
         self.command_service(
+            ListCounters,
+            "~/list_counters",
+            lambda r: "list_counters",
+            lambda r: d.read_counter_ids(),
+            writes=False,
+            fill=lambda response, ids: setattr(response, "ids", ids),
+        )
+        self.command_service(
+            ReadCounter,
+            "~/read_counter",
+            lambda r: f"read_counter {r.id}",
+            lambda r: d.read_counter(r.id),  # writes the id to 2179: refused while read_only
+            fill=_fill_counter,
+        )
+        self.command_service(
             ReadParameter,
             "~/read_parameter",
             lambda r: f"read_parameter {r.index}",
@@ -196,6 +213,11 @@ class R6BridgeNode(BridgeNode[R6Snapshot]):
             ),
             fill=lambda response, frames: setattr(response, "frames_sent", frames),
         )
+
+
+def _fill_counter(response: Any, values: tuple[int, int, int]) -> None:
+    """ReadCounter's reply from (id, target, current) as read."""
+    _, response.target, response.current = values
 
 
 def main(args: Sequence[str] | None = None) -> int:

@@ -21,6 +21,8 @@ from bridge_core.registers import Table
 from bridge_core.sim_base import Simulator
 from msg_defs.msg import R6State
 from msg_defs.srv import (
+    ListCounters,
+    ReadCounter,
     ReadParameter,
     SetCounter,
     SetOutput,
@@ -169,6 +171,27 @@ def test_every_service_writes_its_registers(sim, bridge_factory) -> None:  # typ
         assert device.get("io_board_output_2") == 1 << 5
 
 
+def test_counters_are_listed_and_read(sim, bridge_factory) -> None:  # type: ignore[no-untyped-def]
+    """§3.1.3 ids, §3.1.4 one counter's target and current (its id written to 2179)."""
+    device, port = sim
+    device.set_counters({3: (100, 7), 12: (50, 40)})
+    with bridge_factory(port) as (bridge, _):
+        bridge.wait_connected(True)
+        reply = bridge.call(ListCounters, "list_counters")
+        assert reply.success, reply.message
+        assert list(reply.ids) == [3, 12]
+        reply = bridge.call(ReadCounter, "read_counter", id=12)
+        assert reply.success, reply.message
+        assert (reply.target, reply.current) == (50, 40)
+        assert [(r.address, r.values) for r in device.write_log] == [(2179, (0, 12))]
+        assert bridge.call(SetCounter, "set_counter", id=3, value=9).success
+        reply = bridge.call(ReadCounter, "read_counter", id=3)
+        assert reply.success and (reply.target, reply.current) == (100, 9), reply.message
+        # A counter the program does not have: the controller refuses the selection.
+        reply = bridge.call(ReadCounter, "read_counter", id=4)
+        assert not reply.success and "read_counter 4" in reply.message, reply.message
+
+
 REFUSALS: list[tuple[Any, str, dict[str, Any], str]] = [
     (SetValue, "set_global_speed", {"value": 100.5}, "outside"),
     (SetValue, "set_global_speed", {"value": -0.5}, "outside"),
@@ -214,6 +237,7 @@ def test_read_only_refuses_every_write(sim, bridge_factory) -> None:  # type: ig
             bridge.call(SetValue, "set_global_speed", value=10.0),
             bridge.call(SetOutput, "set_output", board=0, index=1, state=True),
             bridge.call(SetCounter, "set_counter", id=1, value=1),
+            bridge.call(ReadCounter, "read_counter", id=1),  # selects it: a write
             bridge.call(WriteParameter, "write_parameter", index=0, value=1),
             bridge.call(
                 UploadPoints,
@@ -226,6 +250,7 @@ def test_read_only_refuses_every_write(sim, bridge_factory) -> None:  # type: ig
         ):
             assert not reply.success and "read_only" in reply.message
         assert bridge.call(ReadParameter, "read_parameter", index=0).success  # reads still work
+        assert bridge.call(ListCounters, "list_counters").success
         assert device.write_log == []
 
 

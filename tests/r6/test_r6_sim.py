@@ -572,3 +572,14 @@ def test_fc04_reads_the_fc03_table(
         assert reply[1:] == bytes([0x84, 2]), address
     fc04 = [r for r in simulator.read_log if r.function_code == 4]
     assert fc04 and all(r.table is Table.HOLDING for r in fc04)
+
+
+def test_the_counter_list_leaves_out_padding_ids(
+    r6: tuple[R6Device, R6SimDevice, DeviceChannel],
+) -> None:
+    """A count read before the program dropped counters: the ids past the new end read
+    0xFFFFFFFF (§3.1.3) and are not counters."""
+    device, sim, _ = r6
+    sim.set_counters({5: (1, 0)})
+    sim.set("counter_count", 3)  # as read a moment before the list shrank
+    assert device.read_counter_ids() == [5]
