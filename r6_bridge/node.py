@@ -20,6 +20,7 @@ from msg_defs.srv import (
     ReadParameter,
     SetCounter,
     SetOutput,
+    SetOutputBoard,
     SetValue,
     UploadPoints,
     WriteParameter,
@@ -147,6 +148,10 @@ class R6BridgeNode(BridgeNode[R6Snapshot]):
             )
         return Report(Level.OK, "connected", values)
 
+    def _boards_in_use(self) -> int | None:
+        snapshot = self.last_snapshot
+        return None if snapshot is None else snapshot.io_board_count
+
     # ------------------------------------------------------------ services
     def _create_services(self) -> None:
         d = self.device
@@ -168,6 +173,12 @@ class R6BridgeNode(BridgeNode[R6Snapshot]):
             "~/set_output",
             lambda r: f"set_output board {r.board} point {r.index} {'on' if r.state else 'off'}",
             lambda r: d.set_output(r.board, r.index, r.state),
+        )
+        self.command_service(
+            SetOutputBoard,
+            "~/set_board_outputs",
+            lambda r: f"set_board_outputs board {r.board} = 0x{r.bits:08X}",
+            lambda r: d.write_board_outputs(r.board, r.bits, self._boards_in_use()),
         )
         self.command_service(
             SetCounter,

@@ -26,6 +26,7 @@ from msg_defs.srv import (
     ReadParameter,
     SetCounter,
     SetOutput,
+    SetOutputBoard,
     SetValue,
     UploadPoints,
     WriteParameter,
@@ -146,6 +147,8 @@ def test_every_service_writes_its_registers(sim, bridge_factory) -> None:  # typ
         device.write_log.clear()
         assert bridge.call(SetValue, "set_global_speed", value=25.5).success
         assert bridge.call(SetOutput, "set_output", board=2, index=5, state=True).success
+        reply = bridge.call(SetOutputBoard, "set_board_outputs", board=1, bits=0x8000_0001)
+        assert reply.success, reply.message
         assert bridge.call(SetCounter, "set_counter", id=1, value=99).success
         assert bridge.call(WriteParameter, "write_parameter", index=3, value=-2).success
         reply = bridge.call(
@@ -160,6 +163,7 @@ def test_every_service_writes_its_registers(sim, bridge_factory) -> None:  # typ
         assert [(r.function_code, r.address, r.values) for r in device.write_log] == [
             (6, 20200, (255,)),
             (16, 20056, (2, 5, 1)),
+            (16, 2229, (0x8000, 0x0001)),  # §3.3.1: board 1's word, high word first
             (16, 20050, (0, 1, 0, 0, 0, 99)),
             (16, 20306, (0xFFFF, 0xFFFE)),
             (16, 30002, (100, 6, 0x23)),
@@ -169,6 +173,7 @@ def test_every_service_writes_its_registers(sim, bridge_factory) -> None:  # typ
         assert reply.success and reply.value == -2
         assert device.points[100] == list(range(1, 13))
         assert device.get("io_board_output_2") == 1 << 5
+        assert device.get("io_board_output_1") == 0x8000_0001
 
 
 def test_counters_are_listed_and_read(sim, bridge_factory) -> None:  # type: ignore[no-untyped-def]
@@ -198,6 +203,8 @@ REFUSALS: list[tuple[Any, str, dict[str, Any], str]] = [
     (SetValue, "set_global_speed", {"value": math.nan}, "outside"),
     (SetOutput, "set_output", {"board": 4, "index": 0, "state": True}, "board 4"),
     (SetOutput, "set_output", {"board": 0, "index": 32, "state": True}, "point 32"),
+    (SetOutputBoard, "set_board_outputs", {"board": 5, "bits": 1}, "outside"),
+    (SetOutputBoard, "set_board_outputs", {"board": 2, "bits": 1}, "not in use"),
     (WriteParameter, "write_parameter", {"index": 1000, "value": 1}, "index"),
     (WriteParameter, "write_parameter", {"index": 0, "value": 2**31}, "outside"),
     (
@@ -238,6 +245,7 @@ def test_read_only_refuses_every_write(sim, bridge_factory) -> None:  # type: ig
             bridge.call(SetOutput, "set_output", board=0, index=1, state=True),
             bridge.call(SetCounter, "set_counter", id=1, value=1),
             bridge.call(ReadCounter, "read_counter", id=1),  # selects it: a write
+            bridge.call(SetOutputBoard, "set_board_outputs", board=0, bits=1),
             bridge.call(WriteParameter, "write_parameter", index=0, value=1),
             bridge.call(
                 UploadPoints,
