@@ -235,6 +235,20 @@ class R6Device:
             words_to_int(words[4:6], False, HIGH),
         )
 
+    def read_data_source_length(self, source_id: int) -> int:
+        """§4 rows 30000-30001: select the data source to view, read its buffer length
+        (README R6 decision 20: points), and check the selection held."""
+        check_whole_number("data source id", source_id, 0, 0xFFFF)
+        address = R6_MAP["data_source_view_id"].address
+        self.io.write_register(address, source_id)
+        viewed, length = self.io.read_registers(address, 2, priority=Priority.COMMAND)
+        if viewed != source_id:
+            raise CommandRejected(
+                f"data source {source_id}: the controller shows source {viewed} "
+                "(another client selected one in between); try again"
+            )
+        return int(length)
+
     def read_parameter(self, index: int) -> int:
         _check_parameter_index(index)
         words = self.io.read_registers(parameter_address(index), 2, priority=Priority.COMMAND)

@@ -17,6 +17,7 @@ from msg_defs.msg import R6State
 from msg_defs.srv import (
     ListCounters,
     ReadCounter,
+    ReadDataSource,
     ReadParameter,
     SetCounter,
     SetOutput,
@@ -214,6 +215,13 @@ class R6BridgeNode(BridgeNode[R6Snapshot]):
             "~/write_parameter",
             lambda r: f"write_parameter {r.index} = {r.value}",
             lambda r: d.write_parameter(r.index, r.value),
+        )
+        self.command_service(
+            ReadDataSource,
+            "~/read_data_source",
+            lambda r: f"read_data_source {r.source_id}",
+            lambda r: d.read_data_source_length(r.source_id),  # writes 30000: refused if read_only
+            fill=lambda response, points: setattr(response, "points", points),
         )
         self.command_service(
             UploadPoints,

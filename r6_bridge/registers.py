@@ -351,7 +351,7 @@ def _build() -> tuple[Register, ...]:
         *register_array(
             "point_data",
             POINT_DATA_FIRST,
-            (POINT_DATA_LAST - POINT_DATA_FIRST) // 2,
+            (POINT_DATA_LAST - POINT_DATA_FIRST + 1) // 2,  # 30007-40000 inclusive
             ValueType.I32,
             "§3.3.5, §4 rows 30007-40000",
             first_index=0,

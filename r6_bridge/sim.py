@@ -51,6 +51,7 @@ DEFAULT_COUNTERS = {0: (10, 0), 1: (10, 5)}  # id: (target, current), §3.1.4 ex
 # §3.1.3: "若实际数量少于请求的数量则将剩余的使用 0xFF 填充" (decision 6: every padding byte
 # is 0xFF, so a counter id past the count reads 0xFFFF 0xFFFF).
 COUNTER_PADDING_WORD = 0xFFFF
+BUFFER_LENGTH_MAX = 0xFFFF  # 30001 is one 16-bit register
 POINTS_PER_BOARD = 32
 # §4 output rows: IO boards 0-4 (2227-2236), M boards 0-2 (2237-2242), EU board 0
 # (2243-2244), two registers per board, "16~31" in the first and "0~15" in the second.
@@ -108,6 +109,7 @@ class R6SimDevice(SimulatedDevice):
         self._serving_fc04 = False
         self.counters: dict[int, list[int]] = {k: list(v) for k, v in DEFAULT_COUNTERS.items()}
         self.points: dict[int, list[int]] = {}
+        self.point_counts: dict[int, int] = {}  # points stored per data source
         self.write_guards.append(self._guard)
         self.write_hooks.append(self._on_write)
         self.set_version(MANUAL_VERSION)
@@ -256,6 +258,20 @@ class R6SimDevice(SimulatedDevice):
             values = [words_to_int(data[k : k + 2], True, HIGH) for k in range(0, len(data), 2)]
             stored = [] if clear == 1 else self.points.get(source, [])
             self.points[source] = stored + values[: count * per_point]
+            self.point_counts[source] = (
+                0 if clear == 1 else self.point_counts.get(source, 0)
+            ) + count
+            self._publish_buffer_length()
+        elif address == R6_MAP["data_source_view_id"].address:
+            self._publish_buffer_length()
+
+    def _publish_buffer_length(self) -> None:
+        """30001 for the source selected at 30000: its stored points (README R6 decision 20:
+        the manual names no unit; 30005 counts points)."""
+        source = int(self.get("data_source_view_id"))
+        self.set(
+            "data_source_buffer_length", min(self.point_counts.get(source, 0), BUFFER_LENGTH_MAX)
+        )
 
     # ------------------------------------------------------------ the program
     def _command(self, address: int) -> None:

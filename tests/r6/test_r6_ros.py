@@ -23,6 +23,7 @@ from msg_defs.msg import R6State
 from msg_defs.srv import (
     ListCounters,
     ReadCounter,
+    ReadDataSource,
     ReadParameter,
     SetCounter,
     SetOutput,
@@ -172,6 +173,12 @@ def test_every_service_writes_its_registers(sim, bridge_factory) -> None:  # typ
         reply = bridge.call(ReadParameter, "read_parameter", index=3)
         assert reply.success and reply.value == -2
         assert device.points[100] == list(range(1, 13))
+        # The upload can be checked: source 100 holds 2 points, source 7 none.
+        reply = bridge.call(ReadDataSource, "read_data_source", source_id=100)
+        assert reply.success and reply.points == 2, reply.message
+        assert device.write_log[-1].address == 30000 and device.write_log[-1].values == (100,)
+        reply = bridge.call(ReadDataSource, "read_data_source", source_id=7)
+        assert reply.success and reply.points == 0, reply.message
         assert device.get("io_board_output_2") == 1 << 5
         assert device.get("io_board_output_1") == 0x8000_0001
 
@@ -246,6 +253,7 @@ def test_read_only_refuses_every_write(sim, bridge_factory) -> None:  # type: ig
             bridge.call(SetCounter, "set_counter", id=1, value=1),
             bridge.call(ReadCounter, "read_counter", id=1),  # selects it: a write
             bridge.call(SetOutputBoard, "set_board_outputs", board=0, bits=1),
+            bridge.call(ReadDataSource, "read_data_source", source_id=100),  # selects: a write
             bridge.call(WriteParameter, "write_parameter", index=0, value=1),
             bridge.call(
                 UploadPoints,
