@@ -4,8 +4,10 @@ One process, one serial port, one node per drive. ``main`` starts:
 
 - ``motec_bridge``: the bus owner (``bridge_core.node_base.BusNode``). It has the serial
   parameters (``serial_port``, ``baudrate``, ``parity``, ``stopbits``, ``timeout_s``)
-  and ``unit_ids``, opens the one ``ModbusLink`` every drive shares, and offers
-  ``~/disable_all`` (one broadcast write, unit 0: 0x28 = 0 on every drive, unanswered).
+  ``unit_ids`` and ``interface`` (rs485 / rs232: at most 31 / 8 drives, §1.1), opens the
+  one ``ModbusLink`` every drive shares, and offers ``~/disable_all`` (one broadcast write,
+  unit 0: 0x28 = 0 on every drive, unanswered) and ``~/start_all`` (every drive's modes
+  read, then a broadcast 0x29 = 1: a synchronised start, README decision 15).
 - ``motec_<id>`` per unit id: a ``BridgeNode`` given the shared link and its unit id as
   Python values, with its own ``DeviceChannel`` (so its own backoff: a dead drive is
   retried on its own schedule, the others keep their poll slots), poll thread, topics,
