@@ -31,8 +31,9 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from typing import Any
 
 from bridge_core.channel import Priority, RegisterIO
 from bridge_core.checks import (
@@ -48,6 +49,8 @@ from bridge_core.config_cache import ConfiguredDevice
 from bridge_core.errors import CommandRejected, LinkError
 from bridge_core.keepalive import FEED_WAKE_S
 from bridge_core.planner import ReadRequest, plan_reads
+from bridge_core.poller import read_blocks
+from bridge_core.registers import Register, Table
 from bridge_core.stream_guard import StreamGuard
 
 from .registers import (
@@ -62,13 +65,18 @@ from .registers import (
     MOTION_ABSOLUTE,
     MOTION_RELATIVE,
     OPERATION_MODE_NETWORK,
+    OUTPUT1_COIL_CHOICES,
+    OUTPUT1_COIL_DEFAULT,
     OUTPUTS,
+    PARAMETER_OWN_SERVICE,
     SAVE_TO_FLASH,
     START_MOVE,
     STOP_MOVE,
     control_mode_name,
     operation_mode_name,
     output_coil,
+    parameter_numbers,
+    parameter_register,
 )
 
 DEFAULT_CONFIG_REFRESH_S = 5.0
@@ -101,6 +109,7 @@ MODE_NAMES = ("operation_mode", "control_mode", "target_distance", "enable", "st
 STATUS_PLAN: list[ReadRequest] = plan_reads(MOTEC_MAP, MOTEC_MAP.select(STATUS_NAMES))
 CONFIG_PLAN: list[ReadRequest] = plan_reads(MOTEC_MAP, MOTEC_MAP.select(CONFIG_NAMES))
 MODE_PLAN: list[ReadRequest] = plan_reads(MOTEC_MAP, MOTEC_MAP.select(MODE_NAMES))
+OUTPUT_WORD_PLAN: list[ReadRequest] = plan_reads(MOTEC_MAP, MOTEC_MAP.select(("output_word",)))
 # joint_states is stamped with the read time of the block holding the actual position.
 STAMP_REGISTER = "position_actual"
 
@@ -157,6 +166,21 @@ class MotecSnapshot:
     fault_code: int
     analog_input: int
     config: MotecConfig
+    output1_coil: int = OUTPUT1_COIL_DEFAULT  # bit of OUTPUT1 in 0xC6 / 0x79 / FC 01
+    # The IO tables (``read_io_tables``): 0x79, FC 01 and FC 02; None when not read.
+    output_word_79: int | None = None
+    coil_outputs: tuple[bool, ...] | None = None
+    discrete_inputs: tuple[bool, ...] | None = None
+
+    @property
+    def fault_flag(self) -> int:
+        """0xC8, the high word: §4.3 writes "0—无故障" / "1—有故障" beside it (decision 7)."""
+        return self.fault_code >> 16
+
+    @property
+    def fault_detail(self) -> int:
+        """0xC9, the low word: the manual gives none of its values."""
+        return self.fault_code & 0xFFFF
 
     @property
     def inputs(self) -> tuple[bool, ...]:
@@ -164,13 +188,26 @@ class MotecSnapshot:
 
     @property
     def outputs(self) -> tuple[bool, ...]:
-        return tuple(bool(self.output_word >> k & 1) for k in range(OUTPUTS))
+        return output_bits(self.output_word, self.output1_coil)
 
     @property
     def moving(self) -> bool:
         """Derived (the manual gives no motion flag's address): turning, or not yet at
         the setpoint."""
         return self.speed_actual_rpm != 0 or self.position_setpoint != self.position_actual
+
+
+def output_bits(word: int, output1_coil: int) -> tuple[bool, ...]:
+    """OUTPUT1-3 from an output word whose bit ``output1_coil`` is OUTPUT1 (decision 6)."""
+    return tuple(bool(word >> (k + output1_coil) & 1) for k in range(OUTPUTS))
+
+
+def read_modes(io: RegisterIO) -> Modes:
+    """0x24-0x29 now, at command priority (one FC 03)."""
+    v: dict[str, Value] = {}
+    for request in MODE_PLAN:
+        v.update(read_blocks(io, (request,), Priority.COMMAND)[0])
+    return Modes(int(v["operation_mode"]), int(v["control_mode"]), bool(v["enable"]))
 
 
 # ---------------------------------------------------------------- units
@@ -236,11 +273,17 @@ class MotecDevice(ConfiguredDevice[MotecConfig]):
         max_speed_rpm: int = DEFAULT_MAX_SPEED_RPM,
         config_refresh_s: float = DEFAULT_CONFIG_REFRESH_S,
         velocity_timeout_s: float = DEFAULT_VELOCITY_TIMEOUT_S,
+        output1_coil: int = OUTPUT1_COIL_DEFAULT,
+        read_io_tables: bool = False,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
         if not 1 <= max_speed_rpm <= SPEED_LIMIT_RPM:
             raise ValueError(f"max_speed_rpm {max_speed_rpm} outside 1..{SPEED_LIMIT_RPM}")
+        if output1_coil not in OUTPUT1_COIL_CHOICES:
+            raise ValueError(f"output1_coil {output1_coil} not one of {OUTPUT1_COIL_CHOICES}")
         self.max_speed_rpm = max_speed_rpm
+        self.output1_coil = output1_coil
+        self.read_io_tables = read_io_tables
         self._clock = clock
         super().__init__(io, MOTEC_MAP, CONFIG_PLAN, config_refresh_s, clock)
         # cmd_velocity: one stream (this drive). A 0 ends only the stream's own motion:
@@ -268,23 +311,31 @@ class MotecDevice(ConfiguredDevice[MotecConfig]):
 
     def read_modes(self) -> Modes:
         """0x24-0x29 now, at command priority (one FC 03)."""
-        v: dict[str, Value] = {}
-        for request in MODE_PLAN:
-            v.update(self.read_request(request, Priority.COMMAND))
-        return Modes(int(v["operation_mode"]), int(v["control_mode"]), bool(v["enable"]))
+        return read_modes(self.io)
 
-    def read_outputs(self) -> tuple[bool, ...]:
-        """OUTPUT1-3 with FC 01 (§3.3.1)."""
-        values = self.read_named(*(f"output_{n}" for n in range(1, OUTPUTS + 1)))
-        return tuple(bool(values[f"output_{n}"]) for n in range(1, OUTPUTS + 1))
+    def read_outputs(self, priority: Priority = Priority.COMMAND) -> tuple[bool, ...]:
+        """OUTPUT1-3 with FC 01 (§3.3.1), from coil ``output1_coil`` on."""
+        bits = self.io.read_bits(self.output1_coil, OUTPUTS, Table.COIL, priority)
+        return tuple(bool(b) for b in bits)
 
-    def read_inputs(self) -> tuple[bool, ...]:
+    def read_inputs(self, priority: Priority = Priority.COMMAND) -> tuple[bool, ...]:
         """INPUT1-8 with FC 02 (§3.3.2)."""
-        values = self.read_named(*(f"input_{n}" for n in range(1, INPUTS + 1)))
-        return tuple(bool(values[f"input_{n}"]) for n in range(1, INPUTS + 1))
+        bits = self.io.read_bits(0, INPUTS, Table.DISCRETE_INPUT, priority)
+        return tuple(bool(b) for b in bits)
+
+    def read_output_word_79(self, priority: Priority = Priority.COMMAND) -> int:
+        """0x79, the second output word of §3.3.3 (FC 03)."""
+        return int(read_blocks(self.io, OUTPUT_WORD_PLAN, priority)[0]["output_word"])
 
     def poll(self) -> MotecSnapshot:
         v, read_time = self.poll_status(STATUS_PLAN, STAMP_REGISTER)
+        io: dict[str, Any] = {}
+        if self.read_io_tables:  # 3 more reads (README "MOTEC decisions" 12)
+            io = {
+                "output_word_79": self.read_output_word_79(Priority.POLL),
+                "coil_outputs": self.read_outputs(Priority.POLL),
+                "discrete_inputs": self.read_inputs(Priority.POLL),
+            }
         return MotecSnapshot(
             read_time=read_time,
             modes=Modes(int(v["operation_mode"]), int(v["control_mode"]), bool(v["enable"])),
@@ -300,6 +351,8 @@ class MotecDevice(ConfiguredDevice[MotecConfig]):
             fault_code=int(v["fault_code"]),
             analog_input=int(v["analog_input"]),
             config=self.config,
+            output1_coil=self.output1_coil,
+            **io,
         )
 
     # ------------------------------------------------------------------ writes
@@ -413,7 +466,7 @@ class MotecDevice(ConfiguredDevice[MotecConfig]):
     def set_output(self, output: int, on: bool) -> None:
         """OUTPUT1-3 with FC 05 (§3.3.3): 0xFF00 on, 0x0000 off."""
         check_index("output", output, range(1, OUTPUTS + 1))
-        self.io.write_coil(output_coil(output), bool(on))
+        self.io.write_coil(output_coil(output, self.output1_coil), bool(on))
         self.last_write = self._clock()
 
     def set_analog_max_speed(self, rpm: float) -> None:
@@ -422,6 +475,24 @@ class MotecDevice(ConfiguredDevice[MotecConfig]):
             "analog max speed (rpm)", rpm, reg.value_type.raw_min, reg.value_type.raw_max
         )
         self._write("analog_max_speed", value)
+
+    # ------------------------------------------------------------------ parameters
+    def read_parameter(self, number: int) -> int:
+        """Pr.``number`` (address ``number``, §5.2) with FC 03; a 32-bit one whole (§3.2)."""
+        reg = known_parameter(number)
+        return int(self.read_named(reg.name)[reg.name])
+
+    def write_parameter(self, number: int, value: int) -> None:
+        """Pr.``number`` = ``value`` (FC 06, or FC 16 high word first for a 32-bit one,
+        §3.1), within the manual's range; refused before any write otherwise."""
+        reg = known_parameter(number)
+        what = f"Pr.{number} (0x{number:X}, {reg.name})"
+        if not reg.access.writable:
+            raise CommandRejected(f"{what} is read only (§3.2)")
+        if reg.name in PARAMETER_OWN_SERVICE:
+            raise CommandRejected(f"{what} is written by {PARAMETER_OWN_SERVICE[reg.name]}")
+        low, high = int(reg.minimum or 0), int(reg.maximum or 0)
+        self._write(reg.name, check_whole_number(what, value, low, high))
 
     # ------------------------------------------------------------------ velocity stream
     def velocity(self, rpm: float) -> bool:
@@ -534,7 +605,49 @@ def disable_all(broadcast: RegisterIO) -> None:
     broadcast.write_register(reg.address, encode(reg, ENABLE_OFF)[0])
 
 
+def start_all(broadcast: RegisterIO, drives: Mapping[int, RegisterIO]) -> None:
+    """A synchronised start (§4.1 step 6 "0x29 写 1" sent to unit 0, §2.5: "支持广播通信方式
+    ... 不回应广播"): every drive starts the move it was given (0x26, 0x2D, 0xAE).
+
+    No drive answers a broadcast, so each drive's modes are read first (one FC 03 each)
+    and the start is refused, nothing sent, unless every drive is in network mode,
+    position control and enabled: that read is the only confirmation there is.
+    """
+    not_ready: list[str] = []
+    for unit, io in drives.items():
+        try:
+            modes = read_modes(io)
+        except LinkError as err:
+            raise CommandRejected(f"drive {unit} did not answer ({err}); nothing sent") from None
+        if not (modes.network and modes.control_mode == CONTROL_MODE_POSITION and modes.enabled):
+            not_ready.append(f"drive {unit} is in {modes.describe()}")
+    if not_ready:
+        raise CommandRejected(
+            "a synchronised start needs every drive in network mode, position control and "
+            f"enabled; {'; '.join(not_ready)}; nothing was sent"
+        )
+    reg = MOTEC_MAP["start"]
+    broadcast.write_register(reg.address, encode(reg, START_MOVE)[0])
+
+
 # ---------------------------------------------------------------- checks
+
+
+def known_parameter(number: int) -> Register:
+    """The register of Pr.``number`` (a parameter the manual names), else refused."""
+    reg = parameter_register(number)
+    if reg is not None:
+        return reg
+    for other in MOTEC_MAP.in_table(Table.HOLDING):
+        if number in other.addresses():
+            raise CommandRejected(
+                f"Pr.{number} is the low word of the 32-bit Pr.{other.address} ({other.name}, "
+                f"high word first, §3.1.2): give {other.address}"
+            )
+    known = ", ".join(str(n) for n in parameter_numbers())
+    raise CommandRejected(
+        f"Pr.{number} is not a parameter the manual names, so its range is unknown (known: {known})"
+    )
 
 
 def _check_lifeguard_ms(time_ms: int) -> None:
@@ -562,4 +675,5 @@ __all__ = [
     "lifeguard_bound_text",
     "lifeguard_feed_period_s",
     "lifeguard_min_ms",
+    "start_all",
 ]

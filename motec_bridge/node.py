@@ -4,8 +4,10 @@ One process, one serial port, one node per drive. ``main`` starts:
 
 - ``motec_bridge``: the bus owner (``bridge_core.node_base.BusNode``). It has the serial
   parameters (``serial_port``, ``baudrate``, ``parity``, ``stopbits``, ``timeout_s``)
-  and ``unit_ids``, opens the one ``ModbusLink`` every drive shares, and offers
-  ``~/disable_all`` (one broadcast write, unit 0: 0x28 = 0 on every drive, unanswered).
+  ``unit_ids`` and ``interface`` (rs485 / rs232: at most 31 / 8 drives, §1.1), opens the
+  one ``ModbusLink`` every drive shares, and offers ``~/disable_all`` (one broadcast write,
+  unit 0: 0x28 = 0 on every drive, unanswered) and ``~/start_all`` (every drive's modes
+  read, then a broadcast 0x29 = 1: a synchronised start, README decision 15).
 - ``motec_<id>`` per unit id: a ``BridgeNode`` given the shared link and its unit id as
   Python values, with its own ``DeviceChannel`` (so its own backoff: a dead drive is
   retried on its own schedule, the others keep their poll slots), poll thread, topics,
@@ -44,7 +46,14 @@ from bridge_core.node_base import BridgeNode, BusNode, DeviceDefaults, copy_fiel
 from bridge_core.parameters import ParameterSpec
 from bridge_core.transport import ModbusLink
 from msg_defs.msg import MotecState
-from msg_defs.srv import PositionMove, SetControlMode, SetOutput, SetValue
+from msg_defs.srv import (
+    PositionMove,
+    ReadParameter,
+    SetControlMode,
+    SetOutput,
+    SetValue,
+    WriteParameter,
+)
 
 from .device import (
     DEFAULT_CONFIG_REFRESH_S,
@@ -57,10 +66,16 @@ from .device import (
     disable_all,
     lifeguard_bound_text,
     lifeguard_min_ms,
+    start_all,
 )
 from .registers import (
     BROADCAST_UNIT,
     DEFAULT_BAUDRATE,
+    INTERFACE_RS232,
+    INTERFACE_RS485,
+    MAX_DRIVES,
+    OUTPUT1_COIL_CHOICES,
+    OUTPUT1_COIL_DEFAULT,
     UNIT_IDS,
     control_mode_name,
     fault_text,
@@ -84,6 +99,7 @@ MOTEC_DEFAULTS = DeviceDefaults(
 # MotecState fields copied as they are from the snapshot and its configuration.
 STATE_FIELDS = (
     "motion_mode",
+    "start",
     "target_distance",
     "fault_code",
     "position_setpoint",
@@ -166,6 +182,19 @@ class MotecDriveNode(BridgeNode[MotecSnapshot]):
                     0.5,
                     3600.0,
                 ),
+                ParameterSpec(
+                    "output1_coil",
+                    OUTPUT1_COIL_DEFAULT,
+                    "coil (and output-word bit) of OUTPUT1: 0 as the FC 01 example (07 = three "
+                    "outputs on), 1 as the FC 05 example (OUTPUT2 at 0x0002)",
+                    min(OUTPUT1_COIL_CHOICES),
+                    max(OUTPUT1_COIL_CHOICES),
+                ),
+                ParameterSpec(
+                    "read_io_tables",
+                    False,
+                    "every poll also reads 0x79, FC 01 (outputs) and FC 02 (inputs): 3 more reads",
+                ),
             ]
         )
         self.scale = DriveScale(float(values["counts_per_rev"]), float(values["gear_ratio"]))
@@ -177,6 +206,8 @@ class MotecDriveNode(BridgeNode[MotecSnapshot]):
             max_speed_rpm=int(values["max_speed_rpm"]),
             config_refresh_s=float(values["config_refresh_s"]),
             velocity_timeout_s=float(values["command_timeout_s"]),
+            output1_coil=int(values["output1_coil"]),
+            read_io_tables=bool(values["read_io_tables"]),
         )
         self.lifeguard_error: str | None = None
         self.joint_names = [f"{self.joint_prefix}drive_{unit_id}"]
@@ -231,6 +262,14 @@ class MotecDriveNode(BridgeNode[MotecSnapshot]):
         m.control_mode_name = control_mode_name(s.modes.control_mode)
         m.enabled = s.modes.enabled
         m.fault_text = fault_text(s.fault_code)
+        m.fault_flag = s.fault_flag
+        m.fault_detail = s.fault_detail
+        m.output1_coil = s.output1_coil
+        m.io_tables_read = s.coil_outputs is not None
+        if s.coil_outputs is not None and s.discrete_inputs is not None:
+            m.output_word_0x79 = s.output_word_79 or 0
+            m.coil_outputs = list(s.coil_outputs)
+            m.discrete_inputs = list(s.discrete_inputs)
         self.state_pub.publish(m)
 
     def lifeguard_time_ms(self) -> int:
@@ -336,6 +375,20 @@ class MotecDriveNode(BridgeNode[MotecSnapshot]):
             lambda r: f"set_analog_max_speed {r.value} rpm",
             lambda r: d.set_analog_max_speed(r.value),
         )
+        self.command_service(
+            ReadParameter,
+            "~/read_parameter",
+            lambda r: f"read_parameter Pr.{r.index}",
+            lambda r: d.read_parameter(int(r.index)),
+            writes=False,
+            fill=lambda response, value: setattr(response, "value", value),
+        )
+        self.command_service(
+            WriteParameter,
+            "~/write_parameter",
+            lambda r: f"write_parameter Pr.{r.index} = {r.value}",
+            lambda r: d.write_parameter(int(r.index), int(r.value)),
+        )
 
     def _set_control_mode(self, r: Any) -> None:
         s = self.last_snapshot
@@ -429,12 +482,34 @@ class MotecBusNode(BusNode):
             **kwargs,
         )
         values = self.declare_specs(
-            [ParameterSpec("read_only", False, "refuse ~/disable_all", live=True)]
+            [
+                ParameterSpec(
+                    "read_only", False, "refuse ~/disable_all and ~/start_all", live=True
+                ),
+                ParameterSpec(
+                    "interface",
+                    INTERFACE_RS485,
+                    "the line: rs485 (31 drives, §1.1.2) or rs232 (8 drives, §1.1.1)",
+                    choices=tuple(MAX_DRIVES),
+                ),
+            ]
         )
+        interface = str(values["interface"]).lower()
+        if len(self.unit_ids) > MAX_DRIVES[interface]:
+            raise ConfigurationError(
+                f"unit_ids has {len(self.unit_ids)} drives, but an {interface} line takes at "
+                f"most {MAX_DRIVES[interface]} (§1.1.1: RS232通讯口最多可以支持连接8台驱动器联网)"
+                if interface == INTERFACE_RS232
+                else f"unit_ids has {len(self.unit_ids)} drives, more than {MAX_DRIVES[interface]}"
+            )
+        self.interface = interface
         self.read_only = bool(values["read_only"])
         self.on_parameter("read_only", lambda value: setattr(self, "read_only", bool(value)))
         self.broadcast = DeviceChannel(self.link, BROADCAST_UNIT, retries=0)
+        # One channel per drive for start_all's check (its own: no drive node's backoff).
+        self.drive_channels = {u: DeviceChannel(self.link, u, retries=0) for u in self.unit_ids}
         self.create_service(Trigger, "~/disable_all", self._disable_all)
+        self.create_service(Trigger, "~/start_all", self._start_all)
 
     def _disable_all(self, _request: Any, response: Any) -> Any:
         if self.read_only:
@@ -447,6 +522,28 @@ class MotecBusNode(BusNode):
             return response
         response.success = True
         response.message = "disable_all: broadcast 0x28 = 0 sent (drives do not answer a broadcast)"
+        return response
+
+    def _start_all(self, _request: Any, response: Any) -> Any:
+        """Broadcast 0x29 = 1: every drive starts its prepared move at once (guarded)."""
+        response.success = False
+        if self._state_machine.current_state[1] != "active":
+            response.message = "start_all refused: the node is not active (lifecycle)"
+        elif self.read_only:
+            response.message = "start_all refused: read_only is set, nothing was written"
+        else:
+            try:
+                start_all(self.broadcast, self.drive_channels)
+            except CommandRejected as err:
+                response.message = f"start_all refused: {err}"
+            except LinkError as err:
+                response.message = f"start_all failed: {err}"
+            else:
+                response.success = True
+                response.message = (
+                    f"start_all: broadcast 0x29 = 1 sent to drives {self.unit_ids} (each was "
+                    "ready; drives do not answer a broadcast)"
+                )
         return response
 
 

@@ -78,8 +78,11 @@ decisions):
 - The manual gives no fault reset, no acceleration or profile-speed register, no
   "done" / "moving" flag addresses (§4.3 names such flags without addresses), no reply
   delay and no value for current control: the bridge does not invent them (``moving`` in
-  ``~/state`` is derived from speed and setpoint); a fault is cleared by whatever the
-  drive needs (the simulator clears it when the motor is released, 0x28 = 0).
+  ``~/state`` is derived from speed and setpoint); a fault is cleared by a restart, the
+  only recovery the manual describes (§3.4, §3.5; README decision 16: the simulator keeps
+  it latched until ``power_cycle``).
+- Fault word halves, IO tables, parameters by number, RS-232 / RS-485, broadcast start:
+  README MOTEC decisions 7 and 12-15.
 """
 
 from __future__ import annotations
@@ -104,12 +107,21 @@ DEFAULT_BAUDRATE = 115200
 # §2.1-2.6: "01~31 驱动器地址"; §1.1.2: "支持31台联网". 0 = broadcast (§2.4-2.6).
 UNIT_IDS = range(1, 32)
 BROADCAST_UNIT = 0
+# §1.1.1: "RS232通讯口最多可以支持连接8台驱动器联网"; §1.1.2 RS-485: "支持31台联网". The
+# line's kind is not visible on the wire: the bus node's ``interface`` parameter names it.
+INTERFACE_RS485 = "rs485"
+INTERFACE_RS232 = "rs232"
+MAX_DRIVES = {INTERFACE_RS485: len(UNIT_IDS), INTERFACE_RS232: 8}
 FUNCTION_CODES = frozenset({0x01, 0x02, 0x03, 0x05, 0x06, 0x10})  # §2 表 2
 # The highest parameter the manual names (Pr.276, §3.4): the simulator's table ends here.
 LAST_PARAMETER = 0x114
 
 OUTPUTS = 3  # §3.3: "3路数字输出口"
 INPUTS = 8  # §3.3: "8路数字输入口"
+# Decision 6: OUTPUTn is coil n-1 (FC 01 example: "07" = three outputs on). §3.3.3's only
+# FC 05 example writes "OUTPUT2" to 0x0002 (coil n): ``output1_coil`` = 1 follows it.
+OUTPUT1_COIL_DEFAULT = 0
+OUTPUT1_COIL_CHOICES = (0, 1)
 BIT_TABLE_WIDTH = 16  # §3.3.1 / §3.3.2: "以16位数据存储的 ... 低位有效"
 
 OPERATION_MODE_NETWORK = 0  # §4.1 step 1
@@ -348,9 +360,40 @@ MOTEC_LIMITS = DeviceLimits(
 MOTEC_MAP = RegisterMap("MOTEC β", _build(), MOTEC_LIMITS)
 
 
-def output_coil(output: int) -> int:
-    """Protocol coil address of OUTPUT ``output`` (1-3): bit k = OUTPUT(k+1) (§3.3.1)."""
-    return output - 1
+def output_coil(output: int, output1_coil: int = OUTPUT1_COIL_DEFAULT) -> int:
+    """Protocol coil address of OUTPUT ``output`` (1-3): bit k = OUTPUT(k+1) (§3.3.1) with
+    the default ``output1_coil`` 0; 1 reads §3.3.3's example ("OUTPUT2" at 0x0002)."""
+    return output - 1 + output1_coil
+
+
+# ``~/read_parameter`` / ``~/write_parameter`` (§3.1, §3.2, §5.2: Pr.N is address N). Only
+# the parameters the manual names are known (it has no parameter list: no gains, no
+# accelerations, README decision 13); a 32-bit one is addressed by its first (high) word.
+# Writable through the service: the named writable parameters that start no motion and
+# are not kept by the bridge itself; the others have their own guarded service.
+PARAMETER_OWN_SERVICE = {
+    "operation_mode": "~/set_control_mode",
+    "control_mode": "~/set_control_mode",
+    "enable": "~/enable",
+    "start": "~/move, ~/stop or motec_bridge/start_all",
+    "speed_setpoint": "~/move, ~/cmd_velocity or ~/stop",
+    "lifeguard_time": "the lifeguard_ms parameter",
+    "lifeguard_mode": "the lifeguard_ms parameter",
+    "output_word": "~/set_output (FC 05, decision 6)",
+    "output_state": "~/set_output (FC 05, decision 6)",
+}
+
+
+def parameter_register(number: int) -> Register | None:
+    """The named holding register whose first address is Pr.``number``, if any."""
+    for reg in MOTEC_MAP.in_table(Table.HOLDING):
+        if reg.address == number:
+            return reg
+    return None
+
+
+def parameter_numbers() -> list[int]:
+    return sorted(reg.address for reg in MOTEC_MAP.in_table(Table.HOLDING))
 
 
 def operation_mode_name(mode: int) -> str:
@@ -381,4 +424,6 @@ __all__ = [
     "fault_text",
     "operation_mode_name",
     "output_coil",
+    "parameter_numbers",
+    "parameter_register",
 ]

@@ -21,8 +21,11 @@ silent; the choices are listed in the README's MOTEC section):
   speed limit. 0xAE holds ``move_speed_rpm`` at power-up (the manual gives no power-up
   value). Starting without network mode, position control and enable answers 0x03;
 - velocity control: the speed ramps to 0xAE at ``accel_rpm_s`` (§4.2) while enabled;
-- releasing (0x28 = 0) stops the motor at once (it coasts in reality) and clears a
-  latched fault; enabling while a fault is latched answers 0x03;
+- releasing (0x28 = 0) stops the motor at once (it coasts in reality); a fault stays
+  latched until the drive is restarted (``power_cycle``): the manual gives no Modbus
+  fault reset (§3.4 only "驱动器会报警并disable电机"), and a restart brings back "上电状态
+  的参数" (§3.5): the values last saved to flash (0x35 = 1), the rest at power-up values,
+  released, outputs off, position 0. Enabling while a fault is latched answers 0x03;
 - lifeguard (§3.4): with 0x112 != 0 and 0x114 = 9999 in network mode, a drive that gets
   no write (any FC 05/06/16 to its unit id or to the broadcast id) for 0x112 ms latches
   fault ``lifeguard_fault_code`` (1, the manual's "有故障") and releases the motor.
@@ -88,6 +91,13 @@ _WRITABLE_HOLDING = {
     for address in reg.addresses()
 }
 _OUTPUT_WORDS = ("output_word", "output_state")
+# Parameters a save to flash keeps over a restart (§3.5): the writable ones that are
+# settings, not commands (enable, start and the output words come back 0).
+_SAVED = tuple(
+    reg.name
+    for reg in MOTEC_MAP.in_table(Table.HOLDING)
+    if reg.access.writable and reg.name not in {"enable", "start", "save_to_flash", *_OUTPUT_WORDS}
+)
 
 
 @dataclass
@@ -140,9 +150,31 @@ class MotecSimDrive(SimulatedDevice):
         self.write_guards.append(self._guard)
         self.write_hooks.append(self._on_write)
         with self.lock:
-            self.set("operation_mode", POWER_UP_OPERATION_MODE)
-            self.set("control_mode", CONTROL_MODE_POSITION)
-            self.set("speed_setpoint", round(move_speed_rpm))
+            self._power_up_values()
+            # What 0x35 = 1 saved (§3.5): the writable parameters at power-up to begin with.
+            self.flash = {name: self.value(name) for name in _SAVED}
+            self._update_registers()
+
+    def _power_up_values(self) -> None:
+        for name in _SAVED:
+            self.set(name, 0)
+        self.set("operation_mode", POWER_UP_OPERATION_MODE)
+        self.set("control_mode", CONTROL_MODE_POSITION)
+        self.set("speed_setpoint", round(self.move_speed_rpm))
+
+    def power_cycle(self) -> None:
+        """Switch the drive off and on: the only recovery from a fault the manual allows
+        (no reset register); parameters come back as last saved to flash (§3.5)."""
+        with self.lock:
+            self._power_up_values()
+            for name, value in self.flash.items():
+                self.set(name, value)
+            self.set("enable", 0)
+            self.set("start", 0)
+            self.fault = FAULT_NONE
+            self.position, self.speed, self.move = 0.0, 0.0, None
+            self.outputs = 0
+            self.last_command = self._clock()
             self._update_registers()
 
     # ------------------------------------------------------------ for tests / the CLI
@@ -227,8 +259,7 @@ class MotecSimDrive(SimulatedDevice):
             if reg.address >= record.address and reg.end <= end
         }
         if "enable" in written and not self.enabled:
-            self.speed, self.move = 0.0, None
-            self.fault = FAULT_NONE  # releasing acknowledges a latched fault
+            self.speed, self.move = 0.0, None  # a latched fault stays (power_cycle)
         if written & {"operation_mode", "control_mode"}:
             # A mode change ends any move: decelerate to a stop first.
             self.move = Move(None, 0.0) if self.speed else None
@@ -240,6 +271,7 @@ class MotecSimDrive(SimulatedDevice):
         if "save_to_flash" in written and self.value("save_to_flash") == 1:
             self.saves += 1
             self.set("save_to_flash", 0)
+            self.flash = {name: self.value(name) for name in _SAVED}
         for name in _OUTPUT_WORDS:
             if name in written:
                 self.outputs = self.value(name) & OUTPUT_MASK
@@ -345,6 +377,10 @@ class MotecSimulator(Simulator):
         """The drive goes silent (and stops ticking) until ``plug``."""
         self.unplugged.add(unit_id)
         self._rebuild()
+
+    def power_cycle(self, unit_id: int) -> None:
+        """Restart drive ``unit_id`` (see ``MotecSimDrive.power_cycle``)."""
+        self.drives[unit_id].power_cycle()
 
     def plug(self, unit_id: int) -> None:
         self.unplugged.discard(unit_id)

@@ -16,6 +16,8 @@ from typing import Any
 
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
+from lifecycle_msgs.msg import Transition
+from lifecycle_msgs.srv import ChangeState
 from rcl_interfaces.srv import SetParameters
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
@@ -27,7 +29,14 @@ from bridge_core.transport import SerialSettings
 from motec_bridge.device import lifeguard_min_ms
 from motec_bridge.sim import MotecSimDrive, MotecSimulator, make_simulator
 from msg_defs.msg import MotecState
-from msg_defs.srv import PositionMove, SetControlMode, SetOutput, SetValue
+from msg_defs.srv import (
+    PositionMove,
+    ReadParameter,
+    SetControlMode,
+    SetOutput,
+    SetValue,
+    WriteParameter,
+)
 
 from ..support.ros import (
     LATCHED,
@@ -143,6 +152,14 @@ class MotecBridge:
         request = SetParameters.Request()
         request.parameters = [Parameter(name, value=value).to_parameter_msg()]
         reply = self.client.call(SetParameters, f"{self.ns}/motec_{unit}/set_parameters", request)
+        (result,) = reply.results
+        return result
+
+    def set_bus_param(self, name: str, value: Any) -> Any:
+        """SetParameters on the bus node: its one result."""
+        request = SetParameters.Request()
+        request.parameters = [Parameter(name, value=value).to_parameter_msg()]
+        reply = self.client.call(SetParameters, f"{self.ns}/motec_bridge/set_parameters", request)
         (result,) = reply.results
         return result
 
@@ -437,7 +454,9 @@ def test_lifeguard_fault_after_the_bridge_dies(bus, client: Client, tmp_path: Pa
         status = b.wait_diagnostic(1, level(2), since=t)
         assert status.message == "drive fault 1: fault (有故障)"
         assert values_of(status)["link state"] == "connected"
-        b.ok(1, SetBool, "enable", data=False)  # releasing acknowledges the fault
+        b.ok(1, SetBool, "enable", data=False)  # releasing does not clear it (§3.4)
+        assert sim.drive(1).fault == 1
+        sim.power_cycle(1)  # a restart does (README "Lifeguard")
         t = time.monotonic()
         b.wait_state(1, lambda m: m.fault_code == 0, since=t)
         b.wait_diagnostic(1, level(0), since=t)
@@ -631,9 +650,93 @@ def test_refusals_read_only_and_params_file(bus, client: Client, tmp_path: Path)
         for unit in UNITS:
             assert sim.drive(unit).write_log == [], unit
 
-        # The bus node's broadcast reaches every drive (and clears drive 1's fault).
+        # The bus node's broadcast reaches every drive (drive 1's fault stays latched).
         assert "broadcast" in b.ok(None, Trigger, "disable_all").message
         wait_for(lambda: all(sim.drive(u).write_log for u in UNITS), 5, "the broadcast")
         for unit in UNITS:
             assert writes(sim.drive(unit)) == [(6, H, 0x28, (0,))]
-        b.wait_state(1, lambda m: m.fault_code == 0, since=time.monotonic())
+        b.wait_state(1, lambda m: m.fault_code == 7, since=time.monotonic())
+
+
+def test_parameters_start_all_io_tables_and_output_numbering(
+    bus: tuple[MotecSimulator, str], client: Client, tmp_path: Path
+) -> None:
+    """Issue 10: ~/read_parameter and ~/write_parameter (guarded), the bus node's broadcast
+    start of a synchronised move, the IO tables and 0x29 in ~/state, output1_coil."""
+    sim, port = bus
+    units = [1, 2]
+    sim.drive(2).set_input(5, True)
+    params = bridge_params(port, unit_ids=units, read_io_tables=True, output1_coil=1)
+    with motec(client, tmp_path, params, units=units) as (b, _):
+        for unit in units:
+            b.wait_connected(unit, True)
+        st = b.wait_state(2, lambda m: m.io_tables_read)
+        assert list(st.discrete_inputs) == [False] * 4 + [True] + [False] * 3
+        assert st.start == 0 and (st.fault_flag, st.fault_detail) == (0, 0)
+        assert st.output1_coil == 1
+        # Parameters by number.
+        assert b.ok(1, ReadParameter, "read_parameter", index=0x6D).value == 0
+        b.ok(1, WriteParameter, "write_parameter", index=0x6D, value=1500)
+        assert b.ok(1, ReadParameter, "read_parameter", index=0x6D).value == 1500
+        for index, value, reason in (
+            (0x2A, 1, "not a parameter the manual names"),
+            (0x28, 1, "~/enable"),
+            (0x6D, 70000, "outside"),
+            (39, 1, "low word"),
+        ):
+            reply = b.call(1, WriteParameter, "write_parameter", index=index, value=value)
+            assert not reply.success and "refused" in reply.message, reply.message
+            assert reason in reply.message, reply.message
+        # A synchronised start: refused while a drive is not ready, nothing sent.
+        reply = b.call(None, Trigger, "start_all")
+        assert not reply.success and "drive 1 is in operation mode" in reply.message
+        for unit in units:
+            b.ok(unit, SetControlMode, "set_control_mode", mode=SetControlMode.Request.POSITION)
+            b.ok(unit, SetBool, "enable", data=True)
+            b.ok(unit, WriteParameter, "write_parameter", index=38, value=2000 * unit)
+        for address, value in ((0x24, 0), (0x25, 2), (0x28, 1)):  # drive 3, not the bridge's
+            assert sim.drive(3).write(6, address, [value]) is None
+        result = b.set_bus_param("read_only", True)
+        assert result.successful, result.reason
+        reply = b.call(None, Trigger, "start_all")
+        assert not reply.success and "read_only" in reply.message, reply.message
+        assert b.set_bus_param("read_only", False).successful
+        assert bus_transition(client, b.ns, Transition.TRANSITION_DEACTIVATE)
+        reply = b.call(None, Trigger, "start_all")
+        assert not reply.success and "not active" in reply.message, reply.message
+        assert bus_transition(client, b.ns, Transition.TRANSITION_ACTIVATE)
+        assert "0x29 = 1" in b.ok(None, Trigger, "start_all").message
+        t = time.monotonic()
+        for unit in units:
+            target = 2000 * unit
+            b.wait_state(unit, lambda m: bool(m.position_actual == target), since=t)  # noqa: B023
+        # OUTPUT2 at coil 2 (the §3.3.3 example's numbering).
+        b.ok(1, SetOutput, "set_output", board=0, index=2, state=True)
+        t = time.monotonic()
+        b.wait_state(1, lambda m: m.outputs[1] and m.coil_outputs[1], since=t)
+    assert writes(sim.drive(1))[-2:] == [(6, H, 0x29, (1,)), (5, C, 2, (1,))]
+    assert writes(sim.drive(2))[-1] == (6, H, 0x29, (1,))
+    assert writes(sim.drive(3))[-1] == (6, H, 0x29, (1,))  # a broadcast reaches every drive
+
+
+def bus_transition(client: Client, namespace: str, transition: int) -> bool:
+    """A lifecycle transition of the bus node (lifecycle_msgs, as a manager sends it)."""
+    request = ChangeState.Request()
+    request.transition.id = transition
+    reply = client.call(ChangeState, f"{namespace}/motec_bridge/change_state", request)
+    return bool(reply.success)
+
+
+def test_more_than_eight_drives_on_rs232_are_refused_at_start() -> None:
+    """§1.1.1: "RS232通讯口最多可以支持连接8台驱动器联网": one line, exit code 2."""
+    params = {"unit_ids": list(range(1, 10)), "interface": "rs232"}
+    result = subprocess.run(
+        [sys.executable, "-m", "motec_bridge.node", *ros_args(params)],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=WAIT_S * 2,
+    )
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert result.returncode == 2 and len(lines) == 1, result.stdout + result.stderr
+    assert "unit_ids has 9 drives, but an rs232 line takes at most 8" in lines[0], lines[0]

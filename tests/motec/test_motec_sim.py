@@ -11,10 +11,10 @@ from dataclasses import dataclass
 import pytest
 
 from bridge_core.channel import DeviceChannel, Priority
-from bridge_core.errors import DeviceException, LinkTimeout
+from bridge_core.errors import CommandRejected, DeviceException, LinkTimeout
 from bridge_core.registers import Table
 from bridge_core.transport import ModbusLink, SerialSettings
-from motec_bridge.device import MotecDevice, disable_all
+from motec_bridge.device import MotecDevice, disable_all, start_all
 from motec_bridge.registers import (
     CONTROL_MODE_POSITION,
     CONTROL_MODE_VELOCITY,
@@ -148,9 +148,26 @@ def test_lifeguard_expiry_latches_a_fault_and_releases() -> None:
     assert drive.value("fault_code") == LIFEGUARD_FAULT_CODE == 1
     assert not drive.enabled and drive.value("speed_actual") == 0
     assert write(drive, "enable", 1) == 3  # refused while the fault is latched
-    assert write(drive, "enable", 0) is None  # releasing acknowledges it
-    assert drive.value("fault_code") == 0
+    assert write(drive, "enable", 0) is None  # releasing does not clear it (no reset, §3.4)
+    assert drive.value("fault_code") == LIFEGUARD_FAULT_CODE
+    assert write(drive, "enable", 1) == 3
+    drive.power_cycle()  # a restart does, and brings back the parameters saved to flash
+    assert drive.value("fault_code") == 0 and not drive.enabled
+    assert drive.value("lifeguard_mode") == 0 and drive.value("operation_mode") == 1
     assert write(drive, "enable", 1) is None
+
+
+def test_a_restart_brings_back_what_was_saved_to_flash() -> None:
+    """§3.5: unsaved parameters are lost on a restart, saved ones kept."""
+    drive = MotecSimDrive(1)
+    write(drive, "analog_max_speed", 1500)
+    write(drive, "save_to_flash", 1)
+    write(drive, "analog_max_speed", 2000)
+    write(drive, "motion_mode", 1)
+    drive.inject_fault(0x31)
+    drive.power_cycle()
+    assert drive.value("analog_max_speed") == 1500 and drive.value("motion_mode") == 0
+    assert drive.fault == 0 and drive.value("fault_code") == 0
 
 
 def test_writes_refused_where_the_drive_would() -> None:
@@ -295,4 +312,98 @@ def test_lifeguard_over_the_bus(bus: Bus) -> None:
     with pytest.raises(DeviceException, match="ILLEGAL DATA VALUE"):
         d.enable(True)
     d.enable(False)
+    assert d.poll().fault_code == LIFEGUARD_FAULT_CODE  # no Modbus reset (§3.4)
+    bus.sim.power_cycle(1)
     assert d.poll().fault_code == 0
+
+
+# ---------------------------------------------------------------- issue 10 items
+
+
+def test_parameters_by_number_over_the_bus(bus: Bus) -> None:
+    """§3.1 / §3.2 / §5.2: Pr.N at address N, FC 06 or FC 16 high word first, the manual's
+    ranges; anything else refused before a write (and the simulator refuses it too)."""
+    d, drive = bus.devices[1], bus.sim.drive(1)
+    drive.set_position(-70000)
+    assert d.read_parameter(0xAC) == -70000  # 32-bit, read whole
+    d.write_parameter(0x6D, 1500)
+    d.write_parameter(38, -5)  # Pr.38/39 = 0x26-0x27, the distance
+    d.write_parameter(0x2D, 1)
+    assert d.read_parameter(0x6D) == 1500 and d.read_parameter(38) == -5
+    assert [(r.function_code, r.address, r.values) for r in drive.write_log] == [
+        (6, 0x6D, (1500,)),
+        (16, 0x26, (0xFFFF, 0xFFFB)),
+        (6, 0x2D, (1,)),
+    ]
+    refusals = [
+        (39, 0, "low word of the 32-bit Pr.38"),
+        (0x2A, 0, "not a parameter the manual names"),
+        (0xAC, 0, "read only"),
+        (0x28, 1, "~/enable"),
+        (0x29, 1, "start_all"),
+        (0x112, 500, "lifeguard_ms"),
+        (0x6D, 70000, "outside"),
+        (0x2D, 2, "outside"),
+    ]
+    for number, value, reason in refusals:
+        with pytest.raises(CommandRejected, match=reason):
+            d.write_parameter(number, value)
+    with pytest.raises(CommandRejected, match="not a parameter"):
+        d.read_parameter(0x2A)
+    assert len(drive.write_log) == 3
+    # The drive itself: an unnamed parameter 0x02, out of range 0x03, half a value 0x02.
+    with pytest.raises(DeviceException, match="ILLEGAL DATA ADDRESS"):
+        bus.channels[1].write_register(0x2A, 1)
+    with pytest.raises(DeviceException, match="ILLEGAL DATA VALUE"):
+        bus.channels[1].write_register(0x2D, 2)
+    with pytest.raises(DeviceException, match="ILLEGAL DATA ADDRESS"):
+        bus.channels[1].write_register(0x27, 1)
+
+
+def test_broadcast_start_moves_every_ready_drive_and_gets_no_reply(bus: Bus) -> None:
+    broadcast = DeviceChannel(bus.link, 0, retries=0)
+    drives = {u: bus.channels[u] for u in UNITS}
+    with pytest.raises(CommandRejected, match="drive 1 is in operation mode other"):
+        start_all(broadcast, drives)
+    for u in UNITS:
+        bus.devices[u].set_control_mode(CONTROL_MODE_POSITION)
+        bus.devices[u].enable(True)
+        bus.devices[u].write_parameter(0x26, 1000 * u)
+    bus.sim.unplug(3)
+    with pytest.raises(CommandRejected, match="drive 3 did not answer"):
+        start_all(broadcast, drives)
+    bus.sim.plug(3)
+    assert all(r.address != 0x29 for u in UNITS for r in bus.sim.drive(u).write_log)
+    started = time.monotonic()
+    start_all(broadcast, drives)
+    assert time.monotonic() - started < 0.5  # no reply awaited (the reads take ms)
+    assert broadcast.stats.timeouts == 0
+    deadline = time.monotonic() + 30
+    for u in UNITS:  # the client returned once the frame was sent: wait for the drives
+        while (bus.sim.drive(u).write_log[-1].address, bus.sim.drive(u).write_log[-1].values) != (
+            0x29,
+            (1,),
+        ):
+            assert time.monotonic() < deadline, bus.sim.drive(u).write_log[-1]
+            time.sleep(0.01)
+    while any((s := bus.devices[u].poll()).position_actual != 1000 * u or s.moving for u in UNITS):
+        assert time.monotonic() < deadline
+        time.sleep(0.02)
+
+
+def test_io_tables_fault_halves_and_output_numbering(bus: Bus) -> None:
+    """0x29, 0x79, FC 01 / FC 02 in the snapshot; 0xC8 / 0xC9 apart; OUTPUT1 at coil 1."""
+    drive = bus.sim.drive(1)
+    drive.set_input(3, True)
+    drive.inject_fault(0x0001_0031)
+    plain = bus.devices[1].poll()
+    assert plain.coil_outputs is None and plain.discrete_inputs is None
+    d = MotecDevice(bus.channels[1], read_io_tables=True, output1_coil=1)
+    d.set_output(2, True)  # the §3.3.3 example's reading: OUTPUT2 at coil 2
+    assert (drive.write_log[-1].function_code, drive.write_log[-1].address) == (5, 2)
+    s = d.poll()
+    assert (s.fault_flag, s.fault_detail, s.fault_code) == (1, 0x31, 0x0001_0031)
+    assert s.start == 0 and s.output_word_79 == 0b100 == s.output_word
+    assert s.outputs == (False, True, False) == s.coil_outputs
+    assert s.discrete_inputs == (False, False, True, False, False, False, False, False)
+    assert bus.devices[1].poll().outputs == (False, False, True)  # default numbering
