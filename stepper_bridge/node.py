@@ -136,8 +136,8 @@ STEPPER_DEFAULTS = DeviceDefaults(
 class StepperBridgeNode(BridgeNode[StepperSnapshot]):
     """The 5-axis stepper controller: one node per controller, on its own serial line."""
 
-    def __init__(self, **kwargs: Any) -> None:
-        super().__init__("stepper_bridge", STEPPER_DEFAULTS, **kwargs)
+    def __init__(self, node_name: str = "stepper_bridge", **kwargs: Any) -> None:
+        super().__init__(node_name, STEPPER_DEFAULTS, **kwargs)
         values = self.declare_specs(
             [
                 ParameterSpec(

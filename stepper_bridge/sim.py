@@ -505,14 +505,22 @@ def _circumcenter(
 def make_simulator(
     unit_id: int = 1, reply_delay_s: float = REPLY_DELAY_S, travel: float = TRAVEL
 ) -> Simulator:
-    device = StepperSimDevice(unit_id, travel)
-    sim = Simulator([device])
+    return make_bus_simulator([unit_id], reply_delay_s, travel)
+
+
+def make_bus_simulator(
+    unit_ids: Sequence[int], reply_delay_s: float = REPLY_DELAY_S, travel: float = TRAVEL
+) -> Simulator:
+    """Controllers on one RS-485 line (40212 "主-从模式的多机通信"), one per unit id."""
+    devices = [StepperSimDevice(unit, travel) for unit in unit_ids]
+    sim = Simulator(devices)
     sim.reply_delay_s = reply_delay_s
 
     def rekey(old: int, new: int) -> None:
         sim.devices = {new if uid == old else uid: d for uid, d in sim.devices.items()}
 
-    device.on_unit_id_change = rekey
+    for device in devices:
+        device.on_unit_id_change = rekey
     return sim
 
 
