@@ -58,6 +58,8 @@ from .registers import (
     INPUTS,
     INTERPOLATION_PAIRS,
     INTERPOLATION_PAIRS_POINT_ROWS,
+    INTERPOLATION_REGISTERS,
+    LINK_REGISTERS,
     MOTOR_ACTIONS,
     MOTOR_FIELD_NAMES,
     MOTORS,
@@ -107,10 +109,44 @@ class MotorConfig:
 
 
 @dataclass(frozen=True)
+class InterpolationConfig:
+    """40182-40211 as last read (or written): the last line / arc set up, user units.
+
+    Points are (first motor, second motor) of the pair, by the type rows' reading
+    (registers.INTERPOLATION_PAIRS)."""
+
+    arc_pair: int
+    arc_mode: int
+    arc_start: tuple[float, float]
+    arc_end: tuple[float, float]
+    arc_center: tuple[float, float]
+    arc_via: tuple[float, float]
+    arc_counterclockwise: bool
+    arc_speed_rpm: int
+    line_pair: int
+    line_start: tuple[float, float]
+    line_end: tuple[float, float]
+    line_speed_rpm: int
+
+
+@dataclass(frozen=True)
 class StepperConfig:
     motors: tuple[MotorConfig, ...]
     homing_order: tuple[int, ...]
     system_mode: int
+    interpolation: InterpolationConfig
+    device_id: int  # 40212: read only (README: the bridge never writes the link settings)
+    baud_rate: int  # 40213-40214
+
+
+@dataclass(frozen=True)
+class InterpolationRun:
+    """A line / arc the bridge started: its motors (under both readings of the pair) and
+    the first poll sequence number that began after its start coil was sent."""
+
+    kind: str
+    motors: tuple[int, ...]
+    first_poll: int
 
 
 @dataclass(frozen=True)
@@ -139,6 +175,7 @@ def _config_names() -> list[str]:
     names += [f"homing_order_{k}" for k in range(1, MOTORS + 1)]
     names += ["system_mode"]
     names += [motor_register(m, "reciprocations") for m in range(1, MOTORS + 1)]
+    names += list(INTERPOLATION_REGISTERS) + list(LINK_REGISTERS)
     return names
 
 
@@ -277,6 +314,13 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
         self.on_speed_restore_failure: Callable[[int, int, LinkError], None] = (
             lambda _motor, _rpm, _err: None
         )
+        # Polls are numbered as they begin.
+        # The controller has no "interpolation running" register: a line / arc the bridge
+        # started counts as running until a poll begun after its start coil shows its
+        # motors stopped (or a stop / e-stop is acknowledged). §5(1) 40201 / 40211:
+        # "插补过程运行中不可调节"; a second line / arc is refused meanwhile.
+        self._next_poll = 0
+        self.interpolation_run: InterpolationRun | None = None
 
     # ------------------------------------------------------------------ reads
     @property
@@ -303,10 +347,31 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
             )
             for m in range(1, MOTORS + 1)
         )
+
+        def point(name: str) -> tuple[float, float]:
+            return (float(v[f"{name}_a"]), float(v[f"{name}_b"]))
+
+        interpolation = InterpolationConfig(
+            arc_pair=i("arc_pair"),
+            arc_mode=i("arc_mode"),
+            arc_start=point("arc_start"),
+            arc_end=point("arc_end"),
+            arc_center=point("arc_center"),
+            arc_via=point("arc_via"),
+            arc_counterclockwise=bool(i("arc_direction")),
+            arc_speed_rpm=i("arc_speed"),
+            line_pair=i("line_pair"),
+            line_start=point("line_start"),
+            line_end=point("line_end"),
+            line_speed_rpm=i("line_speed"),
+        )
         return StepperConfig(
             motors=motors,
             homing_order=tuple(i(f"homing_order_{k}") for k in range(1, MOTORS + 1)),
             system_mode=i("system_mode"),
+            interpolation=interpolation,
+            device_id=i("device_id"),
+            baud_rate=i("baud_rate"),
         )
 
     def lead(self, motor: int) -> float:
@@ -314,13 +379,17 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
         return self.config.motors[motor - 1].lead
 
     def poll(self) -> StepperSnapshot:
+        sequence = self._next_poll
+        self._next_poll += 1
         v, read_time = self.poll_status(STATUS_PLAN, STAMP_REGISTER)
+        running = tuple(bool(v[motor_register(m, "running")]) for m in range(1, MOTORS + 1))
+        self._note_running(sequence, running)
         return StepperSnapshot(
             read_time=read_time,
             coordinates=tuple(
                 float(v[motor_register(m, "coordinate")]) for m in range(1, MOTORS + 1)
             ),
-            running=tuple(bool(v[motor_register(m, "running")]) for m in range(1, MOTORS + 1)),
+            running=running,
             inputs=tuple(bool(v[f"input_{n}"]) for n in range(1, INPUTS + 1)),
             outputs=tuple(bool(v[f"output_{n}"]) for n in range(1, OUTPUTS + 1)),
             config=self.config,
@@ -459,9 +528,24 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
         self._write_values(second)
 
     def set_speed(self, motor: int, rpm: int) -> None:
+        """Speed register (40006+, rpm, "运行中可以调节": a running motion takes it at once).
+
+        During a jog it becomes the configured speed the jog's end writes back."""
         _check_motor(motor)
         _check_integer("speed", rpm)
         self._write_values([(motor_register(motor, "speed"), int(rpm))])
+
+    def set_direction(self, motor: int, direction: int) -> None:
+        """Single-run direction (40005+): 0 positive, 1 negative ("0 对应正方向,1 对应反方向")."""
+        _check_motor(motor)
+        _check_choice("direction", direction, (0, 1))
+        self._write_values([(motor_register(motor, "direction"), int(direction))])
+
+    def set_round_trips(self, motor: int, count: int) -> None:
+        """Mode-1 round trips of ``motor`` (40301-40305), 0 = endless ("0表示无限次")."""
+        _check_motor(motor)
+        _check_integer("round trips", count)
+        self._write_values([(motor_register(motor, "reciprocations"), int(count))])
 
     def set_limit_inputs(self, motor: int, positive: int, negative: int, home: int) -> None:
         """Which input (1-13, 0 none) is the motor's positive / negative limit and home."""
@@ -628,6 +712,7 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
                     self.jogs.taken_over(motor, locked=name == "emergency_stop")
                     self._direction[motor] = 0
             if name == "emergency_stop":
+                self.interpolation_run = None  # "完成所有电机急停": the move ended
                 self._restore_after_stop(list(range(1, MOTORS + 1)))
 
     def destructive_command(self, name: str, confirmation: str) -> None:
@@ -671,6 +756,7 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
         _check_points(points)
         if _same(start, end):
             raise CommandRejected("line start and end are the same point")
+        self._check_no_interpolation_running()
         # The motors first run to the start each at its own speed (40202 note 2).
         self._restore_for_interpolation(pair)
         self._write_values(
@@ -683,7 +769,7 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
                 ("line_speed", int(speed_rpm)),
             ]
         )
-        self._coil("line_start")
+        self._start_interpolation("line", pair)
 
     def arc_move(
         self,
@@ -710,6 +796,7 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
             raise CommandRejected("an arc needs three different points (manual: 三点确定圆弧)")
         if mode == ARC_MODE_THREE_POINTS and _collinear(start, via, end):
             raise CommandRejected("start, via and end are on one line: no arc passes them")
+        self._check_no_interpolation_running()
         self._restore_for_interpolation(pair)
         self._write_values(
             [
@@ -727,7 +814,7 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
                 ("arc_speed", int(speed_rpm)),
             ]
         )
-        self._coil("arc_start")
+        self._start_interpolation("arc", pair)
 
     def _restore_for_interpolation(self, pair: int) -> None:
         """The pair's motors (under either reading) that a jog left at its speed, unless
@@ -745,6 +832,42 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
                 error = error or err
         if error is not None:
             raise error
+        self.interpolation_run = None
+
+    # ------------------------------------------------------------------ interpolation state
+    def _pair_motors(self, pair: int) -> tuple[int, ...]:
+        """The pair's motors under either reading of the type (decision 11)."""
+        return tuple(
+            sorted(set(INTERPOLATION_PAIRS[pair]) | set(INTERPOLATION_PAIRS_POINT_ROWS[pair]))
+        )
+
+    def _start_interpolation(self, kind: str, pair: int) -> None:
+        """The start coil; from then on (even when its reply is lost: it may have started)
+        the move counts as running until a later poll shows its motors stopped."""
+        try:
+            self._coil(f"{kind}_start")
+        finally:
+            self.interpolation_run = InterpolationRun(
+                kind, self._pair_motors(pair), self._next_poll
+            )
+
+    def _note_running(self, sequence: int, running: tuple[bool, ...]) -> None:
+        run = self.interpolation_run
+        if (
+            run is not None
+            and sequence >= run.first_poll
+            and not any(running[m - 1] for m in run.motors)
+        ):
+            self.interpolation_run = None
+
+    def _check_no_interpolation_running(self) -> None:
+        run = self.interpolation_run
+        if run is not None:
+            raise CommandRejected(
+                f"a {run.kind} interpolation of motors "
+                f"{'+'.join(map(str, run.motors))} is running (manual: 插补过程运行中不可调节): "
+                "wait for it to end or call stop_interpolation"
+            )
 
 
 # ---------------------------------------------------------------- checks
@@ -805,6 +928,7 @@ __all__ = [
     "DESTRUCTIVE_COMMANDS",
     "SYSTEM_COILS",
     "SYSTEM_COMMANDS",
+    "InterpolationConfig",
     "JointScale",
     "MotorConfig",
     "StepperConfig",

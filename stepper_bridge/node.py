@@ -16,7 +16,13 @@ shutdown) the configured speed is written back after the stop (a failure is logg
 shown in diagnostics, and retried).
 
 Interpolation pairs: types 2 and 3 are refused unless motors 1 and 2 convert alike (the
-manual's two readings of the type, README stepper decision 11).
+manual's two readings of the type, README stepper decision 11); a second line / arc is
+refused while one this bridge started runs (decision 14).
+
+Standalone setters per motor: ``set_speed`` (rpm, like ``configure`` and the jog),
+``set_direction`` (0/1), ``set_run_distance`` (m / rad, like ``move_by``) and
+``set_round_trips`` (mode 1; README decision 16). The device id and baud rate are shown in
+diagnostics and never written (decision 13).
 """
 
 from __future__ import annotations
@@ -45,6 +51,7 @@ from msg_defs.srv import (
     SetInteger,
     SetLimitInputs,
     SetOutput,
+    SetValue,
 )
 
 from .device import (
@@ -79,6 +86,27 @@ MOTOR_FIELDS = (
     "negative_limit_input",
     "home_input",
 )
+# StepperState name -> MotorConfig field, where they differ.
+MOTOR_FIELDS_RENAMED = {"round_trips": "reciprocations"}
+INTERPOLATION_FIELDS = (
+    "arc_pair",
+    "arc_mode",
+    "arc_start",
+    "arc_end",
+    "arc_center",
+    "arc_via",
+    "arc_counterclockwise",
+    "arc_speed_rpm",
+    "line_pair",
+    "line_start",
+    "line_end",
+    "line_speed_rpm",
+)
+# ~/clear_all_parameters: the manual's clear-all ("清零所有参数") reaches the link settings.
+CLEAR_ALL_WARNING = (
+    "the link may be lost: clear-all may reset the device id (40212) and baud rate "
+    "(40213) to 1 and 9600 (README stepper decision 15)"
+)
 
 
 # A jog speed change is one FC 06 of ~52 ms at 9600 baud with the manual's 35 ms reply
@@ -108,8 +136,8 @@ STEPPER_DEFAULTS = DeviceDefaults(
 class StepperBridgeNode(BridgeNode[StepperSnapshot]):
     """The 5-axis stepper controller: one node per controller, on its own serial line."""
 
-    def __init__(self, **kwargs: Any) -> None:
-        super().__init__("stepper_bridge", STEPPER_DEFAULTS, **kwargs)
+    def __init__(self, node_name: str = "stepper_bridge", **kwargs: Any) -> None:
+        super().__init__(node_name, STEPPER_DEFAULTS, **kwargs)
         values = self.declare_specs(
             [
                 ParameterSpec(
@@ -210,6 +238,10 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
         copy_fields(m, s.config, ("system_mode", "homing_order"))
         for name in MOTOR_FIELDS:  # one list per field, an item per motor
             setattr(m, name, [getattr(c, name) for c in motors])
+        for name, field in MOTOR_FIELDS_RENAMED.items():
+            setattr(m, name, [getattr(c, field) for c in motors])
+        copy_fields(m, s.config.interpolation, INTERPOLATION_FIELDS)
+        m.interpolation_running = self.device.interpolation_run is not None
         self.state_pub.publish(m)
 
     def device_report(self) -> Report | None:
@@ -218,6 +250,9 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
             return None
         running = [str(k + 1) for k, r in enumerate(s.running) if r]
         values = [
+            # 40212-40214, read only: what the controller says its link settings are.
+            ("device id", str(s.config.device_id)),
+            ("baud rate", str(s.config.baud_rate)),
             ("system mode", str(s.config.system_mode)),
             ("motors running", ", ".join(running) or "none"),
             (
@@ -291,6 +326,30 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
                 ),
             )
             self.command_service(
+                SetInteger,
+                f"{ns}/set_speed",
+                lambda r, n=n: f"motor {n} set_speed {r.value} rpm",  # type: ignore[misc]
+                lambda r, n=n: d.set_speed(n, r.value),  # type: ignore[misc]
+            )
+            self.command_service(
+                SetInteger,
+                f"{ns}/set_direction",
+                lambda r, n=n: f"motor {n} set_direction {r.value}",  # type: ignore[misc]
+                lambda r, n=n: d.set_direction(n, r.value),  # type: ignore[misc]
+            )
+            self.command_service(
+                SetValue,
+                f"{ns}/set_run_distance",
+                lambda r, n=n: f"motor {n} set_run_distance {r.value}",  # type: ignore[misc]
+                lambda r, n=n: self._set_run_distance(n, r.value),  # type: ignore[misc]
+            )
+            self.command_service(
+                SetInteger,
+                f"{ns}/set_round_trips",
+                lambda r, n=n: f"motor {n} set_round_trips {r.value}",  # type: ignore[misc]
+                lambda r, n=n: d.set_round_trips(n, r.value),  # type: ignore[misc]
+            )
+            self.command_service(
                 SetLimitInputs,
                 f"{ns}/set_limit_inputs",
                 lambda r, n=n: (  # type: ignore[misc]
@@ -312,7 +371,8 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
                 ConfirmedCommand,
                 f"~/{name}",
                 lambda _r, name=name: name,  # type: ignore[misc]
-                lambda r, name=name: d.destructive_command(name, r.confirm),  # type: ignore[misc]
+                lambda r, name=name: self._destructive(name, r.confirm),  # type: ignore[misc]
+                fill=self._clear_all_reply if name == "clear_all_parameters" else None,
             )
         self.command_service(
             SetOutput,
@@ -349,6 +409,26 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
         self.trigger_service(
             "~/stop_interpolation", "stop_interpolation", d.stop_interpolation, stop=True
         )
+
+    def _set_run_distance(self, motor: int, distance: float) -> None:
+        """Run distance in m / rad like move_by's; a magnitude (the sign is 40005+)."""
+        if math.isfinite(distance) and distance < 0:
+            raise CommandRejected(
+                f"run distance {distance} is negative: it is a magnitude, the direction is "
+                "set_direction (or use move_by)"
+            )
+        self.device.set_run_distance(motor, self.to_units(motor, distance))
+
+    def _destructive(self, name: str, confirm: str) -> None:
+        """Factory reset / clear-all. Clear-all warns (WARN log) before its coil is sent:
+        its reply may never come if the controller moves off the bridge's id or baud."""
+        if name == "clear_all_parameters" and confirm == name:
+            self.get_logger().warn(f"clear_all_parameters: {CLEAR_ALL_WARNING}")
+        self.device.destructive_command(name, confirm)
+
+    @staticmethod
+    def _clear_all_reply(response: Any, _result: object) -> None:
+        response.message = f"{response.message}; {CLEAR_ALL_WARNING}"
 
     def _check_pair_reading(self, pair: int) -> None:
         """Types 2 and 3 only while the manual's two readings convert alike."""

@@ -138,6 +138,34 @@ ARC_MODE_CENTER = 0  # 40183 = 0: start, end and centre points
 ARC_MODE_THREE_POINTS = 1  # 40183 = 1: start, end and a middle point
 # §5(1) "其中4号电机不能运行" during line or arc interpolation.
 MOTOR_FORBIDDEN_DURING_INTERPOLATION = 4
+# 40182-40211, in address order: arc (40182-40201) then line (40202-40211). §5(1) 40201 /
+# 40211: "插补过程运行中不可调节" (not adjustable while an interpolation runs).
+ARC_REGISTERS = (
+    "arc_pair",
+    "arc_mode",
+    "arc_start_a",
+    "arc_start_b",
+    "arc_end_a",
+    "arc_end_b",
+    "arc_center_a",
+    "arc_center_b",
+    "arc_via_a",
+    "arc_via_b",
+    "arc_direction",
+    "arc_speed",
+)
+LINE_REGISTERS = (
+    "line_pair",
+    "line_start_a",
+    "line_start_b",
+    "line_end_a",
+    "line_end_b",
+    "line_speed",
+)
+INTERPOLATION_REGISTERS = ARC_REGISTERS + LINE_REGISTERS
+# Link settings (40212-40214): read into diagnostics, never written by the bridge (a write
+# would move the controller off the id / baud rate the bridge talks to; README decision).
+LINK_REGISTERS = ("device_id", "baud_rate")
 
 
 def holding(plc: int) -> int:

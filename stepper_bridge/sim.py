@@ -26,8 +26,16 @@ Behaviour (from the manual, plus what a test needs to see):
 - line and arc interpolation: the pair's motors first run to the start point each at its
   own speed, then follow the line / arc at the interpolation speed (rpm x the first
   motor's lead); the stop coils end it;
-- factory reset restores the simulator's defaults, clear-all zeroes every parameter
-  except the device id and baud rate (so the simulator stays reachable), save counts.
+- while a line or arc interpolation runs (approach included), a write to 40182-40211 or
+  to a start coil (00100 / 00102) answers 0x03 and changes nothing (§5(1) 40201 / 40211
+  "插补过程运行中不可调节"; README stepper decision 14); the stop coils and the e-stop work;
+- factory reset restores the simulator's defaults; clear-all ("数据清零: 清零所有参数")
+  zeroes every parameter and sets the device id and baud rate to the manual's factory
+  values, id 1 and 9600 ("出厂时默认设备 ID 为 1;通信波特率为 9600"; 0 is in neither
+  register's range): from then on the simulator answers unit 1 only, so a request to
+  another unit gets no reply, not even that clear-all coil's (README stepper decision
+  15). A device id written by FC 06 / 10 also takes effect at once. The baud rate is
+  stored but the simulator keeps serving at its start baud (a pty has none); save counts.
 
 The special modes 1-5 (input-driven motion, §5(3)) are stored but not simulated.
 """
@@ -36,7 +44,7 @@ from __future__ import annotations
 
 import argparse
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 
 from bridge_core.codec import decode
@@ -58,6 +66,7 @@ from .registers import (
     FUNCTION_CODES,
     INPUTS,
     INTERPOLATION_PAIRS,
+    INTERPOLATION_REGISTERS,
     MOTOR_ACTIONS,
     MOTOR_COILS,
     MOTORS,
@@ -82,8 +91,16 @@ FACTORY: dict[str, float] = {
     "lead": 5.0,
     "run_distance": 10.0,
 }
-# Parameters clear-all leaves alone: the link would be lost otherwise.
-KEPT_BY_CLEAR = ("device_id", "baud_rate")
+# What clear-all leaves in the link settings (README stepper decision 15): the manual's
+# factory values, the only ones a zeroed controller can have (0 is out of both ranges).
+CLEARED_DEVICE_ID = 1  # "出厂时默认设备 ID 为 1"
+CLEARED_BAUD_RATE = DEFAULT_BAUDRATE  # "通信波特率为 9600"
+# 40182-40211 and the two start coils: refused while an interpolation runs.
+_INTERPOLATION_ADDRESSES = range(
+    STEPPER_MAP[INTERPOLATION_REGISTERS[0]].address,
+    STEPPER_MAP[INTERPOLATION_REGISTERS[-1]].end,
+)
+_START_COILS = frozenset(STEPPER_MAP[name].address for name in ("arc_start", "line_start"))
 _COIL_NAMES = {STEPPER_MAP[name].address: name for name in SYSTEM_COILS}
 _OUTPUT_COILS = range(OUTPUT_COIL_FIRST - 1, OUTPUT_COIL_FIRST - 1 + 2 * OUTPUTS)
 
@@ -130,6 +147,9 @@ class StepperSimDevice(SimulatedDevice):
         self.homing_queue: list[int] = []
         self.forced_inputs: set[int] = set()
         self.saves = 0
+        # Told (old id, new id) when the device id changes, so the server answers the new
+        # unit only (make_simulator re-keys its units).
+        self.on_unit_id_change: Callable[[int, int], None] = lambda _old, _new: None
         self.write_guards.append(self._guard)
         self.write_hooks.append(self._on_write)
         self.factory_defaults()
@@ -196,9 +216,18 @@ class StepperSimDevice(SimulatedDevice):
         DATA VALUE."""
         if record.function_code not in FUNCTION_CODES:
             return ILLEGAL_FUNCTION
+        end = record.address + len(record.values)
+        if self.interpolation is not None and (
+            (record.table is Table.COIL and record.address in _START_COILS and record.values[0])
+            or (
+                record.table is Table.HOLDING
+                and record.address < _INTERPOLATION_ADDRESSES.stop
+                and end > _INTERPOLATION_ADDRESSES.start
+            )
+        ):
+            return ILLEGAL_VALUE  # "插补过程运行中不可调节"
         if record.table is not Table.HOLDING:
             return None
-        end = record.address + len(record.values)
         seen: set[str] = set()
         for address in range(record.address, end):
             reg = self.map.owner_at(Table.HOLDING, address)
@@ -217,7 +246,10 @@ class StepperSimDevice(SimulatedDevice):
         return None
 
     def _on_write(self, record: WriteRecord) -> None:
-        if record.table is not Table.COIL or not record.values[0]:
+        if record.table is Table.HOLDING:
+            self._apply_device_id()
+            return
+        if not record.values[0]:
             return  # 0x0000 to a command coil does nothing
         address = record.address
         if address < MOTORS * MOTOR_COILS:
@@ -269,8 +301,11 @@ class StepperSimDevice(SimulatedDevice):
         elif name == "clear_all_parameters":
             self._stop_all()
             for reg in self.map.in_table(Table.HOLDING):
-                if reg.access.writable and reg.name not in KEPT_BY_CLEAR:
+                if reg.access.writable:
                     self.set_words(Table.HOLDING, reg.address, [0] * reg.count)
+            self.set("device_id", CLEARED_DEVICE_ID)
+            self.set("baud_rate", CLEARED_BAUD_RATE)
+            self._apply_device_id()
         elif name in ("all_outputs_on", "all_outputs_off"):
             for n in range(1, OUTPUTS + 1):
                 self.set(f"output_{n}", 1 if name == "all_outputs_on" else 0)
@@ -282,6 +317,13 @@ class StepperSimDevice(SimulatedDevice):
             and self.interpolation.kind == name.split("_")[0]
         ):
             self.interpolation = None
+
+    def _apply_device_id(self) -> None:
+        """The device id register takes effect at once: answer the new unit only."""
+        new = int(self.get("device_id"))
+        if new != self.unit_id:
+            old, self.unit_id = self.unit_id, new
+            self.on_unit_id_change(old, new)
 
     def _stop_all(self) -> None:
         for m in range(1, MOTORS + 1):
@@ -463,8 +505,22 @@ def _circumcenter(
 def make_simulator(
     unit_id: int = 1, reply_delay_s: float = REPLY_DELAY_S, travel: float = TRAVEL
 ) -> Simulator:
-    sim = Simulator([StepperSimDevice(unit_id, travel)])
+    return make_bus_simulator([unit_id], reply_delay_s, travel)
+
+
+def make_bus_simulator(
+    unit_ids: Sequence[int], reply_delay_s: float = REPLY_DELAY_S, travel: float = TRAVEL
+) -> Simulator:
+    """Controllers on one RS-485 line (40212 "主-从模式的多机通信"), one per unit id."""
+    devices = [StepperSimDevice(unit, travel) for unit in unit_ids]
+    sim = Simulator(devices)
     sim.reply_delay_s = reply_delay_s
+
+    def rekey(old: int, new: int) -> None:
+        sim.devices = {new if uid == old else uid: d for uid, d in sim.devices.items()}
+
+    for device in devices:
+        device.on_unit_id_change = rekey
     return sim
 
 

@@ -27,6 +27,7 @@ from msg_defs.srv import (
     SetInteger,
     SetLimitInputs,
     SetOutput,
+    SetValue,
 )
 from stepper_bridge.sim import START_POSITION, StepperSimDevice, make_simulator
 
@@ -399,6 +400,7 @@ def test_services_write_what_they_should(sim, client: Client, tmp_path: Path) ->
             end=[0.003, -math.pi],
             speed_rpm=100,
         )
+        ok(Trigger, "stop_interpolation")  # a second move while one runs is refused
         ok(
             ArcMove,
             "arc_move",
@@ -444,6 +446,8 @@ def test_services_write_what_they_should(sim, client: Client, tmp_path: Path) ->
             # 40202-40211: motor 1 in mm x100, motor 2 revolute at lead 5 (-2.50: 0xFF06)
             (16, H, 201, (1, 100, 0, 125, 0, 300, 0, 0xFF06, 0xFFFF, 100)),
             (5, C, 101, (1,)),
+            (5, C, 100, (1,)),
+            (5, C, 102, (1,)),
             (
                 16,
                 H,
@@ -456,6 +460,94 @@ def test_services_write_what_they_should(sim, client: Client, tmp_path: Path) ->
             (5, C, 72, (1,)),
             (5, C, 96, (1,)),
         ]
+
+
+def test_issue_10_setters_read_back_and_interpolation(sim, client: Client, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    """Issue 10: device id and baud rate in diagnostics; round trips and the interpolation
+    set-up in the state; speed / direction / run distance (SI) / round trips setters;
+    a second line / arc while one runs refused, nothing written; clear-all warns."""
+    device, port = sim
+    H = Table.HOLDING  # noqa: N806
+    device.set("baud_rate", 19200)
+    device.set("motor2_reciprocations", 4)
+    started = time.monotonic()
+    with bridge(client, tmp_path, port, joint_types=["prismatic", "revolute"]) as (b, _):
+        b.wait_connected(True)
+        status = diagnostic(b, lambda s: "device id" in values_of(s), started)
+        assert (values_of(status)["device id"], values_of(status)["baud rate"]) == ("1", "19200")
+        st = client.wait_message(b.state)
+        assert list(st.round_trips) == [0, 4, 0, 0, 0] and st.line_pair == 0
+
+        def ok(srv: Any, name: str, **fields: Any) -> Any:
+            reply = b.call(srv, name, **fields)
+            assert reply.success, f"{name}: {reply.message}"
+            return reply
+
+        refusals: list[tuple[Any, str, dict[str, Any], str]] = [
+            (SetInteger, "motor_3/set_speed", {"value": 70000}, "speed"),
+            (SetInteger, "motor_3/set_direction", {"value": 2}, "direction"),
+            (SetValue, "motor_3/set_run_distance", {"value": -0.01}, "negative"),
+            (SetValue, "motor_3/set_run_distance", {"value": math.inf}, "finite"),
+            (SetInteger, "motor_5/set_round_trips", {"value": -1}, "round trips"),
+        ]
+        for srv, name, fields, reason in refusals:
+            reply = b.call(srv, name, **fields)
+            assert not reply.success, name
+            assert "refused" in reply.message and reason in reply.message, reply.message
+        assert device.write_log == []
+        ok(SetInteger, "motor_3/set_speed", value=300)
+        ok(SetInteger, "motor_3/set_direction", value=1)
+        ok(SetValue, "motor_3/set_run_distance", value=0.0125)  # m -> 12.50 mm
+        ok(SetValue, "motor_2/set_run_distance", value=math.pi)  # half a turn at lead 5
+        ok(SetInteger, "motor_5/set_round_trips", value=2)
+        assert writes(device) == [
+            (6, H, 25, (300,)),
+            (6, H, 24, (1,)),
+            (16, H, 28, (1250, 0)),
+            (16, H, 18, (250, 0)),
+            (6, H, 304, (2,)),
+        ]
+        st = client.wait_message(b.state, lambda m: m.round_trips[4] == 2)
+        assert st.speed_rpm[2] == 300 and st.direction[2] == 1 and st.run_distance[1] == 2.5
+
+        # A slow line (1 rpm): the state shows it; a second line or an arc is refused.
+        ok(LineMove, "line_move", pair=1, start=[0.0, 0.0], end=[0.04, math.pi], speed_rpm=1)
+        st = client.wait_message(b.state, lambda m: m.line_pair == 1 and m.running[0])
+        assert st.interpolation_running and st.line_speed_rpm == 1
+        assert list(st.line_end) == pytest.approx([40.0, 2.5])
+        before = len(device.write_log)
+        for srv, name, fields in (
+            (LineMove, "line_move", {"pair": 1, "end": [0.01, 0.0], "speed_rpm": 10}),
+            (
+                ArcMove,
+                "arc_move",
+                {"pair": 1, "end": [0.01, 0.0], "center": [0.005, 0.0], "speed_rpm": 10},
+            ),
+        ):
+            reply = b.call(srv, name, **fields)
+            assert not reply.success and "插补过程运行中不可调节" in reply.message, reply.message
+        assert len(device.write_log) == before and device.interpolation is not None
+        ok(Trigger, "stop_interpolation")
+        st = client.wait_message(b.state, lambda m: not m.interpolation_running)
+        ok(
+            ArcMove,
+            "arc_move",
+            pair=1,
+            mode=ArcMove.Request.MODE_THREE_POINTS,
+            end=[0.02, 0.0],
+            via=[0.01, 1.0],
+            counterclockwise=True,
+            speed_rpm=7,
+        )
+        st = client.wait_message(b.state, lambda m: m.arc_pair == 1 and m.arc_speed_rpm == 7)
+        assert st.arc_mode == 1 and st.arc_counterclockwise
+        assert list(st.arc_via) == pytest.approx([10.0, 0.8])  # 1 rad at lead 5: 0.7958 -> 0.80
+
+        since = time.monotonic()
+        reply = ok(ConfirmedCommand, "clear_all_parameters", confirm="clear_all_parameters")
+        assert "the link may be lost" in reply.message, reply.message
+        log = client.wait_log("stepper_bridge", "the link may be lost", since)
+        assert log.level == 30  # WARN
 
 
 def test_refusals_write_nothing(sim, client: Client, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
@@ -641,6 +733,10 @@ def test_read_only_refuses_every_write(sim, client: Client, tmp_path: Path) -> N
             b.call(SetOutput, "set_output", board=0, index=1, state=True),
             b.call(ConfirmedCommand, "factory_reset", confirm="factory_reset"),
             b.call(SetBool, "set_all_outputs", data=False),
+            b.call(SetInteger, "motor_1/set_speed", value=10),
+            b.call(SetInteger, "motor_1/set_direction", value=1),
+            b.call(SetValue, "motor_1/set_run_distance", value=0.01),
+            b.call(SetInteger, "motor_1/set_round_trips", value=1),
         ]
         for reply in replies:
             assert not reply.success and "read_only" in reply.message, reply.message

@@ -19,7 +19,7 @@ import serial
 from pymodbus.framer import FramerRTU
 
 from bridge_core.channel import DeviceChannel
-from bridge_core.errors import CommandRejected, LinkError
+from bridge_core.errors import CommandRejected, DeviceException, LinkError
 from bridge_core.registers import Table
 from bridge_core.sim_base import Simulator
 from bridge_core.transport import ModbusLink, SerialSettings
@@ -369,6 +369,142 @@ def test_factory_reset_and_clear_need_their_name(rig: Rig) -> None:
     assert len(rig.fake.write_log) == writes + 2
 
 
+def test_link_settings_round_trips_and_interpolation_are_read_back(rig: Rig) -> None:
+    """Issue 10: 40212-40214, 40301-40305 and 40182-40211 come with the configuration."""
+    d, fake = rig.device, rig.fake
+    fake.set("baud_rate", 19200)
+    fake.set("motor3_reciprocations", 7)
+    config = d.read_config()
+    assert (config.device_id, config.baud_rate) == (1, 19200)
+    assert [m.reciprocations for m in config.motors] == [0, 0, 7, 0, 0]
+    assert config.interpolation.line_pair == 0 and config.interpolation.arc_pair == 0
+    d.set_speed(1, 1200)
+    d.set_speed(2, 1200)
+    d.line_move(1, (1.0, 2.0), (3.5, -4.25), 900)
+    d.stop_interpolation()
+    d.arc_move(1, 1, (0.0, 0.0), (2.0, 0.0), (0.0, 0.0), (1.0, 1.0), True, 30)
+    d.stop_interpolation()
+    d.invalidate_config()  # read from the device, not the cache the writes updated
+    i = d.read_config().interpolation
+    assert (i.line_pair, i.line_start, i.line_end, i.line_speed_rpm) == (
+        1,
+        (1.0, 2.0),
+        (3.5, -4.25),
+        900,
+    )
+    assert (i.arc_pair, i.arc_mode, i.arc_via, i.arc_counterclockwise, i.arc_speed_rpm) == (
+        1,
+        1,
+        (1.0, 1.0),
+        True,
+        30,
+    )
+
+
+def test_standalone_setters_write_one_register_each(rig: Rig) -> None:
+    """Issue 10: speed, direction, run distance, mode-1 round trips on their own."""
+    d = rig.device
+    d.set_speed(2, 300)
+    d.set_direction(2, 1)
+    d.set_run_distance(2, 12.5)
+    d.set_round_trips(4, 3)
+    H = Table.HOLDING  # noqa: N806
+    assert rig.writes() == [
+        (6, H, 15, (300,)),  # 40016
+        (6, H, 14, (1,)),  # 40015
+        (16, H, 18, (1250, 0)),  # 40019-40020, low word first
+        (6, H, 303, (3,)),  # 40304
+    ]
+    m2 = d.read_config().motors[1]
+    assert (m2.speed_rpm, m2.direction, m2.run_distance) == (300, 1, 12.5)
+    assert d.read_config().motors[3].reciprocations == 3
+
+
+def test_a_second_interpolation_is_refused_while_one_runs(rig: Rig) -> None:
+    """Issue 10: "插补过程运行中不可调节": the bridge refuses a second line / arc, nothing
+    written, until a poll begun after the start shows the motors stopped (or a stop)."""
+    d, fake = rig.device, rig.fake
+    d.line_move(1, (0.0, 0.0), (40.0, 40.0), 1)  # the approach and path take long
+    assert fake.interpolation is not None and d.interpolation_run is not None
+    writes = len(fake.write_log)
+    arc: tuple[Any, ...] = (1, 0, (0.0, 0.0), (2.0, 0.0), (1.0, 0.0), (0.0, 0.0), False, 60)
+    seconds: list[Callable[[], None]] = [
+        lambda: d.line_move(1, (0.0, 0.0), (1.0, 1.0), 60),
+        lambda: d.line_move(3, (0.0, 0.0), (1.0, 1.0), 60),
+        lambda: d.arc_move(*arc),
+    ]
+    for second in seconds:
+        with pytest.raises(CommandRejected, match="插补过程运行中不可调节"):
+            second()
+        d.poll()  # still running: still refused
+    assert len(fake.write_log) == writes
+    d.stop_interpolation()
+    assert d.interpolation_run is None
+    d.arc_move(*arc)
+    assert fake.interpolation is not None and fake.interpolation.kind == "arc"
+    # Ended behind the bridge's back (another master's stop): the next poll clears it.
+    rig.channel.write_coil(STEPPER_MAP["arc_stop"].address, True)
+    d.poll()
+    assert d.interpolation_run is None
+    d.line_move(1, (0.0, 0.0), (1.0, 1.0), 60)
+
+
+def test_the_simulator_refuses_interpolation_writes_while_one_runs(rig: Rig) -> None:
+    """README stepper decision 14: while one runs, 40182-40211 and the start coils answer
+    ILLEGAL DATA VALUE and change nothing; the stop coils still work."""
+    d, fake = rig.device, rig.fake
+    d.line_move(1, (0.0, 0.0), (40.0, 40.0), 1)
+    blind = StepperDevice(rig.channel)  # a second master: it knows of no running move
+    before = fake.get_words(Table.HOLDING, STEPPER_MAP["arc_pair"].address, 30)
+    with pytest.raises(DeviceException) as refused:
+        blind.line_move(1, (0.0, 0.0), (1.0, 1.0), 60)
+    assert refused.value.exception_code == 0x03
+    blind.set_speed(3, 10)  # outside 40182-40211: accepted
+    with pytest.raises(DeviceException) as refused:
+        rig.channel.write_register(STEPPER_MAP["arc_speed"].address, 10)
+    assert refused.value.exception_code == 0x03
+    for start in ("arc_start", "line_start"):
+        with pytest.raises(DeviceException):
+            rig.channel.write_coil(STEPPER_MAP[start].address, True)
+    assert fake.get_words(Table.HOLDING, STEPPER_MAP["arc_pair"].address, 30) == before
+    assert fake.interpolation is not None and fake.interpolation.end == (40.0, 40.0)
+    blind.stop_interpolation()
+    assert fake.interpolation is None
+    blind.line_move(1, (0.0, 0.0), (1.0, 1.0), 60)  # accepted again
+
+
+def test_clear_all_resets_device_id_and_baud_rate() -> None:
+    """README stepper decision 15: clear-all ("清零所有参数") leaves id 1 and 9600 baud (the
+    factory values; 0 is in neither range): a controller at unit 5 answers unit 1 after it."""
+    sim = make_simulator(unit_id=5, reply_delay_s=0.0)
+    fake = sim.device
+    assert isinstance(fake, StepperSimDevice)
+    fake.set("baud_rate", 19200)
+    with socat_pair() as (bridge_end, device_end, _):
+        sim.start_serial(device_end, BAUD)
+        link = ModbusLink(SerialSettings(bridge_end, BAUD, timeout_s=0.3))
+        try:
+            at_5 = StepperDevice(DeviceChannel(link, 5, retries=0))
+            assert at_5.read_named("device_id", "baud_rate") == {
+                "device_id": 5,
+                "baud_rate": 19200,
+            }
+            # Unit 5 is gone at once: not even the coil's reply comes back.
+            with pytest.raises(LinkError):
+                at_5.destructive_command("clear_all_parameters", "clear_all_parameters")
+            with pytest.raises(LinkError):
+                at_5.read_named("device_id")
+            at_1 = StepperDevice(DeviceChannel(link, 1, retries=0))
+            assert at_1.read_named("device_id", "baud_rate") == {
+                "device_id": 1,
+                "baud_rate": 9600,
+            }
+            assert at_1.read_config().motors[0].lead == 0.0  # the rest is zeroed
+        finally:
+            link.close()
+            sim.stop()
+
+
 REFUSED: list[tuple[str, Callable[[StepperDevice], object]]] = [
     ("motor 0", lambda d: d.motor_action(0, "forward")),
     ("motor 6", lambda d: d.move_by(6, 1.0)),
@@ -415,6 +551,14 @@ REFUSED: list[tuple[str, Callable[[StepperDevice], object]]] = [
         ),
     ),
     ("speed 70000", lambda d: d.set_speed(1, 70000)),
+    ("speed 1.5", lambda d: d.set_speed(1, 1.5)),  # type: ignore[arg-type]
+    ("direction 2", lambda d: d.set_direction(1, 2)),
+    ("direction motor 6", lambda d: d.set_direction(6, 0)),
+    ("run distance -1", lambda d: d.set_run_distance(1, -1.0)),
+    ("run distance nan", lambda d: d.set_run_distance(1, math.nan)),
+    ("round trips -1", lambda d: d.set_round_trips(1, -1)),
+    ("round trips 65536", lambda d: d.set_round_trips(5, 65536)),
+    ("round trips motor 0", lambda d: d.set_round_trips(0, 1)),
     ("output 0", lambda d: d.set_output(0, True)),
     ("output 13", lambda d: d.set_output(13, True)),
     ("limit input 14", lambda d: d.set_limit_inputs(1, 1, 14, 2)),
