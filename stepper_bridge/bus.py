@@ -1,6 +1,7 @@
 """Several stepper controllers on one RS-485 line (§5(1) 40212: "主-从模式的多机通信").
 
-``python -m stepper_bridge.bus`` starts one process on one serial port, as MOTEC does:
+``stepper_bus`` (``python -m stepper_bridge.bus``) starts one process on one serial port, as
+MOTEC does:
 
 - ``stepper_bus``: the bus owner (``bridge_core.node_base.BusNode``) with the serial
   parameters (``serial_port``, ``baudrate``, ``parity``, ``stopbits``, ``timeout_s``,
