@@ -48,6 +48,9 @@ STATE_FIELDS = (
 )
 
 
+# World axes past X-W (§3.1.9 rows 2344-2347), read every poll; published when configured.
+EXTRA_WORLD_AXES = ("m7", "m8")
+
 R6_DEFAULTS = DeviceDefaults("Huacheng R6", "tcp", poll_rate_hz=50.0)
 
 
@@ -70,8 +73,16 @@ class R6BridgeNode(BridgeNode[R6Snapshot]):
                     "rated torque (N m) per axis; effort = fraction x this",
                     item_positive=True,
                 ),
+                ParameterSpec(
+                    "extra_world_axes",
+                    0,
+                    "world M7/M8 values published in ~/state world_extra (0-2)",
+                    low=0,
+                    high=len(EXTRA_WORLD_AXES),
+                ),
             ]
         )
+        self.extra_world_axes = EXTRA_WORLD_AXES[: int(values["extra_world_axes"])]
         self.gear_ratios = padded(values["gear_ratios"], MAX_AXES, 1.0)
         self.rated_torques = padded(values["rated_torques"], MAX_AXES, 1.0)
         self.device = R6Device(self.channel)
@@ -112,6 +123,7 @@ class R6BridgeNode(BridgeNode[R6Snapshot]):
             [t * self.rated_torques[a] for a, t in enumerate(snapshot.axis_torques_rated)],
         )
         state = copy_fields(self.stamped(R6State(), snapshot.read_time), snapshot, STATE_FIELDS)
+        state.world_extra = [snapshot.world[axis] for axis in self.extra_world_axes]
         self.state_pub.publish(state)
 
         pose = self.stamped(PoseStamped(), snapshot.read_time)

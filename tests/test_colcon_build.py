@@ -80,8 +80,10 @@ def install(tmp_path_factory: pytest.TempPathFactory) -> Path:
     )
     output = result.stdout + result.stderr
     assert result.returncode == 0, output[-4000:]
-    assert f"{len(PACKAGES)} packages finished" in output, output[-4000:]
-    return workspace / "install"
+    install = workspace / "install"
+    for package in PACKAGES:  # colcon's own record of each package it installed
+        assert (install / package / "share" / "colcon-core" / "packages" / package).is_file()
+    return install
 
 
 @pytest.fixture(scope="module")

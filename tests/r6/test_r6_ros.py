@@ -96,9 +96,15 @@ def test_topics_carry_si_values(sim, bridge_factory, client: Client) -> None:  #
     device.set("world_y", -250.5)
     device.set("world_z", 300.0)
     device.set("world_w", 90.0)
+    device.set("world_m7", 12.5)
+    device.set("world_m8", -3.25)
     started = time.monotonic()
     with bridge_factory(
-        port, gear_ratios=[2.0] * 8, rated_torques=[10.0] * 8, frame_id="r6_base"
+        port,
+        gear_ratios=[2.0] * 8,
+        rated_torques=[10.0] * 8,
+        frame_id="r6_base",
+        extra_world_axes=2,
     ) as (bridge, _):
         js = client.wait_message(bridge.joint_states)
         assert js.name == [f"joint_{i}" for i in range(1, 7)]
@@ -115,6 +121,7 @@ def test_topics_carry_si_values(sim, bridge_factory, client: Client) -> None:  #
         assert state.axis_count == 6 and state.io_board_count == 2
         assert list(state.io_board_inputs) == [0, 0x0001_0002] and len(state.io_board_outputs) == 2
         assert state.homed and not state.moving and state.machine_id == 1
+        assert list(state.world_extra) == pytest.approx([12.5, -3.25])  # M7, M8
         pose = client.wait_message(bridge.pose)
         assert pose.header.frame_id == "r6_base"
         assert (pose.pose.position.x, pose.pose.position.y, pose.pose.position.z) == pytest.approx(

@@ -24,7 +24,7 @@ from bridge_core.registers import Register
 from bridge_core.sim_base import ReadRecord, WriteRecord, read_read_log, read_write_log
 from motec_bridge.registers import MOTEC_MAP
 from msg_defs.msg import MotecState, R6State, StepperState, XArmState
-from msg_defs.srv import ReadParameter, SetChannelValue, SetOutput, SetValue
+from msg_defs.srv import ListCounters, ReadParameter, SetChannelValue, SetOutput, SetValue
 from r6_bridge.registers import R6_MAP
 from stepper_bridge.registers import STEPPER_MAP
 from xarm_bridge.registers import XARM_MAP
@@ -96,9 +96,25 @@ BRIDGES: tuple[BridgeInfo, ...] = (
         position_register=R6_MAP["axis_position_1"],
         unit_id=1,
         config="r6.yaml",
-        startup_only=("host", "port", "unit_id", "timeout_s", "joint_prefix", "gear_ratios"),
-        read_services={"read_parameter": Call("read_parameter", ReadParameter, {"index": 3})},
-        mistyped=(("port", "abc"), ("poll_rate_hz", "fast"), ("pol_rate_hz", "5")),
+        startup_only=(
+            "host",
+            "port",
+            "unit_id",
+            "timeout_s",
+            "joint_prefix",
+            "gear_ratios",
+            "extra_world_axes",
+        ),
+        read_services={
+            "read_parameter": Call("read_parameter", ReadParameter, {"index": 3}),
+            "list_counters": Call("list_counters", ListCounters, {}),
+        },
+        mistyped=(
+            ("port", "abc"),
+            ("poll_rate_hz", "fast"),
+            ("pol_rate_hz", "5"),
+            ("extra_world_axes", "3"),
+        ),
     ),
     BridgeInfo(
         key="xarm",
