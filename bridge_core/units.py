@@ -30,3 +30,47 @@ def euler_xyz_deg_to_quaternion(u: float, v: float, w: float) -> tuple[float, fl
         cr * cp * sy - sr * sp * cy,  # z
         cr * cp * cy + sr * sp * sy,  # w
     )
+
+
+def rotation_vector_deg_to_quaternion(
+    rx: float, ry: float, rz: float
+) -> tuple[float, float, float, float]:
+    """A rotation vector (axis times angle, deg) as a quaternion (x, y, z, w).
+
+    The axis-angle form needs no Euler convention: the xArm reports its TCP orientation
+    both ways (I64-72), so this one checks the other.
+    """
+    angle = math.sqrt(rx * rx + ry * ry + rz * rz) * DEG
+    if angle == 0.0:
+        return (0.0, 0.0, 0.0, 1.0)
+    k = math.sin(angle / 2.0) * DEG / angle
+    return (rx * k, ry * k, rz * k, math.cos(angle / 2.0))
+
+
+def quaternion_to_rotation_vector_deg(
+    q: tuple[float, float, float, float],
+) -> tuple[float, float, float]:
+    """The rotation vector (deg) of a unit quaternion, its angle within 0..180 deg."""
+    x, y, z, w = q
+    if w < 0.0:  # q and -q are one rotation: take the one with the shorter angle
+        x, y, z, w = -x, -y, -z, -w
+    s = math.sqrt(x * x + y * y + z * z)
+    if s == 0.0:
+        return (0.0, 0.0, 0.0)
+    angle_deg = 2.0 * math.atan2(s, w) / DEG
+    return (x / s * angle_deg, y / s * angle_deg, z / s * angle_deg)
+
+
+def quaternion_angle_deg(
+    a: tuple[float, float, float, float], b: tuple[float, float, float, float]
+) -> float:
+    """The angle (deg, 0..180) of the rotation that takes orientation ``a`` to ``b``."""
+    ax, ay, az, aw = a
+    bx, by, bz, bw = b
+    # conj(a) * b: its vector part's length and its scalar part give the half angle
+    # (atan2 stays exact near 0, where acos of the dot product loses half the digits).
+    w = aw * bw + ax * bx + ay * by + az * bz
+    x = aw * bx - ax * bw - ay * bz + az * by
+    y = aw * by + ax * bz - ay * bw - az * bx
+    z = aw * bz - ax * by + ay * bx - az * bw
+    return 2.0 * math.atan2(math.sqrt(x * x + y * y + z * z), abs(w)) / DEG

@@ -2,17 +2,19 @@
 
 Every command validates all of its inputs before its first write, so a refused command
 writes nothing; writes to channels the manual does not call valid never reach the wire.
+The arm's joint count (5, 6 or 7) and the user coils it reads (a range of C256-511, or
+none) are fixed when the device is made: they shape the poll and the snapshot.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 from bridge_core.channel import Priority, RegisterIO
 from bridge_core.checks import check_index, check_whole_number
 from bridge_core.codec import Value, encode
-from bridge_core.errors import CommandRejected
+from bridge_core.errors import CommandRejected, ConfigurationError, LinkError
 from bridge_core.planner import ReadRequest, plan_reads
 from bridge_core.poller import read_blocks, read_named
 
@@ -21,13 +23,16 @@ from .registers import (
     COIL_REDUCED_MODE,
     CONTROLLER_ANALOG_INPUT_VALID,
     CONTROLLER_DIGITAL_VALID,
+    ENABLE_FIRST,
     ERROR_TEXTS,
     FIRST_TOOL_DIGITAL,
+    JOINT_COUNTS,
     JOINTS,
     MODE_NAMES,
     MOTION_MODES,
     OFFLINE_TASK_ADDRESS,
     OFFLINE_TASK_MAX,
+    ROTATION_VECTOR,
     SET_STATE_PAUSE,
     SET_STATE_START,
     SET_STATE_STOP,
@@ -35,6 +40,7 @@ from .registers import (
     STATE_NAMES,
     TOOL_ANALOG_INPUT_VALID,
     TOOL_DIGITAL_VALID,
+    USER_COILS,
     WARNING_TEXTS,
     WORLD,
     WRITABLE_ANALOG_OUTPUTS,
@@ -67,7 +73,9 @@ def mode_name(mode: int) -> str:
 
 @dataclass(frozen=True)
 class XArmSnapshot:
-    """One full poll in the manual's units (deg, deg/s, mm, mm/s, V, kg, degC)."""
+    """One full poll in the manual's units (deg, deg/s, mm, mm/s, V, kg, degC).
+
+    Per-joint tuples hold the arm's joints only (``joint_count`` of them, J1 first)."""
 
     read_time: float  # wall clock when the joint angles (read last) were requested
     mode: int
@@ -78,6 +86,7 @@ class XArmSnapshot:
     joint_speeds_deg_s: tuple[float, ...]
     joint_temperatures_c: tuple[float, ...]
     tcp_pose: dict[str, float]  # x y z (mm), roll pitch yaw (deg)
+    tcp_rotation_vector_deg: tuple[float, float, float]  # rx ry rz: axis times angle (deg)
     tcp_speed_mm_s: float
     counter: int
     brakes: tuple[bool, ...]
@@ -98,42 +107,52 @@ class XArmSnapshot:
     tcp_load_center_mm: tuple[float, float, float]
     tcp_offset: dict[str, float]
     base_offset: dict[str, float]
+    user_coils: tuple[bool, ...] = ()  # the configured range of C256-511, first coil first
 
 
-def _poll_names() -> list[str]:
+def _joint_names(kind: str, joint_count: int) -> tuple[str, ...]:
+    return tuple(f"{kind}_{j}" for j in range(1, joint_count + 1))
+
+
+def _user_coil_names(coils: range) -> tuple[str, ...]:
+    return tuple(f"user_coil_{address - USER_COILS.start}" for address in coils)
+
+
+def _poll_names(joint_count: int, user_coils: range) -> list[str]:
     names = [f"controller_do_{i}" for i in range(CONTROLLER_DIGITAL_VALID)]
     names += [f"tool_do_{i}" for i in range(TOOL_DIGITAL_VALID)]
     names += [f"controller_di_{i}" for i in range(CONTROLLER_DIGITAL_VALID)]
     names += [f"tool_di_{i}" for i in range(TOOL_DIGITAL_VALID)]
-    names += [f"brake_{j}" for j in range(1, JOINTS + 1)]
-    names += [f"enable_{j}" for j in range(1, JOINTS + 1)]
+    names += _joint_names("brake", joint_count) + _joint_names("enable", joint_count)
     names += ["reduced_mode", "fence_mode", "paused", "stopped"]
     names += [f"motion_mode_{m}" for m in range(MOTION_MODES)]
+    names += _user_coil_names(user_coils)
     names += [f"controller_ao_{i}" for i in WRITABLE_ANALOG_OUTPUTS]
     names += ["arm_mode", "arm_state", "error_code", "warning_code", "counter"]
     names += [f"controller_ai_{i}" for i in range(CONTROLLER_ANALOG_INPUT_VALID)]
     names += [f"tool_ai_{i}" for i in range(TOOL_ANALOG_INPUT_VALID)]
-    names += [f"tcp_{a}" for a in WORLD]
+    names += [f"tcp_{a}" for a in (*WORLD, *ROTATION_VECTOR)]
     names += ["tcp_load_mass", "tcp_load_center_x", "tcp_load_center_y", "tcp_load_center_z"]
     names += [f"tcp_offset_{a}" for a in WORLD] + [f"base_offset_{a}" for a in WORLD]
-    names += [f"joint_angle_{j}" for j in range(1, JOINTS + 1)]
-    names += [f"joint_temperature_{j}" for j in range(1, JOINTS + 1)]
-    names += [f"joint_speed_{j}" for j in range(1, JOINTS + 1)]
+    names += _joint_names("joint_angle", joint_count)
+    names += _joint_names("joint_temperature", joint_count)
+    names += _joint_names("joint_speed", joint_count)
     names += ["tcp_speed"]
     return names
 
 
-POLL_PLAN: list[ReadRequest] = plan_reads(XARM_MAP, XARM_MAP.select(_poll_names()))
-# The joint angles last: their read time stamps joint_states, and a joint change then
-# reaches the message soonest (latency figure of bench/bridge_bench.py).
-POLL_PLAN.sort(key=lambda request: XARM_MAP["joint_angle_1"] in request.registers)
+def poll_plan(joint_count: int = JOINTS, user_coils: range = range(0)) -> list[ReadRequest]:
+    """The requests of one poll: 8 (the reserved rows split the tables), one more for
+    user coils. The joint angles last: their read time stamps joint_states, and a joint
+    change then reaches the message soonest (latency figure of bench/bridge_bench.py)."""
+    plan = plan_reads(XARM_MAP, XARM_MAP.select(_poll_names(joint_count, user_coils)))
+    plan.sort(key=lambda request: XARM_MAP["joint_angle_1"] in request.registers)
+    return plan
 
-_JOINTS = range(1, JOINTS + 1)
-_ANGLES = tuple(f"joint_angle_{j}" for j in _JOINTS)
-_SPEEDS = tuple(f"joint_speed_{j}" for j in _JOINTS)
-_TEMPERATURES = tuple(f"joint_temperature_{j}" for j in _JOINTS)
-_BRAKES = tuple(f"brake_{j}" for j in _JOINTS)
-_ENABLES = tuple(f"enable_{j}" for j in _JOINTS)
+
+POLL_PLAN: list[ReadRequest] = poll_plan()  # a 7-joint arm, no user coils (the defaults)
+
+ROTATION_VECTOR_NAMES = tuple(f"tcp_{a}" for a in ROTATION_VECTOR)
 _MOTION_MODES = tuple(f"motion_mode_{m}" for m in range(MOTION_MODES))
 _DI = tuple(f"controller_di_{k}" for k in range(CONTROLLER_DIGITAL_VALID))
 _DO = tuple(f"controller_do_{k}" for k in range(CONTROLLER_DIGITAL_VALID))
@@ -147,11 +166,41 @@ _TCP_OFFSET = tuple((a, f"tcp_offset_{a}") for a in WORLD)
 _BASE_OFFSET = tuple((a, f"base_offset_{a}") for a in WORLD)
 
 
-class XArmDevice:
-    """The xArm controller behind one Modbus channel."""
+def check_user_coils(coils: range) -> range:
+    """A configured user-coil range: consecutive, inside C256-511 (ConfigurationError)."""
+    if coils.step != 1 or (
+        len(coils) and (coils.start not in USER_COILS or coils[-1] not in USER_COILS)
+    ):
+        raise ConfigurationError(
+            f"user coils {coils.start}-{coils.stop - 1} outside "
+            f"{USER_COILS.start}-{USER_COILS.stop - 1} (the manual's user-defined coils)"
+        )
+    return coils
 
-    def __init__(self, io: RegisterIO) -> None:
+
+class XArmDevice:
+    """The xArm controller behind one Modbus channel: an arm of ``joint_count`` joints
+    (5, 6 or 7), reading the ``user_coils`` range of C256-511 with every poll (none by
+    default)."""
+
+    def __init__(
+        self, io: RegisterIO, joint_count: int = JOINTS, user_coils: range = range(0)
+    ) -> None:
+        if isinstance(joint_count, bool) or joint_count not in JOINT_COUNTS:
+            raise ConfigurationError(
+                f"joint_count {joint_count!r} outside "
+                f"{JOINT_COUNTS.start}-{JOINT_COUNTS.stop - 1} (xArm 5, xArm 6 / Lite 6, xArm 7)"
+            )
         self.io = io
+        self.joint_count = joint_count
+        self.user_coils = check_user_coils(user_coils)
+        self.plan = poll_plan(joint_count, user_coils)
+        self._angles = _joint_names("joint_angle", joint_count)
+        self._speeds = _joint_names("joint_speed", joint_count)
+        self._temperatures = _joint_names("joint_temperature", joint_count)
+        self._brakes = _joint_names("brake", joint_count)
+        self._enables = _joint_names("enable", joint_count)
+        self._user_coils = _user_coil_names(user_coils)
 
     # ------------------------------------------------------------------ polling
     def read_plan(
@@ -165,7 +214,7 @@ class XArmDevice:
 
     def poll(self) -> XArmSnapshot:
         # The angles are read last (a change reaches joint_states soonest) and stamp it.
-        v, read_time = self.read_plan(POLL_PLAN, Priority.POLL, _ANGLES[0])
+        v, read_time = self.read_plan(self.plan, Priority.POLL, self._angles[0])
 
         def floats(names: tuple[str, ...]) -> tuple[float, ...]:
             return tuple(float(v[n]) for n in names)
@@ -176,20 +225,22 @@ class XArmDevice:
         def pose(names: tuple[tuple[str, str], ...]) -> dict[str, float]:
             return {axis: float(v[name]) for axis, name in names}
 
+        rx, ry, rz = floats(ROTATION_VECTOR_NAMES)
         return XArmSnapshot(
             read_time=read_time,
             mode=int(v["arm_mode"]),
             state=int(v["arm_state"]),
             error_code=int(v["error_code"]),
             warning_code=int(v["warning_code"]),
-            joint_angles_deg=floats(_ANGLES),
-            joint_speeds_deg_s=floats(_SPEEDS),
-            joint_temperatures_c=floats(_TEMPERATURES),
+            joint_angles_deg=floats(self._angles),
+            joint_speeds_deg_s=floats(self._speeds),
+            joint_temperatures_c=floats(self._temperatures),
             tcp_pose=pose(_TCP),
+            tcp_rotation_vector_deg=(rx, ry, rz),
             tcp_speed_mm_s=float(v["tcp_speed"]),
             counter=int(v["counter"]),
-            brakes=bools(_BRAKES),
-            enabled=bools(_ENABLES),
+            brakes=bools(self._brakes),
+            enabled=bools(self._enables),
             reduced_mode=bool(v["reduced_mode"]),
             fence_mode=bool(v["fence_mode"]),
             paused=bool(v["paused"]),
@@ -210,6 +261,7 @@ class XArmDevice:
             ),
             tcp_offset=pose(_TCP_OFFSET),
             base_offset=pose(_BASE_OFFSET),
+            user_coils=bools(self._user_coils),
         )
 
     # ------------------------------------------------------------------ commands
@@ -256,8 +308,48 @@ class XArmDevice:
             _check_channel("digital output", k, WRITABLE_DIGITAL_OUTPUTS)
         self.io.write_coils(first, [bool(v) for v in values])
 
+    def set_digital_outputs(self, indexes: Sequence[int], states: Sequence[bool]) -> str:
+        """Controller DOs ``indexes[k]`` to ``states[k]`` (DO 0-15, any order, each once):
+        each run of consecutive indexes in one FC 0F write to its coils, lowest first; no
+        other output is touched. Returns what was written (e.g. "DO 2-3 on off, DO 9 on").
+
+        Coils, not the FC 0x16 mask write of H0: the manual defines coil addressing
+        exactly, the bit order of the DO word only by "每1位表示1路IO" (README xArm
+        decision 9)."""
+        changes = _changes(
+            "digital output",
+            indexes,
+            states,
+            lambda index: _check_channel("digital output", index, WRITABLE_DIGITAL_OUTPUTS),
+        )
+        return self._write_runs("DO", changes)
+
+    def set_user_coils(self, addresses: Sequence[int], states: Sequence[bool]) -> str:
+        """User coils (C256-511, "用户自定义使用") within the configured range, written like
+        ``set_digital_outputs``: a run of consecutive addresses per FC 0F write."""
+        if not self.user_coils:
+            raise CommandRejected(
+                "no user coils configured (set user_coil_count, and user_coil_first, at start-up)"
+            )
+        coils = self.user_coils
+        changes = _changes(
+            "user coil", addresses, states, lambda address: check_index("user coil", address, coils)
+        )
+        return self._write_runs("C", changes)
+
+    def set_joint_enable(self, joint: int, enable: bool) -> None:
+        """Enable or disable joint ``joint`` (1..joint_count, coil 134 + joint, FC 05), or
+        with 0 every joint of the arm (C135.., one FC 0F). The brake coils C128-134 are
+        never written (README xArm decision 12)."""
+        check_index("joint", joint, range(0, self.joint_count + 1))
+        if joint == 0:
+            self.io.write_coils(ENABLE_FIRST, [bool(enable)] * self.joint_count)
+        else:
+            self.io.write_coil(ENABLE_FIRST + joint - 1, bool(enable))
+
     def change_digital_outputs(self, changes: Mapping[int, bool]) -> None:
-        """Several controller DOs in one FC 0x16 mask write to H0, the others kept."""
+        """Several controller DOs in one FC 0x16 mask write to H0, the others kept; bit n
+        of H0 is DO n (README xArm decision 9). Device layer only: ROS writes coils."""
         if not changes:
             raise CommandRejected("no output changes given")
         and_mask, or_mask = 0xFFFF, 0
@@ -267,6 +359,22 @@ class XArmDevice:
             if on:
                 or_mask |= 1 << index
         self.io.mask_write_register(XARM_MAP["controller_do_word_0"].address, and_mask, or_mask)
+
+    def _write_runs(self, label: str, changes: Mapping[int, bool]) -> str:
+        """One FC 0F write per run of consecutive coil addresses, lowest first. A write that
+        fails after others went through says which did (writes are never retried)."""
+        done: list[str] = []
+        for first, values in _runs(changes):
+            try:
+                self.io.write_coils(first, values)
+            except LinkError as err:
+                if done:
+                    err.args = (
+                        f"{err.args[0] if err.args else err}; written before it: {', '.join(done)}",
+                    )
+                raise
+            done.append(_describe_run(label, first, values))
+        return ", ".join(done)
 
     def set_analog_output(self, channel: int, volts: float) -> None:
         """Controller AO 0-1 in volts (x1000, signed 16-bit, FC 06)."""
@@ -297,6 +405,40 @@ class XArmDevice:
         for number in projects:
             check_whole_number("project number", number, TASK_NUMBER_MIN, TASK_NUMBER_MAX)
         self.io.write_registers(OFFLINE_TASK_ADDRESS, list(projects))
+
+
+def _changes(
+    what: str, indexes: Sequence[int], states: Sequence[bool], check: Callable[[int], object]
+) -> dict[int, bool]:
+    """``indexes[k]`` -> ``states[k]``, checked: as many states as indexes, at least one,
+    each index once and passing ``check``."""
+    if len(indexes) != len(states):
+        raise CommandRejected(f"{len(indexes)} indexes but {len(states)} states: give one each")
+    if not indexes:
+        raise CommandRejected("no outputs given")
+    changes: dict[int, bool] = {}
+    for index, state in zip(indexes, states, strict=True):
+        check(index)
+        if index in changes:
+            raise CommandRejected(f"{what} {index} given twice")
+        changes[index] = bool(state)
+    return changes
+
+
+def _runs(changes: Mapping[int, bool]) -> list[tuple[int, list[bool]]]:
+    """Runs of consecutive addresses: [(first address, values)], lowest first."""
+    runs: list[tuple[int, list[bool]]] = []
+    for address in sorted(changes):
+        if runs and runs[-1][0] + len(runs[-1][1]) == address:
+            runs[-1][1].append(changes[address])
+        else:
+            runs.append((address, [changes[address]]))
+    return runs
+
+
+def _describe_run(label: str, first: int, values: Sequence[bool]) -> str:
+    where = f"{label} {first}" if len(values) == 1 else f"{label} {first}-{first + len(values) - 1}"
+    return f"{where} {' '.join('on' if v else 'off' for v in values)}"
 
 
 def _signed(word: int) -> int:

@@ -11,13 +11,33 @@ from std_srvs.srv import SetBool, Trigger
 
 from bridge_core.checks import board_zero_index
 from bridge_core.diagnostics import Level, Report
+from bridge_core.errors import ConfigurationError
 from bridge_core.node_base import BridgeNode, DeviceDefaults, copy_fields, spin_node
-from bridge_core.units import DEG, MM, euler_xyz_deg_to_quaternion
+from bridge_core.parameters import ParameterSpec
+from bridge_core.units import (
+    DEG,
+    MM,
+    euler_xyz_deg_to_quaternion,
+    quaternion_angle_deg,
+    rotation_vector_deg_to_quaternion,
+)
 from msg_defs.msg import XArmState
-from msg_defs.srv import RunOfflineTask, SetChannelValue, SetInteger, SetOutput
+from msg_defs.srv import (
+    RunOfflineTask,
+    SetChannelValue,
+    SetInteger,
+    SetJointEnable,
+    SetOutput,
+    SetOutputs,
+)
 
 from .device import XArmDevice, XArmSnapshot, error_text, mode_name, state_name, warning_text
-from .registers import JOINTS, WORLD
+from .registers import JOINT_COUNTS, JOINTS, USER_COILS, WORLD
+
+# The pose's roll/pitch/yaw and the rotation vector rx/ry/rz are two readings of one
+# orientation, each rounded to 0.1 deg per value: they agree within ~0.2 deg. More than
+# this says the Euler convention of ~/tcp_pose (README) is not the controller's.
+ORIENTATION_MISMATCH_DEG = 1.0
 
 
 def _pose6(values: dict[str, float]) -> list[float]:
@@ -57,8 +77,42 @@ class XArmBridgeNode(BridgeNode[XArmSnapshot]):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("xarm_bridge", XARM_DEFAULTS, **kwargs)
-        self.device = XArmDevice(self.channel)
-        self.joint_names = [f"{self.joint_prefix}joint{j}" for j in range(1, JOINTS + 1)]
+        values = self.declare_specs(
+            [
+                ParameterSpec(
+                    "joint_count",
+                    JOINTS,
+                    "joints of the arm: 5 (xArm 5), 6 (xArm 6, Lite 6) or 7 (xArm 7)",
+                    JOINT_COUNTS.start,
+                    JOINT_COUNTS.stop - 1,
+                ),
+                ParameterSpec(
+                    "user_coil_first",
+                    USER_COILS.start,
+                    "first user coil (C256-511) read into ~/state and writable",
+                    USER_COILS.start,
+                    USER_COILS.stop - 1,
+                ),
+                ParameterSpec(
+                    "user_coil_count",
+                    0,
+                    "user coils read from user_coil_first on (0: none; any other adds one "
+                    "FC 01 request to every poll)",
+                    0,
+                    len(USER_COILS),
+                ),
+            ]
+        )
+        first, count = int(values["user_coil_first"]), int(values["user_coil_count"])
+        if first + count > USER_COILS.stop:
+            raise ConfigurationError(
+                f"user_coil_first {first} + user_coil_count {count} runs past coil "
+                f"{USER_COILS.stop - 1}, the last user coil"
+            )
+        self.joint_count = int(values["joint_count"])
+        self.user_coil_first = first
+        self.device = XArmDevice(self.channel, self.joint_count, range(first, first + count))
+        self.joint_names = [f"{self.joint_prefix}joint{j}" for j in range(1, self.joint_count + 1)]
         self.state_pub = self.create_publisher(XArmState, "~/state", 10)
         self.pose_pub = self.create_publisher(PoseStamped, "~/tcp_pose", 10)
         self._create_services()
@@ -94,17 +148,23 @@ class XArmBridgeNode(BridgeNode[XArmSnapshot]):
         m.tcp_load_center = [c * MM for c in s.tcp_load_center_mm]
         m.tcp_offset = _pose6(s.tcp_offset)
         m.base_offset = _pose6(s.base_offset)
+        m.tcp_rotation_vector = [a * DEG for a in s.tcp_rotation_vector_deg]
+        m.user_coil_first = self.user_coil_first
+        m.user_coils = list(s.user_coils)
         self.state_pub.publish(m)
 
     def device_report(self) -> Report | None:
         s = self.last_snapshot
         if s is None:
             return None
+        mismatch = orientation_mismatch_deg(s)
         values = [
             ("mode", f"{s.mode} ({mode_name(s.mode)})"),
             ("state", f"{s.state} ({state_name(s.state)})"),
             ("error code", f"{s.error_code} {error_text(s.error_code)}".strip()),
             ("warning code", f"{s.warning_code} {warning_text(s.warning_code)}".strip()),
+            ("joints", str(self.joint_count)),
+            ("roll/pitch/yaw vs rx/ry/rz (deg)", f"{mismatch:.2f}"),
         ]
         if s.error_code:
             return Report(
@@ -114,6 +174,14 @@ class XArmBridgeNode(BridgeNode[XArmSnapshot]):
             return Report(
                 Level.WARN,
                 f"controller warning {s.warning_code}: {warning_text(s.warning_code)}",
+                values,
+            )
+        if mismatch > ORIENTATION_MISMATCH_DEG:
+            return Report(
+                Level.WARN,
+                f"tcp orientation: roll/pitch/yaw and rx/ry/rz differ by {mismatch:.1f} deg: "
+                "~/tcp_pose's Euler convention may not be the controller's (or I70-72 "
+                "are not filled by this firmware)",
                 values,
             )
         return Report(Level.OK, "connected", values)
@@ -138,7 +206,13 @@ class XArmBridgeNode(BridgeNode[XArmSnapshot]):
                 Trigger, f"~/{name}", _named(name), _call(action), stop=stops, fill=fill_state
             )
         self.command_service(
-            SetInteger, "~/set_mode", lambda r: f"set_mode {r.value}", lambda r: d.set_mode(r.value)
+            SetInteger,
+            "~/set_mode",
+            lambda r: f"set_mode {r.value}",
+            lambda r: d.set_mode(r.value),
+            fill=lambda response, _: setattr(
+                response, "message", response.message + " (in force after set_state 0)"
+            ),
         )
         self.command_service(
             SetInteger,
@@ -152,6 +226,30 @@ class XArmBridgeNode(BridgeNode[XArmSnapshot]):
             "~/set_digital_output",
             lambda r: f"set_digital_output {r.index} {'on' if r.state else 'off'}",
             lambda r: d.set_digital_output(_board_zero(r.board, r.index), r.state),
+        )
+        self.command_service(
+            SetOutputs,
+            "~/set_digital_outputs",
+            lambda r: f"set_digital_outputs {_pairs(r)}",
+            lambda r: d.set_digital_outputs(list(r.indexes), list(r.states)),
+            fill=_written,
+        )
+        self.command_service(
+            SetOutputs,
+            "~/set_user_coils",
+            lambda r: f"set_user_coils {_pairs(r)}",
+            lambda r: d.set_user_coils(list(r.indexes), list(r.states)),
+            fill=_written,
+        )
+        self.command_service(
+            SetJointEnable,
+            "~/set_joint_enable",
+            lambda r: (
+                f"set_joint_enable {'all joints' if r.joint == 0 else f'joint {r.joint}'} "
+                f"{'enable' if r.enable else 'disable'}"
+            ),
+            lambda r: d.set_joint_enable(r.joint, r.enable),
+            stop=lambda r: not r.enable,  # disabling ends motion: tried at once, like a stop
         )
         self.command_service(
             SetOutput,
@@ -183,6 +281,29 @@ class XArmBridgeNode(BridgeNode[XArmSnapshot]):
             lambda r: f"run_offline_task {list(r.projects)}",
             lambda r: d.run_offline_task([int(p) for p in r.projects]),
         )
+
+
+def orientation_mismatch_deg(s: XArmSnapshot) -> float:
+    """The angle between the orientation of roll/pitch/yaw and of rx/ry/rz (deg)."""
+    p = s.tcp_pose
+    return quaternion_angle_deg(
+        euler_xyz_deg_to_quaternion(p["roll"], p["pitch"], p["yaw"]),
+        rotation_vector_deg_to_quaternion(*s.tcp_rotation_vector_deg),
+    )
+
+
+def _pairs(request: Any) -> str:
+    """``indexes``/``states`` of a SetOutputs request as "2 on, 9 off" (as given)."""
+    states = ["on" if state else "off" for state in request.states]
+    pairs = [
+        f"{index} {states[k] if k < len(states) else '?'}"
+        for k, index in enumerate(request.indexes)
+    ]
+    return ", ".join(pairs) if pairs else "(none)"
+
+
+def _written(response: Any, written: str) -> None:
+    response.message += f" ({written})"
 
 
 def _named(name: str) -> Callable[[Any], str]:

@@ -16,7 +16,10 @@ Readings taken (also in README "xArm decisions"):
 - Arm mode H32 / state H33 values are not in the Modbus manual; the xArm SDK's are used
   (mode 0-13 as the C146-159 motion-mode coils; set_state 0 = start, 3 = pause, 4 = stop).
 - IO state is read bit by bit (FC 01/02), which the manual defines unambiguously, rather
-  than from the DI/DO words (whose bit order within the two words it does not state).
+  than from the DI/DO words. Their bit order (bit n of H0 = DO n, H1 = DO 16-31) is README
+  xArm decision 9; only the device layer's FC 0x16 mask write relies on it.
+- Arms with fewer than 7 joints (xArm 5, xArm 6, Lite 6): ``joint_count`` of the node
+  (README xArm decision 11); the map keeps all seven rows of every per-joint table.
 """
 
 from __future__ import annotations
@@ -32,7 +35,8 @@ from bridge_core.registers import (
 )
 
 A = "appendix"
-JOINTS = 7
+JOINTS = 7  # rows per joint table (J1-J7); an arm has JOINT_COUNTS of them
+JOINT_COUNTS = range(5, JOINTS + 1)  # xArm 5, xArm 6 and Lite 6, xArm 7
 CONTROLLER_DIGITAL_CHANNELS = 32
 CONTROLLER_DIGITAL_VALID = 16
 TOOL_DIGITAL_CHANNELS = 8
@@ -59,7 +63,7 @@ COIL_FENCE_MODE = 143
 COIL_PAUSED = 144
 COIL_STOPPED = 145
 MOTION_MODE_FIRST = 146
-USER_COILS = range(256, 512)
+USER_COILS = range(256, 512)  # "用户自定义使用"
 
 # xArm SDK values for H33 writes (set_state) and reads (get_state).
 SET_STATE_START = 0
@@ -114,6 +118,7 @@ WARNING_TEXTS = {
 }
 
 WORLD = ("x", "y", "z", "roll", "pitch", "yaw")
+ROTATION_VECTOR = ("rx", "ry", "rz")  # I70-72: the TCP orientation as axis times angle (deg)
 
 
 def _scaled(name: str, address: int, scale: float, unit: str, doc: str) -> Register:
@@ -246,7 +251,7 @@ def _build() -> tuple[Register, ...]:
         Register("warning_code", 33, ValueType.U16, f"{A} input 33", table=Table.INPUT),
         Register("counter", 34, ValueType.U32, f"{A} input 34-35", table=Table.INPUT),
     ]
-    for i, axis in enumerate((*WORLD, "rx", "ry", "rz")):
+    for i, axis in enumerate((*WORLD, *ROTATION_VECTOR)):
         unit = "mm" if i < 3 else "deg"
         regs.append(_scaled(f"tcp_{axis}", 64 + i, POSE_SCALE, unit, f"{A} input 64-72"))
     regs.append(_scaled("tcp_load_mass", 73, ANALOG_SCALE, "kg", f"{A} input 73"))

@@ -3,11 +3,21 @@
 Behaviour:
 - serves the appendix tables; reserved rows answer 0x02, function codes other than
   01 02 03 04 05 06 0F 10 16 17 answer 0x01 (the manual's exception list);
+- an arm of ``joints`` joints (5, 6 or 7; ``--joints``): the rows of the joints it lacks
+  read 0 and their enable coils stay 0;
 - offline tasks (FC 10 at 0x30 only, at most 16 registers) put the arm in motion
-  (state 1) for ``TASK_SECONDS`` per project: 7 joints move, speeds and TCP pose follow;
+  (state 1) for ``TASK_SECONDS`` per project: its joints move, speeds and TCP pose follow
+  (roll/pitch/yaw and the rotation vector rx/ry/rz describe one orientation);
 - H33 (set_state) 3 pauses, 4 stops (cancels the task), 0 resumes a paused task or makes
   a stopped arm ready (2); the pause/stop coils C144/C145 mirror the state and act alike;
-- mode H32 0-13 (C146-159 mirror it); DO coils and the H0/H2 words stay consistent;
+- mode H32 0-13 takes effect at the next accepted set_state 0, as the xArm SDK says of
+  set_mode: until then H32 and the mode coils C146-159 read the mode in force;
+- brakes and enables follow their coils (C128-134 brake, 1 = released, the xArm SDK's
+  reading; C135-141 enable): enabling a joint releases its brake, disabling it engages
+  it; the arm moves only with every joint enabled and released (the SDK's "ready"), so a
+  start (set_state 0, an offline task) is refused with state 4 otherwise, and a joint
+  disabled or braked in motion stops the arm (state 4, the task cancelled);
+- DO coils and the H0/H2 words stay consistent (bit n of the word = output n);
 - error injection (``set_error``) stops the arm until cleared.
 """
 
@@ -28,12 +38,16 @@ from bridge_core.sim_base import (
     add_tcp_arguments,
     serve_tcp_until_signalled,
 )
+from bridge_core.units import euler_xyz_deg_to_quaternion, quaternion_to_rotation_vector_deg
 
 from .registers import (
+    BRAKE_FIRST,
     COIL_PAUSED,
     COIL_STOPPED,
     CONTROLLER_DIGITAL_CHANNELS,
+    ENABLE_FIRST,
     FIRST_TOOL_DIGITAL,
+    JOINT_COUNTS,
     JOINTS,
     MOTION_MODES,
     OFFLINE_TASK_ADDRESS,
@@ -49,19 +63,25 @@ PERIOD_S = 6.0
 
 
 class XArmSimDevice(SimulatedDevice):
-    def __init__(self, unit_id: int = 1) -> None:
+    def __init__(self, unit_id: int = 1, joints: int = JOINTS) -> None:
+        if joints not in JOINT_COUNTS:
+            raise ValueError(f"joints {joints} outside {JOINT_COUNTS.start}-{JOINTS}")
         super().__init__(XARM_MAP, unit_id)
+        self.joints = joints
         self.task_seconds_left = 0.0
         self.arm_state = SLEEPING  # the truth; H33 and C144/C145 mirror it
+        self.mode = 0  # the mode in force; H32 and C146-159 mirror it
+        self.pending_mode: int | None = None  # written to H32, in force after set_state 0
+        self.enabled = [j <= joints for j in range(1, JOINTS + 1)]  # as the coils were
         self.phase = 0.0
         self.tasks_started: list[list[int]] = []
         self.write_guards.append(self._guard)
         self.write_hooks.append(self._on_write)
         self.set_state(SLEEPING)
-        self.set("arm_mode", 0)
-        self.set("motion_mode_0", True)
-        for j in range(1, JOINTS + 1):
+        self._set_mode(0)
+        for j in range(1, joints + 1):
             self.set(f"enable_{j}", True)
+            self.set(f"brake_{j}", True)  # released
             self.set(f"joint_temperature_{j}", 30 + j)
         self.set("tcp_load_mass", 0.5)
         self.set("tcp_load_center_z", 30.0)
@@ -85,6 +105,14 @@ class XArmSimDevice(SimulatedDevice):
 
     def set_warning(self, code: int) -> None:
         self.set("warning_code", code)
+
+    def ready(self) -> bool:
+        """Every joint of the arm enabled with its brake released (the SDK's is_ready)."""
+        with self.lock:
+            return all(
+                self.get(f"enable_{j}") and self.get(f"brake_{j}")
+                for j in range(1, self.joints + 1)
+            )
 
     def set_input(self, index: int, on: bool) -> None:
         """Controller DI 0-31 or tool DI (32-39), with the DI words kept consistent."""
@@ -114,6 +142,8 @@ class XArmSimDevice(SimulatedDevice):
         if record.table is Table.COIL:
             if any(a < FIRST_TOOL_DIGITAL + TOOL_DIGITAL_CHANNELS for a in span):
                 self._sync_words("controller_do", "controller_do_word", "tool_do", "tool_do_word")
+            if any(BRAKE_FIRST <= a < ENABLE_FIRST + JOINTS for a in span):
+                self._follow_joint_coils()
             if COIL_PAUSED in span:
                 self._apply_state(3 if self.get("paused") else 0)
             if COIL_STOPPED in span and self.get("stopped"):
@@ -122,15 +152,19 @@ class XArmSimDevice(SimulatedDevice):
         if any(a in (0, 1, 2) for a in span):
             self._sync_bits()
         if 32 in span:
-            mode = int(self.get("arm_mode"))
-            for m in range(MOTION_MODES):
-                self.set(f"motion_mode_{m}", m == mode)
+            # Taken, in force after the next accepted set_state 0 (maybe in this write).
+            self.pending_mode = int(self.get("arm_mode"))
+            self.set("arm_mode", self.mode)
         if 33 in span:
             self._apply_state(int(self.get("arm_state")))
         if record.address == OFFLINE_TASK_ADDRESS:
             projects = [v for v in record.values if v]
             self.tasks_started.append(projects)
-            if int(self.get("error_code")) == 0 and self.arm_state in (IN_MOTION, SLEEPING):
+            if (
+                int(self.get("error_code")) == 0
+                and self.arm_state in (IN_MOTION, SLEEPING)
+                and self.ready()
+            ):
                 self.task_seconds_left += TASK_SECONDS * len(projects)
                 self.set_state(IN_MOTION)
         # Controller AI read back what AO drives, so a demo shows the loop closed.
@@ -145,10 +179,36 @@ class XArmSimDevice(SimulatedDevice):
             self.task_seconds_left = 0.0
             self.set_state(STOPPED)
         elif requested == 0:
-            if int(self.get("error_code")):
+            if int(self.get("error_code")) or not self.ready():
                 self.set_state(STOPPED)
             else:
+                if self.pending_mode is not None:
+                    self._set_mode(self.pending_mode)
+                    self.pending_mode = None
                 self.set_state(IN_MOTION if self.task_seconds_left > 0 else SLEEPING)
+
+    def _set_mode(self, mode: int) -> None:
+        self.mode = mode
+        self.set("arm_mode", mode)
+        for m in range(MOTION_MODES):
+            self.set(f"motion_mode_{m}", m == mode)
+
+    def _follow_joint_coils(self) -> None:
+        """After a write to C128-141: a joint whose enable coil changed has its brake
+        follow (released when enabled, engaged when disabled); a joint the arm lacks keeps
+        0 in both; an arm in motion that is no longer ready stops."""
+        for j in range(1, JOINTS + 1):
+            if j > self.joints:
+                self.set(f"enable_{j}", False)
+                self.set(f"brake_{j}", False)
+                continue
+            enabled = bool(self.get(f"enable_{j}"))
+            if enabled != self.enabled[j - 1]:
+                self.enabled[j - 1] = enabled
+                self.set(f"brake_{j}", enabled)
+        if self.arm_state in (IN_MOTION, PAUSED) and not self.ready():
+            self.task_seconds_left = 0.0
+            self.set_state(STOPPED)
 
     def _sync_words(self, bits: str, words: str, tool_bits: str, tool_word: str) -> None:
         """Keep the DI/DO words (H/I 0-2) equal to the bit tables."""
@@ -171,9 +231,20 @@ class XArmSimDevice(SimulatedDevice):
         self.set("tcp_x", round(300.0 + 2.0 * q[0], 1))
         self.set("tcp_y", round(0.0 + 2.0 * q[1], 1))
         self.set("tcp_z", round(400.0 + 2.0 * q[2], 1))
-        self.set("tcp_roll", 180.0)
-        self.set("tcp_pitch", 0.0)
-        self.set("tcp_yaw", round(q[0], 1))
+        self.set_orientation(180.0, q[3] / 4.0, q[0])
+
+    def set_orientation(self, roll: float, pitch: float, yaw: float) -> None:
+        """The TCP orientation both ways the manual gives it (I67-69 and I70-72)."""
+        with self.lock:
+            roll, pitch, yaw = round(roll, 1), round(pitch, 1), round(yaw, 1)
+            self.set("tcp_roll", roll)
+            self.set("tcp_pitch", pitch)
+            self.set("tcp_yaw", yaw)
+            rotation = quaternion_to_rotation_vector_deg(
+                euler_xyz_deg_to_quaternion(roll, pitch, yaw)
+            )
+            for axis, value in zip(("rx", "ry", "rz"), rotation, strict=True):
+                self.set(f"tcp_{axis}", round(value, 1))
 
     def tick(self, dt: float) -> None:
         with self.lock:
@@ -182,7 +253,7 @@ class XArmSimDevice(SimulatedDevice):
             if moving:
                 self.phase += dt
                 self.task_seconds_left -= dt
-                for j in range(1, JOINTS + 1):
+                for j in range(1, self.joints + 1):
                     angle = AMPLITUDE_DEG / j * math.sin(2 * math.pi * self.phase / PERIOD_S + j)
                     self.set(f"joint_angle_{j}", round(angle, 1))
                 self.set("counter", int(self.get("counter")) + 1)
@@ -193,7 +264,6 @@ class XArmSimDevice(SimulatedDevice):
                 moved = float(self.get(f"joint_angle_{j}")) - previous[j - 1]
                 speed = moved / dt if moving and dt > 0 else 0.0
                 self.set(f"joint_speed_{j}", round(max(-3000.0, min(3000.0, speed)), 1))
-                self.set(f"brake_{j}", not moving)
             self._pose_from_joints()
             self.set("tcp_speed", 50.0 if moving else 0.0)
 
@@ -202,16 +272,23 @@ def _signed(word: int) -> int:
     return word - 0x10000 if word >= 0x8000 else word
 
 
-def make_simulator() -> Simulator:
-    return Simulator([XArmSimDevice()])
+def make_simulator(joints: int = JOINTS) -> Simulator:
+    return Simulator([XArmSimDevice(joints=joints)])
 
 
 def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description="UFactory xArm Modbus TCP simulator")
     add_tcp_arguments(parser, default_port=5021)
     parser.add_argument("--error", type=int, default=0, help="start with this error code")
+    parser.add_argument(
+        "--joints",
+        type=int,
+        choices=list(JOINT_COUNTS),
+        default=JOINTS,
+        help="joints of the arm (xArm 5, 6 / Lite 6, 7)",
+    )
     args = parser.parse_args(argv)
-    sim = make_simulator()
+    sim = make_simulator(args.joints)
     device = sim.device
     assert isinstance(device, XArmSimDevice)
     device.set_error(args.error)

@@ -125,6 +125,8 @@ SERVICES: dict[str, tuple[dict[str, str], dict[str, str]]] = {
         REPLY,
     ),
     "ConfirmedCommand": ({"confirm": "string"}, REPLY),
+    "SetOutputs": ({"indexes": "sequence<uint16>", "states": "sequence<boolean>"}, REPLY),
+    "SetJointEnable": ({"joint": "uint8", "enable": "boolean"}, REPLY),
     "SetHomingOrder": ({"motors": "sequence<uint8>"}, REPLY),
     "SetLimitInputs": (
         {"positive_limit": "uint8", "negative_limit": "uint8", "home": "uint8"},

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import math
+import subprocess
+import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -14,10 +16,17 @@ from std_srvs.srv import SetBool, Trigger
 
 from bridge_core.registers import Table
 from msg_defs.msg import XArmState
-from msg_defs.srv import RunOfflineTask, SetChannelValue, SetInteger, SetOutput
+from msg_defs.srv import (
+    RunOfflineTask,
+    SetChannelValue,
+    SetInteger,
+    SetJointEnable,
+    SetOutput,
+    SetOutputs,
+)
 from xarm_bridge.sim import IN_MOTION, PAUSED, SLEEPING, STOPPED, XArmSimDevice, make_simulator
 
-from ..support.ros import Client, ros_client, start_bridge, values_of
+from ..support.ros import ROOT, Client, ros_client, start_bridge, values_of
 
 pytestmark = pytest.mark.ros
 
@@ -33,8 +42,8 @@ def client() -> Iterator[Client]:
 
 
 @pytest.fixture
-def sim() -> Iterator[tuple[XArmSimDevice, int]]:
-    simulator = make_simulator()
+def sim(request: pytest.FixtureRequest) -> Iterator[tuple[XArmSimDevice, int]]:
+    simulator = make_simulator(getattr(request, "param", 7))
     port = simulator.start_tcp()
     device = simulator.device
     assert isinstance(device, XArmSimDevice)
@@ -68,9 +77,7 @@ def test_topics_in_si_units(sim, client: Client, tmp_path: Path) -> None:  # typ
     device.set("joint_speed_2", 180.0)
     device.set("tcp_x", 250.0)
     device.set("tcp_z", 1000.5)
-    device.set("tcp_roll", 90.0)
-    device.set("tcp_pitch", 0.0)
-    device.set("tcp_yaw", 0.0)
+    device.set_orientation(90.0, 0.0, 0.0)
     device.set("tcp_speed", 123.4)
     device.set("joint_temperature_3", 45)
     device.set("tcp_offset_z", 172.0)
@@ -107,7 +114,10 @@ def test_topics_in_si_units(sim, client: Client, tmp_path: Path) -> None:  # typ
             math.pi / 2
         )
         assert st.tcp_load_center[2] == pytest.approx(0.03)
-        assert list(st.enabled) == [True] * 7 and len(st.brakes) == 7
+        assert list(st.enabled) == [True] * 7 and list(st.brakes) == [True] * 7
+        # Roll 90 alone: the rotation vector is (90 deg, 0, 0).
+        assert list(st.tcp_rotation_vector) == pytest.approx([math.pi / 2, 0.0, 0.0], abs=1e-3)
+        assert list(st.user_coils) == [] and st.user_coil_first == 256  # none by default
         status = b.wait_diagnostic(2, started, port)  # controller error -> ERROR
         assert "collision error" in status.message
         assert values_of(status)["link state"] == "connected"
@@ -118,7 +128,7 @@ def test_topics_in_si_units(sim, client: Client, tmp_path: Path) -> None:  # typ
 
 def test_services_write_what_they_should(sim, client: Client, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     device, port = sim
-    with bridge(client, tmp_path, port) as (b, _):
+    with bridge(client, tmp_path, port, user_coil_first=300, user_coil_count=8) as (b, _):
         b.wait_connected(True)
         reply = call(client, b, RunOfflineTask, "run_offline_task", projects=[3, 12])
         assert reply.success, reply.message
@@ -131,10 +141,30 @@ def test_services_write_what_they_should(sim, client: Client, tmp_path: Path) ->
             call(client, b, SetInteger, "set_state", value=0).success
             and device.arm_state == SLEEPING
         )
-        assert call(client, b, SetInteger, "set_mode", value=1).success
+        reply = call(client, b, SetInteger, "set_mode", value=1)
+        assert reply.success and "in force after set_state 0" in reply.message
+        assert device.mode == 0  # not yet
+        reply = call(client, b, SetInteger, "set_state", value=0)
+        assert reply.success and "mode 1 (servo)" in reply.message, reply.message
         assert call(
             client, b, SetOutput, "set_digital_output", board=0, index=7, state=True
         ).success
+        reply = call(
+            client,
+            b,
+            SetOutputs,
+            "set_digital_outputs",
+            indexes=[5, 0, 1],
+            states=[True, True, False],
+        )
+        assert reply.success and "(DO 0-1 on off, DO 5 on)" in reply.message, reply.message
+        reply = call(
+            client, b, SetOutputs, "set_user_coils", indexes=[301, 307], states=[True, True]
+        )
+        assert reply.success and "(C 301 on, C 307 on)" in reply.message, reply.message
+        reply = call(client, b, SetJointEnable, "set_joint_enable", joint=2, enable=False)
+        assert reply.success and "joint 2 disable" in reply.message, reply.message
+        assert call(client, b, SetJointEnable, "set_joint_enable", joint=0, enable=True).success
         assert call(
             client, b, SetOutput, "set_tool_digital_output", board=0, index=1, state=True
         ).success
@@ -149,7 +179,14 @@ def test_services_write_what_they_should(sim, client: Client, tmp_path: Path) ->
             (23, Table.HOLDING, 33, (4,)),
             (23, Table.HOLDING, 33, (0,)),
             (6, Table.HOLDING, 32, (1,)),
+            (23, Table.HOLDING, 33, (0,)),
             (5, Table.COIL, 7, (1,)),
+            (15, Table.COIL, 0, (1, 0)),
+            (15, Table.COIL, 5, (1,)),
+            (15, Table.COIL, 301, (1,)),
+            (15, Table.COIL, 307, (1,)),
+            (5, Table.COIL, 136, (0,)),
+            (15, Table.COIL, 135, (1,) * 7),
             (5, Table.COIL, 33, (1,)),
             (6, Table.HOLDING, 4, (2500,)),
             (5, Table.COIL, 142, (1,)),
@@ -158,6 +195,10 @@ def test_services_write_what_they_should(sim, client: Client, tmp_path: Path) ->
         st = client.wait_message(b.state, lambda m: m.digital_outputs[7] and m.reduced_mode)
         assert st.tool_digital_outputs[1] and st.analog_outputs[1] == pytest.approx(2.5)
         assert st.mode == 1 and st.motion_modes[1]
+        assert [k for k, on in enumerate(st.digital_outputs) if on] == [0, 5, 7]
+        assert st.user_coil_first == 300 and len(st.user_coils) == 8
+        assert [300 + k for k, on in enumerate(st.user_coils) if on] == [301, 307]
+        assert list(st.enabled) == [True] * 7 and list(st.brakes) == [True] * 7
 
 
 REFUSALS: list[tuple[Any, str, dict[str, Any], str]] = [
@@ -181,12 +222,33 @@ REFUSALS: list[tuple[Any, str, dict[str, Any], str]] = [
     (SetInteger, "set_state", {"value": 1}, "state 1"),
     (RunOfflineTask, "run_offline_task", {"projects": []}, "1-16"),
     (RunOfflineTask, "run_offline_task", {"projects": [0]}, "project number 0"),
+    (
+        SetOutputs,
+        "set_digital_outputs",
+        {"indexes": [1, 16], "states": [True, True]},
+        "digital output 16",
+    ),
+    (
+        SetOutputs,
+        "set_digital_outputs",
+        {"indexes": [1, 2], "states": [True]},
+        "2 indexes but 1 states",
+    ),
+    (
+        SetOutputs,
+        "set_digital_outputs",
+        {"indexes": [4, 4], "states": [True, False]},
+        "given twice",
+    ),
+    (SetOutputs, "set_user_coils", {"indexes": [255], "states": [True]}, "user coil 255"),
+    (SetOutputs, "set_user_coils", {"indexes": [264], "states": [True]}, "user coil 264"),
+    (SetJointEnable, "set_joint_enable", {"joint": 8, "enable": True}, "joint 8 outside 0-7"),
 ]
 
 
 def test_refusals_write_nothing(sim, client: Client, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     device, port = sim
-    with bridge(client, tmp_path, port) as (b, _):
+    with bridge(client, tmp_path, port, user_coil_count=8) as (b, _):
         b.wait_connected(True)
         for srv_type, name, fields, reason in REFUSALS:
             reply = call(client, b, srv_type, name, **fields)
@@ -198,7 +260,7 @@ def test_refusals_write_nothing(sim, client: Client, tmp_path: Path) -> None:  #
 
 def test_read_only_refuses_every_write(sim, client: Client, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     device, port = sim
-    with bridge(client, tmp_path, port, read_only=True) as (b, _):
+    with bridge(client, tmp_path, port, read_only=True, user_coil_count=1) as (b, _):
         b.wait_connected(True)
         replies = [call(client, b, Trigger, n) for n in ("pause", "stop", "resume")]
         replies += [
@@ -210,7 +272,51 @@ def test_read_only_refuses_every_write(sim, client: Client, tmp_path: Path) -> N
             call(client, b, SetBool, "set_reduced_mode", data=True),
             call(client, b, SetBool, "set_fence_mode", data=True),
             call(client, b, RunOfflineTask, "run_offline_task", projects=[1]),
+            call(client, b, SetOutputs, "set_digital_outputs", indexes=[0], states=[True]),
+            call(client, b, SetOutputs, "set_user_coils", indexes=[256], states=[True]),
+            call(client, b, SetJointEnable, "set_joint_enable", joint=1, enable=False),
+            call(client, b, SetJointEnable, "set_joint_enable", joint=0, enable=True),
         ]
         for reply in replies:
             assert not reply.success and "read_only" in reply.message
         assert device.write_log == []
+
+
+@pytest.mark.parametrize("sim", [6], indirect=True)
+def test_a_six_axis_arm_has_no_phantom_joint(sim, client: Client, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    device, port = sim
+    with bridge(client, tmp_path, port, joint_count=6, joint_prefix="lite6_") as (b, _):
+        js = client.wait_message(b.joint_states)
+        assert js.name == [f"lite6_joint{j}" for j in range(1, 7)]
+        assert len(js.position) == len(js.velocity) == 6
+        st = client.wait_message(b.state)
+        assert [len(st.brakes), len(st.enabled), len(st.joint_temperatures)] == [6, 6, 6]
+        reply = call(client, b, SetJointEnable, "set_joint_enable", joint=7, enable=False)
+        assert not reply.success and "joint 7 outside 0-6" in reply.message
+        reply = call(client, b, SetJointEnable, "set_joint_enable", joint=0, enable=False)
+        assert reply.success, reply.message
+        assert [(w.address, w.values) for w in device.write_log] == [(135, (0,) * 6)]
+        st = client.wait_message(b.state, lambda m: not any(m.enabled))
+        assert list(st.brakes) == [False] * 6  # engaged: the brakes followed
+
+
+@pytest.mark.parametrize(
+    ("params", "words"),
+    [
+        ({"joint_count": 4}, ["joint_count", "4"]),
+        ({"user_coil_first": 500, "user_coil_count": 16}, ["user_coil_first 500", "511"]),
+        ({"user_coil_count": 257}, ["user_coil_count", "257"]),
+    ],
+)
+def test_bad_start_up_values_exit_2_with_one_line(params: dict[str, Any], words: list[str]) -> None:
+    args = [a for name, value in params.items() for a in ("-p", f"{name}:={value}")]
+    result = subprocess.run(
+        [sys.executable, "-m", "xarm_bridge.node", "--ros-args", *args],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert result.returncode == 2 and len(lines) == 1, result.stdout + result.stderr
+    assert all(word in lines[0] for word in words), lines[0]
