@@ -74,6 +74,7 @@ R6STATE_FIELDS = {
     "io_board_count": "uint16",
     "io_board_inputs": "sequence<uint32>",
     "io_board_outputs": "sequence<uint32>",
+    "world_extra": "sequence<double>",
 }
 
 REPLY = {"success": "boolean", "message": "string"}
@@ -81,6 +82,10 @@ SERVICES: dict[str, tuple[dict[str, str], dict[str, str]]] = {
     "SetValue": ({"value": "double"}, REPLY),
     "SetOutput": ({"board": "uint16", "index": "uint16", "state": "boolean"}, REPLY),
     "SetCounter": ({"id": "uint32", "value": "uint32"}, REPLY),
+    "ListCounters": ({}, {**REPLY, "ids": "sequence<uint32>"}),
+    "ReadCounter": ({"id": "uint32"}, {**REPLY, "target": "uint32", "current": "uint32"}),
+    "SetOutputBoard": ({"board": "uint16", "bits": "uint32"}, REPLY),
+    "ReadDataSource": ({"source_id": "uint16"}, {**REPLY, "points": "uint32"}),
     "ReadParameter": ({"index": "uint32"}, {**REPLY, "value": "int64"}),
     "WriteParameter": ({"index": "uint32", "value": "int64"}, REPLY),
     "UploadPoints": (
