@@ -19,6 +19,9 @@ from bridge_core.registers import MAX_READ_REGISTERS, MAX_WRITE_REGISTERS, WordO
 
 from .registers import (
     COMMANDS,
+    EU_BOARD,
+    FIRST_M_BOARD,
+    M_BOARDS,
     MAX_AXES,
     MAX_COUNTERS,
     MAX_IO_BOARDS,
@@ -31,6 +34,7 @@ from .registers import (
     POINT_AXIS_MASK_MAX,
     POINT_FRAME_MAX_BYTES,
     POINT_VALUES_PER_POINT,
+    POINTS_PER_BOARD,
     R6_MAP,
     parameter_address,
     parameter_offered,
@@ -73,6 +77,11 @@ class R6Snapshot:
     axis_speeds_rpm: tuple[int, ...]
     axis_torques_rated: tuple[float, ...]
     world: dict[str, float] = field(default_factory=dict)
+    # Only with ``m_boards`` / ``eu_board`` (README R6 decision 21): empty / None otherwise.
+    m_board_inputs: tuple[int, ...] = ()
+    m_board_outputs: tuple[int, ...] = ()
+    eu_board_input: int | None = None
+    eu_board_output: int | None = None
 
     @property
     def mode_name(self) -> str:
@@ -82,8 +91,13 @@ class R6Snapshot:
 class R6Device:
     """The R6 controller behind one Modbus channel."""
 
-    def __init__(self, io: RegisterIO) -> None:
+    def __init__(self, io: RegisterIO, *, m_boards: bool = False, eu_board: bool = False) -> None:
+        """``m_boards``: the controller offers the M boards' values (the manual withholds
+        them from the handheld network-port version); ``eu_board``: an EU board is fitted.
+        Each adds its IO rows to the poll and lets ``set_output`` switch its outputs."""
         self.io = io
+        self.m_boards = m_boards
+        self.eu_board = eu_board
         self._plan: list[ReadRequest] | None = None
         self._plan_counts: tuple[int, int] | None = None
 
@@ -110,11 +124,21 @@ class R6Device:
         ]
         names += [f"io_board_input_{b}" for b in range(boards)]
         names += [f"io_board_output_{b}" for b in range(boards)]
+        extra: list[str] = []  # M / EU rows (decision 21)
+        if self.m_boards:
+            extra += [f"m_board_input_{b}" for b in range(M_BOARDS)]
+            extra += [f"m_board_output_{b}" for b in range(M_BOARDS)]
+        if self.eu_board:
+            extra += ["eu_board_input", "eu_board_output"]
         names += [f"axis_position_{a}" for a in range(1, axes + 1)]
         names += [f"world_{w}" for w in ("x", "y", "z", "u", "v", "w", "m7", "m8")]
         names += [f"axis_torque_{a}" for a in range(1, MAX_AXES + 1)]
         names += [f"axis_speed_{a}" for a in range(1, MAX_AXES + 1)]
         plan = plan_reads(R6_MAP, R6_MAP.select(names))
+        if extra:
+            # Planned apart: merged with the IO boards' rows, a read would run through the
+            # rows of boards not in use, which the controller refuses (§3.1.6).
+            plan += plan_reads(R6_MAP, R6_MAP.select(extra))
         # The axis positions last, so a position change reaches joint_states soonest (p99
         # latency, bench/r6_bench.py); the stamp is their own read time either way.
         plan.sort(key=lambda request: holds(request, STAMP_REGISTER))
@@ -167,6 +191,14 @@ class R6Device:
             axis_speeds_rpm=tuple(i(f"axis_speed_{a}") for a in range(1, axes + 1)),
             axis_torques_rated=tuple(f(f"axis_torque_{a}") for a in range(1, axes + 1)),
             world={w: f(f"world_{w}") for w in ("x", "y", "z", "u", "v", "w", "m7", "m8")},
+            m_board_inputs=tuple(i(f"m_board_input_{b}") for b in range(M_BOARDS))
+            if self.m_boards
+            else (),
+            m_board_outputs=tuple(i(f"m_board_output_{b}") for b in range(M_BOARDS))
+            if self.m_boards
+            else (),
+            eu_board_input=i("eu_board_input") if self.eu_board else None,
+            eu_board_output=i("eu_board_output") if self.eu_board else None,
         )
 
     def invalidate_plan(self) -> None:
@@ -267,17 +299,39 @@ class R6Device:
         (raw,) = encode(reg, float(percent))
         self.io.write_register(reg.address, raw)
 
-    def set_output(self, board: int, point: int, on: bool) -> None:
-        """§3.3.3: board, point and state in one FC 10 write to 20056-20058."""
-        if board not in OUTPUT_BOARDS_ACCEPTED:
-            raise CommandRejected(
-                f"output board {board} refused: only general IO boards "
-                f"{OUTPUT_BOARDS_ACCEPTED.start}-{OUTPUT_BOARDS_ACCEPTED.stop - 1} are accepted "
-                "(the manual numbers the M and EUIO boards two ways: README R6 decision 3)"
-            )
+    def set_output(
+        self, board: int, point: int, on: bool, boards_in_use: int | None = None
+    ) -> None:
+        """Boards 0-3: §3.3.3, board, point and state in one FC 10 write to 20056-20058.
+        Boards 4-8 (IO board 4, M boards 5-7, EU board 8): §5's FC 05 coil 32·board + point,
+        the numbering that is unambiguous (README R6 decisions 3, 19, 21)."""
         if point not in OUTPUT_POINTS:
             raise CommandRejected(f"output point {point} outside 0-31")
-        self.io.write_registers(R6_MAP["output_board"].address, [board, point, 1 if on else 0])
+        if board in OUTPUT_BOARDS_ACCEPTED:
+            words = [board, point, 1 if on else 0]
+            self.io.write_registers(R6_MAP["output_board"].address, words)
+            return
+        if board < FIRST_M_BOARD:
+            if boards_in_use is not None and board >= boards_in_use:
+                raise CommandRejected(
+                    f"IO board {board} is not in use: the controller reports {boards_in_use} "
+                    f"board(s)"
+                )
+        elif board < EU_BOARD:
+            if not self.m_boards:
+                raise CommandRejected(
+                    f"output board {board} (M board {board - FIRST_M_BOARD}) refused: the M "
+                    "boards are off (parameter m_boards; the handheld network-port version "
+                    "does not offer them)"
+                )
+        elif board == EU_BOARD:
+            if not self.eu_board:
+                raise CommandRejected(
+                    f"output board {board} (EU board) refused: no EU board (parameter eu_board)"
+                )
+        else:
+            raise CommandRejected(f"output board {board} outside 0-{EU_BOARD}")
+        self.io.write_coil(POINTS_PER_BOARD * board + point, on)
 
     def write_board_outputs(self, board: int, bits: int, boards_in_use: int | None = None) -> None:
         """§3.3.1: all 32 outputs of one IO board (FC 10, 2 registers, high word first).

@@ -74,6 +74,16 @@ class R6BridgeNode(BridgeNode[R6Snapshot]):
                     item_positive=True,
                 ),
                 ParameterSpec(
+                    "m_boards",
+                    False,
+                    "the controller offers M board values: poll and switch them (decision 21)",
+                ),
+                ParameterSpec(
+                    "eu_board",
+                    False,
+                    "an EU board is fitted: poll and switch its IO (decision 21)",
+                ),
+                ParameterSpec(
                     "extra_world_axes",
                     0,
                     "world M7/M8 values published in ~/state world_extra (0-2)",
@@ -85,7 +95,9 @@ class R6BridgeNode(BridgeNode[R6Snapshot]):
         self.extra_world_axes = EXTRA_WORLD_AXES[: int(values["extra_world_axes"])]
         self.gear_ratios = padded(values["gear_ratios"], MAX_AXES, 1.0)
         self.rated_torques = padded(values["rated_torques"], MAX_AXES, 1.0)
-        self.device = R6Device(self.channel)
+        self.device = R6Device(
+            self.channel, m_boards=bool(values["m_boards"]), eu_board=bool(values["eu_board"])
+        )
         self.firmware_version = ""
 
         self.state_pub = self.create_publisher(R6State, "~/state", 10)
@@ -124,6 +136,11 @@ class R6BridgeNode(BridgeNode[R6Snapshot]):
         )
         state = copy_fields(self.stamped(R6State(), snapshot.read_time), snapshot, STATE_FIELDS)
         state.world_extra = [snapshot.world[axis] for axis in self.extra_world_axes]
+        state.m_board_inputs = list(snapshot.m_board_inputs)
+        state.m_board_outputs = list(snapshot.m_board_outputs)
+        if snapshot.eu_board_input is not None and snapshot.eu_board_output is not None:
+            state.eu_board_inputs = [snapshot.eu_board_input]
+            state.eu_board_outputs = [snapshot.eu_board_output]
         self.state_pub.publish(state)
 
         pose = self.stamped(PoseStamped(), snapshot.read_time)
@@ -185,7 +202,7 @@ class R6BridgeNode(BridgeNode[R6Snapshot]):
             SetOutput,
             "~/set_output",
             lambda r: f"set_output board {r.board} point {r.index} {'on' if r.state else 'off'}",
-            lambda r: d.set_output(r.board, r.index, r.state),
+            lambda r: d.set_output(r.board, r.index, r.state, self._boards_in_use()),
         )
         self.command_service(
             SetOutputBoard,

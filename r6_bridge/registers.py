@@ -29,6 +29,11 @@ T = "§4 address table"
 MAX_AXES = 8
 MAX_IO_BOARDS = 5
 M_BOARDS = 3
+# §5's coil numbering of the outputs: board b's point p is coil 32·b + p (decision 19), IO
+# boards 0-4, M boards 5-7, EU board 8.
+FIRST_M_BOARD = MAX_IO_BOARDS
+EU_BOARD = FIRST_M_BOARD + M_BOARDS
+POINTS_PER_BOARD = 32
 MAX_COUNTERS = 1024
 MAX_VERSION_BYTES = 128
 PARAMETER_COUNT = 1000

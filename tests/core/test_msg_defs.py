@@ -74,6 +74,10 @@ R6STATE_FIELDS = {
     "io_board_count": "uint16",
     "io_board_inputs": "sequence<uint32>",
     "io_board_outputs": "sequence<uint32>",
+    "m_board_inputs": "sequence<uint32>",
+    "m_board_outputs": "sequence<uint32>",
+    "eu_board_inputs": "sequence<uint32>",
+    "eu_board_outputs": "sequence<uint32>",
     "world_extra": "sequence<double>",
 }
 

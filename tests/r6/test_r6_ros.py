@@ -211,6 +211,43 @@ def test_counters_are_listed_and_read(sim, bridge_factory) -> None:  # type: ign
         assert not reply.success and "read_counter 4" in reply.message, reply.message
 
 
+def test_m_and_eu_boards_behind_their_parameters(sim, bridge_factory, client: Client) -> None:  # type: ignore[no-untyped-def]
+    """Decision 21: the M and EU boards' IO is polled and switched (FC 05, coil 32 * board
+    + point) only when the parameter says the controller has them."""
+    device, port = sim
+    device.set("m_board_input_1", 0x10)
+    device.set("eu_board_input", 0x3)
+    with bridge_factory(port) as (bridge, _):  # default: neither
+        bridge.wait_connected(True)
+        state = client.wait_message(bridge.state)
+        assert list(state.m_board_inputs) == [] and list(state.eu_board_inputs) == []
+        for board, parameter in ((5, "m_boards"), (8, "eu_board")):
+            reply = bridge.call(SetOutput, "set_output", board=board, index=1, state=True)
+            assert not reply.success and parameter in reply.message, reply.message
+        assert device.write_log == []
+    with bridge_factory(port, m_boards=True, eu_board=True) as (bridge, _):
+        bridge.wait_connected(True)
+        state = client.wait_message(bridge.state)
+        assert list(state.m_board_inputs) == [0, 0x10, 0]
+        assert list(state.eu_board_inputs) == [3]
+        assert list(state.m_board_outputs) == [0, 0, 0] and list(state.eu_board_outputs) == [0]
+        assert bridge.call(SetOutput, "set_output", board=6, index=2, state=True).success
+        assert bridge.call(SetOutput, "set_output", board=8, index=31, state=True).success
+        reply = bridge.call(SetOutput, "set_output", board=9, index=0, state=True)
+        assert not reply.success and "outside" in reply.message, reply.message
+        assert [(r.function_code, r.address, r.values) for r in device.write_log] == [
+            (5, 32 * 6 + 2, (1,)),  # M board 1 (board 6), point 2
+            (5, 32 * 8 + 31, (1,)),  # EU board, point 31
+        ]
+        assert device.get("m_board_output_1") == 1 << 2  # the same memory (decision 19)
+        since = time.monotonic()
+        client.wait_message(
+            bridge.state,
+            lambda m: list(m.eu_board_outputs) == [1 << 31] and m.m_board_outputs[1] == 1 << 2,
+            since=since,
+        )
+
+
 REFUSALS: list[tuple[Any, str, dict[str, Any], str]] = [
     (SetValue, "set_global_speed", {"value": 100.5}, "outside"),
     (SetValue, "set_global_speed", {"value": -0.5}, "outside"),

@@ -104,7 +104,10 @@ def test_commands_write_the_manual_registers(
     [
         (lambda d: d.set_global_speed(100.5), "outside"),
         (lambda d: d.set_global_speed(-1), "outside"),
-        (lambda d: d.set_output(4, 0, True), "board 4"),
+        (lambda d: d.set_output(4, 0, True, boards_in_use=2), "board 4"),
+        (lambda d: d.set_output(5, 0, True), "m_boards"),  # M board 0: off by default
+        (lambda d: d.set_output(8, 0, True), "eu_board"),
+        (lambda d: d.set_output(9, 0, True), "board 9"),
         (lambda d: d.set_output(0, 32, True), "point 32"),
         (lambda d: d.write_parameter(1000, 1), "parameter index"),
         (lambda d: d.write_parameter(915, 1), "22130"),

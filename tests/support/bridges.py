@@ -104,6 +104,8 @@ BRIDGES: tuple[BridgeInfo, ...] = (
             "joint_prefix",
             "gear_ratios",
             "extra_world_axes",
+            "m_boards",
+            "eu_board",
         ),
         read_services={
             "read_parameter": Call("read_parameter", ReadParameter, {"index": 3}),
