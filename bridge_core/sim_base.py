@@ -145,11 +145,15 @@ class SimulatedDevice:
         limits: DeviceLimits | None = None,
         extra_addresses: dict[Table, Iterable[int]] | None = None,
         whole_values: bool = True,
+        whole_value_writes: bool | None = None,
     ) -> None:
         self.map = register_map
         self.unit_id = unit_id
         self.limits = limits or register_map.limits
         self.whole_values = whole_values
+        # A write that cuts a multi-register value is refused too, unless the device is
+        # known to store what it gets word by word (default: as for reads).
+        self.whole_value_writes = whole_values if whole_value_writes is None else whole_value_writes
         self.lock = threading.RLock()
         self.words: dict[tuple[Table, int], int] = {}
         self.readable: set[tuple[Table, int]] = set()
@@ -219,7 +223,7 @@ class SimulatedDevice:
             }
             if len(widths) > 1 or (widths == {ValueType.U64.words} and count != widths.pop()):
                 return ILLEGAL_ADDRESS  # mixed widths, or more than one 64-bit value
-        if self.whole_values and not table.is_bit:
+        if (self.whole_value_writes if writing else self.whole_values) and not table.is_bit:
             # Strings may be read in part (R6 version: (length + 1) / 2 registers).
             for a in (address, address + count - 1):
                 reg = self.map.owner_at(table, a)

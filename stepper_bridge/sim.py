@@ -4,8 +4,9 @@ Behaviour (from the manual, plus what a test needs to see):
 
 - serves the §5 map: FC 03/05/06/10 only (others: exception 0x01), at most 49 registers
   per read or write and undefined rows (40051-40080, 40096-40107, ...) answer 0x02, as
-  does a request that cuts a 32-bit value (so the §6(3) example frame at address 9 is
-  refused); values outside the manual's ranges answer 0x03;
+  does a read that cuts a 32-bit value; a write is stored word by word, as the manual's own
+  §6(3) example at address 9 needs; values outside the manual's ranges answer 0x03 (not the
+  bridge's own non-zero minimums);
 - replies after ``reply_delay_s`` (35 ms by default, §3; 0 for fast tests);
 - each motor has a physical position; its coordinate (40108+) is that position minus an
   offset that "zero coordinates" and homing set. Forward / reverse run at the speed
@@ -136,9 +137,17 @@ DECODED_FUNCTION_CODES = frozenset({0x01, 0x02, 0x03, 0x04, 0x05, 0x06, 0x0F, 0x
 SIM_LIMITS = replace(STEPPER_LIMITS, function_codes=DECODED_FUNCTION_CODES)
 
 
+# Non-zero minimums the bridge sets for its own unit arithmetic (step angle, microstep,
+# lead), not ranges the manual states: the device takes 0 (the §6(3) example writes 0 to
+# 40011 under the table's reading), so the simulator does too.
+_BRIDGE_ONLY_MINIMUMS = ("_step_angle", "_microstep", "_lead")
+
+
 class StepperSimDevice(SimulatedDevice):
     def __init__(self, unit_id: int = 1, travel: float = TRAVEL) -> None:
-        super().__init__(STEPPER_MAP, unit_id, limits=SIM_LIMITS)
+        # Writes are stored word by word (the manual's own §6(3) FC 10 example cuts two
+        # 32-bit values: README stepper decision 2); reads must still take whole values.
+        super().__init__(STEPPER_MAP, unit_id, limits=SIM_LIMITS, whole_value_writes=False)
         self.travel = travel
         self.position = {m: START_POSITION for m in range(1, MOTORS + 1)}
         self.offset = {m: START_POSITION for m in range(1, MOTORS + 1)}
@@ -234,10 +243,18 @@ class StepperSimDevice(SimulatedDevice):
             if reg is None or reg.name in seen:
                 continue
             seen.add(reg.name)
-            words = record.values[reg.address - record.address : reg.end - record.address]
-            value = decode(reg, list(words))
+            # The value as it would stand after the write: a write may cut a 32-bit value
+            # (the §6(3) example does), the rest keeps what the device holds.
+            words = [
+                record.values[a - record.address]
+                if record.address <= a < end
+                else self.words[(Table.HOLDING, a)]
+                for a in reg.addresses()
+            ]
+            value = decode(reg, words)
             assert isinstance(value, int | float)
-            if (reg.minimum is not None and value < reg.minimum) or (
+            minimum = None if reg.name.endswith(_BRIDGE_ONLY_MINIMUMS) else reg.minimum
+            if (minimum is not None and value < minimum) or (
                 reg.maximum is not None and value > reg.maximum
             ):
                 return ILLEGAL_VALUE

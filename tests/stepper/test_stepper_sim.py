@@ -645,9 +645,8 @@ def test_illegal_addresses_and_values(rig: Rig) -> None:
         assert exception_of(read(holding(first), 1)[:5], 3) == 0x02, first
         assert exception_of(read(holding(first) - 1, last - first + 2)[:5], 3) == 0x02, first
     assert exception_of(read(107, 1)[:5], 3) == 0x02  # half a coordinate
-    # The §6(3) example frame (address 9-10) cuts two values: refused, nothing written.
-    example = bytes.fromhex("01 10 00 09 00 02 04 00 C8 00 00")
-    assert exception_of(rig.raw(example, 8)[:5], 0x10) == 0x02
+    # A read that cuts a 32-bit value is still refused (the run distance at 8-9, read 9-10).
+    assert exception_of(read(9, 2)[:5], 3) == 0x02
     # 50 registers in one write: refused.
     fifty = bytes([1, 0x10, 0, 0, 0, 50, 100]) + bytes(100)
     assert exception_of(rig.raw(fifty, 8)[:5], 0x10) == 0x02
@@ -658,13 +657,27 @@ def test_illegal_addresses_and_values(rig: Rig) -> None:
         (STEPPER_MAP["homing_order_1"].address, 6),
         (STEPPER_MAP["system_mode"].address, 6),
         (STEPPER_MAP["device_id"].address, 0),
-        (STEPPER_MAP["motor1_microstep"].address, 0),
     ):
         request = bytes([1, 6]) + address.to_bytes(2, "big") + value.to_bytes(2, "big")
         assert exception_of(rig.raw(request, 8)[:5], 6) == 0x03, address
+    # 0 microsteps: the manual states no range; the non-zero minimum is the bridge's own.
+    zero = bytes([1, 6]) + STEPPER_MAP["motor1_microstep"].address.to_bytes(2, "big") + bytes(2)
+    assert rig.raw(zero, 8)[:6] == zero
+    rig.fake.write_log.clear()
     baud = bytes.fromhex("01 10 00 D4 00 02 04 E1 00 00 01")  # 57600: not a listed rate
     assert exception_of(rig.raw(baud, 8)[:5], 0x10) == 0x03
     assert rig.fake.write_log == []
+
+
+def test_the_manuals_own_fc10_example_is_answered_as_the_manual_shows(rig: Rig) -> None:
+    """§6(3): `01 10 00 09 00 02 04 00 C8 00 00` is answered `01 10 00 09 00 02 91 CA`. It
+    cuts two values under the table's reading (decision 2): the device stores the words
+    where they land (motor 1's run distance high word, motor 2's step angle)."""
+    example = bytes.fromhex("01 10 00 09 00 02 04 00 C8 00 00")
+    reply = rig.raw(example, 8)
+    assert reply == bytes.fromhex("01 10 00 09 00 02 91 CA")
+    assert rig.fake.get_words(Table.HOLDING, 9, 2) == [0x00C8, 0x0000]
+    assert [(r.address, r.values) for r in rig.fake.write_log] == [(9, (0x00C8, 0x0000))]
 
 
 def test_joint_scale() -> None:
