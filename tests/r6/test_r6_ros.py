@@ -284,6 +284,20 @@ def test_out_of_range_requests_are_refused_and_write_nothing(sim, bridge_factory
         assert device.write_log == []
 
 
+def test_a_refused_huge_upload_does_not_echo_its_values(sim, bridge_factory) -> None:  # type: ignore[no-untyped-def]
+    device, port = sim
+    with bridge_factory(port) as (bridge, _):
+        bridge.wait_connected(True)
+        values = [7] * 100_000
+        for fields in (
+            {"values_per_point": 6, "axis_mask": 0x0F, "values": values[:-2]},  # not whole
+            {"values_per_point": 4, "axis_mask": 0x40, "values": values},  # no axis 7
+        ):
+            reply = bridge.call(UploadPoints, "upload_points", data_source_id=1, **fields)
+            assert not reply.success and len(reply.message) < 300, reply.message[:300]
+        assert device.write_log == []
+
+
 def test_read_only_refuses_every_write(sim, bridge_factory) -> None:  # type: ignore[no-untyped-def]
     device, port = sim
     with bridge_factory(port, read_only=True) as (bridge, _):
