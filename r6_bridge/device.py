@@ -312,11 +312,7 @@ class R6Device:
             self.io.write_registers(R6_MAP["output_board"].address, words)
             return
         if board < FIRST_M_BOARD:
-            if boards_in_use is not None and board >= boards_in_use:
-                raise CommandRejected(
-                    f"IO board {board} is not in use: the controller reports {boards_in_use} "
-                    f"board(s)"
-                )
+            _check_board_in_use(board, boards_in_use)
         elif board < EU_BOARD:
             if not self.m_boards:
                 raise CommandRejected(
@@ -336,15 +332,12 @@ class R6Device:
     def write_board_outputs(self, board: int, bits: int, boards_in_use: int | None = None) -> None:
         """§3.3.1: all 32 outputs of one IO board (FC 10, 2 registers, high word first).
 
-        ``boards_in_use`` (the count the controller last reported, 2190): a board past it
+        ``boards_in_use`` (the count the controller last reported, 2186): a board past it
         is refused. The manual gives that rule for reads only (§3.1.6 "有效地址根据已使用的
         IO 板决定"); writing outputs nobody has is refused here rather than sent blind."""
         if not 0 <= board < MAX_IO_BOARDS:
             raise CommandRejected(f"IO board {board} outside 0-{MAX_IO_BOARDS - 1}")
-        if boards_in_use is not None and board >= boards_in_use:
-            raise CommandRejected(
-                f"IO board {board} is not in use: the controller reports {boards_in_use} board(s)"
-            )
+        _check_board_in_use(board, boards_in_use)
         check_whole_number("output bits", bits, 0, U32_MAX)
         reg = R6_MAP[f"io_board_output_{board}"]
         self.io.write_registers(reg.address, int_to_words(bits, 2, False, HIGH))
@@ -420,6 +413,15 @@ class R6Device:
         for words in frames:
             self.io.write_registers(R6_MAP["point_count"].address, words)
         return len(frames)
+
+
+def _check_board_in_use(board: int, boards_in_use: int | None) -> None:
+    """``boards_in_use``: the count the controller last reported (2186); None before the
+    first poll."""
+    if boards_in_use is not None and board >= boards_in_use:
+        raise CommandRejected(
+            f"IO board {board} is not in use: the controller reports {boards_in_use} board(s)"
+        )
 
 
 def _check_parameter_index(index: int) -> None:

@@ -46,12 +46,11 @@ from __future__ import annotations
 import argparse
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 from bridge_core.codec import decode
 from bridge_core.registers import Table
 from bridge_core.sim_base import (
-    ILLEGAL_FUNCTION,
     ILLEGAL_VALUE,
     SimulatedDevice,
     Simulator,
@@ -64,7 +63,6 @@ from .registers import (
     ARC_MODE_CENTER,
     BAUD_RATES,
     DEFAULT_BAUDRATE,
-    FUNCTION_CODES,
     INPUTS,
     INTERPOLATION_PAIRS,
     INTERPOLATION_REGISTERS,
@@ -74,7 +72,6 @@ from .registers import (
     OUTPUT_COIL_FIRST,
     OUTPUTS,
     REPLY_DELAY_S,
-    STEPPER_LIMITS,
     STEPPER_MAP,
     SYSTEM_COILS,
     motor_register,
@@ -129,14 +126,6 @@ class Interpolation:
     done: list[int] = field(default_factory=list)
 
 
-# The server must still frame the standard data-access function codes the device lacks:
-# over RTU a frame with a function code the decoder does not know cannot be delimited and
-# is dropped as noise, while the device answers it with ILLEGAL FUNCTION. So the server
-# decodes these, and the device refuses them itself (``read`` / ``_guard``).
-DECODED_FUNCTION_CODES = frozenset({0x01, 0x02, 0x03, 0x04, 0x05, 0x06, 0x0F, 0x10})
-SIM_LIMITS = replace(STEPPER_LIMITS, function_codes=DECODED_FUNCTION_CODES)
-
-
 # Non-zero minimums the bridge sets for its own unit arithmetic (step angle, microstep,
 # lead), not ranges the manual states: the device takes 0 (the §6(3) example writes 0 to
 # 40011 under the table's reading), so the simulator does too.
@@ -147,7 +136,7 @@ class StepperSimDevice(SimulatedDevice):
     def __init__(self, unit_id: int = 1, travel: float = TRAVEL) -> None:
         # Writes are stored word by word (the manual's own §6(3) FC 10 example cuts two
         # 32-bit values: README stepper decision 2); reads must still take whole values.
-        super().__init__(STEPPER_MAP, unit_id, limits=SIM_LIMITS, whole_value_writes=False)
+        super().__init__(STEPPER_MAP, unit_id, whole_value_writes=False)
         self.travel = travel
         self.position = {m: START_POSITION for m in range(1, MOTORS + 1)}
         self.offset = {m: START_POSITION for m in range(1, MOTORS + 1)}
@@ -215,16 +204,9 @@ class StepperSimDevice(SimulatedDevice):
         return rpm / 60.0 * float(self.get(motor_register(motor, "lead")))
 
     # ------------------------------------------------------------ Modbus behaviour
-    def read(self, function_code: int, address: int, count: int) -> list[int] | int:
-        if function_code not in FUNCTION_CODES:
-            return ILLEGAL_FUNCTION  # FC 01 / 02 / 04: the controller has none
-        return super().read(function_code, address, count)
-
     def _guard(self, record: WriteRecord) -> int | None:
-        """FC 0F answers ILLEGAL FUNCTION; values outside the manual's ranges ILLEGAL
-        DATA VALUE."""
-        if record.function_code not in FUNCTION_CODES:
-            return ILLEGAL_FUNCTION
+        """Values outside the manual's ranges: ILLEGAL DATA VALUE. (Function codes the
+        controller lacks never get here: the server refuses them, ``strict_decoder``.)"""
         end = record.address + len(record.values)
         if self.interpolation is not None and (
             (record.table is Table.COIL and record.address in _START_COILS and record.values[0])
