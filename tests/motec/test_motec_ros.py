@@ -6,8 +6,6 @@ from __future__ import annotations
 import itertools
 import math
 import signal
-import subprocess
-import sys
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
@@ -44,6 +42,7 @@ from ..support.ros import (
     WAIT_S,
     Client,
     node_process,
+    refused_at_start,
     ros_args,
     ros_client,
     unique_namespace,
@@ -532,17 +531,9 @@ def test_a_lifeguard_too_short_for_the_bus_is_refused_at_start() -> None:
     floor = lifeguard_floor_ms(3)
     params = {"unit_ids": UNITS, "baudrate": BAUD, "timeout_s": TIMEOUT_S}
     params["lifeguard_ms"] = floor - 1
-    result = subprocess.run(
-        [sys.executable, "-m", "motec_bridge.node", *ros_args(params)],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=WAIT_S * 2,
-    )
-    lines = [line for line in result.stderr.splitlines() if line.strip()]
-    assert result.returncode == 2 and len(lines) == 1, result.stdout + result.stderr
-    assert f"lifeguard_ms {floor - 1} is below {floor} ms" in lines[0], lines[0]
-    assert "3 drive(s) x 1.024 s" in lines[0], lines[0]
+    line = refused_at_start("motec_bridge.node", ros_args(params), WAIT_S * 2)
+    assert f"lifeguard_ms {floor - 1} is below {floor} ms" in line, line
+    assert "3 drive(s) x 1.024 s" in line, line
 
 
 def test_a_dead_drive_never_starves_the_lifeguard_of_the_others(
@@ -731,13 +722,5 @@ def bus_transition(client: Client, namespace: str, transition: int) -> bool:
 def test_more_than_eight_drives_on_rs232_are_refused_at_start() -> None:
     """§1.1.1: "RS232通讯口最多可以支持连接8台驱动器联网": one line, exit code 2."""
     params = {"unit_ids": list(range(1, 10)), "interface": "rs232"}
-    result = subprocess.run(
-        [sys.executable, "-m", "motec_bridge.node", *ros_args(params)],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=WAIT_S * 2,
-    )
-    lines = [line for line in result.stderr.splitlines() if line.strip()]
-    assert result.returncode == 2 and len(lines) == 1, result.stdout + result.stderr
-    assert "unit_ids has 9 drives, but an rs232 line takes at most 8" in lines[0], lines[0]
+    line = refused_at_start("motec_bridge.node", ros_args(params), WAIT_S * 2)
+    assert "unit_ids has 9 drives, but an rs232 line takes at most 8" in line, line

@@ -5,8 +5,6 @@ one socat pty pair, driven by an rclpy client in this process."""
 from __future__ import annotations
 
 import functools
-import subprocess
-import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -20,11 +18,11 @@ from msg_defs.srv import MoveBy
 from stepper_bridge.sim import StepperSimDevice, make_bus_simulator
 
 from ..support.ros import (
-    ROOT,
     WAIT_S,
     Bridge,
     Client,
     node_process,
+    refused_at_start,
     ros_args,
     ros_client,
     unique_namespace,
@@ -130,14 +128,6 @@ def test_two_controllers_share_one_line(client: Client, tmp_path: Path) -> None:
 )
 def test_bus_settings_refused_at_start(params: dict[str, object], text: str) -> None:
     started = time.monotonic()
-    result = subprocess.run(
-        [sys.executable, "-m", "stepper_bridge.bus", *ros_args(params)],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
-    lines = [line for line in result.stderr.splitlines() if line.strip()]
-    assert result.returncode == 2, result.stdout + result.stderr
-    assert len(lines) == 1 and text in lines[0], lines
+    line = refused_at_start("stepper_bridge.bus", ros_args(params))
+    assert text in line, line
     assert time.monotonic() - started < 60

@@ -35,6 +35,7 @@ from ..support.ros import (
     WAIT_S,
     Bridge,
     Client,
+    refused_at_start,
     ros_client,
     start_bridge,
     unique_namespace,
@@ -699,28 +700,10 @@ def test_pairs_read_two_ways_need_alike_motors(sim, client: Client, tmp_path: Pa
 
 
 def test_a_negative_units_per_revolution_is_refused_at_start() -> None:
-    import subprocess
-    import sys
-
-    from ..support.ros import ROOT
-
-    result = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "stepper_bridge.node",
-            "--ros-args",
-            "-p",
-            "units_per_revolution:=[0.0, -50.0]",
-        ],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=60,
+    line = refused_at_start(
+        "stepper_bridge.node", ["--ros-args", "-p", "units_per_revolution:=[0.0, -50.0]"]
     )
-    lines = [line for line in result.stderr.splitlines() if line.strip()]
-    assert result.returncode == 2, result.stdout + result.stderr
-    assert len(lines) == 1 and "units_per_revolution" in lines[0] and "-50.0" in lines[0], lines
+    assert "units_per_revolution" in line and "-50.0" in line, line
 
 
 def test_read_only_refuses_every_write(sim, client: Client, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]

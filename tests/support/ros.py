@@ -229,6 +229,23 @@ def node_process(
         log.close()
 
 
+def refused_at_start(module: str, args: Sequence[str], timeout: float = 60.0) -> str:
+    """Run ``python -m module args`` that must refuse to start: exit code 2 and exactly one
+    non-blank line on stderr, no traceback. Returns that line for the caller's checks."""
+    result = subprocess.run(
+        [sys.executable, "-m", module, *args],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+    output = result.stdout + result.stderr
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert result.returncode == 2 and len(lines) == 1, output
+    assert "Traceback" not in output, output
+    return lines[0]
+
+
 def status_node(status: Any) -> str:
     """The node name (no namespace) of a bridge's DiagnosticStatus ("/ns/node: ...")."""
     return str(status.name).split(": ", 1)[0].rsplit("/", 1)[-1]

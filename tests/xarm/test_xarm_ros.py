@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import math
-import subprocess
-import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -26,7 +24,7 @@ from msg_defs.srv import (
 )
 from xarm_bridge.sim import IN_MOTION, PAUSED, SLEEPING, STOPPED, XArmSimDevice, make_simulator
 
-from ..support.ros import ROOT, Client, ros_client, start_bridge, values_of
+from ..support.ros import Client, refused_at_start, ros_client, start_bridge, values_of
 
 pytestmark = pytest.mark.ros
 
@@ -310,13 +308,5 @@ def test_a_six_axis_arm_has_no_phantom_joint(sim, client: Client, tmp_path: Path
 )
 def test_bad_start_up_values_exit_2_with_one_line(params: dict[str, Any], words: list[str]) -> None:
     args = [a for name, value in params.items() for a in ("-p", f"{name}:={value}")]
-    result = subprocess.run(
-        [sys.executable, "-m", "xarm_bridge.node", "--ros-args", *args],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
-    lines = [line for line in result.stderr.splitlines() if line.strip()]
-    assert result.returncode == 2 and len(lines) == 1, result.stdout + result.stderr
-    assert all(word in lines[0] for word in words), lines[0]
+    line = refused_at_start("xarm_bridge.node", ["--ros-args", *args])
+    assert all(word in line for word in words), line
