@@ -58,6 +58,7 @@ from std_msgs.msg import Bool
 from .channel import DeviceChannel, Priority
 from .diagnostics import Level, Report, link_report
 from .errors import CommandRejected, ConfigurationError, DeviceException, LinkError, NotSent
+from .node_actions import ActionHost
 from .parameters import ParameterSpec, ParameterValue
 from .poller import Poller, PollOutcome
 from .stream_guard import StreamGuard
@@ -345,6 +346,7 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
         self.diagnostics_group = MutuallyExclusiveCallbackGroup()
         self.stream_guards: list[StreamGuard[Any]] = []
         self.stream_refusals = 0  # stream commands refused (diagnostics)
+        self._command_mutex = threading.RLock()  # one command (not stop) at a time
 
         specs = [
             *channel_specs(),
@@ -417,9 +419,10 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
         self._connected_lock = threading.Lock()
         self._down_said_at = 0.0  # monotonic time the console last said the link is down
         self._publish_connected(False)
-        self.poller: Poller[SnapshotT] = Poller(
+        self.actions = ActionHost(self)
+        self.poller: Poller[tuple[float, SnapshotT]] = Poller(
             self.channel,
-            self.poll_device,
+            self._poll,
             self._publish,
             rate_hz=float(values["poll_rate_hz"]),
             link_up=self._link_up,
@@ -498,9 +501,17 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
         return self.poller.rate_hz
 
     # ------------------------------------------------------------ polling
-    def _publish(self, snapshot: SnapshotT) -> None:
+    def _poll(self) -> tuple[float, SnapshotT]:
+        """The poll and the wall time it began (a goal judges only polls begun after its
+        start was acknowledged)."""
+        began = time.time()
+        return began, self.poll_device()
+
+    def _publish(self, polled: tuple[float, SnapshotT]) -> None:
+        began, snapshot = polled
         self.last_snapshot = snapshot
         self.publish_snapshot(snapshot)
+        self.actions.offer(snapshot, began)
 
     def _start_polling(self) -> None:
         self._poll_starter.cancel()
@@ -525,7 +536,7 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
         return super().on_activate(state)
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self._halt()
+        self._halt("the node was deactivated")
         self.get_logger().info("inactive: motion stopped, not polling, commands refused")
         return super().on_deactivate(state)
 
@@ -535,19 +546,19 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
         return TransitionCallbackReturn.SUCCESS
 
     def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self._halt()
+        self._halt("the node shut down")
         self._close_owned_link()
         self.get_logger().info("finalized: motion stopped, link closed (Ctrl-C ends the process)")
         return TransitionCallbackReturn.SUCCESS
 
     def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self._halt()
+        self._halt("lifecycle error")
         self.get_logger().error("lifecycle error: motion stopped, not polling")
         return TransitionCallbackReturn.SUCCESS
 
-    def _halt(self) -> None:
+    def _halt(self, reason: str) -> None:
         """Stop every motion this node started, then poll and publish no more."""
-        self.stop_motion()
+        self.stop_motion(reason)
         self.poller.pause()
 
     def _close_owned_link(self) -> None:
@@ -578,6 +589,7 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
             logger.error(text)
 
     def _poll_connected(self, up: bool) -> None:
+        self.actions.wake_all()  # a goal ends at once when its link is lost
         if up:
             self.get_logger().info(f"connected to {self.channel.describe()}")
         self._publish_connected(up)
@@ -592,7 +604,7 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
     def _set_read_only(self, value: bool) -> None:
         if value and not self.read_only:
             # No command can reach the streams any more: stop what they started.
-            self.stop_motion()
+            self.stop_motion("read_only was set")
         self.read_only = bool(value)
 
     # ------------------------------------------------------------ commands
@@ -621,8 +633,13 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
             return False, f"{what} refused: not connected to {self.channel.describe()}", None
         try:
             # A stop is not tied to the connection it started on (command_session): it
-            # must go out on whatever link there is now.
-            with contextlib.nullcontext() if stop else self.channel.command_session():
+            # must go out on whatever link there is now. Other commands take turns whole
+            # (services, streams and action goals run in different callback groups), so
+            # two commands' writes never interleave; a stop never waits for that.
+            with (
+                contextlib.nullcontext() if stop else self._command_mutex,
+                contextlib.nullcontext() if stop else self.channel.command_session(),
+            ):
                 result = action()
         except CommandRejected as err:
             return False, f"{what} refused: {err}", None
@@ -814,9 +831,10 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
             else:
                 self.get_logger().warn(message, throttle_duration_sec=2.0)
 
-    def stop_motion(self) -> None:
-        """Stop everything this node's streams started; tried on the wire even while the
-        link is marked down (no connected guard, no command session)."""
+    def stop_motion(self, reason: str = "the node stops") -> None:
+        """Stop everything this node's streams and action goals started; tried on the
+        wire even while the link is marked down (no connected guard, no command session)."""
+        self.actions.stop_all(reason)
         for guard in self.stream_guards:
             moving = guard.moving()
             failed = guard.stop_all()
@@ -871,7 +889,7 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
     def close(self) -> None:
         """Stop motion, then polling, then close the link if this node opened it."""
         try:
-            self.stop_motion()
+            self.stop_motion("the node is exiting")
         finally:
             self.poller.stop()
             self._close_owned_link()
@@ -1014,7 +1032,9 @@ def spin_nodes(
             if isinstance(node, LifecycleNode) and getattr(node, "autostart", False):
                 node.trigger_configure()
                 node.trigger_activate()
-        executor = MultiThreadedExecutor(num_threads=threads(len(nodes)))
+        # A running action goal holds an executor thread until it ends.
+        goal_threads = sum(node.actions.threads for node in nodes if isinstance(node, BridgeNode))
+        executor = MultiThreadedExecutor(num_threads=threads(len(nodes)) + goal_threads)
         for node in nodes:
             executor.add_node(node)
         executor.spin()

@@ -47,6 +47,7 @@ from bridge_core.checks import (
 from bridge_core.codec import Value, encode
 from bridge_core.config_cache import ConfiguredDevice
 from bridge_core.errors import CommandRejected, LinkError
+from bridge_core.goals import Motion, Outcome, Verdict
 from bridge_core.keepalive import FEED_WAKE_S
 from bridge_core.planner import ReadRequest, plan_reads
 from bridge_core.poller import read_blocks
@@ -73,6 +74,7 @@ from .registers import (
     START_MOVE,
     STOP_MOVE,
     control_mode_name,
+    fault_text,
     operation_mode_name,
     output_coil,
     parameter_numbers,
@@ -407,16 +409,21 @@ class MotecDevice(ConfiguredDevice[MotecConfig]):
             self.stream.taken_over(VELOCITY_STREAM, locked=False)
         self._write("enable", ENABLE_ON)
 
-    def move(self, counts: int, *, relative: bool, speed_rpm: float = 0.0) -> None:
-        """Point-to-point move (§4.1): [speed limit 0xAE], motion mode 0x2D, distance or
-        target 0x26-0x27 (FC 16), start 0x29 = 1. Needs network mode, position control
-        and an enabled drive (read fresh)."""
+    def check_move(self, counts: int, speed_rpm: float) -> int:
+        """A move's distance / target and speed limit checked (no I/O); the limit in rpm."""
         if isinstance(counts, bool) or not isinstance(counts, int):
             raise CommandRejected(f"distance {counts!r} is not a whole number of counts")
         encode(MOTEC_MAP["target_distance"], counts)  # range check before any write
         limit = self._check_speed(speed_rpm, "max velocity")
         if limit < 0:
             raise CommandRejected(f"max velocity {speed_rpm:g} rpm must not be negative")
+        return limit
+
+    def move(self, counts: int, *, relative: bool, speed_rpm: float = 0.0) -> None:
+        """Point-to-point move (§4.1): [speed limit 0xAE], motion mode 0x2D, distance or
+        target 0x26-0x27 (FC 16), start 0x29 = 1. Needs network mode, position control
+        and an enabled drive (read fresh)."""
+        limit = self.check_move(counts, speed_rpm)
         modes = self.read_modes()
         if not modes.network or modes.control_mode != CONTROL_MODE_POSITION or not modes.enabled:
             raise CommandRejected(
@@ -662,6 +669,76 @@ def _check_lifeguard_ms(time_ms: int) -> None:
         )
 
 
+class MoveToMotion(Motion[MotecSnapshot]):
+    """``~/move_to``: one point-to-point move followed through the polls (README
+    "Actions"). Over when the drive stands still at its setpoint (``moving`` false): at the
+    target within ``tolerance_counts`` it is REACHED, elsewhere STOPPED (a stop service,
+    a disable, the drive); a fault code ends it at once. Its stop is ``~/stop``'s."""
+
+    axes = frozenset({"drive"})
+
+    def __init__(
+        self,
+        device: MotecDevice,
+        scale: DriveScale,
+        position_rad: float,
+        *,
+        relative: bool,
+        max_velocity_rad_s: float,
+        tolerance_counts: int,
+    ) -> None:
+        super().__init__()
+        self.device = device
+        self.scale = scale
+        self.counts = scale.to_counts(position_rad)
+        self.speed_rpm = scale.to_rpm(max_velocity_rad_s)
+        device.check_move(self.counts, self.speed_rpm)
+        self.relative = relative
+        self.tolerance_counts = tolerance_counts
+        self.target = self.counts  # absolute; a relative move's is known at its start
+        self.what = f"move_to {'by' if relative else 'to'} {position_rad:g} rad"
+
+    def start(self) -> None:
+        if self.relative:  # the distance counts from where the drive is now
+            position = int(self.device.read_named("position_actual")["position_actual"])
+            self.target = position + self.counts
+        self.device.move(self.counts, relative=self.relative, speed_rpm=self.speed_rpm)
+
+    def stop(self) -> str:
+        return self.device.stop()
+
+    def running(self, snapshot: MotecSnapshot) -> bool:
+        return snapshot.moving
+
+    def fault(self, snapshot: MotecSnapshot) -> Verdict | None:
+        code = snapshot.fault_code
+        if not code:
+            return None
+        text = fault_text(code)
+        return Verdict(Outcome.FAULT, f"{self.what}: drive fault {code}: {text}", code, text)
+
+    def ended(self, snapshot: MotecSnapshot) -> Verdict:
+        short = self.target - snapshot.position_actual
+        if abs(short) <= self.tolerance_counts:
+            return Verdict(Outcome.REACHED, f"{self.what}: reached ({short} counts from target)")
+        return Verdict(
+            Outcome.STOPPED,
+            f"{self.what}: the drive stopped {self.scale.position(short):.6g} rad "
+            f"({short} counts) short of the target",
+        )
+
+    def feedback(self, snapshot: MotecSnapshot) -> dict[str, Any]:
+        return {
+            "position": self.scale.position(snapshot.position_actual),
+            "velocity": self.scale.velocity(snapshot.speed_actual_rpm),
+            "distance_to_go": self.scale.position(self.target - snapshot.position_actual),
+        }
+
+    def result(self, snapshot: MotecSnapshot | None) -> dict[str, Any]:
+        position = math.nan if snapshot is None else self.scale.position(snapshot.position_actual)
+        return {"position": position, "target_counts": self.target}
+
+
 __all__ = [
     "CONFIG_PLAN",
     "MODE_PLAN",
@@ -671,6 +748,7 @@ __all__ = [
     "MotecConfig",
     "MotecDevice",
     "MotecSnapshot",
+    "MoveToMotion",
     "disable_all",
     "lifeguard_bound_text",
     "lifeguard_feed_period_s",

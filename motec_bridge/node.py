@@ -45,6 +45,7 @@ from bridge_core.keepalive import Keepalive
 from bridge_core.node_base import BridgeNode, BusNode, DeviceDefaults, copy_fields, spin_nodes
 from bridge_core.parameters import ParameterSpec
 from bridge_core.transport import ModbusLink
+from msg_defs.action import MoveTo
 from msg_defs.msg import MotecState
 from msg_defs.srv import (
     PositionMove,
@@ -63,6 +64,7 @@ from .device import (
     DriveScale,
     MotecDevice,
     MotecSnapshot,
+    MoveToMotion,
     disable_all,
     lifeguard_bound_text,
     lifeguard_min_ms,
@@ -86,6 +88,11 @@ BUS_NODE_NAME = "motec_bridge"
 # A speed write is one FC 06 of ~2-3 ms at 115200 baud: 20 a second per drive cost a few
 # percent of the bus that every drive's polls share.
 VELOCITY_WRITE_RATE_HZ = 20.0
+# ~/move_to's "reached" band (live parameter): the simulator lands on the target; a real
+# drive's position loop settles within a few counts of it (10 counts = 0.36 deg of a
+# 10000-count motor turn).
+GOAL_TOLERANCE_COUNTS = 10
+GOAL_TOLERANCE_COUNTS_MAX = 1_000_000
 
 MOTEC_DEFAULTS = DeviceDefaults(
     "MOTEC β servo drive",
@@ -191,6 +198,15 @@ class MotecDriveNode(BridgeNode[MotecSnapshot]):
                     max(OUTPUT1_COIL_CHOICES),
                 ),
                 ParameterSpec(
+                    "goal_tolerance_counts",
+                    GOAL_TOLERANCE_COUNTS,
+                    "~/move_to: reached when the drive stands within this many counts of "
+                    "its target",
+                    0,
+                    GOAL_TOLERANCE_COUNTS_MAX,
+                    live=True,
+                ),
+                ParameterSpec(
                     "read_io_tables",
                     False,
                     "every poll also reads 0x79, FC 01 (outputs) and FC 02 (inputs): 3 more reads",
@@ -210,6 +226,10 @@ class MotecDriveNode(BridgeNode[MotecSnapshot]):
             read_io_tables=bool(values["read_io_tables"]),
         )
         self.lifeguard_error: str | None = None
+        self.goal_tolerance_counts = int(values["goal_tolerance_counts"])
+        self.on_parameter(
+            "goal_tolerance_counts", lambda value: setattr(self, "goal_tolerance_counts", value)
+        )
         self.joint_names = [f"{self.joint_prefix}drive_{unit_id}"]
         self.state_pub = self.create_publisher(MotecState, "~/state", 10)
         self._create_services()
@@ -388,6 +408,18 @@ class MotecDriveNode(BridgeNode[MotecSnapshot]):
             "~/write_parameter",
             lambda r: f"write_parameter Pr.{r.index} = {r.value}",
             lambda r: d.write_parameter(int(r.index), int(r.value)),
+        )
+
+        self.actions.motion(MoveTo, "~/move_to", self._move_to)
+
+    def _move_to(self, goal: Any) -> MoveToMotion:
+        return MoveToMotion(
+            self.device,
+            self.scale,
+            float(goal.position),
+            relative=bool(goal.relative),
+            max_velocity_rad_s=float(goal.max_velocity),
+            tolerance_counts=self.goal_tolerance_counts,
         )
 
     def _set_control_mode(self, r: Any) -> None:

@@ -8,11 +8,13 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 from bridge_core.channel import Priority, RegisterIO
 from bridge_core.checks import check_whole_number
 from bridge_core.codec import Value, encode, int_to_words, words_to_int
 from bridge_core.errors import CommandRejected, FrameError, PollIncomplete
+from bridge_core.goals import Motion, Outcome, Verdict
 from bridge_core.planner import ReadRequest, plan_reads
 from bridge_core.poller import holds, read_blocks, read_named
 from bridge_core.registers import MAX_READ_REGISTERS, MAX_WRITE_REGISTERS, WordOrder
@@ -36,6 +38,7 @@ from .registers import (
     POINT_VALUES_PER_POINT,
     POINTS_PER_BOARD,
     R6_MAP,
+    STOP_COMMANDS,
     parameter_address,
     parameter_offered,
 )
@@ -98,6 +101,7 @@ class R6Device:
         self.io = io
         self.m_boards = m_boards
         self.eu_board = eu_board
+        self.stops = 0  # stop / pause / stop_button commands acknowledged (RunCycleMotion)
         self._plan: list[ReadRequest] | None = None
         self._plan_counts: tuple[int, int] | None = None
 
@@ -292,6 +296,8 @@ class R6Device:
         if name not in COMMANDS:
             raise CommandRejected(f"unknown R6 command {name!r}; known: {', '.join(COMMANDS)}")
         self.io.write_register(COMMANDS[name], 1)
+        if name in STOP_COMMANDS:
+            self.stops += 1
 
     def set_global_speed(self, percent: float) -> None:
         """§3.2.2: one register, FC 06, 0-1000 = 0.0-100.0 %."""
@@ -379,11 +385,30 @@ class R6Device:
     def upload_points(
         self, data_source_id: int, values_per_point: int, axis_mask: int, values: Sequence[int]
     ) -> int:
-        """§3.3.5: configure 30002-30004, then frames at 30005 (count, clear flag, data).
+        """§3.3.5 in one go (the ``~/upload_points`` service); the number of data frames."""
+        upload = PointUpload(self, data_source_id, values_per_point, axis_mask, values)
+        while upload.sent < upload.total:
+            upload.step()
+        return upload.total
 
-        The first frame clears the source (30006 = 1), later ones append (0). Returns the
-        number of data frames sent.
-        """
+
+class PointUpload:
+    """§3.3.5 point data in steps: configure 30002-30004, then frames at 30005 (count,
+    clear flag, data), each one FC 10. The first frame clears the source (30006 = 1),
+    later ones append (0). Every value is checked before the first write; each ``step``
+    sends the next frame (the first also the configuration), so an action can stop
+    between frames."""
+
+    axes = frozenset({"point_data"})
+
+    def __init__(
+        self,
+        device: R6Device,
+        data_source_id: int,
+        values_per_point: int,
+        axis_mask: int,
+        values: Sequence[int],
+    ) -> None:
         check_whole_number("data source id", data_source_id, 0, 0xFFFF)
         if values_per_point not in POINT_VALUES_PER_POINT:
             raise CommandRejected(f"values_per_point must be one of {POINT_VALUES_PER_POINT}")
@@ -398,7 +423,7 @@ class R6Device:
         per_frame = (POINT_FRAME_MAX_REGISTERS - POINT_FRAME_HEADER_REGISTERS) // (
             2 * values_per_point
         )
-        frames: list[list[int]] = []
+        self.frames: list[list[int]] = []
         points = [values[k : k + values_per_point] for k in range(0, len(values), values_per_point)]
         for first in range(0, len(points), per_frame):
             chunk = points[first : first + per_frame]
@@ -406,13 +431,88 @@ class R6Device:
             for point in chunk:
                 for value in point:
                     words += int_to_words(value, 2, True, HIGH)
-            frames.append(words)
-        self.io.write_registers(
-            R6_MAP["point_source_id"].address, [data_source_id, values_per_point, axis_mask]
+            self.frames.append(words)
+        self.device = device
+        self.setup = [data_source_id, values_per_point, axis_mask]
+        self.what = f"upload_points source {data_source_id}: {len(points)} points"
+        self.total = len(self.frames)
+        self.sent = 0
+
+    def step(self) -> None:
+        io = self.device.io
+        if self.sent == 0:
+            io.write_registers(R6_MAP["point_source_id"].address, self.setup)
+        io.write_registers(R6_MAP["point_count"].address, self.frames[self.sent])
+        self.sent += 1
+
+    def feedback(self) -> dict[str, Any]:
+        return {"frames_sent": self.sent, "frames_total": self.total}
+
+    def result(self) -> dict[str, Any]:
+        return self.feedback()
+
+
+class RunCycleMotion(Motion[R6Snapshot]):
+    """``~/run_cycle``: single cycle (20002) or start (20003), followed through ``moving``
+    (2470). An alarm (2396) ends it as FAULT. A single cycle whose ``moving`` ended is
+    REACHED unless a stop / pause (from this bridge) came meanwhile; a continuous run
+    never is (it runs until stopped): its end is STOPPED (README R6 decision 22)."""
+
+    axes = frozenset({"program"})
+
+    def __init__(self, device: R6Device, last: R6Snapshot | None, *, single_cycle: bool) -> None:
+        super().__init__()
+        if last is not None:
+            if last.alarm_code:
+                raise CommandRejected(
+                    f"alarm {last.alarm_code} is active and blocks the program: clear it first"
+                )
+            if last.global_speed_percent <= 0:
+                raise CommandRejected(
+                    "the global speed is 0 %: the program would not move (set_global_speed)"
+                )
+        self.device = device
+        self.single_cycle = single_cycle
+        self.command = "single_cycle" if single_cycle else "start"
+        self.what = f"run_cycle ({'single cycle' if single_cycle else 'continuous'})"
+        self.stops_at_start = device.stops
+
+    def start(self) -> None:
+        self.stops_at_start = self.device.stops
+        self.device.command(self.command)
+
+    def stop(self) -> str:
+        self.device.command("stop")
+        return "stop (20000) sent"
+
+    def running(self, snapshot: R6Snapshot) -> bool:
+        return snapshot.moving
+
+    def fault(self, snapshot: R6Snapshot) -> Verdict | None:
+        code = snapshot.alarm_code
+        if not code:
+            return None
+        return Verdict(Outcome.FAULT, f"{self.what}: alarm {code}", code, f"alarm code {code}")
+
+    def ended(self, snapshot: R6Snapshot) -> Verdict:
+        if self.device.stops > self.stops_at_start:
+            return Verdict(Outcome.STOPPED, f"{self.what}: stopped by a stop or pause command")
+        if not self.single_cycle:
+            return Verdict(Outcome.STOPPED, f"{self.what}: the program stopped")
+        return Verdict(
+            Outcome.REACHED,
+            f"{self.what}: the cycle ended (last cycle {snapshot.last_cycle_time_ms} ms)",
         )
-        for words in frames:
-            self.io.write_registers(R6_MAP["point_count"].address, words)
-        return len(frames)
+
+    def feedback(self, snapshot: R6Snapshot) -> dict[str, Any]:
+        return {
+            "moving": snapshot.moving,
+            "current_cycle_time_ms": snapshot.current_cycle_time_ms,
+            "alarm_code": snapshot.alarm_code,
+        }
+
+    def result(self, snapshot: R6Snapshot | None) -> dict[str, Any]:
+        return {"last_cycle_time_ms": 0 if snapshot is None else snapshot.last_cycle_time_ms}
 
 
 def _check_board_in_use(board: int, boards_in_use: int | None) -> None:

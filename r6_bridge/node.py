@@ -13,6 +13,7 @@ from bridge_core.errors import DeviceException, FrameError
 from bridge_core.node_base import BridgeNode, DeviceDefaults, copy_fields, spin_node
 from bridge_core.parameters import ParameterSpec, padded
 from bridge_core.units import DEG, MM, RPM_TO_RAD_S, euler_xyz_deg_to_quaternion
+from msg_defs.action import PointUpload, RunCycle
 from msg_defs.msg import R6State
 from msg_defs.srv import (
     ListCounters,
@@ -27,7 +28,8 @@ from msg_defs.srv import (
     WriteParameter,
 )
 
-from .device import R6Device, R6Snapshot
+from .device import PointUpload as PointUploadSteps
+from .device import R6Device, R6Snapshot, RunCycleMotion
 from .registers import COMMANDS, MAX_AXES, STOP_COMMANDS
 
 # R6State fields copied as they are from the snapshot (same names, same units).
@@ -260,6 +262,25 @@ class R6BridgeNode(BridgeNode[R6Snapshot]):
                 r.data_source_id, r.values_per_point, r.axis_mask, [int(v) for v in r.values]
             ),
             fill=lambda response, frames: setattr(response, "frames_sent", frames),
+        )
+        # The same as actions (README "Actions"): progress, cancel, a result when done.
+        self.actions.steps(
+            PointUpload,
+            "~/upload_points",
+            lambda goal: PointUploadSteps(
+                d,
+                goal.data_source_id,
+                goal.values_per_point,
+                goal.axis_mask,
+                [int(v) for v in goal.values],
+            ),
+        )
+        self.actions.motion(
+            RunCycle,
+            "~/run_cycle",
+            lambda goal: RunCycleMotion(
+                d, self.last_snapshot, single_cycle=bool(goal.single_cycle)
+            ),
         )
 
 

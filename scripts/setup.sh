@@ -133,7 +133,7 @@ fi
 # Rebuilt when its sources changed, or when it no longer imports (e.g. the env step above
 # replaced the ROS wheels it was built against).
 if ! stamped "$MSG_HASH" || ! msg_defs_installed \
-    || ! "$VPY" -c 'import msg_defs.msg, msg_defs.srv' >/dev/null 2>&1; then
+    || ! "$VPY" -c 'import msg_defs.msg, msg_defs.srv, msg_defs.action' >/dev/null 2>&1; then
     start=$SECONDS
     step "building msg_defs into .venv" \
         "${PIP[@]}" install --no-build-isolation --force-reinstall --no-deps ./msg_defs

@@ -47,6 +47,7 @@ from bridge_core.checks import (
 from bridge_core.codec import Value, decode, encode
 from bridge_core.config_cache import ConfiguredDevice
 from bridge_core.errors import CommandRejected, DeviceException, LinkError
+from bridge_core.goals import Motion, Outcome, Verdict, within
 from bridge_core.planner import ReadRequest, plan_reads
 from bridge_core.registers import Register
 from bridge_core.stream_guard import StreamGuard
@@ -321,6 +322,7 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
         # "插补过程运行中不可调节"; a second line / arc is refused meanwhile.
         self._next_poll = 0
         self.interpolation_run: InterpolationRun | None = None
+        self.estops = 0  # e-stops this bridge sent (acknowledged)
 
     # ------------------------------------------------------------------ reads
     @property
@@ -474,18 +476,22 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
         """Run distance (user units, x100, 32-bit low word first) with FC 10."""
         self.set_motor_parameter(motor, "run_distance", distance)
 
-    def move_by(self, motor: int, distance: float) -> None:
-        """Signed single run: direction (FC 06), distance (FC 10), single-run coil (FC 05)."""
+    def check_move_by(self, motor: int, distance: float) -> None:
+        """A single run's motor and distance checked (no I/O)."""
         _check_motor(motor)
         _check_finite("distance", distance)
-        direction = 0 if distance >= 0 else 1
-        magnitude = abs(float(distance))
         reg = STEPPER_MAP[motor_register(motor, "run_distance")]
-        encode(reg, magnitude)  # range check before the first write
-        if round(magnitude * DISTANCE_SCALE) == 0:
+        encode(reg, abs(float(distance)))  # range check before the first write
+        if round(abs(float(distance)) * DISTANCE_SCALE) == 0:
             raise CommandRejected(
                 f"distance {distance} is below the controller's step of {1 / DISTANCE_SCALE}"
             )
+
+    def move_by(self, motor: int, distance: float) -> None:
+        """Signed single run: direction (FC 06), distance (FC 10), single-run coil (FC 05)."""
+        self.check_move_by(motor, distance)
+        direction = 0 if distance >= 0 else 1
+        magnitude = abs(float(distance))
         self._write_values([(motor_register(motor, "direction"), direction)])
         self._write_values([(motor_register(motor, "run_distance"), magnitude)])
         self.motor_action(motor, "run_once")
@@ -712,6 +718,7 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
                     self.jogs.taken_over(motor, locked=name == "emergency_stop")
                     self._direction[motor] = 0
             if name == "emergency_stop":
+                self.estops += 1  # a goal it ended says so (StepperMotion)
                 self.interpolation_run = None  # "完成所有电机急停": the move ended
                 self._restore_after_stop(list(range(1, MOTORS + 1)))
 
@@ -742,6 +749,39 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
         self._coil("all_outputs_on" if on else "all_outputs_off")
 
     # ------------------------------------------------------------------ interpolation
+    def check_line_move(
+        self, pair: int, start: tuple[float, float], end: tuple[float, float], speed_rpm: int
+    ) -> None:
+        """A line's pair, points and speed checked (no I/O)."""
+        _check_pair(pair)
+        _check_integer("speed", speed_rpm, low=1)
+        _check_points([("start", start), ("end", end)])
+        if _same(start, end):
+            raise CommandRejected("line start and end are the same point")
+        self._check_no_interpolation_running()
+
+    def check_arc_move(
+        self,
+        pair: int,
+        mode: int,
+        start: tuple[float, float],
+        end: tuple[float, float],
+        center: tuple[float, float],
+        via: tuple[float, float],
+        speed_rpm: int,
+    ) -> None:
+        """An arc's pair, mode, points and speed checked (no I/O)."""
+        _check_pair(pair)
+        _check_choice("arc mode", mode, (ARC_MODE_CENTER, ARC_MODE_THREE_POINTS))
+        _check_integer("speed", speed_rpm, low=1)
+        _check_points([("start", start), ("end", end), ("center", center), ("via", via)])
+        third = center if mode == ARC_MODE_CENTER else via
+        if _same(start, end) or _same(start, third) or _same(end, third):
+            raise CommandRejected("an arc needs three different points (manual: 三点确定圆弧)")
+        if mode == ARC_MODE_THREE_POINTS and _collinear(start, via, end):
+            raise CommandRejected("start, via and end are on one line: no arc passes them")
+        self._check_no_interpolation_running()
+
     def line_move(
         self,
         pair: int,
@@ -750,13 +790,7 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
         speed_rpm: int,
     ) -> None:
         """Line interpolation: 40202-40211 in one FC 10, then the start coil (00102)."""
-        _check_pair(pair)
-        _check_integer("speed", speed_rpm, low=1)
-        points = [("start", start), ("end", end)]
-        _check_points(points)
-        if _same(start, end):
-            raise CommandRejected("line start and end are the same point")
-        self._check_no_interpolation_running()
+        self.check_line_move(pair, start, end, speed_rpm)
         # The motors first run to the start each at its own speed (40202 note 2).
         self._restore_for_interpolation(pair)
         self._write_values(
@@ -787,16 +821,7 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
         Mode 0 uses start, end and centre; mode 1 start, end and the middle point ``via``.
         The point the mode does not use is written as given (the device ignores it).
         """
-        _check_pair(pair)
-        _check_choice("arc mode", mode, (ARC_MODE_CENTER, ARC_MODE_THREE_POINTS))
-        _check_integer("speed", speed_rpm, low=1)
-        _check_points([("start", start), ("end", end), ("center", center), ("via", via)])
-        third = center if mode == ARC_MODE_CENTER else via
-        if _same(start, end) or _same(start, third) or _same(end, third):
-            raise CommandRejected("an arc needs three different points (manual: 三点确定圆弧)")
-        if mode == ARC_MODE_THREE_POINTS and _collinear(start, via, end):
-            raise CommandRejected("start, via and end are on one line: no arc passes them")
-        self._check_no_interpolation_running()
+        self.check_arc_move(pair, mode, start, end, center, via, speed_rpm)
         self._restore_for_interpolation(pair)
         self._write_values(
             [
@@ -835,7 +860,7 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
         self.interpolation_run = None
 
     # ------------------------------------------------------------------ interpolation state
-    def _pair_motors(self, pair: int) -> tuple[int, ...]:
+    def pair_motors(self, pair: int) -> tuple[int, ...]:
         """The pair's motors under either reading of the type (decision 11)."""
         return tuple(
             sorted(set(INTERPOLATION_PAIRS[pair]) | set(INTERPOLATION_PAIRS_POINT_ROWS[pair]))
@@ -847,9 +872,7 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
         try:
             self._coil(f"{kind}_start")
         finally:
-            self.interpolation_run = InterpolationRun(
-                kind, self._pair_motors(pair), self._next_poll
-            )
+            self.interpolation_run = InterpolationRun(kind, self.pair_motors(pair), self._next_poll)
 
     def _note_running(self, sequence: int, running: tuple[bool, ...]) -> None:
         run = self.interpolation_run
@@ -924,14 +947,225 @@ def _collinear(p: tuple[float, float], q: tuple[float, float], r: tuple[float, f
     return abs(cross) <= 1e-9 * scale * scale
 
 
+# ---------------------------------------------------------------- action goals
+class StepperMotion(Motion[StepperSnapshot]):
+    """A stepper motion followed through the polls (README "Actions").
+
+    Over when the running flags of its motors (40168+) are off for ``idle_polls_to_end``
+    polls in a row; then REACHED if every motor of one of ``targets`` (controller units;
+    several: the manual's two readings of an interpolation pair) is within ``tolerance``,
+    LIMIT if an e-stop this bridge sent or a limit input of a stopped motor explains the
+    shortfall, STOPPED otherwise. ``stop`` sends each motor's stop coil (``stop_coils``)
+    or the interpolation stops.
+    """
+
+    def __init__(
+        self,
+        device: StepperDevice,
+        scales: Sequence[JointScale],
+        motors: Sequence[int],
+        what: str,
+        *,
+        tolerance: float,
+        targets: Sequence[dict[int, float]] = (),
+        interpolation: bool = False,
+        idle_polls_to_end: int = 1,
+    ) -> None:
+        super().__init__()
+        for motor in motors:
+            _check_motor(motor)
+        self.device = device
+        self.scales = tuple(scales)
+        self.motors = tuple(motors)
+        self.axes = frozenset(self.motors)
+        self.what = what
+        self.tolerance = tolerance
+        self.targets = [dict(t) for t in targets]
+        self.interpolation = interpolation
+        self.idle_polls_to_end = idle_polls_to_end
+        self.estops_at_start = device.estops
+
+    def start(self) -> None:
+        self.estops_at_start = self.device.estops
+        self.begin()
+
+    def begin(self) -> None:
+        """The motion's writes (each kind's own)."""
+        raise NotImplementedError
+
+    def stop(self) -> str:
+        if self.interpolation:
+            self.device.stop_interpolation()
+            return "arc and line stop coils sent"
+        for motor in self.motors:
+            self.device.motor_action(motor, "stop")
+        return f"stop coil of motor {', '.join(map(str, self.motors))} sent"
+
+    def running(self, snapshot: StepperSnapshot) -> bool:
+        return any(snapshot.running[m - 1] for m in self.motors)
+
+    def judge(self, snapshot: StepperSnapshot) -> Verdict | None:
+        verdict = super().judge(snapshot)
+        if verdict is not None and self.seen_running and self.idle_polls < self.idle_polls_to_end:
+            return None  # home_all: the next motor of the order may not have begun yet
+        return verdict
+
+    def ended(self, snapshot: StepperSnapshot) -> Verdict:
+        coordinates = snapshot.coordinates
+        for target in self.targets:
+            if all(within(coordinates[m - 1], to, self.tolerance) for m, to in target.items()):
+                return Verdict(Outcome.REACHED, f"{self.what}: done")
+        if not self.targets:
+            return Verdict(Outcome.REACHED, f"{self.what}: done")
+        if self.device.estops > self.estops_at_start:
+            return Verdict(Outcome.LIMIT, f"{self.what}: ended by the e-stop (~/emergency_stop)")
+        for motor in self.motors:
+            if (switch := _limit_on(snapshot, motor)) is not None:
+                return Verdict(Outcome.LIMIT, f"{self.what}: motor {motor} stopped at its {switch}")
+        where = ", ".join(f"motor {m} at {coordinates[m - 1]:g}" for m in self.motors)
+        return Verdict(Outcome.STOPPED, f"{self.what}: stopped short of the target ({where} units)")
+
+    def positions(self, snapshot: StepperSnapshot) -> list[float]:
+        leads = [motor.lead for motor in snapshot.config.motors]
+        return [
+            scale.to_si(units, lead)
+            for scale, units, lead in zip(self.scales, snapshot.coordinates, leads, strict=True)
+        ]
+
+    def feedback(self, snapshot: StepperSnapshot) -> dict[str, object]:
+        return {"positions": self.positions(snapshot), "running": list(snapshot.running)}
+
+    def result(self, snapshot: StepperSnapshot | None) -> dict[str, object]:
+        return {"positions": [] if snapshot is None else self.positions(snapshot)}
+
+
+class MoveByMotion(StepperMotion):
+    """``~/motor_<n>/move_by``: target = the coordinate read at the start + distance."""
+
+    def __init__(
+        self,
+        device: StepperDevice,
+        scales: Sequence[JointScale],
+        motor: int,
+        distance_units: float,
+        distance_si: float,
+        *,
+        tolerance: float,
+    ) -> None:
+        super().__init__(
+            device, scales, (motor,), f"motor {motor} move_by {distance_si:g}", tolerance=tolerance
+        )
+        device.check_move_by(motor, distance_units)
+        self.motor = motor
+        self.distance = distance_units
+
+    def begin(self) -> None:
+        name = motor_register(self.motor, "coordinate")
+        here = float(self.device.read_named(name)[name])
+        self.targets = [{self.motor: here + self.distance}]
+        self.device.move_by(self.motor, self.distance)
+
+    def feedback(self, snapshot: StepperSnapshot) -> dict[str, object]:
+        fields = super().feedback(snapshot)
+        positions = self.positions(snapshot)
+        lead = snapshot.config.motors[self.motor - 1].lead
+        target = self.scales[self.motor - 1].to_si(self.targets[0][self.motor], lead)
+        fields["distance_to_go"] = target - positions[self.motor - 1]
+        return fields
+
+
+class CoilMotion(StepperMotion):
+    """Homing (one motor, or all in the homing order) and return to zero: one coil, and
+    the coordinates of its motors end at 0."""
+
+    def __init__(
+        self,
+        device: StepperDevice,
+        scales: Sequence[JointScale],
+        command: str,
+        motors: Sequence[int],
+        *,
+        tolerance: float,
+        homed: Sequence[int] | None = None,
+    ) -> None:
+        homed = motors if homed is None else homed
+        what = f"motor {motors[0]} home" if command == "home" else command
+        super().__init__(
+            device,
+            scales,
+            motors,
+            what,
+            tolerance=tolerance,
+            targets=[dict.fromkeys(homed, 0.0)],
+            idle_polls_to_end=2 if command == "home_all" else 1,
+        )
+        self.command = command
+
+    def begin(self) -> None:
+        if self.command == "home":
+            self.device.motor_action(self.motors[0], "home")
+        else:
+            self.device.system_command(self.command)
+
+
+class InterpolationMotion(StepperMotion):
+    """Line / arc interpolation: ``begin`` is the device's line_move / arc_move."""
+
+    def __init__(
+        self,
+        device: StepperDevice,
+        scales: Sequence[JointScale],
+        pair: int,
+        end: tuple[float, float],
+        what: str,
+        begin: Callable[[], None],
+        *,
+        tolerance: float,
+    ) -> None:
+        _check_pair(pair)
+        readings = (INTERPOLATION_PAIRS[pair], INTERPOLATION_PAIRS_POINT_ROWS[pair])
+        targets = [{a: end[0], b: end[1]} for a, b in readings]
+        motors = device.pair_motors(pair)
+        super().__init__(
+            device,
+            scales,
+            motors,
+            what,
+            tolerance=tolerance,
+            targets=targets,
+            interpolation=True,
+            idle_polls_to_end=2,  # the approach to the start, then the line / arc
+        )
+        self._begin = begin
+
+    def begin(self) -> None:
+        self._begin()
+
+
+def _limit_on(snapshot: StepperSnapshot, motor: int) -> str | None:
+    """The motor's limit switch whose input is on, if any ("positive limit switch (IN3)")."""
+    config = snapshot.config.motors[motor - 1]
+    for name, number in (
+        ("positive limit switch", config.positive_limit_input),
+        ("negative limit switch", config.negative_limit_input),
+    ):
+        if 1 <= number <= len(snapshot.inputs) and snapshot.inputs[number - 1]:
+            return f"{name} (IN{number})"
+    return None
+
+
 __all__ = [
     "DESTRUCTIVE_COMMANDS",
     "SYSTEM_COILS",
     "SYSTEM_COMMANDS",
+    "CoilMotion",
     "InterpolationConfig",
+    "InterpolationMotion",
     "JointScale",
     "MotorConfig",
+    "MoveByMotion",
     "StepperConfig",
     "StepperDevice",
+    "StepperMotion",
     "StepperSnapshot",
 ]

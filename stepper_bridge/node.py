@@ -40,6 +40,7 @@ from bridge_core.diagnostics import Level, Report
 from bridge_core.errors import CommandRejected, ConfigurationError
 from bridge_core.node_base import BridgeNode, DeviceDefaults, copy_fields, spin_node
 from bridge_core.parameters import ParameterSpec, padded
+from msg_defs.action import ArcMotion, LineMotion, StepperMoveBy, StepperRun
 from msg_defs.msg import StepperState
 from msg_defs.srv import (
     ArcMove,
@@ -58,7 +59,10 @@ from .device import (
     DESTRUCTIVE_COMMANDS,
     JOINT_TYPES,
     SYSTEM_COMMANDS,
+    CoilMotion,
+    InterpolationMotion,
     JointScale,
+    MoveByMotion,
     StepperDevice,
     StepperSnapshot,
     check_pair_reading,
@@ -119,6 +123,9 @@ JOG_WRITE_RATE_HZ = 5.0
 # reply timeout below 0.15 s cannot be met: refused at start. The other reading (the host
 # must leave 35 ms between frames) is served by ``frame_gap_s`` (default 0: t3.5).
 TIMEOUT_MIN_S = 0.15
+# Actions' "reached" band (live parameter goal_tolerance): one step of the coordinate
+# registers (x100 of the user's unit, 40108+); an open-loop stepper ends on its target.
+GOAL_TOLERANCE_UNITS = 0.01
 
 STEPPER_DEFAULTS = DeviceDefaults(
     "stepper controller",
@@ -174,6 +181,15 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
                     live=True,
                 ),
                 ParameterSpec(
+                    "goal_tolerance",
+                    GOAL_TOLERANCE_UNITS,
+                    "actions: a motion reached its target when each coordinate is within "
+                    "this many controller units of it",
+                    0.0,
+                    1e6,
+                    live=True,
+                ),
+                ParameterSpec(
                     "config_refresh_s",
                     5.0,
                     "re-read the motor parameters this often",
@@ -191,9 +207,12 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
             jog_timeout_s=float(values["command_timeout_s"]),
         )
         self.device.on_speed_restore_failure = self._speed_restore_failed
+        self.goal_tolerance = float(values["goal_tolerance"])
+        self.on_parameter("goal_tolerance", lambda value: setattr(self, "goal_tolerance", value))
         self.joint_names = [f"{self.joint_prefix}motor_{m}" for m in range(1, MOTORS + 1)]
         self.state_pub = self.create_publisher(StepperState, "~/state", 10)
         self._create_services()
+        self._create_actions()
         self.stream_topic(
             self.device.jogs,
             Float64,
@@ -408,6 +427,104 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
         )
         self.trigger_service(
             "~/stop_interpolation", "stop_interpolation", d.stop_interpolation, stop=True
+        )
+
+    # ------------------------------------------------------------ actions
+    def _create_actions(self) -> None:
+        """The timed motions as actions (README "Actions"), beside their services."""
+        d = self.device
+        every_motor = tuple(range(1, MOTORS + 1))
+        for n in every_motor:
+            self.actions.motion(
+                StepperMoveBy,
+                f"~/motor_{n}/move_by",
+                lambda goal, n=n: MoveByMotion(  # type: ignore[misc]
+                    d,
+                    self.scales,
+                    n,
+                    self.to_units(n, goal.distance),
+                    float(goal.distance),
+                    tolerance=self.goal_tolerance,
+                ),
+            )
+            self.actions.motion(
+                StepperRun,
+                f"~/motor_{n}/home",
+                lambda _goal, n=n: CoilMotion(  # type: ignore[misc]
+                    d, self.scales, "home", (n,), tolerance=self.goal_tolerance
+                ),
+            )
+        self.actions.motion(
+            StepperRun,
+            "~/home_all",
+            lambda _goal: CoilMotion(
+                d,
+                self.scales,
+                "home_all",
+                every_motor,
+                tolerance=self.goal_tolerance,
+                homed=self._homing_order(),
+            ),
+        )
+        self.actions.motion(
+            StepperRun,
+            "~/return_to_zero",
+            lambda _goal: CoilMotion(
+                d, self.scales, "return_to_zero", every_motor, tolerance=self.goal_tolerance
+            ),
+        )
+        self.actions.motion(LineMotion, "~/line_move", self._line_motion)
+        self.actions.motion(ArcMotion, "~/arc_move", self._arc_motion)
+
+    def _homing_order(self) -> list[int]:
+        order = [m for m in self.device.config.homing_order if m]
+        if not order:
+            raise CommandRejected(
+                "the homing order (40177-40181) names no motor: home_all would home nothing "
+                "(set it with ~/set_homing_order)"
+            )
+        return order
+
+    def _line_motion(self, goal: Any) -> InterpolationMotion:
+        self._check_interpolation_allowed()
+        self._check_pair_reading(goal.pair)
+        start = self._pair_units(goal.pair, goal.start, "start") or (0.0, 0.0)
+        end = self._pair_units(goal.pair, goal.end, "end") or (0.0, 0.0)
+        speed = int(goal.speed_rpm)
+        self.device.check_line_move(goal.pair, start, end, speed)
+        return InterpolationMotion(
+            self.device,
+            self.scales,
+            goal.pair,
+            end,
+            f"line_move pair {goal.pair}",
+            lambda: self.device.line_move(goal.pair, start, end, speed),
+            tolerance=self.goal_tolerance,
+        )
+
+    def _arc_motion(self, goal: Any) -> InterpolationMotion:
+        self._check_interpolation_allowed()
+        self._check_pair_reading(goal.pair)
+        start, end, center, via = (
+            self._pair_units(goal.pair, point, what) or (0.0, 0.0)
+            for point, what in (
+                (goal.start, "start"),
+                (goal.end, "end"),
+                (goal.center, "center"),
+                (goal.via, "via"),
+            )
+        )
+        speed = int(goal.speed_rpm)
+        args = (goal.pair, goal.mode, start, end, center, via)
+        self.device.check_arc_move(*args, speed)
+        return InterpolationMotion(
+            self.device,
+            self.scales,
+            goal.pair,
+            end,
+            f"arc_move pair {goal.pair}",
+            lambda: self.device.arc_move(*args, bool(goal.counterclockwise), speed),
+            tolerance=self.goal_tolerance,
         )
 
     def _set_run_distance(self, motor: int, distance: float) -> None:

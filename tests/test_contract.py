@@ -54,6 +54,7 @@ TIMEOUT = 30.0
 IDS = [info.key for info in BRIDGES]
 SHARED_POLL_RATE_HZ = 20  # an int on purpose: `-p poll_rate_hz:=20` must be taken
 NOT_DEVICE_SERVICES = ("rcl_interfaces/", "type_description_interfaces/", "lifecycle_msgs/")
+ACTION_GOAL_SERVICE = "/_action/send_goal"  # every action server's hidden goal service
 
 
 def stamp_of(msg: Any) -> float:
@@ -205,9 +206,10 @@ def test_refused_value_writes_nothing(shared: Running) -> None:
 
 
 # ---------------------------------------------------------------- 2. read_only at start-up
-def write_services(r: Running) -> list[tuple[str, str, Any]]:
+def write_services(r: Running) -> tuple[list[tuple[str, str, Any]], list[tuple[str, Any]]]:
     """Every device service of the bridge's nodes from the ROS graph: (node, name, type),
-    without the parameter / type-description services and the ones that only read."""
+    without the parameter / type-description services and the ones that only read; and
+    every action server: (name, action type), found by its hidden goal service."""
 
     def listing() -> list[tuple[str, str, str]]:
         found: list[tuple[str, str, str]] = []
@@ -241,14 +243,25 @@ def write_services(r: Running) -> list[tuple[str, str, Any]]:
 
     wait_for(stable, TIMEOUT, "a stable list of the bridge's services")
     services = []
+    actions = []
     for node, name, type_name in last:
         if type_name.startswith(NOT_DEVICE_SERVICES):
             continue
+        package, kind, srv = type_name.split("/")
+        if "/_action/" in name:  # an action server's hidden services
+            if name.endswith(ACTION_GOAL_SERVICE):
+                action = srv.removesuffix("_SendGoal")
+                actions.append(
+                    (
+                        name.removesuffix(ACTION_GOAL_SERVICE),
+                        getattr(importlib.import_module(f"{package}.{kind}"), action),
+                    )
+                )
+            continue
         if name.rsplit("/", 1)[1] in r.info.read_services:
             continue
-        package, kind, srv = type_name.split("/")
         services.append((node, name, getattr(importlib.import_module(f"{package}.{kind}"), srv)))
-    return services
+    return services, actions
 
 
 @each_bridge
@@ -257,12 +270,17 @@ def test_read_only_at_startup_refuses_every_write(
 ) -> None:
     """read_only:=true on the command line: each write service says so, nothing is written."""
     with running(info, client, tmp_path, read_only=True) as r:
-        services = write_services(r)
+        services, actions = write_services(r)
         assert len(services) >= 3, services
         for _node, name, srv_type in services:
             reply = client.call(srv_type, name, srv_type.Request(), TIMEOUT)
             assert not reply.success, (name, reply.message)
             assert "read_only" in reply.message, (name, reply.message)
+        for name, action_type in actions:  # goals are rejected under the same guard
+            goal = client.send_goal(action_type, name, action_type.Goal(), TIMEOUT)
+            assert not goal.accepted, name
+            goal.close()
+        assert len(actions) == info.actions, actions
         for call in info.read_services.values():  # reads still reach the device
             reply = r.call(call)
             assert reply.success, (call.service, reply.message)

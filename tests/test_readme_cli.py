@@ -30,19 +30,20 @@ from .support.ros import ROOT, WAIT_S, Client, ros_client, wait_for, wait_subscr
 pytestmark = pytest.mark.ros
 
 SECTION = "## From the ros2 command line"
+ACTIONS_SECTION = "## Actions (motions that take time)"
 DEMO_S = 300  # the demo's --duration: far beyond the test, which stops it itself
 
 
-def readme_commands() -> list[list[str]]:
+def readme_commands(heading: str = SECTION) -> list[list[str]]:
     """The lines of the section's bash block, split as the shell splits them."""
     text = (ROOT / "README.md").read_text()
-    section = text.split(SECTION, 1)[1].split("\n## ", 1)[0]
+    section = text.split(heading, 1)[1].split("\n## ", 1)[0]
     block = section.split("```bash\n", 1)[1].split("```", 1)[0]
     return [shlex.split(line) for line in block.splitlines() if line.strip()]
 
 
 def interface(type_name: str) -> Any:
-    """``pkg/srv/Name`` or ``pkg/msg/Name`` -> the Python class."""
+    """``pkg/srv/Name``, ``pkg/msg/Name`` or ``pkg/action/Name`` -> the Python class."""
     package, kind, name = type_name.split("/")
     return getattr(importlib.import_module(f"{package}.{kind}"), name)
 
@@ -142,6 +143,29 @@ def test_every_readme_command_line_works_as_typed(demo: Client) -> None:
                 assert result.successful, f"{what}: {result.reason}"
             case _:
                 raise AssertionError(f"{what}: not a command this test knows")
+
+
+def test_every_readme_action_line_works_as_typed(demo: Client) -> None:
+    """The "Actions" block: each goal is accepted and sends feedback; then it is cancelled,
+    as Ctrl-C in ``ros2 action send_goal`` does, which stops the motion (the outcomes
+    themselves are the action tests' subject)."""
+    client = demo
+    commands = readme_commands(ACTIONS_SECTION)
+    assert len(commands) >= 3, commands
+    for words in commands:
+        what = " ".join(words)
+        assert words[:4] == ["ros2", "action", "send_goal", "--feedback"], what
+        name, type_name, text = words[4:7]
+        action = interface(type_name)
+        goal = client.send_goal(action, name, filled(action.Goal(), text), timeout=WAIT_S * 3)
+        try:
+            assert goal.accepted, f"{what}: rejected (see the demo's log)"
+            goal.wait_feedback(timeout=WAIT_S * 3)
+            goal.cancel(timeout=WAIT_S * 3)
+            _status, result = goal.result(timeout=WAIT_S * 3)
+            assert result.outcome.name in ("CANCELLED", "REACHED"), f"{what}: {result.outcome}"
+        finally:
+            goal.close()
 
 
 def test_a_yaml_key_named_on_is_not_a_field_name() -> None:

@@ -19,6 +19,7 @@ from std_srvs.srv import SetBool
 
 from bridge_core.registers import Table
 from motec_bridge.sim import make_simulator as make_motec_simulator
+from msg_defs.action import StepperMoveBy
 from msg_defs.msg import MotecState, StepperState
 from msg_defs.srv import SetControlMode
 from stepper_bridge.registers import STEPPER_MAP, motor_coil
@@ -80,6 +81,31 @@ def test_exit_stops_a_jogging_motor(
         speed_register = STEPPER_MAP["motor1_speed"].address
         assert late == [(Table.COIL, stop_coil, (1,)), (Table.HOLDING, speed_register, (60,))]
         assert device.motion[1] is None  # the simulated motor stands still
+
+
+def test_exit_stops_an_action_goals_motion(
+    sim: tuple[StepperSimDevice, str], client: Client, tmp_path: Path
+) -> None:
+    """Ctrl-C while a move_by goal runs: the motor's stop coil is the last write, the
+    process ends at once (a goal's thread never holds the exit up)."""
+    device, port = sim
+    b = Bridge(client, "/shutdown_goal", "stepper_bridge", StepperState)
+    with node_process(
+        "stepper_bridge.node", stepper_params(port), tmp_path, ["-r", f"__ns:={b.ns}"]
+    ) as proc:
+        b.wait_connected(True, timeout=30)
+        goal = StepperMoveBy.Goal()
+        goal.distance = 0.4  # 400 mm at 5 mm/s: far longer than the test
+        sent = client.send_goal(StepperMoveBy, f"{b.ns}/stepper_bridge/motor_1/move_by", goal)
+        assert sent.accepted
+        sent.wait_feedback(lambda f: f.running[0], timeout=30)
+        writes_before = len(device.write_log)
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(EXIT_TIMEOUT_S) == 0
+        late = [(r.table, r.address, r.values) for r in device.write_log[writes_before:]]
+        assert late == [(Table.COIL, motor_coil(1, "stop"), (1,))]
+        assert device.motion[1] is None
+        sent.close()
 
 
 @pytest.mark.parametrize("signal_number", [signal.SIGINT, signal.SIGTERM], ids=["int", "term"])

@@ -18,8 +18,10 @@ from rclpy.context import Context
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message, serialize_message
 
+import msg_defs.action
 import msg_defs.srv
-from msg_defs.msg import R6State
+from bridge_core.goals import Outcome
+from msg_defs.msg import MotionOutcome, R6State
 
 pytestmark = pytest.mark.ros
 
@@ -147,6 +149,99 @@ SERVICES: dict[str, tuple[dict[str, str], dict[str, str]]] = {
         {**REPLY, "counts": "int32"},
     ),
 }
+
+
+OUTCOME = {"outcome": "msg_defs/MotionOutcome"}
+STEPPER_FEEDBACK = {"positions": "sequence<double>", "running": "sequence<boolean>"}
+STEPPER_RESULT = {**OUTCOME, "positions": "sequence<double>"}
+PAIR_GOAL = {"pair": "uint8", "start": "double[2]", "end": "double[2]"}
+# name: (goal, result, feedback) fields
+ACTIONS: dict[str, tuple[dict[str, str], dict[str, str], dict[str, str]]] = {
+    "MoveTo": (
+        {
+            "position": "double",
+            "relative": "boolean",
+            "max_velocity": "double",
+            "timeout_s": "double",
+        },
+        {**OUTCOME, "position": "double", "target_counts": "int32"},
+        {"position": "double", "velocity": "double", "distance_to_go": "double"},
+    ),
+    "StepperMoveBy": (
+        {"distance": "double", "timeout_s": "double"},
+        STEPPER_RESULT,
+        {**STEPPER_FEEDBACK, "distance_to_go": "double"},
+    ),
+    "StepperRun": ({"timeout_s": "double"}, STEPPER_RESULT, STEPPER_FEEDBACK),
+    "LineMotion": (
+        {**PAIR_GOAL, "speed_rpm": "uint16", "timeout_s": "double"},
+        STEPPER_RESULT,
+        STEPPER_FEEDBACK,
+    ),
+    "ArcMotion": (
+        {
+            "pair": "uint8",
+            "mode": "uint8",
+            "start": "double[2]",
+            "end": "double[2]",
+            "center": "double[2]",
+            "via": "double[2]",
+            "counterclockwise": "boolean",
+            "speed_rpm": "uint16",
+            "timeout_s": "double",
+        },
+        STEPPER_RESULT,
+        STEPPER_FEEDBACK,
+    ),
+    "PointUpload": (
+        {
+            "data_source_id": "uint16",
+            "values_per_point": "uint16",
+            "axis_mask": "uint16",
+            "values": "sequence<int32>",
+            "timeout_s": "double",
+        },
+        {**OUTCOME, "frames_sent": "uint32", "frames_total": "uint32"},
+        {"frames_sent": "uint32", "frames_total": "uint32"},
+    ),
+    "RunCycle": (
+        {"single_cycle": "boolean", "timeout_s": "double"},
+        {**OUTCOME, "last_cycle_time_ms": "uint64"},
+        {"moving": "boolean", "current_cycle_time_ms": "uint64", "alarm_code": "uint16"},
+    ),
+}
+
+
+def test_every_action_is_defined_with_its_fields() -> None:
+    found = {
+        name
+        for name in dir(msg_defs.action)
+        if not name.startswith("_") and hasattr(getattr(msg_defs.action, name), "Goal")
+    }
+    assert found == set(ACTIONS)
+    for name, (goal, result, feedback) in ACTIONS.items():
+        action = getattr(msg_defs.action, name)
+        assert action.Goal.get_fields_and_field_types() == goal, name
+        assert action.Result.get_fields_and_field_types() == result, name
+        assert action.Feedback.get_fields_and_field_types() == feedback, name
+
+
+def test_motion_outcome_codes_are_the_goal_runtimes() -> None:
+    """``bridge_core.goals.Outcome`` (plain Python) and the message agree code by code."""
+    constants = {
+        name: getattr(MotionOutcome, name)
+        for name in dir(MotionOutcome)
+        if name.isupper() and not name.startswith("_") and name != "SLOT_TYPES"
+    }
+    assert constants == {outcome.name: int(outcome) for outcome in Outcome}
+    assert MotionOutcome.get_fields_and_field_types() == {
+        "code": "uint8",
+        "name": "string",
+        "message": "string",
+        "fault_code": "int64",
+        "fault_text": "string",
+        "stop_sent": "boolean",
+    }
 
 
 def test_r6state_constants_and_fields() -> None:

@@ -73,6 +73,7 @@ class BridgeInfo:
     bus_startup_only: tuple[str, ...] = ()
     read_services: Mapping[str, Call] = field(default_factory=dict)  # no writes: allowed
     mistyped: tuple[tuple[str, str], ...] = ()  # refused start-up values
+    actions: int = 0  # action servers of its nodes (README "Actions")
 
     @property
     def nodes(self) -> tuple[str, ...]:
@@ -117,6 +118,7 @@ BRIDGES: tuple[BridgeInfo, ...] = (
             ("pol_rate_hz", "5"),
             ("extra_world_axes", "3"),
         ),
+        actions=2,  # ~/upload_points, ~/run_cycle
     ),
     BridgeInfo(
         key="xarm",
@@ -175,6 +177,7 @@ BRIDGES: tuple[BridgeInfo, ...] = (
             "units_per_revolution",
         ),
         mistyped=(("baudrate", "fast"), ("poll_rate_hz", "fast"), ("unit_id", "0")),
+        actions=14,  # move_by and home per motor, home_all, return_to_zero, line, arc
     ),
     BridgeInfo(
         key="motec",
@@ -202,6 +205,7 @@ BRIDGES: tuple[BridgeInfo, ...] = (
         bus_startup_only=("serial_port", "baudrate", "unit_ids", "interface"),
         read_services={"read_parameter": Call("read_parameter", ReadParameter, {"index": 0x6D})},
         mistyped=(("baudrate", "fast"), ("poll_rate_hz", "fast"), ("unit_id", "300")),
+        actions=1,  # ~/move_to
     ),
 )
 

@@ -20,6 +20,7 @@ from typing import Any
 
 import rclpy
 from rcl_interfaces.msg import Log
+from rclpy.action.client import ActionClient
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
@@ -170,11 +171,67 @@ class Client:
                 self.node.destroy_client(client)
         raise AssertionError(f"no reply from {name}")
 
+    def send_goal(self, action_type: Any, name: str, goal: Any, timeout: float = WAIT_S) -> Goal:
+        """One goal from a fresh ``rclpy.action.ActionClient`` (what ``ros2 action
+        send_goal --feedback`` does); waits for the server's accept or reject."""
+        action_client = ActionClient(self.node, action_type, name)
+        wait_for(action_client.server_is_ready, timeout, f"action server {name}")
+        sent = Goal(self, action_client)
+        future = action_client.send_goal_async(goal, feedback_callback=sent.on_feedback)
+        wait_for(future.done, timeout, f"the goal response of {name}")
+        sent.handle = future.result()
+        return sent
+
     def close(self) -> None:
         self.executor.shutdown()
         self.node.destroy_node()
         try_shutdown(context=self.context)
         self._thread.join(5)
+
+
+class Goal:
+    """A goal sent by ``Client.send_goal``: its feedback as it comes, its result."""
+
+    def __init__(self, client: Client, action_client: ActionClient) -> None:
+        self.client = client
+        self.action_client = action_client
+        self.handle: Any = None
+        self.feedback: list[Any] = []
+        self._result: Any = None
+
+    def on_feedback(self, msg: Any) -> None:
+        self.feedback.append(msg.feedback)
+
+    @property
+    def accepted(self) -> bool:
+        return bool(self.handle is not None and self.handle.accepted)
+
+    def wait_feedback(
+        self, predicate: Callable[[Any], bool] = lambda f: True, timeout: float = WAIT_S
+    ) -> Any:
+        def find() -> Any:
+            return next((f for f in reversed(self.feedback) if predicate(f)), None)
+
+        return wait_for(find, timeout, "a matching feedback message")
+
+    def cancel(self, timeout: float = WAIT_S) -> Any:
+        future = self.handle.cancel_goal_async()
+        wait_for(future.done, timeout, "the cancel response")
+        return future.result()
+
+    def result(self, timeout: float = WAIT_S) -> tuple[int, Any]:
+        """(GoalStatus status, result message)."""
+        if self._result is None:
+            future = self.handle.get_result_async()
+            wait_for(future.done, timeout, "the goal's result")
+            self._result = future.result()
+        return self._result.status, self._result.result
+
+    def outcome(self, timeout: float = WAIT_S) -> Any:
+        return self.result(timeout)[1].outcome
+
+    def close(self) -> None:
+        self.action_client.destroy()
 
 
 @contextmanager

@@ -1,0 +1,462 @@
+"""Action servers of the bridge nodes: motions that take time (README "Actions").
+
+Part of the node base (imports rclpy). ``ActionHost`` puts ``bridge_core.goals`` behind
+``rclpy.action.ActionServer``s with the rules every bridge action follows:
+
+- **Rejected, nothing written**, under the service guards: node not active, ``read_only``,
+  link down, or a goal the device layer refuses (out of range, unknown motor). A goal
+  response carries no text in ROS 2, so the reason is a WARN on the console (and
+  ``/rosout``): ``<action> goal rejected: <reason>``. A check that needs the device's
+  state (e.g. the MOTEC drive's mode) runs when the goal starts: the goal is then aborted
+  with outcome REFUSED and the reason, still having written nothing.
+- **One goal per axis**: a new goal on an axis a running goal occupies preempts it; the
+  old one is stopped (outcome PREEMPTED) before the new one writes anything.
+- **Cancel = stop**: a cancel is always accepted; the goal's thread sends the motion's
+  stop (tried on the wire even while the link is marked down) and the result says
+  whether it was acknowledged. A timeout (``timeout_s`` > 0) and a link lost during the
+  goal end it the same way; deactivate, exit and ``read_only`` stop it from the node's
+  ``stop_motion`` (outcome HALTED).
+- **Feedback** once per poll begun after the start was acknowledged; the result when the
+  polls show the motion over (``Motion.judge``).
+
+Goals run on executor threads of their own callback group (a goal's thread sleeps between
+polls); the start is a command like a service's (the node's command guard), stops are
+stops (``run_command(stop=True)``).
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+import traceback
+from collections.abc import Callable, Hashable
+from typing import TYPE_CHECKING, Any, Protocol
+
+from rclpy.action.server import ActionServer, CancelResponse, GoalResponse, ServerGoalHandle
+from rclpy.callback_groups import ReentrantCallbackGroup
+
+from .errors import CommandRejected
+from .goals import GoalRun, Motion, Outcome, Verdict, needs_stop
+
+if TYPE_CHECKING:
+    from .node_base import BridgeNode
+
+# How long a new goal waits for the goal it preempts to have sent its stop. The stop is
+# one transaction (bounded by the link's timeout); past this, the new goal is refused.
+PREEMPT_WAIT_S = 5.0
+# How long a goal's thread waits for another thread that ended the goal (``stop_motion``
+# on deactivate / exit) to have sent its stop before it reports the result anyway.
+STOP_WAIT_S = 5.0
+# Executor threads a node adds for its running goals: one per action server, at most this
+# many (goals on one axis preempt each other, so few run at once).
+MAX_GOAL_THREADS = 8
+# How long a cancelled goal's result waits for rclpy to have moved it to CANCELING.
+CANCEL_STATE_WAIT_S = 1.0
+
+
+class Steps(Protocol):
+    """A goal done in steps by the bridge itself (R6 point upload): each ``step`` is one
+    command of its own; a cancel or timeout ends it between two steps."""
+
+    what: str
+    axes: frozenset[Hashable]
+    total: int
+    sent: int
+
+    def step(self) -> None: ...
+    def feedback(self) -> dict[str, Any]: ...
+    def result(self) -> dict[str, Any]: ...
+
+
+class ActionHost:
+    """The action servers of one bridge node and the goals they run."""
+
+    def __init__(self, node: BridgeNode[Any]) -> None:
+        self.node = node
+        self.group = ReentrantCallbackGroup()
+        self.servers: list[ActionServer] = []
+        self._lock = threading.Lock()
+        self._runs: dict[bytes, GoalRun[Any]] = {}  # goal id -> its run, while running
+        self._steps: dict[bytes, StepsRun] = {}
+
+    # ------------------------------------------------------------------ servers
+    def motion(
+        self,
+        action_type: Any,
+        name: str,
+        make_motion: Callable[[Any], Motion[Any]],
+    ) -> None:
+        """An action whose goal starts a motion the polls follow (``goal.timeout_s``)."""
+
+        def execute(handle: ServerGoalHandle) -> Any:
+            return self._guarded(
+                action_type,
+                name,
+                handle,
+                lambda: self._execute_motion(action_type, name, make_motion, handle),
+            )
+
+        self._server(action_type, name, make_motion, execute)
+
+    def steps(self, action_type: Any, name: str, make_steps: Callable[[Any], Steps]) -> None:
+        """An action whose goal the bridge carries out in steps (``goal.timeout_s``)."""
+
+        def execute(handle: ServerGoalHandle) -> Any:
+            return self._guarded(
+                action_type,
+                name,
+                handle,
+                lambda: self._execute_steps(action_type, name, make_steps, handle),
+            )
+
+        self._server(action_type, name, make_steps, execute)
+
+    def _guarded(
+        self, action_type: Any, name: str, handle: ServerGoalHandle, execute: Callable[[], Any]
+    ) -> Any:
+        """A bug in a goal's thread: every motion stopped, the goal aborted with the error
+        (never an empty result), the traceback on the console."""
+        try:
+            return execute()
+        except Exception as err:
+            self.node.get_logger().error(f"{name} failed: {err}\n{traceback.format_exc()}")
+            self.node.stop_motion(f"{name} failed: internal error")
+            if handle.is_active:
+                handle.abort()
+            result = action_type.Result()
+            result.outcome.code = int(Outcome.HALTED)
+            result.outcome.name = Outcome.HALTED.name
+            result.outcome.message = f"{name} failed: internal error: {err}"
+            return result
+
+    def _server(
+        self,
+        action_type: Any,
+        name: str,
+        check: Callable[[Any], object],
+        execute: Callable[[ServerGoalHandle], Any],
+    ) -> None:
+        def goal_callback(goal: Any) -> GoalResponse:
+            reason = self._refusal(goal, check)
+            if reason is None:
+                return GoalResponse.ACCEPT
+            self.node.get_logger().warn(f"{name} goal rejected: {reason}")
+            return GoalResponse.REJECT
+
+        self.servers.append(
+            ActionServer(
+                self.node,
+                action_type,
+                name,
+                execute,
+                callback_group=self.group,
+                goal_callback=goal_callback,
+                cancel_callback=self._cancel,
+            )
+        )
+
+    def _refusal(self, goal: Any, check: Callable[[Any], object]) -> str | None:
+        """Why a goal is rejected before anything is written (None: accepted)."""
+        node = self.node
+        if not node.active:
+            return "the node is not active (lifecycle)"
+        if node.read_only:
+            return "read_only is set, nothing was written"
+        if not node.channel.connected:
+            return f"not connected to {node.channel.describe()}"
+        timeout_s = float(getattr(goal, "timeout_s", 0.0))
+        if not math.isfinite(timeout_s) or timeout_s < 0:
+            return f"timeout_s {timeout_s} must be 0 (no limit) or a positive number of seconds"
+        try:
+            check(goal)
+        except CommandRejected as err:
+            return str(err)
+        return None
+
+    def _cancel(self, handle: ServerGoalHandle) -> CancelResponse:
+        key = bytes(handle.goal_id.uuid)
+        with self._lock:
+            run = self._runs.get(key)
+            steps = self._steps.get(key)
+        if run is not None:
+            run.cancel()
+        if steps is not None:
+            steps.end(Outcome.CANCELLED, f"{steps.steps.what}: cancelled")
+        return CancelResponse.ACCEPT
+
+    # ------------------------------------------------------------------ motions
+    def _execute_motion(
+        self,
+        action_type: Any,
+        name: str,
+        make_motion: Callable[[Any], Motion[Any]],
+        handle: ServerGoalHandle,
+    ) -> Any:
+        goal = handle.request
+        key = bytes(handle.goal_id.uuid)
+        try:
+            motion = make_motion(goal)
+        except CommandRejected as err:  # the device's state changed since the goal came
+            return self._refused(action_type, handle, f"{name} refused: {err}")
+        run: GoalRun[Any] = GoalRun(motion, timeout_s=float(goal.timeout_s))
+        if reason := self._take_axes(key, run):
+            return self._refused(action_type, handle, reason)
+        try:
+            self._start(run, handle, name)
+            self._follow(run, handle, action_type)
+        finally:
+            with self._lock:
+                self._runs.pop(key, None)
+        return self._finish(run, handle, action_type, name, motion.result(run.last_snapshot))
+
+    def _start(self, run: GoalRun[Any], handle: ServerGoalHandle, name: str) -> None:
+        """Write the motion's start unless the goal ended first; a start the link lost
+        half-way may have started the motion: it is stopped (LINK_LOST)."""
+        node = self.node
+        motion = run.motion
+        if handle.is_cancel_requested:
+            run.claim(Verdict(Outcome.CANCELLED, f"{motion.what}: cancelled before it started"))
+        elif run.halted:
+            run.claim(Verdict(Outcome.HALTED, f"{motion.what}: not started, {run.halted}"))
+        if run.ended:
+            run.finish()
+            return
+        ok, message, _ = node.run_command(motion.what, motion.start)
+        if ok:
+            run.started(time.time())
+            node.get_logger().info(f"{name}: goal started ({motion.what})")
+        elif not node.channel.connected:
+            run.started(time.time())
+            if run.claim(Verdict(Outcome.LINK_LOST, message)):
+                self._end(run, Verdict(Outcome.LINK_LOST, message))
+        elif run.claim(Verdict(Outcome.REFUSED, message)):
+            run.finish()
+
+    def _take_axes(self, key: bytes, run: GoalRun[Any]) -> str | None:
+        """Register ``run``; preempt and wait out the goals on its axes."""
+        with self._lock:
+            older = [old for old in self._runs.values() if old.motion.axes & run.motion.axes]
+            self._runs[key] = run
+        for old in older:
+            old.preempt(run.motion.what)
+        for old in older:
+            if not old.done.wait(PREEMPT_WAIT_S):
+                with self._lock:
+                    self._runs.pop(key, None)
+                return (
+                    f"{run.motion.what} refused: the goal it preempts ({old.motion.what}) "
+                    f"did not stop within {PREEMPT_WAIT_S:g} s"
+                )
+        return None
+
+    def _follow(self, run: GoalRun[Any], handle: ServerGoalHandle, action_type: Any) -> None:
+        """The goal's thread: feedback per fresh snapshot until something ends the goal."""
+        node = self.node
+        while not run.ended:
+            run.wake.wait(run.wait_s())
+            run.wake.clear()
+            snapshot = run.take_snapshot()
+            if run.ended:
+                break
+            verdict = run.next_ending(node.channel.connected, snapshot)
+            if snapshot is not None:  # every poll's, the one that ends the goal too
+                handle.publish_feedback(
+                    _filled(action_type.Feedback(), run.motion.feedback(snapshot))
+                )
+            if verdict is None:
+                continue
+            if run.claim(verdict):
+                self._end(run, verdict)
+                return
+        # Ended by another thread (stop_motion): its stop may still be on the wire.
+        run.done.wait(STOP_WAIT_S)
+
+    def _end(self, run: GoalRun[Any], verdict: Verdict) -> None:
+        """Send the stop the outcome needs (one try, even while the link is down)."""
+        if not needs_stop(verdict.outcome):
+            run.finish()
+            return
+        node = self.node
+        ok, message, result = node.run_command(
+            f"{run.motion.what}: stop", run.motion.stop, stop=True, own_motion=True
+        )
+        run.finish(ok, str(result or "stop sent") if ok else message)
+        if not ok:
+            node.get_logger().error(f"{verdict.message}; {message}")
+
+    def stop_all(self, reason: str) -> None:
+        """Stop every running goal's motion now (deactivate, exit, read_only)."""
+        with self._lock:
+            runs = list(self._runs.values())
+            steps = list(self._steps.values())
+        for run in runs:
+            run.halt(reason)  # a goal not started yet never starts; its thread ends it
+            verdict = Verdict(Outcome.HALTED, f"{run.motion.what}: stopped, {reason}")
+            if run.started_at is not None and run.claim(verdict):
+                self._end(run, verdict)
+                self.node.get_logger().info(f"{run.motion.what}: stopped ({reason})")
+        for steps_run in steps:
+            steps_run.end(Outcome.HALTED, f"{steps_run.steps.what}: stopped, {reason}")
+
+    def _finish(
+        self,
+        run: GoalRun[Any],
+        handle: ServerGoalHandle,
+        action_type: Any,
+        name: str,
+        fields: dict[str, Any],
+    ) -> Any:
+        verdict = run.verdict or Verdict(Outcome.HALTED, f"{run.motion.what}: ended")
+        message = verdict.message
+        if run.stop_message:
+            message += f"; {run.stop_message}"
+        return self._result(action_type, handle, name, verdict, message, run.stop_sent, fields)
+
+    def _result(
+        self,
+        action_type: Any,
+        handle: ServerGoalHandle,
+        name: str,
+        verdict: Verdict,
+        message: str,
+        stop_sent: bool,
+        fields: dict[str, Any],
+    ) -> Any:
+        result = _filled(action_type.Result(), fields)
+        outcome = result.outcome
+        outcome.code = int(verdict.outcome)
+        outcome.name = verdict.outcome.name
+        outcome.message = message
+        outcome.fault_code = int(verdict.fault_code)
+        outcome.fault_text = verdict.fault_text
+        outcome.stop_sent = bool(stop_sent)
+        if verdict.outcome is Outcome.CANCELLED:
+            # The cancel callback runs before rclpy moves the goal to CANCELING.
+            _wait_for(lambda: handle.is_cancel_requested, CANCEL_STATE_WAIT_S)
+        if verdict.outcome is Outcome.REACHED:
+            handle.succeed()
+        elif verdict.outcome is Outcome.CANCELLED and handle.is_cancel_requested:
+            handle.canceled()
+        else:
+            handle.abort()
+        line = f"{name}: {verdict.outcome.name}: {message}"
+        if verdict.outcome is Outcome.REACHED:
+            self.node.get_logger().info(line)
+        else:
+            self.node.get_logger().warn(line)
+        return result
+
+    def _refused(self, action_type: Any, handle: ServerGoalHandle, message: str) -> Any:
+        handle.abort()
+        result = action_type.Result()
+        result.outcome.code = int(Outcome.REFUSED)
+        result.outcome.name = Outcome.REFUSED.name
+        result.outcome.message = message
+        self.node.get_logger().warn(message)
+        return result
+
+    def offer(self, snapshot: Any, poll_started: float) -> None:
+        """A published snapshot (the poller's publisher thread)."""
+        with self._lock:
+            runs = list(self._runs.values())
+        for run in runs:
+            run.offer(snapshot, poll_started)
+
+    def wake_all(self) -> None:
+        """The link changed: let every goal look at it now."""
+        with self._lock:
+            runs = list(self._runs.values())
+        for run in runs:
+            run.wake.set()
+
+    @property
+    def threads(self) -> int:
+        return min(len(self.servers), MAX_GOAL_THREADS)
+
+    @property
+    def running(self) -> list[str]:
+        with self._lock:
+            return [run.motion.what for run in self._runs.values()]
+
+    # ------------------------------------------------------------------ steps
+    def _execute_steps(
+        self,
+        action_type: Any,
+        name: str,
+        make_steps: Callable[[Any], Steps],
+        handle: ServerGoalHandle,
+    ) -> Any:
+        goal = handle.request
+        key = bytes(handle.goal_id.uuid)
+        try:
+            steps = make_steps(goal)
+        except CommandRejected as err:
+            return self._refused(action_type, handle, f"{name} refused: {err}")
+        run = StepsRun(steps, float(goal.timeout_s))
+        with self._lock:
+            older = [old for old in self._steps.values() if old.steps.axes & steps.axes]
+            self._steps[key] = run
+        for old in older:
+            old.end(Outcome.PREEMPTED, f"{old.steps.what}: preempted by {steps.what}")
+        for old in older:
+            old.done.wait(PREEMPT_WAIT_S)
+        try:
+            while steps.sent < steps.total:
+                if handle.is_cancel_requested:
+                    run.end(Outcome.CANCELLED, f"{steps.what}: cancelled")
+                elif time.monotonic() >= run.deadline:
+                    run.end(Outcome.TIMED_OUT, f"{steps.what}: not done within {run.timeout_s:g} s")
+                if run.verdict is not None:
+                    break
+                ok, message, _ = self.node.run_command(steps.what, steps.step)
+                if not ok:
+                    outcome = Outcome.REFUSED if steps.sent == 0 else Outcome.STOPPED
+                    if not self.node.channel.connected:
+                        outcome = Outcome.LINK_LOST
+                    run.end(outcome, message)
+                    break
+                handle.publish_feedback(_filled(action_type.Feedback(), steps.feedback()))
+            run.end(Outcome.REACHED, f"{steps.what}: done")
+        finally:
+            with self._lock:
+                self._steps.pop(key, None)
+            run.done.set()
+        verdict = run.verdict or Verdict(Outcome.REACHED, f"{steps.what}: done")
+        message = f"{verdict.message} ({steps.sent} of {steps.total} sent)"
+        return self._result(action_type, handle, name, verdict, message, False, steps.result())
+
+
+class StepsRun:
+    """One goal of a steps action: the first ending set wins (thread-safe)."""
+
+    def __init__(self, steps: Steps, timeout_s: float) -> None:
+        self.steps = steps
+        self.timeout_s = timeout_s
+        self.deadline = time.monotonic() + timeout_s if timeout_s else math.inf
+        self.verdict: Verdict | None = None
+        self.done = threading.Event()
+        self._lock = threading.Lock()
+
+    def end(self, outcome: Outcome, message: str) -> None:
+        with self._lock:
+            if self.verdict is None:
+                self.verdict = Verdict(outcome, message)
+
+
+def _wait_for(condition: Callable[[], bool], timeout_s: float) -> bool:
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        if time.monotonic() >= deadline:
+            return False
+        time.sleep(0.005)
+    return True
+
+
+def _filled(msg: Any, fields: dict[str, Any]) -> Any:
+    for field, value in fields.items():
+        setattr(msg, field, value)
+    return msg
+
+
+__all__ = ["PREEMPT_WAIT_S", "STOP_WAIT_S", "ActionHost", "Steps", "StepsRun"]

@@ -1,0 +1,180 @@
+"""R6 actions (README "Actions"): ``~/run_cycle`` and ``~/upload_points`` as goals from an
+``rclpy.action.ActionClient`` in this process, the bridge in its own, the simulator
+serving TCP on a thread here (its write log and program are the test's to read)."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from action_msgs.msg import GoalStatus
+from std_srvs.srv import Trigger
+
+from bridge_core.sim_base import Simulator, WriteRecord
+from msg_defs.action import PointUpload, RunCycle
+from msg_defs.msg import MotionOutcome, R6State
+from r6_bridge.registers import COMMANDS, MAX_AXES, R6_MAP
+from r6_bridge.sim import R6SimDevice, make_simulator
+
+from ..support.ros import Bridge, Client, ros_client, start_bridge
+
+pytestmark = pytest.mark.ros
+
+TIMEOUT_S = 1.0
+# Two steps of 15 degrees: a cycle of about a second at 100 % global speed.
+PROGRAM = ((15.0,) * MAX_AXES, (0.0,) * MAX_AXES)
+POINT_COUNT = R6_MAP["point_count"].address
+FRAME_DELAY_S = 0.01  # the simulated controller takes this long over each point frame
+
+
+@pytest.fixture
+def client() -> Iterator[Client]:
+    with ros_client("r6_action_client") as c:
+        c.subscribe_log()
+        yield c
+
+
+@pytest.fixture
+def sim() -> Iterator[tuple[R6SimDevice, int]]:
+    simulator: Simulator = make_simulator(axis_count=6, io_board_count=1)
+    device = simulator.device
+    assert isinstance(device, R6SimDevice)
+    device.program = PROGRAM
+    device.set("global_speed", 100.0)
+    port = simulator.start_tcp()
+    yield device, port
+    simulator.stop()
+
+
+def r6(client: Client, tmp_path: Path, port: int) -> Any:
+    params = {"port": port, "poll_rate_hz": 50.0, "timeout_s": TIMEOUT_S, "reconnect_max_s": 1.0}
+    return start_bridge(client, tmp_path, "r6_bridge.node", "r6_bridge", R6State, params)
+
+
+def send(b: Bridge, action: Any, name: str, **fields: Any) -> Any:
+    goal = action.Goal()
+    for key, value in fields.items():
+        setattr(goal, key, value)
+    return b.client.send_goal(action, f"{b.ns}/r6_bridge/{name}", goal)
+
+
+def commands(device: R6SimDevice, since: int = 0) -> list[str]:
+    names = {address: name for name, address in COMMANDS.items()}
+    return [names[r.address] for r in device.write_log[since:] if r.address in names]
+
+
+def test_run_cycle(sim: tuple[R6SimDevice, int], client: Client, tmp_path: Path) -> None:
+    device, port = sim
+    with r6(client, tmp_path, port) as (b, _proc):
+        client.wait_message(b.state, lambda s: s.global_speed_percent == 100.0)
+
+        # A single cycle: done when the program stands still again.
+        cycles = device.cycles_completed
+        goal = send(b, RunCycle, "run_cycle", single_cycle=True)
+        assert goal.accepted
+        status, result = goal.result()
+        assert status == GoalStatus.STATUS_SUCCEEDED, result.outcome.message
+        assert result.outcome.code == MotionOutcome.REACHED
+        assert device.cycles_completed == cycles + 1
+        assert any(f.moving for f in goal.feedback)
+        assert result.last_cycle_time_ms > 0
+        assert commands(device) == ["single_cycle"]
+
+        # A continuous run, cancelled: stop (20000) on the wire, the program stands.
+        mark = len(device.write_log)
+        goal = send(b, RunCycle, "run_cycle", single_cycle=False)
+        goal.wait_feedback(lambda f: f.moving)
+        goal.cancel()
+        status, result = goal.result()
+        assert status == GoalStatus.STATUS_CANCELED
+        assert result.outcome.code == MotionOutcome.CANCELLED and result.outcome.stop_sent
+        assert commands(device, mark) == ["start", "stop"]
+        assert not device.running
+
+        # An alarm ends the goal with its code; a goal is then rejected until it is cleared.
+        goal = send(b, RunCycle, "run_cycle", single_cycle=False)
+        goal.wait_feedback(lambda f: f.moving)
+        device.set_alarm(0x325)
+        status, result = goal.result()
+        assert status == GoalStatus.STATUS_ABORTED
+        assert result.outcome.code == MotionOutcome.FAULT, result.outcome.message
+        assert result.outcome.fault_code == 0x325
+        client.wait_message(b.state, lambda s: s.alarm_code == 0x325)
+        mark = len(device.write_log)
+        assert not send(b, RunCycle, "run_cycle", single_cycle=True).accepted
+        client.wait_log("r6_bridge", "run_cycle goal rejected: alarm 805 is active")
+        assert device.write_log[mark:] == []
+        cleared = time.monotonic()
+        assert b.call(Trigger, "clear_alarm_and_next").success
+        assert b.call(Trigger, "stop").success
+
+        # A time limit on a continuous run: stopped, aborted.
+        client.wait_message(b.state, lambda s: s.alarm_code == 0 and not s.moving, since=cleared)
+        mark = len(device.write_log)
+        goal = send(b, RunCycle, "run_cycle", single_cycle=False, timeout_s=0.5)
+        assert goal.accepted
+        status, result = goal.result()
+        assert status == GoalStatus.STATUS_ABORTED
+        assert result.outcome.code == MotionOutcome.TIMED_OUT, result.outcome.message
+        assert commands(device, mark) == ["start", "stop"]
+
+        # Global speed 0: the program would not move; rejected, nothing written.
+        device.set("global_speed", 0.0)
+        client.wait_message(b.state, lambda s: s.global_speed_percent == 0.0)
+        mark = len(device.write_log)
+        assert not send(b, RunCycle, "run_cycle", single_cycle=True).accepted
+        assert device.write_log[mark:] == []
+
+
+def test_upload_points_with_progress_and_cancel(
+    sim: tuple[R6SimDevice, int], client: Client, tmp_path: Path
+) -> None:
+    device, port = sim
+
+    def slow_frames(record: WriteRecord) -> None:
+        if record.address == POINT_COUNT:
+            time.sleep(FRAME_DELAY_S)  # the controller's own pace: each frame takes a while
+
+    device.write_hooks.append(slow_frames)
+    points = 2000  # 6 values a point, 10 points a 256-byte frame: 200 frames
+    values = [k % 1000 for k in range(6 * points)]
+    with r6(client, tmp_path, port) as (b, _proc):
+        client.wait_message(b.state)
+
+        # The whole upload: feedback per frame, every point stored.
+        goal = send(
+            b,
+            PointUpload,
+            "upload_points",
+            data_source_id=7,
+            values_per_point=6,
+            axis_mask=0x3F,
+            values=values[: 6 * 100],
+        )
+        status, result = goal.result()
+        assert status == GoalStatus.STATUS_SUCCEEDED, result.outcome.message
+        assert (result.frames_sent, result.frames_total) == (10, 10)
+        assert [f.frames_sent for f in goal.feedback] == list(range(1, 11))
+        assert device.points[7] == values[: 6 * 100]
+
+        # Cancelled part-way: it stops between frames and says how far it got.
+        goal = send(
+            b,
+            PointUpload,
+            "upload_points",
+            data_source_id=8,
+            values_per_point=6,
+            axis_mask=0x3F,
+            values=values,
+        )
+        goal.wait_feedback(lambda f: f.frames_sent >= 3)
+        goal.cancel()
+        status, result = goal.result()
+        assert status == GoalStatus.STATUS_CANCELED
+        assert result.outcome.code == MotionOutcome.CANCELLED
+        assert 3 <= result.frames_sent < result.frames_total == 200
+        assert f"({result.frames_sent} of 200 sent)" in result.outcome.message
+        assert device.points[8] == values[: 60 * result.frames_sent]

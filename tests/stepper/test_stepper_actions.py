@@ -1,0 +1,202 @@
+"""Stepper actions (README "Actions"): move_by, home, home_all, return_to_zero, line_move
+and arc_move as goals from an ``rclpy.action.ActionClient`` in this process, the bridge in
+its own, the simulator on a socat pty pair."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from action_msgs.msg import GoalStatus
+from lifecycle_msgs.msg import Transition
+from lifecycle_msgs.srv import ChangeState
+from std_srvs.srv import Trigger
+
+from bridge_core.registers import Table
+from msg_defs.action import ArcMotion, LineMotion, StepperMoveBy, StepperRun
+from msg_defs.msg import MotionOutcome
+from msg_defs.srv import SetHomingOrder
+from stepper_bridge.registers import MOTORS, motor_coil, motor_register
+from stepper_bridge.sim import START_POSITION, TRAVEL, StepperSimDevice, make_simulator
+
+from ..support.ros import Bridge, Client, ros_client
+from ..support.serial_pair import served_on_pty
+from .test_stepper_ros import BAUD, bridge, writes
+
+pytestmark = pytest.mark.ros
+
+FAST_RPM = 600  # x lead 5.00 = 50 units (mm) a second
+MM = 0.001  # m per controller unit (units_per_meter 1000)
+
+
+@pytest.fixture
+def client() -> Iterator[Client]:
+    with ros_client("stepper_action_client") as c:
+        c.subscribe_log()
+        yield c
+
+
+@pytest.fixture
+def sim() -> Iterator[tuple[StepperSimDevice, str]]:
+    simulator = make_simulator(reply_delay_s=0.0)
+    device = simulator.device
+    assert isinstance(device, StepperSimDevice)
+    for motor in range(1, MOTORS + 1):
+        device.set(motor_register(motor, "speed"), FAST_RPM)
+    with served_on_pty(simulator, BAUD) as bridge_end:
+        yield device, bridge_end
+
+
+def send(b: Bridge, action: Any, name: str, **fields: Any) -> Any:
+    goal = action.Goal()
+    for key, value in fields.items():
+        setattr(goal, key, value)
+    return b.client.send_goal(action, f"{b.ns}/stepper_bridge/{name}", goal)
+
+
+def outcome_of(goal: Any, status: int = GoalStatus.STATUS_ABORTED) -> Any:
+    got_status, result = goal.result()
+    assert got_status == status, result.outcome.message
+    return result
+
+
+def coil_writes(device: StepperSimDevice, since: int = 0) -> list[int]:
+    return [address for _fc, table, address, _v in writes(device)[since:] if table is Table.COIL]
+
+
+def running_feedback(goal: Any, motor: int) -> Any:
+    return goal.wait_feedback(lambda f: f.running[motor - 1])
+
+
+def test_stepper_actions(sim: tuple[StepperSimDevice, str], client: Client, tmp_path: Path) -> None:
+    device, port = sim
+    device.position[2] = TRAVEL - 10.0  # coordinate 440: 10 units from its positive limit
+    device.position[3] = START_POSITION + 20.0  # 20 units above its home switch
+    device.offset[3] = START_POSITION  # coordinate 20
+    with bridge(client, tmp_path, port) as (b, _proc):
+        client.wait_message(b.state)
+
+        # move_by reached: feedback on the way, the coordinate at the end.
+        goal = send(b, StepperMoveBy, "motor_1/move_by", distance=20 * MM)
+        assert goal.accepted
+        result = outcome_of(goal, GoalStatus.STATUS_SUCCEEDED)
+        assert result.outcome.code == MotionOutcome.REACHED
+        assert result.positions[0] == pytest.approx(20 * MM)
+        assert goal.feedback and len(goal.feedback[-1].positions) == MOTORS
+        assert device.coordinate(1) == pytest.approx(20.0)
+
+        # Cancel = the motor's stop coil, and the motor stands.
+        mark = len(writes(device))
+        goal = send(b, StepperMoveBy, "motor_1/move_by", distance=400 * MM)
+        running_feedback(goal, 1)
+        goal.cancel()
+        result = outcome_of(goal, GoalStatus.STATUS_CANCELED)
+        assert result.outcome.code == MotionOutcome.CANCELLED and result.outcome.stop_sent
+        assert coil_writes(device, mark) == [
+            motor_coil(1, "run_once"),
+            motor_coil(1, "stop"),
+        ]
+        assert device.motion[1] is None
+
+        # Preempted by a new goal on the same motor: stopped first, then homed.
+        mark = len(writes(device))
+        first = send(b, StepperMoveBy, "motor_1/move_by", distance=400 * MM)
+        running_feedback(first, 1)
+        home = send(b, StepperRun, "motor_1/home")
+        result = outcome_of(first)
+        assert result.outcome.code == MotionOutcome.PREEMPTED, result.outcome.message
+        result = outcome_of(home, GoalStatus.STATUS_SUCCEEDED)
+        assert result.positions[0] == pytest.approx(0.0)
+        assert coil_writes(device, mark) == [
+            motor_coil(1, "run_once"),
+            motor_coil(1, "stop"),
+            motor_coil(1, "home"),
+        ]
+
+        # A limit switch ends a move as LIMIT, naming the switch.
+        goal = send(b, StepperMoveBy, "motor_2/move_by", distance=50 * MM)
+        result = outcome_of(goal)
+        assert result.outcome.code == MotionOutcome.LIMIT, result.outcome.message
+        assert "motor 2 stopped at its positive limit switch (IN3)" in result.outcome.message
+        assert result.positions[1] == pytest.approx((TRAVEL - START_POSITION) * MM)
+
+        # Homing one motor: its coordinate ends at 0.
+        goal = send(b, StepperRun, "motor_3/home")
+        result = outcome_of(goal, GoalStatus.STATUS_SUCCEEDED)
+        assert device.coordinate(3) == pytest.approx(0.0)
+
+        # A time limit: stopped and aborted.
+        mark = len(writes(device))
+        goal = send(b, StepperMoveBy, "motor_4/move_by", distance=400 * MM, timeout_s=0.5)
+        result = outcome_of(goal)
+        assert result.outcome.code == MotionOutcome.TIMED_OUT and result.outcome.stop_sent
+        assert coil_writes(device, mark)[-1] == motor_coil(4, "stop")
+
+        # The e-stop ends a goal as LIMIT.
+        goal = send(b, StepperMoveBy, "motor_5/move_by", distance=400 * MM)
+        running_feedback(goal, 5)
+        reply = b.call(Trigger, "emergency_stop")
+        assert reply.success, reply.message
+        result = outcome_of(goal)
+        assert result.outcome.code == MotionOutcome.LIMIT, result.outcome.message
+        assert "e-stop" in result.outcome.message
+
+        # home_all needs a homing order: rejected (nothing written) without one.
+        mark = len(writes(device))
+        assert not send(b, StepperRun, "home_all").accepted
+        client.wait_log("stepper_bridge", "home_all goal rejected: the homing order")
+        assert writes(device)[mark:] == []
+        reply = b.call(SetHomingOrder, "set_homing_order", motors=[4, 5])
+        assert reply.success, reply.message
+        result = outcome_of(send(b, StepperRun, "home_all"), GoalStatus.STATUS_SUCCEEDED)
+        assert device.coordinate(4) == pytest.approx(0.0)
+        assert device.coordinate(5) == pytest.approx(0.0)
+
+        # Return to zero: every coordinate back at 0 (motor 2 first put back near home,
+        # as if moved by hand: 450 units would take 9 s).
+        device.position[2] = device.offset[2] + 10.0
+        send(b, StepperMoveBy, "motor_1/move_by", distance=30 * MM).result()
+        result = outcome_of(send(b, StepperRun, "return_to_zero"), GoalStatus.STATUS_SUCCEEDED)
+        assert [device.coordinate(m) for m in range(1, MOTORS + 1)] == pytest.approx([0.0] * 5)
+
+        # Line, then arc interpolation of pair 1 (motors 1 and 2 under both readings).
+        goal = send(
+            b, LineMotion, "line_move", pair=1, start=[0.0, 0.0], end=[0.02, 0.01], speed_rpm=600
+        )
+        result = outcome_of(goal, GoalStatus.STATUS_SUCCEEDED)
+        assert result.positions[:2] == pytest.approx([0.02, 0.01])
+        goal = send(
+            b,
+            ArcMotion,
+            "arc_move",
+            pair=1,
+            mode=ArcMotion.Goal.MODE_CENTER,
+            start=[0.02, 0.01],
+            end=[0.0, 0.01],
+            center=[0.01, 0.01],
+            speed_rpm=600,
+        )
+        result = outcome_of(goal, GoalStatus.STATUS_SUCCEEDED)
+        assert result.positions[:2] == pytest.approx([0.0, 0.01], abs=1e-4)
+
+        # Out of range: rejected, nothing written.
+        mark = len(writes(device))
+        assert not send(b, StepperMoveBy, "motor_1/move_by", distance=float("nan")).accepted
+        assert not send(b, LineMotion, "line_move", pair=9, speed_rpm=600).accepted
+        assert writes(device)[mark:] == []
+
+        # Deactivate during a goal: stopped (HALTED); goals are then rejected.
+        goal = send(b, StepperMoveBy, "motor_1/move_by", distance=400 * MM)
+        running_feedback(goal, 1)
+        request = ChangeState.Request()
+        request.transition.id = Transition.TRANSITION_DEACTIVATE
+        reply = client.call(ChangeState, f"{b.ns}/stepper_bridge/change_state", request)
+        assert reply.success
+        result = outcome_of(goal)
+        assert result.outcome.code == MotionOutcome.HALTED, result.outcome.message
+        assert "deactivated" in result.outcome.message and result.outcome.stop_sent
+        assert device.motion[1] is None
+        assert not send(b, StepperMoveBy, "motor_1/move_by", distance=10 * MM).accepted
+        client.wait_log("stepper_bridge", "move_by goal rejected: the node is not active")
