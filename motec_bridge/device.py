@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Hashable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -675,7 +675,7 @@ class MoveToMotion(Motion[MotecSnapshot]):
     target within ``tolerance_counts`` it is REACHED, elsewhere STOPPED (a stop service,
     a disable, the drive); a fault code ends it at once. Its stop is ``~/stop``'s."""
 
-    axes = frozenset({"drive"})
+    axes: frozenset[Hashable] = frozenset({"drive"})
 
     def __init__(
         self,

@@ -6,7 +6,7 @@ refused command writes nothing.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Hashable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -399,7 +399,7 @@ class PointUpload:
     sends the next frame (the first also the configuration), so an action can stop
     between frames."""
 
-    axes = frozenset({"point_data"})
+    axes: frozenset[Hashable] = frozenset({"point_data"})
 
     def __init__(
         self,
@@ -458,7 +458,7 @@ class RunCycleMotion(Motion[R6Snapshot]):
     REACHED unless a stop / pause (from this bridge) came meanwhile; a continuous run
     never is (it runs until stopped): its end is STOPPED (README R6 decision 22)."""
 
-    axes = frozenset({"program"})
+    axes: frozenset[Hashable] = frozenset({"program"})
 
     def __init__(self, device: R6Device, last: R6Snapshot | None, *, single_cycle: bool) -> None:
         super().__init__()
