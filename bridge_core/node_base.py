@@ -866,6 +866,8 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
         values.append(("read_only", str(self.read_only).lower()))
         if self.stream_guards:
             values.append(("stream commands refused", str(self.stream_refusals)))
+        if self.actions.servers:
+            values.append(("action goals running", "; ".join(self.actions.running) or "none"))
         if self.channel.connected and poller.last_error:
             # Connected but no fresh state: as bad as a lost link for a consumer.
             level, message = Level.ERROR, poller.last_error

@@ -10,6 +10,7 @@ from typing import Any
 
 import pytest
 from action_msgs.msg import GoalStatus
+from diagnostic_msgs.msg import DiagnosticArray
 from std_srvs.srv import SetBool, Trigger
 
 from bridge_core.registers import Table
@@ -19,7 +20,7 @@ from msg_defs.action import MoveTo
 from msg_defs.msg import MotionOutcome
 from msg_defs.srv import SetControlMode
 
-from ..support.ros import Client, ros_client, wait_for
+from ..support.ros import Client, ros_client, values_of, wait_for
 from ..support.serial_pair import served_on_pty
 from .test_motec_ros import BAUD, UNITS, MotecBridge, bridge_params, motec, writes
 
@@ -35,6 +36,7 @@ LONG = 20 * TURN  # 20 s at SLOW: cancelled, preempted, timed out long before
 def client() -> Iterator[Client]:
     with ros_client("motec_action_client") as c:
         c.subscribe_log()
+        c.subscribe(DiagnosticArray, "/diagnostics")
         yield c
 
 
@@ -99,6 +101,9 @@ def test_move_to_reached_cancelled_preempted_timed_out_and_refused(
         mark = len(writes(drive))
         goal = move_to(b, 1, LONG, relative=True)
         moving_feedback(goal)
+        b.wait_diagnostic(  # diagnostics name the running goal
+            1, lambda s: values_of(s).get("action goals running", "").startswith("move_to by")
+        )
         goal.cancel()
         status, result = goal.result()
         assert status == GoalStatus.STATUS_CANCELED

@@ -178,3 +178,47 @@ def test_upload_points_with_progress_and_cancel(
         assert 3 <= result.frames_sent < result.frames_total == 200
         assert f"({result.frames_sent} of 200 sent)" in result.outcome.message
         assert device.points[8] == values[: 60 * result.frames_sent]
+
+        # A newer upload preempts a running one between two frames.
+        first = send(
+            b,
+            PointUpload,
+            "upload_points",
+            data_source_id=9,
+            values_per_point=6,
+            axis_mask=0x3F,
+            values=values,
+        )
+        first.wait_feedback(lambda f: f.frames_sent >= 2)
+        second = send(
+            b,
+            PointUpload,
+            "upload_points",
+            data_source_id=10,
+            values_per_point=6,
+            axis_mask=0x3F,
+            values=values[:60],
+        )
+        status, result = first.result()
+        assert status == GoalStatus.STATUS_ABORTED
+        assert result.outcome.code == MotionOutcome.PREEMPTED, result.outcome.message
+        assert result.frames_sent < 200
+        status, result = second.result()
+        assert result.outcome.code == MotionOutcome.REACHED, result.outcome.message
+        assert device.points[10] == values[:60]
+
+        # A time limit ends an upload between frames.
+        goal = send(
+            b,
+            PointUpload,
+            "upload_points",
+            data_source_id=11,
+            values_per_point=6,
+            axis_mask=0x3F,
+            values=values,
+            timeout_s=0.3,
+        )
+        status, result = goal.result()
+        assert result.outcome.code == MotionOutcome.TIMED_OUT, result.outcome.message
+        assert result.frames_sent < 200
+        assert device.points.get(11, []) == values[: 60 * result.frames_sent]
