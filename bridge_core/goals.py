@@ -249,6 +249,11 @@ class GoalRun(Generic[SnapshotT]):
         return self.verdict is not None
 
     @property
+    def preempted_by(self) -> str | None:
+        """What preempted this goal (None: nothing did)."""
+        return self._preempted_by
+
+    @property
     def halted(self) -> str | None:
         """Why the node halted this goal (None: it did not)."""
         return self._halted

@@ -219,6 +219,8 @@ class ActionHost:
             run.claim(Verdict(Outcome.CANCELLED, f"{motion.what}: cancelled before it started"))
         elif run.halted:
             run.claim(Verdict(Outcome.HALTED, f"{motion.what}: not started, {run.halted}"))
+        elif run.preempted_by:  # a newer goal came while this one waited for its axes
+            run.claim(Verdict(Outcome.PREEMPTED, f"{motion.what}: preempted by {run.preempted_by}"))
         if run.ended:
             run.finish()
             return
