@@ -200,6 +200,8 @@ def test_move_to_ended_by_a_fault_by_read_only_and_by_a_lost_link(
         assert result.outcome.code == MotionOutcome.LINK_LOST, result.outcome.message
         assert not result.outcome.stop_sent
         assert "stop failed" in result.outcome.message
+        assert not move_to(b, 2, 1.0).accepted  # the link is down: rejected
+        client.wait_log("motec_2", "move_to goal rejected: not connected")
         sim.plug(2)
         b.wait_connected(2, True)
         reply = b.call(2, Trigger, "stop")
