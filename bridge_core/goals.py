@@ -31,6 +31,10 @@ SnapshotT = TypeVar("SnapshotT")
 # was acknowledged: a device may set its running flag a little after the command (and a
 # zero-length move never sets it).
 START_POLLS = 2
+# A poll is several requests: its position may have been read while the motion still ran
+# and its running flag after it ended. Short of the target, the verdict waits for this
+# many idle polls (the second one read every value after the motion had ended).
+CONFIRM_POLLS = 2
 # A goal's thread looks at its link and deadline at least this often even with no poll.
 GOAL_CHECK_PERIOD_S = 0.25
 
@@ -122,7 +126,10 @@ class Motion(ABC, Generic[SnapshotT]):
         self.idle_polls += 1
         if not self.seen_running and self.idle_polls < START_POLLS:
             return None
-        return self.ended(snapshot)
+        verdict = self.ended(snapshot)
+        if verdict.outcome is not Outcome.REACHED and self.idle_polls < CONFIRM_POLLS:
+            return None  # the position may have been read before the motion ended
+        return verdict
 
 
 def within(value: float, target: float, tolerance: float) -> bool:
@@ -264,6 +271,7 @@ def needs_stop(outcome: Outcome) -> bool:
 
 
 __all__ = [
+    "CONFIRM_POLLS",
     "GOAL_CHECK_PERIOD_S",
     "START_POLLS",
     "GoalRun",

@@ -23,10 +23,11 @@ from msg_defs.action import StepperMoveBy
 from msg_defs.msg import MotecState, StepperState
 from msg_defs.srv import SetControlMode
 from stepper_bridge.registers import STEPPER_MAP, motor_coil
-from stepper_bridge.sim import StepperSimDevice, make_simulator
+from stepper_bridge.sim import StepperSimDevice
 
 from .support.ros import Bridge, Client, node_process, ros_client, wait_for
 from .support.serial_pair import served_on_pty
+from .support.sims import stepper_on_pty
 
 pytestmark = pytest.mark.ros
 
@@ -42,11 +43,8 @@ def client() -> Iterator[Client]:
 
 @pytest.fixture
 def sim() -> Iterator[tuple[StepperSimDevice, str]]:
-    simulator = make_simulator(reply_delay_s=0.0)
-    device = simulator.device
-    assert isinstance(device, StepperSimDevice)
-    with served_on_pty(simulator, BAUD) as bridge_end:
-        yield device, bridge_end
+    with stepper_on_pty(BAUD) as served:
+        yield served
 
 
 def stepper_params(port: str) -> dict[str, object]:

@@ -6,7 +6,16 @@ from dataclasses import dataclass
 
 import pytest
 
-from bridge_core.goals import START_POLLS, GoalRun, Motion, Outcome, Verdict, needs_stop, within
+from bridge_core.goals import (
+    CONFIRM_POLLS,
+    START_POLLS,
+    GoalRun,
+    Motion,
+    Outcome,
+    Verdict,
+    needs_stop,
+    within,
+)
 
 
 @dataclass
@@ -87,9 +96,18 @@ def test_reached_when_it_stopped_at_the_target_after_running() -> None:
     assert verdict is not None and verdict.outcome is Outcome.REACHED
 
 
-def test_stopped_short_of_the_target() -> None:
+def test_stopped_short_of_the_target_on_a_second_idle_poll() -> None:
+    """The first idle poll may be torn (position read while running, flag after the
+    stop): short of the target is only believed on the next one."""
     run = started_run()
     assert judge(run, Snap(True, 3.0)) is None
+    assert judge(run, Snap(False, 9.0)) is None  # torn: it went on to 10.0
+    verdict = judge(run, Snap(False, 10.0))
+    assert verdict is not None and verdict.outcome is Outcome.REACHED
+    run = started_run()
+    assert judge(run, Snap(True, 3.0)) is None
+    for _ in range(CONFIRM_POLLS - 1):
+        assert judge(run, Snap(False, 4.0)) is None
     verdict = judge(run, Snap(False, 4.0))
     assert verdict is not None and verdict.outcome is Outcome.STOPPED
 

@@ -15,13 +15,13 @@ from std_srvs.srv import SetBool, Trigger
 
 from bridge_core.registers import Table
 from motec_bridge.registers import MOTEC_MAP, START_MOVE, STOP_MOVE
-from motec_bridge.sim import MotecSimDrive, MotecSimulator, make_simulator
+from motec_bridge.sim import MotecSimDrive, MotecSimulator
 from msg_defs.action import MoveTo
 from msg_defs.msg import MotionOutcome
 from msg_defs.srv import SetControlMode
 
 from ..support.ros import Client, ros_client, values_of, wait_for
-from ..support.serial_pair import served_on_pty
+from ..support.sims import motec_on_pty
 from .test_motec_ros import BAUD, UNITS, MotecBridge, bridge_params, motec, writes
 
 pytestmark = pytest.mark.ros
@@ -43,9 +43,8 @@ def client() -> Iterator[Client]:
 @pytest.fixture
 def bus() -> Iterator[tuple[MotecSimulator, str]]:
     """The drives on one simulated bus at the device end of a socat pty pair."""
-    simulator = make_simulator(UNITS)
-    with served_on_pty(simulator, BAUD) as bridge_end:
-        yield simulator, bridge_end
+    with motec_on_pty(UNITS, BAUD) as served:
+        yield served
 
 
 def move_to(b: MotecBridge, unit: int, position: float, **fields: Any) -> Any:

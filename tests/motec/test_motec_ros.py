@@ -52,6 +52,7 @@ from ..support.ros import (
     wait_subscribed,
 )
 from ..support.serial_pair import served_on_pty
+from ..support.sims import motec_on_pty
 
 pytestmark = pytest.mark.ros
 
@@ -183,9 +184,8 @@ def client() -> Iterator[Client]:
 @pytest.fixture
 def bus() -> Iterator[tuple[MotecSimulator, str]]:
     """Three drives on one simulated bus at the device end of a socat pty pair."""
-    simulator = make_simulator(UNITS)
-    with served_on_pty(simulator, BAUD) as bridge_end:
-        yield simulator, bridge_end
+    with motec_on_pty(UNITS, BAUD) as served:
+        yield served
 
 
 def bridge_params(port: str, **params: Any) -> dict[str, Any]:

@@ -61,6 +61,20 @@ def send(b: Bridge, action: Any, name: str, **fields: Any) -> Any:
     return b.client.send_goal(action, f"{b.ns}/r6_bridge/{name}", goal)
 
 
+def upload(b: Bridge, source: int, values: list[int], **fields: Any) -> Any:
+    """A PointUpload goal of 6-value points for axes 1-6."""
+    return send(
+        b,
+        PointUpload,
+        "upload_points",
+        data_source_id=source,
+        values_per_point=6,
+        axis_mask=0x3F,
+        values=values,
+        **fields,
+    )
+
+
 def commands(device: R6SimDevice, since: int = 0) -> list[str]:
     names = {address: name for name, address in COMMANDS.items()}
     return [names[r.address] for r in device.write_log[since:] if r.address in names]
@@ -145,15 +159,7 @@ def test_upload_points_with_progress_and_cancel(
         client.wait_message(b.state)
 
         # The whole upload: feedback per frame, every point stored.
-        goal = send(
-            b,
-            PointUpload,
-            "upload_points",
-            data_source_id=7,
-            values_per_point=6,
-            axis_mask=0x3F,
-            values=values[: 6 * 100],
-        )
+        goal = upload(b, 7, values[: 6 * 100])
         status, result = goal.result()
         assert status == GoalStatus.STATUS_SUCCEEDED, result.outcome.message
         assert (result.frames_sent, result.frames_total) == (10, 10)
@@ -161,15 +167,7 @@ def test_upload_points_with_progress_and_cancel(
         assert device.points[7] == values[: 6 * 100]
 
         # Cancelled part-way: it stops between frames and says how far it got.
-        goal = send(
-            b,
-            PointUpload,
-            "upload_points",
-            data_source_id=8,
-            values_per_point=6,
-            axis_mask=0x3F,
-            values=values,
-        )
+        goal = upload(b, 8, values)
         goal.wait_feedback(lambda f: f.frames_sent >= 3)
         goal.cancel()
         status, result = goal.result()
@@ -180,25 +178,9 @@ def test_upload_points_with_progress_and_cancel(
         assert device.points[8] == values[: 60 * result.frames_sent]
 
         # A newer upload preempts a running one between two frames.
-        first = send(
-            b,
-            PointUpload,
-            "upload_points",
-            data_source_id=9,
-            values_per_point=6,
-            axis_mask=0x3F,
-            values=values,
-        )
+        first = upload(b, 9, values)
         first.wait_feedback(lambda f: f.frames_sent >= 2)
-        second = send(
-            b,
-            PointUpload,
-            "upload_points",
-            data_source_id=10,
-            values_per_point=6,
-            axis_mask=0x3F,
-            values=values[:60],
-        )
+        second = upload(b, 10, values[:60])
         status, result = first.result()
         assert status == GoalStatus.STATUS_ABORTED
         assert result.outcome.code == MotionOutcome.PREEMPTED, result.outcome.message
@@ -208,16 +190,7 @@ def test_upload_points_with_progress_and_cancel(
         assert device.points[10] == values[:60]
 
         # A time limit ends an upload between frames.
-        goal = send(
-            b,
-            PointUpload,
-            "upload_points",
-            data_source_id=11,
-            values_per_point=6,
-            axis_mask=0x3F,
-            values=values,
-            timeout_s=0.3,
-        )
+        goal = upload(b, 11, values, timeout_s=0.3)
         status, result = goal.result()
         assert result.outcome.code == MotionOutcome.TIMED_OUT, result.outcome.message
         assert result.frames_sent < 200

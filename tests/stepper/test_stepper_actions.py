@@ -19,10 +19,10 @@ from msg_defs.action import ArcMotion, LineMotion, StepperMoveBy, StepperRun
 from msg_defs.msg import MotionOutcome
 from msg_defs.srv import SetHomingOrder
 from stepper_bridge.registers import MOTORS, motor_coil, motor_register
-from stepper_bridge.sim import START_POSITION, TRAVEL, StepperSimDevice, make_simulator
+from stepper_bridge.sim import START_POSITION, TRAVEL, StepperSimDevice
 
 from ..support.ros import Bridge, Client, ros_client
-from ..support.serial_pair import served_on_pty
+from ..support.sims import stepper_on_pty
 from .test_stepper_ros import BAUD, bridge, writes
 
 pytestmark = pytest.mark.ros
@@ -40,12 +40,9 @@ def client() -> Iterator[Client]:
 
 @pytest.fixture
 def sim() -> Iterator[tuple[StepperSimDevice, str]]:
-    simulator = make_simulator(reply_delay_s=0.0)
-    device = simulator.device
-    assert isinstance(device, StepperSimDevice)
-    for motor in range(1, MOTORS + 1):
-        device.set(motor_register(motor, "speed"), FAST_RPM)
-    with served_on_pty(simulator, BAUD) as bridge_end:
+    with stepper_on_pty(BAUD) as (device, bridge_end):
+        for motor in range(1, MOTORS + 1):
+            device.set(motor_register(motor, "speed"), FAST_RPM)
         yield device, bridge_end
 
 

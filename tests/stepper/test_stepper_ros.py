@@ -45,6 +45,7 @@ from ..support.ros import (
     wait_subscribed,
 )
 from ..support.serial_pair import served_on_pty
+from ..support.sims import stepper_on_pty
 
 pytestmark = pytest.mark.ros
 
@@ -66,11 +67,8 @@ def client() -> Iterator[Client]:
 @pytest.fixture
 def sim() -> Iterator[tuple[StepperSimDevice, str]]:
     """The simulator on one end of a socat pty pair; yields it and the bridge's end."""
-    simulator = make_simulator(reply_delay_s=0.0)
-    device = simulator.device
-    assert isinstance(device, StepperSimDevice)
-    with served_on_pty(simulator, BAUD) as bridge_end:
-        yield device, bridge_end
+    with stepper_on_pty(BAUD) as served:
+        yield served
 
 
 def bridge(
