@@ -167,12 +167,21 @@ class JointValueSpec(_Lenient):
     factor: Finite = Field(1.0, description="extra factor, e.g. 1 / gear ratio")
 
 
+class JointSimSpec(_Lenient):
+    """How ``modbus_sim`` moves the joint: after a command register, in its SI units."""
+
+    command: Name  # a writable register: a velocity (mode velocity) or a target position
+    mode: Literal["velocity", "position"] = "velocity"
+    speed: Finite | None = Field(None, gt=0.0)  # position mode: SI units per second
+
+
 class JointSpec(_Lenient):
     name: Name
     kind: Literal["revolute", "prismatic"] = "revolute"
     position: JointValueSpec
     velocity: JointValueSpec | None = None
     effort: JointValueSpec | None = None
+    sim: JointSimSpec | None = None
 
 
 class WriteSpec(_Lenient):
@@ -248,11 +257,23 @@ class JointSource:
 
 
 @dataclass(frozen=True)
+class JointMotion:
+    """The simulator's rule for a joint: ``command`` (to SI by ``to_si``) is a velocity or
+    a target position; a target is approached at ``speed`` (SI/s; None: at once)."""
+
+    command: str
+    to_si: float
+    mode: Literal["velocity", "position"]
+    speed: float | None
+
+
+@dataclass(frozen=True)
 class Joint:
     name: str
     position: JointSource
     velocity: JointSource | None
     effort: JointSource | None
+    motion: JointMotion | None = None
 
 
 @dataclass(frozen=True)
@@ -624,27 +645,58 @@ def _build_joints(
             velocity = _joint_source(register_map, joint, "velocity", joint.velocity, check, at)
         if joint.effort is not None:
             effort = _joint_source(register_map, joint, "effort", joint.effort, check, at)
+        motion = None
+        if joint.sim is not None:
+            motion = _joint_motion(register_map, joint, joint.sim, check, (*at, "sim"))
         if position is not None:
-            joints.append(Joint(joint.name, position, velocity, effort))
+            joints.append(Joint(joint.name, position, velocity, effort, motion))
     return tuple(joints)
 
 
+def _joint_motion(
+    register_map: RegisterMap, joint: JointSpec, sim: JointSimSpec, check: _Checker, at: Loc
+) -> JointMotion | None:
+    register = _writable(register_map, sim.command, check, at, field="command")
+    if register is None:
+        return None
+    wanted = SI_UNITS[(joint.kind, sim.mode)]
+    unit = UNITS_TO_SI.get(register.unit)
+    if unit is None or unit[0] != wanted:
+        allowed = ", ".join(u for u, (si, _) in UNITS_TO_SI.items() if si == wanted)
+        check.add(
+            (*at, "command"),
+            f"{sim.command}'s unit {register.unit!r} is not a {joint.kind} {sim.mode} "
+            f"({wanted}; allowed units: {allowed})",
+        )
+        return None
+    if sim.speed is not None and sim.mode == "velocity":
+        check.add((*at, "speed"), "speed is for mode position (a velocity command sets it)")
+        return None
+    return JointMotion(sim.command, unit[1], sim.mode, sim.speed)
+
+
 def _writable(
-    register_map: RegisterMap, name: str, check: _Checker, at: Loc, *, bool_only: bool = False
+    register_map: RegisterMap,
+    name: str,
+    check: _Checker,
+    at: Loc,
+    *,
+    bool_only: bool = False,
+    field: str = "register",
 ) -> Register | None:
     if name not in register_map:
-        check.add((*at, "register"), f"no register named {name!r}")
+        check.add((*at, field), f"no register named {name!r}")
         return None
     register = register_map[name]
     if not register.access.writable:
-        check.add((*at, "register"), f"{name} is read only (a command needs access W or RW)")
+        check.add((*at, field), f"{name} is read only (a command needs access W or RW)")
         return None
     if bool_only and register.table is not Table.COIL:
-        check.add((*at, "register"), f"{name} is not a coil (a coil service switches a coil)")
+        check.add((*at, field), f"{name} is not a coil (a coil service switches a coil)")
         return None
     if not bool_only and register.value_type in (ValueType.BOOL, ValueType.STRING):
         check.add(
-            (*at, "register"),
+            (*at, field),
             f"{name} is a {register.value_type.label} (allowed: a numeric register; "
             "coils go under commands.coils)",
         )

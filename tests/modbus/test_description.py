@@ -29,7 +29,7 @@ registers:
   - {name: run, table: coil, address: 0, type: bool, access: RW, manual: "s5"}
   - {name: label, table: holding, address: 100, type: string, length: 4, manual: "s4.9"}
 joints:
-  - {name: shaft, position: {register: angle}, velocity: {register: speed, factor: 0.1}}
+  - {name: shaft, position: {register: angle}, velocity: {register: speed, factor: 0.1}, sim: {command: speed}}
 commands:
   triggers:
     - {name: start, writes: [{register: run, value: true}]}
@@ -67,6 +67,8 @@ def test_good_file_builds_bridge_core_types(tmp_path: Path) -> None:
     assert joint.position.to_si == pytest.approx(math.pi / 180)
     assert joint.velocity is not None
     assert joint.velocity.to_si == pytest.approx(2 * math.pi / 60 * 0.1)
+    assert joint.motion is not None and joint.motion.command == "speed"
+    assert joint.motion.mode == "velocity" and joint.motion.to_si == pytest.approx(math.pi / 30)
     assert device.state_names == ("speed", "angle", "run", "label")
     limits = device.register_map.limits
     assert limits.function_codes == frozenset({1, 2, 3, 4, 5, 6, 15, 16})
@@ -477,6 +479,29 @@ BAD = [
         "allowed: triggers, values, coils, topics",
     ),
     ("joints:\n", "joint:\n", "joint", 12, "allowed: device, registers, joints, commands"),
+    ("sim: {command: speed}", "sim: {command: sped}", "joints[0].sim.command", 13, "no register"),
+    ("sim: {command: speed}", "sim: {command: angle}", "joints[0].sim.command", 13, "read only"),
+    (
+        "sim: {command: speed}",
+        "sim: {command: speed, mode: position}",
+        "joints[0].sim.command",
+        13,
+        "not a revolute position (rad; allowed units: rad, mrad, deg, rev)",
+    ),
+    (
+        "sim: {command: speed}",
+        "sim: {command: speed, speed: 1}",
+        "joints[0].sim.speed",
+        13,
+        "speed is for mode position",
+    ),
+    (
+        "sim: {command: speed}",
+        "sim: {command: speed, mode: x}",
+        "joints[0].sim.mode",
+        13,
+        "'velocity'",
+    ),
 ]
 
 
