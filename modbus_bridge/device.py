@@ -108,14 +108,17 @@ class DescribedDevice:
         )
 
     def read(self, names: Sequence[str]) -> dict[str, Value]:
-        """Registers by name, read now (command priority), in as few requests as allowed."""
+        """Registers by name, read now (command priority), in as few requests as allowed;
+        in the order asked (each once)."""
         if not names:
             raise CommandRejected("no register names given")
         for name in names:
             register = self._register(name)
             if not register.access.readable:
                 raise CommandRejected(f"{name} is write only")
-        return read_named(self.io, self.map, list(dict.fromkeys(names)))
+        unique = list(dict.fromkeys(names))
+        values = read_named(self.io, self.map, unique)
+        return {name: values[name] for name in unique}  # in the order asked
 
     # ------------------------------------------------------------------ commands
     def _register(self, name: str) -> Register:
