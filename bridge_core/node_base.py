@@ -896,21 +896,25 @@ class BusNode(ParameterNode):
     def __init__(
         self,
         node_name: str,
-        defaults: DeviceDefaults,
+        defaults: DeviceDefaults | Callable[[ParameterNode], DeviceDefaults],
         *,
         unit_id_range: range,
+        unit_ids: Callable[[], Sequence[int]] | None = None,
         **node_kwargs: Any,
     ) -> None:
         super().__init__(node_name, **node_kwargs)
-        values = self.declare_specs(
-            [
-                *transport_specs(defaults),
-                ParameterSpec("unit_ids", [1], "devices on the bus, one node each"),
-                AUTOSTART_SPEC,
-            ]
+        if not isinstance(defaults, DeviceDefaults):
+            defaults = defaults(self)  # as BridgeNode's (a modbus_bridge device file)
+        # unit_ids: the devices' ids when something else names them (a device file);
+        # else the ``unit_ids`` parameter.
+        own_units = (
+            []
+            if unit_ids is not None
+            else [ParameterSpec("unit_ids", [1], "devices on the bus, one node each")]
         )
+        values = self.declare_specs([*transport_specs(defaults), *own_units, AUTOSTART_SPEC])
         self.autostart = bool(values["autostart"])
-        units = [int(u) for u in values["unit_ids"]]
+        units = [int(u) for u in (values["unit_ids"] if unit_ids is None else unit_ids())]
         if not units or len(set(units)) != len(units):
             raise ConfigurationError(f"unit_ids {units} must be distinct and not empty")
         for unit in units:

@@ -30,6 +30,7 @@ from bridge_core.node_base import BridgeNode, DeviceDefaults, ParameterNode, spi
 from bridge_core.parameters import ParameterSpec
 from bridge_core.registers import ValueType
 from bridge_core.stream_guard import StreamGuard
+from bridge_core.transport import ModbusLink
 from msg_defs.msg import DeviceValues
 from msg_defs.srv import ReadRegisters, SetValue, WriteRegister
 
@@ -38,6 +39,7 @@ from .description import (
     COMMAND_TIMEOUT_RANGE_S,
     Description,
     Device,
+    Link,
     TopicSpec,
     load,
 )
@@ -46,11 +48,11 @@ from .device import DescribedDevice, DeviceSnapshot
 NODE_NAME = "modbus_bridge"
 
 
-def defaults_of(device: Device) -> DeviceDefaults:
-    """The node's parameter defaults from the description."""
+def defaults_of(device: Device, line: Link | None = None) -> DeviceDefaults:
+    """The node's (or with ``line``, the bus's) parameter defaults from the description."""
     spec = device.spec.device
-    link = device.link
-    if link is None:
+    link = device.link or line
+    if link is None:  # a device on a line its bus node opens
         return DeviceDefaults(spec.title or spec.name, "rtu", poll_rate_hz=spec.poll_rate_hz)
     if link.tcp is not None:
         return DeviceDefaults(
@@ -82,13 +84,22 @@ def _number(value: Value) -> float:
 
 
 class ModbusBridgeNode(BridgeNode[DeviceSnapshot]):
-    """One described device: its file from ``device_file``."""
+    """One described device: its file from ``device_file``, or (a device on a line a
+    ``ModbusBusNode`` owns) ``device`` with the bus's ``link``, named after the device."""
 
-    def __init__(self, **kwargs: Any) -> None:
+    def __init__(
+        self, device: Device | None = None, *, link: ModbusLink | None = None, **kwargs: Any
+    ) -> None:
         self.description: Description | None = None
-        super().__init__(NODE_NAME, self._defaults_from_file, **kwargs)
-        assert self.description is not None
-        self.described: Device = self.description.device
+        if device is None:
+            super().__init__(NODE_NAME, self._defaults_from_file, link=link, **kwargs)
+            assert self.description is not None
+            device = self.description.device
+        else:
+            super().__init__(
+                device.name, defaults_of(device), link=link, unit_id=device.unit_id, **kwargs
+            )
+        self.described: Device = device
         self.device: DescribedDevice = DescribedDevice(self.channel, self.described)
         self.hardware_id = f"{self.described.name}@{self.channel.describe()}"
         self.joint_names = [f"{self.joint_prefix}{joint.name}" for joint in self.described.joints]
@@ -112,7 +123,7 @@ class ModbusBridgeNode(BridgeNode[DeviceSnapshot]):
         if description.line is not None:
             raise ConfigurationError(
                 f"{path} describes {len(description.devices)} devices on one line: "
-                "modbus_bridge serves a file of one device"
+                "run modbus_bus for it (modbus_bridge serves a file of one device)"
             )
         self.description = description
         return defaults_of(description.device)

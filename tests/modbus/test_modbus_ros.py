@@ -38,6 +38,7 @@ pytestmark = pytest.mark.ros
 
 TIMEOUT_S = 1.0
 RTU_BAUD = 115200
+MULTIDROP = Path(__file__).resolve().parents[2] / "config" / "devices" / "rtu_multidrop.yaml"
 
 
 @pytest.fixture(scope="module")
@@ -255,3 +256,48 @@ def test_bad_description_is_one_line_and_exit_2(tmp_path: Path) -> None:
     multidrop = Path(__file__).resolve().parents[2] / "config" / "devices" / "rtu_multidrop.yaml"
     line = refused_at_start("modbus_bridge.node", ["--ros-args", "-p", f"device_file:={multidrop}"])
     assert "2 devices on one line" in line
+
+
+def test_several_devices_on_one_rtu_line(tmp_path: Path, client: Client) -> None:
+    """The multi-drop example: one bus owner, a node per device, each writing to its
+    own unit only; the command topic's deadman stops its own drive."""
+    description = load(MULTIDROP)
+    simulator = make_simulator(description)
+    units = simulator.devices
+    units[2].set("position_actual", -70000)
+    with (
+        served_on_pty(simulator, RTU_BAUD) as pty,
+        start_bridge(
+            client,
+            tmp_path,
+            "modbus_bridge.bus",
+            "drive_1",
+            DeviceValues,
+            {"device_file": str(MULTIDROP), "serial_port": pty, "poll_rate_hz": 10.0},
+        ) as (b, _),
+    ):
+        second = f"{b.ns}/drive_2/state"
+        client.subscribe(DeviceValues, second)
+        state = client.wait_message(second)
+        assert dict(zip(state.names, state.values, strict=True))["position_actual"] == -70000
+        assert client.wait_message(b.state).values[1] == 0.0
+        reply = client.call(Trigger, f"{b.ns}/drive_2/stop", Trigger.Request())
+        assert reply.success, reply.message
+        assert [(r.unit_id, r.address, r.values) for r in units[2].write_log] == [(2, 0xAE, (0,))]
+        topic = client.node.create_publisher(Float64, f"{b.ns}/drive_1/cmd_speed", 10)
+        wait_subscribed(topic)
+        topic.publish(Float64(data=300.0))
+        wait_for(lambda: len(units[1].write_log) >= 2, 20.0, "drive_1's deadman stop")
+        assert [(r.address, r.values) for r in units[1].write_log] == [
+            (0xAE, (300,)),
+            (0xAE, (0,)),
+        ]
+        assert len(units[2].write_log) == 1
+        client.node.destroy_publisher(topic)
+
+
+def test_bus_process_refuses_a_single_device_file(tmp_path: Path) -> None:
+    path = tmp_path / "mover.yaml"
+    path.write_text(MOVER)
+    line = refused_at_start("modbus_bridge.bus", ["--ros-args", "-p", f"device_file:={path}"])
+    assert "run modbus_bridge for it" in line
