@@ -571,7 +571,8 @@ def measure_node(
         cpu = proc_cpu_s(pid)
         sim_cpu = proc_cpu_s(sim_pid) if sim_pid else float("nan")
         for status in msg.status:
-            if not status.name.startswith(f"{package}:"):
+            # "/<node>: <device> Modbus bridge" (the fully qualified node name).
+            if not status.name.lstrip("/").startswith(f"{package}:"):
                 continue
             values = {kv.key: kv.value for kv in status.values}
             if "transactions" not in values:
