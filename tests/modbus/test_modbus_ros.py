@@ -210,6 +210,10 @@ def test_stale_data_and_reconnect(tmp_path: Path, client: Client) -> None:
         down = time.monotonic()
         reply = call(b, WriteRegister, "write", name="run", value=1.0)
         assert not reply.success and "not connected" in reply.message, reply.message
+        # A stop is tried on the wire at once (and says nothing went out), not refused.
+        reply = call(b, Trigger, "halt")
+        assert not reply.success and "halt failed" in reply.message, reply.message
+        assert "nothing was sent" in reply.message, reply.message
         assert client.received(b.joint_states, down) == []  # nothing stale published
         b.wait_diagnostic(2, down, port)
         again: Simulator = make_simulator(description)

@@ -48,6 +48,7 @@ joints:
 commands:
   triggers:
     - {name: go, writes: [{register: run, value: true}, {register: speed_command, value: 45}]}
+    - {name: halt, writes: [{register: speed_command, value: 0}], stop: true}
   values:
     - {name: set_target, register: target}
   coils:
