@@ -133,6 +133,7 @@ class DeviceDefaults:
     baudrate: int = 9600
     parity: str = "N"
     stopbits: int = 1
+    unit_id: int = 1
     timeout_s: float = 0.5
     timeout_min_s: float = 0.01  # a reply timeout below this can never be met
     frame_gap_s: float = 0.0  # RTU: least silence between frames beyond t3.5
@@ -376,7 +377,7 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
                 *transport_specs(defaults),
                 ParameterSpec(
                     "unit_id",
-                    1,
+                    defaults.unit_id,
                     "Modbus unit (slave) id"
                     + (
                         " (0 is the RTU broadcast: nobody answers)"

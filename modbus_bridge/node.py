@@ -62,6 +62,7 @@ def defaults_of(device: Device, line: Link | None = None) -> DeviceDefaults:
             host=link.tcp.host,
             port=link.tcp.port,
             timeout_s=link.timeout_s,
+            unit_id=spec.unit_id,
         )
     assert link.rtu is not None
     return DeviceDefaults(
@@ -74,6 +75,7 @@ def defaults_of(device: Device, line: Link | None = None) -> DeviceDefaults:
         stopbits=link.rtu.stopbits,
         frame_gap_s=link.rtu.frame_gap_s,
         timeout_s=link.timeout_s,
+        unit_id=spec.unit_id,
     )
 
 

@@ -229,7 +229,10 @@ def test_stale_data_and_reconnect(tmp_path: Path, client: Client) -> None:
 
 
 def test_on_a_pty_at_the_files_line_settings(tmp_path: Path, client: Client) -> None:
-    text = MOVER.replace("link: {tcp: {port: 1502}}", f"link: {{rtu: {{baudrate: {RTU_BAUD}}}}}")
+    # The file's unit id is the node's default too (the simulator answers only unit 7).
+    text = MOVER.replace(
+        "link: {tcp: {port: 1502}}", f"link: {{rtu: {{baudrate: {RTU_BAUD}}}}}\n  unit_id: 7"
+    )
     description = describe(tmp_path, text)
     simulator = make_simulator(description)
     device = simulator.device
@@ -244,6 +247,7 @@ def test_on_a_pty_at_the_files_line_settings(tmp_path: Path, client: Client) -> 
         assert js.position[1] == pytest.approx(-math.pi / 4)
         assert call(b, Trigger, "go").success
         assert log_of(device) == [(5, Table.COIL, 0, (1,)), (6, Table.HOLDING, 3, (450,))]
+        assert {record.unit_id for record in device.write_log} == {7}
 
 
 def test_bad_description_is_one_line_and_exit_2(tmp_path: Path) -> None:
