@@ -214,6 +214,11 @@ def test_stale_data_and_reconnect(tmp_path: Path, client: Client) -> None:
         reply = call(b, Trigger, "halt")
         assert not reply.success and "halt failed" in reply.message, reply.message
         assert "nothing was sent" in reply.message, reply.message
+        # A coil service is a stop for its stop_on value only.
+        reply = call(b, SetBool, "set_run", data=True)
+        assert not reply.success and "not connected" in reply.message, reply.message
+        reply = call(b, SetBool, "set_run", data=False)
+        assert not reply.success and "nothing was sent" in reply.message, reply.message
         assert client.received(b.joint_states, down) == []  # nothing stale published
         b.wait_diagnostic(2, down, port)
         again: Simulator = make_simulator(description)

@@ -52,7 +52,7 @@ commands:
   values:
     - {name: set_target, register: target}
   coils:
-    - {name: set_run, register: run}
+    - {name: set_run, register: run, stop_on: false}
   topics:
     - {name: cmd_speed, register: speed_command, scale: 57.29577951308232, stop_value: 0}
 """  # noqa: E501
