@@ -1,11 +1,13 @@
 #!/usr/bin/env python3
 """Bridge benchmark: poll rate, latency and CPU per cycle, as ratios (DESIGN §5).
 
-One bench for the TCP bridges, ``--device r6`` (default) or ``--device xarm``, against
-that bridge's simulator. Prints figures and writes them to
+One bench for the TCP bridges, ``--device r6`` (default), ``--device xarm``, or
+``--device modbus`` (modbus_bridge with config/devices/xarm.yaml, against the xArm's own
+simulator: the bare loop then reads the generic bridge's poll plan), against that
+bridge's simulator. Prints figures and writes them to
 bench/results/<device>_bench.json; asserts nothing.
 
-    .venv/bin/python bench/bridge_bench.py [--device r6|xarm] [--duration 5] [--quick]
+    .venv/bin/python bench/bridge_bench.py [--device r6|xarm|modbus] [--duration 5] [--quick]
         [--domain-id 101] [--phases rate,latency,cpu] [--json PATH]
 
 (bench/r6_bench.py is the same bench under its old name.) Figures (see bench/README.md):
@@ -91,6 +93,14 @@ class Profile:
     plan: Callable[[], list[Any]]  # the ReadRequests of one full poll, in the node's order
     # k, rng -> (request, table value, address) the service must write
     service_request: Callable[[int, random.Random], tuple[Any, str, int]]
+    sim_package: str = ""  # whose simulator (default: package)
+    node_params: tuple[str, ...] = ()  # extra -p name:=value of the node
+    # channel -> the device layer (default: <package>.device.<device_class>(channel))
+    make_device: Callable[[Any], Any] | None = None
+
+    @property
+    def simulator(self) -> str:
+        return self.sim_package or self.package
 
 
 def _r6_plan() -> list[Any]:
@@ -122,6 +132,31 @@ def _xarm_service(k: int, rng: random.Random) -> tuple[Any, str, int]:
     return request, "coil", request.index  # FC 05 to coil `index`
 
 
+XARM_DESCRIPTION = ROOT / "config" / "devices" / "xarm.yaml"
+
+
+def _modbus_plan() -> list[Any]:
+    from modbus_bridge.description import load
+    from modbus_bridge.device import poll_plan
+
+    return poll_plan(load(XARM_DESCRIPTION).device)[0]
+
+
+def _modbus_device(channel: Any) -> Any:
+    from modbus_bridge.description import load
+    from modbus_bridge.device import DescribedDevice
+
+    return DescribedDevice(channel, load(XARM_DESCRIPTION).device)
+
+
+def _modbus_service(k: int, rng: random.Random) -> tuple[Any, str, int]:
+    from msg_defs.srv import SetValue
+
+    request = SetValue.Request()
+    request.value = (k % 2) * 5.0 + rng.randint(0, 40) / 10.0  # 0-9 V
+    return request, "holding", 3  # controller AO 0, FC 06 to H3
+
+
 PROFILES = {
     "r6": Profile(
         name="r6",
@@ -148,6 +183,22 @@ PROFILES = {
         service_type="SetOutput",
         plan=_xarm_plan,
         service_request=_xarm_service,
+    ),
+    "modbus": Profile(
+        name="modbus",
+        title="modbus_bridge (xArm description)",
+        package="modbus_bridge",
+        device_class="DescribedDevice",
+        sim_args=(),
+        joint_register="joint_angle_1",
+        joint_raw_max=1_800,
+        service="set_analog_output_0",
+        service_type="SetValue",
+        plan=_modbus_plan,
+        service_request=_modbus_service,
+        sim_package="xarm_bridge",
+        node_params=(f"device_file:={XARM_DESCRIPTION}",),
+        make_device=_modbus_device,
     ),
 }
 
@@ -226,9 +277,13 @@ def run_worker(args: argparse.Namespace) -> None:
         from bridge_core.channel import DeviceChannel
         from bridge_core.transport import ModbusLink, TcpSettings
 
-        module = importlib.import_module(f"{profile.package}.device")
         link = ModbusLink(TcpSettings("127.0.0.1", args.port, 1.0))
-        device = getattr(module, profile.device_class)(DeviceChannel(link, UNIT_ID))
+        channel = DeviceChannel(link, UNIT_ID)
+        if profile.make_device is not None:
+            device = profile.make_device(channel)
+        else:
+            module = importlib.import_module(f"{profile.package}.device")
+            device = getattr(module, profile.device_class)(channel)
         cycle = device.poll
         close = link.close
 
@@ -387,7 +442,7 @@ def start_sim_process(procs: Processes, profile: Profile) -> tuple[subprocess.Po
         [
             sys.executable,
             "-m",
-            f"{profile.package}.sim",
+            f"{profile.simulator}.sim",
             "--host",
             "127.0.0.1",
             "--port",
@@ -419,6 +474,7 @@ def node_argv(profile: Profile, port: int, rate_hz: float) -> list[str]:
         f"port:={port}",
         "-p",
         f"poll_rate_hz:={rate_hz}",
+        *(arg for param in profile.node_params for arg in ("-p", param)),
     ]
 
 
@@ -515,7 +571,8 @@ def measure_node(
         cpu = proc_cpu_s(pid)
         sim_cpu = proc_cpu_s(sim_pid) if sim_pid else float("nan")
         for status in msg.status:
-            if not status.name.startswith(f"{package}:"):
+            # "/<node>: <device> Modbus bridge" (the fully qualified node name).
+            if not status.name.lstrip("/").startswith(f"{package}:"):
                 continue
             values = {kv.key: kv.value for kv in status.values}
             if "transactions" not in values:
@@ -753,7 +810,7 @@ def phase_latency(
     p: Profile = opts.profile
     # The simulator's tick() keeps running: both simulators leave the joints alone while
     # idle (R6 not running, xArm sleeping), which is how they start.
-    sim = importlib.import_module(f"{p.package}.sim").make_simulator(*p.sim_args)
+    sim = importlib.import_module(f"{p.simulator}.sim").make_simulator(*p.sim_args)
     port = sim.start_tcp("127.0.0.1", 0)
     device = sim.device
     rng = random.Random(opts.seed)

@@ -3,10 +3,12 @@
 A timer at ``--rate`` Hz publishes what the bridge publishes per poll cycle, with no
 Modbus traffic: ``--device r6`` a 6-joint JointState, an R6State and a PoseStamped;
 ``--device xarm`` a 7-joint JointState (position, velocity), an XArmState with the
-array sizes the xArm bridge fills and a PoseStamped. The bench
+array sizes the xArm bridge fills and a PoseStamped; ``--device modbus`` a 7-joint
+JointState and a DeviceValues of the xArm description's readable registers (no pose:
+modbus_bridge publishes none). The bench
 (``bench/bridge_bench.py``) reads this process's CPU from /proc to get "floor A".
 
-    python bench/floor_rclpy_publisher.py [--device r6|xarm] [--rate 100]
+    python bench/floor_rclpy_publisher.py [--device r6|xarm|modbus] [--rate 100]
         [--executor single|multi|events] [--ros-args ...]
 
 Run it with ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST and a ROS_DOMAIN_ID of its own
@@ -28,9 +30,9 @@ from rclpy.time import Time
 from rclpy.utilities import ok, try_shutdown
 from sensor_msgs.msg import JointState
 
-from msg_defs.msg import R6State, XArmState
+from msg_defs.msg import DeviceValues, R6State, XArmState
 
-JOINTS = {"r6": 6, "xarm": 7}
+JOINTS = {"r6": 6, "xarm": 7, "modbus": 7}
 
 
 def r6_state(k: int) -> R6State:
@@ -73,8 +75,28 @@ def xarm_state(k: int) -> XArmState:
     return state
 
 
-STATES = {"r6": r6_state, "xarm": xarm_state}
-STATE_TYPES = {"r6": R6State, "xarm": XArmState}
+def modbus_state(k: int) -> DeviceValues:
+    """What modbus_bridge publishes for config/devices/xarm.yaml: every readable register."""
+    from pathlib import Path
+
+    from modbus_bridge.description import load
+
+    global _MODBUS_UNITS
+    if _MODBUS_UNITS is None:
+        path = Path(__file__).resolve().parents[1] / "config" / "devices" / "xarm.yaml"
+        device = load(path).device
+        _MODBUS_UNITS = [(n, device.register_map[n].unit) for n in device.state_names]
+    state = DeviceValues()
+    state.names = [name for name, _ in _MODBUS_UNITS]
+    state.values = [float((k + i) % 7) for i in range(len(_MODBUS_UNITS))]
+    state.units = [unit for _, unit in _MODBUS_UNITS]
+    state.texts = [""] * len(_MODBUS_UNITS)
+    return state
+
+
+_MODBUS_UNITS: list[tuple[str, str]] | None = None
+STATES = {"r6": r6_state, "xarm": xarm_state, "modbus": modbus_state}
+STATE_TYPES = {"r6": R6State, "xarm": XArmState, "modbus": DeviceValues}
 
 
 class FloorPublisher(Node):
@@ -90,6 +112,7 @@ class FloorPublisher(Node):
         self.names = [f"joint{sep}{a}" for a in range(1, self.joints + 1)]
         self.effort = device == "r6"  # the xArm bridge publishes no effort
         self.make_state = STATES[device]
+        self.pose = device != "modbus"  # modbus_bridge publishes no pose
         self.cycles = 0
         self.timer = self.create_timer(1.0 / rate_hz, self._tick)
 
@@ -114,6 +137,8 @@ class FloorPublisher(Node):
         state.header.frame_id = "base_link"
         self.state_pub.publish(state)
 
+        if not self.pose:
+            return
         pose = PoseStamped()
         pose.header.stamp = stamp
         pose.header.frame_id = "base_link"

@@ -7,6 +7,7 @@ it free of pymodbus means a pymodbus upgrade cannot silently change a word order
 from __future__ import annotations
 
 import math
+import struct
 from collections.abc import Sequence
 
 from .errors import CommandRejected
@@ -14,6 +15,8 @@ from .registers import Register, ValueType, WordOrder
 
 WORD_MASK = 0xFFFF
 Value = int | float | str | bool
+# IEEE 754 formats of the float types, as big-endian bytes of their words high first.
+FLOAT_FORMATS = {ValueType.F32: ">f", ValueType.F64: ">d"}
 
 
 class CodecError(CommandRejected):
@@ -60,7 +63,24 @@ def string_to_words(text: str, word_count: int) -> list[int]:
     return [int.from_bytes(data[i : i + 2], "big") for i in range(0, len(data), 2)]
 
 
-def decode_raw(register: Register, words: Sequence[int]) -> int | str | bool:
+def words_to_float(words: Sequence[int], kind: ValueType, word_order: WordOrder) -> float:
+    """An IEEE 754 value from its words (f32: 2, f64: 4) in ``word_order``."""
+    ordered = list(words) if word_order is WordOrder.HIGH_FIRST else list(reversed(words))
+    data = b"".join(word.to_bytes(2, "big") for word in ordered)
+    return float(struct.unpack(FLOAT_FORMATS[kind], data)[0])
+
+
+def float_to_words(value: float, kind: ValueType, word_order: WordOrder) -> list[int]:
+    """The words of an IEEE 754 value; raises CodecError if it does not fit (f32)."""
+    try:
+        data = struct.pack(FLOAT_FORMATS[kind], value)
+    except OverflowError as err:
+        raise CodecError(f"{value} does not fit {kind.label}") from err
+    words = [int.from_bytes(data[i : i + 2], "big") for i in range(0, len(data), 2)]
+    return words if word_order is WordOrder.HIGH_FIRST else list(reversed(words))
+
+
+def decode_raw(register: Register, words: Sequence[int]) -> int | float | str | bool:
     """The unscaled value of ``register`` from its words."""
     if len(words) != register.count:
         raise CodecError(f"{register.name}: expected {register.count} words, got {len(words)}")
@@ -69,19 +89,22 @@ def decode_raw(register: Register, words: Sequence[int]) -> int | str | bool:
         return words_to_string(words)
     if kind is ValueType.BOOL:
         return bool(words[0])
+    if kind.is_float:
+        return words_to_float(words, kind, register.word_order)
     return words_to_int(words, kind.signed, register.word_order)
 
 
 def decode(register: Register, words: Sequence[int]) -> Value:
-    """Engineering value: ``raw / scale`` (a float when scaled, else the raw int)."""
+    """Engineering value: ``raw / scale + offset`` (a float when scaled or offset, else
+    the raw int)."""
     raw = decode_raw(register, words)
-    if register.scale != 1.0 and isinstance(raw, int) and not isinstance(raw, bool):
-        return raw / register.scale
+    if (register.scale != 1.0 or register.offset != 0.0) and not isinstance(raw, str | bool):
+        return raw / register.scale + register.offset
     return raw
 
 
-def to_raw(register: Register, value: Value) -> int | str | bool:
-    """Engineering value -> raw integer, checked against the register's write range."""
+def to_raw(register: Register, value: Value) -> int | float | str | bool:
+    """Engineering value -> raw number, checked against the register's write range."""
     kind = register.value_type
     if kind is ValueType.STRING:
         if not isinstance(value, str):
@@ -101,10 +124,12 @@ def to_raw(register: Register, value: Value) -> int | str | bool:
             f"{register.name}: {value}{unit} is outside "
             f"{register.minimum}..{register.maximum}{unit}"
         )
-    if isinstance(value, int) and register.scale == 1.0:
+    if kind.is_float:
+        return (float(value) - register.offset) * register.scale
+    if isinstance(value, int) and register.scale == 1.0 and register.offset == 0.0:
         return value  # exact: a float product would lose 64-bit precision
     # Quantise to the register's step (e.g. 33.33 % -> 333 at 0.1 % steps); range was checked.
-    return round(value * register.scale)
+    return round((value - register.offset) * register.scale)
 
 
 def encode(register: Register, value: Value) -> list[int]:
@@ -116,6 +141,12 @@ def encode(register: Register, value: Value) -> list[int]:
         return string_to_words(raw, register.count)
     if kind is ValueType.BOOL:
         return [1 if raw else 0]
+    if kind.is_float:
+        assert isinstance(raw, float)
+        try:
+            return float_to_words(raw, kind, register.word_order)
+        except CodecError as err:
+            raise CodecError(f"{register.name}: {err}") from err
     assert isinstance(raw, int)
     try:
         return int_to_words(raw, kind.words, kind.signed, register.word_order)

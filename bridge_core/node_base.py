@@ -128,8 +128,13 @@ class DeviceDefaults:
     device_name: str
     transport: str  # "tcp" or "rtu"
     poll_rate_hz: float = 20.0
+    host: str = "127.0.0.1"
     port: int = 502
+    serial_port: str = "/dev/ttyUSB0"
     baudrate: int = 9600
+    parity: str = "N"
+    stopbits: int = 1
+    unit_id: int = 1
     timeout_s: float = 0.5
     timeout_min_s: float = 0.01  # a reply timeout below this can never be met
     frame_gap_s: float = 0.0  # RTU: least silence between frames beyond t3.5
@@ -143,19 +148,19 @@ def transport_specs(defaults: DeviceDefaults) -> list[ParameterSpec]:
     """Where the device is: the parameters of a node (or bus) that opens its own link."""
     if defaults.transport == "tcp":
         specs = [
-            ParameterSpec("host", "127.0.0.1", "device IP address or host name"),
+            ParameterSpec("host", defaults.host, "device IP address or host name"),
             ParameterSpec("port", defaults.port, "Modbus TCP port", 1, 65535),
         ]
     else:
         specs = [
             ParameterSpec(
                 "serial_port",
-                "/dev/ttyUSB0",
+                defaults.serial_port,
                 "serial device path or pyserial URL (e.g. socket://host:port)",
             ),
             ParameterSpec("baudrate", defaults.baudrate, "serial baud rate", 300, 4_000_000),
-            ParameterSpec("parity", "N", "serial parity", choices=PARITIES),
-            ParameterSpec("stopbits", 1, "serial stop bits", 1, 2),
+            ParameterSpec("parity", defaults.parity, "serial parity", choices=PARITIES),
+            ParameterSpec("stopbits", defaults.stopbits, "serial stop bits", 1, 2),
             ParameterSpec(
                 "frame_gap_s",
                 defaults.frame_gap_s,
@@ -320,20 +325,24 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
 
     The node opens its own link from its transport parameters, unless it is given
     ``link`` and ``unit_id`` (a device on a bus a ``BusNode`` owns): then it declares
-    no transport parameters and never closes the link. ``last_snapshot`` is the latest
+    no transport parameters and never closes the link. ``defaults`` may be a function of
+    the node that returns them (after declaring the parameters they come from: a
+    ``modbus_bridge`` device file). ``last_snapshot`` is the latest
     poll's, set before ``publish_snapshot`` runs (diagnostics and services read it).
     """
 
     def __init__(
         self,
         node_name: str,
-        defaults: DeviceDefaults,
+        defaults: DeviceDefaults | Callable[[ParameterNode], DeviceDefaults],
         *,
         link: ModbusLink | None = None,
         unit_id: int | None = None,
         **node_kwargs: Any,
     ) -> None:
         super().__init__(node_name, **node_kwargs)
+        if not isinstance(defaults, DeviceDefaults):
+            defaults = defaults(self)
         self.device_name = defaults.device_name
         self.last_snapshot: SnapshotT | None = None
         self.joint_names: list[str] = []
@@ -370,7 +379,7 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
                 *transport_specs(defaults),
                 ParameterSpec(
                     "unit_id",
-                    1,
+                    defaults.unit_id,
                     "Modbus unit (slave) id"
                     + (
                         " (0 is the RTU broadcast: nobody answers)"
@@ -908,21 +917,25 @@ class BusNode(ParameterNode):
     def __init__(
         self,
         node_name: str,
-        defaults: DeviceDefaults,
+        defaults: DeviceDefaults | Callable[[ParameterNode], DeviceDefaults],
         *,
         unit_id_range: range,
+        unit_ids: Callable[[], Sequence[int]] | None = None,
         **node_kwargs: Any,
     ) -> None:
         super().__init__(node_name, **node_kwargs)
-        values = self.declare_specs(
-            [
-                *transport_specs(defaults),
-                ParameterSpec("unit_ids", [1], "devices on the bus, one node each"),
-                AUTOSTART_SPEC,
-            ]
+        if not isinstance(defaults, DeviceDefaults):
+            defaults = defaults(self)  # as BridgeNode's (a modbus_bridge device file)
+        # unit_ids: the devices' ids when something else names them (a device file);
+        # else the ``unit_ids`` parameter.
+        own_units = (
+            []
+            if unit_ids is not None
+            else [ParameterSpec("unit_ids", [1], "devices on the bus, one node each")]
         )
+        values = self.declare_specs([*transport_specs(defaults), *own_units, AUTOSTART_SPEC])
         self.autostart = bool(values["autostart"])
-        units = [int(u) for u in values["unit_ids"]]
+        units = [int(u) for u in (values["unit_ids"] if unit_ids is None else unit_ids())]
         if not units or len(set(units)) != len(units):
             raise ConfigurationError(f"unit_ids {units} must be distinct and not empty")
         for unit in units:

@@ -124,6 +124,8 @@ _STRUCT_CODES = {
     ValueType.I32: "i",
     ValueType.U64: "Q",
     ValueType.I64: "q",
+    ValueType.F32: "f",
+    ValueType.F64: "d",
 }
 
 
@@ -138,8 +140,8 @@ class BlockDecoder:
         self.count = request.count
         self._words = struct.Struct(f">{request.count}H")
         fields: list[str] = []
-        # (name, kind, scale, word count) per unpacked field, in order
-        self._plan: list[tuple[str, str, float, int]] = []
+        # (name, kind, scale, offset, word count) per unpacked field, in order
+        self._plan: list[tuple[str, str, float, float, int]] = []
         position = request.address
         for reg in sorted(request.registers, key=lambda r: r.address):
             if reg.address > position:
@@ -147,18 +149,17 @@ class BlockDecoder:
             kind = reg.value_type
             if kind is ValueType.STRING:
                 fields.append(f"{2 * reg.count}s")
-                self._plan.append((reg.name, "string", 1.0, 1))
+                self._plan.append((reg.name, "string", 1.0, 0.0, 1))
             elif kind is ValueType.BOOL:
                 fields.append("H")
-                self._plan.append((reg.name, "bool", 1.0, 1))
+                self._plan.append((reg.name, "bool", 1.0, 0.0, 1))
             elif kind.words == 1 or reg.word_order is WordOrder.HIGH_FIRST:
                 fields.append(_STRUCT_CODES[kind])
-                self._plan.append((reg.name, "int", reg.scale, 1))
+                self._plan.append((reg.name, "int", reg.scale, reg.offset, 1))
             else:  # low word first: unpack the words, join them in reverse
                 fields.append(f"{kind.words}H")
-                self._plan.append(
-                    (reg.name, "signed" if kind.signed else "unsigned", reg.scale, kind.words)
-                )
+                joined = "float" if kind.is_float else "signed" if kind.signed else "unsigned"
+                self._plan.append((reg.name, joined, reg.scale, reg.offset, kind.words))
             position = reg.end
         self._values = struct.Struct(">" + "".join(fields))
 
@@ -168,8 +169,8 @@ class BlockDecoder:
         fields = self._values.unpack(self._words.pack(*words[: self.count]))
         values: dict[str, Value] = {}
         index = 0
-        for name, kind, scale, nwords in self._plan:
-            raw: int | str | bool
+        for name, kind, scale, offset, nwords in self._plan:
+            raw: int | float | str | bool
             if kind == "int":
                 raw = fields[index]
             elif kind == "bool":
@@ -183,8 +184,14 @@ class BlockDecoder:
                 if kind == "signed" and joined >= 1 << (16 * nwords - 1):
                     joined -= 1 << (16 * nwords)
                 raw = joined
+                if kind == "float":
+                    raw = struct.unpack(
+                        ">f" if nwords == 2 else ">d", joined.to_bytes(2 * nwords, "big")
+                    )[0]
             index += nwords
-            values[name] = raw / scale if scale != 1.0 and not isinstance(raw, str | bool) else raw
+            if (scale != 1.0 or offset != 0.0) and not isinstance(raw, str | bool):
+                raw = raw / scale + offset
+            values[name] = raw
         return values
 
 

@@ -46,6 +46,8 @@ class ValueType(enum.Enum):
     I32 = ("i32", True, 2)
     U64 = ("u64", False, 4)
     I64 = ("i64", True, 4)
+    F32 = ("f32", True, 2)  # IEEE 754 binary32, words in the register's word order
+    F64 = ("f64", True, 4)  # IEEE 754 binary64
     STRING = ("string", False, 0)  # length given per register entry
 
     def __init__(self, label: str, signed: bool, words: int) -> None:
@@ -56,6 +58,10 @@ class ValueType(enum.Enum):
     @property
     def bits(self) -> int:
         return 16 * self.words
+
+    @property
+    def is_float(self) -> bool:
+        return self in (ValueType.F32, ValueType.F64)
 
     @property
     def raw_min(self) -> int:
@@ -93,8 +99,9 @@ class Access(enum.Enum):
 class Register:
     """One value of a device: where it lives, how it is coded, where the manual says so.
 
-    ``scale`` is raw per engineering unit: ``raw = round(value * scale)``.
-    ``minimum``/``maximum`` bound writes, in engineering units.
+    ``scale`` is raw per engineering unit and ``offset`` is in engineering units:
+    ``value = raw / scale + offset``, ``raw = round((value - offset) * scale)`` (floats
+    unrounded). ``minimum``/``maximum`` bound writes, in engineering units.
     """
 
     name: str
@@ -106,6 +113,7 @@ class Register:
     word_order: WordOrder = WordOrder.HIGH_FIRST
     scale: float = 1.0
     unit: str = ""
+    offset: float = 0.0
     minimum: float | None = None
     maximum: float | None = None
     length: int = 0  # registers, STRING only

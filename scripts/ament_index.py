@@ -48,6 +48,12 @@ SHARE_FILES: dict[str, tuple[str, ...]] = {
     "xarm_bridge": ("launch/xarm.launch.py", "config/xarm.yaml"),
     "stepper_bridge": ("launch/stepper.launch.py", "config/stepper.yaml"),
     "motec_bridge": ("launch/motec.launch.py", "config/motec.yaml"),
+    "modbus_bridge": (
+        "launch/modbus.launch.py",
+        "config/modbus.yaml",
+        "config/devices/xarm.yaml",
+        "config/devices/rtu_multidrop.yaml",
+    ),
 }
 
 

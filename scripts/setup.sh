@@ -18,7 +18,7 @@ VENV="$ROOT/.venv"
 STAMP="$VENV/.setup-stamp"
 LOG="$VENV/setup.log"
 PY="${PYTHON:-python3}"
-PACKAGES=(bridge_core r6_bridge xarm_bridge stepper_bridge motec_bridge)
+PACKAGES=(bridge_core r6_bridge xarm_bridge stepper_bridge motec_bridge modbus_bridge)
 
 log() { printf 'setup: %s\n' "$*"; }
 die() { printf 'setup: ERROR: %s\n' "$*" >&2; exit 1; }

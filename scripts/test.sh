@@ -15,7 +15,7 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
 
 if [[ "${LINT:-1}" == 1 ]]; then
     pkgs=()
-    for p in bridge_core r6_bridge xarm_bridge stepper_bridge motec_bridge; do
+    for p in bridge_core r6_bridge xarm_bridge stepper_bridge motec_bridge modbus_bridge; do
         [[ -d "$p" ]] && pkgs+=("$p")
     done
     if ((${#pkgs[@]})); then

@@ -32,6 +32,7 @@ pytestmark = pytest.mark.ros
 SECTION = "## From the ros2 command line"
 ACTIONS_SECTION = "## Actions (motions that take time)"
 DEMO_S = 300  # the demo's --duration: far beyond the test, which stops it itself
+DEMO_START_S = 180.0  # four simulators and bridges on a loaded machine
 
 
 def readme_commands(heading: str = SECTION) -> list[list[str]]:
@@ -62,7 +63,8 @@ def filled(instance: Any, text: str) -> Any:
 
 @pytest.fixture(scope="module")
 def demo(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Client]:
-    log = (tmp_path_factory.mktemp("demo") / "demo.out").open("wb")
+    out = tmp_path_factory.mktemp("demo") / "demo.out"
+    log = out.open("wb")
     proc = subprocess.Popen(
         [sys.executable, "-m", "bridge_core.demo", "--duration", str(DEMO_S)],
         cwd=ROOT,
@@ -71,6 +73,14 @@ def demo(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Client]:
         stderr=subprocess.STDOUT,
     )
     try:
+        # The demo's first report comes after its start services (the drives enabled, the
+        # R6 started...): the README's lines are typed at a demo that is up.
+        wait_for(
+            lambda: b"--- t =" in out.read_bytes() or proc.poll() is not None,
+            DEMO_START_S,
+            "the demo's first report",
+        )
+        assert proc.poll() is None, f"the demo ended at start; see {out}"
         with ros_client("readme_cli_client") as client:
             yield client
         assert proc.poll() is None, "the demo ended during the test"
@@ -160,7 +170,8 @@ def test_every_readme_action_line_works_as_typed(demo: Client) -> None:
         goal = client.send_goal(action, name, filled(action.Goal(), text), timeout=WAIT_S * 3)
         try:
             assert goal.accepted, f"{what}: rejected (see the demo's log)"
-            goal.wait_feedback(timeout=WAIT_S * 3)
+            if not goal.fed_before_end(WAIT_S * 3):
+                raise AssertionError(f"{what}: ended without feedback: {goal.result()[1]}")
             goal.cancel(timeout=WAIT_S * 3)
             _status, result = goal.result(timeout=WAIT_S * 3)
             assert result.outcome.name in ("CANCELLED", "REACHED"), f"{what}: {result.outcome}"

@@ -113,3 +113,42 @@ def test_non_finite_values_are_refused(value: float) -> None:
     )
     with pytest.raises(CodecError, match="outside"):
         encode(reg, value)
+
+
+# IEEE 754 known vectors (words high word first): 1.0, -2.5, pi as f32 and f64.
+FLOAT_VECTORS = [
+    (ValueType.F32, 1.0, [0x3F80, 0x0000]),
+    (ValueType.F32, -2.5, [0xC020, 0x0000]),
+    (ValueType.F64, 1.0, [0x3FF0, 0, 0, 0]),
+    (ValueType.F64, 3.141592653589793, [0x4009, 0x21FB, 0x5444, 0x2D18]),
+]
+
+
+@pytest.mark.parametrize(("kind", "value", "words"), FLOAT_VECTORS)
+@pytest.mark.parametrize("order", [HIGH, LOW])
+def test_float_vectors(kind: ValueType, value: float, words: list[int], order: WordOrder) -> None:
+    on_wire = words if order is HIGH else list(reversed(words))
+    reg = Register("v", 0, kind, "test", word_order=order, access=Access.READ_WRITE)
+    assert encode(reg, value) == on_wire
+    assert decode(reg, on_wire) == value
+
+
+def test_f32_overflow_is_refused() -> None:
+    reg = Register("v", 0, ValueType.F32, "test", access=Access.READ_WRITE)
+    with pytest.raises(CodecError, match="does not fit f32"):
+        encode(reg, 1e39)
+
+
+def test_offset_both_directions() -> None:
+    # value = raw / scale + offset: 0.1 degC steps from -40 degC (raw 0 = -40.0).
+    temperature = Register(
+        "t", 0, ValueType.U16, "test", scale=10, offset=-40.0, access=Access.READ_WRITE
+    )
+    assert encode(temperature, 21.5) == [615]
+    assert decode(temperature, [615]) == pytest.approx(21.5)
+    assert decode(temperature, [0]) == pytest.approx(-40.0)
+    scaled_float = Register(
+        "f", 0, ValueType.F32, "test", scale=2.0, offset=1.0, access=Access.READ_WRITE
+    )
+    assert encode(scaled_float, 2.0) == [0x4000, 0x0000]  # (2 - 1) * 2 = 2.0
+    assert decode(scaled_float, [0x4000, 0x0000]) == 2.0

@@ -18,7 +18,7 @@ from pathlib import Path
 from ..support.ros import ROOT
 
 LAUNCH = ROOT / "launch"
-BRIDGES = {"r6_bridge", "xarm_bridge", "stepper_bridge", "motec_bridge"}
+BRIDGES = {"r6_bridge", "xarm_bridge", "stepper_bridge", "motec_bridge", "modbus_bridge"}
 
 
 def console_scripts() -> dict[str, str]:
@@ -47,6 +47,7 @@ def test_every_launch_file_names_existing_packages_executables_and_files() -> No
         "xarm.launch.py",
         "stepper.launch.py",
         "motec.launch.py",
+        "modbus.launch.py",
         "cell.launch.py",
     }
     launched: set[str] = set()

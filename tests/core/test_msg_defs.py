@@ -148,6 +148,17 @@ SERVICES: dict[str, tuple[dict[str, str], dict[str, str]]] = {
         {"position": "double", "relative": "boolean", "max_velocity": "double"},
         {**REPLY, "counts": "int32"},
     ),
+    "ReadRegisters": (
+        {"names": "sequence<string>"},
+        {
+            **REPLY,
+            "names": "sequence<string>",
+            "values": "sequence<double>",
+            "units": "sequence<string>",
+            "texts": "sequence<string>",
+        },
+    ),
+    "WriteRegister": ({"name": "string", "value": "double", "text": "string"}, REPLY),
 }
 
 
@@ -374,3 +385,19 @@ def test_r6state_published_in_another_process_is_received(ros_env: dict[str, str
             except subprocess.TimeoutExpired:
                 child.kill()
                 child.communicate()
+
+
+def test_device_values_fields_and_round_trip() -> None:
+    from msg_defs.msg import DeviceValues
+
+    fields = DeviceValues.get_fields_and_field_types()
+    assert fields == {
+        "header": "std_msgs/Header",
+        "names": "sequence<string>",
+        "values": "sequence<double>",
+        "units": "sequence<string>",
+        "texts": "sequence<string>",
+    }
+    message = DeviceValues(names=["a", "b"], values=[1.5, float("inf")], units=["V", ""])
+    message.texts = ["", "text"]
+    assert deserialize_message(serialize_message(message), DeviceValues) == message

@@ -1,4 +1,4 @@
-"""The four bridges as data, for the contract suite (tests/test_contract.py).
+"""The bridges as data, for the contract suite (tests/test_contract.py).
 
 Each entry says how to start the bridge's simulator (its own process, so a test can
 SIGKILL it; accepted writes and handled read requests logged to files) and its node, one
@@ -22,9 +22,17 @@ from typing import Any
 
 from bridge_core.registers import Register
 from bridge_core.sim_base import ReadRecord, WriteRecord, read_read_log, read_write_log
+from modbus_bridge.description import load as load_description
 from motec_bridge.registers import MOTEC_MAP
-from msg_defs.msg import MotecState, R6State, StepperState, XArmState
-from msg_defs.srv import ListCounters, ReadParameter, SetChannelValue, SetOutput, SetValue
+from msg_defs.msg import DeviceValues, MotecState, R6State, StepperState, XArmState
+from msg_defs.srv import (
+    ListCounters,
+    ReadParameter,
+    ReadRegisters,
+    SetChannelValue,
+    SetOutput,
+    SetValue,
+)
 from r6_bridge.registers import R6_MAP
 from stepper_bridge.registers import STEPPER_MAP
 from xarm_bridge.registers import XARM_MAP
@@ -33,6 +41,9 @@ from .ros import ROOT, wait_for
 
 RTU_BAUD = 115200
 SIM_START_S = 20.0
+# modbus_bridge runs on the xArm's description, served by modbus_sim.
+XARM_DESCRIPTION = ROOT / "config" / "devices" / "xarm.yaml"
+XARM_DESCRIBED = load_description(XARM_DESCRIPTION).device.register_map
 
 
 @dataclass(frozen=True)
@@ -206,6 +217,26 @@ BRIDGES: tuple[BridgeInfo, ...] = (
         read_services={"read_parameter": Call("read_parameter", ReadParameter, {"index": 0x6D})},
         mistyped=(("baudrate", "fast"), ("poll_rate_hz", "fast"), ("unit_id", "300")),
         actions=1,  # ~/move_to
+    ),
+    BridgeInfo(
+        key="modbus",
+        module="modbus_bridge.node",
+        node_name="modbus_bridge",
+        state_type=DeviceValues,
+        transport="tcp",
+        sim_module="modbus_bridge.sim",
+        sim_args=("--device-file", str(XARM_DESCRIPTION)),
+        params={"timeout_s": 0.5, "device_file": str(XARM_DESCRIPTION)},
+        good=Call("set_analog_output_0", SetValue, {"value": 2.5}),
+        good_write=(6, XARM_DESCRIBED["controller_ao_0"].address, (2500,)),
+        bad=Call("set_analog_output_0", SetValue, {"value": 100.0}),
+        position_register=XARM_DESCRIBED["joint_angle_1"],
+        unit_id=1,
+        config="modbus.yaml",
+        startup_only=("host", "port", "unit_id", "timeout_s", "joint_prefix", "device_file"),
+        read_services={"read": Call("read", ReadRegisters, {"names": ["joint_angle_1"]})},
+        # Without a readable device_file nothing else is read: the file's is the one typo.
+        mistyped=(("device_file", "/nonexistent/device.yaml"),),
     ),
 )
 

@@ -197,7 +197,7 @@ class Goal:
         self.action_client = action_client
         self.handle: Any = None
         self.feedback: list[Any] = []
-        self._result: Any = None
+        self._future: Any = None  # the result request, sent once
 
     def on_feedback(self, msg: Any) -> None:
         self.feedback.append(msg.feedback)
@@ -219,13 +219,23 @@ class Goal:
         wait_for(future.done, timeout, "the cancel response")
         return future.result()
 
+    def _result_future(self) -> Any:
+        if self._future is None:
+            self._future = self.handle.get_result_async()
+        return self._future
+
     def result(self, timeout: float = WAIT_S) -> tuple[int, Any]:
         """(GoalStatus status, result message)."""
-        if self._result is None:
-            future = self.handle.get_result_async()
-            wait_for(future.done, timeout, "the goal's result")
-            self._result = future.result()
-        return self._result.status, self._result.result
+        future = self._result_future()
+        wait_for(future.done, timeout, "the goal's result")
+        response = future.result()
+        return response.status, response.result
+
+    def fed_before_end(self, timeout: float = WAIT_S) -> bool:
+        """Waits for feedback or the result: True if feedback came (the goal runs)."""
+        future = self._result_future()
+        wait_for(lambda: self.feedback or future.done(), timeout, "feedback or the result")
+        return bool(self.feedback)
 
     def outcome(self, timeout: float = WAIT_S) -> Any:
         return self.result(timeout)[1].outcome

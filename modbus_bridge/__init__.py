@@ -1,0 +1,1 @@
+"""Any Modbus device from a YAML description: node, simulator, docs."""

@@ -1,0 +1,78 @@
+"""``modbus_bus -p device_file:=FILE``: several described devices on one RTU line.
+
+One process: a bus owner (``ModbusBusNode``, node ``modbus_bus``: the line's parameters,
+``serial_port`` / ``baudrate`` / ``parity`` / ``stopbits`` / ``frame_gap_s`` /
+``timeout_s``, their defaults from the file's ``line``) and one ``ModbusBridgeNode`` per
+device of the file, named after it, on the bus's one link (the MOTEC bridge's pattern:
+``bridge_core.node_base.BusNode``). The devices take turns on the line through its
+priority lock; each has its own poll rate, diagnostics, lifecycle and commands.
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from rclpy.node import Node
+
+from bridge_core.errors import ConfigurationError
+from bridge_core.node_base import BusNode, DeviceDefaults, ParameterNode, spin_nodes
+from bridge_core.parameters import ParameterSpec
+
+from .description import UNIT_ID_MAX, Description, load
+from .node import ModbusBridgeNode, defaults_of
+
+BUS_NODE_NAME = "modbus_bus"
+
+
+class ModbusBusNode(BusNode):
+    """The owner of a description file's RTU line."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        self.description: Description | None = None
+        super().__init__(
+            BUS_NODE_NAME,
+            self._defaults_from_file,
+            unit_id_range=range(1, UNIT_ID_MAX + 1),
+            unit_ids=self._unit_ids,
+            **kwargs,
+        )
+
+    def _defaults_from_file(self, node: ParameterNode) -> DeviceDefaults:
+        values = node.declare_specs(
+            [ParameterSpec("device_file", "", "description of the line's devices (required)")]
+        )
+        path = str(values["device_file"])
+        if not path:
+            raise ConfigurationError("no device description: give -p device_file:=FILE")
+        if not Path(path).is_file():
+            raise ConfigurationError(f"parameter device_file:={path}: no such file")
+        description = load(path)
+        if description.line is None:
+            raise ConfigurationError(
+                f"{path} describes one device with its own link: run modbus_bridge for it"
+            )
+        self.description = description
+        return defaults_of(description.devices[0], description.line)
+
+    def _unit_ids(self) -> list[int]:
+        assert self.description is not None
+        return [device.unit_id for device in self.description.devices]
+
+
+def build_nodes(nodes: list[Node]) -> None:
+    bus = ModbusBusNode()
+    nodes.append(bus)
+    assert bus.description is not None
+    for device in bus.description.devices:
+        nodes.append(ModbusBridgeNode(device, link=bus.link))
+
+
+def main(args: Sequence[str] | None = None) -> int:
+    return spin_nodes(build_nodes, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,842 @@
+"""Device description files: any Modbus device as a validated YAML register map.
+
+One file drives the node (``modbus_bridge``), the simulator (``modbus_sim``) and the docs
+(``modbus_doc``). pydantic checks the shape of the file (types, ranges, choices, unknown
+keys); the checks that need several keys at once (a register's type against its table, a
+joint's register and unit, a command's register and value) run after it. Every problem
+is reported as ``FILE:LINE: key.path: what is wrong (what is allowed)`` on one line, the
+line taken from the YAML node the key path leads to (PyYAML's composer keeps the marks).
+
+The result is built from bridge_core's own types (``Register``, ``RegisterMap``,
+``DeviceLimits``), so the planner, codec, poller and simulator base serve a described
+device exactly as they serve the four hand-written bridges.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated, Any, Literal, get_args, get_origin
+
+import yaml  # type: ignore[import-untyped]
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from bridge_core.codec import CodecError, encode, to_raw
+from bridge_core.errors import ConfigurationError
+from bridge_core.registers import (
+    MAX_ADDRESS,
+    MAX_READ_BITS,
+    MAX_READ_REGISTERS,
+    MAX_WRITE_BITS,
+    MAX_WRITE_REGISTERS,
+    Access,
+    DeviceLimits,
+    Register,
+    RegisterMap,
+    Table,
+    ValueType,
+    WordOrder,
+)
+from bridge_core.units import DEG, MM, RPM_TO_RAD_S
+
+# Function codes a description may list: the reads and writes of the four tables, and
+# mask write (0x16) / read-write multiple (0x17), which the simulator base serves.
+KNOWN_FUNCTION_CODES = (1, 2, 3, 4, 5, 6, 15, 16, 22, 23)
+FunctionCode = Literal[1, 2, 3, 4, 5, 6, 15, 16, 22, 23]
+DEFAULT_FUNCTION_CODES: tuple[FunctionCode, ...] = (1, 2, 3, 4, 5, 6, 15, 16)
+READ_FUNCTION = {Table.COIL: 1, Table.DISCRETE_INPUT: 2, Table.HOLDING: 3, Table.INPUT: 4}
+WRITE_FUNCTIONS = {Table.COIL: (5, 15), Table.HOLDING: (6, 16)}
+UNIT_ID_MAX = 247
+BAUDRATE_RANGE = (300, 4_000_000)
+TIMEOUT_RANGE_S = (0.01, 10.0)
+POLL_RATE_RANGE_HZ = (0.1, 1000.0)
+COMMAND_TIMEOUT_RANGE_S = (0.05, 60.0)
+COMMAND_RATE_RANGE_HZ = (0.1, 100.0)
+# Names the node gives its own services and topics: a command may not take them.
+RESERVED_NAMES = frozenset({"read", "write", "state", "connected"})
+NAME_PATTERN = r"^[A-Za-z][A-Za-z0-9_]*$"
+
+# Register units a joint value may have, as (SI unit, factor to it). REP 103: positions in
+# rad or m, velocities in rad/s or m/s, efforts in N·m or N.
+UNITS_TO_SI: dict[str, tuple[str, float]] = {
+    "rad": ("rad", 1.0),
+    "mrad": ("rad", 1e-3),
+    "deg": ("rad", DEG),
+    "rev": ("rad", 2.0 * math.pi),
+    "m": ("m", 1.0),
+    "mm": ("m", MM),
+    "um": ("m", 1e-6),
+    "rad/s": ("rad/s", 1.0),
+    "deg/s": ("rad/s", DEG),
+    "rpm": ("rad/s", RPM_TO_RAD_S),
+    "m/s": ("m/s", 1.0),
+    "mm/s": ("m/s", MM),
+    "N.m": ("N.m", 1.0),
+    "mN.m": ("N.m", 1e-3),
+    "N": ("N", 1.0),
+    "kN": ("N", 1e3),
+}
+SI_UNITS = {
+    ("revolute", "position"): "rad",
+    ("revolute", "velocity"): "rad/s",
+    ("revolute", "effort"): "N.m",
+    ("prismatic", "position"): "m",
+    ("prismatic", "velocity"): "m/s",
+    ("prismatic", "effort"): "N",
+}
+
+Name = Annotated[str, Field(pattern=NAME_PATTERN, max_length=64)]
+Text = Annotated[str, Field(min_length=1)]
+Finite = Annotated[float, Field(allow_inf_nan=False)]
+
+
+class _Strict(BaseModel):
+    """Unknown keys are errors (a typo must not be ignored); no type coercion from text."""
+
+    model_config = ConfigDict(extra="forbid", strict=True, frozen=True)
+
+
+class _Lenient(_Strict):
+    """Numbers where a float is wanted may be written as integers (``scale: 10``)."""
+
+    model_config = ConfigDict(extra="forbid", strict=False, frozen=True)
+
+
+class TcpLinkSpec(_Strict):
+    host: Text = "127.0.0.1"
+    port: int = Field(502, ge=1, le=65535)
+
+
+class RtuLinkSpec(_Lenient):
+    serial_port: Text = "/dev/ttyUSB0"
+    baudrate: int = Field(9600, ge=BAUDRATE_RANGE[0], le=BAUDRATE_RANGE[1], strict=True)
+    parity: Literal["N", "E", "O"] = "N"
+    stopbits: Literal[1, 2] = 1
+    frame_gap_s: Finite = Field(0.0, ge=0.0, le=1.0)
+
+
+class LinkSpec(_Lenient):
+    """Where the device is by default; ``-p host:=`` etc. override it."""
+
+    tcp: TcpLinkSpec | None = None
+    rtu: RtuLinkSpec | None = None
+    timeout_s: Finite = Field(0.5, ge=TIMEOUT_RANGE_S[0], le=TIMEOUT_RANGE_S[1])
+
+
+class DeviceSpec(_Lenient):
+    name: Name
+    manual: Text
+    title: str = ""
+    link: LinkSpec | None = None
+    unit_id: int = Field(1, ge=0, le=UNIT_ID_MAX, strict=True)
+    word_order: Literal["high_first", "low_first"] = "high_first"
+    max_read_registers: int = Field(MAX_READ_REGISTERS, ge=1, le=MAX_READ_REGISTERS, strict=True)
+    max_write_registers: int = Field(MAX_WRITE_REGISTERS, ge=1, le=MAX_WRITE_REGISTERS, strict=True)
+    max_read_bits: int = Field(MAX_READ_BITS, ge=1, le=MAX_READ_BITS, strict=True)
+    max_write_bits: int = Field(MAX_WRITE_BITS, ge=1, le=MAX_WRITE_BITS, strict=True)
+    function_codes: list[FunctionCode] = Field(
+        default_factory=lambda: list(DEFAULT_FUNCTION_CODES), min_length=1
+    )
+    read_undefined: bool = False
+    max_gap: int = Field(16, ge=0, le=MAX_READ_REGISTERS, strict=True)
+    reply_delay_s: Finite = Field(0.0, ge=0.0, le=10.0)
+    poll_rate_hz: Finite = Field(10.0, ge=POLL_RATE_RANGE_HZ[0], le=POLL_RATE_RANGE_HZ[1])
+    state: list[Name] | None = None
+
+
+class RegisterSpec(_Lenient):
+    name: Name
+    table: Literal["coil", "discrete_input", "holding", "input"]
+    address: int = Field(ge=0, le=MAX_ADDRESS, strict=True)
+    type: Literal["bool", "u16", "i16", "u32", "i32", "u64", "i64", "f32", "f64", "string"]
+    manual: Text
+    length: int | None = Field(None, ge=1, le=MAX_READ_REGISTERS, strict=True)
+    word_order: Literal["high_first", "low_first"] | None = None
+    scale: Finite = Field(1.0, gt=0.0)
+    offset: Finite = 0.0
+    unit: str = ""
+    access: Literal["R", "RW", "W"] = "R"
+    range: tuple[Finite, Finite] | None = None
+    description: str = ""
+
+
+class JointValueSpec(_Lenient):
+    register_name: Name = Field(alias="register")
+    factor: Finite = Field(1.0, description="extra factor, e.g. 1 / gear ratio")
+
+
+class JointSimSpec(_Lenient):
+    """How ``modbus_sim`` moves the joint: after a command register, in its SI units."""
+
+    command: Name  # a writable register: a velocity (mode velocity) or a target position
+    mode: Literal["velocity", "position"] = "velocity"
+    speed: Finite | None = Field(None, gt=0.0)  # position mode: SI units per second
+
+
+class JointSpec(_Lenient):
+    name: Name
+    kind: Literal["revolute", "prismatic"] = "revolute"
+    position: JointValueSpec
+    velocity: JointValueSpec | None = None
+    effort: JointValueSpec | None = None
+    sim: JointSimSpec | None = None
+
+
+class WriteSpec(_Lenient):
+    register_name: Name = Field(alias="register")
+    value: Any  # a number or true/false: checked against the register (_check_commands)
+
+
+class TriggerSpec(_Lenient):
+    name: Name
+    writes: list[WriteSpec] = Field(min_length=1)
+    stop: bool = False
+    description: str = ""
+
+
+class ValueServiceSpec(_Lenient):
+    name: Name
+    register_name: Name = Field(alias="register")
+    description: str = ""
+
+
+class CoilServiceSpec(_Lenient):
+    name: Name
+    register_name: Name = Field(alias="register")
+    stop_on: bool | None = None  # the coil value that stops motion (tried at once)
+    description: str = ""
+
+
+class TopicSpec(_Lenient):
+    name: Name
+    register_name: Name = Field(alias="register")
+    scale: Finite = Field(1.0, description="register value per message unit")
+    stop_value: Finite = Field(0.0, description="register value written to stop")
+    timeout_s: Finite = Field(0.5, ge=COMMAND_TIMEOUT_RANGE_S[0], le=COMMAND_TIMEOUT_RANGE_S[1])
+    rate_hz: Finite = Field(10.0, ge=COMMAND_RATE_RANGE_HZ[0], le=COMMAND_RATE_RANGE_HZ[1])
+    description: str = ""
+
+
+class CommandsSpec(_Lenient):
+    triggers: list[TriggerSpec] = []
+    values: list[ValueServiceSpec] = []
+    coils: list[CoilServiceSpec] = []
+    topics: list[TopicSpec] = []
+
+
+class DeviceFileSpec(_Lenient):
+    """One device (the usual file), or one entry of ``devices`` on a shared RTU line."""
+
+    device: DeviceSpec
+    registers: list[RegisterSpec] = Field(min_length=1)
+    joints: list[JointSpec] = []
+    commands: CommandsSpec = CommandsSpec()
+
+
+class LineSpec(_Lenient):
+    rtu: RtuLinkSpec
+    timeout_s: Finite = Field(0.5, ge=TIMEOUT_RANGE_S[0], le=TIMEOUT_RANGE_S[1])
+
+
+class BusFileSpec(_Lenient):
+    """Several devices on one RTU line: one bus owner, one node per device."""
+
+    line: LineSpec
+    devices: list[DeviceFileSpec] = Field(min_length=1)
+
+
+# ---------------------------------------------------------------- built description
+@dataclass(frozen=True)
+class JointSource:
+    """A register and the factor that turns its engineering value into SI."""
+
+    register: str
+    to_si: float
+
+
+@dataclass(frozen=True)
+class JointMotion:
+    """The simulator's rule for a joint: ``command`` (to SI by ``to_si``) is a velocity or
+    a target position; a target is approached at ``speed`` (SI/s; None: at once)."""
+
+    command: str
+    to_si: float
+    mode: Literal["velocity", "position"]
+    speed: float | None
+
+
+@dataclass(frozen=True)
+class Joint:
+    name: str
+    position: JointSource
+    velocity: JointSource | None
+    effort: JointSource | None
+    motion: JointMotion | None = None
+
+
+@dataclass(frozen=True)
+class Link:
+    """Default link of a device (or of a line): ``tcp`` or ``rtu`` settings."""
+
+    transport: Literal["tcp", "rtu"]
+    timeout_s: float
+    tcp: TcpLinkSpec | None = None
+    rtu: RtuLinkSpec | None = None
+
+
+@dataclass(frozen=True)
+class Device:
+    """One described device: its spec as written and the runtime types built from it."""
+
+    spec: DeviceFileSpec
+    register_map: RegisterMap
+    joints: tuple[Joint, ...]
+    link: Link | None  # None: on the file's shared line
+    state_names: tuple[str, ...]  # readable registers published in ~/state
+
+    @property
+    def name(self) -> str:
+        return self.spec.device.name
+
+    @property
+    def unit_id(self) -> int:
+        return self.spec.device.unit_id
+
+    @property
+    def commands(self) -> CommandsSpec:
+        return self.spec.commands
+
+
+@dataclass(frozen=True)
+class Description:
+    path: Path
+    devices: tuple[Device, ...]
+    line: Link | None  # several devices on one RTU line
+
+    @property
+    def device(self) -> Device:
+        """The only device of a single-device file."""
+        return self.devices[0]
+
+
+@dataclass(frozen=True)
+class Problem:
+    line: int
+    path: str
+    message: str
+
+
+class DescriptionError(ConfigurationError):
+    """A description file is not valid: the first problem as one line, all in ``problems``."""
+
+    def __init__(self, path: Path, problems: Sequence[Problem]) -> None:
+        self.path = path
+        self.problems = list(problems)
+        first = self.lines()[0]
+        more = len(self.problems) - 1
+        super().__init__(first + (f" (and {more} more problem(s))" if more else ""))
+
+    def lines(self) -> list[str]:
+        return [
+            f"{self.path}:{p.line}: {p.path + ': ' if p.path else ''}{p.message}"
+            for p in self.problems
+        ]
+
+
+# ---------------------------------------------------------------- YAML with line marks
+Loc = tuple[str | int, ...]
+
+
+def _compose(path: Path, text: str) -> yaml.Node:
+    try:
+        node = yaml.compose(text, Loader=yaml.SafeLoader)
+    except yaml.MarkedYAMLError as err:
+        mark = err.problem_mark
+        line = mark.line + 1 if mark is not None else 1
+        raise DescriptionError(
+            path, [Problem(line, "", f"not valid YAML: {err.problem}")]
+        ) from None
+    if not isinstance(node, yaml.MappingNode):
+        line = node.start_mark.line + 1 if node is not None else 1
+        raise DescriptionError(path, [Problem(line, "", "the file must be a mapping of keys")])
+    duplicates = list(_duplicate_keys(node, ()))
+    if duplicates:
+        raise DescriptionError(path, duplicates)
+    return node
+
+
+def _duplicate_keys(node: yaml.Node, loc: Loc) -> Iterator[Problem]:
+    """YAML takes the last of two equal keys silently; a description must not."""
+    if isinstance(node, yaml.MappingNode):
+        seen: set[str] = set()
+        for key, value in node.value:
+            if key.value in seen:
+                yield Problem(
+                    key.start_mark.line + 1,
+                    format_loc((*loc, key.value)),
+                    "key given twice (each key once)",
+                )
+            seen.add(key.value)
+            yield from _duplicate_keys(value, (*loc, key.value))
+    elif isinstance(node, yaml.SequenceNode):
+        for index, item in enumerate(node.value):
+            yield from _duplicate_keys(item, (*loc, index))
+
+
+def line_of(root: yaml.Node, loc: Loc) -> int:
+    """The line of the deepest key (or list item) ``loc`` reaches: a missing key's line is
+    its mapping's."""
+    node = root
+    line = int(root.start_mark.line) + 1
+    for part in loc:
+        if isinstance(node, yaml.MappingNode):
+            pair = next(((k, v) for k, v in node.value if k.value == str(part)), None)
+            if pair is None:
+                break
+            key, node = pair
+            line = int(key.start_mark.line) + 1
+        elif isinstance(node, yaml.SequenceNode) and isinstance(part, int):
+            if not 0 <= part < len(node.value):
+                break
+            node = node.value[part]
+            line = int(node.start_mark.line) + 1
+        else:
+            break
+    return line
+
+
+def format_loc(loc: Loc) -> str:
+    text = ""
+    for part in loc:
+        text += f"[{part}]" if isinstance(part, int) else (f".{part}" if text else str(part))
+    return text
+
+
+# ---------------------------------------------------------------- pydantic errors
+def _model_at(model: Any, loc: Loc) -> Any:
+    """The model class a key path leads to (for the keys an unknown key could have been)."""
+    for part in loc:
+        if isinstance(part, int):
+            continue
+        if not (isinstance(model, type) and issubclass(model, BaseModel)):
+            return None
+        field = next(
+            (f for name, f in model.model_fields.items() if (f.alias or name) == part), None
+        )
+        if field is None:
+            return None
+        model = _unwrap(field.annotation)
+    return model
+
+
+def _unwrap(annotation: Any) -> Any:
+    """``list[X]``, ``X | None`` -> ``X`` (the model inside)."""
+    while True:
+        args = [a for a in get_args(annotation) if a is not type(None)]
+        if get_origin(annotation) is Annotated:
+            annotation = args[0]
+        elif args and any(isinstance(a, type) and issubclass(a, BaseModel) for a in args):
+            annotation = next(a for a in args if isinstance(a, type) and issubclass(a, BaseModel))
+        elif get_origin(annotation) in (list, tuple) and args:
+            annotation = args[0]
+        else:
+            return annotation
+
+
+def _problems(root: yaml.Node, model: type[BaseModel], err: ValidationError) -> list[Problem]:
+    problems: list[Problem] = []
+    for item in err.errors(include_url=False):
+        loc: Loc = tuple(item["loc"])
+        kind = item["type"]
+        if kind == "missing":
+            message = "missing (required)"
+        elif kind == "extra_forbidden":
+            parent = _model_at(model, loc[:-1])
+            allowed = (
+                ", ".join(f.alias or name for name, f in parent.model_fields.items())
+                if parent is not None
+                else "none"
+            )
+            message = f"unknown key (allowed: {allowed})"
+        else:
+            message = item["msg"]
+            if "input" in item and not isinstance(item["input"], dict | list):
+                message += f", not {item['input']!r}"
+        problems.append(Problem(line_of(root, loc), format_loc(loc), message))
+    return problems
+
+
+# ---------------------------------------------------------------- cross-key checks
+class _Checker:
+    """Collects the problems that need several keys, each with its key path."""
+
+    def __init__(self, root: yaml.Node, prefix: Loc) -> None:
+        self.root = root
+        self.prefix = prefix
+        self.problems: list[Problem] = []
+
+    def add(self, loc: Loc, message: str) -> None:
+        full = (*self.prefix, *loc)
+        self.problems.append(Problem(line_of(self.root, full), format_loc(full), message))
+
+
+def _value_type(spec: RegisterSpec) -> ValueType:
+    return next(kind for kind in ValueType if kind.label == spec.type)
+
+
+def _build_registers(device: DeviceFileSpec, check: _Checker) -> RegisterMap | None:
+    default_order = WordOrder(device.device.word_order)
+    functions = set(device.device.function_codes)
+    registers: list[Register] = []
+    owner: dict[tuple[Table, int], str] = {}
+    names: set[str] = set()
+    for index, spec in enumerate(device.registers):
+        at: Loc = ("registers", index)
+        table, kind, access = Table(spec.table), _value_type(spec), Access(spec.access.lower())
+        ok = True
+        if spec.name in names:
+            check.add((*at, "name"), f"register {spec.name!r} defined twice (names are unique)")
+            ok = False
+        names.add(spec.name)
+        if table.is_bit != (kind is ValueType.BOOL):
+            allowed = "bool" if table.is_bit else "any type but bool"
+            check.add((*at, "type"), f"{spec.type} in the {spec.table} table (allowed: {allowed})")
+            ok = False
+        if kind is ValueType.STRING and spec.length is None:
+            check.add((*at, "length"), "missing: a string needs its length in registers")
+            ok = False
+        if kind is not ValueType.STRING and spec.length is not None:
+            check.add((*at, "length"), "only a string has a length (its type fixes the size)")
+            ok = False
+        if access.writable and not table.writable:
+            check.add((*at, "access"), f"{spec.access} on the read-only {spec.table} table (R)")
+            ok = False
+        count = spec.length or kind.words
+        if spec.address + count - 1 > MAX_ADDRESS:
+            check.add((*at, "address"), f"{spec.address}+{count} runs past 65535")
+            ok = False
+        limit = device.device.max_read_registers
+        if access.readable and not table.is_bit and count > limit:
+            check.add((*at, "length"), f"{count} registers: more than one read takes ({limit})")
+            ok = False
+        if kind in (ValueType.BOOL, ValueType.STRING) and (
+            spec.scale != 1.0 or spec.offset != 0.0 or spec.range is not None
+        ):
+            check.add(at, f"a {spec.type} has no scale, offset or range")
+            ok = False
+        if spec.range is not None and spec.range[0] > spec.range[1]:
+            check.add((*at, "range"), f"[{spec.range[0]}, {spec.range[1]}]: minimum > maximum")
+            ok = False
+        if access.readable and READ_FUNCTION[table] not in functions:
+            check.add(
+                (*at, "table"),
+                f"readable {spec.table} needs function code {READ_FUNCTION[table]} "
+                "in device.function_codes (or access W)",
+            )
+            ok = False
+        if access.writable and table.writable and not functions & set(WRITE_FUNCTIONS[table]):
+            codes = " or ".join(str(c) for c in WRITE_FUNCTIONS[table])
+            check.add(
+                (*at, "access"),
+                f"writable {spec.table} needs function code {codes} in device.function_codes",
+            )
+            ok = False
+        if ok:
+            for address in range(spec.address, spec.address + count):
+                other = owner.get((table, address))
+                if other is not None:
+                    check.add(
+                        (*at, "address"),
+                        f"{spec.name} overlaps {other} at {spec.table} {address} "
+                        "(each address belongs to one register)",
+                    )
+                    ok = False
+                    break
+                owner[(table, address)] = spec.name
+        if not ok:
+            continue
+        register = Register(
+            name=spec.name,
+            address=spec.address,
+            value_type=kind,
+            doc=spec.manual,
+            table=table,
+            access=access,
+            word_order=WordOrder(spec.word_order) if spec.word_order else default_order,
+            scale=spec.scale,
+            offset=spec.offset,
+            unit=spec.unit,
+            minimum=spec.range[0] if spec.range else None,
+            maximum=spec.range[1] if spec.range else None,
+            length=spec.length or 0,
+            description=spec.description,
+        )
+        if spec.range is not None and kind is not ValueType.STRING:
+            for end in spec.range:
+                try:
+                    encode(register, end)
+                except CodecError as err:
+                    check.add((*at, "range"), f"{end} does not fit the register: {err}")
+                    ok = False
+                    break
+        if ok:
+            registers.append(register)
+    if check.problems:
+        return None
+    d = device.device
+    limits = DeviceLimits(
+        max_read_registers=d.max_read_registers,
+        max_write_registers=d.max_write_registers,
+        max_read_bits=d.max_read_bits,
+        read_undefined_ok=d.read_undefined,
+        max_gap=d.max_gap,
+        function_codes=frozenset(d.function_codes),
+        reply_delay_s=d.reply_delay_s,
+    )
+    return RegisterMap(d.name, tuple(registers), limits)
+
+
+def _joint_source(
+    register_map: RegisterMap,
+    joint: JointSpec,
+    what: Literal["position", "velocity", "effort"],
+    spec: JointValueSpec,
+    check: _Checker,
+    at: Loc,
+) -> JointSource | None:
+    if spec.register_name not in register_map:
+        check.add((*at, what, "register"), f"no register named {spec.register_name!r}")
+        return None
+    register = register_map[spec.register_name]
+    if not register.access.readable or register.value_type in (ValueType.BOOL, ValueType.STRING):
+        check.add(
+            (*at, what, "register"),
+            f"{spec.register_name} is not a readable number (access R or RW, a numeric type)",
+        )
+        return None
+    wanted = SI_UNITS[(joint.kind, what)]
+    unit = UNITS_TO_SI.get(register.unit)
+    if unit is None or unit[0] != wanted:
+        allowed = ", ".join(u for u, (si, _) in UNITS_TO_SI.items() if si == wanted)
+        check.add(
+            (*at, what, "register"),
+            f"{spec.register_name}'s unit {register.unit!r} is not a {joint.kind} {what} "
+            f"(REP 103 {wanted}; allowed units: {allowed})",
+        )
+        return None
+    return JointSource(spec.register_name, unit[1] * spec.factor)
+
+
+def _build_joints(
+    spec: DeviceFileSpec, register_map: RegisterMap, check: _Checker
+) -> tuple[Joint, ...]:
+    joints: list[Joint] = []
+    names: set[str] = set()
+    for index, joint in enumerate(spec.joints):
+        at: Loc = ("joints", index)
+        if joint.name in names:
+            check.add((*at, "name"), f"joint {joint.name!r} given twice (names are unique)")
+        names.add(joint.name)
+        position = _joint_source(register_map, joint, "position", joint.position, check, at)
+        velocity = effort = None
+        if joint.velocity is not None:
+            velocity = _joint_source(register_map, joint, "velocity", joint.velocity, check, at)
+        if joint.effort is not None:
+            effort = _joint_source(register_map, joint, "effort", joint.effort, check, at)
+        motion = None
+        if joint.sim is not None:
+            motion = _joint_motion(register_map, joint, joint.sim, check, (*at, "sim"))
+        if position is not None:
+            joints.append(Joint(joint.name, position, velocity, effort, motion))
+    return tuple(joints)
+
+
+def _joint_motion(
+    register_map: RegisterMap, joint: JointSpec, sim: JointSimSpec, check: _Checker, at: Loc
+) -> JointMotion | None:
+    register = _writable(register_map, sim.command, check, at, field="command")
+    if register is None:
+        return None
+    wanted = SI_UNITS[(joint.kind, sim.mode)]
+    unit = UNITS_TO_SI.get(register.unit)
+    if unit is None or unit[0] != wanted:
+        allowed = ", ".join(u for u, (si, _) in UNITS_TO_SI.items() if si == wanted)
+        check.add(
+            (*at, "command"),
+            f"{sim.command}'s unit {register.unit!r} is not a {joint.kind} {sim.mode} "
+            f"({wanted}; allowed units: {allowed})",
+        )
+        return None
+    if sim.speed is not None and sim.mode == "velocity":
+        check.add((*at, "speed"), "speed is for mode position (a velocity command sets it)")
+        return None
+    return JointMotion(sim.command, unit[1], sim.mode, sim.speed)
+
+
+def _writable(
+    register_map: RegisterMap,
+    name: str,
+    check: _Checker,
+    at: Loc,
+    *,
+    bool_only: bool = False,
+    field: str = "register",
+) -> Register | None:
+    if name not in register_map:
+        check.add((*at, field), f"no register named {name!r}")
+        return None
+    register = register_map[name]
+    if not register.access.writable:
+        check.add((*at, field), f"{name} is read only (a command needs access W or RW)")
+        return None
+    if bool_only and register.table is not Table.COIL:
+        check.add((*at, field), f"{name} is not a coil (a coil service switches a coil)")
+        return None
+    if not bool_only and register.value_type in (ValueType.BOOL, ValueType.STRING):
+        check.add(
+            (*at, field),
+            f"{name} is a {register.value_type.label} (allowed: a numeric register; "
+            "coils go under commands.coils)",
+        )
+        return None
+    return register
+
+
+def _check_commands(spec: DeviceFileSpec, register_map: RegisterMap, check: _Checker) -> None:
+    commands = spec.commands
+    seen: set[str] = set()
+
+    def named(name: str, at: Loc) -> None:
+        if name in RESERVED_NAMES:
+            check.add((*at, "name"), f"{name!r} is the node's own (reserved: read, write, state)")
+        elif name in seen:
+            check.add((*at, "name"), f"command {name!r} given twice (names are unique)")
+        seen.add(name)
+
+    for index, trigger in enumerate(commands.triggers):
+        at: Loc = ("commands", "triggers", index)
+        named(trigger.name, at)
+        for k, write in enumerate(trigger.writes):
+            where = (*at, "writes", k)
+            if write.register_name not in register_map:
+                check.add((*where, "register"), f"no register named {write.register_name!r}")
+                continue
+            register = register_map[write.register_name]
+            if not register.access.writable:
+                check.add(
+                    (*where, "register"), f"{write.register_name} is read only (needs W or RW)"
+                )
+                continue
+            value = write.value
+            if isinstance(value, bool) != (register.value_type is ValueType.BOOL) or not (
+                isinstance(value, int | float)
+            ):
+                allowed = "true or false" if register.value_type is ValueType.BOOL else "a number"
+                check.add(
+                    (*where, "value"), f"{value!r} for {write.register_name} (allowed: {allowed})"
+                )
+                continue
+            try:
+                encode(register, value)
+            except CodecError as err:
+                check.add((*where, "value"), str(err))
+    for index, value_service in enumerate(commands.values):
+        at = ("commands", "values", index)
+        named(value_service.name, at)
+        _writable(register_map, value_service.register_name, check, at)
+    for index, coil in enumerate(commands.coils):
+        at = ("commands", "coils", index)
+        named(coil.name, at)
+        _writable(register_map, coil.register_name, check, at, bool_only=True)
+    for index, topic in enumerate(commands.topics):
+        at = ("commands", "topics", index)
+        named(topic.name, at)
+        target = _writable(register_map, topic.register_name, check, at)
+        if target is not None:
+            try:
+                to_raw(target, topic.stop_value)
+            except CodecError as err:
+                check.add((*at, "stop_value"), f"the stop value does not fit: {err}")
+
+
+def _build_device(spec: DeviceFileSpec, check: _Checker, *, on_line: bool) -> Device | None:
+    link = spec.device.link
+    if on_line and link is not None:
+        check.add(("device", "link"), "a device on the file's line has no link of its own")
+    if not on_line:
+        if link is None:
+            check.add(("device", "link"), "missing (required: tcp or rtu)")
+        elif (link.tcp is None) == (link.rtu is None):
+            check.add(("device", "link"), "give exactly one of tcp and rtu")
+    if on_line and spec.device.unit_id == 0:
+        check.add(("device", "unit_id"), "0 is the RTU broadcast: nobody answers (1-247)")
+    register_map = _build_registers(spec, check)
+    if register_map is None:
+        return None
+    joints = _build_joints(spec, register_map, check)
+    _check_commands(spec, register_map, check)
+    readable = [r.name for r in register_map if r.access.readable]
+    state = spec.device.state
+    if state is not None:
+        for index, name in enumerate(state):
+            if name not in register_map or not register_map[name].access.readable:
+                check.add(("device", "state", index), f"{name!r} is not a readable register")
+    if check.problems:
+        return None
+    built_link = None
+    if link is not None:
+        built_link = Link(
+            "tcp" if link.tcp is not None else "rtu", link.timeout_s, link.tcp, link.rtu
+        )
+    return Device(
+        spec, register_map, joints, built_link, tuple(state if state is not None else readable)
+    )
+
+
+def load(path: str | Path) -> Description:
+    """Read and validate a description file; raises ``DescriptionError`` (one line)."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as err:
+        raise DescriptionError(path, [Problem(0, "", f"cannot read: {err.strerror}")]) from None
+    root = _compose(path, text)
+    data = yaml.safe_load(text)
+    bus = "devices" in data or "line" in data
+    model: type[BaseModel] = BusFileSpec if bus else DeviceFileSpec
+    try:
+        parsed = model.model_validate(data)
+    except ValidationError as err:
+        raise DescriptionError(path, _problems(root, model, err)) from None
+    problems: list[Problem] = []
+    devices: list[Device] = []
+    if isinstance(parsed, BusFileSpec):
+        units: dict[int, int] = {}
+        names: dict[str, int] = {}
+        for index, device_spec in enumerate(parsed.devices):
+            check = _Checker(root, ("devices", index))
+            unit, name = device_spec.device.unit_id, device_spec.device.name
+            if unit in units:
+                check.add(("device", "unit_id"), f"unit {unit} is devices[{units[unit]}]'s too")
+            if name in names:
+                check.add(("device", "name"), f"name {name!r} is devices[{names[name]}]'s too")
+            units.setdefault(unit, index)
+            names.setdefault(name, index)
+            device = _build_device(device_spec, check, on_line=True)
+            problems += check.problems
+            if device is not None:
+                devices.append(device)
+        line = Link("rtu", parsed.line.timeout_s, rtu=parsed.line.rtu)
+    else:
+        assert isinstance(parsed, DeviceFileSpec)
+        check = _Checker(root, ())
+        device = _build_device(parsed, check, on_line=False)
+        problems += check.problems
+        if device is not None:
+            devices.append(device)
+        line = None
+    if problems:
+        raise DescriptionError(path, problems)
+    return Description(path, tuple(devices), line)

@@ -1,0 +1,218 @@
+"""A described device behind one Modbus channel: polls into snapshots, commands into
+checked writes (no ROS).
+
+Every command checks all of its values against the description (register known and
+writable, value a number or bool as the register wants, inside its range, fitting its
+type) before its first write, so a refused command writes nothing. Writes use the function
+codes the file lists: FC 05 (else 0F) for one coil, FC 06 (else 10) for one register, FC
+10 for a multi-register value.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+from bridge_core.channel import Priority, RegisterIO
+from bridge_core.checks import check_finite
+from bridge_core.codec import Value, encode
+from bridge_core.errors import CommandRejected
+from bridge_core.planner import ReadRequest, plan_reads
+from bridge_core.poller import read_blocks, read_named
+from bridge_core.registers import Register, Table, ValueType
+
+from .description import Device, JointSource, TopicSpec
+
+
+@dataclass(frozen=True)
+class DeviceSnapshot:
+    """One poll: the values of ``state_names`` (register units) and the joints in SI."""
+
+    read_time: float  # wall clock when the block holding the first joint's position was read
+    names: tuple[str, ...]
+    values: tuple[Value, ...]
+    positions: tuple[float, ...]
+    velocities: tuple[float, ...]  # empty unless every joint has a velocity register
+    efforts: tuple[float, ...]  # empty unless every joint has an effort register
+
+
+def _joint_registers(device: Device) -> list[str]:
+    names: list[str] = []
+    for joint in device.joints:
+        for source in (joint.position, joint.velocity, joint.effort):
+            if source is not None:
+                names.append(source.register)
+    return names
+
+
+def poll_plan(device: Device) -> tuple[list[ReadRequest], str | None]:
+    """The requests of one poll and the register that stamps it (the first joint's
+    position; its block is read last, so a joint change reaches joint_states soonest)."""
+    register_map = device.register_map
+    names = list(dict.fromkeys([*device.state_names, *_joint_registers(device)]))
+    plan = plan_reads(register_map, register_map.select(names))
+    stamp = device.joints[0].position.register if device.joints else None
+    if stamp is not None:
+        plan.sort(key=lambda request: stamp in request.names)
+    return plan, stamp
+
+
+class DescribedDevice:
+    """Poll and command one described device through ``io`` (a ``DeviceChannel``)."""
+
+    def __init__(
+        self, io: RegisterIO, device: Device, clock: Callable[[], float] = time.time
+    ) -> None:
+        self.io = io
+        self.device = device
+        self.map = device.register_map
+        self.plan, self.stamp_register = poll_plan(device)
+        self.functions = self.map.limits.function_codes
+        self.max_write_bits = device.spec.device.max_write_bits
+        self._clock = clock
+        self.triggers = {t.name: t for t in device.commands.triggers}
+        self.values = {v.name: v for v in device.commands.values}
+        self.coils = {c.name: c for c in device.commands.coils}
+        self.topics = {t.name: t for t in device.commands.topics}
+        joints = device.joints
+        self._positions = [j.position for j in joints]
+        self._velocities = (
+            [j.velocity for j in joints if j.velocity is not None]
+            if all(j.velocity is not None for j in joints)
+            else []
+        )
+        self._efforts = (
+            [j.effort for j in joints if j.effort is not None]
+            if all(j.effort is not None for j in joints)
+            else []
+        )
+
+    # ------------------------------------------------------------------ polling
+    def poll(self) -> DeviceSnapshot:
+        values, read_time = read_blocks(
+            self.io, self.plan, Priority.POLL, self.stamp_register, self._clock
+        )
+
+        def si(sources: Sequence[JointSource]) -> tuple[float, ...]:
+            return tuple(float(values[s.register]) * s.to_si for s in sources)
+
+        names = self.device.state_names
+        return DeviceSnapshot(
+            read_time=read_time,
+            names=names,
+            values=tuple(values[name] for name in names),
+            positions=si(self._positions),
+            velocities=si(self._velocities),
+            efforts=si(self._efforts),
+        )
+
+    def read(self, names: Sequence[str]) -> dict[str, Value]:
+        """Registers by name, read now (command priority), in as few requests as allowed;
+        in the order asked (each once)."""
+        if not names:
+            raise CommandRejected("no register names given")
+        for name in names:
+            register = self._register(name)
+            if not register.access.readable:
+                raise CommandRejected(f"{name} is write only")
+        unique = list(dict.fromkeys(names))
+        values = read_named(self.io, self.map, unique)
+        return {name: values[name] for name in unique}  # in the order asked
+
+    # ------------------------------------------------------------------ commands
+    def _register(self, name: str) -> Register:
+        if name not in self.map:
+            raise CommandRejected(f"no register named {name!r}")
+        return self.map[name]
+
+    def words_for(self, name: str, value: Value) -> tuple[Register, list[int]]:
+        """The checked words of one write (CommandRejected: nothing may be written)."""
+        register = self._register(name)
+        if not register.access.writable:
+            raise CommandRejected(f"{name} is read only")
+        kind = register.value_type
+        if kind is ValueType.BOOL:
+            if not isinstance(value, bool):
+                raise CommandRejected(f"{name} takes true or false, not {value!r}")
+        elif kind is ValueType.STRING:
+            if not isinstance(value, str):
+                raise CommandRejected(f"{name} takes a string")
+        else:
+            if isinstance(value, bool) or not isinstance(value, int | float):
+                raise CommandRejected(f"{name} takes a number, not {value!r}")
+            check_finite(name, value)
+            if not kind.is_float and register.scale == 1.0 and register.offset == 0.0:
+                if isinstance(value, float) and not value.is_integer():
+                    raise CommandRejected(f"{name} takes a whole number, not {value}")
+                value = int(value)
+        words = encode(register, value)
+        if register.table is Table.COIL:
+            if not self.functions & {5, 15}:
+                raise CommandRejected(f"{name}: the device lists neither FC 05 nor FC 15")
+        elif not (16 in self.functions or (len(words) == 1 and 6 in self.functions)):
+            needs = "FC 16" if len(words) > 1 else "FC 06 or FC 16"
+            raise CommandRejected(f"{name}: needs {needs}, which the device does not list")
+        return register, words
+
+    def _send(self, register: Register, words: Sequence[int]) -> None:
+        if register.table is Table.COIL:
+            on = bool(words[0])
+            if 5 in self.functions:
+                self.io.write_coil(register.address, on)
+            else:
+                self.io.write_coils(register.address, [on])
+        elif len(words) == 1 and 6 in self.functions:
+            self.io.write_register(register.address, words[0], priority=Priority.COMMAND)
+        else:
+            self.io.write_registers(register.address, list(words))
+
+    def write(self, name: str, value: Value) -> str:
+        """One register or coil, checked; returns what was written."""
+        register, words = self.words_for(name, value)
+        self._send(register, words)
+        return f"{name} = {value}"
+
+    def trigger(self, name: str) -> str:
+        """A named Trigger: its writes, in the file's order, all checked first."""
+        if name not in self.triggers:
+            raise CommandRejected(f"no trigger named {name!r}")
+        checked = [
+            self.words_for(w.register_name, _written_value(w.value))
+            for w in self.triggers[name].writes
+        ]
+        done: list[str] = []
+        for (register, words), write in zip(checked, self.triggers[name].writes, strict=True):
+            self._send(register, words)
+            done.append(f"{register.name} = {write.value}")
+        return ", ".join(done)
+
+    def set_value(self, name: str, value: float) -> str:
+        if name not in self.values:
+            raise CommandRejected(f"no value service named {name!r}")
+        return self.write(self.values[name].register_name, value)
+
+    def set_coil(self, name: str, on: bool) -> str:
+        if name not in self.coils:
+            raise CommandRejected(f"no coil service named {name!r}")
+        return self.write(self.coils[name].register_name, bool(on))
+
+    def stream_value(self, topic: TopicSpec, value: float) -> float:
+        """A command topic's message value as its register's value (checked, not sent)."""
+        register_value = check_finite(topic.name, value) * topic.scale
+        self.words_for(topic.register_name, register_value)
+        return register_value
+
+    def send_stream(self, topic: TopicSpec, register_value: float) -> None:
+        register, words = self.words_for(topic.register_name, register_value)
+        self._send(register, words)
+
+    def stop_stream(self, topic: TopicSpec) -> None:
+        register, words = self.words_for(topic.register_name, topic.stop_value)
+        self._send(register, words)
+
+
+def _written_value(value: object) -> Value:
+    if isinstance(value, bool | int | float | str):
+        return value
+    raise CommandRejected(f"{value!r} is not a value")

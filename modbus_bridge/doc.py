@@ -1,0 +1,170 @@
+"""``modbus_doc FILE``: a description's register table (and joints, commands) as Markdown.
+
+Written from the same validated description the node and simulator use, so the table a
+reader sees is the map the bridge runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+
+from bridge_core.registers import Access, Register, ValueType
+
+from .description import Description, DescriptionError, Device, load
+
+EXIT_BAD_DESCRIPTION = 2
+ACCESS_TEXT = {Access.READ: "R", Access.READ_WRITE: "RW", Access.WRITE: "W"}  # the file's
+REGISTER_COLUMNS = (
+    "name",
+    "table",
+    "address",
+    "type",
+    "word order",
+    "scale",
+    "offset",
+    "unit",
+    "access",
+    "range",
+    "manual",
+    "description",
+)
+
+
+def _number(value: float) -> str:
+    return str(int(value)) if float(value).is_integer() else repr(float(value))
+
+
+def _cell(text: str) -> str:
+    return text.replace("|", "\\|")
+
+
+def register_row(register: Register) -> list[str]:
+    kind = register.value_type
+    words = register.count
+    span = f"{register.address}" if words == 1 else f"{register.address}-{register.end - 1}"
+    type_text = f"string[{register.length}]" if kind is ValueType.STRING else kind.label
+    multiword = words > 1 and kind is not ValueType.STRING
+    limits = ""
+    if register.minimum is not None or register.maximum is not None:
+        limits = f"{_number(register.minimum or 0)} .. {_number(register.maximum or 0)}"
+    return [
+        f"`{register.name}`",
+        register.table.value,
+        span,
+        type_text,
+        register.word_order.value if multiword else "",
+        _number(register.scale) if register.scale != 1.0 else "",
+        _number(register.offset) if register.offset != 0.0 else "",
+        register.unit,
+        ACCESS_TEXT[register.access],
+        limits,
+        _cell(register.doc),
+        _cell(register.description),
+    ]
+
+
+def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(row) + " |" for row in rows]
+    return lines
+
+
+def device_markdown(device: Device, heading: str = "##") -> list[str]:
+    spec = device.spec.device
+    limits = device.register_map.limits
+    lines = [f"{heading} {spec.name}" + (f": {spec.title}" if spec.title else ""), ""]
+    lines.append(f"Manual: {spec.manual}. Unit id {spec.unit_id}.")
+    if device.link is not None:
+        if device.link.tcp is not None:
+            where = f"Modbus TCP {device.link.tcp.host}:{device.link.tcp.port}"
+        else:
+            assert device.link.rtu is not None
+            rtu = device.link.rtu
+            where = f"Modbus RTU {rtu.serial_port} {rtu.baudrate} {rtu.parity}{rtu.stopbits}" + (
+                f", frame gap {rtu.frame_gap_s} s" if rtu.frame_gap_s else ""
+            )
+        lines.append(f"Link (default): {where}, timeout {device.link.timeout_s} s.")
+    codes = " ".join(f"{code:02X}" for code in sorted(limits.function_codes))
+    lines.append(
+        f"Function codes {codes}; at most {limits.max_read_registers} registers per read, "
+        f"{limits.max_write_registers} per write, {limits.max_read_bits} bits per read; "
+        + (
+            "reads may span undefined rows"
+            if limits.read_undefined_ok
+            else "no read spans an undefined row"
+        )
+        + (f"; reply delay {limits.reply_delay_s} s" if limits.reply_delay_s else "")
+        + f"; poll {_number(spec.poll_rate_hz)} Hz."
+    )
+    lines += ["", f"{heading}# Registers", ""]
+    lines += _table(REGISTER_COLUMNS, [register_row(r) for r in device.register_map])
+    if device.joints:
+        lines += ["", f"{heading}# Joints (joint_states, SI per REP 103)", ""]
+        rows = []
+        for joint in device.joints:
+            cells = [f"`{joint.name}`"]
+            for source in (joint.position, joint.velocity, joint.effort):
+                cells.append("" if source is None else f"`{source.register}` * {source.to_si:.12g}")
+            rows.append(cells)
+        lines += _table(("joint", "position", "velocity", "effort"), rows)
+    commands = device.commands
+    rows = []
+    for trigger in commands.triggers:
+        writes = ", ".join(f"`{w.register_name}` = {w.value}" for w in trigger.writes)
+        kind = "Trigger (stop)" if trigger.stop else "Trigger"
+        rows.append([f"`~/{trigger.name}`", kind, writes, _cell(trigger.description)])
+    for value in commands.values:
+        rows.append(
+            [f"`~/{value.name}`", "SetValue", f"`{value.register_name}`", value.description]
+        )
+    for coil in commands.coils:
+        rows.append([f"`~/{coil.name}`", "SetBool", f"`{coil.register_name}`", coil.description])
+    for topic in commands.topics:
+        rows.append(
+            [
+                f"`~/{topic.name}`",
+                "Float64 topic",
+                f"`{topic.register_name}` = data * {_number(topic.scale)}; deadman "
+                f"{topic.timeout_s} s writes {_number(topic.stop_value)}",
+                _cell(topic.description),
+            ]
+        )
+    if rows:
+        lines += ["", f"{heading}# Commands", ""]
+        lines += _table(("name", "kind", "writes", "description"), rows)
+    return lines
+
+
+def markdown(description: Description) -> str:
+    lines: list[str] = []
+    if description.line is not None and description.line.rtu is not None:
+        rtu = description.line.rtu
+        lines += [
+            f"# {description.path.name}: {len(description.devices)} devices on one RTU line",
+            "",
+            f"Line: {rtu.serial_port} {rtu.baudrate} {rtu.parity}{rtu.stopbits}, "
+            f"timeout {description.line.timeout_s} s.",
+            "",
+        ]
+    for device in description.devices:
+        lines += [*device_markdown(device), ""]
+    return "\n".join(lines)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description="print a device description as Markdown")
+    parser.add_argument("file", help="device description YAML")
+    args = parser.parse_args(argv)
+    try:
+        description = load(args.file)
+    except DescriptionError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return EXIT_BAD_DESCRIPTION
+    sys.stdout.write(markdown(description))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

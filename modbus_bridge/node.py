@@ -1,0 +1,311 @@
+"""ROS 2 node for any Modbus device described by a YAML file (``modbus_bridge``).
+
+``-p device_file:=FILE`` names the description (``modbus_bridge/description.py``); its
+link settings are the defaults of the usual link parameters (``host``, ``port``,
+``serial_port``, ``baudrate`` ...), which override them. Everything else is the shared
+runtime of the four hand-written bridges (``bridge_core.node_base.BridgeNode``): polling,
+stale data, diagnostics, lifecycle, the command guard, the deadman of command streams.
+
+Interfaces: ``joint_states`` (the file's joints in SI, REP 103), ``~/state``
+(``msg_defs/DeviceValues``), ``~/read`` / ``~/write`` by register name, and the file's
+named Trigger, value (``SetValue``) and coil (``SetBool``) services and Float64 command
+topics.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from std_msgs.msg import Float64
+from std_srvs.srv import SetBool
+
+from bridge_core.codec import Value
+from bridge_core.diagnostics import Level, Report
+from bridge_core.errors import CommandRejected, ConfigurationError
+from bridge_core.node_base import BridgeNode, DeviceDefaults, ParameterNode, spin_node
+from bridge_core.parameters import ParameterSpec
+from bridge_core.registers import ValueType
+from bridge_core.stream_guard import StreamGuard
+from bridge_core.transport import ModbusLink
+from msg_defs.msg import DeviceValues
+from msg_defs.srv import ReadRegisters, SetValue, WriteRegister
+
+from .description import (
+    COMMAND_RATE_RANGE_HZ,
+    COMMAND_TIMEOUT_RANGE_S,
+    Description,
+    Device,
+    Link,
+    TopicSpec,
+    load,
+)
+from .device import DescribedDevice, DeviceSnapshot
+
+NODE_NAME = "modbus_bridge"
+
+
+def defaults_of(device: Device, line: Link | None = None) -> DeviceDefaults:
+    """The node's (or with ``line``, the bus's) parameter defaults from the description."""
+    spec = device.spec.device
+    link = device.link or line
+    if link is None:  # a device on a line its bus node opens
+        return DeviceDefaults(spec.title or spec.name, "rtu", poll_rate_hz=spec.poll_rate_hz)
+    if link.tcp is not None:
+        return DeviceDefaults(
+            spec.title or spec.name,
+            "tcp",
+            poll_rate_hz=spec.poll_rate_hz,
+            host=link.tcp.host,
+            port=link.tcp.port,
+            timeout_s=link.timeout_s,
+            unit_id=spec.unit_id,
+        )
+    assert link.rtu is not None
+    return DeviceDefaults(
+        spec.title or spec.name,
+        "rtu",
+        poll_rate_hz=spec.poll_rate_hz,
+        serial_port=link.rtu.serial_port,
+        baudrate=link.rtu.baudrate,
+        parity=link.rtu.parity,
+        stopbits=link.rtu.stopbits,
+        frame_gap_s=link.rtu.frame_gap_s,
+        timeout_s=link.timeout_s,
+        unit_id=spec.unit_id,
+    )
+
+
+def _number(value: Value) -> float:
+    if isinstance(value, str):
+        return math.nan
+    return float(value)
+
+
+class ModbusBridgeNode(BridgeNode[DeviceSnapshot]):
+    """One described device: its file from ``device_file``, or (a device on a line a
+    ``ModbusBusNode`` owns) ``device`` with the bus's ``link``, named after the device."""
+
+    def __init__(
+        self, device: Device | None = None, *, link: ModbusLink | None = None, **kwargs: Any
+    ) -> None:
+        self.description: Description | None = None
+        if device is None:
+            super().__init__(NODE_NAME, self._defaults_from_file, link=link, **kwargs)
+            assert self.description is not None
+            device = self.description.device
+        else:
+            super().__init__(
+                device.name, defaults_of(device), link=link, unit_id=device.unit_id, **kwargs
+            )
+        self.described: Device = device
+        self.device: DescribedDevice = DescribedDevice(self.channel, self.described)
+        self.hardware_id = f"{self.described.name}@{self.channel.describe()}"
+        self.joint_names = [f"{self.joint_prefix}{joint.name}" for joint in self.described.joints]
+        self.units: list[str] = [
+            self.described.register_map[name].unit for name in self.device_names()
+        ]
+        self.state_pub: Any = self.create_publisher(DeviceValues, "~/state", 10)
+        self._create_services()
+        self._create_topics()
+
+    def _defaults_from_file(self, node: ParameterNode) -> DeviceDefaults:
+        values = node.declare_specs(
+            [ParameterSpec("device_file", "", "device description YAML (required)")]
+        )
+        path = str(values["device_file"])
+        if not path:
+            raise ConfigurationError("no device description: give -p device_file:=FILE")
+        if not Path(path).is_file():
+            raise ConfigurationError(f"parameter device_file:={path}: no such file")
+        description = load(path)
+        if description.line is not None:
+            raise ConfigurationError(
+                f"{path} describes {len(description.devices)} devices on one line: "
+                "run modbus_bus for it (modbus_bridge serves a file of one device)"
+            )
+        self.description = description
+        return defaults_of(description.device)
+
+    def device_names(self) -> tuple[str, ...]:
+        return self.described.state_names
+
+    # ------------------------------------------------------------ polling
+    def poll_device(self) -> DeviceSnapshot:
+        return self.device.poll()
+
+    def publish_snapshot(self, snapshot: DeviceSnapshot) -> None:
+        if self.joint_names:
+            self.publish_joints(
+                snapshot.read_time, snapshot.positions, snapshot.velocities, snapshot.efforts
+            )
+        message = self.stamped(DeviceValues(), snapshot.read_time)
+        message.names = list(snapshot.names)
+        message.values = [_number(value) for value in snapshot.values]
+        message.units = self.units
+        message.texts = [value if isinstance(value, str) else "" for value in snapshot.values]
+        self.state_pub.publish(message)
+
+    def device_report(self) -> Report | None:
+        spec = self.described.spec.device
+        return Report(
+            Level.OK,
+            "connected",
+            [("device", spec.name), ("registers polled", str(len(self.described.state_names)))],
+        )
+
+    # ------------------------------------------------------------ services
+    def _create_services(self) -> None:
+        device = self.device
+
+        def fill_read(response: Any, values: dict[str, Value]) -> None:
+            register_map = self.described.register_map
+            response.names = list(values)
+            response.values = [_number(v) for v in values.values()]
+            response.units = [register_map[name].unit for name in values]
+            response.texts = [v if isinstance(v, str) else "" for v in values.values()]
+
+        self.command_service(
+            ReadRegisters,
+            "~/read",
+            lambda r: f"read {', '.join(r.names) or '(none)'}",
+            lambda r: device.read(list(r.names)),
+            writes=False,
+            fill=fill_read,
+        )
+        self.command_service(
+            WriteRegister,
+            "~/write",
+            lambda r: f"write {r.name}",
+            lambda r: device.write(r.name, self._write_value(r)),
+            fill=lambda response, written: setattr(response, "message", f"{written}: done"),
+        )
+        for trigger in self.described.commands.triggers:
+            self.trigger_service(
+                f"~/{trigger.name}",
+                trigger.name,
+                _bind(device.trigger, trigger.name),
+                stop=trigger.stop,
+            )
+        for value in self.described.commands.values:
+            name = value.name
+            self.command_service(
+                SetValue,
+                f"~/{name}",
+                _describe_value(name),
+                _set_value(device, name),
+            )
+        for coil in self.described.commands.coils:
+            self.command_service(
+                SetBool,
+                f"~/{coil.name}",
+                _describe_coil(coil.name),
+                _set_coil(device, coil.name),
+                stop=_stops_when(coil.stop_on),
+            )
+
+    def _write_value(self, request: Any) -> Value:
+        name = str(request.name)
+        if name not in self.described.register_map:
+            raise CommandRejected(f"no register named {name!r}")
+        kind = self.described.register_map[name].value_type
+        if kind is ValueType.STRING:
+            return str(request.text)
+        if kind is ValueType.BOOL:
+            if request.value not in (0.0, 1.0):
+                raise CommandRejected(f"{name} takes 0 or 1, not {request.value}")
+            return bool(request.value)
+        return float(request.value)
+
+    # ------------------------------------------------------------ command topics
+    def _create_topics(self) -> None:
+        for topic in self.described.commands.topics:
+            timeout_name = f"{topic.name}_timeout_s"
+            rate_name = f"{topic.name}_rate_hz"
+            self.declare_specs(
+                [
+                    ParameterSpec(
+                        timeout_name,
+                        topic.timeout_s,
+                        f"~/{topic.name} deadman: write {topic.stop_value} after this silence",
+                        *COMMAND_TIMEOUT_RANGE_S,
+                        live=True,
+                    ),
+                    ParameterSpec(
+                        rate_name,
+                        topic.rate_hz,
+                        f"~/{topic.name}: most values written per second (a 0 at once)",
+                        *COMMAND_RATE_RANGE_HZ,
+                        live=True,
+                    ),
+                ]
+            )
+            guard: StreamGuard[str] = StreamGuard(
+                [topic.name],
+                _sender(self.device, topic),
+                _stopper(self.device, topic),
+                timeout_s=float(self.param(timeout_name)),
+                stop_when_idle=False,
+            )
+            self.stream_topic(
+                guard,
+                Float64,
+                {topic.name: f"~/{topic.name}"},
+                _describe_stream(topic.name),
+                lambda msg: float(msg.data),
+                convert=_converter(self.device, topic),
+                timeout_parameter=timeout_name,
+                rate_parameter=rate_name,
+            )
+
+
+def _bind(action: Any, name: str) -> Any:
+    return lambda: action(name)
+
+
+def _describe_value(name: str) -> Any:
+    return lambda r: f"{name} {r.value}"
+
+
+def _set_value(device: DescribedDevice, name: str) -> Any:
+    return lambda r: device.set_value(name, float(r.value))
+
+
+def _describe_coil(name: str) -> Any:
+    return lambda r: f"{name} {'on' if r.data else 'off'}"
+
+
+def _set_coil(device: DescribedDevice, name: str) -> Any:
+    return lambda r: device.set_coil(name, bool(r.data))
+
+
+def _stops_when(stop_on: bool | None) -> Any:
+    """A coil whose ``stop_on`` value ends motion: tried at once, like every stop."""
+    return lambda r: stop_on is not None and bool(r.data) == stop_on
+
+
+def _describe_stream(name: str) -> Any:
+    return lambda _key, value: f"{name} {value}"
+
+
+def _sender(device: DescribedDevice, topic: TopicSpec) -> Any:
+    return lambda _key, value, _previous: device.send_stream(topic, value)
+
+
+def _stopper(device: DescribedDevice, topic: TopicSpec) -> Any:
+    return lambda _key: device.stop_stream(topic)
+
+
+def _converter(device: DescribedDevice, topic: TopicSpec) -> Any:
+    return lambda _key, value: device.stream_value(topic, value)
+
+
+def main(args: Sequence[str] | None = None) -> int:
+    return spin_node(ModbusBridgeNode, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

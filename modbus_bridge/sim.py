@@ -1,0 +1,163 @@
+"""``modbus_sim --device-file FILE``: a described device served on a real pymodbus server.
+
+As strict as the file says the device is (the simulator base does the rest):
+
+- function codes outside ``device.function_codes`` answer ILLEGAL FUNCTION;
+- reads over rows no register defines answer ILLEGAL DATA ADDRESS, unless
+  ``read_undefined`` is true (they read 0); write-only registers are never read, read-only
+  ones never written; a request that cuts a multi-register value in two is refused;
+- more than ``max_read_registers`` / ``max_write_registers`` / ``max_read_bits`` /
+  ``max_write_bits`` per request: ILLEGAL DATA ADDRESS, as the simulator base answers an
+  oversized read;
+- a written value outside its register's ``range``: ILLEGAL DATA VALUE, nothing written;
+- every reply waits ``reply_delay_s``;
+- joints with a ``sim`` rule move: a velocity command is integrated into the position
+  (and shown in the velocity register), a target position is approached at ``speed``.
+
+A bus file serves every device on one line, each under its unit id (silent for others).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from collections import defaultdict
+from collections.abc import Sequence
+from pathlib import Path
+
+from bridge_core.codec import decode
+from bridge_core.registers import Table, ValueType
+from bridge_core.sim_base import (
+    ILLEGAL_ADDRESS,
+    ILLEGAL_VALUE,
+    SimulatedDevice,
+    Simulator,
+    WriteRecord,
+    add_log_arguments,
+    serve_serial_until_signalled,
+    serve_tcp_until_signalled,
+)
+
+from .description import Description, DescriptionError, Device, Joint, load
+
+EXIT_BAD_DESCRIPTION = 2
+DEFAULT_TCP_PORT = 5020
+
+
+class _UndefinedReadable:
+    """The readable addresses of a device whose reads may span undefined rows: every
+    address no register defines, and the defined ones that are readable."""
+
+    def __init__(self, readable: set[tuple[Table, int]], defined: set[tuple[Table, int]]) -> None:
+        self.readable = readable
+        self.defined = defined
+
+    def __contains__(self, key: object) -> bool:
+        return key in self.readable or key not in self.defined
+
+
+class DescribedSimDevice(SimulatedDevice):
+    """One described device: its map, limits, ranges and joint motion."""
+
+    def __init__(self, device: Device) -> None:
+        super().__init__(device.register_map, device.unit_id)
+        self.device = device
+        self.max_write_bits = device.spec.device.max_write_bits
+        if self.limits.read_undefined_ok:
+            defined = set(self.words)
+            self.words = defaultdict(int, self.words)
+            self.readable = _UndefinedReadable(self.readable, defined)  # type: ignore[assignment]
+        self.positions_si = {joint.name: 0.0 for joint in device.joints}
+        self.write_guards.append(self._guard)
+
+    def _guard(self, record: WriteRecord) -> int | None:
+        """Bit writes past ``max_write_bits``, and values outside their register's range."""
+        if record.table.is_bit:
+            return ILLEGAL_ADDRESS if len(record.values) > self.max_write_bits else None
+        written = dict(enumerate(record.values, record.address))
+        for register in self.map.in_table(record.table):
+            if register.minimum is None and register.maximum is None:
+                continue
+            if register.address not in written or register.value_type is ValueType.STRING:
+                continue  # whole-value writes only (checked before the guards)
+            value = decode(register, [written[a] for a in register.addresses()])
+            assert isinstance(value, int | float)
+            low = -math.inf if register.minimum is None else register.minimum
+            high = math.inf if register.maximum is None else register.maximum
+            if not low <= value <= high:
+                return ILLEGAL_VALUE
+        return None
+
+    def tick(self, dt: float) -> None:
+        with self.lock:
+            for joint in self.device.joints:
+                if joint.motion is not None:
+                    self._move(joint, dt)
+
+    def _move(self, joint: Joint, dt: float) -> None:
+        motion = joint.motion
+        assert motion is not None
+        command = float(self.get(motion.command)) * motion.to_si
+        position = self.positions_si[joint.name]
+        if motion.mode == "velocity":
+            velocity = command
+        else:
+            error = command - position
+            step = abs(error) if motion.speed is None else min(abs(error), motion.speed * dt)
+            velocity = math.copysign(step / dt, error) if dt > 0 and step else 0.0
+        position += velocity * dt
+        self.positions_si[joint.name] = position
+        self.set(joint.position.register, position / joint.position.to_si)
+        if joint.velocity is not None and joint.velocity.register != motion.command:
+            self.set(joint.velocity.register, velocity / joint.velocity.to_si)
+
+
+def make_simulator(description: Description) -> Simulator:
+    return Simulator([DescribedSimDevice(device) for device in description.devices])
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description="serve a device description (Modbus TCP or RTU)")
+    parser.add_argument("--device-file", type=Path, required=True, help="device description YAML")
+    parser.add_argument("--host", default="127.0.0.1")
+    parser.add_argument(
+        "--port", type=int, help="TCP port (default: the file's, else 5020; 0 picks a free one)"
+    )
+    parser.add_argument("--port-file", type=Path, help="write the bound port here once listening")
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--serial", help="serve RTU on this serial port or pty path")
+    where.add_argument(
+        "--pty",
+        type=Path,
+        help="serve RTU on a new socat pty pair; the bridge's end is linked here",
+    )
+    parser.add_argument("--baudrate", type=int, help="default: the file's, else 9600")
+    parser.add_argument("--parity", choices=("N", "E", "O"), help="default: the file's, else N")
+    parser.add_argument("--stopbits", type=int, choices=(1, 2), help="default: the file's, else 1")
+    add_log_arguments(parser)
+    args = parser.parse_args(argv)
+    try:
+        description = load(args.device_file)
+    except DescriptionError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return EXIT_BAD_DESCRIPTION
+    link = description.line or description.device.link
+    rtu = link.rtu if link is not None else None
+    sim = make_simulator(description)
+    names = ", ".join(f"{d.name} (unit {d.unit_id})" for d in description.devices)
+    if args.serial or args.pty:
+        args.baudrate = args.baudrate or (rtu.baudrate if rtu else 9600)
+        args.parity = args.parity or (rtu.parity if rtu else "N")
+        args.stopbits = args.stopbits or (rtu.stopbits if rtu else 1)
+        serve_serial_until_signalled(sim, args, lambda where: f"modbus_sim {names} on {where}")
+        return 0
+    if args.port is None:
+        tcp = link.tcp if link is not None else None
+        args.port = tcp.port if tcp is not None else DEFAULT_TCP_PORT
+    serve_tcp_until_signalled(sim, args, f"modbus_sim {names}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,79 @@
+"""modbus_doc: the register table of a description as Markdown."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from modbus_bridge.description import load
+from modbus_bridge.doc import REGISTER_COLUMNS, main, markdown
+
+ROOT = Path(__file__).resolve().parents[2]
+XARM = ROOT / "config" / "devices" / "xarm.yaml"
+MULTIDROP = ROOT / "config" / "devices" / "rtu_multidrop.yaml"
+
+
+def table_rows(text: str, first_cell: str) -> dict[str, list[str]]:
+    """Rows of the Markdown tables whose first cell is a `name`, by name."""
+    rows: dict[str, list[str]] = {}
+    for line in text.splitlines():
+        if line.startswith("| `") and first_cell in line:
+            cells = [cell.strip() for cell in line.strip("|").split(" | ")]
+            rows[cells[0].strip("`")] = cells
+    return rows
+
+
+def test_every_register_is_a_row_with_its_fields() -> None:
+    description = load(XARM)
+    text = markdown(description)
+    rows = table_rows(text, "")
+    for register in description.device.register_map:
+        cells = dict(zip(REGISTER_COLUMNS, rows[register.name], strict=True))
+        first = str(register.address)
+        assert cells["address"].split("-")[0] == first
+        assert cells["table"] == register.table.value
+        assert cells["type"] == register.value_type.label
+        assert cells["scale"] == ("" if register.scale == 1 else str(int(register.scale)))
+        assert cells["unit"] == register.unit
+        assert cells["manual"] == register.doc
+    assert rows["controller_ao_0"][REGISTER_COLUMNS.index("access")] == "RW"
+    assert rows["controller_ao_0"][REGISTER_COLUMNS.index("range")] == "0 .. 10"
+    assert rows["counter"][REGISTER_COLUMNS.index("word order")] == "high_first"
+    assert rows["counter"][REGISTER_COLUMNS.index("address")] == "34-35"
+    # Joints and commands follow the registers.
+    assert "| `joint1` | `joint_angle_1` * 0.0174532925199 |" in text
+    assert "| `~/stop` | Trigger (stop) | `arm_state` = 4 |" in text
+    assert "| `~/set_digital_output_15` | SetBool | `controller_do_15` |" in text
+
+
+def test_multidrop_file_has_a_section_per_device(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main([str(MULTIDROP)]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("# rtu_multidrop.yaml: 2 devices on one RTU line")
+    assert "## drive_1" in out and "## drive_2" in out
+    assert "Line: /dev/ttyUSB0 115200 N1" in out
+    assert out.count("| `cmd_speed`") == 0 and out.count("| `~/cmd_speed` | Float64 topic") == 2
+
+
+def test_console_script_and_a_bad_file(tmp_path: Path) -> None:
+    good = subprocess.run(
+        [sys.executable, "-m", "modbus_bridge.doc", str(XARM)],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert good.returncode == 0 and "| `joint_angle_7` | input | 95 |" in good.stdout
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(XARM.read_text().replace("type: i16, scale: 10", "type: i17, scale: 10", 1))
+    refused = subprocess.run(
+        [sys.executable, "-m", "modbus_bridge.doc", str(bad)],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert refused.returncode == 2 and refused.stdout == ""
+    (line,) = refused.stderr.splitlines()
+    assert line.startswith(f"error: {bad}:") and ".type: Input should be" in line

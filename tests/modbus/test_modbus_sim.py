@@ -1,0 +1,279 @@
+"""modbus_sim and the device layer, against each other over a real socket and a pty."""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import pytest
+
+from bridge_core.channel import DeviceChannel
+from bridge_core.errors import CommandRejected, DeviceException, LinkTimeout
+from bridge_core.registers import Table
+from bridge_core.sim_base import Simulator
+from bridge_core.transport import ModbusLink, SerialSettings, TcpSettings
+from bridge_core.units import DEG
+from modbus_bridge.description import Description, load
+from modbus_bridge.device import DescribedDevice
+from modbus_bridge.sim import DescribedSimDevice, make_simulator
+from tests.support.serial_pair import served_on_pty
+
+ROOT = Path(__file__).resolve().parents[2]
+MULTIDROP = ROOT / "config" / "devices" / "rtu_multidrop.yaml"
+WAIT_S = 20.0
+
+MOVER = """\
+device:
+  name: mover
+  manual: "a test description"
+  link: {tcp: {port: 1502}}
+  function_codes: [1, 3, 5, 6, 16]
+  reply_delay_s: 0.005
+registers:
+  - {name: position, table: holding, address: 0, type: i32, scale: 1000, unit: deg, manual: t}
+  - {name: velocity, table: holding, address: 2, type: i16, scale: 10, unit: deg/s, manual: t}
+  - {name: speed_command, table: holding, address: 3, type: i16, scale: 10, unit: deg/s, access: RW, range: [-90, 90], manual: t}
+  - {name: target, table: holding, address: 10, type: f32, word_order: low_first, unit: deg, access: RW, range: [-180, 180], manual: t}
+  - {name: position_2, table: holding, address: 12, type: f32, unit: deg, manual: t}
+  - {name: run, table: coil, address: 0, type: bool, access: RW, manual: t}
+  - {name: secret, table: holding, address: 20, type: u16, access: W, manual: t}
+joints:
+  - {name: j1, position: {register: position}, velocity: {register: velocity}, sim: {command: speed_command}}
+  - {name: j2, position: {register: position_2}, sim: {command: target, mode: position, speed: 1.0}}
+commands:
+  triggers:
+    - {name: go, writes: [{register: run, value: true}, {register: speed_command, value: 45}]}
+    - {name: halt, writes: [{register: speed_command, value: 0}], stop: true}
+  values:
+    - {name: set_target, register: target}
+  coils:
+    - {name: set_run, register: run, stop_on: false}
+  topics:
+    - {name: cmd_speed, register: speed_command, scale: 57.29577951308232, stop_value: 0}
+"""  # noqa: E501
+
+
+def describe(tmp_path: Path, text: str = MOVER) -> Description:
+    path = tmp_path / "mover.yaml"
+    path.write_text(text)
+    return load(path)
+
+
+@contextmanager
+def over_tcp(
+    description: Description,
+) -> Iterator[tuple[DescribedDevice, DescribedSimDevice, DeviceChannel]]:
+    simulator = make_simulator(description)
+    port = simulator.start_tcp()
+    sim = simulator.device
+    assert isinstance(sim, DescribedSimDevice)
+    link = ModbusLink(TcpSettings("127.0.0.1", port, timeout_s=2.0))
+    channel = DeviceChannel(link, description.device.unit_id, retries=0)
+    try:
+        yield DescribedDevice(channel, description.device), sim, channel
+    finally:
+        link.close()
+        simulator.stop()
+
+
+def wait_for(condition: object, what: str) -> None:
+    deadline = time.monotonic() + WAIT_S
+    while not condition():  # type: ignore[operator]
+        assert time.monotonic() < deadline, f"timed out waiting for {what}"
+        time.sleep(0.01)
+
+
+def writes(sim: DescribedSimDevice) -> list[tuple[int, Table, int, tuple[int, ...]]]:
+    return [(r.function_code, r.table, r.address, r.values) for r in sim.write_log]
+
+
+def test_poll_values_and_joints_in_si(tmp_path: Path) -> None:
+    with over_tcp(describe(tmp_path)) as (device, sim, _):
+        sim.tick = lambda dt: None  # type: ignore[method-assign]
+        sim.set("position", -12.345)
+        sim.set("velocity", 4.5)
+        sim.set("position_2", 90.0)
+        sim.set("run", True)
+        before = time.time()
+        snapshot = device.poll()
+        values = dict(zip(snapshot.names, snapshot.values, strict=True))
+        assert values["position"] == pytest.approx(-12.345) and values["run"] is True
+        assert "secret" not in values  # write only: never read
+        assert snapshot.positions == pytest.approx((-12.345 * DEG, 90.0 * DEG))
+        assert snapshot.velocities == ()  # j2 has no velocity register
+        assert before <= snapshot.read_time <= time.time()
+        assert device.read(["velocity", "target"]) == {"velocity": 4.5, "target": 0.0}
+        with pytest.raises(CommandRejected, match="write only"):
+            device.read(["secret"])
+
+
+def test_joints_follow_their_command_registers(tmp_path: Path) -> None:
+    with over_tcp(describe(tmp_path)) as (device, sim, _):
+        device.write("speed_command", 45.0)
+        wait_for(lambda: device.poll().positions[0] > 0.1, "j1 to move")
+        assert device.read(["velocity"])["velocity"] == pytest.approx(45.0)
+        device.write("target", -10.0)  # deg, approached at 1 rad/s
+        wait_for(lambda: device.poll().positions[1] < -0.05, "j2 to move")
+        wait_for(lambda: device.poll().positions[1] == pytest.approx(-10 * DEG, abs=1e-6), "j2")
+        device.write("speed_command", 0.0)
+        stopped = device.poll().positions[0]
+        sim_position = sim.positions_si["j1"]
+        assert stopped == pytest.approx(sim_position, abs=1e-3)
+
+
+def test_commands_write_what_the_file_says(tmp_path: Path) -> None:
+    with over_tcp(describe(tmp_path)) as (device, sim, _):
+        assert device.trigger("go") == "run = True, speed_command = 45"
+        assert device.set_value("set_target", 12.5) == "target = 12.5"
+        device.set_coil("set_run", False)
+        topic = device.topics["cmd_speed"]
+        device.send_stream(topic, device.stream_value(topic, 0.5))  # rad/s -> 28.6 deg/s
+        device.stop_stream(topic)
+        assert writes(sim) == [
+            (5, Table.COIL, 0, (1,)),
+            (6, Table.HOLDING, 3, (450,)),
+            (16, Table.HOLDING, 10, (0x0000, 0x4148)),  # 12.5 as f32, low word first
+            (5, Table.COIL, 0, (0,)),
+            (6, Table.HOLDING, 3, (286,)),
+            (6, Table.HOLDING, 3, (0,)),
+        ]
+
+
+@pytest.mark.parametrize(
+    ("action", "words"),
+    [
+        (lambda d: d.write("velocity", 1.0), "read only"),
+        (lambda d: d.write("speed_command", 90.1), "outside -90.0..90.0"),
+        (lambda d: d.write("speed_command", math.nan), "not a finite"),
+        (lambda d: d.write("run", 1), "true or false"),
+        (lambda d: d.write("target", True), "takes a number"),
+        (lambda d: d.write("nothing", 1), "no register named"),
+        (lambda d: d.trigger("nothing"), "no trigger"),
+        (lambda d: d.set_value("set_target", 200.0), "outside"),
+        (lambda d: d.stream_value(d.topics["cmd_speed"], 2.0), "outside"),  # 114.6 deg/s
+    ],
+)
+def test_refusals_write_nothing(tmp_path: Path, action: object, words: str) -> None:
+    with over_tcp(describe(tmp_path)) as (device, sim, _):
+        with pytest.raises(CommandRejected, match=words):
+            action(device)  # type: ignore[operator]
+        device.read(["run"])  # a later round trip: anything written would be logged by now
+        assert sim.write_log == []
+
+
+def test_the_simulator_is_as_strict_as_the_file(tmp_path: Path) -> None:
+    with over_tcp(describe(tmp_path)) as (_, sim, channel):
+
+        def code(action: object) -> int:
+            with pytest.raises(DeviceException) as caught:
+                action()  # type: ignore[operator]
+            return caught.value.exception_code
+
+        assert code(lambda: channel.read_registers(0, 1, Table.INPUT)) == 1  # FC 04 not listed
+        assert code(lambda: channel.read_bits(0, 1, Table.DISCRETE_INPUT)) == 1  # nor FC 02
+        assert code(lambda: channel.read_registers(0, 6)) == 2  # 4-9 are undefined
+        assert code(lambda: channel.read_registers(1, 2)) == 2  # cuts position in two
+        assert code(lambda: channel.read_registers(20, 1)) == 2  # write only
+        assert code(lambda: channel.write_register(2, 5)) == 2  # read only
+        assert code(lambda: channel.write_register(3, 901)) == 3  # 90.1 deg/s: out of range
+        assert sim.write_log == []
+        start = time.monotonic()
+        channel.read_registers(0, 4)
+        assert time.monotonic() - start >= 0.005  # reply_delay_s
+
+
+def test_undefined_rows_and_limits_as_the_file_says(tmp_path: Path) -> None:
+    text = MOVER.replace(
+        "  reply_delay_s: 0.005\n",
+        "  read_undefined: true\n  max_read_registers: 14\n  max_write_bits: 1\n",
+    ).replace("[1, 3, 5, 6, 16]", "[1, 3, 5, 6, 15, 16]")
+    with over_tcp(describe(tmp_path, text)) as (device, sim, channel):
+        assert channel.read_registers(0, 8)[4:] == [0, 0, 0, 0]  # 4-7 undefined: read 0
+        with pytest.raises(DeviceException, match="ILLEGAL DATA ADDRESS"):
+            channel.read_registers(0, 15)  # more than max_read_registers
+        with pytest.raises(DeviceException, match="ILLEGAL DATA ADDRESS"):
+            channel.write_coils(0, [True, True])  # more than max_write_bits
+        assert sim.write_log == []
+        # The holding rows merge through the undefined ones: one request for 0-13.
+        assert [(r.table, r.address, r.count) for r in device.plan] == [
+            (Table.COIL, 0, 1),
+            (Table.HOLDING, 0, 14),
+        ]
+
+
+def test_multidrop_line_on_a_pty() -> None:
+    description = load(MULTIDROP)
+    simulator: Simulator = make_simulator(description)
+    with served_on_pty(simulator, 115200) as port:
+        link = ModbusLink(SerialSettings(port, 115200, timeout_s=0.5))
+        try:
+            channels = [DeviceChannel(link, d.unit_id, retries=0) for d in description.devices]
+            devices = [
+                DescribedDevice(c, d) for c, d in zip(channels, description.devices, strict=True)
+            ]
+            simulator.devices[2].set("position_actual", -70000)
+            first, second = devices[0].poll(), devices[1].poll()
+            assert dict(zip(second.names, second.values, strict=True))["position_actual"] == -70000
+            assert dict(zip(first.names, first.values, strict=True))["position_actual"] == 0
+            devices[1].trigger("stop")
+            assert [r.unit_id for r in simulator.devices[2].write_log] == [2]
+            assert simulator.devices[1].write_log == []
+            with pytest.raises(LinkTimeout):  # no unit 3 on the line: silence
+                DeviceChannel(link, 3, retries=0).read_registers(0xAC, 2)
+        finally:
+            link.close()
+
+
+def test_console_script_serves_the_file(tmp_path: Path) -> None:
+    description = describe(tmp_path)
+    port_file = tmp_path / "port"
+    log = tmp_path / "writes.jsonl"
+    process = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "modbus_bridge.sim",
+            "--device-file",
+            str(description.path),
+            "--port",
+            "0",
+            "--port-file",
+            str(port_file),
+            "--write-log",
+            str(log),
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert process.stdout is not None
+        assert process.stdout.readline().startswith("modbus_sim mover (unit 1) listening")
+        link = ModbusLink(TcpSettings("127.0.0.1", int(port_file.read_text()), timeout_s=2.0))
+        try:
+            device = DescribedDevice(DeviceChannel(link, 1, retries=0), description.device)
+            device.set_coil("set_run", True)
+        finally:
+            link.close()
+        assert '"address": 0, "values": [1]' in log.read_text()
+    finally:
+        process.terminate()
+        process.wait(10)
+
+
+def test_a_bad_file_is_one_line_and_exit_2(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(MOVER.replace("address: 20,", "address: 70000,"))
+    result = subprocess.run(
+        [sys.executable, "-m", "modbus_bridge.sim", "--device-file", str(bad)],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert result.returncode == 2
+    (line,) = result.stderr.splitlines()
+    assert line.startswith(f"error: {bad}:14: registers[6].address: ")
