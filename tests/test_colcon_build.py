@@ -60,6 +60,9 @@ def venv_env() -> dict[str, str]:
         if key not in {"AMENT_PREFIX_PATH", "CMAKE_PREFIX_PATH", "COLCON_PREFIX_PATH"}
     }
     env["VIRTUAL_ENV"] = sys.prefix
+    # colcon's own make flags are -jN -lN (N = cores): beside other busy processes the load
+    # limit leaves make one job at a time, and msg_defs takes twice as long.
+    env["MAKEFLAGS"] = f"-j{os.cpu_count() or 2}"
     env["PATH"] = f"{Path(sys.prefix) / 'bin'}{os.pathsep}{env.get('PATH', '')}"
     return env
 
