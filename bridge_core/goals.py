@@ -28,9 +28,10 @@ from typing import Any, Generic, TypeVar
 SnapshotT = TypeVar("SnapshotT")
 
 # A motion that never showed as running is judged on this many polls begun after its start
-# was acknowledged: a device may set its running flag a little after the command (and a
-# zero-length move never sets it).
+# was acknowledged, and no sooner than START_GRACE_S after it: a device may set its
+# running flag a little after the command (and a zero-length move never sets it).
 START_POLLS = 2
+START_GRACE_S = 0.5
 # A poll is several requests: its position may have been read while the motion still ran
 # and its running flag after it ended. Short of the target, the verdict waits for this
 # many idle polls (the second one read every value after the motion had ended).
@@ -115,8 +116,9 @@ class Motion(ABC, Generic[SnapshotT]):
         """Fields of the action's result message besides the outcome."""
         return {}
 
-    def judge(self, snapshot: SnapshotT) -> Verdict | None:
-        """None while the motion goes on (or may not have shown yet that it started)."""
+    def judge(self, snapshot: SnapshotT, since_start_s: float = math.inf) -> Verdict | None:
+        """None while the motion goes on (or may not have shown yet that it started).
+        ``since_start_s``: how long ago the start was acknowledged."""
         if (verdict := self.fault(snapshot)) is not None:
             return verdict
         if self.running(snapshot):
@@ -124,7 +126,9 @@ class Motion(ABC, Generic[SnapshotT]):
             self.idle_polls = 0
             return None
         self.idle_polls += 1
-        if not self.seen_running and self.idle_polls < START_POLLS:
+        if not self.seen_running and (
+            self.idle_polls < START_POLLS or since_start_s < START_GRACE_S
+        ):
             return None
         verdict = self.ended(snapshot)
         if verdict.outcome is not Outcome.REACHED and self.idle_polls < CONFIRM_POLLS:
@@ -164,13 +168,16 @@ class GoalRun(Generic[SnapshotT]):
         self.wake = threading.Event()
         self.done = threading.Event()
         self._lock = threading.Lock()
-        self.started_at: float | None = None  # wall time the start was acknowledged
+        self.started_at: float | None = None  # time.monotonic() the start was acknowledged
+        self._started_clock = 0.0  # clock() then
         self._snapshot: SnapshotT | None = None  # newest fresh snapshot not yet judged
         self.last_snapshot: SnapshotT | None = None  # newest fresh snapshot judged
         self._cancelled = False
         self._preempted_by: str | None = None
         self._halted: str | None = None
         self.verdict: Verdict | None = None
+        self.thread: threading.Thread | None = None  # the goal's own thread, once it runs
+        self.starting = False  # its start is being written (it had its turn)
         self.stop_sent = False
         self.stop_message = ""
 
@@ -199,11 +206,14 @@ class GoalRun(Generic[SnapshotT]):
         self.wake.set()
 
     # ---------------------------------------------------------------- the goal's thread
-    def started(self, wall_time: float) -> None:
+    def started(self, at: float) -> None:
+        """The start was acknowledged at ``at`` (``time.monotonic()``, the clock the polls'
+        begin times use: a wall clock stepped back by NTP must not hide every poll)."""
         with self._lock:
-            self.started_at = wall_time
+            self.started_at = at
+            self._started_clock = self._clock()
             if self.timeout_s:
-                self.deadline = self._clock() + self.timeout_s
+                self.deadline = self._started_clock + self.timeout_s
 
     def wait_s(self) -> float:
         """How long the goal's thread may sleep before it must look again."""
@@ -220,6 +230,19 @@ class GoalRun(Generic[SnapshotT]):
         """What ends the goal now, if anything; the goal's own reasons come first, then
         the link, the deadline, and last what the newest fresh snapshot shows."""
         what = self.motion.what
+        if (verdict := self.requested_ending()) is not None:
+            return verdict
+        if not connected:
+            return Verdict(Outcome.LINK_LOST, f"{what}: the link was lost during the goal")
+        if self._clock() >= self.deadline:
+            return Verdict(Outcome.TIMED_OUT, f"{what}: not done within {self.timeout_s:g} s")
+        if snapshot is not None:
+            return self.motion.judge(snapshot, self._clock() - self._started_clock)
+        return None
+
+    def requested_ending(self) -> Verdict | None:
+        """The goal's own reasons to end (halt, cancel, preemption), first to last."""
+        what = self.motion.what
         with self._lock:
             cancelled, preempted_by, halted = self._cancelled, self._preempted_by, self._halted
         if halted is not None:
@@ -228,12 +251,6 @@ class GoalRun(Generic[SnapshotT]):
             return Verdict(Outcome.CANCELLED, f"{what}: cancelled")
         if preempted_by is not None:
             return Verdict(Outcome.PREEMPTED, f"{what}: preempted by {preempted_by}")
-        if not connected:
-            return Verdict(Outcome.LINK_LOST, f"{what}: the link was lost during the goal")
-        if self._clock() >= self.deadline:
-            return Verdict(Outcome.TIMED_OUT, f"{what}: not done within {self.timeout_s:g} s")
-        if snapshot is not None:
-            return self.motion.judge(snapshot)
         return None
 
     def claim(self, verdict: Verdict) -> bool:
@@ -273,6 +290,7 @@ def needs_stop(outcome: Outcome) -> bool:
 __all__ = [
     "CONFIRM_POLLS",
     "GOAL_CHECK_PERIOD_S",
+    "START_GRACE_S",
     "START_POLLS",
     "GoalRun",
     "Motion",

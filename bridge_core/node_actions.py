@@ -46,10 +46,13 @@ if TYPE_CHECKING:
 # one transaction (bounded by the link's timeout); past this, the new goal is refused.
 PREEMPT_WAIT_S = 5.0
 # How long a goal's thread waits for another thread that ended the goal (``stop_motion``
-# on deactivate / exit) to have sent its stop before it reports the result anyway.
-STOP_WAIT_S = 5.0
+# on deactivate / exit) to have sent its stop (one try, bounded by the link's timeout)
+# before it reports the result anyway; and how long ``stop_all`` waits for a goal whose
+# start was under way to have ended.
+STOP_WAIT_S = 30.0
 # Executor threads a node adds for its running goals: one per action server, at most this
-# many (goals on one axis preempt each other, so few run at once).
+# many, and one for a preempting goal (goals on one axis preempt each other, so few run at
+# once).
 MAX_GOAL_THREADS = 8
 # How long a cancelled goal's result waits for rclpy to have moved it to CANCELING.
 CANCEL_STATE_WAIT_S = 1.0
@@ -165,6 +168,10 @@ class ActionHost:
             return "read_only is set, nothing was written"
         if not node.channel.connected:
             return f"not connected to {node.channel.describe()}"
+        with self._lock:
+            goals = len(self._runs) + len(self._steps)
+        if goals >= self.threads:
+            return f"{goals} goals already run or wait on this node, the most it takes at once"
         timeout_s = float(getattr(goal, "timeout_s", 0.0))
         if not math.isfinite(timeout_s) or timeout_s < 0:
             return f"timeout_s {timeout_s} must be 0 (no limit) or a positive number of seconds"
@@ -200,11 +207,21 @@ class ActionHost:
         except CommandRejected as err:  # the device's state changed since the goal came
             return self._refused(action_type, handle, f"{name} refused: {err}")
         run: GoalRun[Any] = GoalRun(motion, timeout_s=float(goal.timeout_s))
+        run.thread = threading.current_thread()
         if reason := self._take_axes(key, run):
             return self._refused(action_type, handle, reason)
         try:
             self._start(run, handle, name)
             self._follow(run, handle, action_type)
+        except Exception:
+            # A bug in this goal's thread: its own motion is stopped before anything else.
+            verdict = Verdict(Outcome.HALTED, f"{motion.what}: stopped, internal error")
+            if run.claim(verdict):
+                if run.started_at is not None:
+                    self._end(run, verdict)
+                else:
+                    run.finish()
+            raise
         finally:
             with self._lock:
                 self._runs.pop(key, None)
@@ -216,20 +233,28 @@ class ActionHost:
         node = self.node
         motion = run.motion
         if handle.is_cancel_requested:
-            run.claim(Verdict(Outcome.CANCELLED, f"{motion.what}: cancelled before it started"))
-        elif run.halted:
-            run.claim(Verdict(Outcome.HALTED, f"{motion.what}: not started, {run.halted}"))
-        elif run.preempted_by:  # a newer goal came while this one waited for its axes
-            run.claim(Verdict(Outcome.PREEMPTED, f"{motion.what}: preempted by {run.preempted_by}"))
-        if run.ended:
-            run.finish()
+            run.cancel()
+        if (ending := run.requested_ending()) is not None:  # before anything was written
+            if run.claim(ending):
+                run.finish()
             return
-        ok, message, _ = node.run_command(motion.what, motion.start)
+
+        def start_unless_ended() -> None:
+            # Its turn may come after a cancel, a halt or a newer goal: then nothing goes out.
+            if (ending := run.requested_ending()) is not None:
+                raise CommandRejected(ending.message)
+            run.starting = True
+            motion.start()
+
+        ok, message, _ = node.run_command(motion.what, start_unless_ended)
         if ok:
-            run.started(time.time())
+            run.started(time.monotonic())
             node.get_logger().info(f"{name}: goal started ({motion.what})")
+        elif (ending := run.requested_ending()) is not None:
+            if run.claim(ending):  # refused before a write: nothing to stop
+                run.finish()
         elif not node.channel.connected:
-            run.started(time.time())
+            run.started(time.monotonic())  # the start may have gone out: stop it
             if run.claim(Verdict(Outcome.LINK_LOST, message)):
                 self._end(run, Verdict(Outcome.LINK_LOST, message))
         elif run.claim(Verdict(Outcome.REFUSED, message)):
@@ -300,6 +325,13 @@ class ActionHost:
                 self.node.get_logger().info(f"{run.motion.what}: stopped ({reason})")
         for steps_run in steps:
             steps_run.end(Outcome.HALTED, f"{steps_run.steps.what}: stopped, {reason}")
+        # A start that was on the wire when the halt came: its thread stops it at once;
+        # wait for that (the link must still be open), bounded by STOP_WAIT_S. Not for a
+        # goal still waiting for its turn (it will not start), nor on a goal's own thread.
+        deadline = time.monotonic() + STOP_WAIT_S
+        for run in runs:
+            if run.starting and run.thread is not threading.current_thread():
+                run.done.wait(max(0.0, deadline - time.monotonic()))
 
     def _finish(
         self,
@@ -372,9 +404,26 @@ class ActionHost:
         for run in runs:
             run.wake.set()
 
+    def occupied(self, axis: Hashable) -> str | None:
+        """The running goal that occupies ``axis`` (None: no goal does), for services that
+        must not write between its steps."""
+        with self._lock:
+            for run in self._runs.values():
+                if axis in run.motion.axes:
+                    return run.motion.what
+            for steps_run in self._steps.values():
+                if axis in steps_run.steps.axes:
+                    return steps_run.steps.what
+        return None
+
     @property
     def threads(self) -> int:
-        return min(len(self.servers), MAX_GOAL_THREADS)
+        """Executor threads for goals: one per server (at most MAX_GOAL_THREADS) and one
+        for a goal that waits for the one it preempts; a goal past them is rejected, so
+        goals never take the threads of the stop services."""
+        if not self.servers:
+            return 0
+        return min(len(self.servers), MAX_GOAL_THREADS) + 1
 
     @property
     def running(self) -> list[str]:
@@ -402,7 +451,15 @@ class ActionHost:
         for old in older:
             old.end(Outcome.PREEMPTED, f"{old.steps.what}: preempted by {steps.what}")
         for old in older:
-            old.done.wait(PREEMPT_WAIT_S)
+            if not old.done.wait(PREEMPT_WAIT_S):
+                with self._lock:
+                    self._steps.pop(key, None)
+                return self._refused(
+                    action_type,
+                    handle,
+                    f"{steps.what} refused: the goal it preempts ({old.steps.what}) did not "
+                    f"end within {PREEMPT_WAIT_S:g} s",
+                )
         try:
             while steps.sent < steps.total:
                 if handle.is_cancel_requested:

@@ -511,9 +511,9 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
 
     # ------------------------------------------------------------ polling
     def _poll(self) -> tuple[float, SnapshotT]:
-        """The poll and the wall time it began (a goal judges only polls begun after its
-        start was acknowledged)."""
-        began = time.time()
+        """The poll and the (monotonic) time it began: a goal judges only polls begun after
+        its start was acknowledged."""
+        began = time.monotonic()
         return began, self.poll_device()
 
     def _publish(self, polled: tuple[float, SnapshotT]) -> None:
@@ -634,21 +634,30 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
         while the link is down. ``own_motion``: a stop of motion this node started
         (a stream's stop, the deadman): allowed under read_only too.
         """
-        if not stop and not self.active:
-            return False, f"{what} refused: the node is not active (lifecycle)", None
-        if writes and self.read_only and not own_motion:
-            return False, f"{what} refused: read_only is set, nothing was written", None
-        if not stop and not self.channel.connected:
-            return False, f"{what} refused: not connected to {self.channel.describe()}", None
+        # Commands take turns whole (services, streams and action goals run in different
+        # callback groups), so two commands' writes never interleave, and the guards are
+        # read once it is this command's turn (a deactivate or read_only that came while
+        # it waited is obeyed). A stop never waits for that.
+        with contextlib.nullcontext() if stop else self._command_mutex:
+            if not stop and not self.active:
+                return False, f"{what} refused: the node is not active (lifecycle)", None
+            if writes and self.read_only and not own_motion:
+                return False, f"{what} refused: read_only is set, nothing was written", None
+            if not stop and not self.channel.connected:
+                return (
+                    False,
+                    f"{what} refused: not connected to {self.channel.describe()}",
+                    None,
+                )
+            return self._run_guarded(what, action, writes=writes, stop=stop)
+
+    def _run_guarded(
+        self, what: str, action: Callable[[], T], *, writes: bool, stop: bool
+    ) -> tuple[bool, str, T | None]:
         try:
             # A stop is not tied to the connection it started on (command_session): it
-            # must go out on whatever link there is now. Other commands take turns whole
-            # (services, streams and action goals run in different callback groups), so
-            # two commands' writes never interleave; a stop never waits for that.
-            with (
-                contextlib.nullcontext() if stop else self._command_mutex,
-                contextlib.nullcontext() if stop else self.channel.command_session(),
-            ):
+            # must go out on whatever link there is now.
+            with contextlib.nullcontext() if stop else self.channel.command_session():
                 result = action()
         except CommandRejected as err:
             return False, f"{what} refused: {err}", None

@@ -467,6 +467,12 @@ class MotecDevice(ConfiguredDevice[MotecConfig]):
             self.stream.taken_over(VELOCITY_STREAM, locked=True)
             return done
 
+    def stop_move(self) -> str:
+        """0x29 = 0 at once (a goal's stop: it started a position move, so no mode read
+        first; on a bad line that read could fail and keep the stop off the wire)."""
+        self._write("start", STOP_MOVE)
+        return "move stopped (0x29 = 0)"
+
     def save_to_flash(self) -> None:
         self._write("save_to_flash", SAVE_TO_FLASH)
 
@@ -705,7 +711,7 @@ class MoveToMotion(Motion[MotecSnapshot]):
         self.device.move(self.counts, relative=self.relative, speed_rpm=self.speed_rpm)
 
     def stop(self) -> str:
-        return self.device.stop()
+        return self.device.stop_move()
 
     def running(self, snapshot: MotecSnapshot) -> bool:
         return snapshot.moving

@@ -392,6 +392,9 @@ class R6Device:
         return upload.total
 
 
+POINT_DATA = "point_data"  # the axis of an upload goal: the point-data rows 30000-30006
+
+
 class PointUpload:
     """§3.3.5 point data in steps: configure 30002-30004, then frames at 30005 (count,
     clear flag, data), each one FC 10. The first frame clears the source (30006 = 1),
@@ -399,7 +402,7 @@ class PointUpload:
     sends the next frame (the first also the configuration), so an action can stop
     between frames."""
 
-    axes: frozenset[Hashable] = frozenset({"point_data"})
+    axes: frozenset[Hashable] = frozenset({POINT_DATA})
 
     def __init__(
         self,

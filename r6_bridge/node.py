@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import sys
-from collections.abc import Sequence
-from typing import Any
+from collections.abc import Callable, Sequence
+from typing import Any, TypeVar
 
 from geometry_msgs.msg import PoseStamped
 
 from bridge_core.diagnostics import Level, Report
-from bridge_core.errors import DeviceException, FrameError
+from bridge_core.errors import CommandRejected, DeviceException, FrameError
 from bridge_core.node_base import BridgeNode, DeviceDefaults, copy_fields, spin_node
 from bridge_core.parameters import ParameterSpec, padded
 from bridge_core.units import DEG, MM, RPM_TO_RAD_S, euler_xyz_deg_to_quaternion
@@ -28,9 +28,11 @@ from msg_defs.srv import (
     WriteParameter,
 )
 
+from .device import POINT_DATA, R6Device, R6Snapshot, RunCycleMotion
 from .device import PointUpload as PointUploadSteps
-from .device import R6Device, R6Snapshot, RunCycleMotion
 from .registers import COMMANDS, MAX_AXES, STOP_COMMANDS
+
+T = TypeVar("T")
 
 # R6State fields copied as they are from the snapshot (same names, same units).
 STATE_FIELDS = (
@@ -251,15 +253,19 @@ class R6BridgeNode(BridgeNode[R6Snapshot]):
             ReadDataSource,
             "~/read_data_source",
             lambda r: f"read_data_source {r.source_id}",
-            lambda r: d.read_data_source_length(r.source_id),  # writes 30000: refused if read_only
+            lambda r: self._unless_uploading(  # writes 30000: refused if read_only
+                lambda: d.read_data_source_length(r.source_id)
+            ),
             fill=lambda response, points: setattr(response, "points", points),
         )
         self.command_service(
             UploadPoints,
             "~/upload_points",
             lambda r: f"upload_points to source {r.data_source_id}",
-            lambda r: d.upload_points(
-                r.data_source_id, r.values_per_point, r.axis_mask, [int(v) for v in r.values]
+            lambda r: self._unless_uploading(
+                lambda: d.upload_points(
+                    r.data_source_id, r.values_per_point, r.axis_mask, [int(v) for v in r.values]
+                )
             ),
             fill=lambda response, frames: setattr(response, "frames_sent", frames),
         )
@@ -282,6 +288,13 @@ class R6BridgeNode(BridgeNode[R6Snapshot]):
                 d, self.last_snapshot, single_cycle=bool(goal.single_cycle)
             ),
         )
+
+    def _unless_uploading(self, action: Callable[[], T]) -> T:
+        """The point-data rows (30000-30006) between two frames of an upload goal would
+        send its next frames to another source: refused while one runs."""
+        if (goal := self.actions.occupied(POINT_DATA)) is not None:
+            raise CommandRejected(f"the {goal} goal is using the point-data rows")
+        return action()
 
 
 def _fill_counter(response: Any, values: tuple[int, int, int]) -> None:

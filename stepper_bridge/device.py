@@ -1004,8 +1004,8 @@ class StepperMotion(Motion[StepperSnapshot]):
     def running(self, snapshot: StepperSnapshot) -> bool:
         return any(snapshot.running[m - 1] for m in self.motors)
 
-    def judge(self, snapshot: StepperSnapshot) -> Verdict | None:
-        verdict = super().judge(snapshot)
+    def judge(self, snapshot: StepperSnapshot, since_start_s: float = math.inf) -> Verdict | None:
+        verdict = super().judge(snapshot, since_start_s)
         if verdict is not None and self.seen_running and self.idle_polls < self.idle_polls_to_end:
             return None  # home_all: the next motor of the order may not have begun yet
         return verdict

@@ -8,6 +8,7 @@ import pytest
 
 from bridge_core.goals import (
     CONFIRM_POLLS,
+    START_GRACE_S,
     START_POLLS,
     GoalRun,
     Motion,
@@ -112,16 +113,28 @@ def test_stopped_short_of_the_target_on_a_second_idle_poll() -> None:
     assert verdict is not None and verdict.outcome is Outcome.STOPPED
 
 
-def test_a_motion_not_yet_shown_running_gets_start_polls() -> None:
-    run = started_run()
+def test_a_motion_not_yet_shown_running_gets_start_polls_and_time() -> None:
+    """A flag may come late: idle polls count only from START_POLLS on and after
+    START_GRACE_S (fast polls must not end a motion whose flag rises 0.1 s late)."""
+    clock = FakeClock()
+    run = started_run(clock=clock)
+    for _ in range(START_POLLS + 3):
+        assert judge(run, Snap(False, 0.0)) is None  # many polls, too soon
+    clock.now += START_GRACE_S
+    verdict = judge(run, Snap(False, 0.0))
+    assert verdict is not None and verdict.outcome is Outcome.STOPPED
+    run = started_run(clock=clock)
+    clock.now += START_GRACE_S
     for _ in range(START_POLLS - 1):
-        assert judge(run, Snap(False, 0.0)) is None  # the flag may come late
+        assert judge(run, Snap(False, 0.0)) is None  # late enough, too few polls
     verdict = judge(run, Snap(False, 0.0))
     assert verdict is not None and verdict.outcome is Outcome.STOPPED
 
 
 def test_a_zero_length_move_is_reached_without_ever_running() -> None:
-    run = started_run()
+    clock = FakeClock()
+    run = started_run(clock=clock)
+    clock.now += START_GRACE_S
     run.motion.target = 0.0  # type: ignore[attr-defined]
     verdicts = [judge(run, Snap(False, 0.0)) for _ in range(START_POLLS)]
     assert verdicts[:-1] == [None] * (START_POLLS - 1)

@@ -16,6 +16,7 @@ from std_srvs.srv import Trigger
 from bridge_core.sim_base import Simulator, WriteRecord
 from msg_defs.action import PointUpload, RunCycle
 from msg_defs.msg import MotionOutcome, R6State
+from msg_defs.srv import ReadDataSource, UploadPoints
 from r6_bridge.registers import COMMANDS, MAX_AXES, R6_MAP
 from r6_bridge.sim import R6SimDevice, make_simulator
 
@@ -169,6 +170,15 @@ def test_upload_points_with_progress_and_cancel(
         # Cancelled part-way: it stops between frames and says how far it got.
         goal = upload(b, 8, values)
         goal.wait_feedback(lambda f: f.frames_sent >= 3)
+        # Between its frames the point-data rows are the goal's: the services are refused.
+        refused = (
+            b.call(ReadDataSource, "read_data_source", source_id=7),
+            b.call(
+                UploadPoints, "upload_points", data_source_id=3, values_per_point=6, values=[1] * 6
+            ),
+        )
+        for reply in refused:
+            assert not reply.success and "using the point-data rows" in reply.message
         goal.cancel()
         status, result = goal.result()
         assert status == GoalStatus.STATUS_CANCELED
