@@ -81,13 +81,14 @@ def test_exit_stops_a_jogging_motor(
         assert device.motion[1] is None  # the simulated motor stands still
 
 
+@pytest.mark.parametrize("signal_number", [signal.SIGINT, signal.SIGTERM], ids=["int", "term"])
 def test_exit_stops_an_action_goals_motion(
-    sim: tuple[StepperSimDevice, str], client: Client, tmp_path: Path
+    sim: tuple[StepperSimDevice, str], client: Client, tmp_path: Path, signal_number: int
 ) -> None:
-    """Ctrl-C while a move_by goal runs: the motor's stop coil is the last write, the
-    process ends at once (a goal's thread never holds the exit up)."""
+    """Ctrl-C or SIGTERM while a move_by goal runs: the motor's stop coil is the last
+    write, the process ends at once (a goal's thread never holds the exit up)."""
     device, port = sim
-    b = Bridge(client, "/shutdown_goal", "stepper_bridge", StepperState)
+    b = Bridge(client, f"/shutdown_goal_{signal_number}", "stepper_bridge", StepperState)
     with node_process(
         "stepper_bridge.node", stepper_params(port), tmp_path, ["-r", f"__ns:={b.ns}"]
     ) as proc:
@@ -98,7 +99,7 @@ def test_exit_stops_an_action_goals_motion(
         assert sent.accepted
         sent.wait_feedback(lambda f: f.running[0], timeout=30)
         writes_before = len(device.write_log)
-        proc.send_signal(signal.SIGINT)
+        proc.send_signal(signal_number)
         assert proc.wait(EXIT_TIMEOUT_S) == 0
         late = [(r.table, r.address, r.values) for r in device.write_log[writes_before:]]
         assert late == [(Table.COIL, motor_coil(1, "stop"), (1,))]

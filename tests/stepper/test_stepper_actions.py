@@ -198,5 +198,7 @@ def test_stepper_actions(sim: tuple[StepperSimDevice, str], client: Client, tmp_
         assert result.outcome.code == MotionOutcome.HALTED, result.outcome.message
         assert "deactivated" in result.outcome.message and result.outcome.stop_sent
         assert device.motion[1] is None
+        mark = len(writes(device))
         assert not send(b, StepperMoveBy, "motor_1/move_by", distance=10 * MM).accepted
         client.wait_log("stepper_bridge", "move_by goal rejected: the node is not active")
+        assert writes(device)[mark:] == []
