@@ -11,16 +11,18 @@ codes the file lists: FC 05 (else 0F) for one coil, FC 06 (else 10) for one regi
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Sequence
+from contextlib import ExitStack
 from dataclasses import dataclass
 
 from bridge_core.channel import Priority, RegisterIO
 from bridge_core.checks import check_finite
 from bridge_core.codec import Value, encode
-from bridge_core.errors import CommandRejected
+from bridge_core.errors import CommandRejected, LinkError
 from bridge_core.planner import ReadRequest, plan_reads
 from bridge_core.poller import read_blocks, read_named
 from bridge_core.registers import Register, Table, ValueType
+from bridge_core.stream_guard import StreamGuard
 
 from .description import Device, JointSource, TopicSpec
 
@@ -75,6 +77,9 @@ class DescribedDevice:
         self.values = {v.name: v for v in device.commands.values}
         self.coils = {c.name: c for c in device.commands.coils}
         self.topics = {t.name: t for t in device.commands.topics}
+        # The stream guard of each command topic (the node attaches them): a stop service
+        # locks the streams of the registers it writes.
+        self.guards: dict[str, StreamGuard[str]] = {}
         joints = device.joints
         self._positions = [j.position for j in joints]
         self._velocities = (
@@ -173,19 +178,53 @@ class DescribedDevice:
         self._send(register, words)
         return f"{name} = {value}"
 
+    def attach_stream(self, topic_name: str, guard: StreamGuard[str]) -> None:
+        """The guard of command topic ``topic_name`` (keyed by the topic's name)."""
+        if topic_name not in self.topics:
+            raise CommandRejected(f"no command topic named {topic_name!r}")
+        self.guards[topic_name] = guard
+
+    def _as_stop(self, registers: Collection[str], action: Callable[[], str]) -> str:
+        """Run a stop service's writes with the streams of ``registers`` held: no stream
+        write between the stop and the lock. Done: those streams are locked (a joystick
+        still held cannot restart the motion; a 0 or silence unlocks). Lost on the link:
+        the streams are locked and, if they may move, their own stop stays pending."""
+        affected = [
+            (name, guard)
+            for name, guard in self.guards.items()
+            if self.topics[name].register_name in registers
+        ]
+        with ExitStack() as held:
+            for _name, guard in affected:
+                held.enter_context(guard.lock)
+            try:
+                done = action()
+            except LinkError:
+                for name, guard in affected:
+                    guard.stop_failed(name)
+                raise
+            for name, guard in affected:
+                guard.taken_over(name, locked=True)
+            return done
+
     def trigger(self, name: str) -> str:
-        """A named Trigger: its writes, in the file's order, all checked first."""
+        """A named Trigger: its writes, in the file's order, all checked first. A stop
+        trigger locks the command streams of the registers it writes."""
         if name not in self.triggers:
             raise CommandRejected(f"no trigger named {name!r}")
-        checked = [
-            self.words_for(w.register_name, _written_value(w.value))
-            for w in self.triggers[name].writes
-        ]
-        done: list[str] = []
-        for (register, words), write in zip(checked, self.triggers[name].writes, strict=True):
-            self._send(register, words)
-            done.append(f"{register.name} = {write.value}")
-        return ", ".join(done)
+        spec = self.triggers[name]
+        checked = [self.words_for(w.register_name, _written_value(w.value)) for w in spec.writes]
+
+        def send() -> str:
+            done: list[str] = []
+            for (register, words), write in zip(checked, spec.writes, strict=True):
+                self._send(register, words)
+                done.append(f"{register.name} = {write.value}")
+            return ", ".join(done)
+
+        if spec.stop:
+            return self._as_stop({w.register_name for w in spec.writes}, send)
+        return send()
 
     def set_value(self, name: str, value: float) -> str:
         if name not in self.values:
@@ -193,9 +232,14 @@ class DescribedDevice:
         return self.write(self.values[name].register_name, value)
 
     def set_coil(self, name: str, on: bool) -> str:
+        """A coil service; its ``stop_on`` value is a stop (locks the coil's streams)."""
         if name not in self.coils:
             raise CommandRejected(f"no coil service named {name!r}")
-        return self.write(self.coils[name].register_name, bool(on))
+        coil = self.coils[name]
+        if coil.stop_on is not None and bool(on) == coil.stop_on:
+            register = coil.register_name
+            return self._as_stop({register}, lambda: self.write(register, bool(on)))
+        return self.write(coil.register_name, bool(on))
 
     def stream_value(self, topic: TopicSpec, value: float) -> float:
         """A command topic's message value as its register's value (checked, not sent)."""

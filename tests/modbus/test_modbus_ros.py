@@ -29,6 +29,7 @@ from ..support.ros import (
     ros_client,
     start_bridge,
     wait_for,
+    wait_stream_refusals,
     wait_subscribed,
 )
 from ..support.serial_pair import served_on_pty
@@ -153,6 +154,55 @@ def test_every_command_kind_writes_what_the_file_says(sim, client: Client, tmp_p
             (6, Table.HOLDING, 3, (286,)),
             (6, Table.HOLDING, 3, (0,)),
         ]
+        client.node.destroy_publisher(topic)
+
+
+@pytest.mark.parametrize(
+    ("srv_type", "service", "fields"),
+    [(Trigger, "halt", {}), (WriteRegister, "write", {"name": "speed_command", "value": 0.0})],
+)
+def test_a_stop_trigger_locks_the_command_stream(  # type: ignore[no-untyped-def]
+    sim, client: Client, tmp_path: Path, srv_type: Any, service: str, fields: Any
+) -> None:
+    """After the stop trigger the joystick still held (a new non-zero value) writes
+    nothing; a 0 unlocks. A plain ~/write of 0 is no stop service: it locks nothing (the
+    case that shows the check can fail)."""
+    description, device, port = sim
+    stop_service = service == "halt"
+    with bridge(client, tmp_path, description.path, port=port, cmd_speed_timeout_s=30.0) as (
+        b,
+        _,
+    ):
+        b.wait_connected(True)
+        topic = client.node.create_publisher(Float64, f"{b.ns}/modbus_bridge/cmd_speed", 10)
+        wait_subscribed(topic)
+        topic.publish(Float64(data=0.5))
+        wait_for(lambda: len(device.write_log) >= 1, 20.0, "the streamed speed")
+        reply = call(b, srv_type, service, **fields)
+        assert reply.success, reply.message
+        stopped = [(6, Table.HOLDING, 3, (286,)), (6, Table.HOLDING, 3, (0,))]
+        assert log_of(device) == stopped
+        if not stop_service:
+            topic.publish(Float64(data=0.7))
+            wait_for(lambda: len(device.write_log) >= 3, 20.0, "the stream going on")
+            assert log_of(device)[2] == (6, Table.HOLDING, 3, (401,))
+            client.node.destroy_publisher(topic)
+            return
+        since = time.monotonic()
+        topic.publish(Float64(data=0.7))
+        wait_stream_refusals(client, "modbus_bridge", 1, since)  # the 0.7 was handled
+        assert log_of(device) == stopped  # no motion write after the stop
+
+        def resumed() -> bool:
+            if len(device.write_log) >= 3:
+                return True
+            # A 0 then a new speed (a pair is sent again if the two coalesced).
+            topic.publish(Float64(data=0.0))
+            topic.publish(Float64(data=0.7))
+            return False
+
+        wait_for(resumed, 20.0, "the stream after a 0")
+        assert log_of(device)[2] == (6, Table.HOLDING, 3, (401,))
         client.node.destroy_publisher(topic)
 
 
