@@ -126,6 +126,43 @@ def test_joints_follow_their_command_registers(tmp_path: Path) -> None:
         assert stopped == pytest.approx(sim_position, abs=1e-3)
 
 
+def test_a_joint_stops_at_the_end_of_its_register(tmp_path: Path) -> None:
+    """An integrated position past what its register holds (i16 at 0.01 deg: +-327.67)
+    is clamped there, as at a hard stop; it never fails to encode (which stopped the
+    server)."""
+    text = MOVER.replace("type: i32, scale: 1000, unit: deg", "type: i16, scale: 100, unit: deg")
+    sim = make_simulator(describe(tmp_path, text)).device
+    assert isinstance(sim, DescribedSimDevice)
+    sim.set("speed_command", 90.0)
+    sim.tick(5.0)  # 450 deg commanded
+    assert sim.get("position") == pytest.approx(327.67)
+    assert sim.positions_si["j1"] == pytest.approx(327.67 * DEG)
+    assert sim.get("velocity") == pytest.approx(327.67 / 5.0, abs=0.1)  # what it moved
+    sim.tick(1.0)
+    assert sim.get("position") == pytest.approx(327.67)
+    assert sim.get("velocity") == 0.0  # held at the end
+    sim.set("speed_command", -90.0)
+    sim.tick(10.0)
+    assert sim.get("position") == pytest.approx(-327.68)
+
+
+def test_a_failing_tick_is_logged_once_and_the_simulator_keeps_serving(
+    tmp_path: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
+    with over_tcp(describe(tmp_path)) as (device, sim, _):
+        failures: list[float] = []
+
+        def failing(dt: float) -> None:
+            failures.append(dt)
+            raise ValueError("joint model broken")
+
+        sim.tick = failing  # type: ignore[method-assign]
+        wait_for(lambda: len(failures) >= 3, "three failing ticks")
+        assert device.read(["target"]) == {"target": 0.0}  # still served
+    lines = [line for line in capfd.readouterr().err.splitlines() if "tick failed" in line]
+    assert lines == ["simulator: unit 1 tick failed: ValueError: joint model broken"]
+
+
 def test_commands_write_what_the_file_says(tmp_path: Path) -> None:
     with over_tcp(describe(tmp_path)) as (device, sim, _):
         assert device.trigger("go") == "run = True, speed_command = 45"
