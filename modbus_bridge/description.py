@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any, Literal, get_args, get_origin
 
@@ -159,6 +159,7 @@ class RegisterSpec(_Lenient):
     unit: str = ""
     access: Literal["R", "RW", "W"] = "R"
     range: tuple[Finite, Finite] | None = None
+    values: list[Finite] | None = Field(None, min_length=1, description="the allowed writes")
     description: str = ""
 
 
@@ -295,6 +296,21 @@ class Device:
     joints: tuple[Joint, ...]
     link: Link | None  # None: on the file's shared line
     state_names: tuple[str, ...]  # readable registers published in ~/state
+    # Registers that take only some values (``values``): name -> the values, in its unit.
+    allowed_values: dict[str, tuple[float, ...]] = field(default_factory=dict)
+
+    def allows(self, name: str, value: float) -> bool:
+        """Whether ``value`` is one of register ``name``'s ``values`` (any, if it has none),
+        compared as written on the wire (raw), so a scaled value's rounding does not count."""
+        allowed = self.allowed_values.get(name)
+        if allowed is None:
+            return True
+        register = self.register_map[name]
+        try:
+            raw = to_raw(register, value)
+        except CodecError:
+            return False
+        return raw in {to_raw(register, choice) for choice in allowed}
 
     @property
     def name(self) -> str:
@@ -482,6 +498,10 @@ class _Checker:
         self.problems.append(Problem(line_of(self.root, full), format_loc(full), message))
 
 
+def _number_text(value: float) -> str:
+    return str(int(value)) if float(value).is_integer() else repr(float(value))
+
+
 def _value_type(spec: RegisterSpec) -> ValueType:
     return next(kind for kind in ValueType if kind.label == spec.type)
 
@@ -525,6 +545,12 @@ def _build_registers(device: DeviceFileSpec, check: _Checker) -> RegisterMap | N
             spec.scale != 1.0 or spec.offset != 0.0 or spec.range is not None
         ):
             check.add(at, f"a {spec.type} has no scale, offset or range")
+            ok = False
+        if spec.values is not None and (kind in (ValueType.BOOL, ValueType.STRING)):
+            check.add((*at, "values"), f"a {spec.type} has no values (a number register has)")
+            ok = False
+        if spec.values is not None and not access.writable:
+            check.add((*at, "values"), "values are the writes allowed: for access W or RW")
             ok = False
         if spec.range is not None and spec.range[0] > spec.range[1]:
             check.add((*at, "range"), f"[{spec.range[0]}, {spec.range[1]}]: minimum > maximum")
@@ -579,6 +605,15 @@ def _build_registers(device: DeviceFileSpec, check: _Checker) -> RegisterMap | N
                     encode(register, end)
                 except CodecError as err:
                     check.add((*at, "range"), f"{end} does not fit the register: {err}")
+                    ok = False
+                    break
+        if ok and spec.values is not None and kind is not ValueType.STRING:
+            for value in spec.values:
+                try:
+                    to_raw(register, value)
+                    encode(register, value)
+                except CodecError as err:
+                    check.add((*at, "values"), f"{_number_text(value)} cannot be written: {err}")
                     ok = False
                     break
         if ok:
@@ -704,6 +739,17 @@ def _writable(
     return register
 
 
+def allowed_values(spec: DeviceFileSpec) -> dict[str, tuple[float, ...]]:
+    """Register name -> its ``values`` (the registers that have them)."""
+    return {r.name: tuple(r.values) for r in spec.registers if r.values is not None}
+
+
+def not_allowed(name: str, value: float, allowed: Sequence[float]) -> str:
+    """The one-line refusal of a value outside a register's ``values``."""
+    values = ", ".join(_number_text(v) for v in allowed)
+    return f"{name} takes one of {values}, not {_number_text(value)}"
+
+
 def _check_commands(spec: DeviceFileSpec, register_map: RegisterMap, check: _Checker) -> None:
     commands = spec.commands
     seen: set[str] = set()
@@ -742,6 +788,10 @@ def _check_commands(spec: DeviceFileSpec, register_map: RegisterMap, check: _Che
                 encode(register, value)
             except CodecError as err:
                 check.add((*where, "value"), str(err))
+                continue
+            choices = allowed_values(spec).get(write.register_name)
+            if choices is not None and float(value) not in choices:
+                check.add((*where, "value"), not_allowed(write.register_name, value, choices))
     for index, value_service in enumerate(commands.values):
         at = ("commands", "values", index)
         named(value_service.name, at)
@@ -759,6 +809,12 @@ def _check_commands(spec: DeviceFileSpec, register_map: RegisterMap, check: _Che
                 to_raw(target, topic.stop_value)
             except CodecError as err:
                 check.add((*at, "stop_value"), f"the stop value does not fit: {err}")
+                continue
+            choices = allowed_values(spec).get(topic.register_name)
+            if choices is not None and topic.stop_value not in choices:
+                check.add(
+                    (*at, "stop_value"), not_allowed(topic.register_name, topic.stop_value, choices)
+                )
 
 
 def _build_device(spec: DeviceFileSpec, check: _Checker, *, on_line: bool) -> Device | None:
@@ -791,7 +847,12 @@ def _build_device(spec: DeviceFileSpec, check: _Checker, *, on_line: bool) -> De
             "tcp" if link.tcp is not None else "rtu", link.timeout_s, link.tcp, link.rtu
         )
     return Device(
-        spec, register_map, joints, built_link, tuple(state if state is not None else readable)
+        spec,
+        register_map,
+        joints,
+        built_link,
+        tuple(state if state is not None else readable),
+        allowed_values(spec),
     )
 
 

@@ -24,7 +24,7 @@ from bridge_core.poller import read_blocks, read_named
 from bridge_core.registers import Register, Table, ValueType
 from bridge_core.stream_guard import StreamGuard
 
-from .description import Device, JointSource, TopicSpec
+from .description import Device, JointSource, TopicSpec, not_allowed
 
 
 @dataclass(frozen=True)
@@ -151,6 +151,9 @@ class DescribedDevice:
                 if isinstance(value, float) and not value.is_integer():
                     raise CommandRejected(f"{name} takes a whole number, not {value}")
                 value = int(value)
+            if not self.device.allows(name, value):
+                allowed = self.device.allowed_values[name]
+                raise CommandRejected(not_allowed(name, value, allowed))
         words = encode(register, value)
         if register.table is Table.COIL:
             if not self.functions & {5, 15}:

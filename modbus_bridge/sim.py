@@ -9,7 +9,8 @@ As strict as the file says the device is (the simulator base does the rest):
 - more than ``max_read_registers`` / ``max_write_registers`` / ``max_read_bits`` /
   ``max_write_bits`` per request: ILLEGAL DATA ADDRESS, as the simulator base answers an
   oversized read;
-- a written value outside its register's ``range``: ILLEGAL DATA VALUE, nothing written;
+- a written value outside its register's ``range``, or not one of its ``values``:
+  ILLEGAL DATA VALUE, nothing written;
 - every reply waits ``reply_delay_s``;
 - joints with a ``sim`` rule move: a velocity command is integrated into the position
   (and shown in the velocity register), a target position is approached at ``speed``;
@@ -103,6 +104,12 @@ class DescribedSimDevice(SimulatedDevice):
             high = math.inf if register.maximum is None else register.maximum
             if not low <= value <= high:
                 return ILLEGAL_VALUE
+        for register in self.map.in_table(record.table):
+            if register.address in written and register.name in self.device.allowed_values:
+                value = decode(register, [written[a] for a in register.addresses()])
+                assert isinstance(value, int | float)
+                if not self.device.allows(register.name, value):
+                    return ILLEGAL_VALUE  # not one of the register's values
         return None
 
     def tick(self, dt: float) -> None:

@@ -122,6 +122,28 @@ def test_xarm_example_is_xarm_bridges_map() -> None:
     assert names == [f"joint{j}" for j in range(1, 8)]
 
 
+def test_values_are_the_only_writes_allowed(tmp_path: Path) -> None:
+    text = GOOD.replace("range: [-3000, 3000], manual", "values: [-1500, 0, 1500.5], manual")
+    device = load(write(tmp_path, text)).device
+    assert device.allowed_values == {"speed": (-1500.0, 0.0, 1500.5)}
+    assert device.allows("speed", 1500.5) and device.allows("speed", -1500)
+    assert not device.allows("speed", 1500.4) and not device.allows("speed", 1)
+    assert device.allows("angle", 7.0)  # no values: any
+    bad = text.replace("stop_value: 0,", "stop_value: 1,")
+    with pytest.raises(DescriptionError, match=r":22: commands.topics\[0\].stop_value: "):
+        load(write(tmp_path, bad))
+    trigger = GOOD.replace(
+        "[{register: run, value: true}]",
+        "[{register: run, value: true}, {register: speed, value: 7}]",
+    ).replace("range: [-3000, 3000], manual", "values: [0, 5], manual")
+    with pytest.raises(DescriptionError) as caught:
+        load(write(tmp_path, trigger))
+    assert caught.value.lines() == [
+        f"{tmp_path / 'device.yaml'}:16: commands.triggers[0].writes[1].value: "
+        "speed takes one of 0, 5, not 7"
+    ]
+
+
 def test_rtu_multidrop_example() -> None:
     description = load(ROOT / "config" / "devices" / "rtu_multidrop.yaml")
     assert description.line is not None and description.line.rtu is not None
@@ -501,6 +523,38 @@ BAD = [
         "joints[0].sim.mode",
         13,
         "'velocity'",
+    ),
+]
+
+
+BAD += [
+    (
+        "range: [-3000, 3000], manual",
+        "range: [-3000, 3000], values: [0, 4000], manual",
+        "registers[0].values",
+        8,
+        "4000 cannot be written: speed: 4000.0 rpm is outside -3000.0..3000.0 rpm",
+    ),
+    (
+        'access: RW, manual: "s5"',
+        'access: RW, values: [1], manual: "s5"',
+        "registers[2].values",
+        10,
+        "a bool has no values",
+    ),
+    (
+        'unit: deg, manual: "s4.2"',
+        'unit: deg, values: [1], manual: "s4.2"',
+        "registers[1].values",
+        9,
+        "for access W or RW",
+    ),
+    (
+        "range: [-3000, 3000], manual",
+        "range: [-3000, 3000], values: [100, 200.5], manual",
+        "commands.topics[0].stop_value",
+        22,
+        "speed takes one of 100, 200.5, not 0",
     ),
 ]
 

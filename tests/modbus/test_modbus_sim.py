@@ -224,6 +224,42 @@ def test_the_simulator_is_as_strict_as_the_file(tmp_path: Path) -> None:
         assert time.monotonic() - start >= 0.005  # reply_delay_s
 
 
+def test_values_are_the_only_writes_the_device_layer_and_the_simulator_take(
+    tmp_path: Path,
+) -> None:
+    text = MOVER.replace(
+        "range: [-90, 90], manual", "range: [-90, 90], values: [-45, 0, 45], manual"
+    )
+    with over_tcp(describe(tmp_path, text)) as (device, sim, channel):
+        with pytest.raises(CommandRejected, match="speed_command takes one of -45, 0, 45, not 30"):
+            device.write("speed_command", 30)
+        topic = device.topics["cmd_speed"]
+        with pytest.raises(CommandRejected, match="takes one of"):
+            device.stream_value(topic, 0.5)  # 28.6 deg/s
+        assert sim.write_log == []
+        # The simulator refuses it too (a bridge that skipped the check): 30.0 deg/s.
+        with pytest.raises(DeviceException) as caught:
+            channel.write_register(3, 300)
+        assert caught.value.exception_code == 3  # ILLEGAL DATA VALUE
+        assert sim.write_log == [] and sim.get("speed_command") == 0.0
+        assert device.write("speed_command", -45) == "speed_command = -45"
+        assert device.trigger("go") == "run = True, speed_command = 45"
+        assert [r.values for r in sim.write_log if r.address == 3] == [(0xFE3E,), (450,)]
+
+
+def test_xarm_arm_state_takes_only_the_sdks_set_state_values() -> None:
+    """H33: 0 start, 3 pause, 4 stop (xarm_bridge's values); 1 and 2 are in the range
+    but no command of the SDK."""
+    with over_tcp(load(ROOT / "config" / "devices" / "xarm.yaml")) as (device, sim, channel):
+        for value in (1, 2):
+            with pytest.raises(CommandRejected, match="arm_state takes one of 0, 3, 4"):
+                device.write("arm_state", value)
+            with pytest.raises(DeviceException, match="ILLEGAL DATA VALUE"):
+                channel.write_register(33, value)
+        assert sim.write_log == []
+        assert device.trigger("pause") == "arm_state = 3"
+
+
 def test_undefined_rows_and_limits_as_the_file_says(tmp_path: Path) -> None:
     text = MOVER.replace(
         "  reply_delay_s: 0.005\n",
