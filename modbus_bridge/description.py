@@ -214,7 +214,7 @@ class TopicSpec(_Lenient):
     name: Name
     register_name: Name = Field(alias="register")
     scale: Finite = Field(1.0, description="register value per message unit")
-    stop_value: Finite = Field(0.0, description="register value written to stop")
+    stop_value: Finite = Field(0.0, description="register value written to stop: must be 0")
     timeout_s: Finite = Field(0.5, ge=COMMAND_TIMEOUT_RANGE_S[0], le=COMMAND_TIMEOUT_RANGE_S[1])
     rate_hz: Finite = Field(10.0, ge=COMMAND_RATE_RANGE_HZ[0], le=COMMAND_RATE_RANGE_HZ[1])
     description: str = ""
@@ -804,7 +804,14 @@ def _check_commands(spec: DeviceFileSpec, register_map: RegisterMap, check: _Che
         at = ("commands", "topics", index)
         named(topic.name, at)
         target = _writable(register_map, topic.register_name, check, at)
-        if target is not None:
+        if topic.stop_value != 0:
+            # The stream guard's stop is a 0 message (register value 0 x scale = 0): a
+            # different stop value would make a 0 command and the deadman disagree.
+            check.add(
+                (*at, "stop_value"),
+                f"{_number_text(topic.stop_value)}: a command topic stops at 0 (allowed: 0)",
+            )
+        elif target is not None:
             try:
                 to_raw(target, topic.stop_value)
             except CodecError as err:

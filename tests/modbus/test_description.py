@@ -157,8 +157,8 @@ def test_values_are_the_only_writes_allowed(tmp_path: Path) -> None:
     assert device.allows("speed", 1500.5) and device.allows("speed", -1500)
     assert not device.allows("speed", 1500.4) and not device.allows("speed", 1)
     assert device.allows("angle", 7.0)  # no values: any
-    bad = text.replace("stop_value: 0,", "stop_value: 1,")
-    with pytest.raises(DescriptionError, match=r":22: commands.topics\[0\].stop_value: "):
+    bad = text.replace("values: [-1500, 0, 1500.5]", "values: [-1500, 1500.5]")
+    with pytest.raises(DescriptionError, match=r":22: commands.topics\[0\].stop_value: speed"):
         load(write(tmp_path, bad))
     trigger = GOOD.replace(
         "[{register: run, value: true}]",
@@ -501,8 +501,8 @@ BAD = [
         "not a coil",
     ),
     (
-        "stop_value: 0, timeout_s: 0.5",
-        "stop_value: 5000, timeout_s: 0.5",
+        "range: [-3000, 3000], manual",
+        "range: [100, 3000], manual",
         "commands.topics[0].stop_value",
         22,
         "stop value does not fit",
@@ -556,6 +556,20 @@ BAD = [
 
 
 BAD += [
+    (
+        "stop_value: 0,",
+        "stop_value: 5,",
+        "commands.topics[0].stop_value",
+        22,
+        "5: a command topic stops at 0 (allowed: 0)",
+    ),
+    (
+        "stop_value: 0,",
+        "stop_value: -0.5,",
+        "commands.topics[0].stop_value",
+        22,
+        "-0.5: a command topic stops at 0 (allowed: 0)",
+    ),
     (
         "range: [-3000, 3000], manual",
         "range: [-3000, 3000], values: [0, 4000], manual",
