@@ -56,6 +56,34 @@ COMMAND_TIMEOUT_RANGE_S = (0.05, 60.0)
 COMMAND_RATE_RANGE_HZ = (0.1, 100.0)
 # Names the node gives its own services and topics: a command may not take them.
 RESERVED_NAMES = frozenset({"read", "write", "state", "connected"})
+# The parameters the node declares itself (rclpy, bridge_core.node_base, ``device_file``): a
+# command topic's generated parameters (<name>_timeout_s, <name>_rate_hz) may not be one
+# (a topic ``poll`` would declare ``poll_rate_hz``). tests/modbus/test_modbus_ros.py checks
+# this list against a running node's.
+NODE_PARAMETERS = frozenset(
+    {
+        "host",
+        "port",
+        "serial_port",
+        "baudrate",
+        "parity",
+        "stopbits",
+        "frame_gap_s",
+        "timeout_s",
+        "unit_id",
+        "retries",
+        "reconnect_max_s",
+        "poll_rate_hz",
+        "joint_prefix",
+        "frame_id",
+        "read_only",
+        "autostart",
+        "device_file",
+        "use_sim_time",  # rclpy's own
+        "start_type_description_service",
+    }
+)
+TOPIC_PARAMETER_SUFFIXES = ("_timeout_s", "_rate_hz")
 NAME_PATTERN = r"^[A-Za-z][A-Za-z0-9_]*$"
 
 # Register units a joint value may have, as (SI unit, factor to it). REP 103: positions in
@@ -644,6 +672,9 @@ def _joint_source(
     if spec.register_name not in register_map:
         check.add((*at, what, "register"), f"no register named {spec.register_name!r}")
         return None
+    if spec.factor == 0:
+        check.add((*at, what, "factor"), "0 would make every value 0 (allowed: non-zero)")
+        return None
     register = register_map[spec.register_name]
     if not register.access.readable or register.value_type in (ValueType.BOOL, ValueType.STRING):
         check.add(
@@ -756,7 +787,8 @@ def _check_commands(spec: DeviceFileSpec, register_map: RegisterMap, check: _Che
 
     def named(name: str, at: Loc) -> None:
         if name in RESERVED_NAMES:
-            check.add((*at, "name"), f"{name!r} is the node's own (reserved: read, write, state)")
+            reserved = ", ".join(sorted(RESERVED_NAMES))
+            check.add((*at, "name"), f"{name!r} is the node's own (reserved: {reserved})")
         elif name in seen:
             check.add((*at, "name"), f"command {name!r} given twice (names are unique)")
         seen.add(name)
@@ -803,6 +835,13 @@ def _check_commands(spec: DeviceFileSpec, register_map: RegisterMap, check: _Che
     for index, topic in enumerate(commands.topics):
         at = ("commands", "topics", index)
         named(topic.name, at)
+        for suffix in TOPIC_PARAMETER_SUFFIXES:
+            if f"{topic.name}{suffix}" in NODE_PARAMETERS:
+                check.add(
+                    (*at, "name"),
+                    f"{topic.name!r} would declare {topic.name}{suffix}, a parameter of the "
+                    "node's own (give the topic another name)",
+                )
         target = _writable(register_map, topic.register_name, check, at)
         if topic.stop_value != 0:
             # The stream guard's stop is a 0 message (register value 0 x scale = 0): a
@@ -824,8 +863,17 @@ def _check_commands(spec: DeviceFileSpec, register_map: RegisterMap, check: _Che
                 )
 
 
-def _build_device(spec: DeviceFileSpec, check: _Checker, *, on_line: bool) -> Device | None:
+def _build_device(
+    spec: DeviceFileSpec, check: _Checker, *, on_line: bool, line_timeout_s: float | None = None
+) -> Device | None:
     link = spec.device.link
+    timeout_s = link.timeout_s if link is not None else line_timeout_s
+    if timeout_s is not None and spec.device.reply_delay_s >= timeout_s:
+        check.add(
+            ("device", "reply_delay_s"),
+            f"{spec.device.reply_delay_s} s is not below the link's timeout_s {timeout_s} s "
+            "(every reply would time out)",
+        )
     if on_line and link is not None:
         check.add(("device", "link"), "a device on the file's line has no link of its own")
     if not on_line:
@@ -892,7 +940,9 @@ def load(path: str | Path) -> Description:
                 check.add(("device", "name"), f"name {name!r} is devices[{names[name]}]'s too")
             units.setdefault(unit, index)
             names.setdefault(name, index)
-            device = _build_device(device_spec, check, on_line=True)
+            device = _build_device(
+                device_spec, check, on_line=True, line_timeout_s=parsed.line.timeout_s
+            )
             problems += check.problems
             if device is not None:
                 devices.append(device)

@@ -71,7 +71,6 @@ class DescribedDevice:
         self.map = device.register_map
         self.plan, self.stamp_register = poll_plan(device)
         self.functions = self.map.limits.function_codes
-        self.max_write_bits = device.spec.device.max_write_bits
         self._clock = clock
         self.triggers = {t.name: t for t in device.commands.triggers}
         self.values = {v.name: v for v in device.commands.values}

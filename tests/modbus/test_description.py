@@ -557,6 +557,34 @@ BAD = [
 
 BAD += [
     (
+        "{name: cmd_speed, register: speed",
+        "{name: poll, register: speed",
+        "commands.topics[0].name",
+        22,
+        "'poll' would declare poll_rate_hz, a parameter of the node's own",
+    ),
+    (
+        "{name: start, writes",
+        "{name: connected, writes",
+        "commands.triggers[0].name",
+        16,
+        "'connected' is the node's own (reserved: connected, read, state, write)",
+    ),
+    (
+        "velocity: {register: speed, factor: 0.1}",
+        "velocity: {register: speed, factor: 0}",
+        "joints[0].velocity.factor",
+        13,
+        "0 would make every value 0 (allowed: non-zero)",
+    ),
+    (
+        "  unit_id: 3\n",
+        "  unit_id: 3\n  reply_delay_s: 0.5\n",
+        "device.reply_delay_s",
+        7,
+        "0.5 s is not below the link's timeout_s 0.5 s (every reply would time out)",
+    ),
+    (
         "stop_value: 0,",
         "stop_value: 5,",
         "commands.topics[0].stop_value",

@@ -12,13 +12,19 @@ from typing import Any
 
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
+from rcl_interfaces.srv import ListParameters
 from std_msgs.msg import Float64
 from std_srvs.srv import SetBool, Trigger
 
 from bridge_core.registers import Table
 from bridge_core.sim_base import Simulator
 from bridge_core.units import DEG
-from modbus_bridge.description import Description, load
+from modbus_bridge.description import (
+    NODE_PARAMETERS,
+    TOPIC_PARAMETER_SUFFIXES,
+    Description,
+    load,
+)
 from modbus_bridge.sim import DescribedSimDevice, make_simulator
 from msg_defs.msg import DeviceValues
 from msg_defs.srv import ReadRegisters, SetValue, WriteRegister
@@ -118,6 +124,15 @@ def test_joint_states_and_state_in_si(sim, client: Client, tmp_path: Path) -> No
         assert state.header.stamp == js.header.stamp  # one poll, one read time
         status = b.wait_diagnostic(0, 0.0, port, where=lambda v: "device" in v)
         assert dict((kv.key, kv.value) for kv in status.values)["device"] == "mover"
+        # The description's reserved parameter names are every one the node declares
+        # besides its command topics' own.
+        reply = b.client.call(
+            ListParameters, b.service("list_parameters"), ListParameters.Request()
+        )
+        declared = set(reply.result.names)
+        generated = {f"cmd_speed{suffix}" for suffix in TOPIC_PARAMETER_SUFFIXES}
+        assert generated <= declared and "poll_rate_hz" in declared, declared
+        assert declared - generated <= NODE_PARAMETERS, declared - generated - NODE_PARAMETERS
 
 
 def test_every_command_kind_writes_what_the_file_says(sim, client: Client, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
