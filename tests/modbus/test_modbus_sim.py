@@ -13,9 +13,10 @@ from pathlib import Path
 import pytest
 
 from bridge_core.channel import DeviceChannel
-from bridge_core.errors import CommandRejected, DeviceException, LinkTimeout
+from bridge_core.errors import CommandRejected, DeviceException, LinkError, LinkTimeout
 from bridge_core.registers import Table
 from bridge_core.sim_base import Simulator
+from bridge_core.stream_guard import StreamGuard
 from bridge_core.transport import ModbusLink, SerialSettings, TcpSettings
 from bridge_core.units import DEG
 from modbus_bridge.description import Description, load
@@ -161,6 +162,75 @@ def test_a_failing_tick_is_logged_once_and_the_simulator_keeps_serving(
         assert device.read(["target"]) == {"target": 0.0}  # still served
     lines = [line for line in capfd.readouterr().err.splitlines() if "tick failed" in line]
     assert lines == ["simulator: unit 1 tick failed: ValueError: joint model broken"]
+
+
+def stream_of(device: DescribedDevice, name: str) -> StreamGuard[str]:
+    """The guard the node attaches to command topic ``name`` (as modbus_bridge.node)."""
+    topic = device.topics[name]
+    guard: StreamGuard[str] = StreamGuard(
+        [name],
+        lambda _key, value, _previous: device.send_stream(topic, value),
+        lambda _key: device.stop_stream(topic),
+        timeout_s=60.0,
+        stop_when_idle=False,
+    )
+    device.attach_stream(name, guard)
+    return guard
+
+
+TWO_STREAMS = MOVER.replace(
+    "  topics:\n", "  topics:\n    - {name: cmd_run, register: run_speed}\n"
+).replace(
+    "  - {name: secret,",
+    "  - {name: run_speed, table: holding, address: 21, type: i16, access: RW, manual: t}\n"
+    "  - {name: secret,",
+)
+
+
+def test_stop_services_lock_the_streams_of_the_registers_they_write(tmp_path: Path) -> None:
+    """halt (writes speed_command) locks cmd_speed until a 0; a trigger that is no stop,
+    the coil's other value and a stop coil no topic writes lock nothing; cmd_run (another
+    register) keeps its motion."""
+    with over_tcp(describe(tmp_path, TWO_STREAMS)) as (device, sim, _):
+        sim.tick = lambda dt: None  # type: ignore[method-assign]
+        speed, other = stream_of(device, "cmd_speed"), stream_of(device, "cmd_run")
+        speed.command("cmd_speed", 50.0)
+        other.command("cmd_run", 5.0)
+        device.trigger("go")
+        device.set_coil("set_run", True)
+        device.set_coil("set_run", False)  # a stop of coil run, which no topic writes
+        assert not speed["cmd_speed"].locked and speed["cmd_speed"].active
+        device.trigger("halt")
+        assert speed["cmd_speed"].locked and not speed["cmd_speed"].may_move
+        with pytest.raises(CommandRejected, match="was stopped"):
+            speed.command("cmd_speed", 60.0)
+        assert not other["cmd_run"].locked and other["cmd_run"].active
+        written = len(sim.write_log)
+        assert not speed.command("cmd_speed", 0.0)  # unlocks; nothing to stop
+        assert len(sim.write_log) == written
+        speed.command("cmd_speed", 60.0)
+        assert (sim.write_log[-1].address, sim.write_log[-1].values) == (3, (600,))
+
+
+def test_a_lost_stop_leaves_the_stream_locked_with_its_stop_pending(tmp_path: Path) -> None:
+    description = describe(tmp_path)
+    simulator = make_simulator(description)
+    port = simulator.start_tcp()
+    link = ModbusLink(TcpSettings("127.0.0.1", port, timeout_s=2.0))
+    try:
+        device = DescribedDevice(DeviceChannel(link, 1, retries=0), description.device)
+        speed = stream_of(device, "cmd_speed")
+        speed.command("cmd_speed", 50.0)
+        simulator.stop()
+        with pytest.raises(LinkError):
+            device.trigger("halt")
+        state = speed["cmd_speed"]
+        assert state.locked and state.stop_pending  # the deadman keeps sending its stop
+        with pytest.raises(CommandRejected):
+            speed.command("cmd_speed", 60.0)
+    finally:
+        link.close()
+        simulator.stop()
 
 
 def test_commands_write_what_the_file_says(tmp_path: Path) -> None:
