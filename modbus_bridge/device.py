@@ -77,7 +77,7 @@ class DescribedDevice:
         self.coils = {c.name: c for c in device.commands.coils}
         self.topics = {t.name: t for t in device.commands.topics}
         # The stream guard of each command topic (the node attaches them): a stop service
-        # locks the streams of the registers it writes.
+        # locks every stream.
         self.guards: dict[str, StreamGuard[str]] = {}
         joints = device.joints
         self._positions = [j.position for j in joints]
@@ -187,31 +187,32 @@ class DescribedDevice:
         self.guards[topic_name] = guard
 
     def _as_stop(self, registers: Collection[str], action: Callable[[], str]) -> str:
-        """Run a stop service's writes with the streams of ``registers`` held: no stream
-        write between the stop and the lock. Done: those streams are locked (a joystick
-        still held cannot restart the motion; a 0 or silence unlocks). Lost on the link:
-        the streams are locked and, if they may move, their own stop stays pending."""
-        affected = [
-            (name, guard)
-            for name, guard in self.guards.items()
-            if self.topics[name].register_name in registers
-        ]
+        """Run a stop service's writes with every command stream's lock held (no stream
+        write between the stop and the lock). Done: every stream is locked (a joystick
+        still held cannot restart the motion; a 0 or silence unlocks); the streams of
+        ``registers`` are known stopped (``taken_over``), the others keep what they
+        commanded (``hold``: their own stop is still sent by a 0, the deadman or a refused
+        value). Lost on the link: every stream is locked and, if it may move, its own stop
+        stays pending (``stop_failed``)."""
         with ExitStack() as held:
-            for _name, guard in affected:
+            for guard in self.guards.values():
                 held.enter_context(guard.lock)
             try:
                 done = action()
             except LinkError:
-                for name, guard in affected:
+                for name, guard in self.guards.items():
                     guard.stop_failed(name)
                 raise
-            for name, guard in affected:
-                guard.taken_over(name, locked=True)
+            for name, guard in self.guards.items():
+                if self.topics[name].register_name in registers:
+                    guard.taken_over(name, locked=True)
+                else:
+                    guard.hold(name)
             return done
 
     def trigger(self, name: str) -> str:
         """A named Trigger: its writes, in the file's order, all checked first. A stop
-        trigger locks the command streams of the registers it writes."""
+        trigger locks the command streams (``_as_stop``)."""
         if name not in self.triggers:
             raise CommandRejected(f"no trigger named {name!r}")
         spec = self.triggers[name]
@@ -234,7 +235,7 @@ class DescribedDevice:
         return self.write(self.values[name].register_name, value)
 
     def set_coil(self, name: str, on: bool) -> str:
-        """A coil service; its ``stop_on`` value is a stop (locks the coil's streams)."""
+        """A coil service; its ``stop_on`` value is a stop (locks the command streams)."""
         if name not in self.coils:
             raise CommandRejected(f"no coil service named {name!r}")
         coil = self.coils[name]

@@ -172,18 +172,34 @@ def test_every_command_kind_writes_what_the_file_says(sim, client: Client, tmp_p
         client.node.destroy_publisher(topic)
 
 
+SPEED_0 = (6, Table.HOLDING, 3, (0,))
+
+
 @pytest.mark.parametrize(
-    ("srv_type", "service", "fields"),
-    [(Trigger, "halt", {}), (WriteRegister, "write", {"name": "speed_command", "value": 0.0})],
+    ("srv_type", "service", "fields", "stop_writes", "own_stop"),
+    [
+        # halt writes speed_command: the stream is known stopped.
+        (Trigger, "halt", {}, [SPEED_0], []),
+        # set_run false writes the coil: the stream is locked and, once a held joystick's
+        # value is refused, its own stop goes out.
+        (SetBool, "set_run", {"data": False}, [(5, Table.COIL, 0, (0,))], [SPEED_0]),
+        # A plain ~/write of 0 is no stop service: it locks nothing (shows the check fails).
+        (WriteRegister, "write", {"name": "speed_command", "value": 0.0}, [SPEED_0], None),
+    ],
 )
-def test_a_stop_trigger_locks_the_command_stream(  # type: ignore[no-untyped-def]
-    sim, client: Client, tmp_path: Path, srv_type: Any, service: str, fields: Any
+def test_a_stop_service_locks_the_command_stream(  # type: ignore[no-untyped-def]
+    sim,
+    client: Client,
+    tmp_path: Path,
+    srv_type: Any,
+    service: str,
+    fields: Any,
+    stop_writes: list[Any],
+    own_stop: list[Any] | None,
 ) -> None:
-    """After the stop trigger the joystick still held (a new non-zero value) writes
-    nothing; a 0 unlocks. A plain ~/write of 0 is no stop service: it locks nothing (the
-    case that shows the check can fail)."""
+    """After a stop service the joystick still held (a new non-zero value) writes no
+    motion; a 0 unlocks."""
     description, device, port = sim
-    stop_service = service == "halt"
     with bridge(client, tmp_path, description.path, port=port, cmd_speed_timeout_s=30.0) as (
         b,
         _,
@@ -195,21 +211,23 @@ def test_a_stop_trigger_locks_the_command_stream(  # type: ignore[no-untyped-def
         wait_for(lambda: len(device.write_log) >= 1, 20.0, "the streamed speed")
         reply = call(b, srv_type, service, **fields)
         assert reply.success, reply.message
-        stopped = [(6, Table.HOLDING, 3, (286,)), (6, Table.HOLDING, 3, (0,))]
+        stopped = [(6, Table.HOLDING, 3, (286,)), *stop_writes]
         assert log_of(device) == stopped
-        if not stop_service:
+        if own_stop is None:
             topic.publish(Float64(data=0.7))
-            wait_for(lambda: len(device.write_log) >= 3, 20.0, "the stream going on")
-            assert log_of(device)[2] == (6, Table.HOLDING, 3, (401,))
+            wait_for(lambda: len(device.write_log) > len(stopped), 20.0, "the stream going on")
+            assert log_of(device)[len(stopped)] == (6, Table.HOLDING, 3, (401,))
             client.node.destroy_publisher(topic)
             return
         since = time.monotonic()
         topic.publish(Float64(data=0.7))
         wait_stream_refusals(client, "modbus_bridge", 1, since)  # the 0.7 was handled
-        assert log_of(device) == stopped  # no motion write after the stop
+        expected = stopped + own_stop
+        wait_for(lambda: len(device.write_log) >= len(expected), 20.0, "the stream's stop")
+        assert log_of(device) == expected  # no motion write after the stop
 
         def resumed() -> bool:
-            if len(device.write_log) >= 3:
+            if len(device.write_log) > len(expected):
                 return True
             # A 0 then a new speed (a pair is sent again if the two coalesced).
             topic.publish(Float64(data=0.0))
@@ -217,7 +235,7 @@ def test_a_stop_trigger_locks_the_command_stream(  # type: ignore[no-untyped-def
             return False
 
         wait_for(resumed, 20.0, "the stream after a 0")
-        assert log_of(device)[2] == (6, Table.HOLDING, 3, (401,))
+        assert log_of(device)[len(expected)] == (6, Table.HOLDING, 3, (401,))
         client.node.destroy_publisher(topic)
 
 

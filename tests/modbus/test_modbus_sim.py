@@ -187,10 +187,11 @@ TWO_STREAMS = MOVER.replace(
 )
 
 
-def test_stop_services_lock_the_streams_of_the_registers_they_write(tmp_path: Path) -> None:
-    """halt (writes speed_command) locks cmd_speed until a 0; a trigger that is no stop,
-    the coil's other value and a stop coil no topic writes lock nothing; cmd_run (another
-    register) keeps its motion."""
+def test_stop_services_lock_every_command_stream(tmp_path: Path) -> None:
+    """A trigger that is no stop and the coil's other value lock nothing. A stop locks
+    every stream: the one whose register it wrote is known stopped (a 0 writes nothing),
+    another keeps its motion (a 0 sends its own stop); a non-zero value is refused until
+    a 0."""
     with over_tcp(describe(tmp_path, TWO_STREAMS)) as (device, sim, _):
         sim.tick = lambda dt: None  # type: ignore[method-assign]
         speed, other = stream_of(device, "cmd_speed"), stream_of(device, "cmd_run")
@@ -198,15 +199,23 @@ def test_stop_services_lock_the_streams_of_the_registers_they_write(tmp_path: Pa
         other.command("cmd_run", 5.0)
         device.trigger("go")
         device.set_coil("set_run", True)
-        device.set_coil("set_run", False)  # a stop of coil run, which no topic writes
-        assert not speed["cmd_speed"].locked and speed["cmd_speed"].active
-        device.trigger("halt")
-        assert speed["cmd_speed"].locked and not speed["cmd_speed"].may_move
+        assert not speed["cmd_speed"].locked and not other["cmd_run"].locked
+        device.set_coil("set_run", False)  # a stop that writes no stream's register
+        assert speed["cmd_speed"].locked and speed["cmd_speed"].active
+        assert other["cmd_run"].locked and other["cmd_run"].active
         with pytest.raises(CommandRejected, match="was stopped"):
             speed.command("cmd_speed", 60.0)
-        assert not other["cmd_run"].locked and other["cmd_run"].active
         written = len(sim.write_log)
-        assert not speed.command("cmd_speed", 0.0)  # unlocks; nothing to stop
+        assert speed.command("cmd_speed", 0.0)  # unlocks and sends the stream's own stop
+        assert [(r.address, r.values) for r in sim.write_log[written:]] == [(3, (0,))]
+        speed.command("cmd_speed", 50.0)
+        device.trigger("halt")  # writes speed_command
+        assert speed["cmd_speed"].locked and not speed["cmd_speed"].may_move
+        assert other["cmd_run"].locked and other["cmd_run"].active
+        with pytest.raises(CommandRejected, match="was stopped"):
+            speed.command("cmd_speed", 60.0)
+        written = len(sim.write_log)
+        assert not speed.command("cmd_speed", 0.0)  # unlocks; halt stopped it already
         assert len(sim.write_log) == written
         speed.command("cmd_speed", 60.0)
         assert (sim.write_log[-1].address, sim.write_log[-1].values) == (3, (600,))
