@@ -24,6 +24,7 @@ import shutil
 import signal
 import struct
 import subprocess
+import sys
 import tempfile
 import threading
 import time
@@ -432,6 +433,7 @@ class Simulator:
         self._stop: asyncio.Event | None = None
         self._ready = threading.Event()
         self._error: BaseException | None = None
+        self._tick_errors: set[str] = set()  # the tick error lines printed (once each)
         self.port: int = 0
 
     @property
@@ -509,10 +511,22 @@ class Simulator:
                     await asyncio.wait_for(self._stop.wait(), self.tick_s)
                 now = time.monotonic()
                 for device in self.devices.values():
-                    device.tick(now - last)
+                    self._tick(device, now - last)
                 last = now
         finally:
             await server.shutdown()
+
+    def _tick(self, device: SimulatedDevice, dt: float) -> None:
+        """One device's tick: an error in it is logged (one stderr line per distinct
+        error and unit) and the simulator keeps serving, instead of the server stopping
+        silently with its thread."""
+        try:
+            device.tick(dt)
+        except Exception as err:  # any device fault: keep serving
+            line = f"simulator: unit {device.unit_id} tick failed: {type(err).__name__}: {err}"
+            if line not in self._tick_errors:
+                self._tick_errors.add(line)
+                print(line, file=sys.stderr, flush=True)
 
     def stop(self) -> None:
         if self._thread is None:

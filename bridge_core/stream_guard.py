@@ -215,6 +215,14 @@ class StreamGuard(Generic[Key]):
         stream.locked = locked
 
     @_locked
+    def hold(self, key: Key) -> None:
+        """Another command stopped the device without writing this stream's own register
+        (a stop coil, a stop of other registers): motion commands are refused until 0 or
+        silence, and what the stream commanded is kept (it may still be moving: a 0, the
+        deadman or the stop after a refused command still sends its own stop)."""
+        self[key].locked = True
+
+    @_locked
     def stop_failed(self, key: Key) -> None:
         """Another command's stop (a stop service, an e-stop) failed on the link: the
         stream is locked, and if it may be moving its own stop is pending (sent before any

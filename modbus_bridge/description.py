@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any, Literal, get_args, get_origin
 
@@ -56,6 +56,34 @@ COMMAND_TIMEOUT_RANGE_S = (0.05, 60.0)
 COMMAND_RATE_RANGE_HZ = (0.1, 100.0)
 # Names the node gives its own services and topics: a command may not take them.
 RESERVED_NAMES = frozenset({"read", "write", "state", "connected"})
+# The parameters the node declares itself (rclpy, bridge_core.node_base, ``device_file``): a
+# command topic's generated parameters (<name>_timeout_s, <name>_rate_hz) may not be one
+# (a topic ``poll`` would declare ``poll_rate_hz``). tests/modbus/test_modbus_ros.py checks
+# this list against a running node's.
+NODE_PARAMETERS = frozenset(
+    {
+        "host",
+        "port",
+        "serial_port",
+        "baudrate",
+        "parity",
+        "stopbits",
+        "frame_gap_s",
+        "timeout_s",
+        "unit_id",
+        "retries",
+        "reconnect_max_s",
+        "poll_rate_hz",
+        "joint_prefix",
+        "frame_id",
+        "read_only",
+        "autostart",
+        "device_file",
+        "use_sim_time",  # rclpy's own
+        "start_type_description_service",
+    }
+)
+TOPIC_PARAMETER_SUFFIXES = ("_timeout_s", "_rate_hz")
 NAME_PATTERN = r"^[A-Za-z][A-Za-z0-9_]*$"
 
 # Register units a joint value may have, as (SI unit, factor to it). REP 103: positions in
@@ -159,6 +187,7 @@ class RegisterSpec(_Lenient):
     unit: str = ""
     access: Literal["R", "RW", "W"] = "R"
     range: tuple[Finite, Finite] | None = None
+    values: list[Finite] | None = Field(None, min_length=1, description="the allowed writes")
     description: str = ""
 
 
@@ -213,7 +242,7 @@ class TopicSpec(_Lenient):
     name: Name
     register_name: Name = Field(alias="register")
     scale: Finite = Field(1.0, description="register value per message unit")
-    stop_value: Finite = Field(0.0, description="register value written to stop")
+    stop_value: Finite = Field(0.0, description="register value written to stop: must be 0")
     timeout_s: Finite = Field(0.5, ge=COMMAND_TIMEOUT_RANGE_S[0], le=COMMAND_TIMEOUT_RANGE_S[1])
     rate_hz: Finite = Field(10.0, ge=COMMAND_RATE_RANGE_HZ[0], le=COMMAND_RATE_RANGE_HZ[1])
     description: str = ""
@@ -295,6 +324,21 @@ class Device:
     joints: tuple[Joint, ...]
     link: Link | None  # None: on the file's shared line
     state_names: tuple[str, ...]  # readable registers published in ~/state
+    # Registers that take only some values (``values``): name -> the values, in its unit.
+    allowed_values: dict[str, tuple[float, ...]] = field(default_factory=dict)
+
+    def allows(self, name: str, value: float) -> bool:
+        """Whether ``value`` is one of register ``name``'s ``values`` (any, if it has none),
+        compared as written on the wire (raw), so a scaled value's rounding does not count."""
+        allowed = self.allowed_values.get(name)
+        if allowed is None:
+            return True
+        register = self.register_map[name]
+        try:
+            raw = to_raw(register, value)
+        except CodecError:
+            return False
+        return raw in {to_raw(register, choice) for choice in allowed}
 
     @property
     def name(self) -> str:
@@ -482,6 +526,10 @@ class _Checker:
         self.problems.append(Problem(line_of(self.root, full), format_loc(full), message))
 
 
+def _number_text(value: float) -> str:
+    return str(int(value)) if float(value).is_integer() else repr(float(value))
+
+
 def _value_type(spec: RegisterSpec) -> ValueType:
     return next(kind for kind in ValueType if kind.label == spec.type)
 
@@ -525,6 +573,12 @@ def _build_registers(device: DeviceFileSpec, check: _Checker) -> RegisterMap | N
             spec.scale != 1.0 or spec.offset != 0.0 or spec.range is not None
         ):
             check.add(at, f"a {spec.type} has no scale, offset or range")
+            ok = False
+        if spec.values is not None and (kind in (ValueType.BOOL, ValueType.STRING)):
+            check.add((*at, "values"), f"a {spec.type} has no values (a number register has)")
+            ok = False
+        if spec.values is not None and not access.writable:
+            check.add((*at, "values"), "values are the writes allowed: for access W or RW")
             ok = False
         if spec.range is not None and spec.range[0] > spec.range[1]:
             check.add((*at, "range"), f"[{spec.range[0]}, {spec.range[1]}]: minimum > maximum")
@@ -581,6 +635,15 @@ def _build_registers(device: DeviceFileSpec, check: _Checker) -> RegisterMap | N
                     check.add((*at, "range"), f"{end} does not fit the register: {err}")
                     ok = False
                     break
+        if ok and spec.values is not None and kind is not ValueType.STRING:
+            for value in spec.values:
+                try:
+                    to_raw(register, value)
+                    encode(register, value)
+                except CodecError as err:
+                    check.add((*at, "values"), f"{_number_text(value)} cannot be written: {err}")
+                    ok = False
+                    break
         if ok:
             registers.append(register)
     if check.problems:
@@ -608,6 +671,9 @@ def _joint_source(
 ) -> JointSource | None:
     if spec.register_name not in register_map:
         check.add((*at, what, "register"), f"no register named {spec.register_name!r}")
+        return None
+    if spec.factor == 0:
+        check.add((*at, what, "factor"), "0 would make every value 0 (allowed: non-zero)")
         return None
     register = register_map[spec.register_name]
     if not register.access.readable or register.value_type in (ValueType.BOOL, ValueType.STRING):
@@ -704,13 +770,25 @@ def _writable(
     return register
 
 
+def allowed_values(spec: DeviceFileSpec) -> dict[str, tuple[float, ...]]:
+    """Register name -> its ``values`` (the registers that have them)."""
+    return {r.name: tuple(r.values) for r in spec.registers if r.values is not None}
+
+
+def not_allowed(name: str, value: float, allowed: Sequence[float]) -> str:
+    """The one-line refusal of a value outside a register's ``values``."""
+    values = ", ".join(_number_text(v) for v in allowed)
+    return f"{name} takes one of {values}, not {_number_text(value)}"
+
+
 def _check_commands(spec: DeviceFileSpec, register_map: RegisterMap, check: _Checker) -> None:
     commands = spec.commands
     seen: set[str] = set()
 
     def named(name: str, at: Loc) -> None:
         if name in RESERVED_NAMES:
-            check.add((*at, "name"), f"{name!r} is the node's own (reserved: read, write, state)")
+            reserved = ", ".join(sorted(RESERVED_NAMES))
+            check.add((*at, "name"), f"{name!r} is the node's own (reserved: {reserved})")
         elif name in seen:
             check.add((*at, "name"), f"command {name!r} given twice (names are unique)")
         seen.add(name)
@@ -742,6 +820,10 @@ def _check_commands(spec: DeviceFileSpec, register_map: RegisterMap, check: _Che
                 encode(register, value)
             except CodecError as err:
                 check.add((*where, "value"), str(err))
+                continue
+            choices = allowed_values(spec).get(write.register_name)
+            if choices is not None and float(value) not in choices:
+                check.add((*where, "value"), not_allowed(write.register_name, value, choices))
     for index, value_service in enumerate(commands.values):
         at = ("commands", "values", index)
         named(value_service.name, at)
@@ -753,16 +835,45 @@ def _check_commands(spec: DeviceFileSpec, register_map: RegisterMap, check: _Che
     for index, topic in enumerate(commands.topics):
         at = ("commands", "topics", index)
         named(topic.name, at)
+        for suffix in TOPIC_PARAMETER_SUFFIXES:
+            if f"{topic.name}{suffix}" in NODE_PARAMETERS:
+                check.add(
+                    (*at, "name"),
+                    f"{topic.name!r} would declare {topic.name}{suffix}, a parameter of the "
+                    "node's own (give the topic another name)",
+                )
         target = _writable(register_map, topic.register_name, check, at)
-        if target is not None:
+        if topic.stop_value != 0:
+            # The stream guard's stop is a 0 message (register value 0 x scale = 0): a
+            # different stop value would make a 0 command and the deadman disagree.
+            check.add(
+                (*at, "stop_value"),
+                f"{_number_text(topic.stop_value)}: a command topic stops at 0 (allowed: 0)",
+            )
+        elif target is not None:
             try:
                 to_raw(target, topic.stop_value)
             except CodecError as err:
                 check.add((*at, "stop_value"), f"the stop value does not fit: {err}")
+                continue
+            choices = allowed_values(spec).get(topic.register_name)
+            if choices is not None and topic.stop_value not in choices:
+                check.add(
+                    (*at, "stop_value"), not_allowed(topic.register_name, topic.stop_value, choices)
+                )
 
 
-def _build_device(spec: DeviceFileSpec, check: _Checker, *, on_line: bool) -> Device | None:
+def _build_device(
+    spec: DeviceFileSpec, check: _Checker, *, on_line: bool, line_timeout_s: float | None = None
+) -> Device | None:
     link = spec.device.link
+    timeout_s = link.timeout_s if link is not None else line_timeout_s
+    if timeout_s is not None and spec.device.reply_delay_s >= timeout_s:
+        check.add(
+            ("device", "reply_delay_s"),
+            f"{spec.device.reply_delay_s} s is not below the link's timeout_s {timeout_s} s "
+            "(every reply would time out)",
+        )
     if on_line and link is not None:
         check.add(("device", "link"), "a device on the file's line has no link of its own")
     if not on_line:
@@ -791,7 +902,12 @@ def _build_device(spec: DeviceFileSpec, check: _Checker, *, on_line: bool) -> De
             "tcp" if link.tcp is not None else "rtu", link.timeout_s, link.tcp, link.rtu
         )
     return Device(
-        spec, register_map, joints, built_link, tuple(state if state is not None else readable)
+        spec,
+        register_map,
+        joints,
+        built_link,
+        tuple(state if state is not None else readable),
+        allowed_values(spec),
     )
 
 
@@ -824,7 +940,9 @@ def load(path: str | Path) -> Description:
                 check.add(("device", "name"), f"name {name!r} is devices[{names[name]}]'s too")
             units.setdefault(unit, index)
             names.setdefault(name, index)
-            device = _build_device(device_spec, check, on_line=True)
+            device = _build_device(
+                device_spec, check, on_line=True, line_timeout_s=parsed.line.timeout_s
+            )
             problems += check.problems
             if device is not None:
                 devices.append(device)

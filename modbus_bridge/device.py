@@ -11,18 +11,20 @@ codes the file lists: FC 05 (else 0F) for one coil, FC 06 (else 10) for one regi
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Sequence
+from contextlib import ExitStack
 from dataclasses import dataclass
 
 from bridge_core.channel import Priority, RegisterIO
 from bridge_core.checks import check_finite
 from bridge_core.codec import Value, encode
-from bridge_core.errors import CommandRejected
+from bridge_core.errors import CommandRejected, LinkError
 from bridge_core.planner import ReadRequest, plan_reads
 from bridge_core.poller import read_blocks, read_named
 from bridge_core.registers import Register, Table, ValueType
+from bridge_core.stream_guard import StreamGuard
 
-from .description import Device, JointSource, TopicSpec
+from .description import Device, JointSource, TopicSpec, not_allowed
 
 
 @dataclass(frozen=True)
@@ -69,12 +71,14 @@ class DescribedDevice:
         self.map = device.register_map
         self.plan, self.stamp_register = poll_plan(device)
         self.functions = self.map.limits.function_codes
-        self.max_write_bits = device.spec.device.max_write_bits
         self._clock = clock
         self.triggers = {t.name: t for t in device.commands.triggers}
         self.values = {v.name: v for v in device.commands.values}
         self.coils = {c.name: c for c in device.commands.coils}
         self.topics = {t.name: t for t in device.commands.topics}
+        # The stream guard of each command topic (the node attaches them): a stop service
+        # locks every stream.
+        self.guards: dict[str, StreamGuard[str]] = {}
         joints = device.joints
         self._positions = [j.position for j in joints]
         self._velocities = (
@@ -146,6 +150,9 @@ class DescribedDevice:
                 if isinstance(value, float) and not value.is_integer():
                     raise CommandRejected(f"{name} takes a whole number, not {value}")
                 value = int(value)
+            if not self.device.allows(name, value):
+                allowed = self.device.allowed_values[name]
+                raise CommandRejected(not_allowed(name, value, allowed))
         words = encode(register, value)
         if register.table is Table.COIL:
             if not self.functions & {5, 15}:
@@ -173,19 +180,54 @@ class DescribedDevice:
         self._send(register, words)
         return f"{name} = {value}"
 
+    def attach_stream(self, topic_name: str, guard: StreamGuard[str]) -> None:
+        """The guard of command topic ``topic_name`` (keyed by the topic's name)."""
+        if topic_name not in self.topics:
+            raise CommandRejected(f"no command topic named {topic_name!r}")
+        self.guards[topic_name] = guard
+
+    def _as_stop(self, registers: Collection[str], action: Callable[[], str]) -> str:
+        """Run a stop service's writes with every command stream's lock held (no stream
+        write between the stop and the lock). Done: every stream is locked (a joystick
+        still held cannot restart the motion; a 0 or silence unlocks); the streams of
+        ``registers`` are known stopped (``taken_over``), the others keep what they
+        commanded (``hold``: their own stop is still sent by a 0, the deadman or a refused
+        value). Lost on the link: every stream is locked and, if it may move, its own stop
+        stays pending (``stop_failed``)."""
+        with ExitStack() as held:
+            for guard in self.guards.values():
+                held.enter_context(guard.lock)
+            try:
+                done = action()
+            except LinkError:
+                for name, guard in self.guards.items():
+                    guard.stop_failed(name)
+                raise
+            for name, guard in self.guards.items():
+                if self.topics[name].register_name in registers:
+                    guard.taken_over(name, locked=True)
+                else:
+                    guard.hold(name)
+            return done
+
     def trigger(self, name: str) -> str:
-        """A named Trigger: its writes, in the file's order, all checked first."""
+        """A named Trigger: its writes, in the file's order, all checked first. A stop
+        trigger locks the command streams (``_as_stop``)."""
         if name not in self.triggers:
             raise CommandRejected(f"no trigger named {name!r}")
-        checked = [
-            self.words_for(w.register_name, _written_value(w.value))
-            for w in self.triggers[name].writes
-        ]
-        done: list[str] = []
-        for (register, words), write in zip(checked, self.triggers[name].writes, strict=True):
-            self._send(register, words)
-            done.append(f"{register.name} = {write.value}")
-        return ", ".join(done)
+        spec = self.triggers[name]
+        checked = [self.words_for(w.register_name, _written_value(w.value)) for w in spec.writes]
+
+        def send() -> str:
+            done: list[str] = []
+            for (register, words), write in zip(checked, spec.writes, strict=True):
+                self._send(register, words)
+                done.append(f"{register.name} = {write.value}")
+            return ", ".join(done)
+
+        if spec.stop:
+            return self._as_stop({w.register_name for w in spec.writes}, send)
+        return send()
 
     def set_value(self, name: str, value: float) -> str:
         if name not in self.values:
@@ -193,9 +235,14 @@ class DescribedDevice:
         return self.write(self.values[name].register_name, value)
 
     def set_coil(self, name: str, on: bool) -> str:
+        """A coil service; its ``stop_on`` value is a stop (locks the command streams)."""
         if name not in self.coils:
             raise CommandRejected(f"no coil service named {name!r}")
-        return self.write(self.coils[name].register_name, bool(on))
+        coil = self.coils[name]
+        if coil.stop_on is not None and bool(on) == coil.stop_on:
+            register = coil.register_name
+            return self._as_stop({register}, lambda: self.write(register, bool(on)))
+        return self.write(coil.register_name, bool(on))
 
     def stream_value(self, topic: TopicSpec, value: float) -> float:
         """A command topic's message value as its register's value (checked, not sent)."""

@@ -27,6 +27,7 @@ REGISTER_COLUMNS = (
     "unit",
     "access",
     "range",
+    "values",
     "manual",
     "description",
 )
@@ -40,7 +41,8 @@ def _cell(text: str) -> str:
     return text.replace("|", "\\|")
 
 
-def register_row(register: Register) -> list[str]:
+def register_row(register: Register, allowed: Sequence[float] = ()) -> list[str]:
+    """One table row; ``allowed``: the register's ``values`` (the only writes allowed)."""
     kind = register.value_type
     words = register.count
     span = f"{register.address}" if words == 1 else f"{register.address}-{register.end - 1}"
@@ -60,6 +62,7 @@ def register_row(register: Register) -> list[str]:
         register.unit,
         ACCESS_TEXT[register.access],
         limits,
+        ", ".join(_number(value) for value in allowed),
         _cell(register.doc),
         _cell(register.description),
     ]
@@ -99,7 +102,10 @@ def device_markdown(device: Device, heading: str = "##") -> list[str]:
         + f"; poll {_number(spec.poll_rate_hz)} Hz."
     )
     lines += ["", f"{heading}# Registers", ""]
-    lines += _table(REGISTER_COLUMNS, [register_row(r) for r in device.register_map])
+    lines += _table(
+        REGISTER_COLUMNS,
+        [register_row(r, device.allowed_values.get(r.name, ())) for r in device.register_map],
+    )
     if device.joints:
         lines += ["", f"{heading}# Joints (joint_states, SI per REP 103)", ""]
         rows = []

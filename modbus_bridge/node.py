@@ -250,6 +250,7 @@ class ModbusBridgeNode(BridgeNode[DeviceSnapshot]):
                 timeout_s=float(self.param(timeout_name)),
                 stop_when_idle=False,
             )
+            self.device.attach_stream(topic.name, guard)
             self.stream_topic(
                 guard,
                 Float64,

@@ -9,10 +9,13 @@ As strict as the file says the device is (the simulator base does the rest):
 - more than ``max_read_registers`` / ``max_write_registers`` / ``max_read_bits`` /
   ``max_write_bits`` per request: ILLEGAL DATA ADDRESS, as the simulator base answers an
   oversized read;
-- a written value outside its register's ``range``: ILLEGAL DATA VALUE, nothing written;
+- a written value outside its register's ``range``, or not one of its ``values``:
+  ILLEGAL DATA VALUE, nothing written;
 - every reply waits ``reply_delay_s``;
 - joints with a ``sim`` rule move: a velocity command is integrated into the position
-  (and shown in the velocity register), a target position is approached at ``speed``.
+  (and shown in the velocity register), a target position is approached at ``speed``;
+  a position (or velocity) past what its register can hold stops at the register's end
+  (clamped, as at a hard stop: no wrap, also for a revolute joint).
 
 A bus file serves every device on one line, each under its unit id (silent for others).
 """
@@ -27,7 +30,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from bridge_core.codec import decode
-from bridge_core.registers import Table, ValueType
+from bridge_core.registers import Register, Table, ValueType
 from bridge_core.sim_base import (
     ILLEGAL_ADDRESS,
     ILLEGAL_VALUE,
@@ -43,6 +46,20 @@ from .description import Description, DescriptionError, Device, Joint, load
 
 EXIT_BAD_DESCRIPTION = 2
 DEFAULT_TCP_PORT = 5020
+# Largest finite value of each float type (IEEE 754 binary32 / binary64).
+FLOAT_LIMITS = {ValueType.F32: 3.4028234663852886e38, ValueType.F64: sys.float_info.max}
+
+
+def holdable(register: Register, value: float) -> float:
+    """``value`` clamped to what ``register`` can hold (its raw type's range, in its
+    unit): an integrated joint position must never fail to encode."""
+    kind = register.value_type
+    if kind.is_float:
+        low_raw, high_raw = -FLOAT_LIMITS[kind], FLOAT_LIMITS[kind]
+    else:
+        low_raw, high_raw = kind.raw_min, kind.raw_max
+    ends = (low_raw / register.scale + register.offset, high_raw / register.scale + register.offset)
+    return min(max(value, min(ends)), max(ends))
 
 
 class _UndefinedReadable:
@@ -87,6 +104,12 @@ class DescribedSimDevice(SimulatedDevice):
             high = math.inf if register.maximum is None else register.maximum
             if not low <= value <= high:
                 return ILLEGAL_VALUE
+        for register in self.map.in_table(record.table):
+            if register.address in written and register.name in self.device.allowed_values:
+                value = decode(register, [written[a] for a in register.addresses()])
+                assert isinstance(value, int | float)
+                if not self.device.allows(register.name, value):
+                    return ILLEGAL_VALUE  # not one of the register's values
         return None
 
     def tick(self, dt: float) -> None:
@@ -106,11 +129,18 @@ class DescribedSimDevice(SimulatedDevice):
             error = command - position
             step = abs(error) if motion.speed is None else min(abs(error), motion.speed * dt)
             velocity = math.copysign(step / dt, error) if dt > 0 and step else 0.0
-        position += velocity * dt
-        self.positions_si[joint.name] = position
-        self.set(joint.position.register, position / joint.position.to_si)
+        position_register = self.map[joint.position.register]
+        held = holdable(position_register, (position + velocity * dt) / joint.position.to_si)
+        if dt > 0:  # at a register end the joint stops there
+            velocity = (held * joint.position.to_si - position) / dt
+        self.positions_si[joint.name] = held * joint.position.to_si
+        self.set(joint.position.register, held)
         if joint.velocity is not None and joint.velocity.register != motion.command:
-            self.set(joint.velocity.register, velocity / joint.velocity.to_si)
+            velocity_register = self.map[joint.velocity.register]
+            self.set(
+                joint.velocity.register,
+                holdable(velocity_register, velocity / joint.velocity.to_si),
+            )
 
 
 def make_simulator(description: Description) -> Simulator:

@@ -10,10 +10,15 @@ builds a path to must exist. (With a sourced ROS 2 Jazzy, ``ros2 launch`` runs t
 from __future__ import annotations
 
 import ast
+import dataclasses
 import os
 import sys
 import tomllib
 from pathlib import Path
+
+import yaml  # type: ignore[import-untyped]
+
+from bridge_core.node_base import DeviceDefaults
 
 from ..support.ros import ROOT
 
@@ -110,3 +115,50 @@ def test_ros2_launch_finds_each_launch_file_and_its_config_in_the_venv_share() -
             assert configs, launch_file
             for config in configs:
                 assert (share / "config" / config).is_file(), (package, config)
+
+
+# Parameters whose defaults a modbus_bridge description gives (its link, unit, timing).
+DESCRIBED = {field.name for field in dataclasses.fields(DeviceDefaults) if field.init} - {
+    "device_name",
+    "transport",
+    "timeout_min_s",
+    "stop_timeout_s",
+}
+
+
+def test_modbus_launch_and_config_leave_the_link_to_the_description() -> None:
+    """An RTU description declares no host / port (and a TCP one no serial_port): the
+    node refuses an undeclared parameter, so config/modbus.yaml sets none of the
+    description's settings and the launch file passes a link argument only when given
+    (default "", added in a loop that skips empty values)."""
+    config = yaml.safe_load((ROOT / "config" / "modbus.yaml").read_text())
+    for block in config.values():
+        assert not set(block["ros__parameters"]) & DESCRIBED, block
+    tree = ast.parse((LAUNCH / "modbus.launch.py").read_text())
+    link_arguments: set[str] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Assign) and any(
+            isinstance(t, ast.Name) and t.id == "LINK_ARGUMENTS" for t in node.targets
+        ):
+            assert isinstance(node.value, ast.Tuple)
+            link_arguments = {str(ast.literal_eval(e)) for e in node.value.elts}
+    assert link_arguments and link_arguments <= DESCRIBED, link_arguments
+    for call in calls(tree, "DeclareLaunchArgument"):
+        name, default = call.args[0], keyword(call, "default_value")
+        if isinstance(name, ast.Constant):  # a fixed name: never a link setting
+            assert name.value not in DESCRIBED, ast.dump(call)
+        else:  # one of LINK_ARGUMENTS: empty unless given
+            assert isinstance(default, ast.Constant) and default.value == "", ast.dump(call)
+    for node in ast.walk(tree):  # no link parameter passed unconditionally
+        if isinstance(node, ast.Dict):
+            keys = {k.value for k in node.keys if isinstance(k, ast.Constant)}
+            assert not keys & DESCRIBED, ast.dump(node)
+    loops = [
+        node
+        for node in ast.walk(tree)
+        if isinstance(node, ast.For)
+        and isinstance(node.iter, ast.Name)
+        and node.iter.id == "LINK_ARGUMENTS"
+        and any(isinstance(inner, ast.If) for inner in node.body)
+    ]
+    assert loops, "link arguments must be added only when given"

@@ -41,6 +41,8 @@ def test_every_register_is_a_row_with_its_fields() -> None:
         assert cells["manual"] == register.doc
     assert rows["controller_ao_0"][REGISTER_COLUMNS.index("access")] == "RW"
     assert rows["controller_ao_0"][REGISTER_COLUMNS.index("range")] == "0 .. 10"
+    assert rows["controller_ao_0"][REGISTER_COLUMNS.index("values")] == ""
+    assert rows["arm_state"][REGISTER_COLUMNS.index("values")] == "0, 3, 4"
     assert rows["counter"][REGISTER_COLUMNS.index("word order")] == "high_first"
     assert rows["counter"][REGISTER_COLUMNS.index("address")] == "34-35"
     # Joints and commands follow the registers.

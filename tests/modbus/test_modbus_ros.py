@@ -12,13 +12,19 @@ from typing import Any
 
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
+from rcl_interfaces.srv import ListParameters
 from std_msgs.msg import Float64
 from std_srvs.srv import SetBool, Trigger
 
 from bridge_core.registers import Table
 from bridge_core.sim_base import Simulator
 from bridge_core.units import DEG
-from modbus_bridge.description import Description, load
+from modbus_bridge.description import (
+    NODE_PARAMETERS,
+    TOPIC_PARAMETER_SUFFIXES,
+    Description,
+    load,
+)
 from modbus_bridge.sim import DescribedSimDevice, make_simulator
 from msg_defs.msg import DeviceValues
 from msg_defs.srv import ReadRegisters, SetValue, WriteRegister
@@ -29,6 +35,7 @@ from ..support.ros import (
     ros_client,
     start_bridge,
     wait_for,
+    wait_stream_refusals,
     wait_subscribed,
 )
 from ..support.serial_pair import served_on_pty
@@ -117,6 +124,15 @@ def test_joint_states_and_state_in_si(sim, client: Client, tmp_path: Path) -> No
         assert state.header.stamp == js.header.stamp  # one poll, one read time
         status = b.wait_diagnostic(0, 0.0, port, where=lambda v: "device" in v)
         assert dict((kv.key, kv.value) for kv in status.values)["device"] == "mover"
+        # The description's reserved parameter names are every one the node declares
+        # besides its command topics' own.
+        reply = b.client.call(
+            ListParameters, b.service("list_parameters"), ListParameters.Request()
+        )
+        declared = set(reply.result.names)
+        generated = {f"cmd_speed{suffix}" for suffix in TOPIC_PARAMETER_SUFFIXES}
+        assert generated <= declared and "poll_rate_hz" in declared, declared
+        assert declared - generated <= NODE_PARAMETERS, declared - generated - NODE_PARAMETERS
 
 
 def test_every_command_kind_writes_what_the_file_says(sim, client: Client, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
@@ -153,6 +169,73 @@ def test_every_command_kind_writes_what_the_file_says(sim, client: Client, tmp_p
             (6, Table.HOLDING, 3, (286,)),
             (6, Table.HOLDING, 3, (0,)),
         ]
+        client.node.destroy_publisher(topic)
+
+
+SPEED_0 = (6, Table.HOLDING, 3, (0,))
+
+
+@pytest.mark.parametrize(
+    ("srv_type", "service", "fields", "stop_writes", "own_stop"),
+    [
+        # halt writes speed_command: the stream is known stopped.
+        (Trigger, "halt", {}, [SPEED_0], []),
+        # set_run false writes the coil: the stream is locked and, once a held joystick's
+        # value is refused, its own stop goes out.
+        (SetBool, "set_run", {"data": False}, [(5, Table.COIL, 0, (0,))], [SPEED_0]),
+        # A plain ~/write of 0 is no stop service: it locks nothing (shows the check fails).
+        (WriteRegister, "write", {"name": "speed_command", "value": 0.0}, [SPEED_0], None),
+    ],
+)
+def test_a_stop_service_locks_the_command_stream(  # type: ignore[no-untyped-def]
+    sim,
+    client: Client,
+    tmp_path: Path,
+    srv_type: Any,
+    service: str,
+    fields: Any,
+    stop_writes: list[Any],
+    own_stop: list[Any] | None,
+) -> None:
+    """After a stop service the joystick still held (a new non-zero value) writes no
+    motion; a 0 unlocks."""
+    description, device, port = sim
+    with bridge(client, tmp_path, description.path, port=port, cmd_speed_timeout_s=30.0) as (
+        b,
+        _,
+    ):
+        b.wait_connected(True)
+        topic = client.node.create_publisher(Float64, f"{b.ns}/modbus_bridge/cmd_speed", 10)
+        wait_subscribed(topic)
+        topic.publish(Float64(data=0.5))
+        wait_for(lambda: len(device.write_log) >= 1, 20.0, "the streamed speed")
+        reply = call(b, srv_type, service, **fields)
+        assert reply.success, reply.message
+        stopped = [(6, Table.HOLDING, 3, (286,)), *stop_writes]
+        assert log_of(device) == stopped
+        if own_stop is None:
+            topic.publish(Float64(data=0.7))
+            wait_for(lambda: len(device.write_log) > len(stopped), 20.0, "the stream going on")
+            assert log_of(device)[len(stopped)] == (6, Table.HOLDING, 3, (401,))
+            client.node.destroy_publisher(topic)
+            return
+        since = time.monotonic()
+        topic.publish(Float64(data=0.7))
+        wait_stream_refusals(client, "modbus_bridge", 1, since)  # the 0.7 was handled
+        expected = stopped + own_stop
+        wait_for(lambda: len(device.write_log) >= len(expected), 20.0, "the stream's stop")
+        assert log_of(device) == expected  # no motion write after the stop
+
+        def resumed() -> bool:
+            if len(device.write_log) > len(expected):
+                return True
+            # A 0 then a new speed (a pair is sent again if the two coalesced).
+            topic.publish(Float64(data=0.0))
+            topic.publish(Float64(data=0.7))
+            return False
+
+        wait_for(resumed, 20.0, "the stream after a 0")
+        assert log_of(device)[len(expected)] == (6, Table.HOLDING, 3, (401,))
         client.node.destroy_publisher(topic)
 
 

@@ -13,9 +13,10 @@ from pathlib import Path
 import pytest
 
 from bridge_core.channel import DeviceChannel
-from bridge_core.errors import CommandRejected, DeviceException, LinkTimeout
+from bridge_core.errors import CommandRejected, DeviceException, LinkError, LinkTimeout
 from bridge_core.registers import Table
 from bridge_core.sim_base import Simulator
+from bridge_core.stream_guard import StreamGuard
 from bridge_core.transport import ModbusLink, SerialSettings, TcpSettings
 from bridge_core.units import DEG
 from modbus_bridge.description import Description, load
@@ -126,6 +127,121 @@ def test_joints_follow_their_command_registers(tmp_path: Path) -> None:
         assert stopped == pytest.approx(sim_position, abs=1e-3)
 
 
+def test_a_joint_stops_at_the_end_of_its_register(tmp_path: Path) -> None:
+    """An integrated position past what its register holds (i16 at 0.01 deg: +-327.67)
+    is clamped there, as at a hard stop; it never fails to encode (which stopped the
+    server)."""
+    text = MOVER.replace("type: i32, scale: 1000, unit: deg", "type: i16, scale: 100, unit: deg")
+    sim = make_simulator(describe(tmp_path, text)).device
+    assert isinstance(sim, DescribedSimDevice)
+    sim.set("speed_command", 90.0)
+    sim.tick(5.0)  # 450 deg commanded
+    assert sim.get("position") == pytest.approx(327.67)
+    assert sim.positions_si["j1"] == pytest.approx(327.67 * DEG)
+    assert sim.get("velocity") == pytest.approx(327.67 / 5.0, abs=0.1)  # what it moved
+    sim.tick(1.0)
+    assert sim.get("position") == pytest.approx(327.67)
+    assert sim.get("velocity") == 0.0  # held at the end
+    sim.set("speed_command", -90.0)
+    sim.tick(10.0)
+    assert sim.get("position") == pytest.approx(-327.68)
+
+
+def test_a_failing_tick_is_logged_once_and_the_simulator_keeps_serving(
+    tmp_path: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
+    with over_tcp(describe(tmp_path)) as (device, sim, _):
+        failures: list[float] = []
+
+        def failing(dt: float) -> None:
+            failures.append(dt)
+            raise ValueError("joint model broken")
+
+        sim.tick = failing  # type: ignore[method-assign]
+        wait_for(lambda: len(failures) >= 3, "three failing ticks")
+        assert device.read(["target"]) == {"target": 0.0}  # still served
+    lines = [line for line in capfd.readouterr().err.splitlines() if "tick failed" in line]
+    assert lines == ["simulator: unit 1 tick failed: ValueError: joint model broken"]
+
+
+def stream_of(device: DescribedDevice, name: str) -> StreamGuard[str]:
+    """The guard the node attaches to command topic ``name`` (as modbus_bridge.node)."""
+    topic = device.topics[name]
+    guard: StreamGuard[str] = StreamGuard(
+        [name],
+        lambda _key, value, _previous: device.send_stream(topic, value),
+        lambda _key: device.stop_stream(topic),
+        timeout_s=60.0,
+        stop_when_idle=False,
+    )
+    device.attach_stream(name, guard)
+    return guard
+
+
+TWO_STREAMS = MOVER.replace(
+    "  topics:\n", "  topics:\n    - {name: cmd_run, register: run_speed}\n"
+).replace(
+    "  - {name: secret,",
+    "  - {name: run_speed, table: holding, address: 21, type: i16, access: RW, manual: t}\n"
+    "  - {name: secret,",
+)
+
+
+def test_stop_services_lock_every_command_stream(tmp_path: Path) -> None:
+    """A trigger that is no stop and the coil's other value lock nothing. A stop locks
+    every stream: the one whose register it wrote is known stopped (a 0 writes nothing),
+    another keeps its motion (a 0 sends its own stop); a non-zero value is refused until
+    a 0."""
+    with over_tcp(describe(tmp_path, TWO_STREAMS)) as (device, sim, _):
+        sim.tick = lambda dt: None  # type: ignore[method-assign]
+        speed, other = stream_of(device, "cmd_speed"), stream_of(device, "cmd_run")
+        speed.command("cmd_speed", 50.0)
+        other.command("cmd_run", 5.0)
+        device.trigger("go")
+        device.set_coil("set_run", True)
+        assert not speed["cmd_speed"].locked and not other["cmd_run"].locked
+        device.set_coil("set_run", False)  # a stop that writes no stream's register
+        assert speed["cmd_speed"].locked and speed["cmd_speed"].active
+        assert other["cmd_run"].locked and other["cmd_run"].active
+        with pytest.raises(CommandRejected, match="was stopped"):
+            speed.command("cmd_speed", 60.0)
+        written = len(sim.write_log)
+        assert speed.command("cmd_speed", 0.0)  # unlocks and sends the stream's own stop
+        assert [(r.address, r.values) for r in sim.write_log[written:]] == [(3, (0,))]
+        speed.command("cmd_speed", 50.0)
+        device.trigger("halt")  # writes speed_command
+        assert speed["cmd_speed"].locked and not speed["cmd_speed"].may_move
+        assert other["cmd_run"].locked and other["cmd_run"].active
+        with pytest.raises(CommandRejected, match="was stopped"):
+            speed.command("cmd_speed", 60.0)
+        written = len(sim.write_log)
+        assert not speed.command("cmd_speed", 0.0)  # unlocks; halt stopped it already
+        assert len(sim.write_log) == written
+        speed.command("cmd_speed", 60.0)
+        assert (sim.write_log[-1].address, sim.write_log[-1].values) == (3, (600,))
+
+
+def test_a_lost_stop_leaves_the_stream_locked_with_its_stop_pending(tmp_path: Path) -> None:
+    description = describe(tmp_path)
+    simulator = make_simulator(description)
+    port = simulator.start_tcp()
+    link = ModbusLink(TcpSettings("127.0.0.1", port, timeout_s=2.0))
+    try:
+        device = DescribedDevice(DeviceChannel(link, 1, retries=0), description.device)
+        speed = stream_of(device, "cmd_speed")
+        speed.command("cmd_speed", 50.0)
+        simulator.stop()
+        with pytest.raises(LinkError):
+            device.trigger("halt")
+        state = speed["cmd_speed"]
+        assert state.locked and state.stop_pending  # the deadman keeps sending its stop
+        with pytest.raises(CommandRejected):
+            speed.command("cmd_speed", 60.0)
+    finally:
+        link.close()
+        simulator.stop()
+
+
 def test_commands_write_what_the_file_says(tmp_path: Path) -> None:
     with over_tcp(describe(tmp_path)) as (device, sim, _):
         assert device.trigger("go") == "run = True, speed_command = 45"
@@ -185,6 +301,42 @@ def test_the_simulator_is_as_strict_as_the_file(tmp_path: Path) -> None:
         start = time.monotonic()
         channel.read_registers(0, 4)
         assert time.monotonic() - start >= 0.005  # reply_delay_s
+
+
+def test_values_are_the_only_writes_the_device_layer_and_the_simulator_take(
+    tmp_path: Path,
+) -> None:
+    text = MOVER.replace(
+        "range: [-90, 90], manual", "range: [-90, 90], values: [-45, 0, 45], manual"
+    )
+    with over_tcp(describe(tmp_path, text)) as (device, sim, channel):
+        with pytest.raises(CommandRejected, match="speed_command takes one of -45, 0, 45, not 30"):
+            device.write("speed_command", 30)
+        topic = device.topics["cmd_speed"]
+        with pytest.raises(CommandRejected, match="takes one of"):
+            device.stream_value(topic, 0.5)  # 28.6 deg/s
+        assert sim.write_log == []
+        # The simulator refuses it too (a bridge that skipped the check): 30.0 deg/s.
+        with pytest.raises(DeviceException) as caught:
+            channel.write_register(3, 300)
+        assert caught.value.exception_code == 3  # ILLEGAL DATA VALUE
+        assert sim.write_log == [] and sim.get("speed_command") == 0.0
+        assert device.write("speed_command", -45) == "speed_command = -45"
+        assert device.trigger("go") == "run = True, speed_command = 45"
+        assert [r.values for r in sim.write_log if r.address == 3] == [(0xFE3E,), (450,)]
+
+
+def test_xarm_arm_state_takes_only_the_sdks_set_state_values() -> None:
+    """H33: 0 start, 3 pause, 4 stop (xarm_bridge's values); 1 and 2 are in the range
+    but no command of the SDK."""
+    with over_tcp(load(ROOT / "config" / "devices" / "xarm.yaml")) as (device, sim, channel):
+        for value in (1, 2):
+            with pytest.raises(CommandRejected, match="arm_state takes one of 0, 3, 4"):
+                device.write("arm_state", value)
+            with pytest.raises(DeviceException, match="ILLEGAL DATA VALUE"):
+                channel.write_register(33, value)
+        assert sim.write_log == []
+        assert device.trigger("pause") == "arm_state = 3"
 
 
 def test_undefined_rows_and_limits_as_the_file_says(tmp_path: Path) -> None:
