@@ -31,3 +31,17 @@ def free_port() -> int:
 @pytest.fixture
 def port() -> int:
     return free_port()
+
+
+def pytest_collection_finish(session: pytest.Session) -> None:
+    """Start the colcon build now when its tests will run (tests/support/colcon.py)."""
+    if any(item.nodeid.startswith("tests/test_colcon_build.py") for item in session.items):
+        from .support.colcon import colcon_build
+
+        colcon_build()
+
+
+def pytest_sessionfinish(session: pytest.Session) -> None:
+    from .support.colcon import remove_colcon_build
+
+    remove_colcon_build()

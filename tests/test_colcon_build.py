@@ -23,11 +23,9 @@ from types import ModuleType
 import pytest
 
 from .conftest import free_port
+from .support.colcon import BUILD_TIMEOUT_S, colcon_build, venv_env
 from .support.ros import ROOT, ros_client, unique_namespace, wait_for
 
-# msg_defs (with its actions) takes ~3 min on 2 idle cores, up to ~7 min beside two CPU
-# burners; the module's first test waits for the build, so its time limit covers it.
-BUILD_TIMEOUT_S = 1500
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(BUILD_TIMEOUT_S + 300)]
 PACKAGES = {
     "msg_defs",
@@ -52,46 +50,13 @@ def ament_layout() -> ModuleType:
     return module
 
 
-def venv_env() -> dict[str, str]:
-    """This venv activated, no ROS workspace sourced: where a user runs ``colcon build``."""
-    env = {
-        key: value
-        for key, value in os.environ.items()
-        if key not in {"AMENT_PREFIX_PATH", "CMAKE_PREFIX_PATH", "COLCON_PREFIX_PATH"}
-    }
-    env["VIRTUAL_ENV"] = sys.prefix
-    # colcon's own make flags are -jN -lN (N = cores): beside other busy processes the load
-    # limit leaves make one job at a time, and msg_defs takes twice as long.
-    env["MAKEFLAGS"] = f"-j{os.cpu_count() or 2}"
-    env["PATH"] = f"{Path(sys.prefix) / 'bin'}{os.pathsep}{env.get('PATH', '')}"
-    return env
-
-
 @pytest.fixture(scope="module")
-def install(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    workspace = tmp_path_factory.mktemp("colcon_ws")
-    result = subprocess.run(
-        [
-            str(Path(sys.prefix) / "bin" / "colcon"),
-            "--log-base",
-            str(workspace / "log"),
-            "build",
-            "--base-paths",
-            str(ROOT),
-            "--build-base",
-            str(workspace / "build"),
-            "--install-base",
-            str(workspace / "install"),
-        ],
-        cwd=workspace,
-        env=venv_env(),
-        capture_output=True,
-        text=True,
-        timeout=BUILD_TIMEOUT_S,
-    )
-    output = result.stdout + result.stderr
-    assert result.returncode == 0, output[-4000:]
-    install = workspace / "install"
+def install() -> Path:
+    """The session's colcon build (started at collection, at low priority), finished."""
+    build = colcon_build()
+    code, output = build.wait()
+    assert code == 0, output[-4000:]
+    install = build.install
     for package in PACKAGES:  # colcon's own record of each package it installed
         assert (install / package / "share" / "colcon-core" / "packages" / package).is_file()
     return install
