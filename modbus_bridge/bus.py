@@ -12,17 +12,15 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Sequence
-from pathlib import Path
 from typing import Any
 
 from rclpy.node import Node
 
 from bridge_core.errors import ConfigurationError
 from bridge_core.node_base import BusNode, DeviceDefaults, ParameterNode, spin_nodes
-from bridge_core.parameters import ParameterSpec
 
-from .description import UNIT_ID_MAX, Description, load
-from .node import ModbusBridgeNode, defaults_of
+from .description import UNIT_ID_MAX, Description
+from .node import ModbusBridgeNode, defaults_of, described_by_parameter
 
 BUS_NODE_NAME = "modbus_bus"
 
@@ -41,15 +39,9 @@ class ModbusBusNode(BusNode):
         )
 
     def _defaults_from_file(self, node: ParameterNode) -> DeviceDefaults:
-        values = node.declare_specs(
-            [ParameterSpec("device_file", "", "description of the line's devices (required)")]
+        path, description = described_by_parameter(
+            node, "description of the line's devices (required)"
         )
-        path = str(values["device_file"])
-        if not path:
-            raise ConfigurationError("no device description: give -p device_file:=FILE")
-        if not Path(path).is_file():
-            raise ConfigurationError(f"parameter device_file:={path}: no such file")
-        description = load(path)
         if description.line is None:
             raise ConfigurationError(
                 f"{path} describes one device with its own link: run modbus_bridge for it"

@@ -85,6 +85,18 @@ def _number(value: Value) -> float:
     return float(value)
 
 
+def described_by_parameter(node: ParameterNode, help_text: str) -> tuple[str, Description]:
+    """The ``device_file`` parameter (start-up only) and the description it names, read
+    before the link parameters (their defaults come from it)."""
+    values = node.declare_specs([ParameterSpec("device_file", "", help_text)])
+    path = str(values["device_file"])
+    if not path:
+        raise ConfigurationError("no device description: give -p device_file:=FILE")
+    if not Path(path).is_file():
+        raise ConfigurationError(f"parameter device_file:={path}: no such file")
+    return path, load(path)
+
+
 class ModbusBridgeNode(BridgeNode[DeviceSnapshot]):
     """One described device: its file from ``device_file``, or (a device on a line a
     ``ModbusBusNode`` owns) ``device`` with the bus's ``link``, named after the device."""
@@ -113,15 +125,7 @@ class ModbusBridgeNode(BridgeNode[DeviceSnapshot]):
         self._create_topics()
 
     def _defaults_from_file(self, node: ParameterNode) -> DeviceDefaults:
-        values = node.declare_specs(
-            [ParameterSpec("device_file", "", "device description YAML (required)")]
-        )
-        path = str(values["device_file"])
-        if not path:
-            raise ConfigurationError("no device description: give -p device_file:=FILE")
-        if not Path(path).is_file():
-            raise ConfigurationError(f"parameter device_file:={path}: no such file")
-        description = load(path)
+        path, description = described_by_parameter(node, "device description YAML (required)")
         if description.line is not None:
             raise ConfigurationError(
                 f"{path} describes {len(description.devices)} devices on one line: "
