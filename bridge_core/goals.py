@@ -83,6 +83,9 @@ class Motion(ABC, Generic[SnapshotT]):
     axes: frozenset[Hashable] = frozenset()
     #: The command in words, for replies and the console ("motor 1 move_by 0.05 m").
     what: str = "motion"
+    #: REACHED too waits for a second idle poll: the result reports values (a cycle time)
+    #: that a poll may have read before the motion ended.
+    confirm_reached: bool = False
 
     def __init__(self) -> None:
         self.seen_running = False
@@ -131,7 +134,8 @@ class Motion(ABC, Generic[SnapshotT]):
         ):
             return None
         verdict = self.ended(snapshot)
-        if verdict.outcome is not Outcome.REACHED and self.idle_polls < CONFIRM_POLLS:
+        confirm = self.confirm_reached or verdict.outcome is not Outcome.REACHED
+        if confirm and self.idle_polls < CONFIRM_POLLS:
             return None  # the position may have been read before the motion ended
         return verdict
 

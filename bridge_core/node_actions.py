@@ -36,7 +36,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 from rclpy.action.server import ActionServer, CancelResponse, GoalResponse, ServerGoalHandle
 from rclpy.callback_groups import ReentrantCallbackGroup
 
-from .errors import CommandRejected
+from .errors import CommandRejected, LinkError
 from .goals import GoalRun, Motion, Outcome, Verdict, needs_stop
 
 if TYPE_CHECKING:
@@ -239,21 +239,27 @@ class ActionHost:
                 run.finish()
             return
 
+        link_failed = threading.Event()
+
         def start_unless_ended() -> None:
             # Its turn may come after a cancel, a halt or a newer goal: then nothing goes out.
             if (ending := run.requested_ending()) is not None:
                 raise CommandRejected(ending.message)
             run.starting = True
-            motion.start()
+            try:
+                motion.start()
+            except LinkError:
+                link_failed.set()  # part of the start may have gone out
+                raise
 
         ok, message, _ = node.run_command(motion.what, start_unless_ended)
         if ok:
             run.started(time.monotonic())
             node.get_logger().info(f"{name}: goal started ({motion.what})")
-        elif (ending := run.requested_ending()) is not None:
-            if run.claim(ending):  # refused before a write: nothing to stop
+        elif not run.starting:  # refused before its first write: nothing to stop
+            if run.claim(run.requested_ending() or Verdict(Outcome.REFUSED, message)):
                 run.finish()
-        elif not node.channel.connected:
+        elif link_failed.is_set() or not node.channel.connected:
             run.started(time.monotonic())  # the start may have gone out: stop it
             if run.claim(Verdict(Outcome.LINK_LOST, message)):
                 self._end(run, Verdict(Outcome.LINK_LOST, message))

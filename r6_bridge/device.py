@@ -462,6 +462,7 @@ class RunCycleMotion(Motion[R6Snapshot]):
     never is (it runs until stopped): its end is STOPPED (README R6 decision 22)."""
 
     axes: frozenset[Hashable] = frozenset({"program"})
+    confirm_reached = True  # the result's last cycle time is read apart from `moving`
 
     def __init__(self, device: R6Device, last: R6Snapshot | None, *, single_cycle: bool) -> None:
         super().__init__()

@@ -113,6 +113,16 @@ def test_stopped_short_of_the_target_on_a_second_idle_poll() -> None:
     assert verdict is not None and verdict.outcome is Outcome.STOPPED
 
 
+def test_reached_waits_for_a_second_idle_poll_when_the_motion_asks() -> None:
+    run = started_run()
+    run.motion.confirm_reached = True
+    assert judge(run, Snap(True, 3.0)) is None
+    for _ in range(CONFIRM_POLLS - 1):
+        assert judge(run, Snap(False, 10.0)) is None
+    verdict = judge(run, Snap(False, 10.0))
+    assert verdict is not None and verdict.outcome is Outcome.REACHED
+
+
 def test_a_motion_not_yet_shown_running_gets_start_polls_and_time() -> None:
     """A flag may come late: idle polls count only from START_POLLS on and after
     START_GRACE_S (fast polls must not end a motion whose flag rises 0.1 s late)."""
