@@ -75,6 +75,7 @@ class Client:
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self.messages: dict[str, list[tuple[float, Any]]] = {}
+        self.spin_errors: list[Exception] = []
         self._lock = threading.Lock()
         self._thread = threading.Thread(target=self._spin, daemon=True)
         self._thread.start()
@@ -83,8 +84,14 @@ class Client:
         while self.context.ok():
             try:
                 self.executor.spin_once(timeout_sec=0.05)
-            except Exception:  # shutting down
-                return
+            except Exception as err:
+                if not self.context.ok():
+                    return  # shutting down
+                # E.g. a service or action client destroyed by a test thread while this
+                # thread had it in its wait set (InvalidHandle): rclpy raises it here. The
+                # client must go on spinning, or it hears nothing for the rest of its life.
+                self.spin_errors.append(err)
+                print(f"test client {self.node.get_name()}: {err!r}", file=sys.stderr)
 
     def subscribe(
         self, msg_type: Any, topic: str, qos: QoSProfile | int = 10, raw: bool = False
