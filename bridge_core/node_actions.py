@@ -127,11 +127,8 @@ class ActionHost:
             self.node.stop_motion(f"{name} failed: internal error")
             if handle.is_active:
                 handle.abort()
-            result = action_type.Result()
-            result.outcome.code = int(Outcome.HALTED)
-            result.outcome.name = Outcome.HALTED.name
-            result.outcome.message = f"{name} failed: internal error: {err}"
-            return result
+            message = f"{name} failed: internal error: {err}"
+            return _result_of(action_type, Verdict(Outcome.HALTED, message), message)
 
     def _server(
         self,
@@ -363,14 +360,7 @@ class ActionHost:
         stop_sent: bool,
         fields: dict[str, Any],
     ) -> Any:
-        result = _filled(action_type.Result(), fields)
-        outcome = result.outcome
-        outcome.code = int(verdict.outcome)
-        outcome.name = verdict.outcome.name
-        outcome.message = message
-        outcome.fault_code = int(verdict.fault_code)
-        outcome.fault_text = verdict.fault_text
-        outcome.stop_sent = bool(stop_sent)
+        result = _result_of(action_type, verdict, message, stop_sent, fields)
         if verdict.outcome is Outcome.CANCELLED:
             # The cancel callback runs before rclpy moves the goal to CANCELING.
             _wait_for(lambda: handle.is_cancel_requested, CANCEL_STATE_WAIT_S)
@@ -389,12 +379,8 @@ class ActionHost:
 
     def _refused(self, action_type: Any, handle: ServerGoalHandle, message: str) -> Any:
         handle.abort()
-        result = action_type.Result()
-        result.outcome.code = int(Outcome.REFUSED)
-        result.outcome.name = Outcome.REFUSED.name
-        result.outcome.message = message
         self.node.get_logger().warn(message)
-        return result
+        return _result_of(action_type, Verdict(Outcome.REFUSED, message), message)
 
     def offer(self, snapshot: Any, poll_started: float) -> None:
         """A published snapshot (the poller's publisher thread)."""
@@ -516,6 +502,25 @@ def _wait_for(condition: Callable[[], bool], timeout_s: float) -> bool:
             return False
         time.sleep(0.005)
     return True
+
+
+def _result_of(
+    action_type: Any,
+    verdict: Verdict,
+    message: str,
+    stop_sent: bool = False,
+    fields: dict[str, Any] | None = None,
+) -> Any:
+    """The action's result message: ``fields`` and the ``MotionOutcome`` of ``verdict``."""
+    result = _filled(action_type.Result(), fields or {})
+    outcome = result.outcome
+    outcome.code = int(verdict.outcome)
+    outcome.name = verdict.outcome.name
+    outcome.message = message
+    outcome.fault_code = int(verdict.fault_code)
+    outcome.fault_text = verdict.fault_text
+    outcome.stop_sent = bool(stop_sent)
+    return result
 
 
 def _filled(msg: Any, fields: dict[str, Any]) -> Any:

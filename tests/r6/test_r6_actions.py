@@ -55,17 +55,9 @@ def r6(client: Client, tmp_path: Path, port: int) -> Any:
     return start_bridge(client, tmp_path, "r6_bridge.node", "r6_bridge", R6State, params)
 
 
-def send(b: Bridge, action: Any, name: str, **fields: Any) -> Any:
-    goal = action.Goal()
-    for key, value in fields.items():
-        setattr(goal, key, value)
-    return b.client.send_goal(action, f"{b.ns}/r6_bridge/{name}", goal)
-
-
 def upload(b: Bridge, source: int, values: list[int], **fields: Any) -> Any:
     """A PointUpload goal of 6-value points for axes 1-6."""
-    return send(
-        b,
+    return b.send_goal(
         PointUpload,
         "upload_points",
         data_source_id=source,
@@ -88,7 +80,7 @@ def test_run_cycle(sim: tuple[R6SimDevice, int], client: Client, tmp_path: Path)
 
         # A single cycle: done when the program stands still again.
         cycles = device.cycles_completed
-        goal = send(b, RunCycle, "run_cycle", single_cycle=True)
+        goal = b.send_goal(RunCycle, "run_cycle", single_cycle=True)
         assert goal.accepted
         status, result = goal.result()
         assert status == GoalStatus.STATUS_SUCCEEDED, result.outcome.message
@@ -100,7 +92,7 @@ def test_run_cycle(sim: tuple[R6SimDevice, int], client: Client, tmp_path: Path)
 
         # A continuous run, cancelled: stop (20000) on the wire, the program stands.
         mark = len(device.write_log)
-        goal = send(b, RunCycle, "run_cycle", single_cycle=False)
+        goal = b.send_goal(RunCycle, "run_cycle", single_cycle=False)
         goal.wait_feedback(lambda f: f.moving)
         goal.cancel()
         status, result = goal.result()
@@ -110,7 +102,7 @@ def test_run_cycle(sim: tuple[R6SimDevice, int], client: Client, tmp_path: Path)
         assert not device.running
 
         # An alarm ends the goal with its code; a goal is then rejected until it is cleared.
-        goal = send(b, RunCycle, "run_cycle", single_cycle=False)
+        goal = b.send_goal(RunCycle, "run_cycle", single_cycle=False)
         goal.wait_feedback(lambda f: f.moving)
         device.set_alarm(0x325)
         status, result = goal.result()
@@ -119,7 +111,7 @@ def test_run_cycle(sim: tuple[R6SimDevice, int], client: Client, tmp_path: Path)
         assert result.outcome.fault_code == 0x325
         client.wait_message(b.state, lambda s: s.alarm_code == 0x325)
         mark = len(device.write_log)
-        assert not send(b, RunCycle, "run_cycle", single_cycle=True).accepted
+        assert not b.send_goal(RunCycle, "run_cycle", single_cycle=True).accepted
         client.wait_log("r6_bridge", "run_cycle goal rejected: alarm 805 is active")
         assert device.write_log[mark:] == []
         cleared = time.monotonic()
@@ -129,7 +121,7 @@ def test_run_cycle(sim: tuple[R6SimDevice, int], client: Client, tmp_path: Path)
         # A time limit on a continuous run: stopped, aborted.
         client.wait_message(b.state, lambda s: s.alarm_code == 0 and not s.moving, since=cleared)
         mark = len(device.write_log)
-        goal = send(b, RunCycle, "run_cycle", single_cycle=False, timeout_s=0.5)
+        goal = b.send_goal(RunCycle, "run_cycle", single_cycle=False, timeout_s=0.5)
         assert goal.accepted
         status, result = goal.result()
         assert status == GoalStatus.STATUS_ABORTED
@@ -140,7 +132,7 @@ def test_run_cycle(sim: tuple[R6SimDevice, int], client: Client, tmp_path: Path)
         device.set("global_speed", 0.0)
         client.wait_message(b.state, lambda s: s.global_speed_percent == 0.0)
         mark = len(device.write_log)
-        assert not send(b, RunCycle, "run_cycle", single_cycle=True).accepted
+        assert not b.send_goal(RunCycle, "run_cycle", single_cycle=True).accepted
         assert device.write_log[mark:] == []
 
 

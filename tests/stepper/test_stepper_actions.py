@@ -21,7 +21,7 @@ from msg_defs.srv import SetHomingOrder
 from stepper_bridge.registers import MOTORS, motor_coil, motor_register
 from stepper_bridge.sim import START_POSITION, TRAVEL, StepperSimDevice
 
-from ..support.ros import Bridge, Client, ros_client
+from ..support.ros import Client, ros_client
 from ..support.sims import stepper_on_pty
 from .test_stepper_ros import BAUD, bridge, writes
 
@@ -44,13 +44,6 @@ def sim() -> Iterator[tuple[StepperSimDevice, str]]:
         for motor in range(1, MOTORS + 1):
             device.set(motor_register(motor, "speed"), FAST_RPM)
         yield device, bridge_end
-
-
-def send(b: Bridge, action: Any, name: str, **fields: Any) -> Any:
-    goal = action.Goal()
-    for key, value in fields.items():
-        setattr(goal, key, value)
-    return b.client.send_goal(action, f"{b.ns}/stepper_bridge/{name}", goal)
 
 
 def outcome_of(goal: Any, status: int = GoalStatus.STATUS_ABORTED, fed: bool = True) -> Any:
@@ -79,7 +72,7 @@ def test_stepper_actions(sim: tuple[StepperSimDevice, str], client: Client, tmp_
         client.wait_message(b.state)
 
         # move_by reached: feedback on the way, the coordinate at the end.
-        goal = send(b, StepperMoveBy, "motor_1/move_by", distance=20 * MM)
+        goal = b.send_goal(StepperMoveBy, "motor_1/move_by", distance=20 * MM)
         assert goal.accepted
         result = outcome_of(goal, GoalStatus.STATUS_SUCCEEDED)
         assert result.outcome.code == MotionOutcome.REACHED
@@ -89,7 +82,7 @@ def test_stepper_actions(sim: tuple[StepperSimDevice, str], client: Client, tmp_
 
         # Cancel = the motor's stop coil, and the motor stands.
         mark = len(writes(device))
-        goal = send(b, StepperMoveBy, "motor_1/move_by", distance=400 * MM)
+        goal = b.send_goal(StepperMoveBy, "motor_1/move_by", distance=400 * MM)
         running_feedback(goal, 1)
         goal.cancel()
         result = outcome_of(goal, GoalStatus.STATUS_CANCELED)
@@ -102,9 +95,9 @@ def test_stepper_actions(sim: tuple[StepperSimDevice, str], client: Client, tmp_
 
         # Preempted by a new goal on the same motor: stopped first, then homed.
         mark = len(writes(device))
-        first = send(b, StepperMoveBy, "motor_1/move_by", distance=400 * MM)
+        first = b.send_goal(StepperMoveBy, "motor_1/move_by", distance=400 * MM)
         running_feedback(first, 1)
-        home = send(b, StepperRun, "motor_1/home")
+        home = b.send_goal(StepperRun, "motor_1/home")
         result = outcome_of(first)
         assert result.outcome.code == MotionOutcome.PREEMPTED, result.outcome.message
         result = outcome_of(home, GoalStatus.STATUS_SUCCEEDED)
@@ -116,26 +109,26 @@ def test_stepper_actions(sim: tuple[StepperSimDevice, str], client: Client, tmp_
         ]
 
         # A limit switch ends a move as LIMIT, naming the switch.
-        goal = send(b, StepperMoveBy, "motor_2/move_by", distance=50 * MM)
+        goal = b.send_goal(StepperMoveBy, "motor_2/move_by", distance=50 * MM)
         result = outcome_of(goal)
         assert result.outcome.code == MotionOutcome.LIMIT, result.outcome.message
         assert "motor 2 stopped at its positive limit switch (IN3)" in result.outcome.message
         assert result.positions[1] == pytest.approx((TRAVEL - START_POSITION) * MM)
 
         # Homing one motor: its coordinate ends at 0.
-        goal = send(b, StepperRun, "motor_3/home")
+        goal = b.send_goal(StepperRun, "motor_3/home")
         result = outcome_of(goal, GoalStatus.STATUS_SUCCEEDED)
         assert device.coordinate(3) == pytest.approx(0.0)
 
         # A time limit: stopped and aborted.
         mark = len(writes(device))
-        goal = send(b, StepperMoveBy, "motor_4/move_by", distance=400 * MM, timeout_s=0.5)
+        goal = b.send_goal(StepperMoveBy, "motor_4/move_by", distance=400 * MM, timeout_s=0.5)
         result = outcome_of(goal, fed=False)  # a loaded machine may poll less in 0.5 s
         assert result.outcome.code == MotionOutcome.TIMED_OUT and result.outcome.stop_sent
         assert coil_writes(device, mark)[-1] == motor_coil(4, "stop")
 
         # The e-stop ends a goal as LIMIT.
-        goal = send(b, StepperMoveBy, "motor_5/move_by", distance=400 * MM)
+        goal = b.send_goal(StepperMoveBy, "motor_5/move_by", distance=400 * MM)
         running_feedback(goal, 5)
         reply = b.call(Trigger, "emergency_stop")
         assert reply.success, reply.message
@@ -145,30 +138,29 @@ def test_stepper_actions(sim: tuple[StepperSimDevice, str], client: Client, tmp_
 
         # home_all needs a homing order: rejected (nothing written) without one.
         mark = len(writes(device))
-        assert not send(b, StepperRun, "home_all").accepted
+        assert not b.send_goal(StepperRun, "home_all").accepted
         client.wait_log("stepper_bridge", "home_all goal rejected: the homing order")
         assert writes(device)[mark:] == []
         reply = b.call(SetHomingOrder, "set_homing_order", motors=[4, 5])
         assert reply.success, reply.message
-        outcome_of(send(b, StepperRun, "home_all"), GoalStatus.STATUS_SUCCEEDED)
+        outcome_of(b.send_goal(StepperRun, "home_all"), GoalStatus.STATUS_SUCCEEDED)
         assert device.coordinate(4) == pytest.approx(0.0)
         assert device.coordinate(5) == pytest.approx(0.0)
 
         # Return to zero: every coordinate back at 0 (motor 2 first put back near home,
         # as if moved by hand: 450 units would take 9 s).
         device.position[2] = device.offset[2] + 10.0
-        send(b, StepperMoveBy, "motor_1/move_by", distance=30 * MM).result()
-        outcome_of(send(b, StepperRun, "return_to_zero"), GoalStatus.STATUS_SUCCEEDED)
+        b.send_goal(StepperMoveBy, "motor_1/move_by", distance=30 * MM).result()
+        outcome_of(b.send_goal(StepperRun, "return_to_zero"), GoalStatus.STATUS_SUCCEEDED)
         assert [device.coordinate(m) for m in range(1, MOTORS + 1)] == pytest.approx([0.0] * 5)
 
         # Line, then arc interpolation of pair 1 (motors 1 and 2 under both readings).
-        goal = send(
-            b, LineMotion, "line_move", pair=1, start=[0.0, 0.0], end=[0.02, 0.01], speed_rpm=600
+        goal = b.send_goal(
+            LineMotion, "line_move", pair=1, start=[0.0, 0.0], end=[0.02, 0.01], speed_rpm=600
         )
         result = outcome_of(goal, GoalStatus.STATUS_SUCCEEDED)
         assert result.positions[:2] == pytest.approx([0.02, 0.01])
-        goal = send(
-            b,
+        goal = b.send_goal(
             ArcMotion,
             "arc_move",
             pair=1,
@@ -183,12 +175,12 @@ def test_stepper_actions(sim: tuple[StepperSimDevice, str], client: Client, tmp_
 
         # Out of range: rejected, nothing written.
         mark = len(writes(device))
-        assert not send(b, StepperMoveBy, "motor_1/move_by", distance=float("nan")).accepted
-        assert not send(b, LineMotion, "line_move", pair=9, speed_rpm=600).accepted
+        assert not b.send_goal(StepperMoveBy, "motor_1/move_by", distance=float("nan")).accepted
+        assert not b.send_goal(LineMotion, "line_move", pair=9, speed_rpm=600).accepted
         assert writes(device)[mark:] == []
 
         # Deactivate during a goal: stopped (HALTED); goals are then rejected.
-        goal = send(b, StepperMoveBy, "motor_1/move_by", distance=400 * MM)
+        goal = b.send_goal(StepperMoveBy, "motor_1/move_by", distance=400 * MM)
         running_feedback(goal, 1)
         request = ChangeState.Request()
         request.transition.id = Transition.TRANSITION_DEACTIVATE
@@ -199,6 +191,6 @@ def test_stepper_actions(sim: tuple[StepperSimDevice, str], client: Client, tmp_
         assert "deactivated" in result.outcome.message and result.outcome.stop_sent
         assert device.motion[1] is None
         mark = len(writes(device))
-        assert not send(b, StepperMoveBy, "motor_1/move_by", distance=10 * MM).accepted
+        assert not b.send_goal(StepperMoveBy, "motor_1/move_by", distance=10 * MM).accepted
         client.wait_log("stepper_bridge", "move_by goal rejected: the node is not active")
         assert writes(device)[mark:] == []

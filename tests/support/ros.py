@@ -382,6 +382,13 @@ class Bridge:
             setattr(request, key, value)
         return self.client.call(srv_type, self.service(name), request)
 
+    def send_goal(self, action_type: Any, name: str, **fields: Any) -> Goal:
+        """A goal to the node's action ``name`` with ``fields`` set (``Client.send_goal``)."""
+        goal = action_type.Goal()
+        for key, value in fields.items():
+            setattr(goal, key, value)
+        return self.client.send_goal(action_type, self.service(name), goal)
+
     def diagnostics(self, since: float = 0.0) -> list[Any]:
         return [
             status
