@@ -36,6 +36,7 @@ sets the order of the status blocks.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import math
 import os
@@ -152,10 +153,13 @@ class Monitor:
         from diagnostic_msgs.msg import DiagnosticArray
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+        from rclpy.signals import SignalHandlerOptions
         from sensor_msgs.msg import JointState
         from std_msgs.msg import Bool
 
-        rclpy.init()
+        # No rclpy signal handler: Ctrl-C is the plain KeyboardInterrupt main() ends on
+        # (rclpy's own would shut the context down under a spin: a traceback, exit 1).
+        rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
         self.rclpy = rclpy
         self.node = rclpy.create_node("bridge_demo_monitor")
         self.executor = SingleThreadedExecutor()
@@ -307,6 +311,8 @@ def main(argv: Sequence[str] | None = None, modules: Sequence[str] | None = None
     os.environ.pop("ROS_LOCALHOST_ONLY", None)
     os.environ.setdefault("ROS_DOMAIN_ID", str(DEFAULT_DOMAIN_ID))
 
+    from rclpy.executors import ExternalShutdownException
+
     processes: list[subprocess.Popen[bytes]] = []
     logs = Path(tempfile.mkdtemp(prefix="bridge_demo_"))
     print(f"bridge_demo: ROS_DOMAIN_ID={os.environ['ROS_DOMAIN_ID']}, logs in {logs}", flush=True)
@@ -364,11 +370,15 @@ def main(argv: Sequence[str] | None = None, modules: Sequence[str] | None = None
             for proc in processes:
                 if proc.poll() is not None:
                     raise SystemExit(f"bridge_demo: a process exited ({proc.args!r}); see {logs}")
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        # A second Ctrl-C must not cut the clean-up short (the bridges' own stops run in
+        # their processes, which got the terminal's SIGINT too): it is bounded anyway.
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
         if monitor is not None:
-            monitor.close()
+            with contextlib.suppress(Exception):  # its context may be gone already
+                monitor.close()
         for proc in reversed(processes):
             if proc.poll() is None:
                 proc.send_signal(signal.SIGINT)

@@ -356,6 +356,10 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
         self.stream_guards: list[StreamGuard[Any]] = []
         self.stream_refusals = 0  # stream commands refused (diagnostics)
         self._command_mutex = threading.RLock()  # one command (not stop) at a time
+        # Set before a halt (deactivate, shutdown, error, exit) stops anything, cleared on
+        # activate: a command or stream value that waited for its turn while the halt ran
+        # is refused instead of restarting what the halt stopped.
+        self._halted = False
 
         specs = [
             *channel_specs(),
@@ -533,13 +537,15 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
     # cleanup: close the link this node owns; shutdown (from any state): stop first.
     @property
     def active(self) -> bool:
-        return self.poller.active
+        """Accepting commands: activated, and no halt since."""
+        return self.poller.active and not self._halted
 
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
         self.get_logger().info(f"configured for {self.channel.describe()}")
         return TransitionCallbackReturn.SUCCESS
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._halted = False
         self.poller.resume()
         self.get_logger().info("active: polling, publishing, accepting commands")
         return super().on_activate(state)
@@ -566,7 +572,9 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
         return TransitionCallbackReturn.SUCCESS
 
     def _halt(self, reason: str) -> None:
-        """Stop every motion this node started, then poll and publish no more."""
+        """Refuse every command from now on, stop every motion this node started, then
+        poll and publish no more."""
+        self._halted = True
         self.stop_motion(reason)
         self.poller.pause()
 
@@ -611,10 +619,12 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
         self.connected_pub.publish(Bool(data=connected))
 
     def _set_read_only(self, value: bool) -> None:
-        if value and not self.read_only:
-            # No command can reach the streams any more: stop what they started.
-            self.stop_motion("read_only was set")
+        was = self.read_only
+        # Refusing first, then stopping: a command or stream value waiting for its turn is
+        # refused, never written after the stop.
         self.read_only = bool(value)
+        if value and not was:
+            self.stop_motion("read_only was set")
 
     # ------------------------------------------------------------ commands
     def run_command(
@@ -748,6 +758,7 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
         guard: a bad value is a refusal, not an exception in a callback).
         """
         self.stream_guards.append(guard)
+        guard.permit = self._stream_permit
 
         def write_ready() -> None:
             self._write_ready(guard, convert, what)
@@ -784,6 +795,14 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
         self.on_parameter(timeout_parameter, set_timeout)
         self.on_parameter(rate_parameter, set_rate)
         set_rate(self.param(rate_parameter))
+
+    def _stream_permit(self) -> str | None:
+        """Asked by a stream guard, under its lock, before every non-zero write."""
+        if not self.active:
+            return "the node is not active (lifecycle): nothing was written"
+        if self.read_only:
+            return "read_only is set, nothing was written"
+        return None
 
     def _stream_callback(
         self,
@@ -908,6 +927,7 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
 
     def close(self) -> None:
         """Stop motion, then polling, then close the link if this node opened it."""
+        self._halted = True  # nothing but stops from here on
         try:
             self.stop_motion("the node is exiting")
         finally:

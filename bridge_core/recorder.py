@@ -27,6 +27,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.utilities import ok as rclpy_ok
 from rclpy.utilities import try_shutdown
 from rosbags.interfaces import (
+    ConnectionExtRosbag2,
     Qos,
     QosDurability,
     QosHistory,
@@ -90,49 +91,90 @@ def offered_qos(profile: QoSProfile) -> Qos:
 
 
 class Recorder(Node):
-    """Subscribes to topics as they appear and writes every message to one bag."""
+    """Subscribes to topics as their publishers appear and writes every message to one bag.
 
-    def __init__(self, output: Path, topics: Sequence[str], storage: StoragePlugin) -> None:
-        super().__init__("bridge_recorder")
+    A topic is taken up once it has a publisher (a subscriber alone, such as a monitor,
+    says nothing of the QoS the messages come with): the subscription's durability follows
+    the publishers' (transient local if any offers it: the latched value too), and their
+    QoS goes into the bag. A publisher that appears later is checked on every pass: one
+    that offers transient local to a volatile subscription makes it resubscribe, and every
+    new publisher's QoS is added to the topic's offered QoS in the metadata.
+    """
+
+    def __init__(
+        self, output: Path, topics: Sequence[str], storage: StoragePlugin, **node_kwargs: Any
+    ) -> None:
+        super().__init__("bridge_recorder", **node_kwargs)
         self.topics = list(topics)
         self.output = output
         self.storage = storage
         self.counts: dict[str, int] = {t: 0 for t in self.topics}
         self._writer: Writer | None = None
         self._connections: dict[str, Any] = {}
+        self._recording: dict[str, Any] = {}
+        self._latched: dict[str, bool] = {}
+        self._offered: dict[str, list[Qos]] = {}  # the connection's list: metadata at close
+        self._publishers_seen: dict[str, set[bytes]] = {}
         self._lock = threading.Lock()
-        self._pending = set(self.topics)
+        self.discover_passes = 0  # graph looks done (tests wait on it)
         self.create_timer(0.1, self._discover)
 
     def _discover(self) -> None:
-        if not self._pending:
-            return
+        self.discover_passes += 1
         known = dict(self.get_topic_names_and_types())
-        ready = [t for t in self._pending if t in known]
-        if not ready:
-            return
-        types = {t: known[t][0] for t in ready}
-        store = typestore_for(list(types.values()))
+        for topic in self.topics:
+            if topic not in known:
+                continue
+            publishers = self.get_publishers_info_by_topic(topic)
+            if not publishers:
+                continue  # only subscribers known yet: their QoS is not the messages'
+            if topic not in self._connections:
+                self._take_up(topic, known[topic][0], publishers)
+            else:
+                self._late_publishers(topic, publishers)
+
+    def _take_up(self, topic: str, type_name: str, publishers: list[Any]) -> None:
+        store = typestore_for([type_name])
+        offered = [info.qos_profile for info in publishers]
         with self._lock:
             if self._writer is None:
                 self._writer = Writer(self.output, version=9, storage_plugin=self.storage)
                 self._writer.open()
-            for topic, type_name in types.items():
-                offered = [info.qos_profile for info in self.get_publishers_info_by_topic(topic)]
-                self._connections[topic] = self._writer.add_connection(
-                    topic,
-                    type_name,
-                    typestore=store,
-                    offered_qos_profiles=[offered_qos(profile) for profile in offered],
-                )
-                qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
-                if any(q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in offered):
-                    qos.durability = DurabilityPolicy.TRANSIENT_LOCAL  # the latched value too
-                self.create_subscription(
-                    message_class(type_name), topic, self._writer_for(topic), qos, raw=True
-                )
-                self._pending.discard(topic)
-                self.get_logger().info(f"recording {topic} ({type_name})")
+            connection = self._writer.add_connection(
+                topic,
+                type_name,
+                typestore=store,
+                offered_qos_profiles=[offered_qos(profile) for profile in offered],
+            )
+            self._connections[topic] = connection
+            ext = connection.ext
+            assert isinstance(ext, ConnectionExtRosbag2)
+            self._offered[topic] = ext.offered_qos_profiles
+        self._publishers_seen[topic] = {bytes(info.endpoint_gid) for info in publishers}
+        self._subscribe(topic, type_name, _offers_latched(offered))
+        self.get_logger().info(f"recording {topic} ({type_name})")
+
+    def _late_publishers(self, topic: str, publishers: list[Any]) -> None:
+        seen = self._publishers_seen[topic]
+        new = [info for info in publishers if bytes(info.endpoint_gid) not in seen]
+        if not new:
+            return
+        seen.update(bytes(info.endpoint_gid) for info in new)
+        with self._lock:
+            self._offered[topic].extend(offered_qos(info.qos_profile) for info in new)
+        if _offers_latched([info.qos_profile for info in new]) and not self._latched[topic]:
+            self.destroy_subscription(self._recording.pop(topic))
+            self._subscribe(topic, self._connections[topic].msgtype, latched=True)
+            self.get_logger().info(f"{topic}: a latched publisher appeared, resubscribed")
+
+    def _subscribe(self, topic: str, type_name: str, latched: bool) -> None:
+        qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+        if latched:
+            qos.durability = DurabilityPolicy.TRANSIENT_LOCAL  # the latched value too
+        self._latched[topic] = latched
+        self._recording[topic] = self.create_subscription(
+            message_class(type_name), topic, self._writer_for(topic), qos, raw=True
+        )
 
     def _writer_for(self, topic: str) -> Callable[[bytes], None]:
         return lambda data: self._write(topic, data)
@@ -149,6 +191,10 @@ class Recorder(Node):
             if self._writer is not None:
                 self._writer.close()
                 self._writer = None
+
+
+def _offers_latched(profiles: Sequence[QoSProfile]) -> bool:
+    return any(q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in profiles)
 
 
 def main(argv: Sequence[str] | None = None) -> None:

@@ -16,7 +16,11 @@ MOTEC ``~/cmd_velocity``. Each stream key (a motor number, a drive) has the same
   the deadman keeps sending the stop until one is acknowledged;
 - the deadman stops any stream that was silent for ``timeout_s``, counted from the
   newest command's arrival (not from when it was handled);
-- ``stop_all()`` stops every stream that may be moving (the node calls it on shutdown).
+- ``stop_all()`` (deactivate, exit, ``read_only``, a fatal error) drops every offered value,
+  locks every stream (as a service stop does) and stops every stream that may be moving:
+  a value that arrived before the halt can never restart the motor after it;
+- ``permit()`` (set by the node) is asked under the guard's lock before every non-zero
+  write: a write already queued when the node stopped accepting commands is refused.
 
 The guard knows no device: ``send(key, value, previous)`` writes a non-zero speed (the
 previous one commanded, or ``None`` when unknown, e.g. after a lost write or a
@@ -86,6 +90,7 @@ class StreamGuard(Generic[Key]):
         min_interval_s: float = 0.0,
         clock: Callable[[], float] = time.monotonic,
         after_stop: Callable[[list[Key]], None] | None = None,
+        permit: Callable[[], str | None] | None = None,
     ) -> None:
         # after_stop(keys): called (under the lock) once the stops of ``stop`` or
         # ``stop_all`` were acknowledged, with the keys stopped (``stop_all``: after every
@@ -98,6 +103,10 @@ class StreamGuard(Generic[Key]):
         self.stop_when_idle = stop_when_idle
         self._send = send
         self._stop = stop
+        # permit(): None while non-zero values may be written, else the reason they may
+        # not (the node: inactive, read_only). Asked under ``lock``, so a halt that holds
+        # the lock (``stop_all``) and a write never interleave.
+        self.permit = permit
         self.timeout_s = timeout_s
         self._clock = clock
         self.streams: dict[Key, StreamState] = {key: StreamState() for key in keys}
@@ -163,6 +172,9 @@ class StreamGuard(Generic[Key]):
                 or "the motion was stopped: send 0 (or nothing for the command timeout) "
                 "before commanding it again"
             )
+        refusal = self.permit() if self.permit is not None else None
+        if refusal:
+            raise CommandRejected(refusal)
         if stream.active and not stream.stop_pending and stream.value == value:
             return False
         previous = stream.value if stream.active else None
@@ -287,8 +299,16 @@ class StreamGuard(Generic[Key]):
     def stop_all(self) -> list[tuple[Key, BridgeError]]:
         """Stop every stream that may move; every stop is tried. Returns the failures.
 
-        ``after_stop`` runs once, after all of them (also when none was moving).
+        First every offered value is dropped and every stream locked (until a 0 or
+        ``timeout_s`` of silence, as after a service stop): a value offered before the halt
+        is never written after it, and a joystick still held when the node comes back
+        cannot restart the motor. ``after_stop`` runs once, after all of them (also when
+        none was moving).
         """
+        with self._inbox_lock:
+            for stream in self.streams.values():
+                stream.offered = None
+                stream.locked = True
         failures: list[tuple[Key, BridgeError]] = []
         stopped: list[Key] = []
         for key in self.moving():

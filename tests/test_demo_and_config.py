@@ -76,3 +76,51 @@ def test_example_yaml_configures_the_node(tmp_path: Path) -> None:
                 assert time.time() - msg.header.stamp.sec < 10
     finally:
         simulator.stop()
+
+
+def test_demo_ends_cleanly_on_ctrl_c(tmp_path: Path) -> None:
+    """Ctrl-C while the demo runs: exit 0, no traceback, the last line says it stopped."""
+    import os
+    import signal
+
+    from .support.ros import wait_for
+
+    out_path = tmp_path / "demo.out"
+    with out_path.open("wb") as out:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "bridge_core.demo", "--devices", "R6"],
+            cwd=ROOT,
+            stdout=out,
+            stderr=subprocess.STDOUT,
+            env=dict(os.environ),
+        )
+        try:
+            wait_for(lambda: "--- t =" in out_path.read_text(), 120, "the demo's first report")
+            proc.send_signal(signal.SIGINT)
+            code = proc.wait(60)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait(10)
+    text = out_path.read_text()
+    assert code == 0, text
+    assert "Traceback" not in text and "Exception" not in text, text
+    assert text.strip().splitlines()[-1] == "bridge_demo: stopped", text
+
+
+def test_demo_monitor_leaves_ctrl_c_to_python() -> None:
+    """rclpy's own SIGINT handler would shut the monitor's context down under a spin (an
+    ExternalShutdownException traceback, exit 1, when it runs before Python's); the demo's
+    monitor installs none, so Ctrl-C is always the KeyboardInterrupt main() ends on."""
+    import signal
+
+    from rclpy.signals import SignalHandlerOptions, get_current_signal_handlers_options
+
+    from bridge_core.demo import Monitor
+
+    monitor = Monitor([])
+    try:
+        assert get_current_signal_handlers_options() == SignalHandlerOptions.NO
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    finally:
+        monitor.close()

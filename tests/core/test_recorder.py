@@ -5,18 +5,27 @@ from __future__ import annotations
 import math
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import pytest
+import rclpy
 import yaml  # type: ignore[import-untyped]
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
-from rosbags.rosbag2 import Reader
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.utilities import try_shutdown
+from rosbags.rosbag2 import Reader, StoragePlugin
+from std_msgs.msg import Bool
 
-from bridge_core.recorder import typestore_for
+from bridge_core.recorder import Recorder, typestore_for
 from r6_bridge.sim import R6SimDevice, make_simulator
 
-from ..support.ros import ROOT, node_process
+from ..support.ros import ROOT, node_process, wait_for
 
 pytestmark = pytest.mark.ros
 
@@ -123,3 +132,58 @@ def test_bag_of_a_running_bridge(tmp_path: Path, monkeypatch: pytest.MonkeyPatch
     samples = len(joint_states)
     joints = ", ".join(f"joint_{n} ({samples})" for n in range(1, 5))
     assert f"joints {joints}; link bands 1, diagnostics bands 1" in result.stdout, result.stdout
+
+
+LATE_PUBLISHER_RUNS = 20
+LATCHED = QoSProfile(
+    depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL
+)
+
+
+def test_a_latched_topic_whose_subscriber_appears_first(tmp_path: Path) -> None:
+    """A monitor subscribes to ``~/connected`` before the bridge publishes it (the demo's
+    monitor does): the recorder waits for a publisher, records its QoS (transient local)
+    and gets the latched value, every time (20 runs)."""
+    context = Context()
+    rclpy.init(context=context)
+    executor = SingleThreadedExecutor(context=context)
+    try:
+        for run in range(LATE_PUBLISHER_RUNS):
+            _record_a_late_publisher(run, tmp_path / f"bag_{run}", context, executor)
+    finally:
+        executor.shutdown()
+        try_shutdown(context=context)
+
+
+def _record_a_late_publisher(run: int, bag: Path, context: Context, executor: Any) -> None:
+    def spin_until(predicate: Callable[[], bool], what: str) -> None:
+        def spun() -> bool:
+            executor.spin_once(timeout_sec=0.02)
+            return predicate()
+
+        wait_for(spun, 20, f"run {run}: {what}")
+
+    topic = f"/late_{run}/connected"
+    monitor = Node(f"monitor_{run}", context=context)
+    monitor.create_subscription(Bool, topic, lambda _msg: None, 10)
+    recorder = Recorder(bag, [topic], StoragePlugin.MCAP, context=context)
+    bridge = Node(f"bridge_{run}", context=context)
+    for node in (monitor, recorder, bridge):
+        executor.add_node(node)
+    try:
+        # The recorder sees the topic (the monitor's), then looks at it twice more.
+        spin_until(lambda: topic in dict(recorder.get_topic_names_and_types()), "the topic")
+        passes = recorder.discover_passes
+        spin_until(lambda: recorder.discover_passes >= passes + 2, "two discovery passes")
+        bridge.create_publisher(Bool, topic, LATCHED).publish(Bool(data=True))
+        spin_until(lambda: recorder.counts[topic] >= 1, "the latched value recorded")
+    finally:
+        recorder.close()
+        for node in (monitor, recorder, bridge):
+            executor.remove_node(node)
+            node.destroy_node()
+    metadata = yaml.safe_load((bag / "metadata.yaml").read_text())
+    (entry,) = metadata["rosbag2_bagfile_information"]["topics_with_message_count"]
+    offered = entry["topic_metadata"]["offered_qos_profiles"]
+    assert "transient_local" in str(offered), f"run {run}: offered QoS {offered!r}"
+    assert entry["message_count"] == 1, f"run {run}"

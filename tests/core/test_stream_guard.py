@@ -205,6 +205,8 @@ def test_after_stop_follows_the_acknowledged_stops() -> None:
     guard.stop_all()
     assert [entry[0] for entry in motors.log] == ["send", "send", "stop", "stop", "after"]
     assert after == [[1, 2]]
+    guard.command(1, 0.0)  # stop_all locked the streams: a 0 unlocks
+    guard.command(2, 0.0)
     guard.command(1, 100.0)
     assert guard.command(1, 0.0)
     assert after[-1] == [1]
@@ -214,3 +216,37 @@ def test_after_stop_follows_the_acknowledged_stops() -> None:
         guard.stop(2)
     assert len(after) == 2  # the failed stop is followed by nothing
     assert guard.stop_all() == [] and after[-1] == [2]
+
+
+def test_stop_all_drops_offered_values_and_locks_every_stream() -> None:
+    """A value offered before a halt (deactivate, exit, read_only) is never written after
+    it, and a joystick still held afterwards cannot restart the motor: as after a stop
+    service, until a 0 or silence (issue: deactivate during a jog restarted the motor)."""
+    guard, motors, clock = make()
+    guard.command(1, 10.0)
+    guard.offer(1, 30.0)  # arrived, not yet applied by the writer
+    guard.offer(2, 5.0)  # a stream that never moved
+    guard.stop_all()
+    assert motors.log[-1] == ("stop", 1, None, None)
+    assert guard.ready() == [] and guard.take(1) is None and guard.take(2) is None
+    for key in (1, 2):
+        with pytest.raises(CommandRejected, match="stopped"):
+            guard.command(key, 30.0)
+    assert motors.log == [("send", 1, 10.0, None), ("stop", 1, None, None)]
+    guard.command(1, 0.0)  # a 0 unlocks (the motor already stands: nothing written)
+    assert guard.command(1, 30.0)
+    clock.now += 1.0  # silence unlocks too (the deadman's expire)
+    guard.expire(2)
+    assert guard.command(2, 5.0)
+
+
+def test_permit_is_asked_under_the_lock_before_every_non_zero_write() -> None:
+    guard, motors, _ = make()
+    reason: list[str | None] = [None]
+    guard.permit = lambda: reason[0]
+    assert guard.command(1, 10.0)
+    reason[0] = "the node is not active"
+    with pytest.raises(CommandRejected, match="not active"):
+        guard.command(1, 20.0)
+    assert guard.command(1, 0.0)  # stops are never refused
+    assert motors.log == [("send", 1, 10.0, None), ("stop", 1, None, None)]

@@ -1,0 +1,278 @@
+"""A halt wins every race against a command stream (deactivate and read_only at run time).
+
+A joystick publishes a jog / cmd_velocity value at 10 Hz and at 200 Hz while the node is
+deactivated (or ``read_only`` is set), again and again. After the halt's stop, nothing may
+set the motor going: no speed, start or direction write, neither from a value that arrived
+before the halt nor from the joystick still held once the node is active (or writable)
+again; the stream stays locked until a 0 (as after a stop service). Each repetition waits,
+after re-activating, for the node to report a refused stream value (its diagnostics), so
+the values that arrived across the halt were all handled before the write log is judged.
+
+``HALT_RACE_REPS`` sets the repetitions per case (default 10; the issue's check is 50).
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import pytest
+from lifecycle_msgs.msg import Transition
+from lifecycle_msgs.srv import ChangeState
+from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+from rcl_interfaces.srv import SetParameters
+from std_msgs.msg import Float64
+from std_srvs.srv import SetBool
+
+from bridge_core.registers import Table
+from bridge_core.sim_base import WriteRecord
+from msg_defs.msg import MotecState, StepperState
+from msg_defs.srv import SetControlMode
+from stepper_bridge.registers import STEPPER_MAP, motor_coil
+
+from .support.ros import (
+    WAIT_S,
+    Bridge,
+    Client,
+    node_process,
+    ros_client,
+    unique_namespace,
+    values_of,
+    wait_for,
+    wait_subscribed,
+)
+from .support.sims import motec_on_pty, stepper_on_pty
+
+pytestmark = pytest.mark.ros
+
+BAUD = 115200
+REPS = int(os.environ.get("HALT_RACE_REPS", "10"))
+MOTOR = 2  # the stepper motor the joystick jogs
+JOG = 30.0  # jog speed (rpm) / cmd_velocity (rad/s)
+SPEED_SETPOINT = 0xAE  # MOTEC speed setpoint register
+
+
+@pytest.fixture
+def client() -> Iterator[Client]:
+    with ros_client("halt_race_client") as c:
+        yield c
+
+
+class Joystick:
+    """Publishes ``value`` at ``rate_hz`` on its own thread until closed."""
+
+    def __init__(self, client: Client, topic: str, rate_hz: float) -> None:
+        self.publisher = client.node.create_publisher(Float64, topic, 10)
+        wait_subscribed(self.publisher)
+        self.value = 0.0
+        self.period = 1.0 / rate_hz
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.period):
+            self.publisher.publish(Float64(data=self.value))
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(5)
+
+
+class Node:
+    """Persistent clients for one node's lifecycle and parameter services."""
+
+    def __init__(self, client: Client, name: str) -> None:
+        self.client = client
+        self.name = name
+        self.lifecycle = client.node.create_client(ChangeState, f"{name}/change_state")
+        self.parameters = client.node.create_client(SetParameters, f"{name}/set_parameters")
+        for service in (self.lifecycle, self.parameters):
+            wait_for(service.service_is_ready, WAIT_S, f"services of {name}")
+
+    def _call(self, service: Any, request: Any) -> Any:
+        future = service.call_async(request)
+        wait_for(future.done, WAIT_S, f"a reply from {self.name}")
+        return future.result()
+
+    def transition(self, transition_id: int) -> None:
+        request = ChangeState.Request()
+        request.transition.id = transition_id
+        assert self._call(self.lifecycle, request).success
+
+    def set_read_only(self, value: bool) -> None:
+        parameter = Parameter(
+            name="read_only",
+            value=ParameterValue(type=ParameterType.PARAMETER_BOOL, bool_value=value),
+        )
+        reply = self._call(self.parameters, SetParameters.Request(parameters=[parameter]))
+        assert reply.results[0].successful, reply.results[0].reason
+
+
+def halt_and_resume(node: Node, path: str) -> None:
+    if path == "deactivate":
+        node.transition(Transition.TRANSITION_DEACTIVATE)
+        node.transition(Transition.TRANSITION_ACTIVATE)
+    else:
+        node.set_read_only(True)
+        node.set_read_only(False)
+
+
+def refusals(bridge: Bridge, since: float) -> int:
+    counts = [
+        int(values_of(status).get("stream commands refused", -1))
+        for status in bridge.diagnostics(since)
+    ]
+    return max(counts, default=-1)
+
+
+@dataclass
+class Case:
+    """One device under the joystick: what starts it, what stops it (write records)."""
+
+    moving: Callable[[], bool]
+    writes: Callable[[], list[WriteRecord]]
+    is_stop: Callable[[WriteRecord], bool]
+    allowed_after_stop: Callable[[WriteRecord], bool]
+
+
+def start(case: Case, joystick: Joystick, rep: int) -> None:
+    """Joystick to JOG until the motor moves. A 0 first (held for a few periods) unlocks
+    the stream after the previous repetition's halt; a command stream keeps only its
+    newest value, so a 0 overtaken by the JOG is tried again."""
+    deadline = time.monotonic() + WAIT_S
+    while time.monotonic() < deadline:
+        joystick.value = 0.0
+        time.sleep(4 * joystick.period + 0.05)
+        joystick.value = JOG
+        try:
+            wait_for(case.moving, 2.0, "the motor moving")
+            return
+        except AssertionError:
+            continue
+    raise AssertionError(f"repetition {rep}: the joystick never set the motor moving")
+
+
+def wait_refusal_after(bridge: Bridge, since: float) -> None:
+    """Until the node refused a stream value after ``since``: the first diagnostics status
+    published after it gives a count, a later one a higher count."""
+    first = wait_for(lambda: next(iter(bridge.diagnostics(since)), None), WAIT_S, "diagnostics")
+    counted = int(values_of(first).get("stream commands refused", -1))
+    wait_for(lambda: refusals(bridge, since) > counted, WAIT_S, "a refused stream value")
+
+
+def repeat(case: Case, node: Node, bridge: Bridge, joystick: Joystick, path: str) -> None:
+    for rep in range(REPS):
+        start(case, joystick, rep)
+        before = len(case.writes())
+        halt_and_resume(node, path)
+        # Active (writable) again with the joystick still held: the stream is locked.
+        # Wait until the node refused a value published after the resume; if no refusal
+        # comes, what was written says why.
+        try:
+            wait_refusal_after(bridge, time.monotonic())
+        finally:
+            late = case.writes()[before:]
+            stops = [i for i, record in enumerate(late) if case.is_stop(record)]
+            assert stops, f"repetition {rep}: no stop written by the {path}: {late}"
+            after = [r for r in late[stops[-1] + 1 :] if not case.allowed_after_stop(r)]
+            assert after == [], f"repetition {rep}: written after the {path}'s stop: {after}"
+        assert not case.moving(), f"repetition {rep}: the motor runs after the {path}"
+
+
+@pytest.mark.parametrize("path", ["deactivate", "read_only"])
+@pytest.mark.parametrize("rate_hz", [10.0, 200.0], ids=["10hz", "200hz"])
+def test_stepper_jog_never_restarts_after_a_halt(
+    client: Client, tmp_path: Path, rate_hz: float, path: str
+) -> None:
+    with stepper_on_pty(BAUD) as (device, port):
+        ns = unique_namespace("halt_race_stepper")
+        bridge = Bridge(client, ns, "stepper_bridge", StepperState)
+        client.subscribe(_diagnostics_type(), "/diagnostics")
+        params = {
+            "serial_port": port,
+            "baudrate": BAUD,
+            "poll_rate_hz": 20.0,
+            "timeout_s": 1.0,
+            "command_timeout_s": 60.0,  # the deadman must not be what stops or unlocks it
+            "command_rate_hz": 50.0,
+        }
+        with node_process("stepper_bridge.node", params, tmp_path, ["-r", f"__ns:={ns}"]):
+            bridge.wait_connected(True, timeout=30)
+            node = Node(client, f"{ns}/stepper_bridge")
+            joystick = Joystick(client, f"{ns}/stepper_bridge/motor_{MOTOR}/jog", rate_hz)
+            speed = STEPPER_MAP[f"motor{MOTOR}_speed"].address
+            configured = tuple(device.get_words(Table.HOLDING, speed, 1))
+            case = Case(
+                moving=lambda: device.motion[MOTOR] is not None,
+                writes=lambda: list(device.write_log),
+                is_stop=lambda r: r.table == Table.COIL and r.address == motor_coil(MOTOR, "stop"),
+                # The stop's follow-up: the configured speed written back over the jog's.
+                allowed_after_stop=lambda r: (
+                    r.table == Table.HOLDING and r.address == speed and r.values == configured
+                ),
+            )
+            try:
+                repeat(case, node, bridge, joystick, path)
+            finally:
+                joystick.close()
+
+
+@pytest.mark.parametrize("path", ["deactivate", "read_only"])
+@pytest.mark.parametrize("rate_hz", [10.0, 200.0], ids=["10hz", "200hz"])
+def test_motec_velocity_never_restarts_after_a_halt(
+    client: Client, tmp_path: Path, rate_hz: float, path: str
+) -> None:
+    with motec_on_pty([1], BAUD) as (simulator, port):
+        drive = simulator.drive(1)
+        ns = unique_namespace("halt_race_motec")
+        bridge = Bridge(client, ns, "motec_1", MotecState)
+        client.subscribe(_diagnostics_type(), "/diagnostics")
+        params = {
+            "serial_port": port,
+            "baudrate": BAUD,
+            "unit_ids": [1],
+            "poll_rate_hz": 20.0,
+            "timeout_s": 1.0,
+            "command_timeout_s": 60.0,
+            "command_rate_hz": 50.0,
+        }
+        with node_process("motec_bridge.node", params, tmp_path, ["-r", f"__ns:={ns}"]):
+            client.wait_message(bridge.state, timeout=30)
+            for name, srv, fields in (
+                ("set_control_mode", SetControlMode, {"mode": SetControlMode.Request.VELOCITY}),
+                ("enable", SetBool, {"data": True}),
+            ):
+                reply = bridge.call(srv, name, **fields)
+                assert reply.success, reply.message
+            node = Node(client, f"{ns}/motec_1")
+            joystick = Joystick(client, f"{ns}/motec_1/cmd_velocity", rate_hz)
+
+            case = Case(
+                moving=lambda: any(v != 0 for v in _last_setpoint(drive.write_log)),
+                writes=lambda: list(drive.write_log),
+                is_stop=lambda r: r.address == SPEED_SETPOINT and r.values == (0,),
+                allowed_after_stop=lambda r: False,
+            )
+            try:
+                repeat(case, node, bridge, joystick, path)
+            finally:
+                joystick.close()
+
+
+def _last_setpoint(log: list[WriteRecord]) -> tuple[int, ...]:
+    for record in reversed(log):
+        if record.address == SPEED_SETPOINT:
+            return record.values
+    return (0,)
+
+
+def _diagnostics_type() -> Any:
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    return DiagnosticArray
