@@ -14,6 +14,7 @@ the values that arrived across the halt were all handled before the write log is
 from __future__ import annotations
 
 import os
+import signal
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -276,3 +277,93 @@ def _diagnostics_type() -> Any:
     from diagnostic_msgs.msg import DiagnosticArray
 
     return DiagnosticArray
+
+
+EXIT_REPS = max(1, REPS // 3)
+
+
+@pytest.mark.parametrize("bridge_kind", ["stepper", "motec"])
+def test_exit_with_the_joystick_held_stops_last(
+    client: Client, tmp_path: Path, bridge_kind: str
+) -> None:
+    """SIGINT while a 200 Hz joystick holds the motor going: once the process is gone, the
+    last motion write on the line is the stop (nothing the joystick sent got past it)."""
+    for rep in range(EXIT_REPS):
+        log_dir = tmp_path / f"rep_{rep}"
+        log_dir.mkdir()
+        if bridge_kind == "stepper":
+            _exit_stepper(client, log_dir, rep)
+        else:
+            _exit_motec(client, log_dir, rep)
+
+
+def _exit_stepper(client: Client, log_dir: Path, rep: int) -> None:
+    with stepper_on_pty(BAUD) as (device, port):
+        ns = unique_namespace("halt_exit_stepper")
+        bridge = Bridge(client, ns, "stepper_bridge", StepperState)
+        params = {
+            "serial_port": port,
+            "baudrate": BAUD,
+            "poll_rate_hz": 20.0,
+            "timeout_s": 1.0,
+            "command_timeout_s": 60.0,
+            "command_rate_hz": 50.0,
+        }
+        speed = STEPPER_MAP[f"motor{MOTOR}_speed"].address
+        configured = tuple(device.get_words(Table.HOLDING, speed, 1))
+        with node_process("stepper_bridge.node", params, log_dir, ["-r", f"__ns:={ns}"]) as proc:
+            bridge.wait_connected(True, timeout=30)
+            joystick = Joystick(client, f"{ns}/stepper_bridge/motor_{MOTOR}/jog", 200.0)
+            try:
+                joystick.value = JOG
+                wait_for(lambda: device.motion[MOTOR] is not None, WAIT_S, "the motor moving")
+                proc.send_signal(signal.SIGINT)
+                assert proc.wait(WAIT_S) == 0
+            finally:
+                joystick.close()
+        log = list(device.write_log)
+        stop_coil = motor_coil(MOTOR, "stop")
+        stops = [i for i, r in enumerate(log) if r.table == Table.COIL and r.address == stop_coil]
+        assert stops, f"repetition {rep}: no stop: {log}"
+        after = [
+            r
+            for r in log[stops[-1] + 1 :]
+            if not (r.table == Table.HOLDING and r.address == speed and r.values == configured)
+        ]
+        assert after == [], f"repetition {rep}: written after the exit's stop: {after}"
+        assert device.motion[MOTOR] is None
+
+
+def _exit_motec(client: Client, log_dir: Path, rep: int) -> None:
+    with motec_on_pty([1], BAUD) as (simulator, port):
+        drive = simulator.drive(1)
+        ns = unique_namespace("halt_exit_motec")
+        bridge = Bridge(client, ns, "motec_1", MotecState)
+        params = {
+            "serial_port": port,
+            "baudrate": BAUD,
+            "unit_ids": [1],
+            "poll_rate_hz": 20.0,
+            "timeout_s": 1.0,
+            "command_timeout_s": 60.0,
+            "command_rate_hz": 50.0,
+        }
+        with node_process("motec_bridge.node", params, log_dir, ["-r", f"__ns:={ns}"]) as proc:
+            client.wait_message(bridge.state, timeout=30)
+            for name, srv, fields in (
+                ("set_control_mode", SetControlMode, {"mode": SetControlMode.Request.VELOCITY}),
+                ("enable", SetBool, {"data": True}),
+            ):
+                reply = bridge.call(srv, name, **fields)
+                assert reply.success, reply.message
+            joystick = Joystick(client, f"{ns}/motec_1/cmd_velocity", 200.0)
+            try:
+                joystick.value = JOG
+                wait_for(
+                    lambda: _last_setpoint(drive.write_log) != (0,), WAIT_S, "the drive turning"
+                )
+                proc.send_signal(signal.SIGINT)
+                assert proc.wait(WAIT_S) == 0
+            finally:
+                joystick.close()
+        assert _last_setpoint(drive.write_log) == (0,), f"repetition {rep}: {drive.write_log}"
