@@ -14,18 +14,31 @@ from pathlib import Path
 
 from launch import LaunchDescription
 from launch.actions import ExecuteProcess
-from launch_ros.actions import Node
+from launch_ros.actions import LifecycleNode, Node
 from launch_ros.substitutions import ExecutableInPackage
 
 CONFIG = Path(__file__).resolve().parent.parent / "config"
 STEPPER_PTY = "/tmp/cell_stepper"
 MOTEC_PTY = "/tmp/cell_motec"
+MOTEC_LIFEGUARD_MS = 6000
 
 
 def bridge(package: str, namespace: str, config: str, **params: object) -> Node:
-    return Node(
+    """A bridge with its example config, then ``params``. A process of one node is a
+    ``LifecycleNode`` (launch names it); the MOTEC's (a bus node and a node per drive) a
+    plain ``Node``."""
+    if package == "motec_bridge":
+        return Node(
+            package=package,
+            executable=package,
+            namespace=namespace,
+            parameters=[str(CONFIG / config), params],
+            output="screen",
+        )
+    return LifecycleNode(
         package=package,
         executable=package,
+        name=package,
         namespace=namespace,
         parameters=[str(CONFIG / config), params],
         output="screen",
@@ -50,6 +63,16 @@ def generate_launch_description() -> LaunchDescription:
             bridge("r6_bridge", "/r6", "r6.yaml", host="127.0.0.1", port=5020),
             bridge("xarm_bridge", "/xarm", "xarm.yaml", host="127.0.0.1", port=5021),
             bridge("stepper_bridge", "/stepper", "stepper.yaml", serial_port=STEPPER_PTY),
-            bridge("motec_bridge", "/motec", "motec.yaml", serial_port=MOTEC_PTY, timeout_s=1.0),
+            # A simulator in another process may answer late on a busy machine: 1 s per try
+            # (the demo's), and so a lifeguard the 3 drives can keep fed at that timeout
+            # (the start-up check's floor is ~4.8 s; config/motec.yaml's 1 s is for 0.1 s).
+            bridge(
+                "motec_bridge",
+                "/motec",
+                "motec.yaml",
+                serial_port=MOTEC_PTY,
+                timeout_s=1.0,
+                lifeguard_ms=MOTEC_LIFEGUARD_MS,
+            ),
         ]
     )

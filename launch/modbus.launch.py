@@ -20,7 +20,7 @@ from typing import Any
 from launch import LaunchContext, LaunchDescription
 from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
-from launch_ros.actions import Node
+from launch_ros.actions import LifecycleNode
 
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "config"
 CONFIG = CONFIG_DIR / "modbus.yaml"
@@ -29,16 +29,17 @@ DEVICE_FILE = CONFIG_DIR / "devices/xarm.yaml"
 LINK_ARGUMENTS = ("host", "port", "serial_port")
 
 
-def bridge_node(context: LaunchContext) -> list[Node]:
+def bridge_node(context: LaunchContext) -> list[LifecycleNode]:
     overrides: dict[str, Any] = {"device_file": LaunchConfiguration("device_file").perform(context)}
     for name in LINK_ARGUMENTS:
         value = LaunchConfiguration(name).perform(context)
         if value:
             overrides[name] = int(value) if name == "port" else value
     return [
-        Node(
+        LifecycleNode(  # a managed node: ros2 lifecycle works on it
             package="modbus_bridge",
             executable="modbus_bridge",
+            name="modbus_bridge",
             namespace=LaunchConfiguration("namespace"),
             parameters=[str(CONFIG), overrides],
             output="screen",
@@ -49,9 +50,25 @@ def bridge_node(context: LaunchContext) -> list[Node]:
 def generate_launch_description() -> LaunchDescription:
     return LaunchDescription(
         [
-            DeclareLaunchArgument("device_file", default_value=str(DEVICE_FILE)),
-            *(DeclareLaunchArgument(name, default_value="") for name in LINK_ARGUMENTS),
-            DeclareLaunchArgument("namespace", default_value=""),
+            DeclareLaunchArgument(
+                "device_file",
+                default_value=str(DEVICE_FILE),
+                description="the device description (YAML; README modbus_bridge)",
+            ),
+            *(
+                DeclareLaunchArgument(
+                    name,
+                    default_value="",
+                    description=f"{name} of the link, overriding the description's "
+                    "(empty: the description's)",
+                )
+                for name in LINK_ARGUMENTS
+            ),
+            DeclareLaunchArgument(
+                "namespace",
+                default_value="",
+                description="namespace of the node's topics and services",
+            ),
             OpaqueFunction(function=bridge_node),
         ]
     )

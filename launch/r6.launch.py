@@ -1,13 +1,15 @@
-"""Launch r6_bridge with config/r6.yaml: R6 robot controller (Modbus TCP).
+"""Launch r6_bridge with config/r6.yaml: Huacheng R6 robot controller (Modbus TCP).
 
-    ros2 launch launch/r6.launch.py host:=192.168.1.10 [namespace:=/cell]
-    ros2 launch r6_bridge r6.launch.py host:=192.168.1.10 [namespace:=/cell]
+    ros2 launch launch/r6.launch.py host:=<controller address> [port:=502] [namespace:=/cell]
+    ros2 launch r6_bridge r6.launch.py host:=<controller address> [port:=502] [namespace:=/cell]
 
 The first form runs from this checkout, the second from an install (the venv after
 scripts/setup.sh, or a colcon install). The parameters come from the example file, then the
-launch arguments. Needs `launch_ros` (a sourced ROS 2 Jazzy; the PyPI wheels in .venv
-have none: tests/core/test_launch_files.py checks what this file names). Keep ROS
-discovery local when everything is on one machine: `ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`.
+launch arguments (`ros2 launch ... --show-args` lists them). Needs `launch_ros` (a
+sourced ROS 2 Jazzy; the PyPI wheels in .venv have none: tests/test_launch_parameters.py
+evaluates this file with a stand-in and starts its node with exactly these parameters).
+Keep ROS discovery local when everything is on one machine:
+`ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`.
 """
 
 from pathlib import Path
@@ -15,21 +17,36 @@ from pathlib import Path
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument
 from launch.substitutions import LaunchConfiguration
-from launch_ros.actions import Node
+from launch_ros.actions import LifecycleNode
 
 CONFIG = Path(__file__).resolve().parent.parent / "config" / "r6.yaml"
+
+NAMESPACE = DeclareLaunchArgument(
+    "namespace", default_value="", description="namespace of the node's topics and services"
+)
 
 
 def generate_launch_description() -> LaunchDescription:
     return LaunchDescription(
         [
-            DeclareLaunchArgument("host", default_value="192.168.1.10"),
-            DeclareLaunchArgument("namespace", default_value=""),
-            Node(
+            DeclareLaunchArgument(
+                "host",
+                description="IP address or host name of the R6 controller (required: no default "
+                "address, so a launch never dials a machine it was not told to)",
+            ),
+            DeclareLaunchArgument(
+                "port", default_value="502", description="Modbus TCP port of the R6 controller"
+            ),
+            NAMESPACE,
+            LifecycleNode(  # a managed node: ros2 lifecycle works on it (autostart: active)
                 package="r6_bridge",
                 executable="r6_bridge",
+                name="r6_bridge",
                 namespace=LaunchConfiguration("namespace"),
-                parameters=[str(CONFIG), {"host": LaunchConfiguration("host")}],
+                parameters=[
+                    str(CONFIG),
+                    {"host": LaunchConfiguration("host"), "port": LaunchConfiguration("port")},
+                ],
                 output="screen",
             ),
         ]

@@ -88,6 +88,8 @@ def test_every_python_package_has_a_manifest_that_matches_pyproject() -> None:
         depends = {element.text for element in manifest.iter("exec_depend")}
         if package in BRIDGES:
             assert {"bridge_core", "msg_defs", "rclpy"} <= depends, package
+        if any(str(file).endswith(".launch.py") for file in layout.SHARE_FILES[package]):
+            assert {"launch", "launch_ros"} <= depends, package  # what its launch files import
         # The package directory in ros/<package>/ is the repository's own, not a copy.
         assert (ROOT / "ros" / package / package).resolve() == ROOT / package
         for file in layout.SHARE_FILES[package]:

@@ -62,7 +62,7 @@ def test_every_launch_file_names_existing_packages_executables_and_files() -> No
             isinstance(node, ast.FunctionDef) and node.name == "generate_launch_description"
             for node in tree.body
         ), path
-        for call in calls(tree, "Node"):
+        for call in calls(tree, "Node") + calls(tree, "LifecycleNode"):
             package, executable = keyword(call, "package"), keyword(call, "executable")
             if isinstance(package, ast.Constant) and isinstance(executable, ast.Constant):
                 assert scripts.get(str(executable.value)) == package.value, (path, ast.dump(call))
