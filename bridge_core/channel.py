@@ -244,6 +244,11 @@ class DeviceChannel:
         finally:
             self._session.epoch = None
 
+    def writes_tried(self) -> int:
+        """Writes this thread has put on the wire through this channel (a counter: a
+        command compares it before and after, to say whether anything of it went out)."""
+        return int(getattr(self._session, "writes", 0))
+
     def mark_down(self, error: LinkError | str) -> None:
         self._epoch += 1
         text = str(error)
@@ -296,6 +301,8 @@ class DeviceChannel:
                     except LinkDown as err:
                         raise NotSent(str(err)) from err
                 started = time.perf_counter()
+                if request.is_write:  # on the wire from here on, whatever comes back
+                    self._session.writes = self.writes_tried() + 1
                 if request.is_write and not self._connected and self.down_write_timeout_s:
                     reply = self.link.execute(self.unit_id, request, self.down_write_timeout_s)
                 else:

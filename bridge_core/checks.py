@@ -18,6 +18,17 @@ from .registers import ValueType
 
 Choice = TypeVar("Choice")
 
+# The longest command description or refusal text a reply or log line carries: an
+# oversized request (300 KB of indexes) is named by its size, never echoed back.
+MESSAGE_MAX_CHARS = 240
+
+
+def bounded_text(text: str, limit: int = MESSAGE_MAX_CHARS) -> str:
+    """``text``, or its start and its size when it is longer than ``limit``."""
+    if len(text) <= limit:
+        return text
+    return f"{text[:limit].rstrip()}… ({len(text)} characters in all, cut)"
+
 
 def _is_number(value: object) -> bool:
     return isinstance(value, int | float) and not isinstance(value, bool)

@@ -36,6 +36,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 from rclpy.action.server import ActionServer, CancelResponse, GoalResponse, ServerGoalHandle
 from rclpy.callback_groups import ReentrantCallbackGroup
 
+from .checks import bounded_text
 from .errors import CommandRejected, LinkError
 from .goals import GoalRun, Motion, Outcome, Verdict, needs_stop
 
@@ -175,7 +176,7 @@ class ActionHost:
         try:
             check(goal)
         except CommandRejected as err:
-            return str(err)
+            return bounded_text(str(err))
         return None
 
     def _cancel(self, handle: ServerGoalHandle) -> CancelResponse:

@@ -56,6 +56,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 
 from .channel import DeviceChannel, Priority
+from .checks import bounded_text
 from .diagnostics import Level, Report, link_report
 from .errors import CommandRejected, ConfigurationError, DeviceException, LinkError, NotSent
 from .node_actions import ActionHost
@@ -644,6 +645,7 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
         while the link is down. ``own_motion``: a stop of motion this node started
         (a stream's stop, the deadman): allowed under read_only too.
         """
+        what = bounded_text(what)
         # Commands take turns whole (services, streams and action goals run in different
         # callback groups), so two commands' writes never interleave, and the guards are
         # read once it is this command's turn (a deactivate or read_only that came while
@@ -664,23 +666,27 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
     def _run_guarded(
         self, what: str, action: Callable[[], T], *, writes: bool, stop: bool
     ) -> tuple[bool, str, T | None]:
+        writes_before = self.channel.writes_tried()
         try:
             # A stop is not tied to the connection it started on (command_session): it
             # must go out on whatever link there is now.
             with contextlib.nullcontext() if stop else self.channel.command_session():
                 result = action()
         except CommandRejected as err:
-            return False, f"{what} refused: {err}", None
+            return False, f"{what} refused: {bounded_text(str(err))}", None
         except DeviceException as err:
             return False, f"{what}: the device answered {err}", None
         except LinkError as err:
             if not self.channel.connected:
                 self.poller.link_lost(f"{what}: {err}")
-            if isinstance(err, NotSent):
+            went_out = self.channel.writes_tried() - writes_before
+            if isinstance(err, NotSent) and not went_out:
                 hint = "; nothing was sent"
+            elif isinstance(err, NotSent):
+                hint = f"; {went_out} earlier write(s) of it went out, the rest was not sent"
             else:
                 hint = " (it may or may not have been executed)" if writes else ""
-            return False, f"{what} failed: {err}{hint}", None
+            return False, f"{what} failed: {bounded_text(str(err))}{hint}", None
         except Exception as err:
             self.get_logger().error(f"{what} failed: {err}\n{traceback.format_exc()}")
             return False, f"{what} failed: internal error: {err}", None

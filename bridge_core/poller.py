@@ -227,15 +227,19 @@ class Poller(Generic[Snapshot]):
         """A poll or a command on the same channel failed on the link: reported as
         UNREACHABLE (never up yet), LINK_LOST (it was up) or STILL_DOWN (each further
         failed attempt: the node throttles those); connected again after a good poll."""
+        # Read and set in one step: a command and a poll that fail together on one loss
+        # report it once (LINK_LOST), the later one as STILL_DOWN (throttled).
         with self._state_lock:
             was_up = self._reported_up
+            self._reported_up = False
         if was_up is None:
             self._report(PollOutcome.UNREACHABLE, text)
         elif was_up:
             self._report(PollOutcome.LINK_LOST, text)
         else:
             self._report(PollOutcome.STILL_DOWN, text)
-        self._set_up(False)
+        if was_up is not False:
+            self._connected_changed(False)
 
     def _set_up(self, up: bool) -> None:
         with self._state_lock:

@@ -5,7 +5,9 @@ from __future__ import annotations
 import pytest
 
 from bridge_core.checks import (
+    MESSAGE_MAX_CHARS,
     board_zero_index,
+    bounded_text,
     check_choice,
     check_converted,
     check_finite,
@@ -84,3 +86,12 @@ def test_converted_overflow_is_a_refusal() -> None:
     with pytest.raises(CommandRejected, match="position 1e308 rad in counts is out of range"):
         check_converted("position 1e308 rad in counts", counts, -(2**31), 2**31 - 1)
     assert check_converted("x", 5.0, 0, 10) == 5.0
+
+
+def test_bounded_text_names_the_size_of_what_it_cuts() -> None:
+    assert bounded_text("short") == "short"
+    text = "set_digital_outputs " + str(list(range(30000)))
+    cut = bounded_text(text)
+    assert len(cut) < MESSAGE_MAX_CHARS + 60
+    assert cut.startswith("set_digital_outputs [0, 1, 2")
+    assert f"({len(text)} characters in all, cut)" in cut

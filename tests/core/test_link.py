@@ -374,6 +374,36 @@ def test_a_command_that_waited_through_a_link_loss_is_not_sent(
     assert [r.values for r in sim.device.write_log] == [(9,)]
 
 
+def test_writes_tried_counts_what_went_on_the_wire(tcp_sim: tuple[Simulator, int]) -> None:
+    """A command's reply says "nothing was sent" only when none of its writes went out:
+    the channel counts the writes this thread put on the wire (a timed-out one too), and
+    not one refused before sending."""
+    sim, port = tcp_sim
+    channel = DeviceChannel(
+        ModbusLink(TcpSettings(port=port, timeout_s=0.2)), 1, retries=0, reconnect_max_s=0.3
+    )
+    before = channel.writes_tried()
+    channel.read_registers(0, 1)
+    assert channel.writes_tried() == before
+    with channel.command_session():
+        channel.write_register(3, 9)
+        assert channel.writes_tried() == before + 1
+        sim.withhold_replies = True
+        with pytest.raises(LinkTimeout):
+            channel.write_register(3, 10)  # may have landed: counted
+        assert channel.writes_tried() == before + 2
+        sim.withhold_replies = False
+        wait_until(channel.may_attempt, timeout=2)
+        with pytest.raises(LinkDown, match="not sent"):
+            channel.write_register(3, 11)
+        assert channel.writes_tried() == before + 2
+    seen: list[int] = []
+    other = threading.Thread(target=lambda: seen.append(channel.writes_tried()))
+    other.start()
+    other.join(5)
+    assert seen == [0]  # per thread: another command's writes are not this one's
+
+
 # ---------------------------------------------------------------- error translation, by type
 
 READ_ONE = bytes.fromhex("01 03 0000 0001")  # unit 1, FC 03, address 0, one register

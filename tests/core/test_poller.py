@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import contextlib
+import threading
+import time
 
 import pytest
 
@@ -291,6 +293,41 @@ def test_a_command_that_loses_the_link_is_followed_by_connected_again() -> None:
     assert poller.tick() is PollOutcome.PUBLISHED
     assert ups == [True, False, True]
     assert events == [PollOutcome.LINK_LOST]
+
+
+def test_one_link_loss_seen_by_a_command_and_a_poll_at_once_is_reported_once() -> None:
+    """A command and a poll fail together on one loss: one LINK_LOST (the console's ERROR
+    line), the other a STILL_DOWN (throttled), and one connected=false edge. The first
+    report is held until the second call has run, so the two overlap every time."""
+    channel = FakeChannel()
+    device = FakeDevice(channel)
+    ups: list[bool] = []
+    events: list[PollOutcome] = []
+    second_done = threading.Event()
+
+    def report(outcome: PollOutcome, _text: str) -> None:
+        events.append(outcome)
+        if len(events) == 1:
+            second_done.wait(5)
+
+    poller = Poller(
+        channel,
+        device.poll,
+        lambda _s: None,
+        rate_hz=10.0,
+        connected_changed=ups.append,
+        report=report,
+    )
+    assert poller.tick() is PollOutcome.PUBLISHED
+    first = threading.Thread(target=poller.link_lost, args=("command: no reply",))
+    first.start()
+    while not events:
+        time.sleep(0.001)
+    poller.link_lost("poll: no reply")
+    second_done.set()
+    first.join(5)
+    assert events == [PollOutcome.LINK_LOST, PollOutcome.STILL_DOWN]
+    assert ups == [True, False]
 
 
 def test_a_stop_that_reconnected_between_polls_still_gets_the_link_up_work() -> None:
