@@ -117,20 +117,27 @@ def test_every_readme_command_line_works_as_typed(demo: Client) -> None:
                 client.node.destroy_publisher(publisher)
             case ["topic", "echo"]:
                 name, flags = words[-1], words[3:-1]
-                qos = QoSProfile(depth=10)
-                for flag, value in zip(flags[::2], flags[1::2], strict=True):
-                    if flag == "--qos-durability":
-                        qos.durability = DurabilityPolicy[value.upper()]
-                    elif flag == "--qos-reliability":
-                        qos.reliability = ReliabilityPolicy[value.upper()]
-                    else:
-                        raise AssertionError(f"{what}: flag {flag} not handled here")
+                assert set(flags) <= {"--once"}, f"{what}: flags {flags} not handled here"
 
                 def topic_type(name: str = name) -> Any:
                     types = dict(client.node.get_topic_names_and_types())
                     return types.get(name, [None])[0]
 
                 type_name = wait_for(topic_type, WAIT_S * 3, f"{name} to appear")
+
+                # As ros2 topic echo does: the QoS its publishers offer (a latched topic's
+                # current value at once), known once a publisher is.
+                def publishers(name: str = name) -> list[Any]:
+                    return list(client.node.get_publishers_info_by_topic(name))
+
+                offered = wait_for(publishers, WAIT_S * 3, f"a publisher of {name}")
+                qos = QoSProfile(depth=10)
+                if all(
+                    p.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL for p in offered
+                ):
+                    qos.durability = DurabilityPolicy.TRANSIENT_LOCAL
+                if all(p.qos_profile.reliability == ReliabilityPolicy.RELIABLE for p in offered):
+                    qos.reliability = ReliabilityPolicy.RELIABLE
                 client.subscribe(interface(type_name), name, qos)
                 client.wait_message(name, timeout=WAIT_S * 3)
             case ["topic", "hz"]:
