@@ -28,7 +28,7 @@ import sys
 import threading
 import time
 import traceback
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Hashable, Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any, Generic, TypeVar
 
@@ -59,6 +59,7 @@ from .channel import DeviceChannel, Priority
 from .checks import bounded_text
 from .diagnostics import Level, Report, link_report
 from .errors import CommandRejected, ConfigurationError, DeviceException, LinkError, NotSent
+from .motion_ledger import MotionLedger
 from .node_actions import ActionHost
 from .parameters import ParameterSpec, ParameterValue
 from .poller import Poller, PollOutcome
@@ -355,6 +356,8 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
         self.stream_inbox_group = MutuallyExclusiveCallbackGroup()
         self.diagnostics_group = MutuallyExclusiveCallbackGroup()
         self.stream_guards: list[StreamGuard[Any]] = []
+        # Motions services started (fire-and-forget): stopped by a halt like the streams'.
+        self.service_motions = MotionLedger()
         self.stream_refusals = 0  # stream commands refused (diagnostics)
         self._command_mutex = threading.RLock()  # one command (not stop) at a time
         # Set before a halt (deactivate, shutdown, error, exit) stops anything, cleared on
@@ -636,8 +639,14 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
         writes: bool = True,
         stop: bool = False,
         own_motion: bool = False,
+        starts: tuple[Hashable, Callable[[], object]] | None = None,
+        stops_axes: Iterable[Hashable] = (),
     ) -> tuple[bool, str, T | None]:
         """Guard and run one command: (success, message, result). Never raises.
+
+        ``starts`` (axis, its stop): the command sets the axis moving; once any of its
+        writes went out the node's ``service_motions`` remember it, so a halt stops it.
+        ``stops_axes``: the command, when acknowledged, stopped those axes.
 
         ``stop``: a command that ends motion (stop, e-stop, disable, a stream's stop). It
         is attempted on the wire at once even while the link is marked down (one try,
@@ -661,7 +670,14 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
                     f"{what} refused: not connected to {self.channel.describe()}",
                     None,
                 )
-            return self._run_guarded(what, action, writes=writes, stop=stop)
+            writes_before = self.channel.writes_tried()
+            outcome = self._run_guarded(what, action, writes=writes, stop=stop)
+            if starts is not None and self.channel.writes_tried() > writes_before:
+                # Acknowledged, or written and then lost or refused (it may be running).
+                self.service_motions.started(starts[0], what, starts[1])
+            if outcome[0]:
+                self.service_motions.stopped(*stops_axes)
+            return outcome
 
     def _run_guarded(
         self, what: str, action: Callable[[], T], *, writes: bool, stop: bool
@@ -702,8 +718,14 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
         writes: bool = True,
         stop: bool | Callable[[Any], bool] = False,
         fill: Callable[[Any, T], None] | None = None,
+        starts: Callable[[Any], tuple[Hashable, Callable[[], object]] | None] | None = None,
+        stops_axes: Callable[[Any], Iterable[Hashable]] | None = None,
     ) -> None:
         """A service that runs one guarded command per request.
+
+        ``starts(request)``: (axis, its stop) when the request sets an axis moving (the
+        node's halts stop it), None when it does not; ``stops_axes(request)``: the axes an
+        acknowledged request stopped.
 
         ``describe(request)`` names the command in the reply message, ``action(request)``
         does it through the device layer, ``fill(response, result)`` copies a result into
@@ -718,6 +740,8 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
                 lambda: action(request),
                 writes=writes,
                 stop=stop(request) if callable(stop) else stop,
+                starts=starts(request) if starts is not None else None,
+                stops_axes=stops_axes(request) if stops_axes is not None else (),
             )
             response.success, response.message = ok, message
             if ok and fill is not None:
@@ -728,13 +752,27 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
         self.create_service(srv_type, name, handle, callback_group=group)
 
     def trigger_service(
-        self, name: str, what: str, action: Callable[[], object], *, stop: bool = False
+        self,
+        name: str,
+        what: str,
+        action: Callable[[], object],
+        *,
+        stop: bool = False,
+        starts: tuple[Hashable, Callable[[], object]] | None = None,
+        stops_axes: Iterable[Hashable] = (),
     ) -> None:
-        """A std_srvs/Trigger service that runs one guarded command."""
+        """A std_srvs/Trigger service that runs one guarded command (``starts`` /
+        ``stops_axes`` as in ``command_service``)."""
         from std_srvs.srv import Trigger
 
         self.command_service(
-            Trigger, name, lambda _request: what, lambda _request: action(), stop=stop
+            Trigger,
+            name,
+            lambda _request: what,
+            lambda _request: action(),
+            stop=stop,
+            starts=None if starts is None else lambda _request: starts,
+            stops_axes=lambda _request: stops_axes,
         )
 
     # ------------------------------------------------------------ command streams
@@ -885,6 +923,13 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
                 self.get_logger().error(f"stopping stream {key} failed: {err}")
             for key in set(moving) - {key for key, _ in failed}:
                 self.get_logger().info(f"stream {key}: stopped")
+        for stopped in self.service_motions.stop_all():
+            if stopped.error is None:
+                self.get_logger().info(f"{stopped.what}: stopped ({reason})")
+            else:
+                self.get_logger().error(
+                    f"{stopped.what}: its stop failed ({reason}): {stopped.error}"
+                )
 
     # ------------------------------------------------------------ diagnostics
     def publish_diagnostics(self) -> None:

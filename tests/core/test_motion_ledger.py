@@ -1,0 +1,38 @@
+"""The ledger of motions services started (what a halt stops besides streams and goals)."""
+
+from __future__ import annotations
+
+from bridge_core.errors import LinkTimeout
+from bridge_core.motion_ledger import MotionLedger
+
+
+def test_a_halt_stops_every_started_motion_once_and_keeps_a_failed_one() -> None:
+    ledger = MotionLedger()
+    log: list[str] = []
+    fail = {"motor 2"}
+
+    def stop(axis: str) -> None:
+        if axis in fail:
+            raise LinkTimeout("no reply")
+        log.append(f"stop {axis}")
+
+    ledger.started("motor 1", "motor 1 forward", lambda: stop("motor 1"))
+    ledger.started("motor 2", "motor 2 reverse", lambda: stop("motor 2"))
+    ledger.started("motor 3", "motor 3 home", lambda: stop("motor 3"))
+    ledger.stopped("motor 3")  # its stop service was acknowledged
+    results = {r.axis: r.error for r in ledger.stop_all()}
+    assert log == ["stop motor 1"]  # motor 3 was stopped already
+    assert results["motor 1"] is None and isinstance(results["motor 2"], LinkTimeout)
+    assert ledger.moving() == {"motor 2": "motor 2 reverse"}  # tried again at the next halt
+    fail.clear()
+    ledger.stop_all()
+    assert log == ["stop motor 1", "stop motor 2"] and ledger.moving() == {}
+
+
+def test_a_newer_start_of_an_axis_replaces_the_older() -> None:
+    ledger = MotionLedger()
+    stops: list[str] = []
+    ledger.started(1, "forward", lambda: stops.append("first"))
+    ledger.started(1, "reverse", lambda: stops.append("second"))
+    ledger.stop_all()
+    assert stops == ["second"]
