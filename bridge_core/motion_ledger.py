@@ -11,7 +11,9 @@ stops").
 - ``stopped(axis)``: a stop of that axis was acknowledged (a stop service, a goal or a
   stream that took the axis over and stopped it): nothing left to stop there;
 - ``stop_all()``: every remembered motion's stop is tried once (each, whatever the others
-  do); an acknowledged one is forgotten, a failed one kept (the next halt tries again).
+  do); an acknowledged one is forgotten, a failed one kept and marked pending;
+- ``retry_pending()``: the pending stops again (the node calls it before the first poll
+  after a reconnect, as it does for the streams' pending stops).
 
 An entry is kept until a stop of its axis is acknowledged, also when the motion may have
 ended by itself (a single run, a cycle): a stop of a motor that stands does nothing, and
@@ -31,6 +33,7 @@ class Started:
 
     what: str
     stop: Callable[[], object]
+    pending: bool = False  # a halt's stop of it failed: tried again on reconnect
 
 
 @dataclass(frozen=True)
@@ -61,17 +64,28 @@ class MotionLedger:
 
     def stop_all(self) -> list[StopResult]:
         """Try every remembered motion's stop once; forget those acknowledged."""
+        return self._stop(lambda entry: True)
+
+    def retry_pending(self) -> list[StopResult]:
+        """Try again the stops a halt could not get through."""
+        return self._stop(lambda entry: entry.pending)
+
+    def _stop(self, which: Callable[[Started], bool]) -> list[StopResult]:
         with self._lock:
-            entries = list(self._started.items())
+            entries = [(axis, entry) for axis, entry in self._started.items() if which(entry)]
         results: list[StopResult] = []
         for axis, entry in entries:
             try:
                 entry.stop()
             except Exception as err:  # every stop is tried, whatever one of them raises
+                with self._lock:
+                    if self._started.get(axis) is entry:
+                        self._started[axis] = Started(entry.what, entry.stop, pending=True)
                 results.append(StopResult(axis, entry.what, err))
                 continue
             with self._lock:
-                if self._started.get(axis) is entry:
+                current = self._started.get(axis)
+                if current is not None and current.stop is entry.stop:
                     del self._started[axis]
             results.append(StopResult(axis, entry.what, None))
         return results

@@ -482,6 +482,13 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
             for key in guard.pending_stops():
                 guard.stop(key)
                 self.get_logger().info(f"stream {key}: the pending stop was sent on reconnect")
+        for stopped in self.service_motions.retry_pending():
+            if isinstance(stopped.error, LinkError):
+                raise stopped.error  # still down: the poller says so, and tries again
+            if stopped.error is not None:
+                self.get_logger().error(f"{stopped.what}: its pending stop: {stopped.error}")
+            else:
+                self.get_logger().info(f"{stopped.what}: the pending stop was sent on reconnect")
         self.on_link_up()
 
     def device_report(self) -> Report | None:

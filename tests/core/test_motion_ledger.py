@@ -36,3 +36,24 @@ def test_a_newer_start_of_an_axis_replaces_the_older() -> None:
     ledger.started(1, "reverse", lambda: stops.append("second"))
     ledger.stop_all()
     assert stops == ["second"]
+
+
+def test_a_failed_halt_stop_is_pending_until_a_retry_gets_it_through() -> None:
+    ledger = MotionLedger()
+    down = [True]
+    sent: list[int] = []
+
+    def stop(axis: int) -> None:
+        if down[0]:
+            raise LinkTimeout("no reply")
+        sent.append(axis)
+
+    ledger.started(1, "motor 1 forward", lambda: stop(1))
+    ledger.started(2, "motor 2 forward", lambda: stop(2))
+    assert ledger.retry_pending() == []  # nothing failed yet: a retry sends nothing
+    ledger.stopped(2)
+    assert [r.error is not None for r in ledger.stop_all()] == [True]
+    assert [r.error is not None for r in ledger.retry_pending()] == [True]  # still down
+    down[0] = False
+    assert [r.error for r in ledger.retry_pending()] == [None]
+    assert sent == [1] and ledger.moving() == {}
