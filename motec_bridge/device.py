@@ -21,10 +21,12 @@ motor. ``velocity_stop`` (the deadman) writes 0 rpm; the drive ramps down by its
 acceleration (§4.2).
 
 Lifeguard (§3.4): ``arm_lifeguard(ms)`` writes 0x112 = ms then 0x114 = 9999 (the
-manual's two FC 06 frames), ``disarm_lifeguard`` 0x114 = 0; ``feed_lifeguard`` rewrites
-0x112 (at ``Priority.KEEPALIVE``, before commands and polls) when no other write went to
-the drive for a feed period, so the drive's watchdog only fires when the bridge is gone
-(or the bus is). ``lifeguard_min_ms`` is the shortest lifeguard time a bus can keep fed.
+manual's two FC 06 frames), ``disarm_lifeguard`` 0x112 = 0 then 0x114 = 0;
+``feed_lifeguard`` rewrites 0x112 (at ``Priority.KEEPALIVE``, before commands and polls)
+when no other write went to the drive for a feed period (also while the drive is marked
+down), so the drive's watchdog only fires when the bridge is gone (or the bus is, for
+longer than the lifeguard time less a feed period). ``lifeguard_min_ms`` is the shortest
+lifeguard time a bus can keep fed.
 """
 
 from __future__ import annotations

@@ -498,9 +498,10 @@ class MotecDriveNode(BridgeNode[MotecSnapshot]):
         return None
 
     def _next_feed(self) -> float | None:
-        # Fed while the drive is marked down too: a line that comes back within the
-        # lifeguard time must find the drive fed before it trips (README "Lifeguard").
-        if self.read_only or not self.configured:
+        # Fed while the drive is marked down too, once it was up (armed by on_link_up):
+        # a line that comes back within the lifeguard time must find the drive fed
+        # before it trips (README "Lifeguard").
+        if self.read_only or not self.configured or self.channel.generation == 0:
             return None
         time_ms = self.lifeguard_time_ms()
         return self.device.next_feed(time_ms) if time_ms else None

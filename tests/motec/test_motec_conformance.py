@@ -624,6 +624,8 @@ def test_move_to_ends_on_a_servo_that_rests_a_few_counts_off() -> None:
     from 0xAA); "stands" is a band, seen on two polls in a row, REACHED too."""
     motion = move_to()
     assert STANDSTILL_SPEED_RPM >= 2
+    # ~/set_control_mode refuses a turning motor, not 0xAF noise.
+    assert not snapshot(0, 0, -2).turning and snapshot(0, 0, STANDSTILL_SPEED_RPM + 1).turning
     assert motion.judge(snapshot(5000, 4990, 600), 1.0) is None  # running
     assert motion.judge(snapshot(10000, 9998, -2), 1.1) is None  # stands: once
     verdict = motion.judge(snapshot(10000, 10001, 1), 1.2)  # twice
