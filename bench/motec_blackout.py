@@ -83,6 +83,7 @@ def main() -> None:
     parser.add_argument("--repeat", type=int, default=5, help="runs per blackout and phase")
     parser.add_argument("--blackouts", default="300,600,900", help="blackout lengths, ms")
     parser.add_argument("--phases", default="aligned,random")
+    parser.add_argument("--verbose", action="store_true", help="print every drive-run")
     args = parser.parse_args()
     blackouts = [int(b) for b in args.blackouts.split(",")]
     phases = args.phases.split(",")
@@ -148,6 +149,9 @@ def main() -> None:
         finally:
             simulator.stop()
 
+    if args.verbose:
+        for r in runs:
+            print(r)
     print(
         f"motec_bridge, config/motec.yaml (lifeguard 1000 ms, feed period 333 ms, timeout_s "
         f"0.1, 3 drives, {BAUD} baud on the emulated line), {args.repeat} runs per row, "
