@@ -48,7 +48,7 @@ from bridge_core.checks import (
 )
 from bridge_core.codec import Value, encode
 from bridge_core.config_cache import ConfiguredDevice
-from bridge_core.errors import CommandRejected, LinkError
+from bridge_core.errors import CommandRejected, LinkError, NotSent
 from bridge_core.goals import Motion, Outcome, Verdict
 from bridge_core.keepalive import FEED_WAKE_S
 from bridge_core.planner import ReadRequest, plan_reads
@@ -135,7 +135,7 @@ OUTPUT_WORD_PLAN: list[ReadRequest] = plan_reads(MOTEC_MAP, MOTEC_MAP.select(("o
 MOTION_PLAN: list[ReadRequest] = plan_reads(
     MOTEC_MAP, MOTEC_MAP.select(("position_setpoint", "speed_actual"))
 )
-# After a broadcast: what each drive shows (0x28, 0x29, 0xAF).
+# After a broadcast: what each drive shows (0x28, 0x29, 0xAA, 0xAF).
 BROADCAST_CHECK_NAMES = ("enable", "start", "position_setpoint", "speed_actual")
 BROADCAST_CHECK_PLAN: list[ReadRequest] = plan_reads(
     MOTEC_MAP, MOTEC_MAP.select(BROADCAST_CHECK_NAMES)
@@ -662,8 +662,12 @@ class MotecDevice(ConfiguredDevice[MotecConfig]):
             return False
         if self._clock() < self.next_feed(time_ms):
             return False
-        self.last_feed_try = self._clock()
-        self._write("lifeguard_time", int(time_ms), Priority.KEEPALIVE)
+        tried, self.last_feed_try = self.last_feed_try, self._clock()
+        try:
+            self._write("lifeguard_time", int(time_ms), Priority.KEEPALIVE)
+        except NotSent:
+            self.last_feed_try = tried  # nothing went out: due again at once
+            raise
         return True
 
 
@@ -762,8 +766,8 @@ def _drive_line(unit: int, v: Mapping[str, Value]) -> str:
 def disable_all(broadcast: RegisterIO, drives: Mapping[int, RegisterIO]) -> tuple[bool, str]:
     """Release every drive on the bus with one broadcast write (unit 0, §2.5): 0x28 = 0.
 
-    No drive answers a broadcast, so each drive's 0x28 / 0x29 / 0xAF is read back after
-    it; a drive still enabled (it missed the frame) gets its own 0x28 = 0 and is read
+    No drive answers a broadcast, so each drive's 0x28 / 0x29 / 0xAA / 0xAF is read back
+    after it; a drive still enabled (it missed the frame) gets its own 0x28 = 0 and is read
     again. True only when every drive reads 0x28 = 0 (decision 15); the text says, drive
     by drive, what was seen.
     """

@@ -19,7 +19,7 @@ import pytest
 from pymodbus.framer import FramerRTU
 
 from bridge_core.channel import DeviceChannel, Priority
-from bridge_core.errors import CommandRejected, DeviceException, LinkTimeout
+from bridge_core.errors import CommandRejected, DeviceException, LinkTimeout, NotSent
 from bridge_core.goals import Outcome
 from bridge_core.registers import Table, ValueType, WordOrder
 from bridge_core.transport import ModbusLink, SerialSettings
@@ -526,11 +526,13 @@ class SlowIO(FakeIO):
 
     def __init__(self, now: list[float], write_s: float) -> None:
         super().__init__()
-        self.now, self.write_s, self.fail = now, write_s, False
+        self.now, self.write_s, self.fail, self.not_sent = now, write_s, False, False
 
     def write_register(
         self, address: int, value: int, priority: Priority = Priority.COMMAND
     ) -> None:
+        if self.not_sent:
+            raise NotSent("the link was lost while the command waited; not sent")
         self.now[0] += self.write_s
         if self.fail:
             raise LinkTimeout("no reply")
@@ -555,6 +557,12 @@ def test_lifeguard_feeds_count_from_the_request_and_go_on_while_down() -> None:
     now[0] = 100.2
     io.fail = False
     assert d.feed_lifeguard(300)
+    assert d.next_feed(300) == pytest.approx(100.3)
+    # A feed refused before it went out (the session's link was lost): due again at once.
+    now[0] = 100.3
+    io.not_sent = True
+    with pytest.raises(NotSent):
+        d.feed_lifeguard(300)
     assert d.next_feed(300) == pytest.approx(100.3)
 
 
