@@ -210,6 +210,13 @@ class LineRelay:
         """Forget the recorded frames (e.g. between benchmark cases)."""
         self._command("clear")
 
+    def blackout(self, seconds: float) -> tuple[float, float]:
+        """Cut the line both ways for ``seconds`` from now (a cable glitch): every byte
+        that arrives, or was due to come out, meanwhile is lost. Returns the window
+        (``time.monotonic()`` from, until) as the relay process keeps it."""
+        window = self._command(f"blackout {float(seconds)!r}")
+        return float(window["from"]), float(window["until"])
+
     def stop(self) -> None:
         proc, self._proc = self._proc, None
         if proc is not None:
@@ -408,6 +415,7 @@ def _serve(config: dict[str, Any]) -> None:
     line_free = 0.0
     request_end = float("-inf")
     ctrl_buf = b""
+    dark_from = dark_until = float("-inf")  # a blackout: bytes in it are lost
 
     while True:
         now = clock()
@@ -416,6 +424,8 @@ def _serve(config: dict[str, Any]) -> None:
             done: dict[int, int] = {}
             while pending and pending[0][0] <= now:
                 _, fd, byte, index = pending.popleft()
+                if dark_from <= now < dark_until:
+                    continue  # lost in the blackout
                 out.setdefault(fd, bytearray()).append(byte)
                 done[fd] = index
             for fd, data in out.items():
@@ -455,11 +465,17 @@ def _serve(config: dict[str, Any]) -> None:
                         print("{}", flush=True)
                     elif command == "frames":
                         print(json.dumps(frames), flush=True)
+                    elif command.startswith("blackout "):
+                        dark_from = clock()
+                        dark_until = dark_from + float(command.split()[1])
+                        print(json.dumps({"from": dark_from, "until": dark_until}), flush=True)
                     else:
                         print(json.dumps({"error": f"unknown command {command!r}"}), flush=True)
                 continue
             received = os.read(fd, 4096)
             arrived = woke
+            if dark_from <= woke < dark_until:
+                continue  # lost in the blackout
             direction = source[fd]
             start = max(arrived - in_latency[fd], line_free)
             if direction == REPLY:

@@ -36,6 +36,7 @@ from typing import IO, Any
 from pymodbus.constants import ExcCodes
 from pymodbus.datastore import ModbusServerContext
 from pymodbus.exceptions import NoSuchIdException
+from pymodbus.framer.rtu import FramerRTU
 from pymodbus.pdu import ExceptionResponse, ModbusPDU
 from pymodbus.pdu.bit_message import WriteSingleCoilRequest
 from pymodbus.pdu.decoders import DecodePDU
@@ -67,6 +68,9 @@ ECHO_FUNCTIONS = frozenset({5, 6})
 COIL_ON, COIL_OFF = 0xFF00, 0x0000
 # Function codes 1-127 are requests; 128 and up are exception replies.
 LAST_FUNCTION_CODE = 0x7F
+# RTU frames: unit, function code and CRC at least; 256 bytes at most (serial line spec).
+RTU_MIN_FRAME = 4
+RTU_MAX_FRAME = 256
 
 
 class _JsonRecord:
@@ -303,7 +307,8 @@ class _MapContext(ModbusServerContext):
         self._sim = simulator
 
     def device_ids(self) -> list[int]:
-        return list(self._sim.devices)
+        """The units a broadcast reaches (pymodbus asks only then)."""
+        return [u for u in self._sim.devices if u not in self._sim.deaf_to_broadcast]
 
     def _device(self, device_id: int, function_code: int) -> SimulatedDevice:
         sim = self._sim
@@ -395,11 +400,29 @@ class _StrictWriteSingleCoil(WriteSingleCoilRequest):
         return await super().datastore_update(context, device_id)
 
 
-def strict_decoder(decoder: DecodePDU, allowed: Iterable[int], *, tcp: bool) -> None:
+def _crc_frame_size(data: bytes) -> int:
+    """RTU frame size of a request whose function code does not tell its length: the
+    first length whose last two bytes are the CRC of the rest (a real slave ends a frame
+    at 3.5 characters of silence, which a pty does not carry). 0: not complete yet; past
+    the longest RTU frame, all of it (the CRC fails and the framer drops it)."""
+    for size in range(RTU_MIN_FRAME, min(len(data), RTU_MAX_FRAME) + 1):
+        if FramerRTU.check_CRC(data[: size - 2], int.from_bytes(data[size - 2 : size], "big")):
+            return size
+    return 0 if len(data) < RTU_MAX_FRAME else len(data)
+
+
+def strict_decoder(
+    decoder: DecodePDU,
+    allowed: Iterable[int],
+    *,
+    tcp: bool,
+    units: Callable[[], Iterable[int]] = tuple,
+) -> None:
     """Make a pymodbus server's decoder answer like the device: every function code
     outside ``allowed`` is ILLEGAL FUNCTION with the code echoed (TCP: any code 1-127;
-    RTU: the codes pymodbus can frame, as a real slave can only answer what it can
-    frame), and FC 05 takes only FF00 / 0000."""
+    RTU: the codes pymodbus can frame, and, to a unit in ``units()``, any other code
+    1-127 framed by its CRC: pymodbus alone skips such a frame byte by byte and the
+    next request is lost with it), and FC 05 takes only FF00 / 0000."""
     allowed = set(allowed)
     table = dict(decoder.pdu_table)
     codes = range(1, LAST_FUNCTION_CODE + 1) if tcp else sorted(table)
@@ -414,6 +437,28 @@ def strict_decoder(decoder: DecodePDU, allowed: Iterable[int], *, tcp: bool) -> 
     if 5 in allowed:
         table[5] = (_StrictWriteSingleCoil, table[5][1])
     decoder.pdu_table = table
+    if tcp:
+        return
+    unframed = {
+        code: type(
+            f"Unframed{code:02X}",
+            (_refusing(ModbusPDU, code, 0),),
+            {"calculateRtuFrameSize": classmethod(lambda cls, data: _crc_frame_size(data))},
+        )
+        for code in range(1, LAST_FUNCTION_CODE + 1)
+        if code not in table
+    }
+    known_lookup = decoder.lookupPduClass
+
+    def lookup(data: bytes) -> type[ModbusPDU] | None:
+        found = known_lookup(data)
+        if found is None and int(data[1]) in unframed and int(data[0]) in set(units()):
+            return unframed[int(data[1])]
+        return found
+
+    decoder.lookupPduClass = lookup  # type: ignore[method-assign]
+    # The request's decode (after framing) looks the code up in the table too.
+    decoder.pdu_table = {**table, **{code: (cls, cls) for code, cls in unframed.items()}}
 
 
 class SimulatorStartError(RuntimeError):
@@ -427,6 +472,8 @@ class Simulator:
         self.devices = {d.unit_id: d for d in devices}
         self.tick_s = tick_s
         self.withhold_replies = False
+        # Units that miss every broadcast (noise on their stub) and still answer the rest.
+        self.deaf_to_broadcast: set[int] = set()
         self.reply_delay_s = max(d.limits.reply_delay_s for d in devices)
         self._thread: threading.Thread | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -493,7 +540,7 @@ class Simulator:
         try:
             server = make_server(_MapContext(self))
             allowed = set().union(*(d.limits.function_codes for d in self.devices.values()))
-            strict_decoder(server.decoder, allowed, tcp=tcp)
+            strict_decoder(server.decoder, allowed, tcp=tcp, units=lambda: self.devices)
             await server.serve_forever(background=True)
             transport = getattr(server, "transport", None)
             sockets = getattr(transport, "sockets", None)

@@ -21,17 +21,19 @@ motor. ``velocity_stop`` (the deadman) writes 0 rpm; the drive ramps down by its
 acceleration (§4.2).
 
 Lifeguard (§3.4): ``arm_lifeguard(ms)`` writes 0x112 = ms then 0x114 = 9999 (the
-manual's two FC 06 frames), ``disarm_lifeguard`` 0x114 = 0; ``feed_lifeguard`` rewrites
-0x112 (at ``Priority.KEEPALIVE``, before commands and polls) when no other write went to
-the drive for a feed period, so the drive's watchdog only fires when the bridge is gone
-(or the bus is). ``lifeguard_min_ms`` is the shortest lifeguard time a bus can keep fed.
+manual's two FC 06 frames), ``disarm_lifeguard`` 0x112 = 0 then 0x114 = 0;
+``feed_lifeguard`` rewrites 0x112 (at ``Priority.KEEPALIVE``, before commands and polls)
+when no other write went to the drive for a feed period (also while the drive is marked
+down), so the drive's watchdog only fires when the bridge is gone (or the bus is, for
+longer than the lifeguard time less a feed period). ``lifeguard_min_ms`` is the shortest
+lifeguard time a bus can keep fed.
 """
 
 from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Hashable, Mapping
+from collections.abc import Callable, Hashable, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -46,7 +48,7 @@ from bridge_core.checks import (
 )
 from bridge_core.codec import Value, encode
 from bridge_core.config_cache import ConfiguredDevice
-from bridge_core.errors import CommandRejected, LinkError
+from bridge_core.errors import CommandRejected, LinkError, NotSent
 from bridge_core.goals import Motion, Outcome, Verdict
 from bridge_core.keepalive import FEED_WAKE_S
 from bridge_core.planner import ReadRequest, plan_reads
@@ -62,6 +64,7 @@ from .registers import (
     INPUTS,
     LIFEGUARD_ACTIVE,
     LIFEGUARD_MODE_OFF,
+    LIFEGUARD_OFF_MS,
     MOTEC_MAP,
     MOTION_ABSOLUTE,
     MOTION_RELATIVE,
@@ -82,12 +85,28 @@ from .registers import (
 )
 
 DEFAULT_CONFIG_REFRESH_S = 5.0
+# ~/read_parameter / ~/write_parameter: Pr.N is holding address N, one of 65536 (FC 03 /
+# FC 06 carry a 16-bit address); an unlisted parameter is one 16-bit word.
+PARAMETER_NUMBER_LIMIT = 0x10000
+U16_LIMIT = 0xFFFF
+I16_LIMIT = 0x8000
 DEFAULT_MAX_SPEED_RPM = 3000
 DEFAULT_VELOCITY_TIMEOUT_S = 0.5
 VELOCITY_STREAM = 0  # the key of the drive's one cmd_velocity stream
 SPEED_LIMIT_RPM = 32767  # 0xAE is a signed 16-bit register
 LIFEGUARD_MIN_MS = 50  # below this a feed every third of it would crowd the bus
 FEEDS_PER_PERIOD = 3  # the bridge writes at least 3 times per lifeguard time
+# A servo at rest dithers by a count or two and shows an rpm or two in 0xAF (README MOTEC
+# decision 17): |0xAF| within this band counts as standing still.
+STANDSTILL_SPEED_RPM = 3
+# ~/move_to's default time limit: the move's time at its speed limit times this margin,
+# plus an allowance for the ramps (the manual gives no acceleration; decision 17).
+MOVE_TIME_MARGIN = 2.0
+MOVE_TIME_ALLOWANCE_S = 2.0
+# A position stop (0x29 = 0) is verified on this many reads of 0xAA-0xAF, one poll period
+# of the default 10 Hz apart (decision 18); unverified, the drive is released.
+STOP_CHECK_READS = 2
+STOP_CHECK_PERIOD_S = 0.1
 
 STATUS_NAMES = (
     "operation_mode",
@@ -112,6 +131,18 @@ STATUS_PLAN: list[ReadRequest] = plan_reads(MOTEC_MAP, MOTEC_MAP.select(STATUS_N
 CONFIG_PLAN: list[ReadRequest] = plan_reads(MOTEC_MAP, MOTEC_MAP.select(CONFIG_NAMES))
 MODE_PLAN: list[ReadRequest] = plan_reads(MOTEC_MAP, MOTEC_MAP.select(MODE_NAMES))
 OUTPUT_WORD_PLAN: list[ReadRequest] = plan_reads(MOTEC_MAP, MOTEC_MAP.select(("output_word",)))
+# A position stop's check: 0xAA-0xAF in one read (setpoint and actual speed).
+MOTION_PLAN: list[ReadRequest] = plan_reads(
+    MOTEC_MAP, MOTEC_MAP.select(("position_setpoint", "speed_actual"))
+)
+# After a broadcast: what each drive shows (0x28, 0x29, 0xAA, 0xAF).
+BROADCAST_CHECK_NAMES = ("enable", "start", "position_setpoint", "speed_actual")
+BROADCAST_CHECK_PLAN: list[ReadRequest] = plan_reads(
+    MOTEC_MAP, MOTEC_MAP.select(BROADCAST_CHECK_NAMES)
+)
+# Before start_all: what ~/move checks (modes, the speed limit 0xAE) and the fault code.
+START_CHECK_NAMES = (*MODE_NAMES, "position_setpoint", "speed_setpoint", "fault_code")
+START_CHECK_PLAN: list[ReadRequest] = plan_reads(MOTEC_MAP, MOTEC_MAP.select(START_CHECK_NAMES))
 # joint_states is stamped with the read time of the block holding the actual position.
 STAMP_REGISTER = "position_actual"
 
@@ -146,8 +177,10 @@ class MotecConfig:
 
     @property
     def lifeguard_armed(self) -> bool:
-        """§3.4: a non-zero time and mode 9999."""
-        return self.lifeguard_time_ms > 0 and self.lifeguard_mode == LIFEGUARD_ACTIVE
+        """Taken as armed unless 0x112 reads 0: §3.4 arms it with a non-zero time and mode
+        9999, and gives no other mode's meaning, so a drive with a time and any mode may
+        be watching (README MOTEC decision 9)."""
+        return self.lifeguard_time_ms != LIFEGUARD_OFF_MS
 
 
 @dataclass(frozen=True)
@@ -195,8 +228,21 @@ class MotecSnapshot:
     @property
     def moving(self) -> bool:
         """Derived (the manual gives no motion flag's address): turning, or not yet at
-        the setpoint."""
+        the setpoint (with no band: ``stands`` is the verdict a goal waits for)."""
         return self.speed_actual_rpm != 0 or self.position_setpoint != self.position_actual
+
+    @property
+    def turning(self) -> bool:
+        """|0xAF| above the standstill band (a resting servo's dither is not motion)."""
+        return abs(self.speed_actual_rpm) > STANDSTILL_SPEED_RPM
+
+    def stands(self, tolerance_counts: int) -> bool:
+        """At rest: |0xAF| within the standstill band and the actual position within
+        ``tolerance_counts`` of the setpoint (decision 17)."""
+        return (
+            not self.turning
+            and abs(self.position_setpoint - self.position_actual) <= tolerance_counts
+        )
 
 
 def output_bits(word: int, output1_coil: int) -> tuple[bool, ...]:
@@ -277,7 +323,9 @@ class MotecDevice(ConfiguredDevice[MotecConfig]):
         velocity_timeout_s: float = DEFAULT_VELOCITY_TIMEOUT_S,
         output1_coil: int = OUTPUT1_COIL_DEFAULT,
         read_io_tables: bool = False,
+        allow_unlisted_parameters: bool = False,
         clock: Callable[[], float] = time.monotonic,
+        sleep: Callable[[float], None] = time.sleep,
     ) -> None:
         if not 1 <= max_speed_rpm <= SPEED_LIMIT_RPM:
             raise ValueError(f"max_speed_rpm {max_speed_rpm} outside 1..{SPEED_LIMIT_RPM}")
@@ -286,7 +334,9 @@ class MotecDevice(ConfiguredDevice[MotecConfig]):
         self.max_speed_rpm = max_speed_rpm
         self.output1_coil = output1_coil
         self.read_io_tables = read_io_tables
+        self.allow_unlisted_parameters = allow_unlisted_parameters
         self._clock = clock
+        self._sleep = sleep
         super().__init__(io, MOTEC_MAP, CONFIG_PLAN, config_refresh_s, clock)
         # cmd_velocity: one stream (this drive). A 0 ends only the stream's own motion:
         # 0xAE is also a position move's speed limit (README "MOTEC decisions").
@@ -299,7 +349,10 @@ class MotecDevice(ConfiguredDevice[MotecConfig]):
             clock=clock,
         )
         self.streams.append(self.stream)
-        self.last_write = -math.inf  # clock() of the last successful write
+        # clock() just before the request of the last successful write: the drive's
+        # watchdog restarts when the request arrives, never before it was sent.
+        self.last_write = -math.inf
+        self.last_feed_try = -math.inf  # clock() before the last feed's request
 
     # ------------------------------------------------------------------ reads
     @property
@@ -362,11 +415,12 @@ class MotecDevice(ConfiguredDevice[MotecConfig]):
         """One value: FC 06 for a 16-bit register, FC 16 for a 32-bit one (§3.1)."""
         reg = MOTEC_MAP[name]
         words = encode(reg, value)
+        sent = self._clock()
         if len(words) == 1:
             self.io.write_register(reg.address, words[0], priority)
         else:
             self.io.write_registers(reg.address, words)
-        self.last_write = self._clock()
+        self.last_write = max(self.last_write, sent)
         self._cache.note_written(name, value)
 
     def _check_speed(self, rpm: float, what: str) -> int:
@@ -447,8 +501,9 @@ class MotecDevice(ConfiguredDevice[MotecConfig]):
 
     def stop(self) -> str:
         """Stop in the present mode: velocity -> 0xAE = 0 (ramps down, §4.2); position ->
-        0x29 = 0 (the move / stop register); any other mode -> release (0x28 = 0), the
-        only stop the manual gives for every mode. Returns what was done."""
+        0x29 = 0 (the move / stop register), verified (``stop_move``); any other mode ->
+        release (0x28 = 0), the only stop the manual gives for every mode. Returns what
+        was done."""
         with self.stream.lock:  # no cmd_velocity write between the stop and the lock
             try:
                 modes = self.read_modes()
@@ -456,8 +511,7 @@ class MotecDevice(ConfiguredDevice[MotecConfig]):
                     self._write("speed_setpoint", 0)
                     done = "speed setpoint 0"
                 elif modes.network and modes.control_mode == CONTROL_MODE_POSITION:
-                    self._write("start", STOP_MOVE)
-                    done = "move stopped (0x29 = 0)"
+                    done = self.stop_move()
                 else:
                     self._write("enable", ENABLE_OFF)
                     done = f"drive released ({modes.describe()}: no Modbus stop for that mode)"
@@ -469,9 +523,12 @@ class MotecDevice(ConfiguredDevice[MotecConfig]):
 
     def stop_move(self) -> str:
         """0x29 = 0 at once (a goal's stop: it started a position move, so no mode read
-        first; on a bad line that read could fail and keep the stop off the wire)."""
-        self._write("start", STOP_MOVE)
-        return "move stopped (0x29 = 0)"
+        first; on a bad line that read could fail and keep the stop off the wire), then
+        verified: "运动/停止寄存器" 0 = stop is our reading (decision 5), and a drive that
+        takes 0x29 as a start trigger only would run on. Within ``STOP_CHECK_READS`` reads
+        of 0xAA-0xAF the setpoint must stop advancing or the speed fall; otherwise the
+        drive is released (0x28 = 0), and the text says so (decision 18)."""
+        return verified_position_stop(self.io, self._write, self._sleep)
 
     def save_to_flash(self) -> None:
         self._write("save_to_flash", SAVE_TO_FLASH)
@@ -479,8 +536,9 @@ class MotecDevice(ConfiguredDevice[MotecConfig]):
     def set_output(self, output: int, on: bool) -> None:
         """OUTPUT1-3 with FC 05 (§3.3.3): 0xFF00 on, 0x0000 off."""
         check_index("output", output, range(1, OUTPUTS + 1))
+        sent = self._clock()
         self.io.write_coil(output_coil(output, self.output1_coil), bool(on))
-        self.last_write = self._clock()
+        self.last_write = max(self.last_write, sent)
 
     def set_analog_max_speed(self, rpm: float) -> None:
         reg = MOTEC_MAP["analog_max_speed"]
@@ -491,14 +549,33 @@ class MotecDevice(ConfiguredDevice[MotecConfig]):
 
     # ------------------------------------------------------------------ parameters
     def read_parameter(self, number: int) -> int:
-        """Pr.``number`` (address ``number``, §5.2) with FC 03; a 32-bit one whole (§3.2)."""
-        reg = known_parameter(number)
+        """Pr.``number`` (address ``number``, §5.2) with FC 03; a named 32-bit one whole
+        (§3.2), any other number as one unsigned 16-bit word (a read needs no range: a
+        number past the drive's table answers exception 02, §2.7; decision 13)."""
+        check_index("parameter number", number, range(PARAMETER_NUMBER_LIMIT))
+        reg = parameter_register(number)
+        if reg is None:
+            second_word_of(number)  # the low word of a named 32-bit value: refused
+            return int(self.io.read_registers(number, 1, Table.HOLDING, Priority.COMMAND)[0])
         return int(self.read_named(reg.name)[reg.name])
 
     def write_parameter(self, number: int, value: int) -> None:
         """Pr.``number`` = ``value`` (FC 06, or FC 16 high word first for a 32-bit one,
-        §3.1), within the manual's range; refused before any write otherwise."""
-        reg = known_parameter(number)
+        §3.1), within the manual's range; refused before any write otherwise. A number the
+        manual does not name only with ``allow_unlisted_parameters`` (FC 06, one word,
+        0..65535 or -32768..-1 as its two's complement): its range is the drive's to
+        check, which answers exception 03 for a value it does not take (§2.7, §3.1)."""
+        check_index("parameter number", number, range(PARAMETER_NUMBER_LIMIT))
+        reg = parameter_register(number)
+        if reg is None:
+            second_word_of(number)
+            if not self.allow_unlisted_parameters:
+                known_parameter(number)  # refused, with the list of known ones
+            word = check_whole_number(f"Pr.{number} (unlisted)", value, -I16_LIMIT, U16_LIMIT)
+            sent = self._clock()
+            self.io.write_register(number, word & U16_LIMIT, Priority.COMMAND)
+            self.last_write = max(self.last_write, sent)
+            return
         what = f"Pr.{number} (0x{number:X}, {reg.name})"
         if not reg.access.writable:
             raise CommandRejected(f"{what} is read only (§3.2)")
@@ -564,22 +641,46 @@ class MotecDevice(ConfiguredDevice[MotecConfig]):
         self._write("lifeguard_mode", LIFEGUARD_ACTIVE)
 
     def disarm_lifeguard(self) -> None:
-        """0x114 = 0: any mode but 9999 leaves the lifeguard off (§3.4); 0x112 is kept."""
+        """0x112 = 0, then 0x114 = 0: §3.4 arms the drive "当Pr.274为非零值" and its own
+        frame turns the watchdog off with 0x112 = 0; 0x114 = 0 is a value the manual never
+        gives, written second only so that a re-arm needs both again (decision 9)."""
+        self._write("lifeguard_time", LIFEGUARD_OFF_MS)
         self._write("lifeguard_mode", LIFEGUARD_MODE_OFF)
 
     def next_feed(self, time_ms: int) -> float:
         """When the lifeguard needs its next write (``clock()`` time): a feed period after
-        the last write of any kind."""
-        return self.last_write + lifeguard_feed_period_s(time_ms)
+        the request of the last write of any kind, or of the last feed tried (one that
+        failed while the line is down is tried again a feed period later, not sooner)."""
+        return max(self.last_write, self.last_feed_try) + lifeguard_feed_period_s(time_ms)
 
     def feed_lifeguard(self, time_ms: int) -> bool:
-        """Rewrite 0x112 if nothing was written to the drive for a feed period."""
+        """Rewrite 0x112 if nothing was written to the drive for a feed period. Also while
+        the drive is marked down (the caller sends it like a stop: one try, the short
+        stop timeout), so a line that comes back within the lifeguard time finds the
+        drive fed before it trips (README "Lifeguard")."""
         if time_ms <= 0:
             return False
         if self._clock() < self.next_feed(time_ms):
             return False
-        self._write("lifeguard_time", int(time_ms), Priority.KEEPALIVE)
+        tried, self.last_feed_try = self.last_feed_try, self._clock()
+        try:
+            self._write("lifeguard_time", int(time_ms), Priority.KEEPALIVE)
+        except NotSent:
+            self.last_feed_try = tried  # nothing went out: due again at once
+            raise
         return True
+
+
+def move_time_limit_s(
+    distance_counts: int, speed_rpm: float, counts_per_rev: float, margin: float
+) -> float:
+    """A move's default time limit: ``distance`` at ``speed_rpm`` (motor counts per
+    revolution ``counts_per_rev``) times ``margin``, plus ``MOVE_TIME_ALLOWANCE_S`` for
+    the ramps. A 0 rpm limit gives no limit (the move is refused anyway)."""
+    if speed_rpm <= 0:
+        return math.inf
+    travel_s = distance_counts / counts_per_rev / (speed_rpm / 60.0)
+    return travel_s * margin + MOVE_TIME_ALLOWANCE_S
 
 
 def lifeguard_feed_period_s(time_ms: int) -> float:
@@ -589,13 +690,18 @@ def lifeguard_feed_period_s(time_ms: int) -> float:
 def lifeguard_min_ms(drives: int, hold_s: float) -> int:
     """The shortest lifeguard time the bridge can keep fed on a bus (README "Lifeguard").
 
-    A feed falls due ``time / FEEDS_PER_PERIOD`` after the drive's last write, starts up
-    to ``FEED_WAKE_S`` late, then waits for the line: for the transaction in progress and
-    for the feeds of the other drives queued before it (feeds go first), each at most
-    ``hold_s`` (``SerialSettings.longest_hold_s``: silence, the longest frame, the reply
-    timeout). The gap between two writes to a live drive stays within the time if
+    A feed falls due ``time / FEEDS_PER_PERIOD`` after the request of the drive's last
+    write (counted from the request, not the reply: the drive's watchdog may restart as
+    early as the request reaches it), starts up to ``FEED_WAKE_S`` late, then waits for
+    the line: for the transaction in progress and for the feeds of the other drives
+    queued before it (feeds go first), each at most ``hold_s``
+    (``SerialSettings.longest_hold_s``: silence, the longest frame, the reply timeout).
+    The gap between two writes to a live drive stays within the time if
         time / 3 + FEED_WAKE_S + drives x hold_s <= time,
-    i.e. time >= 1.5 x (FEED_WAKE_S + drives x hold_s) with 3 feeds per period.
+    i.e. time >= 1.5 x (FEED_WAKE_S + drives x hold_s) with 3 feeds per period. While
+    the line is down the feeds go on, one try each feed period with the short stop
+    timeout, so a drive whose line comes back within ``time - time / 3`` of its last
+    write is fed before it trips (bench/motec_blackout.py).
     """
     gap_s = FEED_WAKE_S + drives * hold_s
     bound_ms = gap_s * FEEDS_PER_PERIOD / (FEEDS_PER_PERIOD - 1) * 1000.0
@@ -611,39 +717,178 @@ def lifeguard_bound_text(drives: int, hold_s: float) -> str:
     )
 
 
-def disable_all(broadcast: RegisterIO) -> None:
+def verified_position_stop(
+    io: RegisterIO,
+    write: Callable[[str, Value], None],
+    sleep: Callable[[float], None] = time.sleep,
+) -> str:
+    """0x29 = 0, then up to ``STOP_CHECK_READS`` reads of 0xAA-0xAF ``STOP_CHECK_PERIOD_S``
+    apart: stopped when the setpoint 0xAA stops advancing or |0xAF| falls (below the band,
+    or by more than it). Otherwise 0x28 = 0 (release, the stop the manual gives for every
+    mode) and 0x28 read back. Returns what was done and seen (decision 18)."""
+    write("start", STOP_MOVE)
+    try:
+        first = read_blocks(io, MOTION_PLAN, Priority.COMMAND)[0]
+        setpoint0, speed0 = int(first["position_setpoint"]), int(first["speed_actual"])
+        setpoint, speed = setpoint0, speed0
+        for _ in range(STOP_CHECK_READS):
+            sleep(STOP_CHECK_PERIOD_S)
+            v = read_blocks(io, MOTION_PLAN, Priority.COMMAND)[0]
+            setpoint1, speed1 = int(v["position_setpoint"]), int(v["speed_actual"])
+            if (
+                setpoint1 == setpoint
+                or abs(speed1) <= STANDSTILL_SPEED_RPM
+                or abs(speed1) < abs(speed0) - STANDSTILL_SPEED_RPM
+            ):
+                return (
+                    f"move stopped (0x29 = 0; 0xAA {setpoint} -> {setpoint1}, 0xAF {speed0} "
+                    f"-> {speed1} rpm)"
+                )
+            setpoint, speed = setpoint1, speed1
+        seen = f"0xAA {setpoint0} -> {setpoint}, 0xAF {speed0} -> {speed} rpm"
+    except LinkError as err:
+        seen = f"its effect could not be read: {err}"
+    write("enable", ENABLE_OFF)
+    try:
+        after = f"reads {int(read_blocks(io, MODE_PLAN, Priority.COMMAND)[0]['enable'])}"
+    except LinkError as err:
+        after = f"not read back: {err}"
+    return f"0x29 = 0 did not stop the move ({seen}): drive released (0x28 = 0, {after})"
+
+
+def _drive_line(unit: int, v: Mapping[str, Value]) -> str:
+    return (
+        f"drive {unit}: 0x28 = {v['enable']}, 0x29 = {v['start']}, "
+        f"0xAA = {v['position_setpoint']}, 0xAF = {v['speed_actual']} rpm"
+    )
+
+
+def disable_all(broadcast: RegisterIO, drives: Mapping[int, RegisterIO]) -> tuple[bool, str]:
     """Release every drive on the bus with one broadcast write (unit 0, §2.5): 0x28 = 0.
-    No drive answers a broadcast, so nothing confirms it."""
+
+    No drive answers a broadcast, so each drive's 0x28 / 0x29 / 0xAA / 0xAF is read back
+    after it; a drive still enabled (it missed the frame) gets its own 0x28 = 0 and is read
+    again. True only when every drive reads 0x28 = 0 (decision 15); the text says, drive
+    by drive, what was seen.
+    """
     reg = MOTEC_MAP["enable"]
     broadcast.write_register(reg.address, encode(reg, ENABLE_OFF)[0])
+    ok = True
+    lines: list[str] = []
+    for unit, io in drives.items():
+        try:
+            v = read_blocks(io, BROADCAST_CHECK_PLAN, Priority.COMMAND)[0]
+            if int(v["enable"]) != ENABLE_OFF:
+                io.write_register(reg.address, encode(reg, ENABLE_OFF)[0])
+                v = read_blocks(io, BROADCAST_CHECK_PLAN, Priority.COMMAND)[0]
+                note = " (missed the broadcast: released by a write of its own)"
+            else:
+                note = ""
+        except LinkError as err:
+            ok = False
+            lines.append(f"drive {unit}: did not answer ({err}): its state is unknown")
+            continue
+        if int(v["enable"]) != ENABLE_OFF:
+            ok = False
+            note = " STILL ENABLED"
+        lines.append(_drive_line(unit, v) + note)
+    return ok, "; ".join(lines)
 
 
-def start_all(broadcast: RegisterIO, drives: Mapping[int, RegisterIO]) -> None:
+def start_all(
+    broadcast: RegisterIO,
+    drives: Mapping[int, RegisterIO],
+    read_only: Iterable[int] = (),
+    sleep: Callable[[float], None] = time.sleep,
+) -> tuple[bool, str]:
     """A synchronised start (§4.1 step 6 "0x29 写 1" sent to unit 0, §2.5: "支持广播通信方式
     ... 不回应广播"): every drive starts the move it was given (0x26, 0x2D, 0xAE).
 
-    No drive answers a broadcast, so each drive's modes are read first (one FC 03 each)
-    and the start is refused, nothing sent, unless every drive is in network mode,
-    position control and enabled: that read is the only confirmation there is.
+    Before: ``~/move``'s checks for every drive (network mode, position control, enabled,
+    a speed limit 0xAE > 0), no fault code, and no drive whose node is ``read_only``;
+    refused, nothing sent, otherwise. After (nothing answers a broadcast): every drive's
+    0x28 / 0x29 / 0xAA / 0xAF read back. A drive took the start if its setpoint 0xAA moved
+    since the check or |0xAF| is above the standstill band (0x29 may read 1 from an
+    earlier move: it proves nothing). One that did not leaves a start that is not
+    synchronised, so the drives that did are stopped (``verified_position_stop``) and the
+    answer is False (decision 15); a zero-length move counts as not started.
     """
-    not_ready: list[str] = []
+    refused = [f"drive {u}'s node is read_only" for u in sorted(set(read_only) & set(drives))]
+    before: dict[int, int] = {}
     for unit, io in drives.items():
         try:
-            modes = read_modes(io)
+            v = read_blocks(io, START_CHECK_PLAN, Priority.COMMAND)[0]
+            before[unit] = int(v["position_setpoint"])
         except LinkError as err:
             raise CommandRejected(f"drive {unit} did not answer ({err}); nothing sent") from None
+        modes = Modes(int(v["operation_mode"]), int(v["control_mode"]), bool(v["enable"]))
         if not (modes.network and modes.control_mode == CONTROL_MODE_POSITION and modes.enabled):
-            not_ready.append(f"drive {unit} is in {modes.describe()}")
-    if not_ready:
+            refused.append(f"drive {unit} is in {modes.describe()}")
+        if int(v["fault_code"]):
+            refused.append(f"drive {unit} has fault {int(v['fault_code'])}")
+        if int(v["speed_setpoint"]) <= 0:
+            refused.append(
+                f"drive {unit}'s speed limit 0xAE is {int(v['speed_setpoint'])} rpm (the move "
+                "could not run)"
+            )
+    if refused:
         raise CommandRejected(
-            "a synchronised start needs every drive in network mode, position control and "
-            f"enabled; {'; '.join(not_ready)}; nothing was sent"
+            "a synchronised start needs every drive in network mode, position control, "
+            f"enabled, without a fault, with a speed limit 0xAE > 0 and writable; "
+            f"{'; '.join(refused)}; nothing was sent"
         )
     reg = MOTEC_MAP["start"]
     broadcast.write_register(reg.address, encode(reg, START_MOVE)[0])
+    seen: dict[int, Mapping[str, Value] | None] = {}
+    for unit, io in drives.items():
+        try:
+            seen[unit] = read_blocks(io, BROADCAST_CHECK_PLAN, Priority.COMMAND)[0]
+        except LinkError:
+            seen[unit] = None
+    missed = [
+        u
+        for u, v in seen.items()
+        if v is None
+        or (
+            int(v["position_setpoint"]) == before[u]
+            and abs(int(v["speed_actual"])) <= STANDSTILL_SPEED_RPM
+        )
+    ]
+    lines = [
+        f"drive {u}: did not answer" if v is None else _drive_line(u, v) for u, v in seen.items()
+    ]
+    if not missed:
+        return True, "; ".join(lines)
+    stops: list[str] = []
+    for unit, io in drives.items():
+        if unit in missed:
+            continue
+
+        def write(name: str, value: Value, io: RegisterIO = io) -> None:
+            r = MOTEC_MAP[name]
+            io.write_register(r.address, encode(r, value)[0])
+
+        try:
+            stops.append(f"drive {unit}: {verified_position_stop(io, write, sleep)}")
+        except LinkError as err:
+            stops.append(f"drive {unit}: stop failed: {err}")
+    return False, (
+        f"drives {missed} did not take the start ({'; '.join(lines)}); the others were "
+        f"stopped: {'; '.join(stops) or 'none had started'}"
+    )
 
 
 # ---------------------------------------------------------------- checks
+
+
+def second_word_of(number: int) -> None:
+    """Refuse Pr.``number`` if it is the low word of a named 32-bit parameter."""
+    for other in MOTEC_MAP.in_table(Table.HOLDING):
+        if number in other.addresses() and number != other.address:
+            raise CommandRejected(
+                f"Pr.{number} is the low word of the 32-bit Pr.{other.address} ({other.name}, "
+                f"high word first, §3.1.2): give {other.address}"
+            )
 
 
 def known_parameter(number: int) -> Register:
@@ -651,15 +896,12 @@ def known_parameter(number: int) -> Register:
     reg = parameter_register(number)
     if reg is not None:
         return reg
-    for other in MOTEC_MAP.in_table(Table.HOLDING):
-        if number in other.addresses():
-            raise CommandRejected(
-                f"Pr.{number} is the low word of the 32-bit Pr.{other.address} ({other.name}, "
-                f"high word first, §3.1.2): give {other.address}"
-            )
+    second_word_of(number)
     known = ", ".join(str(n) for n in parameter_numbers())
     raise CommandRejected(
-        f"Pr.{number} is not a parameter the manual names, so its range is unknown (known: {known})"
+        f"Pr.{number} is not a parameter the manual names, so its range is unknown (known: "
+        f"{known}); the drive node's allow_unlisted_parameters lets ~/write_parameter send it "
+        "anyway (the drive checks the value: exception 03)"
     )
 
 
@@ -677,11 +919,16 @@ def _check_lifeguard_ms(time_ms: int) -> None:
 
 class MoveToMotion(Motion[MotecSnapshot]):
     """``~/move_to``: one point-to-point move followed through the polls (README
-    "Actions"). Over when the drive stands still at its setpoint (``moving`` false): at the
-    target within ``tolerance_counts`` it is REACHED, elsewhere STOPPED (a stop service,
-    a disable, the drive); a fault code ends it at once. Its stop is ``~/stop``'s."""
+    "Actions"). Over when the drive stands (``MotecSnapshot.stands``: |0xAF| within the
+    standstill band, 0xAC within ``tolerance_counts`` of 0xAA) on two polls in a row: at
+    the target within ``tolerance_counts`` it is REACHED, elsewhere STOPPED (a stop
+    service, a disable, the drive); a fault code ends it at once. Its stop is
+    ``~/stop``'s, verified. ``time_limit_margin`` > 0 (and no goal ``timeout_s``): the
+    goal is stopped and TIMED_OUT after the move's time at its speed limit times the
+    margin plus ``MOVE_TIME_ALLOWANCE_S`` (decision 17)."""
 
     axes: frozenset[Hashable] = frozenset({"drive"})
+    confirm_reached = True  # "stands" on two polls, REACHED too
 
     def __init__(
         self,
@@ -692,6 +939,7 @@ class MoveToMotion(Motion[MotecSnapshot]):
         relative: bool,
         max_velocity_rad_s: float,
         tolerance_counts: int,
+        time_limit_margin: float = 0.0,
     ) -> None:
         super().__init__()
         self.device = device
@@ -701,20 +949,46 @@ class MoveToMotion(Motion[MotecSnapshot]):
         device.check_move(self.counts, self.speed_rpm)
         self.relative = relative
         self.tolerance_counts = tolerance_counts
+        self.time_limit_margin = time_limit_margin
+        self.time_limit_s = math.inf  # set at the start (distance and speed known then)
         self.target = self.counts  # absolute; a relative move's is known at its start
         self.what = f"move_to {'by' if relative else 'to'} {position_rad:g} rad"
 
     def start(self) -> None:
-        if self.relative:  # the distance counts from where the drive is now
-            position = int(self.device.read_named("position_actual")["position_actual"])
+        # Where the drive is now: a relative move's target, an absolute one's distance.
+        position = int(self.device.read_named("position_actual")["position_actual"])
+        if self.relative:
             self.target = position + self.counts
+        if self.time_limit_margin > 0:
+            rpm = self.speed_rpm or abs(
+                int(self.device.read_named("speed_setpoint")["speed_setpoint"])
+            )
+            self.time_limit_s = move_time_limit_s(
+                abs(self.target - position),
+                rpm,
+                self.scale.counts_per_rev,
+                self.time_limit_margin,
+            )
         self.device.move(self.counts, relative=self.relative, speed_rpm=self.speed_rpm)
 
     def stop(self) -> str:
         return self.device.stop_move()
 
     def running(self, snapshot: MotecSnapshot) -> bool:
-        return snapshot.moving
+        return not snapshot.stands(self.tolerance_counts)
+
+    def judge(self, snapshot: MotecSnapshot, since_start_s: float = math.inf) -> Verdict | None:
+        if since_start_s != math.inf and since_start_s > self.time_limit_s:
+            if (verdict := self.fault(snapshot)) is not None:
+                return verdict
+            return Verdict(
+                Outcome.TIMED_OUT,
+                f"{self.what}: not done within {self.time_limit_s:.3g} s, the default limit "
+                f"(the move's time at {self.speed_rpm or 'the drive'}'s speed limit x "
+                f"{self.time_limit_margin:g} + {MOVE_TIME_ALLOWANCE_S:g} s; goal timeout_s "
+                "sets another, the node's move_time_margin 0 none)",
+            )
+        return super().judge(snapshot, since_start_s)
 
     def fault(self, snapshot: MotecSnapshot) -> Verdict | None:
         code = snapshot.fault_code
@@ -759,5 +1033,7 @@ __all__ = [
     "lifeguard_bound_text",
     "lifeguard_feed_period_s",
     "lifeguard_min_ms",
+    "move_time_limit_s",
     "start_all",
+    "verified_position_stop",
 ]

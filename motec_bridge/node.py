@@ -59,6 +59,7 @@ from msg_defs.srv import (
 from .device import (
     DEFAULT_CONFIG_REFRESH_S,
     DEFAULT_MAX_SPEED_RPM,
+    MOVE_TIME_MARGIN,
     SPEED_LIMIT_RPM,
     VELOCITY_STREAM,
     DriveScale,
@@ -93,6 +94,10 @@ VELOCITY_WRITE_RATE_HZ = 20.0
 # 10000-count motor turn).
 GOAL_TOLERANCE_COUNTS = 10
 GOAL_TOLERANCE_COUNTS_MAX = 1_000_000
+STOP_TIMEOUT_S = 0.05
+# ~/move_to without a timeout_s: limited to the move's time at its speed limit x this
+# (plus the ramps' allowance, decision 17); 0 (set explicitly) = no default limit.
+MOVE_TIME_MARGIN_MAX = 100.0
 
 MOTEC_DEFAULTS = DeviceDefaults(
     "MOTEC β servo drive",
@@ -100,6 +105,9 @@ MOTEC_DEFAULTS = DeviceDefaults(
     poll_rate_hz=10.0,  # per drive; a poll is 4 reads (~15-25 ms at 115200 baud)
     baudrate=DEFAULT_BAUDRATE,
     timeout_s=0.1,  # a reply is a few ms at 115200: a dead drive costs little bus time
+    # A stop or lifeguard feed sent while the drive is marked down: one try this long (a
+    # reply is a few ms), so a dead line costs the other drives little per feed period.
+    stop_timeout_s=STOP_TIMEOUT_S,
 )
 
 
@@ -211,6 +219,21 @@ class MotecDriveNode(BridgeNode[MotecSnapshot]):
                     False,
                     "every poll also reads 0x79, FC 01 (outputs) and FC 02 (inputs): 3 more reads",
                 ),
+                ParameterSpec(
+                    "allow_unlisted_parameters",
+                    False,
+                    "~/write_parameter may write Pr.N the manual does not name (FC 06, one "
+                    "word; the drive checks the value and answers exception 03)",
+                ),
+                ParameterSpec(
+                    "move_time_margin",
+                    MOVE_TIME_MARGIN,
+                    "~/move_to without timeout_s: stopped after the move's time at its speed "
+                    "limit x this + a ramp allowance; 0 = no default limit",
+                    0.0,
+                    MOVE_TIME_MARGIN_MAX,
+                    live=True,
+                ),
             ]
         )
         self.scale = DriveScale(float(values["counts_per_rev"]), float(values["gear_ratio"]))
@@ -224,12 +247,19 @@ class MotecDriveNode(BridgeNode[MotecSnapshot]):
             velocity_timeout_s=float(values["command_timeout_s"]),
             output1_coil=int(values["output1_coil"]),
             read_io_tables=bool(values["read_io_tables"]),
+            allow_unlisted_parameters=bool(values["allow_unlisted_parameters"]),
         )
         self.lifeguard_error: str | None = None
         self.goal_tolerance_counts = int(values["goal_tolerance_counts"])
         self.on_parameter(
             "goal_tolerance_counts", lambda value: setattr(self, "goal_tolerance_counts", value)
         )
+        self.move_time_margin = float(values["move_time_margin"])
+        self.on_parameter(
+            "move_time_margin", lambda value: setattr(self, "move_time_margin", float(value))
+        )
+        # read_only stops the lifeguard feeds: refused while the drive is armed (item 5).
+        self.on_parameter_write("read_only", self._read_only_refusal)
         self.joint_names = [f"{self.joint_prefix}drive_{unit_id}"]
         self.state_pub = self.create_publisher(MotecState, "~/state", 10)
         self._create_services()
@@ -420,11 +450,13 @@ class MotecDriveNode(BridgeNode[MotecSnapshot]):
             relative=bool(goal.relative),
             max_velocity_rad_s=float(goal.max_velocity),
             tolerance_counts=self.goal_tolerance_counts,
+            # A goal's own timeout_s replaces the default limit.
+            time_limit_margin=0.0 if float(goal.timeout_s) > 0 else self.move_time_margin,
         )
 
     def _set_control_mode(self, r: Any) -> None:
         s = self.last_snapshot
-        if s is not None and s.speed_actual_rpm != 0:
+        if s is not None and s.turning:
             raise CommandRejected(
                 f"the motor turns at {s.speed_actual_rpm} rpm: ~/stop it before changing mode"
             )
@@ -466,7 +498,10 @@ class MotecDriveNode(BridgeNode[MotecSnapshot]):
         return None
 
     def _next_feed(self) -> float | None:
-        if self.read_only or not self.configured or not self.channel.connected:
+        # Fed while the drive is marked down too, once it was up (armed by on_link_up):
+        # a line that comes back within the lifeguard time must find the drive fed
+        # before it trips (README "Lifeguard").
+        if self.read_only or not self.configured or self.channel.generation == 0:
             return None
         time_ms = self.lifeguard_time_ms()
         return self.device.next_feed(time_ms) if time_ms else None
@@ -474,11 +509,27 @@ class MotecDriveNode(BridgeNode[MotecSnapshot]):
     def _feed_lifeguard(self) -> None:
         time_ms = self.lifeguard_time_ms()
         try:
-            # Not across a reconnect: on_link_up arms the drive again first.
-            with self.channel.command_session():
+            if self.channel.connected:
+                with self.channel.command_session():
+                    self.device.feed_lifeguard(time_ms)
+            else:
+                # As a stop is sent while down: one try, the short stop timeout, no
+                # session (no reconnect to wait for); one per feed period (next_feed).
                 self.device.feed_lifeguard(time_ms)
         except LinkError as err:  # the poll reports the link; nothing else to do here
             self.get_logger().warn(f"lifeguard feed failed: {err}", throttle_duration_sec=5.0)
+
+    def _read_only_refusal(self, value: bool) -> str | None:
+        """Why read_only may not be set now: it would end the feeds of an armed drive,
+        which then faults and releases its motor (a vertical axis drops)."""
+        time_ms = self.lifeguard_time_ms()
+        if not value or self.read_only or not time_ms:
+            return None
+        return (
+            f"read_only refused: the drive's lifeguard is armed ({time_ms} ms) and read_only "
+            f"ends its feeds, so the drive would fault and release its motor within {time_ms} "
+            "ms; set lifeguard_ms to 0 first (disarms the drive), then read_only"
+        )
 
     # The lifeguard is fed while the node is configured (inactive too: it still owns the
     # drive); cleanup ends the feeds, as an exit does, and the armed drive then faults.
@@ -540,6 +591,8 @@ class MotecBusNode(BusNode):
         self.broadcast = DeviceChannel(self.link, BROADCAST_UNIT, retries=0)
         # One channel per drive for start_all's check (its own: no drive node's backoff).
         self.drive_channels = {u: DeviceChannel(self.link, u, retries=0) for u in self.unit_ids}
+        # The drive nodes of this process (build_nodes): start_all obeys their read_only.
+        self.drive_nodes: dict[int, MotecDriveNode] = {}
         self.create_service(Trigger, "~/disable_all", self._disable_all)
         self.create_service(Trigger, "~/start_all", self._start_all)
 
@@ -548,12 +601,16 @@ class MotecBusNode(BusNode):
             response.success, response.message = False, "disable_all refused: read_only is set"
             return response
         try:
-            disable_all(self.broadcast)
+            ok, seen = disable_all(self.broadcast, self.drive_channels)
         except LinkError as err:
             response.success, response.message = False, f"disable_all failed: {err}"
             return response
-        response.success = True
-        response.message = "disable_all: broadcast 0x28 = 0 sent (drives do not answer a broadcast)"
+        response.success = ok
+        response.message = (
+            f"disable_all: broadcast 0x28 = 0 sent, read back: {seen}"
+            if ok
+            else f"disable_all: broadcast 0x28 = 0 sent, NOT every drive released: {seen}"
+        )
         return response
 
     def _start_all(self, _request: Any, response: Any) -> Any:
@@ -564,17 +621,19 @@ class MotecBusNode(BusNode):
         elif self.read_only:
             response.message = "start_all refused: read_only is set, nothing was written"
         else:
+            read_only = [u for u, node in self.drive_nodes.items() if node.read_only]
             try:
-                start_all(self.broadcast, self.drive_channels)
+                ok, seen = start_all(self.broadcast, self.drive_channels, read_only)
             except CommandRejected as err:
                 response.message = f"start_all refused: {err}"
             except LinkError as err:
                 response.message = f"start_all failed: {err}"
             else:
-                response.success = True
+                response.success = ok
                 response.message = (
-                    f"start_all: broadcast 0x29 = 1 sent to drives {self.unit_ids} (each was "
-                    "ready; drives do not answer a broadcast)"
+                    f"start_all: broadcast 0x29 = 1 sent, read back: {seen}"
+                    if ok
+                    else f"start_all: broadcast 0x29 = 1 sent, not synchronised: {seen}"
                 )
         return response
 
@@ -588,7 +647,9 @@ def build_nodes(nodes: list[Node]) -> None:
     bus = MotecBusNode()
     nodes.append(bus)
     for unit in bus.unit_ids:
-        nodes.append(MotecDriveNode(unit, bus.link, drives_on_bus=len(bus.unit_ids)))
+        drive = MotecDriveNode(unit, bus.link, drives_on_bus=len(bus.unit_ids))
+        bus.drive_nodes[unit] = drive
+        nodes.append(drive)
 
 
 def main(args: Sequence[str] | None = None) -> int:

@@ -142,7 +142,13 @@ LIFEGUARD_OFF_MS = 0  # §3.4: "当Pr.274为非零值 ..."
 LIFEGUARD_MODE_OFF = 0
 FAULT_NONE = 0  # §4.3: "0—无故障"
 FAULT_PRESENT = 1  # §4.3: "1—有故障"
-FAULT_TEXTS = {FAULT_NONE: "no fault (无故障)", FAULT_PRESENT: "fault (有故障)"}
+# The flag as the whole uint32 (0xC9 = 1) or as the high word §4.3 prints it beside
+# (0xC8 = 1, 0xC9 = 0): which half a drive fills is not shown (decision 7).
+FAULT_TEXTS = {
+    FAULT_NONE: "no fault (无故障)",
+    FAULT_PRESENT: "fault (有故障)",
+    FAULT_PRESENT << 16: "fault (有故障)",
+}
 
 I32_MAX = (1 << 31) - 1
 DISTANCE_MIN = -I32_MAX  # §5.1: "-2147483647~~2147483647"

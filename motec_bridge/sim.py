@@ -28,12 +28,15 @@ silent; the choices are listed in the README's MOTEC section):
   released, outputs off, position 0. Enabling while a fault is latched answers 0x03;
 - lifeguard (§3.4): with 0x112 != 0 and 0x114 = 9999 in network mode, a drive that gets
   no write (any FC 05/06/16 to its unit id or to the broadcast id) for 0x112 ms latches
-  fault ``lifeguard_fault_code`` (1, the manual's "有故障") and releases the motor.
+  fault ``lifeguard_fault_code`` (0xC8 = 1, the manual's "有故障", 0xC9 = 0) and
+  releases the motor.
   Reads do not feed it (the strictest reading of "没有指令信号");
 - ``inject_fault(code)`` latches any fault (and releases), ``set_input`` drives an
   input (0xC5 and FC 02 agree), ``set_analog`` the analog input 0x109; outputs switched
   by FC 05, or FC 06 at 0x79 / 0xC6 (low 3 bits), show in 0x79, 0xC6 and FC 01 alike;
-- 0x35 = 1 counts a save to flash and reads back 0 (§3.5);
+- 0x35 = 1 counts a save to flash, is echoed ``00 01`` and reads 0 from the next tick
+  (§3.5: the drive clears it when done); ``start_is_trigger`` makes 0x29 = 0 leave a
+  move running (the other reading of 0x29); ``deaf_to_broadcast`` units miss broadcasts;
 - replies after ``reply_delay_s`` (0 by default: the manual states none); the whole bus
   can withhold its replies (``withhold_replies``).
 """
@@ -81,7 +84,9 @@ DEFAULT_COUNTS_PER_REV = 10000
 DEFAULT_ACCEL_RPM_S = 6000.0
 DEFAULT_MOVE_SPEED_RPM = 600.0
 POWER_UP_OPERATION_MODE = 1  # anything but network: the user must select network mode
-LIFEGUARD_FAULT_CODE = FAULT_PRESENT
+# §4.3 writes "0—无故障" and "1—有故障" beside "故障代码 0x00C8高位": during a fault 0xC8 reads 1
+# (decision 7); the detail 0xC9 has no listed value and stays 0.
+LIFEGUARD_FAULT_CODE = FAULT_PRESENT << 16
 OUTPUT_MASK = (1 << OUTPUTS) - 1
 I32_MIN, I32_MAX = -(1 << 31), (1 << 31) - 1
 _WRITABLE_HOLDING = {
@@ -145,6 +150,10 @@ class MotecSimDrive(SimulatedDevice):
         self.forced_inputs = 0
         self.analog = 0
         self.saves = 0
+        self.save_pending = False  # 0x35 = 1 written, cleared at the next tick (§3.5)
+        # True: 0x29 = 0 does not stop a move (a drive that takes 0x29 as a start trigger
+        # only, the other reading of "运动/停止寄存器", decision 18)
+        self.start_is_trigger = False
         self.lifeguard_trips = 0
         self.last_command = clock()
         self.write_guards.append(self._guard)
@@ -266,12 +275,14 @@ class MotecSimDrive(SimulatedDevice):
         if "start" in written:
             if self.value("start") == 1:
                 self._start_move()
-            elif self.move is not None:
+            elif self.move is not None and not self.start_is_trigger:
                 self.move = Move(None, 0.0) if self.speed else None
         if "save_to_flash" in written and self.value("save_to_flash") == 1:
             self.saves += 1
-            self.set("save_to_flash", 0)
             self.flash = {name: self.value(name) for name in _SAVED}
+            # Cleared "when done" (§3.5), not before the reply: the FC 06 reply echoes
+            # the 00 01 written, as §3.5's frame prints it.
+            self.save_pending = True
         for name in _OUTPUT_WORDS:
             if name in written:
                 self.outputs = self.value(name) & OUTPUT_MASK
@@ -293,6 +304,9 @@ class MotecSimDrive(SimulatedDevice):
     # ------------------------------------------------------------ time
     def tick(self, dt: float) -> None:
         with self.lock:
+            if self.save_pending:
+                self.save_pending = False
+                self.set("save_to_flash", 0)
             self._check_lifeguard()
             self._advance(dt)
             self._update_registers()

@@ -206,3 +206,36 @@ def test_move_to_ended_by_a_fault_by_read_only_and_by_a_lost_link(
         reply = b.call(2, Trigger, "stop")
         assert reply.success, reply.message
         wait_for(lambda: sim.drive(2).value("speed_actual") == 0, 20.0, "drive 2 stopped")
+
+
+def test_move_to_default_time_limit_and_a_stop_that_does_not_take(
+    bus: tuple[MotecSimulator, str], client: Client, tmp_path: Path
+) -> None:
+    """Issue 20 items 6 and 7: a goal without timeout_s ends TIMED_OUT after the move's
+    time at its speed limit x move_time_margin + the ramps' allowance; a cancel on a
+    drive that takes 0x29 as a start trigger only sees the move go on, releases the
+    drive and says so in the result."""
+    sim, port = bus
+    drive = sim.drive(1)
+    with motec(client, tmp_path, bridge_params(port, unit_ids=[1])) as (b, _proc):
+        ready(b, 1)
+        # 20 turns at one a second: 20 s; x 0.01 + 2 s = 2.2 s.
+        assert b.set_param(1, "move_time_margin", 0.01).successful
+        goal = move_to(b, 1, LONG, relative=True)
+        status, result = goal.result()
+        assert status == GoalStatus.STATUS_ABORTED
+        assert result.outcome.code == MotionOutcome.TIMED_OUT, result.outcome.message
+        assert "default limit" in result.outcome.message, result.outcome.message
+        assert result.outcome.stop_sent
+        wait_for(lambda: drive.value("speed_actual") == 0, 20.0, "drive 1 standing")
+        assert b.set_param(1, "move_time_margin", 0.0).successful  # explicitly none
+
+        drive.start_is_trigger = True
+        goal = move_to(b, 1, LONG, relative=True)
+        moving_feedback(goal)
+        goal.cancel()
+        status, result = goal.result()
+        assert result.outcome.code == MotionOutcome.CANCELLED, result.outcome.message
+        assert "0x29 = 0 did not stop the move" in result.outcome.message, result.outcome.message
+        assert "drive released (0x28 = 0, reads 0)" in result.outcome.message
+        assert not drive.enabled and drive.value("speed_actual") == 0

@@ -19,18 +19,26 @@ import pytest
 from pymodbus.framer import FramerRTU
 
 from bridge_core.channel import DeviceChannel, Priority
-from bridge_core.errors import CommandRejected, DeviceException
+from bridge_core.errors import CommandRejected, DeviceException, LinkTimeout, NotSent
+from bridge_core.goals import Outcome
 from bridge_core.registers import Table, ValueType, WordOrder
 from bridge_core.transport import ModbusLink, SerialSettings
 from motec_bridge.device import (
     CONFIG_PLAN,
     MODE_PLAN,
+    MOVE_TIME_ALLOWANCE_S,
+    STANDSTILL_SPEED_RPM,
     STATUS_PLAN,
     DriveScale,
+    Modes,
+    MotecConfig,
     MotecDevice,
+    MotecSnapshot,
+    MoveToMotion,
     disable_all,
     lifeguard_bound_text,
     lifeguard_min_ms,
+    move_time_limit_s,
 )
 from motec_bridge.registers import (
     CONTROL_MODE_POSITION,
@@ -99,6 +107,13 @@ def modes_read(operation: int, control: int, enabled: int) -> Step:
     return Step(frame("03 00 24 00 06"), frame(f"03 0C {data}"), "read 0x24-0x29")
 
 
+def motion_read(setpoint: int, speed: int) -> Step:
+    """A stop's check: 0xAA-0xAF (setpoint, actual position, speed limit, actual speed)."""
+    words = [setpoint >> 16 & 0xFFFF, setpoint & 0xFFFF, 0, 0, 300, speed & 0xFFFF]
+    data = "".join(f"{w:04X}" for w in words)
+    return Step(frame("03 00 AA 00 06"), frame(f"03 0C {data}"), "read 0xAA-0xAF")
+
+
 # ---------------------------------------------------------------- CRC
 
 
@@ -158,13 +173,33 @@ def test_absolute_move_with_a_speed_limit_and_stop() -> None:
         echo("06 00 29 00 01", "start"),
         modes_read(0, CONTROL_MODE_POSITION, 1),
         echo("06 00 29 00 00", "stop: 0x29 is the move / stop register"),
+        motion_read(-1000, -300),
+        motion_read(-1200, -120),  # the speed falls: the stop took
     ]
 
     def act(d: MotecDevice) -> str:
         d.move(-5000, relative=False, speed_rpm=300.0)
         return d.stop()
 
-    assert "0x29 = 0" in run(steps, act)
+    assert run(steps, act) == "move stopped (0x29 = 0; 0xAA -1000 -> -1200, 0xAF -300 -> -120 rpm)"
+
+
+def test_a_position_stop_that_does_not_take_releases_the_drive() -> None:
+    """Issue 20 item 7: a drive that takes 0x29 as a start trigger only runs on after
+    0x29 = 0; within two reads the setpoint still advances at full speed: released."""
+    steps = [
+        echo("06 00 29 00 00", "stop"),
+        motion_read(1000, 300),
+        motion_read(1500, 300),
+        motion_read(2000, 301),
+        echo("06 00 28 00 00", "release: the stop the manual gives for every mode"),
+        modes_read(0, CONTROL_MODE_POSITION, 0),
+    ]
+    said = run(steps, lambda d: d.stop_move())
+    assert said == (
+        "0x29 = 0 did not stop the move (0xAA 1000 -> 2000, 0xAF 300 -> 301 rpm): drive "
+        "released (0x28 = 0, reads 0)"
+    )
 
 
 def test_setpoint_position_speed_and_fault_reads() -> None:
@@ -273,7 +308,7 @@ def test_lifeguard_save_and_analog_max_speed_frames() -> None:
 def test_broadcast_disable_gets_no_reply() -> None:
     steps = [Step(frame("06 00 28 00 00", unit=0), b"", "broadcast release")]
     with replay(steps, unit=0) as (_, channel):
-        disable_all(channel)
+        disable_all(channel, {})
         assert channel.stats.timeouts == 0
 
 
@@ -474,8 +509,61 @@ def test_lifeguard_disarm_and_feeds_go_first() -> None:
     d = MotecDevice(io)
     assert d.feed_lifeguard(500)
     d.disarm_lifeguard()
-    assert io.writes == [("06", 0x112, 500), ("06", 0x114, 0)]
-    assert io.priorities == [Priority.KEEPALIVE, Priority.COMMAND]
+    # Issue 20 item 9: §3.4's frame disarms with 0x112 = 0; 0x114 = 0 only after it.
+    assert io.writes == [("06", 0x112, 500), ("06", 0x112, 0), ("06", 0x114, 0)]
+    assert io.priorities == [Priority.KEEPALIVE, Priority.COMMAND, Priority.COMMAND]
+
+
+def test_a_drive_is_armed_unless_its_lifeguard_time_reads_0() -> None:
+    """Issue 20 item 9: a non-zero 0x112 with any mode may be watching (decision 9)."""
+    assert MotecConfig(0, 500, 0).lifeguard_armed
+    assert MotecConfig(0, 500, 9999).lifeguard_armed
+    assert not MotecConfig(0, 0, 9999).lifeguard_armed
+
+
+class SlowIO(FakeIO):
+    """A FakeIO whose writes take ``write_s`` on ``now`` and may time out."""
+
+    def __init__(self, now: list[float], write_s: float) -> None:
+        super().__init__()
+        self.now, self.write_s, self.fail, self.not_sent = now, write_s, False, False
+
+    def write_register(
+        self, address: int, value: int, priority: Priority = Priority.COMMAND
+    ) -> None:
+        if self.not_sent:
+            raise NotSent("the link was lost while the command waited; not sent")
+        self.now[0] += self.write_s
+        if self.fail:
+            raise LinkTimeout("no reply")
+        super().write_register(address, value, priority)
+
+
+def test_lifeguard_feeds_count_from_the_request_and_go_on_while_down() -> None:
+    """Issue 20 item 5: the next feed is due a feed period after the last write's
+    request (not its reply), and a feed that failed (line down) is tried again a feed
+    period after its own request: never waiting for a reconnect, never in a burst."""
+    now = [100.0]
+    io = SlowIO(now, write_s=0.04)
+    d = MotecDevice(io, clock=lambda: now[0])
+    assert d.feed_lifeguard(300)  # request at 100.0, reply at 100.04
+    assert d.next_feed(300) == pytest.approx(100.1)
+    io.fail = True
+    now[0] = 100.1
+    with pytest.raises(LinkTimeout):
+        d.feed_lifeguard(300)  # request at 100.1, timed out at 100.14
+    assert not d.feed_lifeguard(300)  # not again at once
+    assert d.next_feed(300) == pytest.approx(100.2)
+    now[0] = 100.2
+    io.fail = False
+    assert d.feed_lifeguard(300)
+    assert d.next_feed(300) == pytest.approx(100.3)
+    # A feed refused before it went out (the session's link was lost): due again at once.
+    now[0] = 100.3
+    io.not_sent = True
+    with pytest.raises(NotSent):
+        d.feed_lifeguard(300)
+    assert d.next_feed(300) == pytest.approx(100.3)
 
 
 def test_lifeguard_feed_only_when_nothing_else_was_written() -> None:
@@ -505,3 +593,72 @@ def test_drive_scale() -> None:
             s.to_counts(bad)
     with pytest.raises(ValueError, match="counts_per_rev"):
         DriveScale(counts_per_rev=0)
+
+
+def snapshot(setpoint: int, actual: int, speed: int) -> MotecSnapshot:
+    """A poll of a drive in network mode, position control, enabled, no fault."""
+    return MotecSnapshot(
+        read_time=0.0,
+        modes=Modes(0, CONTROL_MODE_POSITION, True),
+        motion_mode=1,
+        target_distance=10000,
+        start=1,
+        position_setpoint=setpoint,
+        position_actual=actual,
+        speed_setpoint_rpm=600,
+        speed_actual_rpm=speed,
+        input_word=0,
+        output_word=0,
+        fault_code=0,
+        analog_input=0,
+        config=MotecConfig(0, 0, 0),
+    )
+
+
+def move_to(tolerance: int = 10, margin: float = 0.0) -> MoveToMotion:
+    return MoveToMotion(
+        MotecDevice(FakeIO()),
+        DriveScale(),
+        2 * math.pi,  # 10000 counts
+        relative=False,
+        max_velocity_rad_s=2 * math.pi * 10,  # 600 rpm
+        tolerance_counts=tolerance,
+        time_limit_margin=margin,
+    )
+
+
+def test_move_to_ends_on_a_servo_that_rests_a_few_counts_off() -> None:
+    """Issue 20 item 6: a real servo at rest dithers (0xAF +-1-2 rpm, 0xAC 1-2 counts
+    from 0xAA); "stands" is a band, seen on two polls in a row, REACHED too."""
+    motion = move_to()
+    assert STANDSTILL_SPEED_RPM >= 2
+    # ~/set_control_mode refuses a turning motor, not 0xAF noise.
+    assert not snapshot(0, 0, -2).turning and snapshot(0, 0, STANDSTILL_SPEED_RPM + 1).turning
+    assert motion.judge(snapshot(5000, 4990, 600), 1.0) is None  # running
+    assert motion.judge(snapshot(10000, 9998, -2), 1.1) is None  # stands: once
+    verdict = motion.judge(snapshot(10000, 10001, 1), 1.2)  # twice
+    assert verdict is not None and verdict.outcome is Outcome.REACHED, verdict
+    motion = move_to()
+    assert motion.judge(snapshot(5000, 4990, 600), 1.0) is None
+    assert motion.judge(snapshot(10000, 9998, -2), 1.1) is None
+    assert motion.judge(snapshot(10000, 9970, 0), 1.2) is None  # 30 counts behind: moving
+    assert motion.judge(snapshot(10000, 10002, 0), 1.3) is None
+    verdict = motion.judge(snapshot(10000, 10002, 2), 1.4)
+    assert verdict is not None and verdict.outcome is Outcome.REACHED
+
+
+def test_move_to_has_a_default_time_limit() -> None:
+    """Issue 20 item 6: without a goal timeout_s the move is limited to its time at the
+    speed limit x the margin + the ramps' allowance; a margin 0 (explicit) gives none."""
+    # 100000 counts at 600 rpm (10 turns a second) of a 10000-count motor: 1 s; x 2 +
+    # the allowance.
+    limit = 2 + MOVE_TIME_ALLOWANCE_S
+    assert move_time_limit_s(100_000, 600, 10000, 2.0) == pytest.approx(limit)
+    assert move_time_limit_s(10000, 0, 10000, 2.0) == math.inf
+    motion = move_to(margin=2.0)
+    motion.time_limit_s = move_time_limit_s(100_000, 600, 10000, 2.0)
+    assert motion.judge(snapshot(5000, 4990, 600), limit - 0.1) is None
+    verdict = motion.judge(snapshot(9000, 9000, 0), limit + 0.1)
+    assert verdict is not None and verdict.outcome is Outcome.TIMED_OUT
+    assert "default limit" in verdict.message
+    assert move_to(margin=0.0).time_limit_s == math.inf

@@ -145,7 +145,9 @@ def test_lifeguard_expiry_latches_a_fault_and_releases() -> None:
     assert drive.read(3, 0xAC, 2) is not None  # reads do not feed it
     now[0] += 0.21
     drive.tick(DT)
-    assert drive.value("fault_code") == LIFEGUARD_FAULT_CODE == 1
+    assert drive.value("fault_code") == LIFEGUARD_FAULT_CODE
+    # Issue 20 item 12: §4.3's "1—有故障" stands beside 0xC8 (decision 7): the flag word.
+    assert drive.read(3, 0xC8, 2) == [1, 0]
     assert not drive.enabled and drive.value("speed_actual") == 0
     assert write(drive, "enable", 1) == 3  # refused while the fault is latched
     assert write(drive, "enable", 0) is None  # releasing does not clear it (no reset, §3.4)
@@ -181,7 +183,11 @@ def test_writes_refused_where_the_drive_would() -> None:
     assert drive.read(3, 0x2A, 3) == [0, 0, 0]  # unnamed parameters read as 0
     assert drive.read(3, 0x114, 2) == 2  # past the end of the table
     assert write(drive, "save_to_flash", 1) is None
-    assert drive.value("save_to_flash") == 0 and drive.saves == 1
+    # Issue 20 item 12: cleared "when done" (the next tick), so the FC 06 reply, built
+    # from what the register holds after the write, echoes §3.5's printed 00 01.
+    assert drive.value("save_to_flash") == 1 and drive.saves == 1
+    drive.tick(DT)
+    assert drive.value("save_to_flash") == 0
     assert drive.write(6, 0x79, [0b1010]) is None  # FC 06 on the output word: low 3 bits
     assert drive.value("output_state") == 0b010 == drive.value("output_word")
     assert drive.read(1, 0, 3) == [0, 1, 0]
@@ -254,12 +260,21 @@ def test_broadcast_reaches_every_drive_and_nobody_answers(bus: Bus) -> None:
         bus.devices[u].set_control_mode(CONTROL_MODE_POSITION)
         bus.devices[u].enable(True)
     broadcast = DeviceChannel(bus.link, 0, retries=0)
-    disable_all(broadcast)
+    drives = {u: bus.channels[u] for u in UNITS}
+    # Issue 20 item 8: drive 2 misses the frame; the read-back finds it still enabled and
+    # it gets a write of its own; the answer comes from what every drive reads.
+    bus.sim.deaf_to_broadcast.add(2)
+    ok, seen = disable_all(broadcast, drives)
+    assert ok, seen
+    assert "drive 2: 0x28 = 0, 0x29 = 0, 0xAA = 0, 0xAF = 0 rpm (missed the broadcast" in seen
     assert broadcast.stats.timeouts == 0
     for u in UNITS:
         assert not bus.devices[u].poll().modes.enabled
         last = bus.sim.drive(u).write_log[-1]
         assert (last.address, last.values) == (0x28, (0,))
+    bus.sim.unplug(3)  # a drive that does not answer: its state is unknown, no success
+    ok, seen = disable_all(broadcast, drives)
+    assert not ok and "drive 3: did not answer" in seen
 
 
 def test_unplugged_and_unknown_drives_are_silent(bus: Bus) -> None:
@@ -270,7 +285,7 @@ def test_unplugged_and_unknown_drives_are_silent(bus: Bus) -> None:
         bus.channels[9].read_registers(0x24, 1)
     assert bus.devices[1].poll().modes.operation_mode == 1  # the others answer
     assert bus.devices[3].poll().fault_code == 0
-    disable_all(DeviceChannel(bus.link, 0, retries=0))  # an unplugged drive misses it
+    disable_all(DeviceChannel(bus.link, 0, retries=0), {})  # an unplugged drive misses it
     assert bus.sim.drive(2).write_log == []
     bus.sim.plug(2)
     assert bus.devices[2].poll().fault_code == 0
@@ -348,8 +363,26 @@ def test_parameters_by_number_over_the_bus(bus: Bus) -> None:
     for number, value, reason in refusals:
         with pytest.raises(CommandRejected, match=reason):
             d.write_parameter(number, value)
-    with pytest.raises(CommandRejected, match="not a parameter"):
-        d.read_parameter(0x2A)
+    # Issue 20 item 10: any Pr.N reads (no range needed); past the table the drive says 02.
+    assert d.read_parameter(0x2A) == 0
+    with pytest.raises(DeviceException, match="ILLEGAL DATA ADDRESS"):
+        d.read_parameter(0x115)
+    with pytest.raises(CommandRejected, match=r"low word of the 32-bit Pr\.38"):
+        d.read_parameter(39)
+    with pytest.raises(CommandRejected, match="parameter number 65536"):
+        d.read_parameter(0x10000)
+    # Unlisted writes only with the opt-in; the drive checks the value (it refuses this
+    # one: the simulator never writes an unnamed parameter, 02).
+    opted = MotecDevice(bus.channels[1], allow_unlisted_parameters=True)
+    with pytest.raises(DeviceException, match="ILLEGAL DATA ADDRESS"):
+        opted.write_parameter(0x2A, -1)
+    for number, value, reason in [
+        (0x2A, 70000, "outside"),
+        (39, 0, "low word"),
+        (0x28, 1, "~/enable"),
+    ]:
+        with pytest.raises(CommandRejected, match=reason):
+            opted.write_parameter(number, value)
     assert len(drive.write_log) == 3
     # The drive itself: an unnamed parameter 0x02, out of range 0x03, half a value 0x02.
     with pytest.raises(DeviceException, match="ILLEGAL DATA ADDRESS"):
@@ -373,22 +406,37 @@ def test_broadcast_start_moves_every_ready_drive_and_gets_no_reply(bus: Bus) -> 
     with pytest.raises(CommandRejected, match="drive 3 did not answer"):
         start_all(broadcast, drives)
     bus.sim.plug(3)
+    # Issue 20 item 8: ~/move's checks and each drive node's read_only.
+    with pytest.raises(CommandRejected, match="drive 2's node is read_only"):
+        start_all(broadcast, drives, read_only=[2])
+    bus.channels[3].write_register(0xAE, 0)
+    with pytest.raises(CommandRejected, match="drive 3's speed limit 0xAE is 0 rpm"):
+        start_all(broadcast, drives)
+    bus.channels[3].write_register(0xAE, 600)
     assert all(r.address != 0x29 for u in UNITS for r in bus.sim.drive(u).write_log)
-    started = time.monotonic()
-    start_all(broadcast, drives)
-    assert time.monotonic() - started < 0.5  # no reply awaited (the reads take ms)
+    ok, seen = start_all(broadcast, drives)
+    assert ok, seen
     assert broadcast.stats.timeouts == 0
+    for u in UNITS:  # read back after the broadcast: every drive took it
+        assert f"drive {u}: 0x28 = 1, 0x29 = 1" in seen
     deadline = time.monotonic() + 30
-    for u in UNITS:  # the client returned once the frame was sent: wait for the drives
-        while (bus.sim.drive(u).write_log[-1].address, bus.sim.drive(u).write_log[-1].values) != (
-            0x29,
-            (1,),
-        ):
-            assert time.monotonic() < deadline, bus.sim.drive(u).write_log[-1]
-            time.sleep(0.01)
     while any((s := bus.devices[u].poll()).position_actual != 1000 * u or s.moving for u in UNITS):
         assert time.monotonic() < deadline
         time.sleep(0.02)
+    # A drive that misses the start: not synchronised, the others are stopped.
+    for u in UNITS:
+        bus.devices[u].write_parameter(0x26, 100_000)
+    bus.sim.deaf_to_broadcast.add(2)
+    ok, seen = start_all(broadcast, drives)
+    assert not ok and "drives [2] did not take the start" in seen, seen
+    assert "drive 1: move stopped" in seen and "drive 3: move stopped" in seen
+    while any(bus.devices[u].poll().speed_actual_rpm for u in UNITS):
+        assert time.monotonic() < deadline
+        time.sleep(0.02)
+    assert all(bus.devices[u].poll().position_actual < 1000 * u + 100_000 for u in (1, 3))
+    bus.sim.drive(1).inject_fault(0x10031)
+    with pytest.raises(CommandRejected, match="drive 1 has fault 65585"):
+        start_all(broadcast, drives)
 
 
 def test_io_tables_fault_halves_and_output_numbering(bus: Bus) -> None:
@@ -407,3 +455,74 @@ def test_io_tables_fault_halves_and_output_numbering(bus: Bus) -> None:
     assert s.outputs == (False, True, False) == s.coil_outputs
     assert s.discrete_inputs == (False, False, True, False, False, False, False, False)
     assert bus.devices[1].poll().outputs == (False, False, True)  # default numbering
+
+
+# ---------------------------------------------------------------- issue 20 items
+
+
+def rtu(body: str, unit: int = 1) -> bytes:
+    """An RTU frame: unit, PDU, Modbus CRC low byte first (§6, decision 2)."""
+    data = bytes([unit]) + bytes.fromhex(body)
+    crc = 0xFFFF
+    for byte in data:
+        crc ^= byte
+        for _ in range(8):
+            crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
+    return data + crc.to_bytes(2, "little")
+
+
+def test_save_echo_and_a_function_code_pymodbus_cannot_frame() -> None:
+    """Item 12: §3.5's save reply echoes ``00 01`` as printed; FC 0x41 (no length
+    pymodbus knows) gets exception 01 and the next request its answer."""
+    import serial
+
+    sim = make_simulator(UNITS)
+    with socat_pair() as (bridge_end, device_end, _):
+        sim.start_serial(device_end, BAUD)
+        port = serial.Serial(bridge_end, BAUD, timeout=0.05)
+        try:
+
+            def exchange(request: bytes, size: int) -> bytes:
+                port.reset_input_buffer()
+                port.write(request)
+                reply = b""
+                deadline = time.monotonic() + 5
+                while len(reply) < size and time.monotonic() < deadline:
+                    reply += port.read(size - len(reply))
+                return reply
+
+            save = rtu("06 00 35 00 01")
+            assert exchange(save, 8) == save
+            assert sim.drive(1).saves == 1
+            assert exchange(rtu("41 00 00 00 01"), 5) == rtu("C1 01")
+            assert exchange(rtu("03 00 24 00 01"), 7) == rtu("03 02 00 01")
+        finally:
+            port.close()
+            sim.stop()
+
+
+def test_a_position_stop_that_does_not_take_releases_the_drive(bus: Bus) -> None:
+    """Item 7: on a drive that takes 0x29 as a start trigger only, 0x29 = 0 leaves the
+    move running; the check sees it and releases the drive, and says so."""
+    d, drive = bus.devices[1], bus.sim.drive(1)
+    d.set_control_mode(CONTROL_MODE_POSITION)
+    d.enable(True)
+    d.move(10_000_000, relative=True, speed_rpm=600)
+    deadline = time.monotonic() + 30
+    while d.poll().speed_actual_rpm < 600:
+        assert time.monotonic() < deadline
+        time.sleep(0.01)
+    said = d.stop()
+    assert said.startswith("move stopped (0x29 = 0;"), said  # the simulator's reading
+    while d.poll().speed_actual_rpm:
+        assert time.monotonic() < deadline
+        time.sleep(0.01)
+    drive.start_is_trigger = True
+    d.move(10_000_000, relative=True, speed_rpm=600)
+    while d.poll().speed_actual_rpm < 600:
+        assert time.monotonic() < deadline
+        time.sleep(0.01)
+    said = d.stop()
+    assert said.startswith("0x29 = 0 did not stop the move (0xAA "), said
+    assert said.endswith("drive released (0x28 = 0, reads 0)"), said
+    assert not drive.enabled and drive.speed == 0

@@ -211,6 +211,7 @@ BRIDGES: tuple[BridgeInfo, ...] = (
             "joint_prefix",
             "output1_coil",
             "read_io_tables",
+            "allow_unlisted_parameters",
         ),
         bus_node="motec_bridge",
         bus_startup_only=("serial_port", "baudrate", "unit_ids", "interface"),
