@@ -68,6 +68,7 @@ class Steps(Protocol):
     sent: int
 
     def step(self) -> None: ...
+    def abandon(self) -> str: ...
     def feedback(self) -> dict[str, Any]: ...
     def result(self) -> dict[str, Any]: ...
 
@@ -475,6 +476,13 @@ class ActionHost:
             run.done.set()
         verdict = run.verdict or Verdict(Outcome.REACHED, f"{steps.what}: done")
         message = f"{verdict.message} ({steps.sent} of {steps.total} sent)"
+        if verdict.outcome is not Outcome.REACHED and steps.sent:
+            # Undo the part that went out (tried even while the link is down, like a stop);
+            # if that fails too, the result says what the device holds.
+            ok, said, undone = self.node.run_command(
+                f"{steps.what}: undo", steps.abandon, stop=True, own_motion=True
+            )
+            message += f"; {undone}" if ok else f"; {said}"
         return self._result(action_type, handle, name, verdict, message, False, steps.result())
 
 

@@ -57,7 +57,14 @@ from std_msgs.msg import Bool
 
 from .channel import DeviceChannel, Priority
 from .diagnostics import Level, Report, link_report
-from .errors import CommandRejected, ConfigurationError, DeviceException, LinkError, NotSent
+from .errors import (
+    CommandRejected,
+    ConfigurationError,
+    DeviceException,
+    LinkError,
+    NotConfirmed,
+    NotSent,
+)
 from .node_actions import ActionHost
 from .parameters import ParameterSpec, ParameterValue
 from .poller import Poller, PollOutcome
@@ -661,6 +668,8 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
                 result = action()
         except CommandRejected as err:
             return False, f"{what} refused: {err}", None
+        except NotConfirmed as err:
+            return False, f"{what}: not confirmed: {err}", None
         except DeviceException as err:
             return False, f"{what}: the device answered {err}", None
         except LinkError as err:
