@@ -52,8 +52,11 @@ COUNTER_IDS_SHOWN = 10  # ids named in a refusal of an unknown counter
 # Registers in one upload frame: the manual's 256-byte frame cap and Modbus's 123 (FC 10).
 POINT_FRAME_MAX_REGISTERS = min(POINT_FRAME_MAX_BYTES // 2, MAX_WRITE_REGISTERS)
 POINT_FRAME_HEADER_REGISTERS = 2  # 30005 point count, 30006 clear flag
-# joint_states is stamped with the read time of the block holding the axis positions.
+# joint_states is stamped with the read time of the block holding the axis positions,
+# ~/tcp_pose with that of the world block (read just before it), ~/state with the time the
+# blocks before those two were read (README R6 decision 26).
 STAMP_REGISTER = "axis_position_1"
+WORLD_STAMP_REGISTER = "world_x"
 MODE_AUTO = 2  # 2185: "2 自动" (decision 2)
 # The commands that set the program running (README R6 decision 23): checked first.
 PROGRAM_COMMANDS = ("start", "single_cycle", "clear_alarm_and_continue", "clear_alarm_and_next")
@@ -98,6 +101,10 @@ class R6Snapshot:
     axis_speeds_rpm: tuple[int, ...]
     axis_torques_rated: tuple[float, ...]
     world: dict[str, float] = field(default_factory=dict)
+    # When the world block (~/tcp_pose) and the other rows (~/state) were read; 0: as
+    # read_time (a snapshot built by hand).
+    world_read_time: float = 0.0
+    state_read_time: float = 0.0
     # Only with ``m_boards`` / ``eu_board`` (README R6 decision 21): empty / None otherwise.
     m_board_inputs: tuple[int, ...] = ()
     m_board_outputs: tuple[int, ...] = ()
@@ -162,8 +169,14 @@ class R6Device:
             # rows of boards not in use, which the controller refuses (§3.1.6).
             plan += plan_reads(R6_MAP, R6_MAP.select(extra))
         # The axis positions last, so a position change reaches joint_states soonest (p99
-        # latency, bench/r6_bench.py); the stamp is their own read time either way.
-        plan.sort(key=lambda request: holds(request, STAMP_REGISTER))
+        # latency, bench/r6_bench.py), the world block just before them (the TCP pose read
+        # one request from the joints, decision 26); each has its own stamp either way.
+        plan.sort(
+            key=lambda request: (
+                holds(request, STAMP_REGISTER),
+                holds(request, WORLD_STAMP_REGISTER),
+            )
+        )
         return plan
 
     def read_counts(self) -> tuple[int, int]:
@@ -175,8 +188,22 @@ class R6Device:
         if self._plan is None or self._plan_counts is None:
             self._plan_counts = self.read_counts()
             self._plan = self.poll_plan(*self._plan_counts)
-        stamp = STAMP_REGISTER if self._plan_counts[0] > 0 else None
-        values, read_time = read_blocks(self.io, self._plan, Priority.POLL, stamp)
+        # Three reads, each with its time: the rest, the world block, the axis positions.
+        plan = self._plan
+        head = [
+            r for r in plan if not holds(r, WORLD_STAMP_REGISTER) and not holds(r, STAMP_REGISTER)
+        ]
+        world = [r for r in plan if holds(r, WORLD_STAMP_REGISTER)]
+        positions = [r for r in plan if holds(r, STAMP_REGISTER) and r not in world]
+        values, state_time = read_blocks(self.io, head, Priority.POLL)
+        world_values, world_time = read_blocks(self.io, world, Priority.POLL, WORLD_STAMP_REGISTER)
+        values.update(world_values)
+        read_time = world_time
+        if positions:
+            position_values, read_time = read_blocks(
+                self.io, positions, Priority.POLL, STAMP_REGISTER
+            )
+            values.update(position_values)
         axis_count = int(values["axis_count"])
         boards = int(values["io_board_count"])
         if (axis_count, boards) != self._plan_counts:
@@ -197,6 +224,8 @@ class R6Device:
 
         return R6Snapshot(
             read_time=read_time,
+            world_read_time=world_time,
+            state_read_time=state_time,
             mode=i("mode"),
             alarm_code=i("alarm_code"),
             moving=bool(i("moving")),

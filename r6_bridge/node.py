@@ -139,7 +139,9 @@ class R6BridgeNode(BridgeNode[R6Snapshot]):
             ],
             [t * self.rated_torques[a] for a, t in enumerate(snapshot.axis_torques_rated)],
         )
-        state = copy_fields(self.stamped(R6State(), snapshot.read_time), snapshot, STATE_FIELDS)
+        # Each message carries the read time of the rows it holds (decision 26).
+        state_time = snapshot.state_read_time or snapshot.read_time
+        state = copy_fields(self.stamped(R6State(), state_time), snapshot, STATE_FIELDS)
         state.world_extra = [snapshot.world[axis] for axis in self.extra_world_axes]
         state.m_board_inputs = list(snapshot.m_board_inputs)
         state.m_board_outputs = list(snapshot.m_board_outputs)
@@ -148,7 +150,7 @@ class R6BridgeNode(BridgeNode[R6Snapshot]):
             state.eu_board_outputs = [snapshot.eu_board_output]
         self.state_pub.publish(state)
 
-        pose = self.stamped(PoseStamped(), snapshot.read_time)
+        pose = self.stamped(PoseStamped(), snapshot.world_read_time or snapshot.read_time)
         world = snapshot.world
         pose.pose.position.x = world["x"] * MM
         pose.pose.position.y = world["y"] * MM

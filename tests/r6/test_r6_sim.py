@@ -778,3 +778,15 @@ def test_an_abandoned_upload_clears_its_source(
     assert sim.points[3] == [] and sim.point_counts[3] == 0
     assert upload.result()["points_held"] == 0
     assert device.read_data_source_length(3) == 0
+
+
+def test_pose_and_state_carry_the_read_time_of_their_own_rows(
+    r6: tuple[R6Device, R6SimDevice, DeviceChannel],
+) -> None:
+    """Decision 26: the world block is read just before the axis positions, and each
+    message's stamp is the time its rows were read."""
+    device, _, _ = r6
+    plan = device.poll_plan(6, 2)
+    assert "world_x" in plan[-2].names and "axis_position_1" in plan[-1].names
+    snap = device.poll()
+    assert 0 < snap.state_read_time < snap.world_read_time < snap.read_time
