@@ -729,7 +729,7 @@ def test_run_cycle_is_refused_in_manual_mode_and_its_stop_is_a_pause(
     assert "pause (20001)" in motion.stop()
     assert [r.address for r in sim.write_log] == [20002, 20001]
     wait_for_poll(device, lambda s: not s.moving, "the pause")
-    assert sim.step == 0 and sim.get("current_cycle_time") > 0  # kept, not reset
+    assert sim.step == 0 and int(sim.get("current_cycle_time")) > 0  # kept, not reset
 
 
 def test_board_outputs_change_only_the_masked_outputs(
