@@ -214,6 +214,7 @@ def test_upload_points_with_progress_and_cancel(
         status, result = second.result()
         assert result.outcome.code == MotionOutcome.REACHED, result.outcome.message
         assert device.points[10] == values[:60]
+        assert device.points[9] == []  # cleared before the newer upload began
 
         # A time limit ends an upload between frames.
         goal = upload(b, 11, values, timeout_s=0.3)
