@@ -13,7 +13,13 @@ from typing import Any
 from bridge_core.channel import Priority, RegisterIO
 from bridge_core.checks import check_whole_number
 from bridge_core.codec import Value, encode, int_to_words, words_to_int
-from bridge_core.errors import CommandRejected, FrameError, NotConfirmed, PollIncomplete
+from bridge_core.errors import (
+    CommandRejected,
+    FrameError,
+    LinkError,
+    NotConfirmed,
+    PollIncomplete,
+)
 from bridge_core.goals import Motion, Outcome, Verdict
 from bridge_core.planner import ReadRequest, plan_reads
 from bridge_core.poller import holds, read_blocks, read_named
@@ -547,10 +553,27 @@ class R6Device:
     def upload_points(
         self, data_source_id: int, values_per_point: int, axis_mask: int, values: Sequence[int]
     ) -> int:
-        """§3.3.5 in one go (the ``~/upload_points`` service); the number of data frames."""
+        """§3.3.5 in one go (the ``~/upload_points`` service); the number of data frames.
+
+        A frame that fails after others went out leaves the source half filled: it is
+        cleared (``PointUpload.abandon``), and the error says so, or, if the clear fails
+        too, how many points of this upload the source holds (README R6 decision 25)."""
         upload = PointUpload(self, data_source_id, values_per_point, axis_mask, values)
         while upload.sent < upload.total:
-            upload.step()
+            try:
+                upload.step()
+            except LinkError as err:
+                if upload.sent == 0:
+                    raise
+                failed = f"frame {upload.sent + 1} of {upload.total} failed ({err})"
+                try:
+                    undone = upload.abandon()
+                except LinkError as again:
+                    undone = (
+                        f"the clear failed too ({again}): source {data_source_id} holds "
+                        f"{upload.points_held_text()}"
+                    )
+                raise NotConfirmed(f"{failed}; {undone}") from err
         return upload.total
 
 

@@ -790,3 +790,25 @@ def test_pose_and_state_carry_the_read_time_of_their_own_rows(
     assert "world_x" in plan[-2].names and "axis_position_1" in plan[-1].names
     snap = device.poll()
     assert 0 < snap.state_read_time < snap.world_read_time < snap.read_time
+
+
+def test_an_upload_service_whose_frame_fails_clears_its_source(
+    r6: tuple[R6Device, R6SimDevice, DeviceChannel],
+) -> None:
+    """Decision 25: the service has no cancel, but a frame refused half-way leaves no
+    path cut short either."""
+    device, sim, _ = r6
+    frames = 0
+
+    def refuse_the_second_frame(record: WriteRecord) -> int | None:
+        nonlocal frames
+        if record.address == R6_MAP["point_count"].address and record.values[0]:
+            frames += 1
+            if frames == 2:
+                return 0x04  # SERVER DEVICE FAILURE
+        return None
+
+    sim.write_guards.append(refuse_the_second_frame)
+    with pytest.raises(NotConfirmed, match=r"frame 2 of 3 failed .*; source 4 cleared"):
+        device.upload_points(4, 6, 0x3F, list(range(6 * 25)))
+    assert sim.points[4] == []
