@@ -58,6 +58,11 @@ class DeviceException(LinkError):
         )
 
 
+class NotConfirmed(BridgeError):
+    """A write went out and was acknowledged, but the value read back does not show it
+    (the message says what was written and what was seen)."""
+
+
 class PollIncomplete(BridgeError):
     """A poll could not produce a consistent snapshot (e.g. the device re-configured mid-poll).
 

@@ -69,6 +69,7 @@ class Steps(Protocol):
     sent: int
 
     def step(self) -> None: ...
+    def abandon(self) -> str: ...
     def feedback(self) -> dict[str, Any]: ...
     def result(self) -> dict[str, Any]: ...
 
@@ -453,6 +454,7 @@ class ActionHost:
                     f"{steps.what} refused: the goal it preempts ({old.steps.what}) did not "
                     f"end within {PREEMPT_WAIT_S:g} s",
                 )
+        undo = ""
         try:
             while steps.sent < steps.total:
                 if handle.is_cancel_requested:
@@ -470,12 +472,21 @@ class ActionHost:
                     break
                 handle.publish_feedback(_filled(action_type.Feedback(), steps.feedback()))
             run.end(Outcome.REACHED, f"{steps.what}: done")
+            ended = run.verdict
+            if ended is not None and ended.outcome is not Outcome.REACHED and steps.sent:
+                # Undo the part that went out, before the axis is free (a goal that
+                # preempted this one waits for it); tried even while the link is down,
+                # like a stop. If that fails too, the result says what stays.
+                ok, said, undone = self.node.run_command(
+                    f"{steps.what}: undo", steps.abandon, stop=True, own_motion=True
+                )
+                undo = f"; {undone}" if ok else f"; {said}"
         finally:
             with self._lock:
                 self._steps.pop(key, None)
             run.done.set()
         verdict = run.verdict or Verdict(Outcome.REACHED, f"{steps.what}: done")
-        message = f"{verdict.message} ({steps.sent} of {steps.total} sent)"
+        message = f"{verdict.message} ({steps.sent} of {steps.total} sent){undo}"
         return self._result(action_type, handle, name, verdict, message, False, steps.result())
 
 

@@ -58,7 +58,14 @@ from std_msgs.msg import Bool
 from .channel import DeviceChannel, Priority
 from .checks import bounded_text
 from .diagnostics import Level, Report, link_report
-from .errors import CommandRejected, ConfigurationError, DeviceException, LinkError, NotSent
+from .errors import (
+    CommandRejected,
+    ConfigurationError,
+    DeviceException,
+    LinkError,
+    NotConfirmed,
+    NotSent,
+)
 from .motion_ledger import MotionLedger
 from .node_actions import ActionHost
 from .parameters import ParameterSpec, ParameterValue
@@ -697,6 +704,8 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
                 result = action()
         except CommandRejected as err:
             return False, f"{what} refused: {bounded_text(str(err))}", None
+        except NotConfirmed as err:
+            return False, f"{what}: not confirmed: {bounded_text(str(err))}", None
         except DeviceException as err:
             return False, f"{what}: the device answered {err}", None
         except LinkError as err:

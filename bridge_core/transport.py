@@ -48,6 +48,7 @@ from .errors import DeviceException, FrameError, LinkDown, LinkTimeout
 from .registers import Table
 from .requests import Reply, Request
 from .serial_timing import (
+    BROADCAST_UNIT,
     ReplyFrameError,
     ReplyFromOtherUnit,
     ReplyMismatch,
@@ -294,7 +295,7 @@ class ModbusLink:
         finally:
             if timed:
                 self._client.reply_timeout_s = None  # type: ignore[union-attr]
-        if response is None:  # broadcast: no reply expected
+        if response is None:  # a serial broadcast: no reply expected
             return None
         if response.isError():
             raise DeviceException(
@@ -310,7 +311,11 @@ class ModbusLink:
 
     def _send(self, unit_id: int, request: Request):  # type: ignore[no-untyped-def]
         c = self._client
-        broadcast = unit_id == 0
+        # Unit 0 is a broadcast on a serial line only (Modbus over serial line §2.1: no
+        # reply). Modbus TCP has no broadcast: unit 0 is an address like any other (the
+        # Modbus TCP spec's "0 or 0xFF" for a device reached by its IP address), so its
+        # replies are awaited; a stop to unit 0 is done only when its reply says so.
+        broadcast = unit_id == BROADCAST_UNIT and self.is_serial
         match request:
             case rq.ReadRegisters(address, count, Table.HOLDING):
                 return c.read_holding_registers(address, count=count, device_id=unit_id)

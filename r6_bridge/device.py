@@ -13,7 +13,13 @@ from typing import Any
 from bridge_core.channel import Priority, RegisterIO
 from bridge_core.checks import check_whole_number
 from bridge_core.codec import Value, encode, int_to_words, words_to_int
-from bridge_core.errors import CommandRejected, FrameError, PollIncomplete
+from bridge_core.errors import (
+    CommandRejected,
+    FrameError,
+    LinkError,
+    NotConfirmed,
+    PollIncomplete,
+)
 from bridge_core.goals import Motion, Outcome, Verdict
 from bridge_core.planner import ReadRequest, plan_reads
 from bridge_core.poller import holds, read_blocks, read_named
@@ -48,15 +54,36 @@ U32_MAX = 0xFFFF_FFFF
 # §3.1.3: ids past the counter count are padded with 0xFF bytes.
 COUNTER_ID_PADDING = U32_MAX
 I32_MIN, I32_MAX = -(1 << 31), (1 << 31) - 1
+COUNTER_IDS_SHOWN = 10  # ids named in a refusal of an unknown counter
 # Registers in one upload frame: the manual's 256-byte frame cap and Modbus's 123 (FC 10).
 POINT_FRAME_MAX_REGISTERS = min(POINT_FRAME_MAX_BYTES // 2, MAX_WRITE_REGISTERS)
 POINT_FRAME_HEADER_REGISTERS = 2  # 30005 point count, 30006 clear flag
-# joint_states is stamped with the read time of the block holding the axis positions.
+# joint_states is stamped with the read time of the block holding the axis positions,
+# ~/tcp_pose with that of the world block (read just before it), ~/state with the time the
+# blocks before those two were read (README R6 decision 26).
 STAMP_REGISTER = "axis_position_1"
+WORLD_STAMP_REGISTER = "world_x"
+MODE_AUTO = 2  # 2185: "2 自动" (decision 2)
+# The commands that set the program running (README R6 decision 23): checked first.
+PROGRAM_COMMANDS = ("start", "single_cycle", "clear_alarm_and_continue", "clear_alarm_and_next")
+CLEAR_COMMANDS = ("clear_alarm_and_continue", "clear_alarm_and_next")
+# The rows those checks read fresh, at command priority.
+READINESS_ROWS = ("mode", "alarm_code", "homed", "global_speed", "last_cycle_time")
 
 
 def mode_name(mode: int) -> str:
     return MODE_NAMES.get(mode, f"unknown({mode})")
+
+
+@dataclass(frozen=True)
+class Readiness:
+    """The rows a program start is checked against, read just before it is written."""
+
+    mode: int
+    alarm_code: int
+    homed: bool
+    global_speed_percent: float
+    last_cycle_time_ms: int
 
 
 @dataclass(frozen=True)
@@ -80,6 +107,10 @@ class R6Snapshot:
     axis_speeds_rpm: tuple[int, ...]
     axis_torques_rated: tuple[float, ...]
     world: dict[str, float] = field(default_factory=dict)
+    # When the world block (~/tcp_pose) and the other rows (~/state) were read; 0: as
+    # read_time (a snapshot built by hand).
+    world_read_time: float = 0.0
+    state_read_time: float = 0.0
     # Only with ``m_boards`` / ``eu_board`` (README R6 decision 21): empty / None otherwise.
     m_board_inputs: tuple[int, ...] = ()
     m_board_outputs: tuple[int, ...] = ()
@@ -144,8 +175,14 @@ class R6Device:
             # rows of boards not in use, which the controller refuses (§3.1.6).
             plan += plan_reads(R6_MAP, R6_MAP.select(extra))
         # The axis positions last, so a position change reaches joint_states soonest (p99
-        # latency, bench/r6_bench.py); the stamp is their own read time either way.
-        plan.sort(key=lambda request: holds(request, STAMP_REGISTER))
+        # latency, bench/r6_bench.py), the world block just before them (the TCP pose read
+        # one request from the joints, decision 26); each has its own stamp either way.
+        plan.sort(
+            key=lambda request: (
+                holds(request, STAMP_REGISTER),
+                holds(request, WORLD_STAMP_REGISTER),
+            )
+        )
         return plan
 
     def read_counts(self) -> tuple[int, int]:
@@ -157,8 +194,22 @@ class R6Device:
         if self._plan is None or self._plan_counts is None:
             self._plan_counts = self.read_counts()
             self._plan = self.poll_plan(*self._plan_counts)
-        stamp = STAMP_REGISTER if self._plan_counts[0] > 0 else None
-        values, read_time = read_blocks(self.io, self._plan, Priority.POLL, stamp)
+        # Three reads, each with its time: the rest, the world block, the axis positions.
+        plan = self._plan
+        head = [
+            r for r in plan if not holds(r, WORLD_STAMP_REGISTER) and not holds(r, STAMP_REGISTER)
+        ]
+        world = [r for r in plan if holds(r, WORLD_STAMP_REGISTER)]
+        positions = [r for r in plan if holds(r, STAMP_REGISTER) and r not in world]
+        values, state_time = read_blocks(self.io, head, Priority.POLL)
+        world_values, world_time = read_blocks(self.io, world, Priority.POLL, WORLD_STAMP_REGISTER)
+        values.update(world_values)
+        read_time = world_time
+        if positions:
+            position_values, read_time = read_blocks(
+                self.io, positions, Priority.POLL, STAMP_REGISTER
+            )
+            values.update(position_values)
         axis_count = int(values["axis_count"])
         boards = int(values["io_board_count"])
         if (axis_count, boards) != self._plan_counts:
@@ -179,6 +230,8 @@ class R6Device:
 
         return R6Snapshot(
             read_time=read_time,
+            world_read_time=world_time,
+            state_read_time=state_time,
             mode=i("mode"),
             alarm_code=i("alarm_code"),
             moving=bool(i("moving")),
@@ -299,6 +352,54 @@ class R6Device:
         if name in STOP_COMMANDS:
             self.stops += 1
 
+    def read_readiness(self) -> Readiness:
+        values = self.read_named(*READINESS_ROWS)
+        return Readiness(
+            mode=int(values["mode"]),
+            alarm_code=int(values["alarm_code"]),
+            homed=bool(values["homed"]),
+            global_speed_percent=float(values["global_speed"]),
+            last_cycle_time_ms=int(values["last_cycle_time"]),
+        )
+
+    def check_program_command(self, name: str, *, skip_failed_step: bool = False) -> Readiness:
+        """Refuse a command that sets the program running unless the controller, read just
+        now, is in auto mode and homed, and (start, single cycle) has no alarm or (the
+        clear-alarm commands) has one to clear (README R6 decision 23). 20005 skips the
+        instruction that raised the alarm: only with ``skip_failed_step``."""
+        if name not in PROGRAM_COMMANDS:
+            raise CommandRejected(f"{name} does not start the program")
+        if name == "clear_alarm_and_next" and not skip_failed_step:
+            raise CommandRejected(
+                "clear_alarm_and_next (20005) skips the instruction that raised the alarm "
+                "(e.g. a failed vacuum check): send skip_failed_step: true to mean it, or "
+                "clear_alarm_and_continue to retry that instruction"
+            )
+        ready = self.read_readiness()
+        if ready.mode != MODE_AUTO:
+            raise CommandRejected(
+                f"the controller is in {mode_name(ready.mode)} mode (2185 = {ready.mode}), "
+                "not auto: switch to auto on the pendant first"
+            )
+        if not ready.homed:
+            raise CommandRejected(
+                "the controller is not homed (2471 = 0): set every axis's origin first"
+            )
+        if name in CLEAR_COMMANDS:
+            if not ready.alarm_code:
+                raise CommandRejected("no alarm is active (2396 = 0): nothing to clear")
+        elif ready.alarm_code:
+            raise CommandRejected(
+                f"alarm {ready.alarm_code} is active and blocks the program: clear it first"
+            )
+        return ready
+
+    def run_program(self, name: str, *, skip_failed_step: bool = False) -> None:
+        """A checked 20002 / 20003 / 20005 / 20006 (``check_program_command``): refused
+        with the reason, nothing written, unless the controller is ready for it."""
+        self.check_program_command(name, skip_failed_step=skip_failed_step)
+        self.command(name)
+
     def set_global_speed(self, percent: float) -> None:
         """§3.2.2: one register, FC 06, 0-1000 = 0.0-100.0 %."""
         reg = R6_MAP["global_speed"]
@@ -314,11 +415,14 @@ class R6Device:
         if point not in OUTPUT_POINTS:
             raise CommandRejected(f"output point {point} outside 0-31")
         if board in OUTPUT_BOARDS_ACCEPTED:
+            # A board the controller does not report in use has no outputs to switch: the
+            # write would be acknowledged with no effect (README R6 decision 24).
+            _check_board_in_use(board, self._boards(boards_in_use))
             words = [board, point, 1 if on else 0]
             self.io.write_registers(R6_MAP["output_board"].address, words)
             return
         if board < FIRST_M_BOARD:
-            _check_board_in_use(board, boards_in_use)
+            _check_board_in_use(board, self._boards(boards_in_use))
         elif board < EU_BOARD:
             if not self.m_boards:
                 raise CommandRejected(
@@ -335,21 +439,78 @@ class R6Device:
             raise CommandRejected(f"output board {board} outside 0-{EU_BOARD}")
         self.io.write_coil(POINTS_PER_BOARD * board + point, on)
 
-    def write_board_outputs(self, board: int, bits: int, boards_in_use: int | None = None) -> None:
-        """§3.3.1: all 32 outputs of one IO board (FC 10, 2 registers, high word first).
+    def _boards(self, boards_in_use: int | None) -> int:
+        """The IO board count: as last polled, else read now (2186)."""
+        if boards_in_use is not None:
+            return boards_in_use
+        return int(self.read_named("io_board_count")["io_board_count"])
 
+    def write_board_outputs(
+        self, board: int, bits: int, mask: int, boards_in_use: int | None = None
+    ) -> str:
+        """§3.3.1: outputs of one IO board (FC 10, 2 registers, high word first); only the
+        outputs in ``mask`` change (README R6 decision 24).
+
+        The manual has no mask write, so a partial mask is a read-modify-write at command
+        priority, the read just before the write: not atomic against the robot program,
+        which may switch an output of the board in between (that change is then undone).
         ``boards_in_use`` (the count the controller last reported, 2186): a board past it
-        is refused. The manual gives that rule for reads only (§3.1.6 "有效地址根据已使用的
-        IO 板决定"); writing outputs nobody has is refused here rather than sent blind."""
+        is refused. Returns what was read and written."""
         if not 0 <= board < MAX_IO_BOARDS:
             raise CommandRejected(f"IO board {board} outside 0-{MAX_IO_BOARDS - 1}")
-        _check_board_in_use(board, boards_in_use)
         check_whole_number("output bits", bits, 0, U32_MAX)
+        check_whole_number("output mask", mask, 0, U32_MAX)
+        if mask == 0:
+            raise CommandRejected(
+                "mask 0 changes no output: set bit n of mask for each output n to change "
+                "(0xFFFFFFFF: the whole board)"
+            )
+        if bits & ~mask:
+            raise CommandRejected(
+                f"bits 0x{bits:08X} set outputs outside mask 0x{mask:08X} "
+                f"(0x{bits & ~mask:08X}): add them to the mask or clear them"
+            )
+        _check_board_in_use(board, self._boards(boards_in_use))
         reg = R6_MAP[f"io_board_output_{board}"]
-        self.io.write_registers(reg.address, int_to_words(bits, 2, False, HIGH))
+        if mask == U32_MAX:
+            self.io.write_registers(reg.address, int_to_words(bits, 2, False, HIGH))
+            return f"board {board} outputs = 0x{bits:08X}"
+        words = self.io.read_registers(reg.address, 2, priority=Priority.COMMAND)
+        before = words_to_int(words, False, HIGH)
+        after = (before & ~mask) | bits
+        self.io.write_registers(reg.address, int_to_words(after, 2, False, HIGH))
+        return (
+            f"board {board} outputs read 0x{before:08X}, wrote 0x{after:08X} (mask "
+            f"0x{mask:08X}; a read-modify-write, not atomic against the robot program)"
+        )
 
-    def set_counter(self, counter_id: int, value: int) -> None:
-        """§3.3.2: id, target (ignored by the host: 0) and current value, 6 registers."""
+    def set_counter(self, counter_id: int, value: int) -> str:
+        """§3.3.2: id, target (ignored by the host: 0) and current value, 6 registers.
+
+        The id must be one the controller lists (§3.1.3): the host acknowledges a write to
+        an unknown id and changes nothing. The counter is read back (§3.1.4) and the
+        reply says what it holds (README R6 decision 24)."""
+        check_whole_number("counter id", counter_id, 0, U32_MAX)
+        check_whole_number("counter value", value, 0, U32_MAX)
+        ids = self.read_counter_ids()
+        if counter_id not in ids:
+            listed = ", ".join(str(k) for k in ids[:COUNTER_IDS_SHOWN])
+            extra = len(ids) - COUNTER_IDS_SHOWN
+            more = f" and {extra} more" if extra > 0 else ""
+            raise CommandRejected(
+                f"counter {counter_id} is not one the controller lists ({listed or 'none'}"
+                f"{more}; ~/list_counters)"
+            )
+        self.write_counter(counter_id, value)
+        _, target, current = self.read_counter(counter_id)
+        if current != value:
+            raise NotConfirmed(
+                f"counter {counter_id}: wrote {value}, reads {current} (target {target})"
+            )
+        return f"counter {counter_id} reads {current} (target {target})"
+
+    def write_counter(self, counter_id: int, value: int) -> None:
+        """§3.3.2's frame alone: id, target (ignored by the host: 0) and current value."""
         check_whole_number("counter id", counter_id, 0, U32_MAX)
         check_whole_number("counter value", value, 0, U32_MAX)
         words = [
@@ -360,8 +521,15 @@ class R6Device:
         ]
         self.io.write_registers(R6_MAP["counter_modify_id"].address, words)
 
-    def write_parameter(self, index: int, value: int) -> None:
+    def write_parameter(self, index: int, value: int) -> str:
+        """One parameter, read back after the write (README R6 decision 24): the host
+        acknowledges writes it does not apply (a parameter locked by the program or the
+        mode), which would otherwise report done."""
         self.write_parameters(index, [value])
+        read = self.read_parameter(index)
+        if read != value:
+            raise NotConfirmed(f"parameter {index}: wrote {value}, reads {read}")
+        return f"parameter {index} reads {read}"
 
     def write_parameters(self, first_index: int, values: Sequence[int]) -> None:
         """§3.3.4: consecutive int32 parameters in one FC 10 write."""
@@ -385,10 +553,27 @@ class R6Device:
     def upload_points(
         self, data_source_id: int, values_per_point: int, axis_mask: int, values: Sequence[int]
     ) -> int:
-        """§3.3.5 in one go (the ``~/upload_points`` service); the number of data frames."""
+        """§3.3.5 in one go (the ``~/upload_points`` service); the number of data frames.
+
+        A frame that fails after others went out leaves the source half filled: it is
+        cleared (``PointUpload.abandon``), and the error says so, or, if the clear fails
+        too, how many points of this upload the source holds (README R6 decision 25)."""
         upload = PointUpload(self, data_source_id, values_per_point, axis_mask, values)
         while upload.sent < upload.total:
-            upload.step()
+            try:
+                upload.step()
+            except LinkError as err:
+                if upload.sent == 0:
+                    raise
+                failed = f"frame {upload.sent + 1} of {upload.total} failed ({err})"
+                try:
+                    undone = upload.abandon()
+                except LinkError as again:
+                    undone = (
+                        f"the clear failed too ({again}): source {data_source_id} holds "
+                        f"{upload.points_held_text()}"
+                    )
+                raise NotConfirmed(f"{failed}; {undone}") from err
         return upload.total
 
 
@@ -416,6 +601,15 @@ class PointUpload:
         if values_per_point not in POINT_VALUES_PER_POINT:
             raise CommandRejected(f"values_per_point must be one of {POINT_VALUES_PER_POINT}")
         check_whole_number("axis mask", axis_mask, 0, POINT_AXIS_MASK_MAX)
+        # §4 30004: bits 0-5 = axes 1-6 of a point; a point of 4 values has no axes 5-6
+        # and a mask of 0 marks no value valid (README R6 decision 25).
+        if axis_mask == 0:
+            raise CommandRejected("axis mask 0 marks no axis of a point valid")
+        if axis_mask >> values_per_point:
+            raise CommandRejected(
+                f"axis mask 0x{axis_mask:02X} names axes past the {values_per_point} values "
+                f"of a point (at most 0x{(1 << values_per_point) - 1:02X})"
+            )
         if not values or len(values) % values_per_point:
             raise CommandRejected(
                 f"{len(values)} values is not a whole, non-zero number of "
@@ -427,6 +621,7 @@ class PointUpload:
             2 * values_per_point
         )
         self.frames: list[list[int]] = []
+        self.frame_points: list[int] = []
         points = [values[k : k + values_per_point] for k in range(0, len(values), values_per_point)]
         for first in range(0, len(points), per_frame):
             chunk = points[first : first + per_frame]
@@ -435,7 +630,9 @@ class PointUpload:
                 for value in point:
                     words += int_to_words(value, 2, True, HIGH)
             self.frames.append(words)
+            self.frame_points.append(len(chunk))
         self.device = device
+        self.points_held = 0  # points of this upload the source holds
         self.setup = [data_source_id, values_per_point, axis_mask]
         self.what = f"upload_points source {data_source_id}: {len(points)} points"
         self.total = len(self.frames)
@@ -446,20 +643,39 @@ class PointUpload:
         if self.sent == 0:
             io.write_registers(R6_MAP["point_source_id"].address, self.setup)
         io.write_registers(R6_MAP["point_count"].address, self.frames[self.sent])
+        self.points_held += self.frame_points[self.sent]
         self.sent += 1
+
+    def abandon(self) -> str:
+        """An upload that will not finish: clear the source it half filled (the set-up
+        again, then a frame of 0 points with the clear flag), so the controller never
+        runs a path cut short (README R6 decision 25)."""
+        io = self.device.io
+        io.write_registers(R6_MAP["point_source_id"].address, self.setup)
+        io.write_registers(R6_MAP["point_count"].address, [0, 1])
+        self.points_held = 0
+        return f"source {self.setup[0]} cleared (it held {self.points_held_text()})"
+
+    def points_held_text(self) -> str:
+        return f"{sum(self.frame_points[: self.sent])} points of this upload"
 
     def feedback(self) -> dict[str, Any]:
         return {"frames_sent": self.sent, "frames_total": self.total}
 
     def result(self) -> dict[str, Any]:
-        return self.feedback()
+        return {**self.feedback(), "points_held": self.points_held}
 
 
 class RunCycleMotion(Motion[R6Snapshot]):
     """``~/run_cycle``: single cycle (20002) or start (20003), followed through ``moving``
-    (2470). An alarm (2396) ends it as FAULT. A single cycle whose ``moving`` ended is
-    REACHED unless a stop / pause (from this bridge) came meanwhile; a continuous run
-    never is (it runs until stopped): its end is STOPPED (README R6 decision 22)."""
+    (2470). Checked twice: against the last poll when the goal comes (rejected), and
+    against rows read just before the command (REFUSED): auto mode, homed, no alarm, a
+    global speed above 0. An alarm (2396) ends it as FAULT. A single cycle is REACHED
+    only when ``moving`` rose and fell and the last cycle time (2401) changed from the
+    value read before the start: ``moving`` alone is a motion flag, not the program's
+    state (README R6 decision 23). Otherwise its end is STOPPED, and so is a continuous
+    run's (it runs until stopped). Ends this goal causes (cancel, timeout, link loss,
+    the node's halts) send pause (20001), which keeps the program's step."""
 
     axes: frozenset[Hashable] = frozenset({"program"})
     confirm_reached = True  # the result's last cycle time is read apart from `moving`
@@ -467,6 +683,13 @@ class RunCycleMotion(Motion[R6Snapshot]):
     def __init__(self, device: R6Device, last: R6Snapshot | None, *, single_cycle: bool) -> None:
         super().__init__()
         if last is not None:
+            if last.mode != MODE_AUTO:
+                raise CommandRejected(
+                    f"the controller is in {last.mode_name} mode, not auto: switch to auto "
+                    "on the pendant first"
+                )
+            if not last.homed:
+                raise CommandRejected("the controller is not homed (2471 = 0)")
             if last.alarm_code:
                 raise CommandRejected(
                     f"alarm {last.alarm_code} is active and blocks the program: clear it first"
@@ -480,17 +703,29 @@ class RunCycleMotion(Motion[R6Snapshot]):
         self.command = "single_cycle" if single_cycle else "start"
         self.what = f"run_cycle ({'single cycle' if single_cycle else 'continuous'})"
         self.stops_at_start = device.stops
+        self.last_cycle_at_start: int | None = None
+        self.cycle_ms: int | None = None  # the current cycle time of the previous poll
 
     def start(self) -> None:
+        ready = self.device.check_program_command(self.command)
+        if ready.global_speed_percent <= 0:
+            raise CommandRejected(
+                "the global speed is 0 %: the program would not move (set_global_speed)"
+            )
+        self.last_cycle_at_start = ready.last_cycle_time_ms
         self.stops_at_start = self.device.stops
         self.device.command(self.command)
 
     def stop(self) -> str:
-        self.device.command("stop")
-        return "stop (20000) sent"
+        self.device.command("pause")
+        return "pause (20001) sent: the program keeps its step"
 
     def running(self, snapshot: R6Snapshot) -> bool:
-        return snapshot.moving
+        """``moving``, or the current cycle time still counting: a program that waits in a
+        step (a dwell, an input) may show ``moving`` 0 while its cycle goes on."""
+        previous, self.cycle_ms = self.cycle_ms, snapshot.current_cycle_time_ms
+        counting = previous is not None and snapshot.current_cycle_time_ms > previous
+        return snapshot.moving or counting
 
     def fault(self, snapshot: R6Snapshot) -> Verdict | None:
         code = snapshot.alarm_code
@@ -499,13 +734,34 @@ class RunCycleMotion(Motion[R6Snapshot]):
         return Verdict(Outcome.FAULT, f"{self.what}: alarm {code}", code, f"alarm code {code}")
 
     def ended(self, snapshot: R6Snapshot) -> Verdict:
+        last = snapshot.last_cycle_time_ms
         if self.device.stops > self.stops_at_start:
             return Verdict(Outcome.STOPPED, f"{self.what}: stopped by a stop or pause command")
+        if not self.seen_running:
+            return Verdict(
+                Outcome.STOPPED,
+                f"{self.what}: the controller acknowledged the start but never showed moving "
+                "(2470): the cycle did not run",
+            )
+        # Paused keeps the cycle's time (20001 resumes at the step), stopped resets it.
+        how = (
+            f"paused (current cycle time kept at {snapshot.current_cycle_time_ms} ms)"
+            if snapshot.current_cycle_time_ms
+            else "stopped (current cycle time back to 0)"
+        )
         if not self.single_cycle:
-            return Verdict(Outcome.STOPPED, f"{self.what}: the program stopped")
+            return Verdict(Outcome.STOPPED, f"{self.what}: the program {how}")
+        if self.last_cycle_at_start is not None and last == self.last_cycle_at_start:
+            return Verdict(
+                Outcome.STOPPED,
+                f"{self.what}: moving ended but the last cycle time did not change "
+                f"({last} ms): the cycle did not finish, the program {how} (a stop from "
+                "another client, the pendant or the program)",
+            )
         return Verdict(
             Outcome.REACHED,
-            f"{self.what}: the cycle ended (last cycle {snapshot.last_cycle_time_ms} ms)",
+            f"{self.what}: the cycle ended (last cycle {last} ms, was "
+            f"{self.last_cycle_at_start} ms)",
         )
 
     def feedback(self, snapshot: R6Snapshot) -> dict[str, Any]:

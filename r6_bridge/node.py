@@ -16,6 +16,7 @@ from bridge_core.units import DEG, MM, RPM_TO_RAD_S, euler_xyz_deg_to_quaternion
 from msg_defs.action import PointUpload, RunCycle
 from msg_defs.msg import R6State
 from msg_defs.srv import (
+    ClearAlarmAndNext,
     ListCounters,
     ReadCounter,
     ReadDataSource,
@@ -28,7 +29,7 @@ from msg_defs.srv import (
     WriteParameter,
 )
 
-from .device import POINT_DATA, R6Device, R6Snapshot, RunCycleMotion
+from .device import POINT_DATA, PROGRAM_COMMANDS, R6Device, R6Snapshot, RunCycleMotion
 from .device import PointUpload as PointUploadSteps
 from .registers import COMMANDS, MAX_AXES, STOP_COMMANDS
 
@@ -138,7 +139,9 @@ class R6BridgeNode(BridgeNode[R6Snapshot]):
             ],
             [t * self.rated_torques[a] for a, t in enumerate(snapshot.axis_torques_rated)],
         )
-        state = copy_fields(self.stamped(R6State(), snapshot.read_time), snapshot, STATE_FIELDS)
+        # Each message carries the read time of the rows it holds (decision 26).
+        state_time = snapshot.state_read_time or snapshot.read_time
+        state = copy_fields(self.stamped(R6State(), state_time), snapshot, STATE_FIELDS)
         state.world_extra = [snapshot.world[axis] for axis in self.extra_world_axes]
         state.m_board_inputs = list(snapshot.m_board_inputs)
         state.m_board_outputs = list(snapshot.m_board_outputs)
@@ -147,7 +150,7 @@ class R6BridgeNode(BridgeNode[R6Snapshot]):
             state.eu_board_outputs = [snapshot.eu_board_output]
         self.state_pub.publish(state)
 
-        pose = self.stamped(PoseStamped(), snapshot.read_time)
+        pose = self.stamped(PoseStamped(), snapshot.world_read_time or snapshot.read_time)
         world = snapshot.world
         pose.pose.position.x = world["x"] * MM
         pose.pose.position.y = world["y"] * MM
@@ -190,12 +193,17 @@ class R6BridgeNode(BridgeNode[R6Snapshot]):
     def _create_services(self) -> None:
         d = self.device
         for name in COMMANDS:
-            self.trigger_service(
-                f"~/{name}",
-                name,
-                lambda n=name: d.command(n),  # type: ignore[misc]
-                stop=name in STOP_COMMANDS,
-            )
+            if name == "clear_alarm_and_next":
+                continue  # its own type: skip_failed_step (below)
+            self.trigger_service(f"~/{name}", name, _command(d, name), stop=name in STOP_COMMANDS)
+        self.command_service(
+            ClearAlarmAndNext,
+            "~/clear_alarm_and_next",
+            lambda r: f"clear_alarm_and_next (skip_failed_step {r.skip_failed_step})",
+            lambda r: d.run_program(
+                "clear_alarm_and_next", skip_failed_step=bool(r.skip_failed_step)
+            ),
+        )
         self.command_service(
             SetValue,
             "~/set_global_speed",
@@ -211,14 +219,16 @@ class R6BridgeNode(BridgeNode[R6Snapshot]):
         self.command_service(
             SetOutputBoard,
             "~/set_board_outputs",
-            lambda r: f"set_board_outputs board {r.board} = 0x{r.bits:08X}",
-            lambda r: d.write_board_outputs(r.board, r.bits, self._boards_in_use()),
+            lambda r: f"set_board_outputs board {r.board} = 0x{r.bits:08X} mask 0x{r.mask:08X}",
+            lambda r: d.write_board_outputs(r.board, r.bits, r.mask, self._boards_in_use()),
+            fill=_said,
         )
         self.command_service(
             SetCounter,
             "~/set_counter",
             lambda r: f"set_counter {r.id} = {r.value}",
             lambda r: d.set_counter(r.id, r.value),
+            fill=_said,
         )
         self.command_service(
             ListCounters,
@@ -248,6 +258,7 @@ class R6BridgeNode(BridgeNode[R6Snapshot]):
             "~/write_parameter",
             lambda r: f"write_parameter {r.index} = {r.value}",
             lambda r: d.write_parameter(r.index, r.value),
+            fill=_said,
         )
         self.command_service(
             ReadDataSource,
@@ -295,6 +306,20 @@ class R6BridgeNode(BridgeNode[R6Snapshot]):
         if (goal := self.actions.occupied(POINT_DATA)) is not None:
             raise CommandRejected(f"the {goal} goal is using the point-data rows")
         return action()
+
+
+def _command(device: R6Device, name: str) -> Callable[[], None]:
+    """A command service's action: the ones that set the program running are checked
+    first (decision 23: nothing written unless the controller is in auto mode, homed and,
+    for start and single cycle, without an alarm); the stops go out as they are."""
+    if name in PROGRAM_COMMANDS:
+        return lambda: device.run_program(name)
+    return lambda: device.command(name)
+
+
+def _said(response: Any, text: str) -> None:
+    """A command's own account of what it read back, after "done"."""
+    response.message += f" ({text})"
 
 
 def _fill_counter(response: Any, values: tuple[int, int, int]) -> None:

@@ -47,6 +47,7 @@ HIGH = WordOrder.HIGH_FIRST
 MANUAL_VERSION = "AM8-QC-RXE-7.8.02-bate7_FAKE_TGF_ENCODER"  # §3.1.2 example
 AXIS_SPEED_DEG_S = 30.0  # axis 1 at 100 % global speed; axis a: 10 % less per axis
 OUTPUT_BOARD_TABLE_MAX = 7  # §4 row 20056 maximum
+AUTO_MODE = 2  # 2185: "2 自动"
 DEFAULT_COUNTERS = {0: (10, 0), 1: (10, 5)}  # id: (target, current), §3.1.4 example
 # §3.1.3: "若实际数量少于请求的数量则将剩余的使用 0xFF 填充" (decision 6: every padding byte
 # is 0xFF, so a counter id past the count reads 0xFFFF 0xFFFF).
@@ -281,7 +282,9 @@ class R6SimDevice(SimulatedDevice):
             # An alarm blocks both until it is cleared. 20003 "启动按键" runs cycle after
             # cycle; 20002 "进入单循环" runs to the end of the current cycle, then stops
             # (decision 16). Either resumes at the step the program is at.
-            if alarm == 0:
+            # Only in auto mode and homed (README R6 decision 23: the bridge's reading; a
+            # controller that ignores the start is what the bridge must notice).
+            if alarm == 0 and int(self.get("mode")) == AUTO_MODE and int(self.get("homed")):
                 self.running = True
                 self.single_cycle = name == "single_cycle"
         elif name == "pause":
@@ -302,7 +305,7 @@ class R6SimDevice(SimulatedDevice):
             if not halted:
                 return
             if name == "clear_alarm_and_continue":
-                self.running = int(self.get("mode")) == 2
+                self.running = int(self.get("mode")) == AUTO_MODE
             else:
                 self.running = not self._next_step()
 

@@ -8,19 +8,22 @@ none) are fixed when the device is made: they shape the poll and the snapshot.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 from bridge_core.channel import Priority, RegisterIO
 from bridge_core.checks import check_index, check_whole_number
 from bridge_core.codec import Value, encode
-from bridge_core.errors import CommandRejected, ConfigurationError, LinkError
+from bridge_core.errors import CommandRejected, ConfigurationError, LinkError, NotConfirmed
 from bridge_core.planner import ReadRequest, plan_reads
 from bridge_core.poller import read_blocks, read_named
 
 from .registers import (
     COIL_FENCE_MODE,
+    COIL_PAUSED,
     COIL_REDUCED_MODE,
+    COIL_STOPPED,
     CONTROLLER_ANALOG_INPUT_VALID,
     CONTROLLER_DIGITAL_VALID,
     ENABLE_FIRST,
@@ -69,6 +72,37 @@ def state_name(state: int) -> str:
 
 def mode_name(mode: int) -> str:
     return MODE_NAMES.get(mode, f"mode {mode}")
+
+
+# A stop or pause is given this long to show in the state read back (the SDK's own
+# set_state answers at once; a stop that ramps down shows its state when it begins).
+HALT_CONFIRM_S = 0.5
+HALT_READ_PERIOD_S = 0.02  # between two read backs of the state while waiting
+STATE_IN_MOTION = 1  # H33 read (the xArm SDK's get_state)
+
+
+@dataclass(frozen=True)
+class HaltState:
+    """What a stop / pause reads back: H32, H33 and the coils C144 / C145."""
+
+    mode: int
+    state: int
+    paused: bool
+    stopped: bool
+
+    def shows(self, kind: str) -> bool:
+        """A stop shows as C145 = 1 or state 4; a pause as C144 = 1 or state 3, or as any
+        state but in motion (an arm that stands has nothing to pause)."""
+        if kind == "stop":
+            return self.stopped or self.state == SET_STATE_STOP
+        return self.paused or self.state != STATE_IN_MOTION
+
+    def __str__(self) -> str:
+        return (
+            f"mode {self.mode} ({mode_name(self.mode)}), state {self.state} "
+            f"({state_name(self.state)}), C144 paused {int(self.paused)}, C145 stopped "
+            f"{int(self.stopped)}"
+        )
 
 
 @dataclass(frozen=True)
@@ -281,11 +315,46 @@ class XArmDevice:
         mode_now, state_now = self.io.read_write_registers(MODE_ADDRESS, 2, STATE_ADDRESS, [state])
         return _signed(mode_now), _signed(state_now)
 
-    def pause(self) -> tuple[int, int]:
-        return self.set_state(SET_STATE_PAUSE)
+    def read_halt_state(self) -> HaltState:
+        """H32-33 and the pause / stop coils C144-145, at command priority."""
+        mode, state = self.io.read_registers(MODE_ADDRESS, 2, priority=Priority.COMMAND)
+        paused, stopped = self.io.read_bits(COIL_PAUSED, 2, priority=Priority.COMMAND)
+        return HaltState(_signed(mode), _signed(state), bool(paused), bool(stopped))
 
-    def stop(self) -> tuple[int, int]:
-        return self.set_state(SET_STATE_STOP)
+    def _wait_halted(self, kind: str) -> HaltState:
+        """The state read back until it shows ``kind`` or HALT_CONFIRM_S passed."""
+        deadline = time.monotonic() + HALT_CONFIRM_S
+        while True:
+            seen = self.read_halt_state()
+            if seen.shows(kind) or time.monotonic() >= deadline:
+                return seen
+            time.sleep(HALT_READ_PERIOD_S)
+
+    def halt(self, kind: str) -> str:
+        """``stop`` / ``pause`` through the coil the manual names for it (C145 "停止运动控制",
+        C144 "暂停运动控制", FC 05 = 1), done only when the state read back shows it
+        (README xArm decision 6). Not shown within HALT_CONFIRM_S: H33 = 4 / 3 (the xArm
+        SDK's set_state, the value the manual's FC 0x17 example writes) and read back
+        again; still not shown: ``NotConfirmed`` with what was written and seen."""
+        coil, state = (
+            (COIL_STOPPED, SET_STATE_STOP) if kind == "stop" else (COIL_PAUSED, SET_STATE_PAUSE)
+        )
+        self.io.write_coil(coil, True)
+        first = self._wait_halted(kind)
+        if first.shows(kind):
+            return f"C{coil} = 1; {first}"
+        self.set_state(state)
+        second = self._wait_halted(kind)
+        said = f"C{coil} = 1 not obeyed ({first}); H33 = {state} sent: {second}"
+        if second.shows(kind):
+            return said
+        raise NotConfirmed(said)
+
+    def pause(self) -> str:
+        return self.halt("pause")
+
+    def stop(self) -> str:
+        return self.halt("stop")
 
     def resume(self) -> tuple[int, int]:
         return self.set_state(SET_STATE_START)
@@ -392,11 +461,27 @@ class XArmDevice:
             words += encode(XARM_MAP[f"controller_ao_{channel}"], float(value))
         self.io.write_registers(XARM_MAP["controller_ao_0"].address, words)
 
-    def set_reduced_mode(self, on: bool) -> None:
-        self.io.write_coil(COIL_REDUCED_MODE, bool(on))
+    def set_reduced_mode(self, on: bool, confirm: str = "") -> str:
+        return self._set_safety_mode("set_reduced_mode", COIL_REDUCED_MODE, on, confirm)
 
-    def set_fence_mode(self, on: bool) -> None:
-        self.io.write_coil(COIL_FENCE_MODE, bool(on))
+    def set_fence_mode(self, on: bool, confirm: str = "") -> str:
+        return self._set_safety_mode("set_fence_mode", COIL_FENCE_MODE, on, confirm)
+
+    def _set_safety_mode(self, name: str, coil: int, on: bool, confirm: str) -> str:
+        """C142 / C143 "(0关闭, 1开启)". Switching a safety mode off runs only when
+        ``confirm`` repeats the service's name (README xArm decision 17), like the
+        stepper's destructive coils; the coil is read back and the reply says what it
+        holds."""
+        if not on and confirm != name:
+            raise CommandRejected(
+                f"switching {name.removeprefix('set_').replace('_', ' ')} off lifts a safety "
+                f"limit: send confirm: {name!r} to mean it"
+            )
+        self.io.write_coil(coil, bool(on))
+        (seen,) = self.io.read_bits(coil, 1, priority=Priority.COMMAND)
+        if bool(seen) != bool(on):
+            raise NotConfirmed(f"C{coil}: wrote {int(on)}, reads {int(seen)}")
+        return f"C{coil} reads {int(seen)}"
 
     def run_offline_task(self, projects: Sequence[int]) -> None:
         """Up to 16 Blockly project numbers with FC 10 at 0x30 (the only way the manual allows)."""

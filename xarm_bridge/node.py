@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import Any, TypeVar
 
 from geometry_msgs.msg import PoseStamped
-from std_srvs.srv import SetBool, Trigger
+from std_srvs.srv import Trigger
 
 from bridge_core.checks import board_zero_index
 from bridge_core.diagnostics import Level, Report
@@ -29,10 +29,13 @@ from msg_defs.srv import (
     SetJointEnable,
     SetOutput,
     SetOutputs,
+    SetSafetyMode,
 )
 
 from .device import XArmDevice, XArmSnapshot, error_text, mode_name, state_name, warning_text
 from .registers import JOINT_COUNTS, JOINTS, USER_COILS, WORLD
+
+T = TypeVar("T")
 
 # The pose's roll/pitch/yaw and the rotation vector rx/ry/rz are two readings of one
 # orientation, each rounded to 0.1 deg per value: they agree within ~0.2 deg. More than
@@ -197,14 +200,14 @@ class XArmBridgeNode(BridgeNode[XArmSnapshot]):
         def fill_state(response: Any, result: tuple[int, int]) -> None:
             response.message += state_after(result)
 
-        for name, action, stops in (
-            ("pause", d.pause, True),
-            ("stop", d.stop, True),
-            ("resume", d.resume, False),
-        ):
+        # Stop and pause through C145 / C144, answered from the state read back (decision 6).
+        for name, halt in (("pause", d.pause), ("stop", d.stop)):
             self.command_service(
-                Trigger, f"~/{name}", _named(name), _call(action), stop=stops, fill=fill_state
+                Trigger, f"~/{name}", _named(name), _call(halt), stop=True, fill=_written
             )
+        self.command_service(
+            Trigger, "~/resume", _named("resume"), _call(d.resume), fill=fill_state
+        )
         self.command_service(
             SetInteger,
             "~/set_mode",
@@ -263,17 +266,20 @@ class XArmBridgeNode(BridgeNode[XArmSnapshot]):
             lambda r: f"set_analog_output {r.channel} = {r.value} V",
             lambda r: d.set_analog_output(r.channel, r.value),
         )
+        # Off only with confirm (decision 17); read back either way.
         self.command_service(
-            SetBool,
+            SetSafetyMode,
             "~/set_reduced_mode",
             lambda r: f"set_reduced_mode {r.data}",
-            lambda r: d.set_reduced_mode(r.data),
+            lambda r: d.set_reduced_mode(r.data, r.confirm),
+            fill=_written,
         )
         self.command_service(
-            SetBool,
+            SetSafetyMode,
             "~/set_fence_mode",
             lambda r: f"set_fence_mode {r.data}",
-            lambda r: d.set_fence_mode(r.data),
+            lambda r: d.set_fence_mode(r.data, r.confirm),
+            fill=_written,
         )
         self.command_service(
             RunOfflineTask,
@@ -310,7 +316,7 @@ def _named(name: str) -> Callable[[Any], str]:
     return lambda _request: name
 
 
-def _call(action: Callable[[], tuple[int, int]]) -> Callable[[Any], tuple[int, int]]:
+def _call(action: Callable[[], T]) -> Callable[[Any], T]:
     return lambda _request: action()
 
 

@@ -437,6 +437,25 @@ def rtu_replay(steps: list[RtuStep]) -> Iterator[ModbusLink]:
         assert peer.mismatches == []
 
 
+def test_tcp_unit_0_is_an_address_whose_replies_are_awaited() -> None:
+    # Modbus TCP has no broadcast: a write to unit 0 waits for its reply like any other,
+    # so a device that does not answer is a timeout, not a stop reported done unseen.
+    sim = Simulator([SimulatedDevice(TEST_MAP, 0)])
+    port = sim.start_tcp()
+    try:
+        channel = DeviceChannel(ModbusLink(TcpSettings(port=port, timeout_s=0.2)), 0, retries=0)
+        channel.write_register(4, 77)  # answered
+        assert sim.device.get("word_4") == 77
+        with pytest.raises(DeviceException, match="ILLEGAL DATA ADDRESS"):
+            channel.write_register(11, 1)  # cuts the int32 at 10-11: the refusal is heard
+        sim.withhold_replies = True
+        with pytest.raises(LinkTimeout):
+            channel.write_register(4, 78)
+        assert channel.stats.timeouts == 1
+    finally:
+        sim.stop()
+
+
 def test_tcp_silence_is_a_timeout(tcp_sim: tuple[Simulator, int]) -> None:
     sim, port = tcp_sim
     link = ModbusLink(TcpSettings(port=port, timeout_s=0.2))

@@ -13,10 +13,12 @@ import pytest
 from action_msgs.msg import GoalStatus
 from std_srvs.srv import Trigger
 
+from bridge_core.channel import DeviceChannel
 from bridge_core.sim_base import Simulator, WriteRecord
+from bridge_core.transport import ModbusLink, TcpSettings
 from msg_defs.action import PointUpload, RunCycle
 from msg_defs.msg import MotionOutcome, R6State
-from msg_defs.srv import ReadDataSource, UploadPoints
+from msg_defs.srv import ClearAlarmAndNext, ReadDataSource, UploadPoints
 from r6_bridge.registers import COMMANDS, MAX_AXES, R6_MAP
 from r6_bridge.sim import R6SimDevice, make_simulator
 
@@ -90,7 +92,9 @@ def test_run_cycle(sim: tuple[R6SimDevice, int], client: Client, tmp_path: Path)
         assert result.last_cycle_time_ms > 0
         assert commands(device) == ["single_cycle"]
 
-        # A continuous run, cancelled: stop (20000) on the wire, the program stands.
+        # A continuous run, cancelled: pause (20001) on the wire, the program stands at
+        # its step (a stop would send the next start back to step 1 from wherever the arm
+        # stands).
         mark = len(device.write_log)
         goal = b.send_goal(RunCycle, "run_cycle", single_cycle=False)
         goal.wait_feedback(lambda f: f.moving)
@@ -98,8 +102,26 @@ def test_run_cycle(sim: tuple[R6SimDevice, int], client: Client, tmp_path: Path)
         status, result = goal.result()
         assert status == GoalStatus.STATUS_CANCELED
         assert result.outcome.code == MotionOutcome.CANCELLED and result.outcome.stop_sent
-        assert commands(device, mark) == ["start", "stop"]
+        assert "pause (20001)" in result.outcome.message
+        assert commands(device, mark) == ["start", "pause"]
         assert not device.running
+
+        # A single cycle stopped by another client half-way: moving ends, but no cycle
+        # ended (the last cycle time did not change): aborted STOPPED, never REACHED.
+        assert b.call(Trigger, "stop").success  # from step 1 again
+        client.wait_message(b.state, lambda s: not s.moving and s.current_cycle_time_ms == 0)
+        cycles = device.cycles_completed
+        goal = b.send_goal(RunCycle, "run_cycle", single_cycle=True)
+        goal.wait_feedback(lambda f: f.moving and f.current_cycle_time_ms > 100)
+        mark = len(device.write_log)
+        other = ModbusLink(TcpSettings(port=port, timeout_s=TIMEOUT_S))
+        DeviceChannel(other, 1).write_register(COMMANDS["stop"], 1)  # another client's stop
+        other.close()
+        status, result = goal.result()
+        assert status == GoalStatus.STATUS_ABORTED
+        assert result.outcome.code == MotionOutcome.STOPPED, result.outcome.message
+        assert "did not finish" in result.outcome.message
+        assert device.cycles_completed == cycles and commands(device, mark) == ["stop"]
 
         # An alarm ends the goal with its code; a goal is then rejected until it is cleared.
         goal = b.send_goal(RunCycle, "run_cycle", single_cycle=False)
@@ -115,7 +137,7 @@ def test_run_cycle(sim: tuple[R6SimDevice, int], client: Client, tmp_path: Path)
         client.wait_log("r6_bridge", "run_cycle goal rejected: alarm 805 is active")
         assert device.write_log[mark:] == []
         cleared = time.monotonic()
-        assert b.call(Trigger, "clear_alarm_and_next").success
+        assert b.call(ClearAlarmAndNext, "clear_alarm_and_next", skip_failed_step=True).success
         assert b.call(Trigger, "stop").success
 
         # A time limit on a continuous run: stopped, aborted.
@@ -126,7 +148,7 @@ def test_run_cycle(sim: tuple[R6SimDevice, int], client: Client, tmp_path: Path)
         status, result = goal.result()
         assert status == GoalStatus.STATUS_ABORTED
         assert result.outcome.code == MotionOutcome.TIMED_OUT, result.outcome.message
-        assert commands(device, mark) == ["start", "stop"]
+        assert commands(device, mark) == ["start", "pause"]
 
         # Global speed 0: the program would not move; rejected, nothing written.
         device.set("global_speed", 0.0)
@@ -177,7 +199,9 @@ def test_upload_points_with_progress_and_cancel(
         assert result.outcome.code == MotionOutcome.CANCELLED
         assert 3 <= result.frames_sent < result.frames_total == 200
         assert f"({result.frames_sent} of 200 sent)" in result.outcome.message
-        assert device.points[8] == values[: 60 * result.frames_sent]
+        # The part that went out is cleared (decision 25): no path cut short stays.
+        assert "source 8 cleared" in result.outcome.message, result.outcome.message
+        assert device.points[8] == [] and result.points_held == 0
 
         # A newer upload preempts a running one between two frames.
         first = upload(b, 9, values)
@@ -190,10 +214,11 @@ def test_upload_points_with_progress_and_cancel(
         status, result = second.result()
         assert result.outcome.code == MotionOutcome.REACHED, result.outcome.message
         assert device.points[10] == values[:60]
+        assert device.points[9] == []  # cleared before the newer upload began
 
         # A time limit ends an upload between frames.
         goal = upload(b, 11, values, timeout_s=0.3)
         status, result = goal.result()
         assert result.outcome.code == MotionOutcome.TIMED_OUT, result.outcome.message
         assert result.frames_sent < 200
-        assert device.points.get(11, []) == values[: 60 * result.frames_sent]
+        assert device.points.get(11, []) == [] and result.points_held == 0

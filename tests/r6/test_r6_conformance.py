@@ -296,7 +296,7 @@ def test_io_board_write() -> None:  # §3.3.1
                 "board 0 output 0 on",
             )
         ],
-        lambda d: d.write_board_outputs(0, 1),
+        lambda d: d.write_board_outputs(0, 1, 0xFFFF_FFFF, boards_in_use=1),
     )
 
 
@@ -309,7 +309,7 @@ def test_counter_modify() -> None:  # §3.3.2
                 "counter 1 current = 8",
             )
         ],
-        lambda d: d.set_counter(1, 8),
+        lambda d: d.write_counter(1, 8),  # set_counter: this frame between checks
     )
 
 
@@ -322,7 +322,7 @@ def test_output_point() -> None:  # §3.3.3
                 "board 0 point 1 on",
             )
         ],
-        lambda d: d.set_output(0, 1, True),
+        lambda d: d.set_output(0, 1, True, boards_in_use=1),
     )
 
 

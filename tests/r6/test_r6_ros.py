@@ -21,6 +21,7 @@ from bridge_core.registers import Table
 from bridge_core.sim_base import Simulator
 from msg_defs.msg import R6State
 from msg_defs.srv import (
+    ClearAlarmAndNext,
     ListCounters,
     ReadCounter,
     ReadDataSource,
@@ -145,8 +146,13 @@ def test_every_service_writes_its_registers(sim, bridge_factory) -> None:  # typ
     with bridge_factory(port) as (bridge, _):
         bridge.wait_connected(True)
         for name, address in COMMANDS.items():
+            if name.startswith("clear_alarm"):
+                device.set_alarm(0x325)  # decision 23: only with an alarm to clear
             before = len(device.write_log)
-            reply = bridge.call(Trigger, name)
+            if name == "clear_alarm_and_next":
+                reply = bridge.call(ClearAlarmAndNext, name, skip_failed_step=True)
+            else:
+                reply = bridge.call(Trigger, name)
             assert reply.success, reply.message
             new = device.write_log[before:]
             assert [(r.function_code, r.address, r.values) for r in new] == [(6, address, (1,))], (
@@ -154,11 +160,15 @@ def test_every_service_writes_its_registers(sim, bridge_factory) -> None:  # typ
             )
         device.write_log.clear()
         assert bridge.call(SetValue, "set_global_speed", value=25.5).success
-        assert bridge.call(SetOutput, "set_output", board=2, index=5, state=True).success
-        reply = bridge.call(SetOutputBoard, "set_board_outputs", board=1, bits=0x8000_0001)
+        assert bridge.call(SetOutput, "set_output", board=0, index=5, state=True).success
+        reply = bridge.call(
+            SetOutputBoard, "set_board_outputs", board=1, bits=0x8000_0001, mask=0xFFFF_FFFF
+        )
         assert reply.success, reply.message
-        assert bridge.call(SetCounter, "set_counter", id=1, value=99).success
-        assert bridge.call(WriteParameter, "write_parameter", index=3, value=-2).success
+        reply = bridge.call(SetCounter, "set_counter", id=1, value=99)
+        assert reply.success and "counter 1 reads 99" in reply.message, reply.message
+        reply = bridge.call(WriteParameter, "write_parameter", index=3, value=-2)
+        assert reply.success and "parameter 3 reads -2" in reply.message, reply.message
         reply = bridge.call(
             UploadPoints,
             "upload_points",
@@ -170,9 +180,10 @@ def test_every_service_writes_its_registers(sim, bridge_factory) -> None:  # typ
         assert reply.success and reply.frames_sent == 1
         assert [(r.function_code, r.address, r.values) for r in device.write_log] == [
             (6, 20200, (255,)),
-            (16, 20056, (2, 5, 1)),
+            (16, 20056, (0, 5, 1)),
             (16, 2229, (0x8000, 0x0001)),  # §3.3.1: board 1's word, high word first
             (16, 20050, (0, 1, 0, 0, 0, 99)),
+            (16, 2179, (0, 1)),  # the counter read back (decision 24)
             (16, 20306, (0xFFFF, 0xFFFE)),
             (16, 30002, (100, 6, 0x23)),
             (16, 30005, (2, 1, *(w for v in range(1, 13) for w in (0, v)))),
@@ -186,8 +197,12 @@ def test_every_service_writes_its_registers(sim, bridge_factory) -> None:  # typ
         assert device.write_log[-1].address == 30000 and device.write_log[-1].values == (100,)
         reply = bridge.call(ReadDataSource, "read_data_source", source_id=7)
         assert reply.success and reply.points == 0, reply.message
-        assert device.get("io_board_output_2") == 1 << 5
+        assert device.get("io_board_output_0") == 1 << 5
         assert device.get("io_board_output_1") == 0x8000_0001
+        # A masked write changes only its outputs (decision 24).
+        reply = bridge.call(SetOutputBoard, "set_board_outputs", board=1, bits=0b10, mask=0b11)
+        assert reply.success and "read 0x80000001, wrote 0x80000002" in reply.message
+        assert device.get("io_board_output_1") == 0x8000_0002
 
 
 def test_counters_are_listed_and_read(sim, bridge_factory) -> None:  # type: ignore[no-untyped-def]
@@ -254,8 +269,14 @@ REFUSALS: list[tuple[Any, str, dict[str, Any], str]] = [
     (SetValue, "set_global_speed", {"value": math.nan}, "outside"),
     (SetOutput, "set_output", {"board": 4, "index": 0, "state": True}, "board 4"),
     (SetOutput, "set_output", {"board": 0, "index": 32, "state": True}, "point 32"),
-    (SetOutputBoard, "set_board_outputs", {"board": 5, "bits": 1}, "outside"),
-    (SetOutputBoard, "set_board_outputs", {"board": 2, "bits": 1}, "not in use"),
+    (SetOutput, "set_output", {"board": 2, "index": 0, "state": True}, "board 2 is not in use"),
+    (SetOutputBoard, "set_board_outputs", {"board": 5, "bits": 1, "mask": 1}, "outside"),
+    (SetOutputBoard, "set_board_outputs", {"board": 2, "bits": 1, "mask": 1}, "not in use"),
+    (SetOutputBoard, "set_board_outputs", {"board": 0, "bits": 1}, "mask 0"),
+    (SetCounter, "set_counter", {"id": 7, "value": 1}, "not one the controller lists"),
+    (ClearAlarmAndNext, "clear_alarm_and_next", {"skip_failed_step": False}, "skip_failed_step"),
+    (ClearAlarmAndNext, "clear_alarm_and_next", {"skip_failed_step": True}, "no alarm"),
+    (Trigger, "clear_alarm_and_continue", {}, "no alarm"),
     (WriteParameter, "write_parameter", {"index": 1000, "value": 1}, "index"),
     (WriteParameter, "write_parameter", {"index": 0, "value": 2**31}, "outside"),
     (
@@ -303,14 +324,15 @@ def test_read_only_refuses_every_write(sim, bridge_factory) -> None:  # type: ig
     with bridge_factory(port, read_only=True) as (bridge, _):
         bridge.wait_connected(True)
         for name in COMMANDS:
-            reply = bridge.call(Trigger, name)
+            srv = ClearAlarmAndNext if name == "clear_alarm_and_next" else Trigger
+            reply = bridge.call(srv, name)
             assert not reply.success and "read_only" in reply.message
         for reply in (
             bridge.call(SetValue, "set_global_speed", value=10.0),
             bridge.call(SetOutput, "set_output", board=0, index=1, state=True),
             bridge.call(SetCounter, "set_counter", id=1, value=1),
             bridge.call(ReadCounter, "read_counter", id=1),  # selects it: a write
-            bridge.call(SetOutputBoard, "set_board_outputs", board=0, bits=1),
+            bridge.call(SetOutputBoard, "set_board_outputs", board=0, bits=1, mask=1),
             bridge.call(ReadDataSource, "read_data_source", source_id=100),  # selects: a write
             bridge.call(WriteParameter, "write_parameter", index=0, value=1),
             bridge.call(
@@ -430,3 +452,24 @@ def test_controller_without_version_rows_still_polls(sim, bridge_factory, client
         client.wait_message(bridge.joint_states)
         status = bridge.wait_diagnostic(0, started, port, where=lambda v: "mode" in v)
         assert values_of(status)["firmware version"].startswith("unavailable (ILLEGAL DATA ADDRESS")
+
+
+@pytest.mark.parametrize(
+    ("setup", "name", "reason"),
+    [
+        (lambda sim: sim.set("mode", 1), "start", "manual mode"),
+        (lambda sim: sim.set("homed", 0), "single_cycle", "not homed"),
+        (lambda sim: sim.set_alarm(0x325), "start", "alarm 805"),
+    ],
+)
+def test_program_starts_are_checked_and_write_nothing(  # type: ignore[no-untyped-def]
+    sim, bridge_factory, setup, name: str, reason: str
+) -> None:
+    """Decision 23: ~/start and ~/single_cycle read mode, alarm and homed first."""
+    device, port = sim
+    setup(device)
+    with bridge_factory(port) as (bridge, _):
+        bridge.wait_connected(True)
+        reply = bridge.call(Trigger, name)
+        assert not reply.success and reason in reply.message, reply.message
+        assert device.write_log == [] and not device.running

@@ -12,10 +12,12 @@ from collections.abc import Callable, Iterator
 import pytest
 
 from bridge_core.channel import DeviceChannel
-from bridge_core.errors import CommandRejected, DeviceException
+from bridge_core.errors import CommandRejected, DeviceException, NotConfirmed
+from bridge_core.goals import Outcome, Verdict
 from bridge_core.registers import Table
+from bridge_core.sim_base import WriteRecord
 from bridge_core.transport import ModbusLink, TcpSettings
-from r6_bridge.device import R6Device, R6Snapshot
+from r6_bridge.device import PointUpload, R6Device, R6Snapshot, RunCycleMotion
 from r6_bridge.registers import MAX_AXES, NOT_OFFERED, R6_LIMITS, R6_MAP
 from r6_bridge.sim import MANUAL_VERSION, R6SimDevice, axis_speed_deg_s, make_simulator
 
@@ -89,6 +91,7 @@ def test_commands_write_the_manual_registers(
         (6, 20200, (125,)),
         (16, 20056, (1, 7, 1)),
         (16, 20050, (0, 1, 0, 0, 0, 42)),
+        (16, 2179, (0, 1)),  # the counter read back (decision 24)
         (16, 20300 + 2 * 964, (0xFFFF, 0xFFF9)),
     ]
     assert sim.running
@@ -118,6 +121,11 @@ def test_commands_write_the_manual_registers(
         (lambda d: d.command("self_destruct"), "unknown"),
         (lambda d: d.upload_points(1, 5, 0, [1] * 10), "values_per_point"),
         (lambda d: d.upload_points(1, 6, 0x40, [1] * 6), "axis mask"),
+        (lambda d: d.upload_points(1, 6, 0, [1] * 6), "axis mask 0"),  # decision 25
+        (lambda d: d.upload_points(1, 4, 0x13, [1] * 4), "past the 4 values"),
+        (lambda d: d.write_board_outputs(0, 1, 0), "mask 0"),  # decision 24
+        (lambda d: d.write_board_outputs(0, 0b11, 0b01), "outside mask"),
+        (lambda d: d.set_output(2, 0, True, boards_in_use=2), "board 2"),
         (lambda d: d.upload_points(1, 6, 1, [1] * 7), "whole"),
     ],
 )
@@ -547,7 +555,7 @@ def test_coils_and_output_rows_are_one_memory(
     coil(256 + 17, True)  # EU board, point 17 (rows 2243-2244)
     assert rows(2239) == [0, 0x0020] and rows(2243) == [0x0002, 0]
     # The other way: §3.3.1's whole-board write and §3.3.3's single point show as coils.
-    device.write_board_outputs(0, 0x8000_0001)
+    device.write_board_outputs(0, 0x8000_0001, 0xFFFF_FFFF)
     bits = channel.read_bits(0, 32)
     assert [k for k, b in enumerate(bits) if b] == [0, 31]
     reply = raw_request(port, bytes([1]) + struct.pack(">HH", 0, 32))
@@ -594,3 +602,213 @@ def test_the_counter_list_leaves_out_padding_ids(
     sim.set_counters({5: (1, 0)})
     sim.set("counter_count", 3)  # as read a moment before the list shrank
     assert device.read_counter_ids() == [5]
+
+
+# ---------------------------------------------------------------- issue 20 (decisions 23-25)
+
+
+@pytest.mark.parametrize(
+    ("setup", "name", "match"),
+    [
+        (lambda sim: sim.set("mode", 1), "start", "manual mode"),
+        (lambda sim: sim.set("mode", 1), "single_cycle", "manual mode"),
+        (lambda sim: sim.set("homed", 0), "start", "not homed"),
+        (lambda sim: sim.set_alarm(0x325), "single_cycle", "alarm 805"),
+        (lambda sim: None, "clear_alarm_and_continue", "no alarm"),
+        (lambda sim: sim.set_alarm(0x325), "clear_alarm_and_next", "skip_failed_step"),
+        (
+            lambda sim: (sim.set_alarm(0x325), sim.set("mode", 1)),
+            "clear_alarm_and_continue",
+            "manual",
+        ),
+    ],
+)
+def test_commands_that_start_the_program_are_checked_first(
+    r6: tuple[R6Device, R6SimDevice, DeviceChannel],
+    setup: Callable[[R6SimDevice], object],
+    name: str,
+    match: str,
+) -> None:
+    """Decision 23: refused with the reason, nothing written."""
+    device, sim, _ = r6
+    setup(sim)
+    with pytest.raises(CommandRejected, match=match):
+        device.run_program(name)
+    assert sim.write_log == []
+
+
+def test_clear_alarm_and_next_runs_only_with_skip_failed_step(
+    r6: tuple[R6Device, R6SimDevice, DeviceChannel],
+) -> None:
+    device, sim, _ = r6
+    sim.set_alarm(0x325)
+    device.run_program("clear_alarm_and_next", skip_failed_step=True)
+    assert [r.address for r in sim.write_log] == [20005]
+    assert sim.get("alarm_code") == 0
+
+
+def judge_until(device: R6Device, motion: RunCycleMotion) -> Verdict:
+    """Start ``motion`` and judge every poll after it until it has a verdict."""
+    motion.start()
+    started = time.monotonic()
+    deadline = started + WAIT_S
+    while time.monotonic() < deadline:
+        verdict = motion.judge(device.poll(), time.monotonic() - started)
+        if verdict is not None:
+            return verdict
+    pytest.fail("no verdict")
+
+
+def test_a_single_cycle_is_reached_only_when_it_ran_and_ended(
+    r6: tuple[R6Device, R6SimDevice, DeviceChannel],
+) -> None:
+    """Decision 23: moving rose and fell and the last cycle time changed."""
+    device, sim, channel = r6
+    sim.program = timed_program(0.3, 0.0)
+    sim.set("global_speed", 100.0)
+    verdict = judge_until(device, RunCycleMotion(device, device.poll(), single_cycle=True))
+    assert verdict.outcome is Outcome.REACHED, verdict.message
+    assert sim.cycles_completed == 1
+    # The same cycle stopped by another client half-way: moving falls, no new cycle time.
+    sim.program = timed_program(1.0, 0.0)
+    other = R6Device(channel)
+    motion = RunCycleMotion(device, device.poll(), single_cycle=True)
+    motion.start()
+    wait_for_poll(
+        device,
+        lambda s: motion.judge(s) is None and s.moving and axis_1(s) > 5.0,
+        "the cycle under way",
+    )
+    other.command("stop")
+    verdict = judge_until_after_start(device, motion)
+    assert verdict.outcome is Outcome.STOPPED, verdict.message
+    assert "did not finish" in verdict.message
+    assert sim.cycles_completed == 1
+
+
+def judge_until_after_start(device: R6Device, motion: RunCycleMotion) -> Verdict:
+    deadline = time.monotonic() + WAIT_S
+    while time.monotonic() < deadline:
+        verdict = motion.judge(device.poll())
+        if verdict is not None:
+            return verdict
+    pytest.fail("no verdict")
+
+
+def test_a_start_the_controller_ignores_is_not_reached(
+    r6: tuple[R6Device, R6SimDevice, DeviceChannel],
+) -> None:
+    device, sim, _ = r6
+    sim.program = timed_program(0.3, 0.0)
+
+    def ignore_starts(record: WriteRecord) -> None:
+        sim.running = False  # acknowledged, not obeyed
+
+    sim.write_hooks.append(ignore_starts)
+    verdict = judge_until(device, RunCycleMotion(device, device.poll(), single_cycle=True))
+    assert verdict.outcome is Outcome.STOPPED, verdict.message
+    assert "never showed moving" in verdict.message
+
+
+def test_run_cycle_is_refused_in_manual_mode_and_its_stop_is_a_pause(
+    r6: tuple[R6Device, R6SimDevice, DeviceChannel],
+) -> None:
+    """Decision 23 and the goal's own ends: pause (20001) keeps the program's step."""
+    device, sim, _ = r6
+    sim.set("mode", 1)
+    with pytest.raises(CommandRejected, match="manual"):
+        RunCycleMotion(device, device.poll(), single_cycle=True)
+    motion = RunCycleMotion(device, None, single_cycle=True)
+    with pytest.raises(CommandRejected, match="manual"):
+        motion.start()  # the rows read just before the write
+    assert sim.write_log == []
+    sim.set("mode", 2)
+    sim.program = timed_program(1.0, 0.0)
+    motion.start()
+    wait_for_poll(device, lambda s: s.moving, "the cycle under way")
+    assert "pause (20001)" in motion.stop()
+    assert [r.address for r in sim.write_log] == [20002, 20001]
+    wait_for_poll(device, lambda s: not s.moving, "the pause")
+    assert sim.step == 0 and int(sim.get("current_cycle_time")) > 0  # kept, not reset
+
+
+def test_board_outputs_change_only_the_masked_outputs(
+    r6: tuple[R6Device, R6SimDevice, DeviceChannel],
+) -> None:
+    """Decision 24: a read-modify-write keeps what the program drives."""
+    device, sim, _ = r6
+    sim.set("io_board_output_1", 0x8000_0001)  # the program's gripper and vacuum
+    said = device.write_board_outputs(1, 0b100, 0b110, boards_in_use=2)
+    assert sim.get("io_board_output_1") == 0x8000_0005
+    assert "read 0x80000001, wrote 0x80000005" in said and "not atomic" in said
+    device.write_board_outputs(1, 0x10, 0xFFFF_FFFF, boards_in_use=2)  # the whole board
+    assert sim.get("io_board_output_1") == 0x10
+    assert [(r.function_code, r.address) for r in sim.write_log] == [(16, 2229), (16, 2229)]
+
+
+def test_counters_and_parameters_are_read_back(
+    r6: tuple[R6Device, R6SimDevice, DeviceChannel],
+) -> None:
+    """Decision 24: an unknown counter id is refused; a write the controller drops says so."""
+    device, sim, _ = r6
+    with pytest.raises(CommandRejected, match="counter 7 is not one the controller lists"):
+        device.set_counter(7, 1)
+    assert sim.write_log == []
+    assert "reads 5" in device.set_counter(0, 5)
+
+    def drop_parameter_writes(record: WriteRecord) -> None:
+        if record.address == 20300:
+            sim.set("parameter_0", 0)  # acknowledged, not applied
+
+    sim.write_hooks.append(drop_parameter_writes)
+    with pytest.raises(NotConfirmed, match="wrote 9, reads 0"):
+        device.write_parameter(0, 9)
+    assert "reads 4" in device.write_parameter(1, 4)
+
+
+def test_an_abandoned_upload_clears_its_source(
+    r6: tuple[R6Device, R6SimDevice, DeviceChannel],
+) -> None:
+    """Decision 25: the source does not keep a path cut short."""
+    device, sim, _ = r6
+    upload = PointUpload(device, 3, 6, 0x3F, list(range(6 * 25)))  # 3 frames
+    upload.step()
+    assert sim.points[3] == list(range(60)) and upload.result()["points_held"] == 10
+    assert "cleared" in upload.abandon()
+    assert sim.points[3] == [] and sim.point_counts[3] == 0
+    assert upload.result()["points_held"] == 0
+    assert device.read_data_source_length(3) == 0
+
+
+def test_pose_and_state_carry_the_read_time_of_their_own_rows(
+    r6: tuple[R6Device, R6SimDevice, DeviceChannel],
+) -> None:
+    """Decision 26: the world block is read just before the axis positions, and each
+    message's stamp is the time its rows were read."""
+    device, _, _ = r6
+    plan = device.poll_plan(6, 2)
+    assert "world_x" in plan[-2].names and "axis_position_1" in plan[-1].names
+    snap = device.poll()
+    assert 0 < snap.state_read_time < snap.world_read_time < snap.read_time
+
+
+def test_an_upload_service_whose_frame_fails_clears_its_source(
+    r6: tuple[R6Device, R6SimDevice, DeviceChannel],
+) -> None:
+    """Decision 25: the service has no cancel, but a frame refused half-way leaves no
+    path cut short either."""
+    device, sim, _ = r6
+    frames = 0
+
+    def refuse_the_second_frame(record: WriteRecord) -> int | None:
+        nonlocal frames
+        if record.address == R6_MAP["point_count"].address and record.values[0]:
+            frames += 1
+            if frames == 2:
+                return 0x04  # SERVER DEVICE FAILURE
+        return None
+
+    sim.write_guards.append(refuse_the_second_frame)
+    with pytest.raises(NotConfirmed, match=r"frame 2 of 3 failed .*; source 4 cleared"):
+        device.upload_points(4, 6, 0x3F, list(range(6 * 25)))
+    assert sim.points[4] == []

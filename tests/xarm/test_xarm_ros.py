@@ -10,7 +10,7 @@ from typing import Any
 
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
-from std_srvs.srv import SetBool, Trigger
+from std_srvs.srv import Trigger
 
 from bridge_core.registers import Table
 from msg_defs.msg import XArmState
@@ -21,6 +21,7 @@ from msg_defs.srv import (
     SetJointEnable,
     SetOutput,
     SetOutputs,
+    SetSafetyMode,
 )
 from xarm_bridge.sim import IN_MOTION, PAUSED, SLEEPING, STOPPED, XArmSimDevice, make_simulator
 
@@ -167,14 +168,18 @@ def test_services_write_what_they_should(sim, client: Client, tmp_path: Path) ->
             client, b, SetOutput, "set_tool_digital_output", board=0, index=1, state=True
         ).success
         assert call(client, b, SetChannelValue, "set_analog_output", channel=1, value=2.5).success
-        assert call(client, b, SetBool, "set_reduced_mode", data=True).success
-        assert call(client, b, SetBool, "set_fence_mode", data=False).success
+        assert call(client, b, SetSafetyMode, "set_reduced_mode", data=True).success
+        reply = call(client, b, SetSafetyMode, "set_fence_mode", data=False)
+        assert not reply.success and "confirm: 'set_fence_mode'" in reply.message  # decision 17
+        confirmed = {"data": False, "confirm": "set_fence_mode"}
+        reply = call(client, b, SetSafetyMode, "set_fence_mode", **confirmed)
+        assert reply.success and "C143 reads 0" in reply.message, reply.message
         log = [(r.function_code, r.table, r.address, r.values) for r in device.write_log]
         assert log == [
             (16, Table.HOLDING, 0x30, (3, 12)),
-            (23, Table.HOLDING, 33, (3,)),
+            (5, Table.COIL, 144, (1,)),  # decision 6: the coils the manual names
             (23, Table.HOLDING, 33, (0,)),
-            (23, Table.HOLDING, 33, (4,)),
+            (5, Table.COIL, 145, (1,)),
             (23, Table.HOLDING, 33, (0,)),
             (6, Table.HOLDING, 32, (1,)),
             (23, Table.HOLDING, 33, (0,)),
@@ -267,8 +272,8 @@ def test_read_only_refuses_every_write(sim, client: Client, tmp_path: Path) -> N
             call(client, b, SetOutput, "set_digital_output", board=0, index=0, state=True),
             call(client, b, SetOutput, "set_tool_digital_output", board=0, index=0, state=True),
             call(client, b, SetChannelValue, "set_analog_output", channel=0, value=1.0),
-            call(client, b, SetBool, "set_reduced_mode", data=True),
-            call(client, b, SetBool, "set_fence_mode", data=True),
+            call(client, b, SetSafetyMode, "set_reduced_mode", data=True),
+            call(client, b, SetSafetyMode, "set_fence_mode", data=True),
             call(client, b, RunOfflineTask, "run_offline_task", projects=[1]),
             call(client, b, SetOutputs, "set_digital_outputs", indexes=[0], states=[True]),
             call(client, b, SetOutputs, "set_user_coils", indexes=[256], states=[True]),

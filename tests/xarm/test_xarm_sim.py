@@ -11,8 +11,9 @@ from contextlib import contextmanager
 import pytest
 
 from bridge_core.channel import DeviceChannel
-from bridge_core.errors import CommandRejected, ConfigurationError, DeviceException
+from bridge_core.errors import CommandRejected, ConfigurationError, DeviceException, NotConfirmed
 from bridge_core.registers import Table
+from bridge_core.sim_base import WriteRecord
 from bridge_core.transport import ModbusLink, TcpSettings
 from bridge_core.units import (
     euler_xyz_deg_to_quaternion,
@@ -20,7 +21,7 @@ from bridge_core.units import (
     rotation_vector_deg_to_quaternion,
 )
 from xarm_bridge.device import POLL_PLAN, XArmDevice, error_text, poll_plan
-from xarm_bridge.registers import XARM_MAP
+from xarm_bridge.registers import COIL_PAUSED, COIL_STOPPED, XARM_MAP
 from xarm_bridge.sim import IN_MOTION, PAUSED, SLEEPING, STOPPED, XArmSimDevice, make_simulator
 
 
@@ -95,11 +96,11 @@ def test_state_machine_through_the_device(xarm) -> None:  # type: ignore[no-unty
     deadline = time.monotonic() + 30
     while device.poll().joint_angles_deg == start:
         assert time.monotonic() < deadline, "joints did not move in motion"
-    assert device.pause() == (0, PAUSED)
+    assert "state 3 (paused)" in device.pause() and sim.arm_state == PAUSED
     frozen = device.poll().joint_angles_deg
     assert device.poll().joint_angles_deg == frozen and device.poll().paused
     assert device.resume() == (0, IN_MOTION)
-    assert device.stop() == (0, STOPPED) and device.poll().stopped
+    assert "state 4 (stopped)" in device.stop() and device.poll().stopped
     assert device.resume() == (0, SLEEPING)
     sim.set_error(22)
     device.run_offline_task([1])
@@ -150,6 +151,8 @@ def test_outputs_write_the_documented_registers(xarm) -> None:  # type: ignore[n
         (lambda d: d.set_state(2), "state 2"),
         (lambda d: d.run_offline_task(list(range(1, 18))), "1-16"),
         (lambda d: d.run_offline_task([0]), "project number 0"),
+        (lambda d: d.set_reduced_mode(False), "confirm: 'set_reduced_mode'"),  # decision 17
+        (lambda d: d.set_fence_mode(False, "set_reduced_mode"), "confirm: 'set_fence_mode'"),
     ],
 )
 def test_refusals_write_nothing(xarm, call, match) -> None:  # type: ignore[no-untyped-def]
@@ -404,3 +407,53 @@ def test_issue_10_refusals_write_nothing(xarm, call, match) -> None:  # type: ig
     with pytest.raises(CommandRejected, match=match):
         call(device)
     assert sim.write_log == [] and channel.stats.transactions == before
+
+
+def test_stop_and_pause_go_through_c145_and_c144_and_are_read_back(xarm) -> None:  # type: ignore[no-untyped-def]
+    """Decision 6: the coils the manual names, the reply from the state read back."""
+    device, sim, _, _ = xarm
+    device.run_offline_task([7])
+    said = device.pause()
+    assert writes(sim)[-1] == (5, Table.COIL, COIL_PAUSED, (1,))
+    assert said.startswith("C144 = 1; ") and "C144 paused 1" in said
+    device.resume()
+    said = device.stop()
+    assert writes(sim)[-1] == (5, Table.COIL, COIL_STOPPED, (1,))
+    assert "state 4 (stopped)" in said and sim.arm_state == STOPPED
+
+
+def test_a_stop_coil_the_arm_ignores_falls_back_to_h33_then_says_so(xarm) -> None:  # type: ignore[no-untyped-def]
+    device, sim, _, _ = xarm
+    obeys_h33 = [True]
+
+    def ignore_halts(record: WriteRecord) -> None:
+        if record.table is Table.COIL and record.address in (COIL_PAUSED, COIL_STOPPED):
+            sim.set_state(IN_MOTION)  # acknowledged, not obeyed
+        if (
+            record.table is Table.HOLDING
+            and 33 in range(record.address, record.address + len(record.values))
+            and not obeys_h33[0]
+        ):
+            sim.set_state(IN_MOTION)
+
+    sim.write_hooks.append(ignore_halts)
+    device.run_offline_task([7])
+    said = device.stop()
+    assert "C145 = 1 not obeyed" in said and "H33 = 4 sent" in said
+    assert sim.arm_state == STOPPED
+    device.resume()
+    device.run_offline_task([7])
+    obeys_h33[0] = False
+    with pytest.raises(
+        NotConfirmed, match=r"C145 = 1 not obeyed .*; H33 = 4 sent: .*C145 stopped 0"
+    ):
+        device.stop()
+
+
+def test_safety_modes_switch_off_only_when_confirmed(xarm) -> None:  # type: ignore[no-untyped-def]
+    """Decision 17: reduced / fence mode off needs confirm; the coil is read back."""
+    device, _, _, _ = xarm
+    assert "C142 reads 1" in device.set_reduced_mode(True)
+    assert "C142 reads 0" in device.set_reduced_mode(False, "set_reduced_mode")
+    assert "C143 reads 1" in device.set_fence_mode(True)
+    assert "C143 reads 0" in device.set_fence_mode(False, "set_fence_mode")
