@@ -969,7 +969,11 @@ class MoveToMotion(Motion[MotecSnapshot]):
                 self.scale.counts_per_rev,
                 self.time_limit_margin,
             )
-        self.device.move(self.counts, relative=self.relative, speed_rpm=self.speed_rpm)
+        # A relative goal is sent as the absolute target it computed: the drive counts a
+        # relative move from its setpoint when 0x29 is written, which a move still under
+        # way shifts after this read, and the goal would judge a target the drive never
+        # had (MOTEC decision 19).
+        self.device.move(self.target, relative=False, speed_rpm=self.speed_rpm)
 
     def stop(self) -> str:
         return self.device.stop_move()

@@ -135,6 +135,10 @@ def drive_node_name(unit_id: int) -> str:
     return f"motec_{unit_id}"
 
 
+# The axis of what a drive node's services set moving (its motion ledger).
+DRIVE = "drive"
+
+
 class MotecDriveNode(BridgeNode[MotecSnapshot]):
     """One drive on the shared bus."""
 
@@ -393,6 +397,7 @@ class MotecDriveNode(BridgeNode[MotecSnapshot]):
             lambda r: f"enable {'on' if r.data else 'off'}",
             lambda r: d.enable(bool(r.data)),
             stop=lambda r: not r.data,  # a disable ends motion: tried even while down
+            stops_axes=lambda r: () if r.data else (DRIVE,),
         )
         self.command_service(
             SetControlMode,
@@ -406,9 +411,16 @@ class MotecDriveNode(BridgeNode[MotecSnapshot]):
             lambda r: f"move {'by' if r.relative else 'to'} {r.position} rad",
             self._move,
             fill=lambda response, counts: setattr(response, "counts", counts),
+            starts=lambda _r: (DRIVE, d.stop),  # a halt stops the move it set going
         )
         self.command_service(
-            Trigger, "~/stop", lambda _r: "stop", lambda _r: d.stop(), stop=True, fill=_said
+            Trigger,
+            "~/stop",
+            lambda _r: "stop",
+            lambda _r: d.stop(),
+            stop=True,
+            fill=_said,
+            stops_axes=lambda _r: (DRIVE,),
         )
         self.command_service(
             Trigger, "~/save_to_flash", lambda _r: "save_to_flash", lambda _r: d.save_to_flash()

@@ -578,6 +578,7 @@ class R6Device:
 
 
 POINT_DATA = "point_data"  # the axis of an upload goal: the point-data rows 30000-30006
+PROGRAM = "program"  # the axis of what runs the controller's program (run_cycle, ~/start)
 
 
 class PointUpload:
@@ -677,7 +678,7 @@ class RunCycleMotion(Motion[R6Snapshot]):
     run's (it runs until stopped). Ends this goal causes (cancel, timeout, link loss,
     the node's halts) send pause (20001), which keeps the program's step."""
 
-    axes: frozenset[Hashable] = frozenset({"program"})
+    axes: frozenset[Hashable] = frozenset({PROGRAM})
     confirm_reached = True  # the result's last cycle time is read apart from `moving`
 
     def __init__(self, device: R6Device, last: R6Snapshot | None, *, single_cycle: bool) -> None:

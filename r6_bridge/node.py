@@ -29,7 +29,14 @@ from msg_defs.srv import (
     WriteParameter,
 )
 
-from .device import POINT_DATA, PROGRAM_COMMANDS, R6Device, R6Snapshot, RunCycleMotion
+from .device import (
+    POINT_DATA,
+    PROGRAM,
+    PROGRAM_COMMANDS,
+    R6Device,
+    R6Snapshot,
+    RunCycleMotion,
+)
 from .device import PointUpload as PointUploadSteps
 from .registers import COMMANDS, MAX_AXES, STOP_COMMANDS
 
@@ -190,12 +197,25 @@ class R6BridgeNode(BridgeNode[R6Snapshot]):
         return None if snapshot is None else snapshot.io_board_count
 
     # ------------------------------------------------------------ services
+    @property
+    def _program_started(self) -> tuple[str, Callable[[], object]]:
+        """A program a service set running: a halt pauses it (20001, the goals' end too,
+        decision 23: the step is kept for the operator's next start)."""
+        return PROGRAM, lambda: self.device.command("pause")
+
     def _create_services(self) -> None:
         d = self.device
         for name in COMMANDS:
             if name == "clear_alarm_and_next":
                 continue  # its own type: skip_failed_step (below)
-            self.trigger_service(f"~/{name}", name, _command(d, name), stop=name in STOP_COMMANDS)
+            self.trigger_service(
+                f"~/{name}",
+                name,
+                _command(d, name),
+                stop=name in STOP_COMMANDS,
+                starts=self._program_started if name in PROGRAM_COMMANDS else None,
+                stops_axes=(PROGRAM,) if name in STOP_COMMANDS else (),
+            )
         self.command_service(
             ClearAlarmAndNext,
             "~/clear_alarm_and_next",
@@ -203,6 +223,7 @@ class R6BridgeNode(BridgeNode[R6Snapshot]):
             lambda r: d.run_program(
                 "clear_alarm_and_next", skip_failed_step=bool(r.skip_failed_step)
             ),
+            starts=lambda _r: self._program_started,
         )
         self.command_service(
             SetValue,

@@ -33,7 +33,7 @@ from msg_defs.srv import (
 )
 
 from .device import XArmDevice, XArmSnapshot, error_text, mode_name, state_name, warning_text
-from .registers import JOINT_COUNTS, JOINTS, USER_COILS, WORLD
+from .registers import JOINT_COUNTS, JOINTS, SET_STATE_START, USER_COILS, WORLD
 
 T = TypeVar("T")
 
@@ -73,6 +73,10 @@ STATE_FIELDS = (
 
 
 XARM_DEFAULTS = DeviceDefaults("UFactory xArm", "tcp", poll_rate_hz=50.0)
+
+
+# The axis of what the services set moving (the node's motion ledger).
+ARM = "arm"
 
 
 class XArmBridgeNode(BridgeNode[XArmSnapshot]):
@@ -203,10 +207,23 @@ class XArmBridgeNode(BridgeNode[XArmSnapshot]):
         # Stop and pause through C145 / C144, answered from the state read back (decision 6).
         for name, halt in (("pause", d.pause), ("stop", d.stop)):
             self.command_service(
-                Trigger, f"~/{name}", _named(name), _call(halt), stop=True, fill=_written
+                Trigger,
+                f"~/{name}",
+                _named(name),
+                _call(halt),
+                stop=True,
+                fill=_written,
+                stops_axes=lambda _r: (ARM,),
             )
+        # What sets the arm moving: a halt (deactivate, exit, read_only) stops it (C145).
+        arm_started = (ARM, d.stop)
         self.command_service(
-            Trigger, "~/resume", _named("resume"), _call(d.resume), fill=fill_state
+            Trigger,
+            "~/resume",
+            _named("resume"),
+            _call(d.resume),
+            fill=fill_state,
+            starts=lambda _r: arm_started,
         )
         self.command_service(
             SetInteger,
@@ -223,6 +240,7 @@ class XArmBridgeNode(BridgeNode[XArmSnapshot]):
             lambda r: f"set_state {r.value}",
             lambda r: d.set_state(r.value),
             fill=fill_state,
+            starts=lambda r: arm_started if r.value == SET_STATE_START else None,
         )
         self.command_service(
             SetOutput,
@@ -253,6 +271,7 @@ class XArmBridgeNode(BridgeNode[XArmSnapshot]):
             ),
             lambda r: d.set_joint_enable(r.joint, r.enable),
             stop=lambda r: not r.enable,  # disabling ends motion: tried at once, like a stop
+            stops_axes=lambda r: (ARM,) if not r.enable and r.joint == 0 else (),
         )
         self.command_service(
             SetOutput,
@@ -286,6 +305,7 @@ class XArmBridgeNode(BridgeNode[XArmSnapshot]):
             "~/run_offline_task",
             lambda r: f"run_offline_task {list(r.projects)}",
             lambda r: d.run_offline_task([int(p) for p in r.projects]),
+            starts=lambda _r: arm_started,
         )
 
 

@@ -1,0 +1,220 @@
+"""Every motion the bridge starts, the bridge stops: also one a service started.
+
+A fire-and-forget service (the R6's ``~/start``, the xArm's ``~/run_offline_task``, a
+MOTEC drive's ``~/move``, a stepper motor's ``~/motor_<n>/forward``) sets the device
+moving; then the node is deactivated or gets SIGINT. The halt must stop that motion on
+the wire (the node's motion ledger, ``bridge_core/motion_ledger.py``), and the simulated
+device must stand still. A stop service in between means nothing is left to stop.
+"""
+
+from __future__ import annotations
+
+import signal
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import pytest
+from lifecycle_msgs.msg import Transition
+from lifecycle_msgs.srv import ChangeState
+from std_srvs.srv import SetBool, Trigger
+
+from bridge_core.registers import Table
+from bridge_core.sim_base import WriteRecord
+from motec_bridge.sim import MotecSimDrive
+from msg_defs.msg import MotecState, R6State, StepperState, XArmState
+from msg_defs.srv import PositionMove, RunOfflineTask, SetControlMode
+from r6_bridge.registers import COMMANDS
+from r6_bridge.sim import R6SimDevice
+from r6_bridge.sim import make_simulator as make_r6
+from stepper_bridge.registers import motor_coil
+from stepper_bridge.sim import StepperSimDevice
+from xarm_bridge.registers import COIL_STOPPED
+from xarm_bridge.sim import IN_MOTION, XArmSimDevice
+from xarm_bridge.sim import make_simulator as make_xarm
+
+from .support.ros import WAIT_S, Bridge, Client, node_process, ros_client, unique_namespace
+from .support.ros import wait_for
+from .support.sims import motec_on_pty, stepper_on_pty
+
+pytestmark = pytest.mark.ros
+
+BAUD = 115200
+EXIT_TIMEOUT_S = 20.0
+
+
+@pytest.fixture(scope="module")
+def client() -> Iterator[Client]:
+    with ros_client("service_motion_client") as c:
+        yield c
+
+
+@dataclass
+class Rig:
+    """One bridge against its simulator: how to start a motion and what shows it."""
+
+    bridge: Bridge
+    proc: Any
+    start: Callable[[], None]  # the service call that sets the device moving
+    stop_service: Callable[[], None]  # the stop service
+    moving: Callable[[], bool]
+    writes: Callable[[], list[WriteRecord]]
+    is_stop: Callable[[WriteRecord], bool]
+
+
+def halt(client: Client, rig: Rig, how: str) -> None:
+    if how == "sigint":
+        rig.proc.send_signal(signal.SIGINT)
+        assert rig.proc.wait(EXIT_TIMEOUT_S) == 0
+        return
+    request = ChangeState.Request()
+    request.transition.id = Transition.TRANSITION_DEACTIVATE
+    reply = client.call(ChangeState, rig.bridge.service("change_state"), request)
+    assert reply.success
+
+
+@contextmanager
+def r6_rig(client: Client, tmp_path: Path) -> Iterator[Rig]:
+    simulator = make_r6(axis_count=6)
+    port = simulator.start_tcp()
+    device = simulator.device
+    assert isinstance(device, R6SimDevice)
+    ns = unique_namespace("service_motion_r6")
+    bridge = Bridge(client, ns, "r6_bridge", R6State)
+    try:
+        with node_process(
+            "r6_bridge.node", {"port": port, "poll_rate_hz": 20.0}, tmp_path, ["-r", f"__ns:={ns}"]
+        ) as proc:
+            bridge.wait_connected(True, timeout=30)
+            yield Rig(
+                bridge,
+                proc,
+                start=lambda: _ok(bridge.call(Trigger, "start")),
+                stop_service=lambda: _ok(bridge.call(Trigger, "stop")),
+                moving=lambda: device.running,
+                writes=lambda: list(device.write_log),
+                is_stop=lambda r: r.address == COMMANDS["pause"],
+            )
+    finally:
+        simulator.stop()
+
+
+@contextmanager
+def xarm_rig(client: Client, tmp_path: Path) -> Iterator[Rig]:
+    simulator = make_xarm(7)
+    port = simulator.start_tcp()
+    device = simulator.device
+    assert isinstance(device, XArmSimDevice)
+    ns = unique_namespace("service_motion_xarm")
+    bridge = Bridge(client, ns, "xarm_bridge", XArmState)
+    try:
+        with node_process(
+            "xarm_bridge.node",
+            {"port": port, "poll_rate_hz": 20.0, "timeout_s": 1.0},
+            tmp_path,
+            ["-r", f"__ns:={ns}"],
+        ) as proc:
+            bridge.wait_connected(True, timeout=30)
+            yield Rig(
+                bridge,
+                proc,
+                start=lambda: _ok(bridge.call(RunOfflineTask, "run_offline_task", projects=[1])),
+                stop_service=lambda: _ok(bridge.call(Trigger, "stop")),
+                moving=lambda: device.arm_state == IN_MOTION,
+                writes=lambda: list(device.write_log),
+                is_stop=lambda r: r.table == Table.COIL and r.address == COIL_STOPPED,
+            )
+    finally:
+        simulator.stop()
+
+
+@contextmanager
+def motec_rig(client: Client, tmp_path: Path) -> Iterator[Rig]:
+    with motec_on_pty([1], BAUD) as (simulator, port):
+        drive: MotecSimDrive = simulator.drive(1)
+        ns = unique_namespace("service_motion_motec")
+        bridge = Bridge(client, ns, "motec_1", MotecState)
+        params = {
+            "serial_port": port,
+            "baudrate": BAUD,
+            "unit_ids": [1],
+            "poll_rate_hz": 20.0,
+            "timeout_s": 1.0,
+        }
+        with node_process("motec_bridge.node", params, tmp_path, ["-r", f"__ns:={ns}"]) as proc:
+            client.wait_message(bridge.state, timeout=30)
+            mode = SetControlMode.Request.POSITION
+            _ok(bridge.call(SetControlMode, "set_control_mode", mode=mode))
+            _ok(bridge.call(SetBool, "enable", data=True))
+            yield Rig(
+                bridge,
+                proc,
+                start=lambda: _ok(
+                    bridge.call(
+                        PositionMove, "move", position=500.0, relative=True, max_velocity=20.0
+                    )
+                ),
+                stop_service=lambda: _ok(bridge.call(Trigger, "stop")),
+                moving=lambda: drive.move is not None,
+                writes=lambda: list(drive.write_log),
+                is_stop=lambda r: r.address == 0x29 and r.values == (0,),
+            )
+
+
+@contextmanager
+def stepper_rig(client: Client, tmp_path: Path) -> Iterator[Rig]:
+    with stepper_on_pty(BAUD) as (device, port):
+        assert isinstance(device, StepperSimDevice)
+        ns = unique_namespace("service_motion_stepper")
+        bridge = Bridge(client, ns, "stepper_bridge", StepperState)
+        params = {"serial_port": port, "baudrate": BAUD, "poll_rate_hz": 20.0, "timeout_s": 1.0}
+        with node_process("stepper_bridge.node", params, tmp_path, ["-r", f"__ns:={ns}"]) as proc:
+            bridge.wait_connected(True, timeout=30)
+            yield Rig(
+                bridge,
+                proc,
+                start=lambda: _ok(bridge.call(Trigger, "motor_3/forward")),
+                stop_service=lambda: _ok(bridge.call(Trigger, "motor_3/stop")),
+                moving=lambda: device.motion[3] is not None,
+                writes=lambda: list(device.write_log),
+                is_stop=lambda r: r.table == Table.COIL and r.address == motor_coil(3, "stop"),
+            )
+
+
+RIGS = {"r6": r6_rig, "xarm": xarm_rig, "motec": motec_rig, "stepper": stepper_rig}
+
+
+def _ok(reply: Any) -> None:
+    assert reply.success, reply.message
+
+
+@pytest.mark.parametrize("how", ["sigint", "deactivate"])
+@pytest.mark.parametrize("kind", sorted(RIGS))
+def test_a_halt_stops_what_a_service_started(
+    client: Client, tmp_path: Path, kind: str, how: str
+) -> None:
+    with RIGS[kind](client, tmp_path) as rig:
+        rig.start()
+        wait_for(rig.moving, WAIT_S, f"the {kind} moving")
+        before = len(rig.writes())
+        halt(client, rig, how)
+        late = rig.writes()[before:]
+        assert any(rig.is_stop(r) for r in late), f"no stop written by the {how}: {late}"
+        wait_for(lambda: not rig.moving(), WAIT_S, f"the {kind} standing still")
+
+
+@pytest.mark.parametrize("kind", sorted(RIGS))
+def test_a_motion_its_stop_service_ended_is_not_stopped_again(
+    client: Client, tmp_path: Path, kind: str
+) -> None:
+    with RIGS[kind](client, tmp_path) as rig:
+        rig.start()
+        wait_for(rig.moving, WAIT_S, f"the {kind} moving")
+        rig.stop_service()
+        wait_for(lambda: not rig.moving(), WAIT_S, f"the {kind} standing still")
+        before = len(rig.writes())
+        halt(client, rig, "sigint")
+        late = rig.writes()[before:]
+        assert not any(rig.is_stop(r) for r in late), f"a stop sent again: {late}"
