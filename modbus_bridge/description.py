@@ -591,8 +591,9 @@ def _compose(path: Path, raw: bytes) -> tuple[yaml.Node, dict[str, Any]]:
                 )
             ],
         ) from None
-    loader = _Loader(text)
+    loader: _Loader | None = None
     try:
+        loader = _Loader(text)  # its reader refuses non-printable characters at once
         node = loader.get_single_node()
     except yaml.MarkedYAMLError as err:
         mark = err.problem_mark or err.context_mark
@@ -616,7 +617,8 @@ def _compose(path: Path, raw: bytes) -> tuple[yaml.Node, dict[str, Any]]:
     except RecursionError:
         raise DescriptionError(path, [Problem(1, "", "nested too deeply")]) from None
     finally:
-        loader.dispose()
+        if loader is not None:
+            loader.dispose()
     if not isinstance(node, yaml.MappingNode):
         line = node.start_mark.line + 1 if node is not None else 1
         raise DescriptionError(path, [Problem(line, "", "the file must be a mapping of keys")])
@@ -795,7 +797,10 @@ def _build_registers(device: DeviceFileSpec, check: _Checker) -> RegisterMap | N
             ok = False
         limit = device.device.max_read_registers
         if access.readable and not table.is_bit and count > limit:
-            check.add((*at, "length"), f"{count} registers: more than one read takes ({limit})")
+            check.add(
+                (*at, "length" if spec.length is not None else "type"),
+                f"{count} registers: more than one read takes ({limit})",
+            )
             ok = False
         if kind in (ValueType.BOOL, ValueType.STRING) and (
             spec.scale != 1.0 or spec.offset != 0.0 or spec.range is not None
