@@ -44,6 +44,11 @@ class ReadRequest:
         return tuple((reg.name, reg.address - self.address) for reg in self.registers)
 
 
+# A bit table's gap is counted in bits, a register table's in registers; a gap cap given in
+# registers allows the same bytes of bits (16 bits travel in the bytes of one register).
+BITS_PER_REGISTER = 16
+
+
 def _gap_is_readable(
     register_map: RegisterMap,
     table: Table,
@@ -55,8 +60,10 @@ def _gap_is_readable(
     """Whether reading through ``start..end`` is allowed: every address readable and whole."""
     if start == end:
         return True
-    if end - start > limits.max_gap:
-        return False
+    if limits.max_gap is not None:
+        cap = limits.max_gap * (BITS_PER_REGISTER if table.is_bit else 1)
+        if end - start > cap:
+            return False
     address = start
     while address < end:
         owner = register_map.owner_at(table, address)
@@ -81,7 +88,8 @@ def _same_kind(first: Register, other: Register) -> bool:
 def plan_reads(
     register_map: RegisterMap, wanted: Iterable[Register], limits: DeviceLimits | None = None
 ) -> list[ReadRequest]:
-    """Cover ``wanted`` with as few requests as ``limits`` allow, never cutting a value."""
+    """Cover ``wanted`` with the fewest requests ``limits`` allow, never cutting a value;
+    of plans with as few requests, one that reads the fewest registers (or bits)."""
     limits = limits or register_map.limits
     by_table: dict[Table, list[Register]] = {}
     for reg in wanted:
@@ -90,29 +98,76 @@ def plan_reads(
         by_table.setdefault(reg.table, []).append(reg)
     requests: list[ReadRequest] = []
     for table in sorted(by_table, key=lambda t: t.value):
-        limit = limits.max_read_bits if table.is_bit else limits.max_read_registers
         regs = sorted(set(by_table[table]), key=lambda r: r.address)
-        current: list[Register] = []
-        start = end = 0
-        for reg in regs:
-            if reg.count > limit:
-                raise ValueError(f"{reg.name} is larger than one request allows ({limit})")
-            if (
-                current
-                and reg.end - start <= limit
-                and reg.address >= end
-                and _gap_is_readable(register_map, table, end, reg.address, limits, reg.count)
-                and (not limits.homogeneous_requests or _same_kind(current[0], reg))
-            ):
-                current.append(reg)
-                end = reg.end
-                continue
-            if current:
-                requests.append(ReadRequest(table, start, end - start, tuple(current)))
-            current, start, end = [reg], reg.address, reg.end
-        if current:
-            requests.append(ReadRequest(table, start, end - start, tuple(current)))
+        requests += _plan_table(register_map, table, regs, limits)
     return requests
+
+
+def _plan_table(
+    register_map: RegisterMap, table: Table, regs: Sequence[Register], limits: DeviceLimits
+) -> list[ReadRequest]:
+    """A dynamic programme over the sorted registers: ``best[i]`` is the cost (requests,
+    then values read) of reading ``regs[i:]``, its first request serving ``regs[i:cut[i]]``.
+
+    A request serves a run of consecutive wanted registers (one that serves two serves
+    every wanted register between them), and a run that may not be read in one request
+    cannot grow into one that may (the span only grows, a refused gap stays inside it),
+    so extending a request stops at the first refusal. O(n x registers per request).
+    """
+    limit = limits.max_read_bits if table.is_bit else limits.max_read_registers
+    count = len(regs)
+    best: list[tuple[int, int]] = [(0, 0)] * (count + 1)
+    cut = [count] * (count + 1)
+    for i in range(count - 1, -1, -1):
+        first = regs[i]
+        if first.count > limit:
+            raise ValueError(f"{first.name} is larger than one request allows ({limit})")
+        chosen: tuple[int, int] | None = None
+        for j in range(i, count):
+            reg = regs[j]
+            if j > i and not (
+                reg.end - first.address <= limit
+                and _gap_is_readable(
+                    register_map, table, regs[j - 1].end, reg.address, limits, reg.count
+                )
+                and (not limits.homogeneous_requests or _same_kind(first, reg))
+            ):
+                break
+            rest = best[j + 1]
+            cost = (1 + rest[0], reg.end - first.address + rest[1])
+            if chosen is None or cost <= chosen:  # a tie: the longer first request
+                chosen, cut[i] = cost, j + 1
+        assert chosen is not None
+        best[i] = chosen
+    requests: list[ReadRequest] = []
+    i = 0
+    while i < count:
+        served = tuple(regs[i : cut[i]])
+        start = served[0].address
+        requests.append(ReadRequest(table, start, served[-1].end - start, served))
+        i = cut[i]
+    return requests
+
+
+def split_request(request: ReadRequest) -> tuple[ReadRequest, ...]:
+    """The reads of a merged read the device refused (ILLEGAL DATA ADDRESS) without the
+    addresses between its registers (a row the device does not serve, though the map
+    allowed it). Empty for a read without gaps: its refusal is the registers' own."""
+    regs = sorted(request.registers, key=lambda r: r.address)
+    if not regs:
+        return ()
+    runs: list[list[Register]] = [[regs[0]]]
+    for reg in regs[1:]:
+        if reg.address == runs[-1][-1].end:
+            runs[-1].append(reg)
+        else:
+            runs.append([reg])
+    if len(runs) == 1:
+        return ()
+    return tuple(
+        ReadRequest(request.table, run[0].address, run[-1].end - run[0].address, tuple(run))
+        for run in runs
+    )
 
 
 # struct codes of high-word-first values: the words are big-endian, so the whole block is

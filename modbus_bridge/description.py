@@ -18,10 +18,10 @@ import difflib
 import json
 import math
 import re
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated, Any, Literal, get_args, get_origin
+from typing import Annotated, Any, ClassVar, Literal, get_args, get_origin
 
 import yaml  # type: ignore[import-untyped]
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
@@ -180,7 +180,7 @@ class DeviceSpec(_Lenient):
         default_factory=lambda: list(DEFAULT_FUNCTION_CODES), min_length=1
     )
     read_undefined: bool = False
-    max_gap: int = Field(16, ge=0, le=MAX_READ_REGISTERS, strict=True)
+    max_gap: int | None = Field(None, ge=0, le=MAX_READ_REGISTERS, strict=True)  # a cap
     reply_delay_s: Finite = Field(0.0, ge=0.0, le=10.0)
     poll_rate_hz: Finite = Field(10.0, ge=POLL_RATE_RANGE_HZ[0], le=POLL_RATE_RANGE_HZ[1])
     state: list[Name] | None = None
@@ -338,6 +338,8 @@ class Device:
     state_names: tuple[str, ...]  # readable registers published in ~/state
     # Registers that take only some values (``values``): name -> the values, in its unit.
     allowed_values: dict[str, tuple[float, ...]] = field(default_factory=dict)
+    # Register name -> its address as the file wrote it, where not in decimal (0x2100).
+    address_texts: dict[str, str] = field(default_factory=dict)
 
     def allows(self, name: str, value: float) -> bool:
         """Whether ``value`` is one of register ``name``'s ``values`` (any, if it has none),
@@ -433,7 +435,7 @@ class _Resolver(yaml.resolver.Resolver):  # type: ignore[misc]
     """YAML 1.2 core schema: ``0100`` is not octal (it is refused, see ``_int``), ``1:30``
     is not base 60, ``yes``/``no``/``on``/``off`` are text, ``0x2100`` is hex."""
 
-    yaml_implicit_resolvers: dict[str | None, list[tuple[str, re.Pattern[str]]]] = {}
+    yaml_implicit_resolvers: ClassVar[dict[str | None, list[tuple[str, re.Pattern[str]]]]] = {}
 
 
 for _tag, _pattern, _first in (
@@ -629,6 +631,21 @@ def _compose(path: Path, raw: bytes) -> tuple[yaml.Node, dict[str, Any]]:
     except RecursionError:
         raise DescriptionError(path, [Problem(1, "", "nested too deeply")]) from None
     return node, data
+
+
+def node_at(root: yaml.Node, loc: Loc) -> yaml.Node | None:
+    """The node a key path leads to, or None."""
+    node = root
+    for part in loc:
+        if isinstance(node, yaml.MappingNode):
+            node = next((v for k, v in node.value if k.value == str(part)), None)
+        elif isinstance(node, yaml.SequenceNode) and isinstance(part, int):
+            node = node.value[part] if 0 <= part < len(node.value) else None
+        else:
+            return None
+        if node is None:
+            return None
+    return node
 
 
 def line_of(root: yaml.Node, loc: Loc) -> int:
@@ -1142,7 +1159,18 @@ def _build_device(
         built_link,
         tuple(state if state is not None else readable),
         allowed_values(spec),
+        _address_texts(spec, check),
     )
+
+
+def _address_texts(spec: DeviceFileSpec, check: _Checker) -> dict[str, str]:
+    """The addresses the file wrote in another notation than decimal (``0x2100``)."""
+    texts: dict[str, str] = {}
+    for index, register in enumerate(spec.registers):
+        node = node_at(check.root, (*check.prefix, "registers", index, "address"))
+        if isinstance(node, yaml.ScalarNode) and str(node.value) != str(register.address):
+            texts[register.name] = str(node.value)
+    return texts
 
 
 def load(path: str | Path) -> Description:

@@ -99,14 +99,32 @@ CASES: list[Case] = [
     ("misspelt_unit_id", "unit_id: 3", "unit_idd: 3", 7, "did you mean `unit_id`"),
     ("misspelt_registers", "registers:\n", "register:\n", 9, "did you mean `registers`"),
     ("misspelt_manual", 'manual: "Pump', 'manuel: "Pump', 3, "did you mean `manual`"),
-    ("misspelt_in_joint", "position: {register: angle}", "positon: {register: angle}", 23, "mean `position`"),  # noqa: E501
+    (
+        "misspelt_in_joint",
+        "position: {register: angle}",
+        "positon: {register: angle}",
+        23,
+        "mean `position`",
+    ),
     ("unknown_key", "    unit: rpm\n", "    unit: rpm\n    colour: red\n", 16, "unknown key"),
     ("missing_type", "    type: i32\n", "", 10, "type: missing"),
     ("missing_manual", '    manual: "s4.1"\n', "", 10, "manual: missing"),
     ("missing_device", "device:\n  name: pump\n", "devic:\n  name: pump\n", 1, "mean `device`"),
-    ("joints_not_a_list", "joints:\n  - {name: shaft, position: {register: angle}, velocity: {register: speed}}\n", "joints: 5\n", 22, "list"),  # noqa: E501
+    (
+        "joints_not_a_list",
+        "joints:\n  - {name: shaft, position: {register: angle}, velocity: {register: speed}}\n",
+        "joints: 5\n",
+        22,
+        "list",
+    ),
     # --- choices
-    ("parity_false", RTU_LINK, "    rtu: {serial_port: /dev/ttyUSB0, parity: false}\n", 5, "quote it"),  # noqa: E501
+    (
+        "parity_false",
+        RTU_LINK,
+        "    rtu: {serial_port: /dev/ttyUSB0, parity: false}\n",
+        5,
+        "quote it",
+    ),
     ("parity_word", RTU_LINK, "    rtu: {serial_port: /dev/ttyUSB0, parity: no}\n", 5, "'no'"),
     ("stopbits_3", RTU_LINK, "    rtu: {serial_port: /dev/ttyUSB0, stopbits: 3}\n", 5, "stopbits"),
     ("bad_table", "table: holding\n", "table: holdings\n", 11, "holding"),
@@ -121,15 +139,45 @@ CASES: list[Case] = [
         "broadcast",
     ),
     ("unit_id_248", "unit_id: 3", "unit_id: 248", 7, "247"),
-    ("coil_as_u16", "table: coil, address: 0, type: bool", "table: coil, address: 0, type: u16", 20, "coil"),  # noqa: E501
+    (
+        "coil_as_u16",
+        "table: coil, address: 0, type: bool",
+        "table: coil, address: 0, type: u16",
+        20,
+        "coil",
+    ),
     ("overlap", "address: 20, type: u16", "address: 11, type: u16", 21, "overlaps"),
     ("range_reversed", "range: [-3000, 3000]", "range: [3000, -3000]", 17, "minimum > maximum"),
     ("unknown_joint_register", "{register: angle}", "{register: angel}", 23, "no register named"),
-    ("trigger_unknown_register", "{register: run, value: true}", "{register: runn, value: true}", 26, "no register"),  # noqa: E501
-    ("trigger_value_type", "{register: run, value: true}", "{register: run, value: 5}", 26, "true or false"),  # noqa: E501
+    (
+        "trigger_unknown_register",
+        "{register: run, value: true}",
+        "{register: runn, value: true}",
+        26,
+        "no register",
+    ),
+    (
+        "trigger_value_type",
+        "{register: run, value: true}",
+        "{register: run, value: 5}",
+        26,
+        "true or false",
+    ),
     ("value_not_allowed", "register: mode}", "register: angle}", 29, "read only"),
     ("reserved_name", "name: set_mode", "name: read", 29, "reserved"),
     ("duplicate_name", "name: angle, table", "name: speed, table", 19, "defined twice"),
-    ("too_many_registers", "max_read_registers: 60", "max_read_registers: 1", 13, "more than one read"),  # noqa: E501
-    ("no_link", "  link:\n" + "    tcp: {host: 127.0.0.1, port: 1502}\n    timeout_s: 0.5\n", "", 1, "link"),  # noqa: E501
+    (
+        "too_many_registers",
+        "max_read_registers: 60",
+        "max_read_registers: 1",
+        13,
+        "more than one read",
+    ),
+    (
+        "no_link",
+        "  link:\n" + "    tcp: {host: 127.0.0.1, port: 1502}\n    timeout_s: 0.5\n",
+        "",
+        1,
+        "link",
+    ),
 ]

@@ -70,8 +70,8 @@ def test_modbus_doc_and_modbus_sim_say_one_line_and_exit_2(
     tmp_path: Path, case: Case, capsys: pytest.CaptureFixture[str]
 ) -> None:
     path = write_case(tmp_path, case)
-    for run in (lambda: doc.main([str(path)]), lambda: sim.main(["--device-file", str(path)])):
-        assert run() == EXIT_BAD_DESCRIPTION
+    for main, args in ((doc.main, [str(path)]), (sim.main, ["--device-file", str(path)])):
+        assert main(args) == EXIT_BAD_DESCRIPTION
         captured = capsys.readouterr()
         assert captured.out == ""
         lines = captured.err.splitlines()
