@@ -119,3 +119,57 @@ def test_each_command_as_its_own_process(tmp_path: Path, name: str) -> None:
     expect(path, case, refused_at_start("modbus_bridge.sim", ["--device-file", str(path)]))
     line = refused_at_start("modbus_bridge.node", ["--ros-args", "-p", f"device_file:={path}"])
     expect(path, case, line)
+
+
+def test_what_a_user_may_write_is_read_as_yaml_1_2(tmp_path: Path) -> None:
+    """Hex addresses, parity words, merge keys; ``yes`` is text, never a boolean."""
+    text = (
+        BASE.replace("address: 10\n", "address: 0x2100\n")
+        .replace(
+            "    tcp: {host: 127.0.0.1, port: 1502}\n",
+            "    rtu: {serial_port: /dev/ttyUSB0, parity: even, stopbits: 1}\n",
+        )
+        .replace("    unit: rpm\n", "    unit: rpm\n    description: yes\n")
+    )
+    path = tmp_path / "vfd.yaml"
+    path.write_text(text)
+    device = load(path).device
+    assert device.register_map["speed"].address == 0x2100
+    assert device.link is not None and device.link.rtu is not None
+    assert device.link.rtu.parity == "E"
+    assert device.register_map["speed"].description == "yes"
+    assert device.address_texts == {"speed": "0x2100"}
+    for word, letter in (("none", "N"), ("odd", "O"), ("EVEN", "E"), ("n", "N")):
+        path.write_text(text.replace("parity: even", f"parity: {word}"))
+        link = load(path).device.link
+        assert link is not None and link.rtu is not None and link.rtu.parity == letter
+
+
+def test_a_misspelt_key_is_the_line_the_user_sees(tmp_path: Path) -> None:
+    path = tmp_path / "typo.yaml"
+    path.write_text(BASE.replace("    address: 10\n", "    adress: 10\n"))
+    with pytest.raises(DescriptionError) as caught:
+        load(path)
+    # the typo alone: the "missing address" it causes is the same mistake
+    assert str(caught.value) == (
+        f"{path}:12: registers[0].adress: unknown key: did you mean `address`? (allowed: "
+        "name, table, address, type, manual, length, word_order, scale, offset, unit, "
+        "access, range, values, description)"
+    )
+
+
+def test_ros_parity_parameter_read_as_a_boolean_gets_the_quote_hint(tmp_path: Path) -> None:
+    """ROS reads ``-p parity:=N`` as YAML: N is false. The refusal says how to quote it."""
+    path = tmp_path / "rtu.yaml"
+    path.write_text(
+        BASE.replace(
+            "    tcp: {host: 127.0.0.1, port: 1502}\n",
+            f"    rtu: {{serial_port: {tmp_path / 'no_such_port'}}}\n",
+        )
+    )
+    line = refused_at_start(
+        "modbus_bridge.node",
+        ["--ros-args", "-p", f"device_file:={path}", "-p", "parity:=N", "-p", "autostart:=false"],
+    )
+    assert "parameter parity" in line and "boolean false" in line
+    assert "-p \"parity:='N'\"" in line
