@@ -473,9 +473,10 @@ class _Loader(
 class _Refused(Exception):
     """A node the builder cannot turn into data: its line and what is wrong."""
 
-    def __init__(self, node: yaml.Node, loc: Loc, message: str) -> None:
+    def __init__(self, node: yaml.Node, loc: Loc, message: str, line: int | None = None) -> None:
         super().__init__(message)
-        self.problem = Problem(int(node.start_mark.line) + 1, format_loc(loc), message)
+        line = int(node.start_mark.line) + 1 if line is None else line
+        self.problem = Problem(line, format_loc(loc), message)
 
 
 class _Builder:
@@ -488,13 +489,16 @@ class _Builder:
     neither reading is safe, so the file must say which).
     """
 
-    def __init__(self) -> None:
+    def __init__(self, root: yaml.Node) -> None:
+        self.root = root
         self.nodes = 0
 
     def build(self, node: yaml.Node, loc: Loc, path: tuple[int, ...] = ()) -> Any:
         self.nodes += 1
         if self.nodes > MAX_NODES:
-            raise _Refused(node, loc, f"more than {MAX_NODES} values (aliases expanded)")
+            # the line of the key whose aliases expand so far, not of the anchor's node
+            line = line_of(self.root, loc[:1])
+            raise _Refused(node, loc[:1], f"more than {MAX_NODES} values (aliases expanded)", line)
         if id(node) in path:
             raise _Refused(node, loc, "a recursive alias (an anchor used inside itself)")
         if isinstance(node, yaml.ScalarNode):
@@ -625,7 +629,7 @@ def _compose(path: Path, raw: bytes) -> tuple[yaml.Node, dict[str, Any]]:
         line = node.start_mark.line + 1 if node is not None else 1
         raise DescriptionError(path, [Problem(line, "", "the file must be a mapping of keys")])
     try:
-        data = _Builder().build(node, ())
+        data = _Builder(node).build(node, ())
     except _Refused as err:
         raise DescriptionError(path, [err.problem]) from None
     except RecursionError:

@@ -70,6 +70,18 @@ CASES: list[Case] = [
     ("mapping_key", "    unit: rpm\n", "    ? {a: 1}\n    : rpm\n", 15, "plain name"),
     ("recursive_alias", "joints:\n", "loop: &x [1, *x]\njoints:\n", 22, "recursive alias"),
     ("recursive_map", "joints:\n", "loop: &y {a: *y}\njoints:\n", 22, "recursive alias"),
+    (
+        "billion_laughs",
+        "joints:\n",
+        "a: &a [1, 1, 1, 1, 1, 1, 1, 1, 1, 1]\n"
+        + "".join(
+            f"{k}: &{k} [{', '.join([f'*{p}'] * 10)}]\n"
+            for p, k in zip("abcde", "bcdef", strict=True)
+        )
+        + "joints:\n",
+        27,
+        "more than",
+    ),
     ("undefined_alias", "scale: 10", "scale: *nothing", 14, "not valid YAML"),
     ("duplicate_key", "    unit: rpm\n", "    unit: rpm\n    unit: rps\n", 16, "given twice"),
     ("merge_not_mapping", "    unit: rpm\n", "    <<: 5\n", 15, "takes a mapping"),
