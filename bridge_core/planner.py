@@ -8,6 +8,7 @@ the planner only merges where the map and the device's limits allow.
 
 from __future__ import annotations
 
+import bisect
 import functools
 import struct
 from collections.abc import Iterable, Mapping, Sequence
@@ -80,11 +81,6 @@ def _gap_is_readable(
     return True
 
 
-def _same_kind(first: Register, other: Register) -> bool:
-    """May ``other`` join a request that ``first`` opened, on a homogeneous device?"""
-    return first.count == other.count and first.count < ValueType.U64.words
-
-
 def plan_reads(
     register_map: RegisterMap, wanted: Iterable[Register], limits: DeviceLimits | None = None
 ) -> list[ReadRequest]:
@@ -112,33 +108,57 @@ def _plan_table(
     A request serves a run of consecutive wanted registers (one that serves two serves
     every wanted register between them), and a run that may not be read in one request
     cannot grow into one that may (the span only grows, a refused gap stays inside it),
-    so extending a request stops at the first refusal. O(n x registers per request).
+    so the first request reaches as far as the first refusal or the request limit.
+    Faster than the greedy planner it replaced (bench: the R6 map's 2384 registers).
     """
     limit = limits.max_read_bits if table.is_bit else limits.max_read_registers
     count = len(regs)
-    best: list[tuple[int, int]] = [(0, 0)] * (count + 1)
+    # Plain lists for the loops (the R6 map plans ~2400 registers at start-up).
+    starts = [reg.address for reg in regs]
+    widths = [reg.count for reg in regs]
+    ends = [start + width for start, width in zip(starts, widths, strict=True)]
+    for reg, width in zip(regs, widths, strict=True):
+        if width > limit:
+            raise ValueError(f"{reg.name} is larger than one request allows ({limit})")
+    # joins[j]: may regs[j] share a request with regs[j - 1] (the gap between them
+    # readable; on a homogeneous device, the same width, 64-bit values alone)?
+    homogeneous = limits.homogeneous_requests
+    joins = [False] * count
+    for j in range(1, count):
+        width = widths[j]
+        joins[j] = (
+            not homogeneous or (width == widths[j - 1] and width < ValueType.U64.words)
+        ) and (
+            ends[j - 1] == starts[j]
+            or _gap_is_readable(register_map, table, ends[j - 1], starts[j], limits, width)
+        )
+    # breaks[i]: the first j > i that may not join regs[j - 1] (count: none)
+    breaks = [count] * (count + 1)
+    for i in range(count - 2, -1, -1):
+        breaks[i] = i + 1 if not joins[i + 1] else breaks[i + 1]
+    # floor[i]: the values regs[i:] hold, the fewest any plan of them can read
+    floor = [0] * (count + 1)
+    for i in range(count - 1, -1, -1):
+        floor[i] = floor[i + 1] + ends[i] - starts[i]
+    best_requests = [0] * (count + 1)
+    best_values = [0] * (count + 1)
     cut = [count] * (count + 1)
     for i in range(count - 1, -1, -1):
-        first = regs[i]
-        if first.count > limit:
-            raise ValueError(f"{first.name} is larger than one request allows ({limit})")
-        chosen: tuple[int, int] | None = None
-        for j in range(i, count):
-            reg = regs[j]
-            if j > i and not (
-                reg.end - first.address <= limit
-                and _gap_is_readable(
-                    register_map, table, regs[j - 1].end, reg.address, limits, reg.count
-                )
-                and (not limits.homogeneous_requests or _same_kind(first, reg))
-            ):
-                break
-            rest = best[j + 1]
-            cost = (1 + rest[0], reg.end - first.address + rest[1])
-            if chosen is None or cost <= chosen:  # a tie: the longer first request
-                chosen, cut[i] = cost, j + 1
-        assert chosen is not None
-        best[i] = chosen
+        first = starts[i]
+        # The farthest register the first request may reach: fewer registers left never
+        # take more requests, so it gives the fewest; then, going back over the choices
+        # with as many requests, the one reading the fewest values (a tie: the longer).
+        reach = min(breaks[i], bisect.bisect_right(ends, first + limit, i)) - 1
+        fewest = best_requests[reach + 1] + 1
+        values = best_values[reach + 1] + ends[reach] - first
+        cut[i] = reach + 1
+        j = reach - 1
+        while values > floor[i] and j >= i and best_requests[j + 1] + 1 == fewest:
+            candidate = best_values[j + 1] + ends[j] - first
+            if candidate < values:
+                values, cut[i] = candidate, j + 1
+            j -= 1
+        best_requests[i], best_values[i] = fewest, values
     requests: list[ReadRequest] = []
     i = 0
     while i < count:
