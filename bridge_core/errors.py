@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 # Modbus exception codes (Modbus Application Protocol V1.1b3, §7) and their names.
+ILLEGAL_DATA_ADDRESS = 0x02  # a read of a row the device does not serve is refused so
 EXCEPTION_NAMES: dict[int, str] = {
     0x01: "ILLEGAL FUNCTION",
-    0x02: "ILLEGAL DATA ADDRESS",
+    ILLEGAL_DATA_ADDRESS: "ILLEGAL DATA ADDRESS",
     0x03: "ILLEGAL DATA VALUE",
     0x04: "SERVER DEVICE FAILURE",
     0x05: "ACKNOWLEDGE",

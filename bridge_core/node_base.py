@@ -277,8 +277,10 @@ class ParameterNode(LifecycleNode):
             try:
                 self.declare_parameter(spec.name, value, descriptor(spec), ignore_override)
             except ParameterException as err:
+                given_value = overrides[spec.name].value if spec.name in overrides else None
                 raise ConfigurationError(
                     f"{self.get_name()}: parameter {spec.name}: {_one_line(err)}"
+                    + spec.type_hint(given_value)
                 ) from err
             values[spec.name] = self.get_parameter(spec.name).value
         return values
@@ -607,6 +609,8 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
             logger.info(text)
         elif outcome is PollOutcome.REFUSED:
             logger.warn(f"{text}; re-reading the device's configuration", throttle_duration_sec=5.0)
+        elif outcome is PollOutcome.SPLIT:
+            logger.warn(text)  # once per split: the poll itself went on
         elif outcome is PollOutcome.UNREACHABLE:
             logger.warn(f"cannot reach {self.channel.describe()}: {text}; retrying")
             self._down_said_at = time.monotonic()

@@ -89,6 +89,17 @@ class ParameterSpec:
                     return f"{self.name}: every value must be positive and finite, got {item!r}"
         return None
 
+    def type_hint(self, given: object) -> str:
+        """Why a value of the wrong type was given, where the reason is known: ROS reads a
+        parameter value as YAML, so ``-p parity:=N`` (N, n, no, off ...) arrives as false."""
+        if self.kind is str and isinstance(given, bool):
+            example = self.choices[0] if self.choices else "text"
+            return (
+                f" (ROS read the value as the boolean {str(given).lower()}: quote it, "
+                f"-p \"{self.name}:='{example}'\")"
+            )
+        return ""
+
 
 def _within(value: object, low: float, high: float) -> bool:
     return (

@@ -21,12 +21,14 @@ time of the first or last request of the poll.
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import enum
 import queue
 import threading
 import time
 import traceback
+import weakref
 from collections.abc import Callable, Iterable, Sequence
 from contextlib import AbstractContextManager
 from typing import Generic, Protocol, TypeVar
@@ -34,9 +36,9 @@ from typing import Generic, Protocol, TypeVar
 from .channel import Priority, RegisterIO
 from .codec import Value
 from .diagnostics import RateTracker
-from .errors import DeviceException, LinkError, PollIncomplete
-from .planner import ReadRequest, decode_reply, plan_reads
-from .registers import RegisterMap
+from .errors import ILLEGAL_DATA_ADDRESS, DeviceException, LinkError, PollIncomplete
+from .planner import ReadRequest, decode_reply, plan_reads, split_request
+from .registers import RegisterMap, Table
 
 Snapshot = TypeVar("Snapshot")
 PUBLISH_BACKLOG = 8  # snapshots waiting for the publisher before the oldest is dropped
@@ -50,6 +52,7 @@ class PollOutcome(enum.Enum):
     PUBLISHED = "published"
     INCOMPLETE = "incomplete"  # no consistent snapshot this cycle (e.g. re-planned)
     REFUSED = "refused"  # the device answered a poll request with an exception
+    SPLIT = "split"  # a merged read the device refused is read in parts from now on
     LINK_LOST = "link lost"
     # Reports only (tick() returns LINK_LOST for these too):
     UNREACHABLE = "unreachable"  # the first failure of a device never reached
@@ -85,15 +88,25 @@ def read_blocks(
     values: dict[str, Value] = {}
     read_time = 0.0
     stamped = False
-    for request in plan:
-        if request.table.is_bit:
-            raw: Sequence[int] | Sequence[bool] = io.read_bits(
-                request.address, request.count, request.table, priority=priority
-            )
-        else:
-            raw = io.read_registers(
-                request.address, request.count, request.table, priority=priority
-            )
+    splits = read_splits(io)
+    pending = collections.deque(plan)
+    while pending:
+        request = pending.popleft()
+        replaced = splits.replacement(request)
+        if replaced is not None:
+            pending.extendleft(reversed(replaced))
+            continue
+        try:
+            raw = _read(io, request, priority)
+        except DeviceException as err:
+            # A merged read the device refuses (a row between its registers it does not
+            # serve): read its parts now, so this poll still ends, and from now on.
+            parts = split_request(request)
+            if err.exception_code != ILLEGAL_DATA_ADDRESS or not parts:
+                raise
+            splits.remember(request, parts, err)
+            pending.extendleft(reversed(parts))
+            continue
         if not stamped:
             read_time = clock()
             stamped = stamp_register is not None and holds(request, stamp_register)
@@ -101,6 +114,77 @@ def read_blocks(
     if stamp_register is not None and not stamped:
         raise ValueError(f"no block of the plan holds {stamp_register!r}")
     return values, read_time
+
+
+def _read(
+    io: RegisterIO, request: ReadRequest, priority: Priority
+) -> Sequence[int] | Sequence[bool]:
+    if request.table.is_bit:
+        return io.read_bits(request.address, request.count, request.table, priority=priority)
+    return io.read_registers(request.address, request.count, request.table, priority=priority)
+
+
+class ReadSplits:
+    """The merged reads one device refused with ILLEGAL DATA ADDRESS, and their parts.
+
+    A map may merge reads through rows a real device does not serve (MOTEC's unnamed
+    0x2A-0x2C, a described device with ``read_undefined: true``), and such a device would
+    refuse every poll. ``read_blocks`` splits a refused merged read at once (the poll goes
+    on with its other blocks) and remembers it here, so the next polls read the parts
+    directly; what was split is said once (``news``, which the poller logs).
+    """
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._parts: dict[tuple[Table, int, int, frozenset[str]], tuple[ReadRequest, ...]] = {}
+        self._news: list[str] = []
+
+    @staticmethod
+    def _key(request: ReadRequest) -> tuple[Table, int, int, frozenset[str]]:
+        return (request.table, request.address, request.count, request.names)
+
+    def replacement(self, request: ReadRequest) -> tuple[ReadRequest, ...] | None:
+        with self._lock:
+            return self._parts.get(self._key(request))
+
+    def remember(
+        self, request: ReadRequest, parts: Sequence[ReadRequest], err: DeviceException
+    ) -> None:
+        spans = ", ".join(f"{part.address}+{part.count}" for part in parts)
+        with self._lock:
+            self._parts[self._key(request)] = tuple(parts)
+            self._news.append(
+                f"the device refused the merged read of {request.table.value} "
+                f"{request.address}+{request.count} ({err.name}): reading it as {spans} "
+                "from now on"
+            )
+
+    def __len__(self) -> int:
+        with self._lock:
+            return len(self._parts)
+
+    def news(self) -> list[str]:
+        """What was split since the last call (each split once)."""
+        with self._lock:
+            news, self._news = self._news, []
+        return news
+
+
+_SPLITS: weakref.WeakKeyDictionary[object, ReadSplits] = weakref.WeakKeyDictionary()
+_SPLITS_LOCK = threading.Lock()
+
+
+def read_splits(io: object) -> ReadSplits:
+    """The refused merged reads of the device behind ``io`` (its channel), kept as long as
+    the channel lives; a fresh, unkept one for an ``io`` that cannot be a weak key."""
+    with _SPLITS_LOCK:
+        try:
+            splits = _SPLITS.get(io)
+            if splits is None:
+                splits = _SPLITS[io] = ReadSplits()
+        except TypeError:
+            return ReadSplits()
+    return splits
 
 
 def read_named(io: RegisterIO, register_map: RegisterMap, names: Iterable[str]) -> dict[str, Value]:
@@ -216,6 +300,8 @@ class Poller(Generic[Snapshot]):
             self.last_error = f"poll failed: {err}"
             self._report(PollOutcome.FAILED, f"{self.last_error}\n{traceback.format_exc()}")
             return PollOutcome.FAILED
+        for news in read_splits(self.channel).news():
+            self._report(PollOutcome.SPLIT, news)
         self._generation = self.channel.generation
         self._set_up(True)
         self.last_error = None

@@ -195,8 +195,9 @@ class DeviceLimits:
     max_read_bits: int = MAX_READ_BITS
     # May a read span addresses that no register of the map defines?
     read_undefined_ok: bool = False
-    # Largest run of unwanted (but readable) registers the planner reads through to merge.
-    max_gap: int = 16
+    # Largest run of unwanted (but readable) registers the planner reads through to merge
+    # (in a bit table, 16 bits a register); None: no cap, the fewest requests.
+    max_gap: int | None = 16
     function_codes: frozenset[int] = frozenset({1, 2, 3, 4, 5, 6, 15, 16})
     # Only registers of one width per request, and 64-bit values one at a time: for
     # devices whose manual makes every block read from its own first register (R6).
@@ -209,7 +210,7 @@ class DeviceLimits:
             raise ValueError("max_read_registers out of 1..125")
         if not 1 <= self.max_write_registers <= MAX_WRITE_REGISTERS:
             raise ValueError("max_write_registers out of 1..123")
-        if self.max_gap < 0:
+        if self.max_gap is not None and self.max_gap < 0:
             raise ValueError("max_gap must be >= 0")
 
 

@@ -14,14 +14,17 @@ device exactly as they serve the four hand-written bridges.
 
 from __future__ import annotations
 
+import difflib
+import json
 import math
-from collections.abc import Iterator, Sequence
+import re
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated, Any, Literal, get_args, get_origin
+from typing import Annotated, Any, ClassVar, Literal, get_args, get_origin
 
 import yaml  # type: ignore[import-untyped]
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from bridge_core.codec import CodecError, encode, to_raw
 from bridge_core.errors import ConfigurationError
@@ -85,6 +88,7 @@ NODE_PARAMETERS = frozenset(
 )
 TOPIC_PARAMETER_SUFFIXES = ("_timeout_s", "_rate_hz")
 NAME_PATTERN = r"^[A-Za-z][A-Za-z0-9_]*$"
+PARITY_WORDS = {"none": "N", "even": "E", "odd": "O", "n": "N", "e": "E", "o": "O"}
 
 # Register units a joint value may have, as (SI unit, factor to it). REP 103: positions in
 # rad or m, velocities in rad/s or m/s, efforts in N·m or N.
@@ -144,6 +148,14 @@ class RtuLinkSpec(_Lenient):
     stopbits: Literal[1, 2] = 1
     frame_gap_s: Finite = Field(0.0, ge=0.0, le=1.0)
 
+    @field_validator("parity", mode="before")
+    @classmethod
+    def _parity_word(cls, value: Any) -> Any:
+        """``none | even | odd`` (any case) and ``n | e | o`` are the letters N, E, O."""
+        if isinstance(value, str):
+            return PARITY_WORDS.get(value.lower(), value)
+        return value
+
 
 class LinkSpec(_Lenient):
     """Where the device is by default; ``-p host:=`` etc. override it."""
@@ -168,7 +180,7 @@ class DeviceSpec(_Lenient):
         default_factory=lambda: list(DEFAULT_FUNCTION_CODES), min_length=1
     )
     read_undefined: bool = False
-    max_gap: int = Field(16, ge=0, le=MAX_READ_REGISTERS, strict=True)
+    max_gap: int | None = Field(None, ge=0, le=MAX_READ_REGISTERS, strict=True)  # a cap
     reply_delay_s: Finite = Field(0.0, ge=0.0, le=10.0)
     poll_rate_hz: Finite = Field(10.0, ge=POLL_RATE_RANGE_HZ[0], le=POLL_RATE_RANGE_HZ[1])
     state: list[Name] | None = None
@@ -326,6 +338,8 @@ class Device:
     state_names: tuple[str, ...]  # readable registers published in ~/state
     # Registers that take only some values (``values``): name -> the values, in its unit.
     allowed_values: dict[str, tuple[float, ...]] = field(default_factory=dict)
+    # Register name -> its address as the file wrote it, where not in decimal (0x2100).
+    address_texts: dict[str, str] = field(default_factory=dict)
 
     def allows(self, name: str, value: float) -> bool:
         """Whether ``value`` is one of register ``name``'s ``values`` (any, if it has none),
@@ -392,41 +406,250 @@ class DescriptionError(ConfigurationError):
 # ---------------------------------------------------------------- YAML with line marks
 Loc = tuple[str | int, ...]
 
+# The tags a description may carry (YAML 1.2 core schema); any other tag (``!foo``,
+# ``!!python/object``, ``!!binary``, ``!!timestamp``) is refused: a description is data.
+STR_TAG = "tag:yaml.org,2002:str"
+INT_TAG = "tag:yaml.org,2002:int"
+FLOAT_TAG = "tag:yaml.org,2002:float"
+BOOL_TAG = "tag:yaml.org,2002:bool"
+NULL_TAG = "tag:yaml.org,2002:null"
+MAP_TAG = "tag:yaml.org,2002:map"
+SEQ_TAG = "tag:yaml.org,2002:seq"
+# Nodes one file may expand to (aliases copy what they name): a few nested aliases must
+# not make a file of a few lines take all memory ("billion laughs").
+MAX_NODES = 200_000
+# pydantic error types of a number field given something else (text is never a number).
+_NUMBER_ERRORS = frozenset(
+    {"int_type", "int_parsing", "float_type", "float_parsing", "int_from_float"}
+)
+_DECIMAL = re.compile(r"^[-+]?[0-9]+$")
+_OCTAL = re.compile(r"^0o[0-7]+$")
+_HEX = re.compile(r"^0x[0-9a-fA-F]+$")
+_LEADING_ZERO = re.compile(r"^[-+]?0[0-9]+$")
+_FLOAT = re.compile(r"^[-+]?(\.[0-9]+|[0-9]+(\.[0-9]*)?)([eE][-+]?[0-9]+)?$")
+_INF = re.compile(r"^[-+]?\.(inf|Inf|INF)$")
+_NAN = re.compile(r"^\.(nan|NaN|NAN)$")
 
-def _compose(path: Path, text: str) -> yaml.Node:
+
+class _Resolver(yaml.resolver.Resolver):  # type: ignore[misc]
+    """YAML 1.2 core schema: ``0100`` is not octal (it is refused, see ``_int``), ``1:30``
+    is not base 60, ``yes``/``no``/``on``/``off`` are text, ``0x2100`` is hex."""
+
+    yaml_implicit_resolvers: ClassVar[dict[str | None, list[tuple[str, re.Pattern[str]]]]] = {}
+
+
+for _tag, _pattern, _first in (
+    (BOOL_TAG, r"^(?:true|True|TRUE|false|False|FALSE)$", "tTfF"),
+    (NULL_TAG, r"^(?:~|null|Null|NULL|)$", ["~", "n", "N", ""]),
+    (INT_TAG, r"^(?:[-+]?[0-9]+|0o[0-7]+|0x[0-9a-fA-F]+)$", "-+0123456789"),
+    (
+        FLOAT_TAG,
+        r"^(?:[-+]?(?:\.[0-9]+|[0-9]+(?:\.[0-9]*)?)(?:[eE][-+]?[0-9]+)?"
+        r"|[-+]?\.(?:inf|Inf|INF)|\.(?:nan|NaN|NAN))$",
+        "-+0123456789.",
+    ),
+):
+    _Resolver.add_implicit_resolver(_tag, re.compile(_pattern), list(_first))
+
+
+class _Loader(
+    yaml.reader.Reader,  # type: ignore[misc]
+    yaml.scanner.Scanner,  # type: ignore[misc]
+    yaml.parser.Parser,  # type: ignore[misc]
+    yaml.composer.Composer,  # type: ignore[misc]
+    _Resolver,
+):
+    """PyYAML's reader, scanner, parser and composer (nodes keep their line) with the
+    YAML 1.2 resolver; the nodes are turned into data by ``_Builder``, not by PyYAML."""
+
+    def __init__(self, stream: str) -> None:
+        yaml.reader.Reader.__init__(self, stream)
+        yaml.scanner.Scanner.__init__(self)
+        yaml.parser.Parser.__init__(self)
+        yaml.composer.Composer.__init__(self)
+        _Resolver.__init__(self)
+
+
+class _Refused(Exception):
+    """A node the builder cannot turn into data: its line and what is wrong."""
+
+    def __init__(self, node: yaml.Node, loc: Loc, message: str, line: int | None = None) -> None:
+        super().__init__(message)
+        line = int(node.start_mark.line) + 1 if line is None else line
+        self.problem = Problem(line, format_loc(loc), message)
+
+
+class _Builder:
+    """Plain data (dict, list, str, int, float, bool, None) from composed YAML nodes.
+
+    Written here rather than taken from PyYAML's constructor so that every refusal has
+    the node's line and key path: a key that is not text (``? [a, b]``), an alias that
+    contains itself, a tag that is not plain data, a key given twice, an integer with a
+    leading zero (YAML 1.1 read ``0100`` as octal 64, a user padding addresses means 100:
+    neither reading is safe, so the file must say which).
+    """
+
+    def __init__(self, root: yaml.Node) -> None:
+        self.root = root
+        self.nodes = 0
+
+    def build(self, node: yaml.Node, loc: Loc, path: tuple[int, ...] = ()) -> Any:
+        self.nodes += 1
+        if self.nodes > MAX_NODES:
+            # the line of the key whose aliases expand so far, not of the anchor's node
+            line = line_of(self.root, loc[:1])
+            raise _Refused(node, loc[:1], f"more than {MAX_NODES} values (aliases expanded)", line)
+        if id(node) in path:
+            raise _Refused(node, loc, "a recursive alias (an anchor used inside itself)")
+        if isinstance(node, yaml.ScalarNode):
+            return self._scalar(node, loc)
+        inner = (*path, id(node))
+        if isinstance(node, yaml.SequenceNode):
+            if node.tag != SEQ_TAG:
+                raise _Refused(node, loc, _tag_text(node.tag))
+            return [self.build(item, (*loc, i), inner) for i, item in enumerate(node.value)]
+        assert isinstance(node, yaml.MappingNode)
+        if node.tag != MAP_TAG:
+            raise _Refused(node, loc, _tag_text(node.tag))
+        data: dict[str, Any] = {}
+        merged: dict[str, Any] = {}
+        for key, value in node.value:
+            if not isinstance(key, yaml.ScalarNode):
+                raise _Refused(key, loc, "a key must be a plain name, not a list or mapping")
+            if key.tag not in (STR_TAG, INT_TAG, FLOAT_TAG, BOOL_TAG, NULL_TAG):
+                raise _Refused(key, loc, _tag_text(key.tag))
+            name = str(key.value)
+            if name == "<<" and key.style is None:
+                # A merge key: the keys of the mapping(s) it names, unless given here.
+                sources = value.value if isinstance(value, yaml.SequenceNode) else [value]
+                for source in sources:
+                    built = self.build(source, (*loc, name), inner)
+                    if not isinstance(built, dict):
+                        raise _Refused(source, (*loc, name), "a merge key (<<) takes a mapping")
+                    merged = {**built, **merged}
+                continue
+            if name in data:
+                raise _Refused(key, (*loc, name), "key given twice (each key once)")
+            data[name] = self.build(value, (*loc, name), inner)
+        return {**merged, **data}
+
+    def _scalar(self, node: yaml.ScalarNode, loc: Loc) -> Any:
+        text, tag = str(node.value), node.tag
+        if tag == STR_TAG:
+            return text
+        if tag == NULL_TAG and text in ("~", "null", "Null", "NULL", ""):
+            return None
+        if tag == BOOL_TAG and text.lower() in ("true", "false"):
+            return text.lower() == "true"
+        if tag == INT_TAG:
+            return self._int(node, text, loc)
+        if tag == FLOAT_TAG:
+            if _INF.match(text):
+                return -math.inf if text.startswith("-") else math.inf
+            if _NAN.match(text):
+                return math.nan
+            if _FLOAT.match(text):
+                return float(text)
+        if tag in (NULL_TAG, BOOL_TAG, FLOAT_TAG):
+            raise _Refused(node, loc, f"{text!r} is not a {tag.rsplit(':', 1)[1]}")
+        raise _Refused(node, loc, _tag_text(tag))
+
+    def _int(self, node: yaml.ScalarNode, text: str, loc: Loc) -> int:
+        if _LEADING_ZERO.match(text):
+            digits = text.lstrip("+-").lstrip("0") or "0"
+            raise _Refused(
+                node,
+                loc,
+                f"{text}: a leading zero is not read (YAML 1.1 took it as octal); write "
+                f"{text[0] if text[0] in '+-' else ''}{digits} for decimal, or 0x... for hex",
+            )
+        if _DECIMAL.match(text):
+            return int(text)
+        if _HEX.match(text):
+            return int(text[2:], 16)
+        if _OCTAL.match(text):
+            return int(text[2:], 8)
+        raise _Refused(node, loc, f"{text!r} is not an integer (decimal, or 0x... for hex)")
+
+
+def _tag_text(tag: str) -> str:
+    return (
+        f"tag {tag.replace('tag:yaml.org,2002:', '!!')} is not allowed "
+        "(a description is plain data: text, numbers, true/false, lists, mappings)"
+    )
+
+
+def _compose(path: Path, raw: bytes) -> tuple[yaml.Node, dict[str, Any]]:
+    """The file's root node (for line numbers) and its data; ``DescriptionError`` (one
+    line with the line number) for anything that is not a YAML mapping of plain data."""
     try:
-        node = yaml.compose(text, Loader=yaml.SafeLoader)
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as err:
+        line = raw[: err.start].count(b"\n") + 1
+        raise DescriptionError(
+            path,
+            [
+                Problem(
+                    line,
+                    "",
+                    f"byte 0x{raw[err.start]:02X} is not UTF-8 text "
+                    "(a description is a UTF-8 YAML file, not a binary one)",
+                )
+            ],
+        ) from None
+    loader: _Loader | None = None
+    try:
+        loader = _Loader(text)  # its reader refuses non-printable characters at once
+        node = loader.get_single_node()
     except yaml.MarkedYAMLError as err:
-        mark = err.problem_mark
+        mark = err.problem_mark or err.context_mark
         line = mark.line + 1 if mark is not None else 1
         raise DescriptionError(
-            path, [Problem(line, "", f"not valid YAML: {err.problem}")]
+            path, [Problem(line, "", f"not valid YAML: {err.problem or err.context}")]
         ) from None
+    except yaml.reader.ReaderError as err:
+        line = text[: err.position].count("\n") + 1
+        raise DescriptionError(
+            path,
+            [
+                Problem(
+                    line,
+                    "",
+                    f"character {err.character!r} is not allowed in YAML "
+                    "(a description is a text file, not a binary one)",
+                )
+            ],
+        ) from None
+    except RecursionError:
+        raise DescriptionError(path, [Problem(1, "", "nested too deeply")]) from None
+    finally:
+        if loader is not None:
+            loader.dispose()
     if not isinstance(node, yaml.MappingNode):
         line = node.start_mark.line + 1 if node is not None else 1
         raise DescriptionError(path, [Problem(line, "", "the file must be a mapping of keys")])
-    duplicates = list(_duplicate_keys(node, ()))
-    if duplicates:
-        raise DescriptionError(path, duplicates)
+    try:
+        data = _Builder(node).build(node, ())
+    except _Refused as err:
+        raise DescriptionError(path, [err.problem]) from None
+    except RecursionError:
+        raise DescriptionError(path, [Problem(1, "", "nested too deeply")]) from None
+    return node, data
+
+
+def node_at(root: yaml.Node, loc: Loc) -> yaml.Node | None:
+    """The node a key path leads to, or None."""
+    node = root
+    for part in loc:
+        if isinstance(node, yaml.MappingNode):
+            node = next((v for k, v in node.value if k.value == str(part)), None)
+        elif isinstance(node, yaml.SequenceNode) and isinstance(part, int):
+            node = node.value[part] if 0 <= part < len(node.value) else None
+        else:
+            return None
+        if node is None:
+            return None
     return node
-
-
-def _duplicate_keys(node: yaml.Node, loc: Loc) -> Iterator[Problem]:
-    """YAML takes the last of two equal keys silently; a description must not."""
-    if isinstance(node, yaml.MappingNode):
-        seen: set[str] = set()
-        for key, value in node.value:
-            if key.value in seen:
-                yield Problem(
-                    key.start_mark.line + 1,
-                    format_loc((*loc, key.value)),
-                    "key given twice (each key once)",
-                )
-            seen.add(key.value)
-            yield from _duplicate_keys(value, (*loc, key.value))
-    elif isinstance(node, yaml.SequenceNode):
-        for index, item in enumerate(node.value):
-            yield from _duplicate_keys(item, (*loc, index))
 
 
 def line_of(root: yaml.Node, loc: Loc) -> int:
@@ -489,27 +712,55 @@ def _unwrap(annotation: Any) -> Any:
             return annotation
 
 
+def _allowed_keys(model: type[BaseModel], loc: Loc) -> list[str]:
+    parent = _model_at(model, loc)
+    if parent is None:
+        return []
+    return [f.alias or name for name, f in parent.model_fields.items()]
+
+
 def _problems(root: yaml.Node, model: type[BaseModel], err: ValidationError) -> list[Problem]:
+    """One problem per pydantic error, unknown keys first: a misspelt key also makes
+    the key it should have been "missing", and the typo is what the user must see."""
+    errors = err.errors(include_url=False)
+    unknown: list[Problem] = []
     problems: list[Problem] = []
-    for item in err.errors(include_url=False):
+    guessed: set[Loc] = set()  # missing keys an unknown key was probably meant to be
+    for item in errors:
         loc: Loc = tuple(item["loc"])
+        if item["type"] != "extra_forbidden":
+            continue
+        allowed = _allowed_keys(model, loc[:-1])
+        close = difflib.get_close_matches(str(loc[-1]), allowed, n=1, cutoff=0.6)
+        message = f"unknown key (allowed: {', '.join(allowed) or 'none'})"
+        if close:
+            message = f"unknown key: did you mean `{close[0]}`? " + message[len("unknown key ") :]
+            guessed.add((*loc[:-1], close[0]))
+        unknown.append(Problem(line_of(root, loc), format_loc(loc), message))
+    for item in errors:
+        loc = tuple(item["loc"])
         kind = item["type"]
+        if kind == "extra_forbidden" or (kind == "missing" and loc in guessed):
+            continue
+        given = item.get("input")
         if kind == "missing":
             message = "missing (required)"
-        elif kind == "extra_forbidden":
-            parent = _model_at(model, loc[:-1])
-            allowed = (
-                ", ".join(f.alias or name for name, f in parent.model_fields.items())
-                if parent is not None
-                else "none"
+        elif isinstance(given, str) and kind in _NUMBER_ERRORS:
+            message = (
+                f"{given!r} is text, not a number (write numbers unquoted: decimal, "
+                "or 0x... for hex)"
             )
-            message = f"unknown key (allowed: {allowed})"
+        elif isinstance(given, bool) and kind in ("literal_error", "string_type"):
+            message = (
+                f"{item['msg']}, not the boolean {str(given).lower()} "
+                "(quote it if you meant a letter or word)"
+            )
         else:
             message = item["msg"]
-            if "input" in item and not isinstance(item["input"], dict | list):
-                message += f", not {item['input']!r}"
+            if "input" in item and not isinstance(given, dict | list):
+                message += f", not {given!r}"
         problems.append(Problem(line_of(root, loc), format_loc(loc), message))
-    return problems
+    return unknown + problems
 
 
 # ---------------------------------------------------------------- cross-key checks
@@ -567,7 +818,10 @@ def _build_registers(device: DeviceFileSpec, check: _Checker) -> RegisterMap | N
             ok = False
         limit = device.device.max_read_registers
         if access.readable and not table.is_bit and count > limit:
-            check.add((*at, "length"), f"{count} registers: more than one read takes ({limit})")
+            check.add(
+                (*at, "length" if spec.length is not None else "type"),
+                f"{count} registers: more than one read takes ({limit})",
+            )
             ok = False
         if kind in (ValueType.BOOL, ValueType.STRING) and (
             spec.scale != 1.0 or spec.offset != 0.0 or spec.range is not None
@@ -881,7 +1135,8 @@ def _build_device(
             check.add(("device", "link"), "missing (required: tcp or rtu)")
         elif (link.tcp is None) == (link.rtu is None):
             check.add(("device", "link"), "give exactly one of tcp and rtu")
-    if on_line and spec.device.unit_id == 0:
+    rtu_alone = link is not None and link.rtu is not None and link.tcp is None
+    if (on_line or rtu_alone) and spec.device.unit_id == 0:
         check.add(("device", "unit_id"), "0 is the RTU broadcast: nobody answers (1-247)")
     register_map = _build_registers(spec, check)
     if register_map is None:
@@ -908,22 +1163,35 @@ def _build_device(
         built_link,
         tuple(state if state is not None else readable),
         allowed_values(spec),
+        _address_texts(spec, check),
     )
+
+
+def _address_texts(spec: DeviceFileSpec, check: _Checker) -> dict[str, str]:
+    """The addresses the file wrote in another notation than decimal (``0x2100``)."""
+    texts: dict[str, str] = {}
+    for index, register in enumerate(spec.registers):
+        node = node_at(check.root, (*check.prefix, "registers", index, "address"))
+        if isinstance(node, yaml.ScalarNode) and str(node.value) != str(register.address):
+            texts[register.name] = str(node.value)
+    return texts
 
 
 def load(path: str | Path) -> Description:
     """Read and validate a description file; raises ``DescriptionError`` (one line)."""
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        raw = path.read_bytes()
     except OSError as err:
         raise DescriptionError(path, [Problem(0, "", f"cannot read: {err.strerror}")]) from None
-    root = _compose(path, text)
-    data = yaml.safe_load(text)
+    root, data = _compose(path, raw)
     bus = "devices" in data or "line" in data
     model: type[BaseModel] = BusFileSpec if bus else DeviceFileSpec
     try:
-        parsed = model.model_validate(data)
+        # Validated as JSON data in strict mode: a number is a number and text is text
+        # everywhere (``scale: "100"`` is refused as ``address: "100"`` is), and a list
+        # may fill a fixed-length pair (``range``). YAML's .inf/.nan survive the trip.
+        parsed = model.model_validate_json(json.dumps(data), strict=True)
     except ValidationError as err:
         raise DescriptionError(path, _problems(root, model, err)) from None
     problems: list[Problem] = []

@@ -41,11 +41,27 @@ def _cell(text: str) -> str:
     return text.replace("|", "\\|")
 
 
-def register_row(register: Register, allowed: Sequence[float] = ()) -> list[str]:
-    """One table row; ``allowed``: the register's ``values`` (the only writes allowed)."""
+def address_text(register: Register, written: str = "") -> str:
+    """The address (or span) in decimal and hex, as manuals print either (``2100H``);
+    led by the file's own notation (``written``) where it was not decimal."""
+    last = register.end - 1
+    decimal = f"{register.address}" if last == register.address else f"{register.address}-{last}"
+    hexadecimal = f"0x{register.address:04X}" + (
+        f"-0x{last:04X}" if last != register.address else ""
+    )
+    if written and written.lower() != hexadecimal.split("-")[0].lower():
+        return f"{written} ({decimal}, {hexadecimal})"
+    if written:
+        return f"{hexadecimal} ({decimal})"
+    return f"{decimal} ({hexadecimal})"
+
+
+def register_row(register: Register, allowed: Sequence[float] = (), written: str = "") -> list[str]:
+    """One table row; ``allowed``: the register's ``values`` (the only writes allowed);
+    ``written``: its address as the file wrote it, if not in decimal."""
     kind = register.value_type
     words = register.count
-    span = f"{register.address}" if words == 1 else f"{register.address}-{register.end - 1}"
+    span = address_text(register, written)
     type_text = f"string[{register.length}]" if kind is ValueType.STRING else kind.label
     multiword = words > 1 and kind is not ValueType.STRING
     limits = ""
@@ -104,7 +120,12 @@ def device_markdown(device: Device, heading: str = "##") -> list[str]:
     lines += ["", f"{heading}# Registers", ""]
     lines += _table(
         REGISTER_COLUMNS,
-        [register_row(r, device.allowed_values.get(r.name, ())) for r in device.register_map],
+        [
+            register_row(
+                r, device.allowed_values.get(r.name, ()), device.address_texts.get(r.name, "")
+            )
+            for r in device.register_map
+        ],
     )
     if device.joints:
         lines += ["", f"{heading}# Joints (joint_states, SI per REP 103)", ""]

@@ -32,8 +32,9 @@ def test_every_register_is_a_row_with_its_fields() -> None:
     rows = table_rows(text, "")
     for register in description.device.register_map:
         cells = dict(zip(REGISTER_COLUMNS, rows[register.name], strict=True))
-        first = str(register.address)
-        assert cells["address"].split("-")[0] == first
+        first = f"{register.address}"
+        assert cells["address"].split(" ")[0].split("-")[0] == first
+        assert f"0x{register.address:04X}" in cells["address"]
         assert cells["table"] == register.table.value
         assert cells["type"] == register.value_type.label
         assert cells["scale"] == ("" if register.scale == 1 else str(int(register.scale)))
@@ -44,7 +45,7 @@ def test_every_register_is_a_row_with_its_fields() -> None:
     assert rows["controller_ao_0"][REGISTER_COLUMNS.index("values")] == ""
     assert rows["arm_state"][REGISTER_COLUMNS.index("values")] == "0, 3, 4"
     assert rows["counter"][REGISTER_COLUMNS.index("word order")] == "high_first"
-    assert rows["counter"][REGISTER_COLUMNS.index("address")] == "34-35"
+    assert rows["counter"][REGISTER_COLUMNS.index("address")] == "34-35 (0x0022-0x0023)"
     # Joints and commands follow the registers.
     assert "| `joint1` | `joint_angle_1` * 0.0174532925199 |" in text
     assert "| `~/stop` | Trigger (stop) | `arm_state` = 4 |" in text
@@ -67,7 +68,7 @@ def test_console_script_and_a_bad_file(tmp_path: Path) -> None:
         text=True,
         check=False,
     )
-    assert good.returncode == 0 and "| `joint_angle_7` | input | 95 |" in good.stdout
+    assert good.returncode == 0 and "| `joint_angle_7` | input | 95 (0x005F) |" in good.stdout
     bad = tmp_path / "bad.yaml"
     bad.write_text(XARM.read_text().replace("type: i16, scale: 10", "type: i17, scale: 10", 1))
     refused = subprocess.run(
@@ -79,3 +80,23 @@ def test_console_script_and_a_bad_file(tmp_path: Path) -> None:
     assert refused.returncode == 2 and refused.stdout == ""
     (line,) = refused.stderr.splitlines()
     assert line.startswith(f"error: {bad}:") and ".type: Input should be" in line
+
+
+def test_addresses_in_decimal_and_hex_led_by_the_files_notation(tmp_path: Path) -> None:
+    """Manuals print hex (``2100H``); the file may write ``0x2100`` and the table shows
+    that first, then decimal; a decimal address gets its hex beside it."""
+    path = tmp_path / "vfd.yaml"
+    path.write_text(
+        "device: {name: vfd, manual: m, link: {tcp: {}}}\n"
+        "registers:\n"
+        "  - {name: command, table: holding, address: 0x2000, type: u16, access: RW, manual: m}\n"
+        "  - {name: frequency, table: holding, address: 0x2101, type: u32, manual: m}\n"
+        "  - {name: status, table: holding, address: 8448, type: u16, manual: m}\n"
+        "  - {name: fault, table: holding, address: 0o20420, type: u16, manual: m}\n"
+    )
+    rows = table_rows(markdown(load(path)), "")
+    column = REGISTER_COLUMNS.index("address")
+    assert rows["command"][column] == "0x2000 (8192)"
+    assert rows["frequency"][column] == "0x2101-0x2102 (8449-8450)"
+    assert rows["status"][column] == "8448 (0x2100)"
+    assert rows["fault"][column] == "0o20420 (8464, 0x2110)"
