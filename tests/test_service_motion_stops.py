@@ -35,8 +35,15 @@ from xarm_bridge.registers import COIL_STOPPED
 from xarm_bridge.sim import IN_MOTION, XArmSimDevice
 from xarm_bridge.sim import make_simulator as make_xarm
 
-from .support.ros import WAIT_S, Bridge, Client, node_process, ros_client, unique_namespace
-from .support.ros import wait_for
+from .support.ros import (
+    WAIT_S,
+    Bridge,
+    Client,
+    node_process,
+    ros_client,
+    unique_namespace,
+    wait_for,
+)
 from .support.sims import motec_on_pty, stepper_on_pty
 
 pytestmark = pytest.mark.ros
