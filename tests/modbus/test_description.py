@@ -438,11 +438,11 @@ BAD = [
         "REP 103 N.m",
     ),
     (
-        "{name: shaft, position: {register: angle}, ",
+        "{name: shaft, position: {register: angle}, velocity: {register: speed, factor: 0.1}, ",
         "{name: shaft, ",
-        "joints[0].position",
+        "joints[0]",
         13,
-        "missing (required)",
+        "needs a position or a velocity register",
     ),
     (
         "writes: [{register: run, value: true}]",
