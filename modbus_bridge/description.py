@@ -815,6 +815,9 @@ def _build_joints(
 def _joint_motion(
     register_map: RegisterMap, joint: JointSpec, sim: JointSimSpec, check: _Checker, at: Loc
 ) -> JointMotion | None:
+    if joint.position is None and sim.mode == "position":
+        check.add((*at, "mode"), "a joint without a position register moves by velocity")
+        return None
     register = _writable(register_map, sim.command, check, at, field="command")
     if register is None:
         return None
@@ -833,9 +836,6 @@ def _joint_motion(
         return None
     if sim.mode == "position" and (sim.time_constant_s is not None or sim.run_register):
         check.add(at, "time_constant_s and run_register are for mode velocity")
-        return None
-    if joint.position is None and sim.mode == "position":
-        check.add((*at, "mode"), "a joint without a position register moves by velocity")
         return None
     per_revolution = _per_revolution(register, sim.per_revolution, check, at)
     if per_revolution is None:
