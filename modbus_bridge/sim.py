@@ -251,7 +251,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         args.baudrate = args.baudrate or (rtu.baudrate if rtu else 9600)
         args.parity = args.parity or (rtu.parity if rtu else "N")
         args.stopbits = args.stopbits or (rtu.stopbits if rtu else 1)
-        serve_serial_until_signalled(sim, args, lambda where: f"modbus_sim {names} on {where}")
+        framing = f"{args.baudrate} 8{args.parity}{args.stopbits}"
+        serve_serial_until_signalled(
+            sim, args, lambda where: f"modbus_sim {names} listening on {where} ({framing})"
+        )
         return 0
     if args.port is None:
         tcp = link.tcp if link is not None else None

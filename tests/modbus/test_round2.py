@@ -79,7 +79,8 @@ def test_an_8e1_simulator_on_a_pty_answers_an_8e1_link() -> None:
         try:
             assert proc.stdout is not None
             banner = proc.stdout.readline()  # printed once serving (or the error, at exit)
-            assert banner.startswith(f"modbus_sim vfd (unit 1) on {link_path}"), banner
+            assert banner.startswith(f"modbus_sim vfd (unit 1) listening on {link_path}"), banner
+            assert "19200 8E1" in banner, banner
             link = ModbusLink(SerialSettings(str(link_path), 19200, "E", 1, timeout_s=1.0))
             channel = DeviceChannel(link, 1, retries=0)
             try:
