@@ -15,14 +15,16 @@ from pathlib import Path
 
 import pytest
 
+from bench.line_relay import REQUEST, LineRelay, silence_violations
 from bridge_core.channel import DeviceChannel
 from bridge_core.codec import encode
 from bridge_core.errors import CommandRejected
 from bridge_core.registers import Table
-from bridge_core.serial_timing import ParityTolerantSerial, char_time_s, open_serial
+from bridge_core.serial_timing import ParityTolerantSerial, char_time_s, open_serial, silence_s
 from bridge_core.sim_base import PtyPair
 from bridge_core.transport import ModbusLink, SerialSettings
 from modbus_bridge.description import Description, DescriptionError, load
+from modbus_bridge.device import DescribedDevice
 from modbus_bridge.sim import DescribedSimDevice, make_simulator
 
 from .test_modbus_sim import over_tcp, wait_for, writes
@@ -92,6 +94,32 @@ def test_an_8e1_simulator_on_a_pty_answers_an_8e1_link() -> None:
         finally:
             proc.terminate()
             proc.wait(10)
+
+
+def test_an_8e1_line_keeps_the_silence_of_11_bit_characters() -> None:
+    """The VFD at 9600 8E1 over the byte-paced line (bench/line_relay.py, 11 bits per
+    character): every frame takes its 11-bit time and no request starts inside t3.5."""
+    bits = 11
+    with LineRelay(
+        9600, bits_per_char=bits, device_turnaround_s=silence_s(9600, parity="E")
+    ) as line:
+        simulator = make_simulator(load(VFD))
+        simulator.start_serial(line.device_path, 9600, "E", 1)
+        link = ModbusLink(SerialSettings(line.client_path, 9600, "E", 1, timeout_s=0.5))
+        try:
+            device = DescribedDevice(DeviceChannel(link, 1, retries=0), load(VFD).device)
+            for _ in range(3):
+                device.poll()
+            device.set_value("set_frequency", 12.5)
+        finally:
+            link.close()
+            simulator.stop()
+        frames = line.frames()
+    assert line.silence_s == pytest.approx(3.5 * bits / 9600)
+    assert sum(f.direction == REQUEST for f in frames) == 3 * len(device.plan) + 1
+    for f in frames:
+        assert f.due_end - f.start == pytest.approx(f.size * bits / 9600)
+    assert silence_violations(frames, line.silence_s, 0.1 * line.silence_s) == []
 
 
 def test_parity_and_two_stop_bits_count_eleven_bits() -> None:
