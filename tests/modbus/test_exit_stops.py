@@ -27,7 +27,7 @@ from bridge_core.sim_base import Simulator
 from modbus_bridge.description import load
 from modbus_bridge.sim import DescribedSimDevice, make_simulator
 from msg_defs.msg import DeviceValues
-from msg_defs.srv import SetValue
+from msg_defs.srv import SetValue, WriteRegister
 
 from ..support.ros import Bridge, Client, node_process, ros_client, unique_namespace, wait_for
 from ..support.serial_pair import socat_pair
@@ -153,3 +153,15 @@ def test_kill_9_leaves_the_drive_to_its_keepalive_watchdog(client: Client, tmp_p
         assert commands(device, before) == []  # nothing came from the killed bridge
         assert device.get("control_word") == 5  # the drive stopped itself
         wait_for(lambda: device.velocities_si["motor"] < 0.01, WAIT_S, "the ramp down")
+
+
+def test_a_rounded_write_answers_what_was_written(client: Client, tmp_path: Path) -> None:
+    """Issue 21 item 6: ``~/write accel_time 12.34`` on a 0.1 s register."""
+    with running_forward(client, tmp_path) as (b, _, _, device):
+        request = WriteRegister.Request(name="accel_time", value=12.34)
+        reply = client.call(WriteRegister, b.service("write"), request)
+        rounded = "accel_time = 12.3 s written (12.34 rounded to the register's 0.1 s)"
+        assert reply.success and reply.message == f"{rounded}: done", reply.message
+        reply = b.call(SetValue, "set_accel_time", value=12.34)
+        assert reply.success and reply.message == f"{rounded}: done", reply.message
+        assert device.get("accel_time") == pytest.approx(12.3)
