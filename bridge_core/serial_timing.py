@@ -383,7 +383,7 @@ class TimedSerialClient(ModbusSerialClient):
                 baudrate=params.baudrate,
                 parity=params.parity,
                 exclusive=True,
-                inter_byte_timeout=self.inter_byte_timeout or None,
+                inter_byte_timeout=self.inter_byte_timeout,  # as pymodbus sets it
             )
         except Exception as err:  # pyserial raises termios and OS errors as they come
             Log.error("{}", err)  # type: ignore[no-untyped-call]  # pymodbus's logger: the link reports it as the reason

@@ -243,6 +243,9 @@ class ModbusBridgeNode(BridgeNode[DeviceSnapshot]):
                 feeder.due()
         except LinkError as err:  # the poll reports the link
             self.get_logger().warn(f"keepalive feed failed: {err}", throttle_duration_sec=5.0)
+        except DeviceException as err:  # tried again (arming: after KEEPALIVE_ARM_RETRY_S)
+            self.keepalive_error = f"the keepalive: the device answered {err}"
+            self.get_logger().error(self.keepalive_error, throttle_duration_sec=5.0)
 
     # The keepalive is fed while the node is configured (inactive too: it still owns the
     # device); cleanup ends the feeds, as an exit does, and the device's watchdog trips.
