@@ -142,7 +142,8 @@ class ModbusBridgeNode(BridgeNode[DeviceSnapshot]):
         self.keepalive_floor_s = keepalive_floor_s(
             devices_on_line, self.link.settings.longest_hold_s()
         )
-        self.keepalive_error: str | None = None
+        self.keepalive_error: str | None = None  # arming failed, or a period below the floor
+        self.keepalive_refused: str | None = None  # the last feed's refusal
         self.configured = False  # lifecycle: the keepalive is fed while configured
         spec = self.described.keepalive
         if (
@@ -241,11 +242,12 @@ class ModbusBridgeNode(BridgeNode[DeviceSnapshot]):
         try:
             with self.channel.command_session():  # not across a reconnect: it arms first
                 feeder.due()
+            self.keepalive_refused = None
         except LinkError as err:  # the poll reports the link
             self.get_logger().warn(f"keepalive feed failed: {err}", throttle_duration_sec=5.0)
         except DeviceException as err:  # tried again (arming: after KEEPALIVE_ARM_RETRY_S)
-            self.keepalive_error = f"the keepalive: the device answered {err}"
-            self.get_logger().error(self.keepalive_error, throttle_duration_sec=5.0)
+            self.keepalive_refused = f"the keepalive: the device answered {err}"
+            self.get_logger().error(self.keepalive_refused, throttle_duration_sec=5.0)
 
     # The keepalive is fed while the node is configured (inactive too: it still owns the
     # device); cleanup ends the feeds, as an exit does, and the device's watchdog trips.
@@ -295,8 +297,8 @@ class ModbusBridgeNode(BridgeNode[DeviceSnapshot]):
             values.append(("keepalive floor on this link", f"{self.keepalive_floor_s:.3f} s"))
         if self.device.started:
             values.append(("motion started", ", ".join(sorted(self.device.started))))
-        if self.keepalive_error:
-            return Report(Level.WARN, self.keepalive_error, values)
+        if self.keepalive_error or self.keepalive_refused:
+            return Report(Level.WARN, str(self.keepalive_error or self.keepalive_refused), values)
         return Report(Level.OK, "connected", values)
 
     # ------------------------------------------------------------ services
