@@ -29,7 +29,15 @@ from modbus_bridge.sim import DescribedSimDevice, make_simulator
 from msg_defs.msg import DeviceValues
 from msg_defs.srv import SetValue, WriteRegister
 
-from ..support.ros import Bridge, Client, node_process, ros_client, unique_namespace, wait_for
+from ..support.ros import (
+    Bridge,
+    Client,
+    node_process,
+    refused_at_start,
+    ros_client,
+    unique_namespace,
+    wait_for,
+)
 from ..support.serial_pair import socat_pair
 
 pytestmark = pytest.mark.ros
@@ -165,3 +173,11 @@ def test_a_rounded_write_answers_what_was_written(client: Client, tmp_path: Path
         reply = b.call(SetValue, "set_accel_time", value=12.34)
         assert reply.success and reply.message == f"{rounded}: done", reply.message
         assert device.get("accel_time") == pytest.approx(12.3)
+
+
+def test_a_keepalive_period_below_the_links_floor_refuses_to_start() -> None:
+    """2 s with a 2 s reply timeout: a feed may wait out a whole transaction, so the floor
+    (1.5 x (0.1 s + the longest transaction)) is above the watchdog time."""
+    args = ["--ros-args", "-p", f"device_file:={VFD}", "-p", "timeout_s:=2.0"]
+    line = refused_at_start("modbus_bridge.node", args)
+    assert "keepalive period_s 2.0 s is below" in line, line
