@@ -292,12 +292,25 @@ class ParityTolerantSerial(serial.Serial):  # type: ignore[misc]
 
     def _parity_dropped(self) -> None:
         self.parity_dropped = True
-        _log.info(
-            "%s does not keep the parity bit (a pty): configured without it; "
-            "the line timing still counts parity %s",
-            self.portstr,
+        port = str(self.portstr)
+        if port in _PARITY_DROPPED_SAID:  # once per port and process, not per reconnect
+            return
+        _PARITY_DROPPED_SAID.add(port)
+        _PARITY_LOG.info(
+            "[INFO] [serial]: %s does not keep the parity bit (a pty): configured without "
+            "it; the line timing still counts parity %s",
+            port,
             self._parity,
         )
+
+
+# The one INFO line of a port that drops the parity bit goes to stderr, beside the node's
+# own console lines (the process configures no Python logging of its own).
+_PARITY_LOG = logging.getLogger(f"{__name__}.parity")
+_PARITY_LOG.setLevel(logging.INFO)
+_PARITY_LOG.propagate = False
+_PARITY_LOG.addHandler(logging.StreamHandler())
+_PARITY_DROPPED_SAID: set[str] = set()
 
 
 def open_serial(url: str, *args: Any, **kwargs: Any) -> Any:

@@ -68,16 +68,18 @@ def test_a_pty_opens_and_reopens_with_parity_and_a_later_configure(
 
 def test_an_8e1_simulator_on_a_pty_answers_an_8e1_link() -> None:
     """``modbus_sim --pty`` with the VFD's 8E1 (it exited with EINVAL) and a link reading
-    its registers."""
+    its registers; the simulator says once (one INFO line) that its pty dropped parity."""
     with tempfile.TemporaryDirectory() as tmp:
         link_path = Path(tmp) / "vfd"
-        proc = subprocess.Popen(
-            [*SIM, "--device-file", str(VFD), "--pty", str(link_path), "--baudrate", "19200"],
-            cwd=ROOT,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            text=True,
-        )
+        stderr = Path(tmp) / "stderr"
+        with stderr.open("w") as err:
+            proc = subprocess.Popen(
+                [*SIM, "--device-file", str(VFD), "--pty", str(link_path), "--baudrate", "19200"],
+                cwd=ROOT,
+                stdout=subprocess.PIPE,
+                stderr=err,
+                text=True,
+            )
         try:
             assert proc.stdout is not None
             banner = proc.stdout.readline()  # printed once serving (or the error, at exit)
@@ -94,6 +96,9 @@ def test_an_8e1_simulator_on_a_pty_answers_an_8e1_link() -> None:
         finally:
             proc.terminate()
             proc.wait(10)
+        lines = stderr.read_text().splitlines()
+        assert len(lines) == 1 and "does not keep the parity bit" in lines[0], lines
+        assert lines[0].startswith("[INFO]"), lines
 
 
 def test_an_8e1_line_keeps_the_silence_of_11_bit_characters() -> None:
