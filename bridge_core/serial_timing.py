@@ -30,10 +30,12 @@ V1.02" §2.5.1.1 (framing) and §2.4.1 (master states).
 
 from __future__ import annotations
 
+import errno
 import logging
 import math
 import os
 import select
+import termios
 import time
 from collections.abc import Callable
 from typing import Any
@@ -42,6 +44,7 @@ import serial
 from pymodbus.client import ModbusSerialClient
 from pymodbus.exceptions import ConnectionException, ModbusException
 from pymodbus.framer import FramerRTU
+from pymodbus.logging import Log
 
 _log = logging.getLogger(__name__)
 
@@ -245,6 +248,84 @@ def write_all(
     return written
 
 
+class ParityTolerantSerial(serial.Serial):  # type: ignore[misc]
+    """A pyserial port that accepts a tty which does not keep the parity bit.
+
+    A Linux pty has no parity: it takes PARENB on the first configure and drops it, and
+    every later configure that asks for it again (pyserial compares the whole termios
+    block, so setting a timeout after opening is one) fails in ``tcsetattr`` with EINVAL;
+    a port opened once with parity may also refuse it on the next open. Such a port is
+    configured without the parity bit after one INFO line; everything else (and every
+    real UART, which keeps PARENB) is untouched. The line's timing still counts the
+    configured characters (``char_time_s``: 11 bits for 8E1, 8O1, 8N2).
+    """
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        self.parity_dropped = False
+        super().__init__(*args, **kwargs)
+
+    _parity: str  # pyserial's (untyped)
+
+    def _reconfigure_port(self, force_update: bool = False) -> None:
+        if self.parity_dropped:
+            self._without_parity(force_update)
+            return
+        try:
+            super()._reconfigure_port(force_update)
+        except termios.error as err:
+            if self._parity == serial.PARITY_NONE or err.args[0] != errno.EINVAL:
+                raise
+            self._parity_dropped()
+            self._without_parity(force_update)
+            return
+        kept = self.fd is None or termios.tcgetattr(self.fd)[2] & termios.PARENB
+        if self._parity != serial.PARITY_NONE and not kept:
+            self._parity_dropped()
+
+    def _without_parity(self, force_update: bool) -> None:
+        wanted = self._parity
+        self._parity = serial.PARITY_NONE
+        try:
+            super()._reconfigure_port(force_update)
+        finally:
+            self._parity = wanted
+
+    def _parity_dropped(self) -> None:
+        self.parity_dropped = True
+        port = str(self.portstr)
+        if port in _PARITY_DROPPED_SAID:  # once per port and process, not per reconnect
+            return
+        _PARITY_DROPPED_SAID.add(port)
+        _PARITY_LOG.info(
+            "[INFO] [serial]: %s does not keep the parity bit (a pty): configured without "
+            "it; the line timing still counts parity %s",
+            port,
+            self._parity,
+        )
+
+
+# The one INFO line of a port that drops the parity bit goes to stderr, beside the node's
+# own console lines (the process configures no Python logging of its own).
+_PARITY_LOG = logging.getLogger(f"{__name__}.parity")
+_PARITY_LOG.setLevel(logging.INFO)
+_PARITY_LOG.propagate = False
+_PARITY_LOG.addHandler(logging.StreamHandler())
+_PARITY_DROPPED_SAID: set[str] = set()
+
+
+def open_serial(url: str, *args: Any, **kwargs: Any) -> Any:
+    """``serial.serial_for_url``, with a plain device path opened as a
+    ``ParityTolerantSerial`` in one configure (every setting given here, applied on open)."""
+    if "://" in url:
+        return serial.serial_for_url(url, *args, **kwargs)
+    do_not_open = kwargs.pop("do_not_open", False)
+    port = ParityTolerantSerial(None, *args, **kwargs)
+    port.port = url
+    if not do_not_open:
+        port.open()
+    return port
+
+
 class TimedSerialClient(ModbusSerialClient):
     """``ModbusSerialClient`` that keeps the RTU inter-frame silence and reads by length.
 
@@ -286,7 +367,7 @@ class TimedSerialClient(ModbusSerialClient):
     # ------------------------------------------------------------ connection
     def connect(self) -> bool:
         was_open = self.socket is not None
-        ok = super().connect()
+        ok = self._open_port() if not was_open else True
         if ok and not was_open and self.socket is not None:
             try:
                 self._fd = int(self.socket.fileno())
@@ -299,6 +380,28 @@ class TimedSerialClient(ModbusSerialClient):
             # The line state is unknown: be silent for one interval before the first request.
             self._ready_at = time.monotonic() + self.silence_s
         return ok
+
+    def _open_port(self) -> bool:
+        """pymodbus's ``connect``, with every setting applied in the one configure of the
+        open (``open_serial``): pymodbus sets the inter-byte timeout after opening, a
+        second configure that a pty given parity refuses."""
+        params = self.comm_params
+        try:
+            self.socket = open_serial(
+                str(params.host),
+                timeout=params.timeout_connect,
+                write_timeout=params.timeout_connect,
+                bytesize=params.bytesize,
+                stopbits=params.stopbits,
+                baudrate=params.baudrate,
+                parity=params.parity,
+                exclusive=True,
+                inter_byte_timeout=self.inter_byte_timeout,  # as pymodbus sets it
+            )
+        except Exception as err:  # pyserial raises termios and OS errors as they come
+            Log.error("{}", err)  # type: ignore[no-untyped-call]  # pymodbus's logger: the link reports it as the reason
+            self.close()
+        return self.socket is not None
 
     def close(self) -> None:
         self._fd = None

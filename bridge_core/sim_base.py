@@ -41,9 +41,11 @@ from pymodbus.pdu import ExceptionResponse, ModbusPDU
 from pymodbus.pdu.bit_message import WriteSingleCoilRequest
 from pymodbus.pdu.decoders import DecodePDU
 from pymodbus.server import ModbusSerialServer, ModbusTcpServer
+from pymodbus.transport import serialtransport as _serialtransport
 
 from .codec import Value, decode, encode
 from .registers import DeviceLimits, RegisterMap, Table, ValueType
+from .serial_timing import open_serial
 
 FUNCTION_TABLES: dict[int, Table] = {
     1: Table.COIL,
@@ -503,6 +505,7 @@ class Simulator:
     def start_serial(
         self, port: str, baudrate: int = 9600, parity: str = "N", stopbits: int = 1
     ) -> None:
+        _tolerate_dropped_parity()
         self._start(
             lambda ctx: ModbusSerialServer(
                 ctx,
@@ -605,6 +608,26 @@ def serve_until_signalled(sim: Simulator, banner: str, port_file: Path | None = 
     signal.signal(signal.SIGINT, lambda *_: done.set())
     done.wait()
     sim.stop()
+
+
+class _SerialModule:
+    """pyserial as pymodbus's serial transport sees it, with ``serial_for_url`` opening a
+    plain path as ``serial_timing.ParityTolerantSerial``."""
+
+    def __init__(self, module: Any) -> None:
+        self._module = module
+
+    def __getattr__(self, name: str) -> Any:
+        return open_serial if name == "serial_for_url" else getattr(self._module, name)
+
+
+def _tolerate_dropped_parity() -> None:
+    """pymodbus's server transport opens its port, then sets its timeouts: a second
+    configure, which a pty given parity (8E1, 8O1) refuses with EINVAL. Its port is opened
+    through ``open_serial`` instead (once per process; pymodbus has no hook for it)."""
+    module: Any = _serialtransport
+    if not isinstance(module.serial, _SerialModule):
+        module.serial = _SerialModule(module.serial)
 
 
 class PtyPair:

@@ -59,7 +59,9 @@ def build_nodes(nodes: list[Node]) -> None:
     nodes.append(bus)
     assert bus.description is not None
     for device in bus.description.devices:
-        nodes.append(ModbusBridgeNode(device, link=bus.link))
+        nodes.append(
+            ModbusBridgeNode(device, link=bus.link, devices_on_line=len(bus.description.devices))
+        )
 
 
 def main(args: Sequence[str] | None = None) -> int:

@@ -89,6 +89,13 @@ NODE_PARAMETERS = frozenset(
 TOPIC_PARAMETER_SUFFIXES = ("_timeout_s", "_rate_hz")
 NAME_PATTERN = r"^[A-Za-z][A-Za-z0-9_]*$"
 PARITY_WORDS = {"none": "N", "even": "E", "odd": "O", "n": "N", "e": "E", "o": "O"}
+# The motion group a trigger belongs to when the file names none.
+DEFAULT_MOTION_GROUP = "motion"
+# Units a keepalive's ``period_from`` register may have, as the factor to seconds.
+PERIOD_UNITS_TO_S = {"s": 1.0, "ms": 1e-3}
+KEEPALIVE_PERIOD_RANGE_S = (0.01, 3600.0)
+# A keepalive register is one 16-bit register (fed with FC 06 at the link's top priority).
+KEEPALIVE_TYPES = ("u16", "i16")
 
 # Register units a joint value may have, as (SI unit, factor to it). REP 103: positions in
 # rad or m, velocities in rad/s or m/s, efforts in N·m or N.
@@ -103,6 +110,9 @@ UNITS_TO_SI: dict[str, tuple[str, float]] = {
     "rad/s": ("rad/s", 1.0),
     "deg/s": ("rad/s", DEG),
     "rpm": ("rad/s", RPM_TO_RAD_S),
+    # A drive's frequency: one revolution per cycle, or ``per_revolution`` cycles (Hz) per
+    # revolution (e.g. a motor's pole pairs); the factor is 2 pi / per_revolution.
+    "Hz": ("rad/s", 2.0 * math.pi),
     "m/s": ("m/s", 1.0),
     "mm/s": ("m/s", MM),
     "N.m": ("N.m", 1.0),
@@ -184,6 +194,9 @@ class DeviceSpec(_Lenient):
     reply_delay_s: Finite = Field(0.0, ge=0.0, le=10.0)
     poll_rate_hz: Finite = Field(10.0, ge=POLL_RATE_RANGE_HZ[0], le=POLL_RATE_RANGE_HZ[1])
     state: list[Name] | None = None
+    # Motion commands (starts_motion triggers, command topic values) are refused until the
+    # keepalive is armed (its first feed written).
+    require_keepalive: bool = False
 
 
 class RegisterSpec(_Lenient):
@@ -206,6 +219,7 @@ class RegisterSpec(_Lenient):
 class JointValueSpec(_Lenient):
     register_name: Name = Field(alias="register")
     factor: Finite = Field(1.0, description="extra factor, e.g. 1 / gear ratio")
+    per_revolution: Finite | None = Field(None, gt=0.0, description="Hz registers: cycles per rev")
 
 
 class JointSimSpec(_Lenient):
@@ -214,12 +228,20 @@ class JointSimSpec(_Lenient):
     command: Name  # a writable register: a velocity (mode velocity) or a target position
     mode: Literal["velocity", "position"] = "velocity"
     speed: Finite | None = Field(None, gt=0.0)  # position mode: SI units per second
+    per_revolution: Finite | None = Field(None, gt=0.0)  # a Hz command: cycles per revolution
+    # mode velocity: the velocity follows the command as a first-order lag (a drive's
+    # ramp; None: at once).
+    time_constant_s: Finite | None = Field(None, gt=0.0, le=3600.0)
+    # The command counts only while this register holds one of these values (a drive's
+    # control word: run forward / run reverse); any other value: the target is 0.
+    run_register: Name | None = None
+    run_values: list[Finite] | None = Field(None, min_length=1)
 
 
 class JointSpec(_Lenient):
     name: Name
     kind: Literal["revolute", "prismatic"] = "revolute"
-    position: JointValueSpec
+    position: JointValueSpec | None = None  # a drive may give only a velocity
     velocity: JointValueSpec | None = None
     effort: JointValueSpec | None = None
     sim: JointSimSpec | None = None
@@ -234,6 +256,11 @@ class TriggerSpec(_Lenient):
     name: Name
     writes: list[WriteSpec] = Field(min_length=1)
     stop: bool = False
+    # A trigger that starts motion: the bridge sends its group's (first) stop trigger on
+    # every way out (Ctrl-C, SIGTERM, deactivate, shutdown, a fatal error) if it ran since
+    # that group's last stop.
+    starts_motion: bool = False
+    group: Name = DEFAULT_MOTION_GROUP
     description: str = ""
 
 
@@ -260,6 +287,21 @@ class TopicSpec(_Lenient):
     description: str = ""
 
 
+class KeepaliveSpec(_Lenient):
+    """A device watchdog the bridge feeds (from a thread at the link's top priority)."""
+
+    register_name: Name = Field(alias="register")
+    mode: Literal["value", "toggle", "counter"] = "value"
+    # mode value: what each feed writes (None: the register's value, read when arming)
+    value: Finite | None = None
+    # The device's watchdog time (it stops when no feed came for this long): given, or
+    # read from a register (unit s or ms) when arming.
+    period_s: Finite | None = Field(
+        None, ge=KEEPALIVE_PERIOD_RANGE_S[0], le=KEEPALIVE_PERIOD_RANGE_S[1]
+    )
+    period_from: Name | None = None
+
+
 class CommandsSpec(_Lenient):
     triggers: list[TriggerSpec] = []
     values: list[ValueServiceSpec] = []
@@ -274,6 +316,7 @@ class DeviceFileSpec(_Lenient):
     registers: list[RegisterSpec] = Field(min_length=1)
     joints: list[JointSpec] = []
     commands: CommandsSpec = CommandsSpec()
+    keepalive: KeepaliveSpec | None = None
 
 
 class LineSpec(_Lenient):
@@ -300,21 +343,39 @@ class JointSource:
 @dataclass(frozen=True)
 class JointMotion:
     """The simulator's rule for a joint: ``command`` (to SI by ``to_si``) is a velocity or
-    a target position; a target is approached at ``speed`` (SI/s; None: at once)."""
+    a target position; a target is approached at ``speed`` (SI/s; None: at once); a
+    velocity follows its command with ``time_constant_s`` (None: at once), and only while
+    ``run_register`` holds one of ``run_values``."""
 
     command: str
     to_si: float
     mode: Literal["velocity", "position"]
     speed: float | None
+    time_constant_s: float | None = None
+    run_register: str | None = None
+    run_values: tuple[float, ...] = ()
 
 
 @dataclass(frozen=True)
 class Joint:
     name: str
-    position: JointSource
+    position: JointSource | None  # None: a velocity-only joint (NaN in joint_states)
     velocity: JointSource | None
     effort: JointSource | None
     motion: JointMotion | None = None
+
+
+@dataclass(frozen=True)
+class Keepalive:
+    """A built keepalive: the register fed, how, and the device's watchdog time (given, or
+    read from ``period_register`` times ``period_to_s``)."""
+
+    register: str
+    mode: Literal["value", "toggle", "counter"]
+    value: float | None
+    period_s: float | None
+    period_register: str | None
+    period_to_s: float
 
 
 @dataclass(frozen=True)
@@ -340,6 +401,18 @@ class Device:
     allowed_values: dict[str, tuple[float, ...]] = field(default_factory=dict)
     # Register name -> its address as the file wrote it, where not in decimal (0x2100).
     address_texts: dict[str, str] = field(default_factory=dict)
+    keepalive: Keepalive | None = None
+
+    def exit_stops(self) -> dict[str, str]:
+        """Motion group -> the trigger that stops it (the group's first stop trigger), for
+        the groups a ``starts_motion`` trigger belongs to."""
+        triggers = self.spec.commands.triggers
+        groups = {t.group for t in triggers if t.starts_motion}
+        stops: dict[str, str] = {}
+        for trigger in triggers:
+            if trigger.stop and trigger.group in groups:
+                stops.setdefault(trigger.group, trigger.name)
+        return stops
 
     def allows(self, name: str, value: float) -> bool:
         """Whether ``value`` is one of register ``name``'s ``values`` (any, if it has none),
@@ -946,7 +1019,23 @@ def _joint_source(
             f"(REP 103 {wanted}; allowed units: {allowed})",
         )
         return None
-    return JointSource(spec.register_name, unit[1] * spec.factor)
+    per_revolution = _per_revolution(register, spec.per_revolution, check, (*at, what))
+    if per_revolution is None:
+        return None
+    return JointSource(spec.register_name, unit[1] * spec.factor / per_revolution)
+
+
+def _per_revolution(
+    register: Register, given: float | None, check: _Checker, at: Loc
+) -> float | None:
+    """A Hz register's cycles per revolution (default 1); only a Hz register has one."""
+    if given is not None and register.unit != "Hz":
+        check.add(
+            (*at, "per_revolution"),
+            f"{register.name}'s unit is {register.unit!r}: per_revolution is for a Hz register",
+        )
+        return None
+    return 1.0 if given is None else given
 
 
 def _build_joints(
@@ -959,8 +1048,12 @@ def _build_joints(
         if joint.name in names:
             check.add((*at, "name"), f"joint {joint.name!r} given twice (names are unique)")
         names.add(joint.name)
-        position = _joint_source(register_map, joint, "position", joint.position, check, at)
-        velocity = effort = None
+        if joint.position is None and joint.velocity is None:
+            check.add(at, f"joint {joint.name!r} needs a position or a velocity register")
+            continue
+        position = velocity = effort = None
+        if joint.position is not None:
+            position = _joint_source(register_map, joint, "position", joint.position, check, at)
         if joint.velocity is not None:
             velocity = _joint_source(register_map, joint, "velocity", joint.velocity, check, at)
         if joint.effort is not None:
@@ -968,7 +1061,7 @@ def _build_joints(
         motion = None
         if joint.sim is not None:
             motion = _joint_motion(register_map, joint, joint.sim, check, (*at, "sim"))
-        if position is not None:
+        if not check.problems:
             joints.append(Joint(joint.name, position, velocity, effort, motion))
     return tuple(joints)
 
@@ -976,6 +1069,9 @@ def _build_joints(
 def _joint_motion(
     register_map: RegisterMap, joint: JointSpec, sim: JointSimSpec, check: _Checker, at: Loc
 ) -> JointMotion | None:
+    if joint.position is None and sim.mode == "position":
+        check.add((*at, "mode"), "a joint without a position register moves by velocity")
+        return None
     register = _writable(register_map, sim.command, check, at, field="command")
     if register is None:
         return None
@@ -992,7 +1088,27 @@ def _joint_motion(
     if sim.speed is not None and sim.mode == "velocity":
         check.add((*at, "speed"), "speed is for mode position (a velocity command sets it)")
         return None
-    return JointMotion(sim.command, unit[1], sim.mode, sim.speed)
+    if sim.mode == "position" and (sim.time_constant_s is not None or sim.run_register):
+        check.add(at, "time_constant_s and run_register are for mode velocity")
+        return None
+    per_revolution = _per_revolution(register, sim.per_revolution, check, at)
+    if per_revolution is None:
+        return None
+    if (sim.run_register is None) != (sim.run_values is None):
+        check.add(at, "give run_register and run_values together")
+        return None
+    if sim.run_register is not None and sim.run_register not in register_map:
+        check.add((*at, "run_register"), f"no register named {sim.run_register!r}")
+        return None
+    return JointMotion(
+        sim.command,
+        unit[1] / per_revolution,
+        sim.mode,
+        sim.speed,
+        sim.time_constant_s,
+        sim.run_register,
+        tuple(sim.run_values or ()),
+    )
 
 
 def _writable(
@@ -1047,9 +1163,19 @@ def _check_commands(spec: DeviceFileSpec, register_map: RegisterMap, check: _Che
             check.add((*at, "name"), f"command {name!r} given twice (names are unique)")
         seen.add(name)
 
+    stop_groups = {t.group for t in commands.triggers if t.stop}
     for index, trigger in enumerate(commands.triggers):
         at: Loc = ("commands", "triggers", index)
         named(trigger.name, at)
+        if trigger.starts_motion and trigger.stop:
+            check.add((*at, "starts_motion"), "a trigger starts motion or stops it, not both")
+        elif trigger.starts_motion and trigger.group not in stop_groups:
+            check.add(
+                (*at, "starts_motion"),
+                f"nothing stops group {trigger.group!r}: add a trigger with stop: true"
+                + ("" if trigger.group == DEFAULT_MOTION_GROUP else f" and group: {trigger.group}")
+                + " (the bridge sends it on every way out)",
+            )
         for k, write in enumerate(trigger.writes):
             where = (*at, "writes", k)
             if write.register_name not in register_map:
@@ -1143,6 +1269,9 @@ def _build_device(
         return None
     joints = _build_joints(spec, register_map, check)
     _check_commands(spec, register_map, check)
+    keepalive = _build_keepalive(spec, register_map, check)
+    if spec.device.require_keepalive and spec.keepalive is None:
+        check.add(("device", "require_keepalive"), "true, but the file has no keepalive")
     readable = [r.name for r in register_map if r.access.readable]
     state = spec.device.state
     if state is not None:
@@ -1164,6 +1293,61 @@ def _build_device(
         tuple(state if state is not None else readable),
         allowed_values(spec),
         _address_texts(spec, check),
+        keepalive,
+    )
+
+
+def _build_keepalive(
+    spec: DeviceFileSpec, register_map: RegisterMap, check: _Checker
+) -> Keepalive | None:
+    keepalive = spec.keepalive
+    if keepalive is None:
+        return None
+    at: Loc = ("keepalive",)
+    register = _writable(register_map, keepalive.register_name, check, at)
+    if register is None:
+        return None
+    if register.value_type.label not in KEEPALIVE_TYPES:
+        check.add(
+            (*at, "register"),
+            f"{register.name} is a {register.value_type.label} "
+            f"(a keepalive register is one of {', '.join(KEEPALIVE_TYPES)})",
+        )
+        return None
+    if keepalive.mode != "value" and keepalive.value is not None:
+        check.add((*at, "value"), f"mode {keepalive.mode} writes its own values (no value)")
+        return None
+    if keepalive.value is not None:
+        try:
+            to_raw(register, keepalive.value)
+            encode(register, keepalive.value)
+        except CodecError as err:
+            check.add((*at, "value"), f"{_number_text(keepalive.value)} cannot be written: {err}")
+            return None
+    if (keepalive.period_s is None) == (keepalive.period_from is None):
+        check.add(at, "give exactly one of period_s and period_from")
+        return None
+    period_to_s = 1.0
+    if keepalive.period_from is not None:
+        source = keepalive.period_from
+        if source not in register_map or not register_map[source].access.readable:
+            check.add((*at, "period_from"), f"{source!r} is not a readable register")
+            return None
+        unit = register_map[source].unit
+        if unit not in PERIOD_UNITS_TO_S:
+            check.add(
+                (*at, "period_from"),
+                f"{source}'s unit {unit!r} is not a time (allowed: {', '.join(PERIOD_UNITS_TO_S)})",
+            )
+            return None
+        period_to_s = PERIOD_UNITS_TO_S[unit]
+    return Keepalive(
+        keepalive.register_name,
+        keepalive.mode,
+        keepalive.value,
+        keepalive.period_s,
+        keepalive.period_from,
+        period_to_s,
     )
 
 

@@ -10,6 +10,8 @@ codes the file lists: FC 05 (else 0F) for one coil, FC 06 (else 10) for one regi
 
 from __future__ import annotations
 
+import math
+import threading
 import time
 from collections.abc import Callable, Collection, Sequence
 from contextlib import ExitStack
@@ -17,14 +19,21 @@ from dataclasses import dataclass
 
 from bridge_core.channel import Priority, RegisterIO
 from bridge_core.checks import check_finite
-from bridge_core.codec import Value, encode
+from bridge_core.codec import Value, decode, encode
 from bridge_core.errors import CommandRejected, LinkError
 from bridge_core.planner import ReadRequest, plan_reads
 from bridge_core.poller import read_blocks, read_named
 from bridge_core.registers import Register, Table, ValueType
 from bridge_core.stream_guard import StreamGuard
 
-from .description import Device, JointSource, TopicSpec, not_allowed
+from .description import Device, Joint, JointSource, Keepalive, TopicSpec, not_allowed
+
+# The bridge feeds a keepalive at least this many times per watchdog time (as the MOTEC
+# lifeguard): one late or lost feed never trips the device.
+KEEPALIVE_FEEDS_PER_PERIOD = 3
+# A keepalive whose arming failed (the device refused a read or the write) tries again
+# after this long, not at every look of the keepalive thread.
+KEEPALIVE_ARM_RETRY_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -35,6 +44,8 @@ class DeviceSnapshot:
     names: tuple[str, ...]
     values: tuple[Value, ...]
     positions: tuple[float, ...]
+    # positions: NaN for a joint without a position register (a velocity-only drive);
+    # empty when no joint has one
     velocities: tuple[float, ...]  # empty unless every joint has a velocity register
     efforts: tuple[float, ...]  # empty unless every joint has an effort register
 
@@ -48,13 +59,19 @@ def _joint_registers(device: Device) -> list[str]:
     return names
 
 
+def _stamp_source(joint: Joint) -> JointSource:
+    source = joint.position or joint.velocity
+    assert source is not None  # the loader refuses a joint with neither
+    return source
+
+
 def poll_plan(device: Device) -> tuple[list[ReadRequest], str | None]:
     """The requests of one poll and the register that stamps it (the first joint's
     position; its block is read last, so a joint change reaches joint_states soonest)."""
     register_map = device.register_map
     names = list(dict.fromkeys([*device.state_names, *_joint_registers(device)]))
     plan = plan_reads(register_map, register_map.select(names))
-    stamp = device.joints[0].position.register if device.joints else None
+    stamp = _stamp_source(device.joints[0]).register if device.joints else None
     if stamp is not None:
         plan.sort(key=lambda request: stamp in request.names)
     return plan, stamp
@@ -80,7 +97,18 @@ class DescribedDevice:
         # locks every stream.
         self.guards: dict[str, StreamGuard[str]] = {}
         joints = device.joints
-        self._positions = [j.position for j in joints]
+        # A velocity-only joint's position is NaN (JointState: an array is empty or has
+        # one entry per name); no position at all: the array is empty.
+        self._positions: list[JointSource | None] = (
+            [j.position for j in joints] if any(j.position for j in joints) else []
+        )
+        # Motion groups a starts_motion trigger started since their last stop; the stops
+        # the bridge must send on its way out (``exit_stops``).
+        self.exit_stops = device.exit_stops()
+        self.started: set[str] = set()
+        self.stop_pending: set[str] = set()  # exit stops that failed on the link
+        self._started_lock = threading.Lock()
+        self.keepalive = KeepaliveFeeder(io, device) if device.keepalive is not None else None
         self._velocities = (
             [j.velocity for j in joints if j.velocity is not None]
             if all(j.velocity is not None for j in joints)
@@ -98,8 +126,10 @@ class DescribedDevice:
             self.io, self.plan, Priority.POLL, self.stamp_register, self._clock
         )
 
-        def si(sources: Sequence[JointSource]) -> tuple[float, ...]:
-            return tuple(float(values[s.register]) * s.to_si for s in sources)
+        def si(sources: Sequence[JointSource | None]) -> tuple[float, ...]:
+            return tuple(
+                math.nan if s is None else float(values[s.register]) * s.to_si for s in sources
+            )
 
         names = self.device.state_names
         return DeviceSnapshot(
@@ -163,6 +193,11 @@ class DescribedDevice:
         return register, words
 
     def _send(self, register: Register, words: Sequence[int]) -> None:
+        self._write_words(register, words)
+        if self.keepalive is not None:
+            self.keepalive.note_write(register, words)
+
+    def _write_words(self, register: Register, words: Sequence[int]) -> None:
         if register.table is Table.COIL:
             on = bool(words[0])
             if 5 in self.functions:
@@ -175,10 +210,10 @@ class DescribedDevice:
             self.io.write_registers(register.address, list(words))
 
     def write(self, name: str, value: Value) -> str:
-        """One register or coil, checked; returns what was written."""
+        """One register or coil, checked; returns what was written (``written_text``)."""
         register, words = self.words_for(name, value)
         self._send(register, words)
-        return f"{name} = {value}"
+        return written_text(register, value, words)
 
     def attach_stream(self, topic_name: str, guard: StreamGuard[str]) -> None:
         """The guard of command topic ``topic_name`` (keyed by the topic's name)."""
@@ -226,8 +261,48 @@ class DescribedDevice:
             return ", ".join(done)
 
         if spec.stop:
-            return self._as_stop({w.register_name for w in spec.writes}, send)
+            done = self._as_stop({w.register_name for w in spec.writes}, send)
+            with self._started_lock:
+                self.started.discard(spec.group)
+                self.stop_pending.discard(spec.group)
+            return done
+        if spec.starts_motion:
+            self.check_keepalive(name)
+            with self._started_lock:
+                # Before the first write: a start the link cut may have run on the device.
+                self.started.add(spec.group)
         return send()
+
+    def check_keepalive(self, what: str) -> None:
+        """A motion command is refused while a required keepalive is not armed."""
+        keepalive = self.keepalive
+        if self.device.spec.device.require_keepalive and (keepalive is None or not keepalive.armed):
+            raise CommandRejected(
+                f"{what}: the device's keepalive is not armed yet (require_keepalive)"
+            )
+
+    def stop_started(self) -> list[tuple[str, str, Exception | None]]:
+        """Send the stop of every motion group a trigger started since its last stop (and
+        of every such stop still pending): [(group, stop trigger, error or None)]. Tried on
+        the wire whatever the link's state; a failed stop stays pending (``on_link_up``)."""
+        with self._started_lock:
+            groups = sorted(self.started | self.stop_pending)
+        results: list[tuple[str, str, Exception | None]] = []
+        for group in groups:
+            stop = self.exit_stops[group]
+            try:
+                self.trigger(stop)
+            except Exception as err:  # reported by the caller; the other groups go on
+                with self._started_lock:
+                    self.stop_pending.add(group)
+                results.append((group, stop, err))
+            else:
+                results.append((group, stop, None))
+        return results
+
+    def stream_allowed(self, topic: TopicSpec, register_value: float) -> None:
+        if register_value != 0:
+            self.check_keepalive(topic.name)
 
     def set_value(self, name: str, value: float) -> str:
         if name not in self.values:
@@ -248,6 +323,7 @@ class DescribedDevice:
         """A command topic's message value as its register's value (checked, not sent)."""
         register_value = check_finite(topic.name, value) * topic.scale
         self.words_for(topic.register_name, register_value)
+        self.stream_allowed(topic, register_value)
         return register_value
 
     def send_stream(self, topic: TopicSpec, register_value: float) -> None:
@@ -259,7 +335,128 @@ class DescribedDevice:
         self._send(register, words)
 
 
+def written_text(register: Register, value: Value, words: Sequence[int]) -> str:
+    """What a write put on the wire: ``name = value`` as asked when the register holds it
+    exactly, else ``name = 12.3 s written (12.34 rounded to the register's 0.1 s)``."""
+    if register.value_type.is_float:  # a float holds the value (to its precision)
+        return f"{register.name} = {value}"
+    written = decode(register, words)
+    numbers = (value, written)
+    if all(isinstance(v, int | float) and not isinstance(v, bool) for v in numbers):
+        assert isinstance(written, int | float) and isinstance(value, int | float)
+        if float(written) != float(value):
+            unit = f" {register.unit}" if register.unit else ""
+            step = _number(1.0 / register.scale)
+            return (
+                f"{register.name} = {_number(float(written))}{unit} written "
+                f"({_number(float(value))} rounded to the register's {step}{unit})"
+            )
+    return f"{register.name} = {value}"
+
+
+def _number(value: float) -> str:
+    """A value as a person writes it: 12.3, not 12.299999999999999."""
+    return f"{value:.10g}"
+
+
 def _written_value(value: object) -> Value:
     if isinstance(value, bool | int | float | str):
         return value
     raise CommandRejected(f"{value!r} is not a value")
+
+
+class KeepaliveFeeder:
+    """The file's keepalive (no ROS): arms on each link-up (reads the watchdog time and,
+    mode value without a value, the value to write back), then writes the register every
+    watchdog time / ``KEEPALIVE_FEEDS_PER_PERIOD`` at the link's top priority."""
+
+    def __init__(
+        self, io: RegisterIO, device: Device, clock: Callable[[], float] = time.monotonic
+    ) -> None:
+        spec = device.keepalive
+        assert spec is not None
+        self.spec: Keepalive = spec
+        self.io = io
+        self._map = device.register_map
+        self.register = device.register_map[spec.register]
+        self.functions = device.register_map.limits.function_codes
+        self._clock = clock
+        self.period_s: float | None = spec.period_s
+        self.armed = False
+        self.stale = True  # read the device again (``arm``) before the next feed
+        self._arm_after = -math.inf
+        self.last_feed = -math.inf
+        self._value: float | None = spec.value
+        self._count = 0
+
+    def disarm(self) -> None:
+        """The link was lost: arm again (read again) before the next feed."""
+        self.armed = False
+        self.stale = True
+        self._arm_after = -math.inf
+
+    def arm(self) -> None:
+        """Read what a feed needs, then feed once (``armed`` after it was written)."""
+        spec = self.spec
+        self.stale = False
+        self._arm_after = self._clock() + KEEPALIVE_ARM_RETRY_S  # if this one fails
+        if spec.period_register is not None:
+            period = float(self._read(self._map[spec.period_register])) * spec.period_to_s
+            self.period_s = period if period > 0 else None
+        if self.period_s is None:
+            self.armed = False  # the device's watchdog is off: nothing to feed
+            return
+        if spec.mode == "value" and spec.value is None:
+            self._value = float(self._read(self.register))
+        elif spec.mode != "value":
+            self._count = int(self._read(self.register)) if self.register.access.readable else 0
+        self.feed()
+
+    def note_write(self, register: Register, words: Sequence[int]) -> None:
+        """A command wrote ``register``: a new watchdog time (``period_from``), or the
+        value mode's value (its feeds must not write an older one back)."""
+        spec = self.spec
+        if register.name == spec.period_register:
+            period = float(decode(register, words)) * spec.period_to_s
+            self.period_s = period if period > 0 else None
+            if self.period_s is None:
+                self.armed = False
+        if register.name == spec.register and spec.mode == "value" and spec.value is None:
+            self._value = float(decode(register, words))
+
+    def next_feed(self) -> float | None:
+        """When the next feed (or arming: ``due``) is due (``clock()`` time; None: nothing
+        to feed, the device's watchdog is off)."""
+        if self.stale or (not self.armed and self.period_s is not None):
+            return self._arm_after
+        if self.period_s is None:
+            return None
+        return self.last_feed + self.period_s / KEEPALIVE_FEEDS_PER_PERIOD
+
+    def due(self) -> None:
+        """The keepalive thread's work: arm if not armed, else feed."""
+        if self.armed:
+            self.feed()
+        else:
+            self.arm()
+
+    def feed(self) -> None:
+        spec = self.spec
+        if spec.mode == "value":
+            value: float = self._value if self._value is not None else 0.0
+        elif spec.mode == "toggle":
+            self._count = 0 if self._count else 1
+            value = self._count
+        else:
+            self._count = (self._count + 1) % (self.register.value_type.raw_max + 1)
+            value = self._count
+        words = encode(self.register, value)
+        if 6 in self.functions:
+            self.io.write_register(self.register.address, words[0], priority=Priority.KEEPALIVE)
+        else:
+            self.io.write_registers(self.register.address, words)
+        self.last_feed = self._clock()
+        self.armed = self.period_s is not None
+
+    def _read(self, register: Register) -> Value:
+        return read_named(self.io, self._map, [register.name])[register.name]

@@ -141,6 +141,8 @@ def device_markdown(device: Device, heading: str = "##") -> list[str]:
     for trigger in commands.triggers:
         writes = ", ".join(f"`{w.register_name}` = {w.value}" for w in trigger.writes)
         kind = "Trigger (stop)" if trigger.stop else "Trigger"
+        if trigger.starts_motion:
+            kind = "Trigger (starts motion: the bridge stops it on exit)"
         rows.append([f"`~/{trigger.name}`", kind, writes, _cell(trigger.description)])
     for value in commands.values:
         rows.append(
@@ -161,6 +163,20 @@ def device_markdown(device: Device, heading: str = "##") -> list[str]:
     if rows:
         lines += ["", f"{heading}# Commands", ""]
         lines += _table(("name", "kind", "writes", "description"), rows)
+    keepalive = device.keepalive
+    if keepalive is not None:
+        period = (
+            f"{_number(keepalive.period_s)} s"
+            if keepalive.period_s is not None
+            else f"read from `{keepalive.period_register}`"
+        )
+        lines += [
+            "",
+            f"Keepalive: `{keepalive.register}` ({keepalive.mode}), the device's watchdog "
+            f"time {period}, fed three times per period"
+            + ("; motion commands wait for it" if device.spec.device.require_keepalive else "")
+            + ".",
+        ]
     return lines
 
 

@@ -20,12 +20,14 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from rclpy.lifecycle import LifecycleState, TransitionCallbackReturn
 from std_msgs.msg import Float64
 from std_srvs.srv import SetBool
 
 from bridge_core.codec import Value
 from bridge_core.diagnostics import Level, Report
-from bridge_core.errors import CommandRejected, ConfigurationError
+from bridge_core.errors import CommandRejected, ConfigurationError, DeviceException, LinkError
+from bridge_core.keepalive import FEED_WAKE_S, Keepalive
 from bridge_core.node_base import BridgeNode, DeviceDefaults, ParameterNode, spin_node
 from bridge_core.parameters import ParameterSpec
 from bridge_core.registers import ValueType
@@ -43,7 +45,7 @@ from .description import (
     TopicSpec,
     load,
 )
-from .device import DescribedDevice, DeviceSnapshot
+from .device import KEEPALIVE_FEEDS_PER_PERIOD, DescribedDevice, DeviceSnapshot
 
 NODE_NAME = "modbus_bridge"
 
@@ -97,12 +99,26 @@ def described_by_parameter(node: ParameterNode, help_text: str) -> tuple[str, De
     return path, load(path)
 
 
+def keepalive_floor_s(devices_on_line: int, hold_s: float) -> float:
+    """The shortest watchdog time the bridge can keep fed on this link (the MOTEC
+    lifeguard's bound): a feed falls due a third of the time after the last, wakes up to
+    ``FEED_WAKE_S`` late and waits for the transaction in progress and the other devices'
+    feeds (``hold_s`` each), so time / 3 + FEED_WAKE_S + devices x hold_s <= time."""
+    feeds = KEEPALIVE_FEEDS_PER_PERIOD
+    return (FEED_WAKE_S + devices_on_line * hold_s) * feeds / (feeds - 1)
+
+
 class ModbusBridgeNode(BridgeNode[DeviceSnapshot]):
     """One described device: its file from ``device_file``, or (a device on a line a
     ``ModbusBusNode`` owns) ``device`` with the bus's ``link``, named after the device."""
 
     def __init__(
-        self, device: Device | None = None, *, link: ModbusLink | None = None, **kwargs: Any
+        self,
+        device: Device | None = None,
+        *,
+        link: ModbusLink | None = None,
+        devices_on_line: int = 1,
+        **kwargs: Any,
     ) -> None:
         self.description: Description | None = None
         if device is None:
@@ -123,6 +139,34 @@ class ModbusBridgeNode(BridgeNode[DeviceSnapshot]):
         self.state_pub: Any = self.create_publisher(DeviceValues, "~/state", 10)
         self._create_services()
         self._create_topics()
+        self.keepalive_floor_s = keepalive_floor_s(
+            devices_on_line, self.link.settings.longest_hold_s()
+        )
+        self.keepalive_error: str | None = None  # arming failed, or a period below the floor
+        self.keepalive_refused: str | None = None  # the last feed's refusal
+        self.configured = False  # lifecycle: the keepalive is fed while configured
+        spec = self.described.keepalive
+        if (
+            spec is not None
+            and spec.period_s is not None
+            and spec.period_s < self.keepalive_floor_s
+        ):
+            raise ConfigurationError(
+                f"{self.get_name()}: keepalive period_s {spec.period_s} s is below "
+                f"{self.keepalive_floor_s:.3f} s, the longest feed gap this link can cause "
+                f"(1.5 x ({FEED_WAKE_S:g} s wake-up + {devices_on_line} device(s) x "
+                f"{self.link.settings.longest_hold_s():.3f} s, the longest transaction))"
+            )
+        # Fed from a thread of its own at the link's top priority (bridge_core.keepalive).
+        self.keepalive: Keepalive | None = None
+        if self.device.keepalive is not None:
+            self.keepalive = Keepalive(
+                f"{self.get_name()}-keepalive",
+                self._next_feed,
+                self._feed_keepalive,
+                lambda err: self.get_logger().error(f"keepalive feed failed: {err}"),
+            )
+            self.keepalive.start()
 
     def _defaults_from_file(self, node: ParameterNode) -> DeviceDefaults:
         path, description = described_by_parameter(node, "device description YAML (required)")
@@ -136,6 +180,93 @@ class ModbusBridgeNode(BridgeNode[DeviceSnapshot]):
 
     def device_names(self) -> tuple[str, ...]:
         return self.described.state_names
+
+    # ------------------------------------------------------------ stop what it started
+    def stop_motion(self, reason: str = "the node stops") -> None:
+        """The base's stops (streams, goals), then the stop trigger of every motion group a
+        ``starts_motion`` trigger started since that group's last stop: on every way out
+        (SIGINT, SIGTERM, deactivate, shutdown, a fatal error, read_only), tried on the wire
+        even while the link is marked down; one that fails is sent again on reconnect."""
+        try:
+            super().stop_motion(reason)
+        finally:
+            for group, stop, err in self.device.stop_started():
+                if err is None:
+                    self.get_logger().info(f"{stop}: sent ({reason}): {group} stopped")
+                else:
+                    self.get_logger().error(
+                        f"{stop} ({reason}) failed: {err}; {group} may still move "
+                        "(sent again on reconnect)"
+                    )
+
+    def on_link_up(self) -> None:
+        """A stop that failed on the way is sent first; then the keepalive arms (the
+        device may have been power-cycled, its watchdog time changed)."""
+        for group in sorted(self.device.stop_pending):
+            stop = self.device.exit_stops[group]
+            self.device.trigger(stop)
+            self.get_logger().info(f"{stop}: the pending stop of {group} was sent on reconnect")
+        feeder = self.device.keepalive
+        if feeder is None or self.read_only:
+            return
+        try:
+            feeder.disarm()
+            feeder.arm()
+        except DeviceException as err:
+            self.keepalive_error = f"arming the keepalive failed: the device answered {err}"
+            self.get_logger().error(self.keepalive_error)
+            return
+        self.keepalive_error = None
+        if feeder.period_s is not None and feeder.period_s < self.keepalive_floor_s:
+            self.keepalive_error = (
+                f"the device's keepalive time {feeder.period_s:g} s is below "
+                f"{self.keepalive_floor_s:.3f} s, the longest feed gap this link can cause: "
+                "it may trip"
+            )
+            self.get_logger().error(self.keepalive_error)
+        if self.keepalive is not None:
+            self.keepalive.wake()
+
+    def _next_feed(self) -> float | None:
+        feeder = self.device.keepalive
+        if feeder is None or self.read_only or not self.configured:
+            return None
+        if not self.channel.connected:
+            feeder.disarm()  # armed again (read again) on reconnect
+            return None
+        return feeder.next_feed()
+
+    def _feed_keepalive(self) -> None:
+        feeder = self.device.keepalive
+        assert feeder is not None
+        try:
+            with self.channel.command_session():  # not across a reconnect: it arms first
+                feeder.due()
+            self.keepalive_refused = None
+        except LinkError as err:  # the poll reports the link
+            self.get_logger().warn(f"keepalive feed failed: {err}", throttle_duration_sec=5.0)
+        except DeviceException as err:  # tried again (arming: after KEEPALIVE_ARM_RETRY_S)
+            self.keepalive_refused = f"the keepalive: the device answered {err}"
+            self.get_logger().error(self.keepalive_refused, throttle_duration_sec=5.0)
+
+    # The keepalive is fed while the node is configured (inactive too: it still owns the
+    # device); cleanup ends the feeds, as an exit does, and the device's watchdog trips.
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.configured = True
+        if self.keepalive is not None:
+            self.keepalive.wake()
+        return super().on_configure(state)
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.configured = False
+        return super().on_cleanup(state)
+
+    def close(self) -> None:
+        try:
+            super().close()  # stops first
+        finally:
+            if self.keepalive is not None:
+                self.keepalive.close()
 
     # ------------------------------------------------------------ polling
     def poll_device(self) -> DeviceSnapshot:
@@ -155,11 +286,20 @@ class ModbusBridgeNode(BridgeNode[DeviceSnapshot]):
 
     def device_report(self) -> Report | None:
         spec = self.described.spec.device
-        return Report(
-            Level.OK,
-            "connected",
-            [("device", spec.name), ("registers polled", str(len(self.described.state_names)))],
-        )
+        values = [("device", spec.name), ("registers polled", str(len(self.described.state_names)))]
+        feeder = self.device.keepalive
+        if feeder is not None:
+            state = "armed" if feeder.armed else "not armed"
+            if feeder.period_s is not None:
+                state += f", {feeder.period_s:g} s"
+            state += ", NOT fed (read_only)" if self.read_only else ", fed by the bridge"
+            values.append(("keepalive", state))
+            values.append(("keepalive floor on this link", f"{self.keepalive_floor_s:.3f} s"))
+        if self.device.started:
+            values.append(("motion started", ", ".join(sorted(self.device.started))))
+        if self.keepalive_error or self.keepalive_refused:
+            return Report(Level.WARN, str(self.keepalive_error or self.keepalive_refused), values)
+        return Report(Level.OK, "connected", values)
 
     # ------------------------------------------------------------ services
     def _create_services(self) -> None:
@@ -201,6 +341,7 @@ class ModbusBridgeNode(BridgeNode[DeviceSnapshot]):
                 f"~/{name}",
                 _describe_value(name),
                 _set_value(device, name),
+                fill=lambda response, written: setattr(response, "message", f"{written}: done"),
             )
         for coil in self.described.commands.coils:
             self.command_service(

@@ -15,7 +15,15 @@ As strict as the file says the device is (the simulator base does the rest):
 - joints with a ``sim`` rule move: a velocity command is integrated into the position
   (and shown in the velocity register), a target position is approached at ``speed``;
   a position (or velocity) past what its register can hold stops at the register's end
-  (clamped, as at a hard stop: no wrap, also for a revolute joint).
+  (clamped, as at a hard stop: no wrap, also for a revolute joint). A velocity follows
+  its command as a first-order lag of ``time_constant_s`` (a drive's ramp), and only
+  while ``run_register`` holds one of ``run_values`` (a drive's control word); a
+  velocity-only joint shows it in its velocity (monitor) register;
+- a ``keepalive`` is the device's watchdog: armed by its first feed (a write to its
+  register; modes toggle and counter: a write that changes it), it trips when no feed
+  came for its period (``period_s``, or the ``period_from`` register's value): the device
+  stops itself as the file's stop triggers and command topics' stops would (those
+  registers take the stop values), and waits for the next feed to arm again.
 
 A bus file serves every device on one line, each under its unit id (silent for others).
 """
@@ -25,6 +33,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+import time
 from collections import defaultdict
 from collections.abc import Sequence
 from pathlib import Path
@@ -86,7 +95,58 @@ class DescribedSimDevice(SimulatedDevice):
             self.words = defaultdict(int, self.words)
             self.readable = _UndefinedReadable(self.readable, defined)  # type: ignore[assignment]
         self.positions_si = {joint.name: 0.0 for joint in device.joints}
+        self.velocities_si = {joint.name: 0.0 for joint in device.joints}
         self.write_guards.append(self._guard)
+        # The keepalive watchdog: when it was last fed (monotonic; None: not armed).
+        self.keepalive = device.keepalive
+        self.keepalive_fed_at: float | None = None
+        self.keepalive_trips = 0
+        if self.keepalive is not None:
+            self.write_hooks.append(self._keepalive_write)
+
+    def _keepalive_write(self, record: WriteRecord) -> None:
+        keepalive = self.keepalive
+        assert keepalive is not None
+        register = self.map[keepalive.register]
+        if record.table is not register.table or not (
+            record.address <= register.address < record.address + len(record.values)
+        ):
+            return
+        word = record.values[register.address - record.address]
+        previous = self._keepalive_word
+        self._keepalive_word = word
+        if keepalive.mode == "value" or word != previous:
+            self.keepalive_fed_at = time.monotonic()
+
+    _keepalive_word: int | None = None
+
+    def keepalive_period_s(self) -> float | None:
+        keepalive = self.keepalive
+        if keepalive is None:
+            return None
+        if keepalive.period_register is None:
+            return keepalive.period_s
+        period = float(self.get(keepalive.period_register)) * keepalive.period_to_s
+        return period if period > 0 else None
+
+    def _check_keepalive(self) -> None:
+        fed_at, period = self.keepalive_fed_at, self.keepalive_period_s()
+        if fed_at is None or period is None or time.monotonic() - fed_at <= period:
+            return
+        self.keepalive_fed_at = None  # disarmed until the next feed
+        self.keepalive_trips += 1
+        self.stop_all()
+
+    def stop_all(self) -> None:
+        """The device stops itself: every stop trigger's writes and every command topic's
+        stop value, as the device's own values (no write log)."""
+        commands = self.device.commands
+        for trigger in commands.triggers:
+            if trigger.stop:
+                for write in trigger.writes:
+                    self.set(write.register_name, write.value)
+        for topic in commands.topics:
+            self.set(topic.register_name, topic.stop_value)
 
     def _guard(self, record: WriteRecord) -> int | None:
         """Bit writes past ``max_write_bits``, and values outside their register's range."""
@@ -114,6 +174,8 @@ class DescribedSimDevice(SimulatedDevice):
 
     def tick(self, dt: float) -> None:
         with self.lock:
+            if self.keepalive is not None:
+                self._check_keepalive()
             for joint in self.device.joints:
                 if joint.motion is not None:
                     self._move(joint, dt)
@@ -122,19 +184,28 @@ class DescribedSimDevice(SimulatedDevice):
         motion = joint.motion
         assert motion is not None
         command = float(self.get(motion.command)) * motion.to_si
+        if motion.run_register is not None:
+            run = float(self.get(motion.run_register))
+            if run not in motion.run_values:
+                command = 0.0
         position = self.positions_si[joint.name]
         if motion.mode == "velocity":
             velocity = command
+            if motion.time_constant_s is not None and dt > 0:
+                previous = self.velocities_si[joint.name]
+                velocity = command + (previous - command) * math.exp(-dt / motion.time_constant_s)
         else:
             error = command - position
             step = abs(error) if motion.speed is None else min(abs(error), motion.speed * dt)
             velocity = math.copysign(step / dt, error) if dt > 0 and step else 0.0
-        position_register = self.map[joint.position.register]
-        held = holdable(position_register, (position + velocity * dt) / joint.position.to_si)
-        if dt > 0:  # at a register end the joint stops there
-            velocity = (held * joint.position.to_si - position) / dt
-        self.positions_si[joint.name] = held * joint.position.to_si
-        self.set(joint.position.register, held)
+        if joint.position is not None:
+            position_register = self.map[joint.position.register]
+            held = holdable(position_register, (position + velocity * dt) / joint.position.to_si)
+            if dt > 0:  # at a register end the joint stops there
+                velocity = (held * joint.position.to_si - position) / dt
+            self.positions_si[joint.name] = held * joint.position.to_si
+            self.set(joint.position.register, held)
+        self.velocities_si[joint.name] = velocity
         if joint.velocity is not None and joint.velocity.register != motion.command:
             velocity_register = self.map[joint.velocity.register]
             self.set(
@@ -180,7 +251,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         args.baudrate = args.baudrate or (rtu.baudrate if rtu else 9600)
         args.parity = args.parity or (rtu.parity if rtu else "N")
         args.stopbits = args.stopbits or (rtu.stopbits if rtu else 1)
-        serve_serial_until_signalled(sim, args, lambda where: f"modbus_sim {names} on {where}")
+        framing = f"{args.baudrate} 8{args.parity}{args.stopbits}"
+        serve_serial_until_signalled(
+            sim, args, lambda where: f"modbus_sim {names} listening on {where} ({framing})"
+        )
         return 0
     if args.port is None:
         tcp = link.tcp if link is not None else None

@@ -33,6 +33,11 @@ from rclpy.node import NodeNameNonExistentError
 from rclpy.parameter import Parameter, parameter_value_to_python
 from std_msgs.msg import Bool
 
+from bridge_core.codec import encode
+from modbus_bridge.description import load as load_description
+from msg_defs.msg import DeviceValues
+from msg_defs.srv import ReadRegisters, SetValue
+
 from .support.bridges import BRIDGES, BridgeInfo, Call, SimProcess
 from .support.ros import (
     LATCHED,
@@ -51,7 +56,73 @@ from .support.ros import (
 pytestmark = pytest.mark.ros
 
 TIMEOUT = 30.0
-IDS = [info.key for info in BRIDGES]
+
+
+@dataclass(frozen=True)
+class DescribedInfo(BridgeInfo):
+    """modbus_bridge on one of config/devices/'s examples; ``keepalive_address``: the
+    register its keepalive feeds on its own (not a command's write, left out of
+    ``Running.writes``)."""
+
+    keepalive_address: int | None = None
+
+
+DEVICES = ROOT / "config" / "devices"
+VFD = DEVICES / "vfd_rtu.yaml"
+VFD_MAP = load_description(VFD).device.register_map
+INVERTER = DEVICES / "inverter_tcp_f32.yaml"
+INVERTER_MAP = load_description(INVERTER).device.register_map
+MODBUS_STARTUP_ONLY = ("unit_id", "timeout_s", "joint_prefix", "device_file")
+# The two examples of issue 21: a VFD on RTU 8E1 (velocity-only joint, a keepalive) and a
+# TCP inverter with f32 in CDAB and ABCD. Their params-file test is config/modbus.yaml's
+# (the "modbus" entry): ``config`` empty.
+DESCRIBED: tuple[DescribedInfo, ...] = (
+    DescribedInfo(
+        key="modbus_vfd",
+        module="modbus_bridge.node",
+        node_name="modbus_bridge",
+        state_type=DeviceValues,
+        transport="rtu",
+        sim_module="modbus_bridge.sim",
+        sim_args=("--device-file", str(VFD)),
+        params={"device_file": str(VFD)},
+        good=Call("set_frequency", SetValue, {"value": 25.0}),
+        good_write=(6, VFD_MAP["frequency_setpoint"].address, (2500,)),
+        bad=Call("set_frequency", SetValue, {"value": 100.0}),
+        position_register=VFD_MAP["output_frequency"],  # the velocity-only joint's
+        unit_id=1,
+        config="",
+        startup_only=("serial_port", "baudrate", "parity", "stopbits", *MODBUS_STARTUP_ONLY),
+        read_services={"read": Call("read", ReadRegisters, {"names": ["output_frequency"]})},
+        mistyped=(("device_file", "/nonexistent/device.yaml"),),
+        keepalive_address=VFD_MAP["comm_watchdog"].address,
+    ),
+    DescribedInfo(
+        key="modbus_inverter",
+        module="modbus_bridge.node",
+        node_name="modbus_bridge",
+        state_type=DeviceValues,
+        transport="tcp",
+        sim_module="modbus_bridge.sim",
+        sim_args=("--device-file", str(INVERTER)),
+        params={"timeout_s": 0.5, "device_file": str(INVERTER)},
+        good=Call("set_torque_limit", SetValue, {"value": 50.0}),
+        good_write=(
+            16,
+            INVERTER_MAP["torque_limit"].address,
+            tuple(encode(INVERTER_MAP["torque_limit"], 50.0)),
+        ),
+        bad=Call("set_torque_limit", SetValue, {"value": 300.0}),
+        position_register=INVERTER_MAP["motor_position"],
+        unit_id=1,
+        config="",
+        startup_only=("host", "port", *MODBUS_STARTUP_ONLY),
+        read_services={"read": Call("read", ReadRegisters, {"names": ["motor_speed"]})},
+        mistyped=(("device_file", "/nonexistent/device.yaml"),),
+    ),
+)
+ALL: tuple[BridgeInfo, ...] = (*BRIDGES, *DESCRIBED)
+IDS = [info.key for info in ALL]
 SHARED_POLL_RATE_HZ = 20  # an int on purpose: `-p poll_rate_hz:=20` must be taken
 NOT_DEVICE_SERVICES = ("rcl_interfaces/", "type_description_interfaces/", "lifecycle_msgs/")
 ACTION_GOAL_SERVICE = "/_action/send_goal"  # every action server's hidden goal service
@@ -146,7 +217,13 @@ class Running:
         return self.client.received(self.bridge.joint_states, since)
 
     def writes(self) -> list[tuple[int, int, int, tuple[int, ...]]]:
-        return [(w.unit_id, w.function_code, w.address, w.values) for w in self.sim.writes()]
+        """The writes of commands (a keepalive's own feeds left out)."""
+        feeds = getattr(self.info, "keepalive_address", None)
+        return [
+            (w.unit_id, w.function_code, w.address, w.values)
+            for w in self.sim.writes()
+            if w.address != feeds
+        ]
 
     def good_write(self) -> tuple[int, int, int, tuple[int, ...]]:
         return (self.info.unit_id, *self.info.good_write)
@@ -176,7 +253,7 @@ def client() -> Iterator[Client]:
         yield c
 
 
-@pytest.fixture(scope="module", params=BRIDGES, ids=IDS)
+@pytest.fixture(scope="module", params=ALL, ids=IDS)
 def shared(
     request: pytest.FixtureRequest, client: Client, tmp_path_factory: pytest.TempPathFactory
 ) -> Iterator[Running]:
@@ -187,7 +264,7 @@ def shared(
         yield r
 
 
-each_bridge = pytest.mark.parametrize("info", BRIDGES, ids=IDS)
+each_bridge = pytest.mark.parametrize("info", ALL, ids=IDS)
 
 
 # ---------------------------------------------------------------- 1. refusals
@@ -351,7 +428,7 @@ def test_startup_only_parameters_refused_live_poll_rate_applied(shared: Running)
 # ---------------------------------------------------------------- 5. mistyped parameters
 MISTYPED = [
     pytest.param(info, name, value, id=f"{info.key}-{name}")
-    for info in BRIDGES
+    for info in ALL
     for name, value in info.mistyped
 ]
 
@@ -371,7 +448,7 @@ def applies_to(key: str, node: str) -> bool:
     return key == "/**" or key.rsplit("/", 1)[-1] == node
 
 
-@each_bridge
+@pytest.mark.parametrize("info", BRIDGES, ids=[info.key for info in BRIDGES])
 def test_example_yaml_configures_the_node(info: BridgeInfo, client: Client, tmp_path: Path) -> None:
     """config/<device>.yaml loads with --params-file; the nodes report its values.
 

@@ -64,7 +64,7 @@ def test_good_file_builds_bridge_core_types(tmp_path: Path) -> None:
     assert decode(angle, encode(angle, 90.0)) == 90.0
     assert device.register_map["label"].count == 4
     (joint,) = device.joints
-    assert joint.position.to_si == pytest.approx(math.pi / 180)
+    assert joint.position is not None and joint.position.to_si == pytest.approx(math.pi / 180)
     assert joint.velocity is not None
     assert joint.velocity.to_si == pytest.approx(2 * math.pi / 60 * 0.1)
     assert joint.motion is not None and joint.motion.command == "speed"
@@ -438,11 +438,11 @@ BAD = [
         "REP 103 N.m",
     ),
     (
-        "{name: shaft, position: {register: angle}, ",
+        "{name: shaft, position: {register: angle}, velocity: {register: speed, factor: 0.1}, ",
         "{name: shaft, ",
-        "joints[0].position",
+        "joints[0]",
         13,
-        "missing (required)",
+        "needs a position or a velocity register",
     ),
     (
         "writes: [{register: run, value: true}]",
