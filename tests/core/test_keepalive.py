@@ -35,7 +35,9 @@ class Watchdog:
             self.asked += 1
             if not self.armed:
                 return None
-            return (self.feeds[-1] if self.feeds else 0.0) + self.period_s
+            # Never fed: due now (not at 0 + period on the monotonic clock, which is in
+            # the future on a machine up for less than a period).
+            return self.feeds[-1] + self.period_s if self.feeds else time.monotonic()
 
     def feed(self) -> None:
         with self.lock:
