@@ -91,6 +91,13 @@ class Motion(ABC, Generic[SnapshotT]):
         self.seen_running = False
         self.idle_polls = 0
 
+    def default_timeout_s(self, node_default_s: float) -> float:
+        """The goal's time limit when it gives ``timeout_s`` 0: the node's
+        ``goal_timeout_s`` (so a goal whose client vanished ends by itself). A motion with
+        a limit of its own (judged in ``judge``), or one that runs until stopped, returns
+        0 (none here)."""
+        return node_default_s
+
     @abstractmethod
     def start(self) -> None:
         """Write the motion's command (runs inside the node's command guard)."""

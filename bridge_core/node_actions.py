@@ -57,6 +57,10 @@ STOP_WAIT_S = 30.0
 MAX_GOAL_THREADS = 8
 # How long a cancelled goal's result waits for rclpy to have moved it to CANCELING.
 CANCEL_STATE_WAIT_S = 1.0
+# ``goal_timeout_s``: the time limit of a goal that gives ``timeout_s`` 0 (a goal whose
+# client vanished must end by itself); a node with action servers declares it, live.
+GOAL_TIMEOUT_DEFAULT_S = 600.0
+GOAL_TIMEOUT_MAX_S = 86400.0
 
 
 class Steps(Protocol):
@@ -84,6 +88,29 @@ class ActionHost:
         self._lock = threading.Lock()
         self._runs: dict[bytes, GoalRun[Any]] = {}  # goal id -> its run, while running
         self._steps: dict[bytes, StepsRun] = {}
+        self.goal_timeout_s = GOAL_TIMEOUT_DEFAULT_S  # the node's parameter, once declared
+
+    def _declare_goal_timeout(self) -> None:
+        """``goal_timeout_s``, with the first action server (a node without actions has
+        no such parameter: it would do nothing)."""
+        if self.servers:
+            return
+        from .parameters import ParameterSpec
+
+        spec = ParameterSpec(
+            "goal_timeout_s",
+            GOAL_TIMEOUT_DEFAULT_S,
+            "time limit (s) of an action goal that gives timeout_s 0; 0 = none",
+            0.0,
+            GOAL_TIMEOUT_MAX_S,
+            live=True,
+        )
+        value = self.node.declare_specs([spec])["goal_timeout_s"]
+        self.goal_timeout_s = float(value)
+        self.node.on_parameter("goal_timeout_s", self._set_goal_timeout)
+
+    def _set_goal_timeout(self, value: float) -> None:
+        self.goal_timeout_s = float(value)
 
     # ------------------------------------------------------------------ servers
     def motion(
@@ -139,6 +166,8 @@ class ActionHost:
         check: Callable[[Any], object],
         execute: Callable[[ServerGoalHandle], Any],
     ) -> None:
+        self._declare_goal_timeout()
+
         def goal_callback(goal: Any) -> GoalResponse:
             reason = self._refusal(goal, check)
             if reason is None:
@@ -173,7 +202,10 @@ class ActionHost:
             return f"{goals} goals already run or wait on this node, the most it takes at once"
         timeout_s = float(getattr(goal, "timeout_s", 0.0))
         if not math.isfinite(timeout_s) or timeout_s < 0:
-            return f"timeout_s {timeout_s} must be 0 (no limit) or a positive number of seconds"
+            return (
+                f"timeout_s {timeout_s} must be 0 (the node's goal_timeout_s) or a positive "
+                "number of seconds"
+            )
         try:
             check(goal)
         except CommandRejected as err:
@@ -205,7 +237,8 @@ class ActionHost:
             motion = make_motion(goal)
         except CommandRejected as err:  # the device's state changed since the goal came
             return self._refused(action_type, handle, f"{name} refused: {err}")
-        run: GoalRun[Any] = GoalRun(motion, timeout_s=float(goal.timeout_s))
+        timeout_s = float(goal.timeout_s) or motion.default_timeout_s(self.goal_timeout_s)
+        run: GoalRun[Any] = GoalRun(motion, timeout_s=timeout_s)
         run.thread = threading.current_thread()
         if reason := self._take_axes(key, run):
             return self._refused(action_type, handle, reason)
@@ -438,7 +471,7 @@ class ActionHost:
             steps = make_steps(goal)
         except CommandRejected as err:
             return self._refused(action_type, handle, f"{name} refused: {err}")
-        run = StepsRun(steps, float(goal.timeout_s))
+        run = StepsRun(steps, float(goal.timeout_s) or self.goal_timeout_s)
         with self._lock:
             older = [old for old in self._steps.values() if old.steps.axes & steps.axes]
             self._steps[key] = run

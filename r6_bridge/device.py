@@ -707,6 +707,12 @@ class RunCycleMotion(Motion[R6Snapshot]):
         self.last_cycle_at_start: int | None = None
         self.cycle_ms: int | None = None  # the current cycle time of the previous poll
 
+    def default_timeout_s(self, node_default_s: float) -> float:
+        """A single cycle ends by itself: the node's ``goal_timeout_s`` bounds it. A
+        continuous run is meant to run until stopped (cancel, ``~/stop``, the node's halts):
+        no limit unless the goal gives one (decision 27)."""
+        return node_default_s if self.single_cycle else 0.0
+
     def start(self) -> None:
         ready = self.device.check_program_command(self.command)
         if ready.global_speed_percent <= 0:
