@@ -40,6 +40,8 @@ from bridge_core.diagnostics import Level, Report
 from bridge_core.errors import CommandRejected, ConfigurationError
 from bridge_core.node_base import BridgeNode, DeviceDefaults, copy_fields, spin_node
 from bridge_core.parameters import ParameterSpec, padded
+from bridge_core.serial_timing import char_time_s
+from bridge_core.transport import SerialSettings
 from msg_defs.action import ArcMotion, LineMotion, StepperMoveBy, StepperRun
 from msg_defs.msg import StepperState
 from msg_defs.srv import (
@@ -70,9 +72,11 @@ from .device import (
 from .registers import (
     DEFAULT_BAUDRATE,
     INTERPOLATION_PAIRS,
+    LONGEST_REPLY_BYTES,
     MOTOR_ACTIONS,
     MOTOR_FORBIDDEN_DURING_INTERPOLATION,
     MOTORS,
+    REPLY_DELAY_S,
 )
 
 # StepperState fields copied from the snapshot, and per-motor configuration fields.
@@ -118,11 +122,15 @@ CLEAR_ALL_WARNING = (
 # most of the line.
 JOG_WRITE_RATE_HZ = 5.0
 
-# §3: "485 接口通信时每帧数据响应时间不能低于 35ms" (replies take at least 35 ms). The
-# largest read (49 registers, a 103-byte reply) takes 107 ms at 9600 baud more, so a
-# reply timeout below 0.15 s cannot be met: refused at start. The other reading (the host
-# must leave 35 ms between frames) is served by ``frame_gap_s`` (default 0: t3.5).
-TIMEOUT_MIN_S = 0.15
+# §3: "485 接口通信时每帧数据响应时间不能低于 35ms": the controller answers no sooner than
+# 35 ms after a request (README stepper decision 7). The reply timeout counts from the
+# request's last byte, so it must cover those 35 ms and the longest reply (a 49-register
+# read, 103 bytes: 107 ms at 9600 baud, 215 ms at 4800), plus a margin, rounded up to
+# 10 ms: 0.15 s at 9600 baud 8N1, 0.26 s at 4800, 0.10 s at 19200, 0.07 s at 38400
+# (``reply_timeout_floor_s``). A lower ``timeout_s`` is refused at start. The other
+# reading (the host must leave 35 ms between frames) is served by ``frame_gap_s``.
+TIMEOUT_MARGIN_S = 0.005
+TIMEOUT_STEP_S = 0.01
 # Actions' "reached" band (live parameter goal_tolerance): one step of the coordinate
 # registers (x100 of the user's unit, 40108+); an open-loop stepper ends on its target.
 GOAL_TOLERANCE_UNITS = 0.01
@@ -132,12 +140,36 @@ STEPPER_DEFAULTS = DeviceDefaults(
     "rtu",
     poll_rate_hz=3.0,  # a poll takes ~0.29 s at 9600 baud (README)
     baudrate=DEFAULT_BAUDRATE,
-    timeout_min_s=TIMEOUT_MIN_S,
-    # A stop coil's reply is 8 bytes after the controller's <= 35 ms: the least timeout
-    # the manual's rule allows is plenty, and keeps a stop over a line that comes back
-    # within 0.3 s of it (bench/stop_after_outage.py).
-    stop_timeout_s=TIMEOUT_MIN_S,
+    # No baud rate makes a reply come sooner than 35 ms; the floor at the configured baud
+    # rate is checked at start (check_reply_timeout).
+    timeout_min_s=REPLY_DELAY_S,
+    # A stop coil's reply is 8 bytes, no sooner than 35 ms after the request: the least
+    # timeout the manual's rule allows is plenty, and keeps a stop over a line that comes
+    # back within 0.3 s of it (bench/stop_after_outage.py). Scaled with the baud rate at
+    # start (StepperBridgeNode); this is its value at the default 9600.
+    stop_timeout_s=0.15,
 )
+
+
+def reply_timeout_floor_s(settings: SerialSettings) -> float:
+    """The least reply timeout the manual's 35 ms rule allows on this line (s)."""
+    char = char_time_s(settings.baudrate, settings.bytesize, settings.parity, settings.stopbits)
+    least = REPLY_DELAY_S + LONGEST_REPLY_BYTES * char + TIMEOUT_MARGIN_S
+    return math.ceil(round(least / TIMEOUT_STEP_S, 6)) * TIMEOUT_STEP_S
+
+
+def check_reply_timeout(settings: object) -> None:
+    """Refuse (one line) a ``timeout_s`` below the floor at the line's baud rate."""
+    if not isinstance(settings, SerialSettings):
+        return
+    floor = reply_timeout_floor_s(settings)
+    if settings.timeout_s < floor - 1e-9:
+        raise ConfigurationError(
+            f"timeout_s {settings.timeout_s:g} is below {floor:.2f} s, the least a reply can "
+            f"take at {settings.baudrate} baud: the controller answers no sooner than "
+            f"{REPLY_DELAY_S * 1000:.0f} ms after a request and the longest reply is "
+            f"{LONGEST_REPLY_BYTES} bytes (README stepper decision 7)"
+        )
 
 
 class StepperBridgeNode(BridgeNode[StepperSnapshot]):
@@ -145,6 +177,14 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
 
     def __init__(self, node_name: str = "stepper_bridge", **kwargs: Any) -> None:
         super().__init__(node_name, STEPPER_DEFAULTS, **kwargs)
+        settings = self.link.settings
+        if self._owned_link is not None:
+            check_reply_timeout(settings)  # a bus checks its own line (StepperBusNode)
+        if isinstance(settings, SerialSettings):
+            # Stops and probes while the controller is down wait this long for a reply.
+            self.channel.down_write_timeout_s = min(
+                reply_timeout_floor_s(settings), settings.timeout_s
+            )
         values = self.declare_specs(
             [
                 ParameterSpec(

@@ -80,11 +80,15 @@ I32_SCALED_MAX = ((1 << 31) - 1) / DISTANCE_SCALE
 # §3: "485 接口通信时每帧数据响应时间不能低于 35ms".
 REPLY_DELAY_S = 0.035
 MAX_REGISTERS_PER_REQUEST = 49  # §4: "可连续读取<50 个寄存器", "可连续写<50 个寄存器"
+# The longest reply: a read of 49 registers (unit, function, byte count, 98 data bytes, CRC).
+LONGEST_REPLY_BYTES = 5 + 2 * MAX_REGISTERS_PER_REQUEST
 FUNCTION_CODES = frozenset({0x03, 0x05, 0x06, 0x10})  # §4
 DEFAULT_BAUDRATE = 9600  # §3
 BAUD_RATES = (4800, 9600, 19200, 38400)  # §5(1) 40213: "一般为:4800,9600,19200,38400"
 SYSTEM_MODES = range(0, 6)  # §5(3) 40300: 0 normal, modes 1-5
-DEVICE_IDS = range(1, 256)  # §5(1) 40212: "范围 1-255"
+# §5(1) 40212: "范围 1-255": the register's range. A request can address only 1-247 (Modbus
+# RTU; 248-255 are reserved), so the bridge's unit ids stop there (bridge_core.channel).
+DEVICE_IDS = range(1, 256)
 
 # Fields of a motor block, in address order: (field, offset, type, scale, unit, min, max).
 MOTOR_FIELDS: tuple[tuple[str, int, ValueType, float, str, float, float], ...] = (
