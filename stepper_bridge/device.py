@@ -86,6 +86,15 @@ DEFAULT_CONFIG_REFRESH_S = 5.0
 DEFAULT_JOG_TIMEOUT_S = 0.5
 SPEED_MAX_RPM = 0xFFFF
 JOINT_TYPES = ("prismatic", "revolute")
+# interpolation_pair_reading: which of the manual's two readings of pair types 2 and 3 the
+# controller follows (README stepper decision 19). Unset until the hardware check in
+# docs/stepper.md settles it: pairs 2 and 3 are refused meanwhile.
+PAIR_READING_UNSET = "unset"
+PAIR_READINGS: dict[str, dict[int, tuple[int, int]]] = {
+    "type_rows": INTERPOLATION_PAIRS,
+    "point_rows": INTERPOLATION_PAIRS_POINT_ROWS,
+}
+PAIR_READING_CHOICES = (PAIR_READING_UNSET, *PAIR_READINGS)
 
 
 # ---------------------------------------------------------------- snapshots
@@ -245,35 +254,27 @@ class JointScale:
         return si * factor
 
 
-def check_pair_reading(pair: int, scales: Sequence[JointScale], leads: Sequence[float]) -> None:
-    """Refuse an interpolation pair whose SI -> units conversion depends on which of the
-    manual's two readings of the type is right (registers.INTERPOLATION_PAIRS).
+def pair_axes(pair: int, reading: str) -> tuple[int, int]:
+    """The (first, second) motor of an interpolation pair under the configured reading.
 
-    A coordinate position (first or second) is ambiguous when the readings name different
-    motors for it (types 2 and 3: motor 1 or 2 first). The pair is allowed when, for each
-    such position, those motors have the same joint type and convert with the same factor
-    (units_per_meter, or units_per_revolution / the device's lead): then the values
-    written are the same under either reading. ``scales`` and ``leads`` are per motor 1-5.
+    Pair 1 is motors 1+2 under both readings of the manual. Pairs 2 and 3 are motors 1+3
+    and 2+3 by the type rows (40182 / 40202) but 2+3 and 1+3 by the point rows under them:
+    refused (one line) until ``interpolation_pair_reading`` names the reading the hardware
+    check showed (registers.INTERPOLATION_PAIRS).
     """
-    if pair not in INTERPOLATION_PAIRS:
-        return  # refused with the full message where it is written
-    taken, other = INTERPOLATION_PAIRS[pair], INTERPOLATION_PAIRS_POINT_ROWS[pair]
-    for a, b in zip(taken, other, strict=True):
-        if a == b:
-            continue
-        first, second = scales[a - 1], scales[b - 1]
-        same = first.joint_type == second.joint_type and first.units_per_si(
-            leads[a - 1]
-        ) == second.units_per_si(leads[b - 1])
-        if not same:
-            low, high = sorted((a, b))
-            raise CommandRejected(
-                f"pair {pair} is motors {taken[0]}+{taken[1]} by the manual's 40182/40202 "
-                f"rows but {other[0]}+{other[1]} by its point rows, and motors {low} and "
-                f"{high} convert differently: until hardware confirms the reading, give "
-                f"motors {low} and {high} the same joint_types, units_per_meter / "
-                "units_per_revolution (and lead), or use pair 1"
-            )
+    _check_pair(pair)
+    by_type, by_points = INTERPOLATION_PAIRS[pair], INTERPOLATION_PAIRS_POINT_ROWS[pair]
+    if by_type == by_points:
+        return by_type
+    if reading not in PAIR_READINGS:
+        raise CommandRejected(
+            f"interpolation pair {pair} refused: the manual names motors "
+            f"{by_type[0]}+{by_type[1]} for it in its type rows (40182/40202) and "
+            f"{by_points[0]}+{by_points[1]} in its point rows; run the hardware check in "
+            "docs/stepper.md, then set interpolation_pair_reading to type_rows or point_rows "
+            "(pair 1 needs neither)"
+        )
+    return PAIR_READINGS[reading][pair]
 
 
 # ---------------------------------------------------------------- the device
@@ -288,9 +289,12 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
         *,
         config_refresh_s: float = DEFAULT_CONFIG_REFRESH_S,
         jog_timeout_s: float = DEFAULT_JOG_TIMEOUT_S,
+        pair_reading: str = PAIR_READING_UNSET,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
         super().__init__(io, STEPPER_MAP, CONFIG_PLAN, config_refresh_s, clock)
+        # Which reading of pair types 2 and 3 the controller follows (PAIR_READING_CHOICES).
+        self.pair_reading = pair_reading
         # The jog streams (one per motor) and the direction coil each motor was last sent
         # by a jog: +1 forward, -1 reverse, 0 stopped, None unknown (a write was lost).
         self.jogs: StreamGuard[int] = StreamGuard(
@@ -753,7 +757,7 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
         self, pair: int, start: tuple[float, float], end: tuple[float, float], speed_rpm: int
     ) -> None:
         """A line's pair, points and speed checked (no I/O)."""
-        _check_pair(pair)
+        self.pair_axes(pair)
         _check_integer("speed", speed_rpm, low=1)
         _check_points([("start", start), ("end", end)])
         if _same(start, end):
@@ -771,7 +775,7 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
         speed_rpm: int,
     ) -> None:
         """An arc's pair, mode, points and speed checked (no I/O)."""
-        _check_pair(pair)
+        self.pair_axes(pair)
         _check_choice("arc mode", mode, (ARC_MODE_CENTER, ARC_MODE_THREE_POINTS))
         _check_integer("speed", speed_rpm, low=1)
         _check_points([("start", start), ("end", end), ("center", center), ("via", via)])
@@ -860,6 +864,10 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
         self.interpolation_run = None
 
     # ------------------------------------------------------------------ interpolation state
+    def pair_axes(self, pair: int) -> tuple[int, int]:
+        """The pair's (first, second) motor by the configured reading (``pair_axes``)."""
+        return pair_axes(pair, self.pair_reading)
+
     def pair_motors(self, pair: int) -> tuple[int, ...]:
         """The pair's motors under either reading of the type (decision 11)."""
         return tuple(
@@ -1109,7 +1117,15 @@ class CoilMotion(StepperMotion):
 
 
 class InterpolationMotion(StepperMotion):
-    """Line / arc interpolation: ``begin`` is the device's line_move / arc_move."""
+    """Line / arc interpolation: ``begin`` is the device's line_move / arc_move.
+
+    The target is the end point on the pair's motors by the configured reading. The
+    coordinates of every motor either reading names (1-3 for pairs 2 and 3) are read
+    before the start: a motor outside the configured pair that moves away from its
+    coordinate (the controller follows the other reading) ends the goal at once, HALTED
+    (the interpolation stops are sent), naming the motors that moved; every other ending
+    says which motors moved (README stepper decision 19).
+    """
 
     def __init__(
         self,
@@ -1122,9 +1138,7 @@ class InterpolationMotion(StepperMotion):
         *,
         tolerance: float,
     ) -> None:
-        _check_pair(pair)
-        readings = (INTERPOLATION_PAIRS[pair], INTERPOLATION_PAIRS_POINT_ROWS[pair])
-        targets = [{a: end[0], b: end[1]} for a, b in readings]
+        a, b = device.pair_axes(pair)
         motors = device.pair_motors(pair)
         super().__init__(
             device,
@@ -1132,14 +1146,54 @@ class InterpolationMotion(StepperMotion):
             motors,
             what,
             tolerance=tolerance,
-            targets=targets,
+            targets=[{a: end[0], b: end[1]}],
             interpolation=True,
             idle_polls_to_end=2,  # the approach to the start, then the line / arc
         )
+        self.pair = pair
+        self.expected = (a, b)
+        self.start_coordinates: dict[int, float] = {}
         self._begin = begin
 
     def begin(self) -> None:
+        names = [motor_register(m, "coordinate") for m in self.motors]
+        values = self.device.read_named(*names)
+        self.start_coordinates = {
+            m: float(values[name]) for m, name in zip(self.motors, names, strict=True)
+        }
         self._begin()
+
+    def moved(self, snapshot: StepperSnapshot) -> list[int]:
+        """The motors of either reading whose coordinate left its value at the start."""
+        return [
+            m
+            for m, at_start in self.start_coordinates.items()
+            if not within(snapshot.coordinates[m - 1], at_start, self.tolerance)
+        ]
+
+    def fault(self, snapshot: StepperSnapshot) -> Verdict | None:
+        wrong = [m for m in self.moved(snapshot) if m not in self.expected]
+        if not wrong:
+            return None
+        a, b = self.expected
+        where = ", ".join(
+            f"motor {m} {self.start_coordinates[m]:g} -> {snapshot.coordinates[m - 1]:g}"
+            for m in wrong
+        )
+        return Verdict(
+            Outcome.HALTED,
+            f"{self.what}: stopped, a motor outside the pair moved ({where} units): "
+            f"interpolation_pair_reading {self.device.pair_reading} names motors {a}+{b} "
+            f"for pair {self.pair}, the controller follows the other reading "
+            "(docs/stepper.md hardware check)",
+        )
+
+    def ended(self, snapshot: StepperSnapshot) -> Verdict:
+        verdict = super().ended(snapshot)
+        moved = "+".join(map(str, self.moved(snapshot))) or "none"
+        return Verdict(
+            verdict.outcome, f"{verdict.message}; motors moved: {moved} (coordinates read back)"
+        )
 
 
 def _limit_on(snapshot: StepperSnapshot, motor: int) -> str | None:
@@ -1156,6 +1210,8 @@ def _limit_on(snapshot: StepperSnapshot, motor: int) -> str | None:
 
 __all__ = [
     "DESTRUCTIVE_COMMANDS",
+    "PAIR_READING_CHOICES",
+    "PAIR_READING_UNSET",
     "SYSTEM_COILS",
     "SYSTEM_COMMANDS",
     "CoilMotion",

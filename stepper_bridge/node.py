@@ -15,9 +15,10 @@ the motor's speed register; when the jog ends (0, deadman, stop service, e-stop,
 shutdown) the configured speed is written back after the stop (a failure is logged and
 shown in diagnostics, and retried).
 
-Interpolation pairs: types 2 and 3 are refused unless motors 1 and 2 convert alike (the
-manual's two readings of the type, README stepper decision 11); a second line / arc is
-refused while one this bridge started runs (decision 14).
+Interpolation pairs: types 2 and 3 are refused until ``interpolation_pair_reading`` says
+which of the manual's two readings the controller follows (README stepper decisions 11,
+19); a line / arc goal that moves a motor outside the configured pair is stopped; a second
+line / arc is refused while one this bridge started runs (decision 14).
 
 Standalone setters per motor: ``set_speed`` (rpm, like ``configure`` and the jog),
 ``set_direction`` (0/1), ``set_run_distance`` (m / rad, like ``move_by``) and
@@ -60,6 +61,8 @@ from msg_defs.srv import (
 from .device import (
     DESTRUCTIVE_COMMANDS,
     JOINT_TYPES,
+    PAIR_READING_CHOICES,
+    PAIR_READING_UNSET,
     SYSTEM_COMMANDS,
     CoilMotion,
     InterpolationMotion,
@@ -67,7 +70,6 @@ from .device import (
     MoveByMotion,
     StepperDevice,
     StepperSnapshot,
-    check_pair_reading,
 )
 from .registers import (
     DEFAULT_BAUDRATE,
@@ -230,6 +232,14 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
                     live=True,
                 ),
                 ParameterSpec(
+                    "interpolation_pair_reading",
+                    PAIR_READING_UNSET,
+                    "which motors interpolation pairs 2 and 3 drive: the manual's type rows "
+                    "(2 = motors 1+3, 3 = 2+3) or point rows (2 = 2+3, 3 = 1+3); unset "
+                    "refuses pairs 2 and 3 until the hardware check in docs/stepper.md",
+                    choices=PAIR_READING_CHOICES,
+                ),
+                ParameterSpec(
                     "config_refresh_s",
                     5.0,
                     "re-read the motor parameters this often",
@@ -245,6 +255,7 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
             self.channel,
             config_refresh_s=float(values["config_refresh_s"]),
             jog_timeout_s=float(values["command_timeout_s"]),
+            pair_reading=str(values["interpolation_pair_reading"]).lower(),
         )
         self.device.on_speed_restore_failure = self._speed_restore_failed
         self.goal_tolerance = float(values["goal_tolerance"])
@@ -313,6 +324,7 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
             ("device id", str(s.config.device_id)),
             ("baud rate", str(s.config.baud_rate)),
             ("system mode", str(s.config.system_mode)),
+            ("interpolation pair reading", self.device.pair_reading),
             ("motors running", ", ".join(running) or "none"),
             (
                 "jogging",
@@ -527,7 +539,6 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
 
     def _line_motion(self, goal: Any) -> InterpolationMotion:
         self._check_interpolation_allowed()
-        self._check_pair_reading(goal.pair)
         start = self._pair_units(goal.pair, goal.start, "start") or (0.0, 0.0)
         end = self._pair_units(goal.pair, goal.end, "end") or (0.0, 0.0)
         speed = int(goal.speed_rpm)
@@ -544,7 +555,6 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
 
     def _arc_motion(self, goal: Any) -> InterpolationMotion:
         self._check_interpolation_allowed()
-        self._check_pair_reading(goal.pair)
         start, end, center, via = (
             self._pair_units(goal.pair, point, what) or (0.0, 0.0)
             for point, what in (
@@ -587,17 +597,12 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
     def _clear_all_reply(response: Any, _result: object) -> None:
         response.message = f"{response.message}; {CLEAR_ALL_WARNING}"
 
-    def _check_pair_reading(self, pair: int) -> None:
-        """Types 2 and 3 only while the manual's two readings convert alike."""
-        leads = [self._lead(m) for m in range(1, MOTORS + 1)]
-        check_pair_reading(pair, self.scales, leads)
-
     def _pair_units(
         self, pair: int, point: Sequence[float], what: str
     ) -> tuple[float, float] | None:
         if pair not in INTERPOLATION_PAIRS:
             return None  # the device layer refuses the pair with the full message
-        a, b = INTERPOLATION_PAIRS[pair]
+        a, b = self.device.pair_axes(pair)  # refused while the reading is unset
         if len(point) != 2:
             raise CommandRejected(f"{what} needs 2 coordinates")
         return (self.to_units(a, point[0]), self.to_units(b, point[1]))
@@ -612,14 +617,12 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
 
     def _line_move(self, r: Any) -> None:
         self._check_interpolation_allowed()
-        self._check_pair_reading(r.pair)
         start = self._pair_units(r.pair, r.start, "start") or (0.0, 0.0)
         end = self._pair_units(r.pair, r.end, "end") or (0.0, 0.0)
         self.device.line_move(r.pair, start, end, r.speed_rpm)
 
     def _arc_move(self, r: Any) -> None:
         self._check_interpolation_allowed()
-        self._check_pair_reading(r.pair)
         points = [
             self._pair_units(r.pair, p, what) or (0.0, 0.0)
             for p, what in (

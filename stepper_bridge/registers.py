@@ -37,9 +37,9 @@ Readings taken (also in README "stepper decisions"):
   40137-40147, 40160-40167, 40173-40176, 40215-40299) are not in the map: the planner
   never reads through them and the simulator answers 0x02.
 - Interpolation pair types (40182 / 40202): the type rows say 1 = motors 1+2, 2 = 1+3,
-  3 = 2+3; the point rows below them say 2 = 2+3, 3 = 1+3. The type rows are taken (see
-  INTERPOLATION_PAIRS); types 2 and 3 are refused by the node while the two readings would
-  convert the first coordinate differently.
+  3 = 2+3; the point rows below them say 2 = 2+3, 3 = 1+3. Descriptions follow the type
+  rows (INTERPOLATION_PAIRS); types 2 and 3 are refused until the node's
+  interpolation_pair_reading says which reading the controller follows.
 - Value ranges: where the manual gives one (direction 0/1, input numbers 1-13 or 0 for
   none, homing order 0-5, interpolation type 0-3, arc mode and direction 0/1, device id
   1-255, system mode 0-5, baud rates 4800/9600/19200/38400) it is enforced; elsewhere the
@@ -131,10 +131,10 @@ OUTPUT_COIL_FIRST = 49  # 00049-00072: output n on = 49 + 2(n-1), off = 50 + 2(n
 # - every point row (40184-40199, 40203-40210): first coordinate "若为类型 1、3,则为 1 号
 #   电机...;若为类型 2, 则为 2 号电机", second "若为类型 1,则为 2 号电机...;若为类型2、3,
 #   则为3号电机" (1 = 1+2, 2 = 2+3, 3 = 1+3).
-# The bridge takes the type rows: they define the register written, say it identically
-# twice, and name the pairs in order. Only the first coordinate of types 2 and 3 differs
-# (motor 1 or 2); until hardware confirms the reading the node refuses those types unless
-# motors 1 and 2 convert SI -> units alike (stepper_bridge.device.check_pair_reading).
+# Descriptions follow the type rows: they define the register written, say it identically
+# twice, and name the pairs in order. Types 2 and 3 are refused until the node's
+# interpolation_pair_reading names the reading a hardware check showed (README stepper
+# decision 19, stepper_bridge.device.pair_axes).
 INTERPOLATION_PAIRS: dict[int, tuple[int, int]] = {1: (1, 2), 2: (1, 3), 3: (2, 3)}
 # The point rows' reading, kept to tell which motors the two readings disagree on.
 INTERPOLATION_PAIRS_POINT_ROWS: dict[int, tuple[int, int]] = {1: (1, 2), 2: (2, 3), 3: (1, 3)}

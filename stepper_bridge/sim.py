@@ -24,9 +24,11 @@ Behaviour (from the manual, plus what a test needs to see):
 - outputs: 0xFF00 to coil 00049+2(n-1) switches output n on, to 00050+2(n-1) off; all on
   / all off; the e-stop stops every motor, every interpolation and switches every output
   off;
-- line and arc interpolation: the pair's motors first run to the start point each at its
-  own speed, then follow the line / arc at the interpolation speed (rpm x the first
-  motor's lead); the stop coils end it;
+- line and arc interpolation: the pair's motors (by the type rows, 40182 / 40202; a test
+  sets ``pair_reading`` to "point_rows" to play a controller that follows the point rows,
+  README stepper decision 19) first run to the start point each at its own speed, then
+  follow the line / arc at the interpolation speed (rpm x the first motor's lead); the stop
+  coils end it;
 - while a line or arc interpolation runs (approach included), a write to 40182-40211 or
   to a start coil (00100 / 00102) answers 0x03 and changes nothing (§5(1) 40201 / 40211
   "插补过程运行中不可调节"; README stepper decision 14); the stop coils and the e-stop work;
@@ -65,6 +67,7 @@ from .registers import (
     DEFAULT_BAUDRATE,
     INPUTS,
     INTERPOLATION_PAIRS,
+    INTERPOLATION_PAIRS_POINT_ROWS,
     INTERPOLATION_REGISTERS,
     MOTOR_ACTIONS,
     MOTOR_COILS,
@@ -145,6 +148,9 @@ class StepperSimDevice(SimulatedDevice):
         self.homing_queue: list[int] = []
         self.forced_inputs: set[int] = set()
         self.saves = 0
+        # Which reading of pair types 2 and 3 this controller follows: "type_rows" (1+3,
+        # 2+3) or "point_rows" (2+3, 1+3).
+        self.pair_reading = "type_rows"
         # Told (old id, new id) when the device id changes, so the server answers the new
         # unit only (make_simulator re-keys its units).
         self.on_unit_id_change: Callable[[int, int], None] = lambda _old, _new: None
@@ -343,7 +349,8 @@ class StepperSimDevice(SimulatedDevice):
         pair = int(self.get(f"{prefix}_pair"))
         if pair not in INTERPOLATION_PAIRS:
             return
-        a, b = INTERPOLATION_PAIRS[pair]
+        pairs = INTERPOLATION_PAIRS_POINT_ROWS if self.pair_reading == "point_rows" else None
+        a, b = (pairs or INTERPOLATION_PAIRS)[pair]
 
         def point(name: str) -> tuple[float, float]:
             return (float(self.get(f"{name}_a")), float(self.get(f"{name}_b")))

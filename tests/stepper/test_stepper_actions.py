@@ -194,3 +194,31 @@ def test_stepper_actions(sim: tuple[StepperSimDevice, str], client: Client, tmp_
         assert not b.send_goal(StepperMoveBy, "motor_1/move_by", distance=10 * MM).accepted
         client.wait_log("stepper_bridge", "move_by goal rejected: the node is not active")
         assert writes(device)[mark:] == []
+
+
+def test_a_line_on_the_wrong_motors_is_stopped_and_aborted(
+    sim: tuple[StepperSimDevice, str], client: Client, tmp_path: Path
+) -> None:
+    """Issue 20: configured for the type rows (pair 2 = motors 1+3) on a controller that
+    follows the point rows (2+3): motor 2 moves, the goal is stopped (the interpolation
+    stop coils) and aborted, its result naming the motor; a matching one says which moved."""
+    device, port = sim
+    device.pair_reading = "point_rows"
+    with bridge(client, tmp_path, port, interpolation_pair_reading="type_rows") as (b, _proc):
+        client.wait_message(b.state)
+        goal = b.send_goal(
+            LineMotion, "line_move", pair=2, start=[0.005, 0.004], end=[0.009, 0.012], speed_rpm=600
+        )
+        assert goal.accepted
+        result = outcome_of(goal, fed=False)
+        outcome = result.outcome
+        assert outcome.code == MotionOutcome.HALTED and outcome.stop_sent, outcome.message
+        assert "motor 2 0 ->" in outcome.message and "type_rows" in outcome.message
+        assert device.interpolation is None
+        assert coil_writes(device)[-2:] == [100, 102]  # arc stop 00101, line stop 00103
+        device.pair_reading = "type_rows"
+        goal = b.send_goal(
+            LineMotion, "line_move", pair=2, start=[0.0, 0.0], end=[0.004, 0.002], speed_rpm=600
+        )
+        result = outcome_of(goal, GoalStatus.STATUS_SUCCEEDED)
+        assert result.outcome.message.endswith("motors moved: 1+3 (coordinates read back)")
