@@ -726,6 +726,14 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
                 self.interpolation_run = None  # "完成所有电机急停": the move ended
                 self._restore_after_stop(list(range(1, MOTORS + 1)))
 
+    def zero_coordinates(self, motors: Sequence[int]) -> dict[int, float]:
+        """The "坐标清零" coil (00044; it names no motor: every coordinate), then the
+        coordinates of ``motors`` read back (user units)."""
+        self.system_command("zero_coordinates")
+        names = {m: motor_register(m, "coordinate") for m in motors}
+        values = self.read_named(*names.values())
+        return {m: float(values[name]) for m, name in names.items()}
+
     def destructive_command(self, name: str, confirmation: str) -> None:
         """Factory reset (00073) or clear all parameters (00097): ``confirmation`` must
         repeat the command's name."""
@@ -1116,6 +1124,95 @@ class CoilMotion(StepperMotion):
             self.device.system_command(self.command)
 
 
+class HomeMotion(CoilMotion):
+    """Homing one motor (its home coil) or all in the homing order (00046), judged by the
+    home input (README stepper decision 20).
+
+    Over when its motors stand (running flags off, two idle polls for home_all); REACHED
+    when each homed motor's home input (40083+) is on, the message giving the coordinate
+    there. The manual stops homing at the home switch ("直到碰到机械零点信号才停止") and
+    wires home to the reverse limit input ("一般情况下反限位与原点设定同一个触发信号输入口"),
+    but never says that the controller zeroes the coordinate there (it has a separate
+    "坐标清零" coil, 00044): the coordinate is reported as read. ``zero`` (the node's
+    ``zero_after_home``) sends that coil after a REACHED homing and returns the homed
+    motors' coordinates read back (or raises, or says why it failed); any of them off 0
+    ends the goal FAULT.
+    """
+
+    def __init__(
+        self,
+        device: StepperDevice,
+        scales: Sequence[JointScale],
+        command: str,
+        motors: Sequence[int],
+        *,
+        tolerance: float,
+        homed: Sequence[int] | None = None,
+        zero: Callable[[Sequence[int]], tuple[bool, str, dict[int, float] | None]] | None = None,
+    ) -> None:
+        super().__init__(device, scales, command, motors, tolerance=tolerance, homed=homed)
+        self.homed = tuple(motors if homed is None else homed)
+        config = device.config  # refused until the configuration was read
+        for motor in self.homed:
+            number = config.motors[motor - 1].home_input
+            if not 1 <= number <= INPUTS:
+                raise CommandRejected(
+                    f"motor {motor} has no home input (40083+ reads {number}): homing would "
+                    "run in reverse until a stop (直到碰到机械零点信号才停止); set one with "
+                    f"~/motor_{motor}/set_limit_inputs"
+                )
+        self.zero = zero
+
+    def ended(self, snapshot: StepperSnapshot) -> Verdict:
+        coordinates = snapshot.coordinates
+        if self.device.estops > self.estops_at_start:
+            return Verdict(Outcome.LIMIT, f"{self.what}: ended by the e-stop (~/emergency_stop)")
+        at_home: list[str] = []
+        for motor in self.homed:
+            number = snapshot.config.motors[motor - 1].home_input
+            if not (1 <= number <= len(snapshot.inputs) and snapshot.inputs[number - 1]):
+                here = f"coordinate {coordinates[motor - 1]:g}"
+                if (switch := _limit_on(snapshot, motor)) is not None:
+                    return Verdict(
+                        Outcome.LIMIT,
+                        f"{self.what}: motor {motor} stopped at its {switch}, its home input "
+                        f"IN{number} off ({here})",
+                    )
+                return Verdict(
+                    Outcome.STOPPED,
+                    f"{self.what}: motor {motor} stopped with its home input IN{number} off "
+                    f"({here})",
+                )
+            at_home.append(f"motor {motor} IN{number} on at coordinate {coordinates[motor - 1]:g}")
+        return Verdict(Outcome.REACHED, f"{self.what}: done, home input on ({', '.join(at_home)})")
+
+    def judge(self, snapshot: StepperSnapshot, since_start_s: float = math.inf) -> Verdict | None:
+        verdict = super().judge(snapshot, since_start_s)
+        if verdict is None or verdict.outcome is not Outcome.REACHED:
+            return verdict
+        if self.zero is None:
+            return Verdict(
+                verdict.outcome, f"{verdict.message}; coordinates not zeroed (zero_after_home)"
+            )
+        ok, message, read_back = self.zero(self.homed)
+        if not ok or read_back is None:
+            return Verdict(Outcome.FAULT, f"{verdict.message}; zeroing failed: {message}")
+        off = [
+            f"motor {m} reads {v:g}"
+            for m, v in read_back.items()
+            if not within(v, 0.0, self.tolerance)
+        ]
+        if off:
+            return Verdict(
+                Outcome.FAULT,
+                f"{verdict.message}; after the zero coordinates coil (00044) {', '.join(off)}",
+            )
+        return Verdict(
+            verdict.outcome,
+            f"{verdict.message}; coordinates zeroed (coil 00044: every motor's coordinate)",
+        )
+
+
 class InterpolationMotion(StepperMotion):
     """Line / arc interpolation: ``begin`` is the device's line_move / arc_move.
 
@@ -1215,6 +1312,7 @@ __all__ = [
     "SYSTEM_COILS",
     "SYSTEM_COMMANDS",
     "CoilMotion",
+    "HomeMotion",
     "InterpolationConfig",
     "InterpolationMotion",
     "JointScale",

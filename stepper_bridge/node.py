@@ -65,6 +65,7 @@ from .device import (
     PAIR_READING_UNSET,
     SYSTEM_COMMANDS,
     CoilMotion,
+    HomeMotion,
     InterpolationMotion,
     JointScale,
     MoveByMotion,
@@ -240,6 +241,12 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
                     choices=PAIR_READING_CHOICES,
                 ),
                 ParameterSpec(
+                    "zero_after_home",
+                    False,
+                    "home actions: after the home input is reached, send the zero coordinates "
+                    "coil (00044, every motor's coordinate) and check the homed motors read 0",
+                ),
+                ParameterSpec(
                     "config_refresh_s",
                     5.0,
                     "re-read the motor parameters this often",
@@ -259,6 +266,7 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
         )
         self.device.on_speed_restore_failure = self._speed_restore_failed
         self.goal_tolerance = float(values["goal_tolerance"])
+        self.zero_after_home = bool(values["zero_after_home"])
         self.on_parameter("goal_tolerance", lambda value: setattr(self, "goal_tolerance", value))
         self.joint_names = [f"{self.joint_prefix}motor_{m}" for m in range(1, MOTORS + 1)]
         self.state_pub = self.create_publisher(StepperState, "~/state", 10)
@@ -502,20 +510,21 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
             self.actions.motion(
                 StepperRun,
                 f"~/motor_{n}/home",
-                lambda _goal, n=n: CoilMotion(  # type: ignore[misc]
-                    d, self.scales, "home", (n,), tolerance=self.goal_tolerance
+                lambda _goal, n=n: HomeMotion(  # type: ignore[misc]
+                    d, self.scales, "home", (n,), tolerance=self.goal_tolerance, zero=self._zero()
                 ),
             )
         self.actions.motion(
             StepperRun,
             "~/home_all",
-            lambda _goal: CoilMotion(
+            lambda _goal: HomeMotion(
                 d,
                 self.scales,
                 "home_all",
                 every_motor,
                 tolerance=self.goal_tolerance,
                 homed=self._homing_order(),
+                zero=self._zero(),
             ),
         )
         self.actions.motion(
@@ -527,6 +536,14 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
         )
         self.actions.motion(LineMotion, "~/line_move", self._line_motion)
         self.actions.motion(ArcMotion, "~/arc_move", self._arc_motion)
+
+    def _zero(self) -> Callable[[Sequence[int]], tuple[bool, str, dict[int, float] | None]] | None:
+        """zero_after_home: the zero coordinates coil as a guarded command, read back."""
+        if not self.zero_after_home:
+            return None
+        return lambda motors: self.run_command(
+            "zero coordinates after homing", lambda: self.device.zero_coordinates(motors)
+        )
 
     def _homing_order(self) -> list[int]:
         order = [m for m in self.device.config.homing_order if m]

@@ -13,7 +13,8 @@ Behaviour (from the manual, plus what a test needs to see):
   register's rpm x lead (units per second, read live: "运行中可以调节") until the stop
   coil, the e-stop or the limit input in that direction; a single run covers the run
   distance in the direction register's sense; home runs in reverse until the motor's
-  home input is on, then its coordinate is 0; "return to zero" runs each motor back to
+  home input is on, then its coordinate is 0 (unless ``zero_at_home`` is False: a
+  controller that leaves it, README stepper decision 20); "return to zero" runs each motor back to
   coordinate 0; "home all" homes the motors of 40177-40181 one after the other. Speed 0
   (or lead 0) does not run ("若速度为0则不运行");
 - switches: each motor's home and negative limit switch is at physical 0, its positive
@@ -151,6 +152,9 @@ class StepperSimDevice(SimulatedDevice):
         # Which reading of pair types 2 and 3 this controller follows: "type_rows" (1+3,
         # 2+3) or "point_rows" (2+3, 1+3).
         self.pair_reading = "type_rows"
+        # Whether homing sets the coordinate to 0 at the home switch (the manual does not
+        # say; README stepper decision 20): False plays a controller that leaves it.
+        self.zero_at_home = True
         # Told (old id, new id) when the device id changes, so the server answers the new
         # unit only (make_simulator re-keys its units).
         self.on_unit_id_change: Callable[[int, int], None] = lambda _old, _new: None
@@ -416,7 +420,8 @@ class StepperSimDevice(SimulatedDevice):
                 return
             direction, target = (1.0 if motion.target > p else -1.0), motion.target
         if motion.kind == "home" and self.input_on(self._assigned(m, "home")):
-            self.offset[m] = p  # at the home switch: the coordinate is 0
+            if self.zero_at_home:
+                self.offset[m] = p  # at the home switch: the coordinate is 0
             self._finish(m)
             return
         if self._blocked(m, direction):

@@ -196,12 +196,14 @@ def test_stepper_actions(sim: tuple[StepperSimDevice, str], client: Client, tmp_
         assert writes(device)[mark:] == []
 
 
-def test_a_line_on_the_wrong_motors_is_stopped_and_aborted(
+def test_a_line_on_the_wrong_motors_is_stopped_and_homing_needs_no_zero(
     sim: tuple[StepperSimDevice, str], client: Client, tmp_path: Path
 ) -> None:
     """Issue 20: configured for the type rows (pair 2 = motors 1+3) on a controller that
     follows the point rows (2+3): motor 2 moves, the goal is stopped (the interpolation
-    stop coils) and aborted, its result naming the motor; a matching one says which moved."""
+    stop coils) and aborted, its result naming the motor; a matching one says which moved.
+    A controller that leaves the coordinate at home: the home goal succeeds (home input on,
+    motor stopped) with the coordinate there, nothing zeroed (zero_after_home false)."""
     device, port = sim
     device.pair_reading = "point_rows"
     with bridge(client, tmp_path, port, interpolation_pair_reading="type_rows") as (b, _proc):
@@ -222,3 +224,9 @@ def test_a_line_on_the_wrong_motors_is_stopped_and_aborted(
         )
         result = outcome_of(goal, GoalStatus.STATUS_SUCCEEDED)
         assert result.outcome.message.endswith("motors moved: 1+3 (coordinates read back)")
+        device.zero_at_home = False
+        mark = len(writes(device))
+        result = outcome_of(b.send_goal(StepperRun, "motor_4/home"), GoalStatus.STATUS_SUCCEEDED)
+        assert "motor 4 IN8 on at coordinate -50" in result.outcome.message
+        assert result.positions[3] == pytest.approx(-START_POSITION * MM)
+        assert coil_writes(device, mark) == [motor_coil(4, "home")]

@@ -25,6 +25,7 @@ from bridge_core.registers import Table
 from bridge_core.sim_base import Simulator
 from bridge_core.transport import ModbusLink, SerialSettings
 from stepper_bridge.device import (
+    HomeMotion,
     InterpolationMotion,
     JointScale,
     StepperDevice,
@@ -749,6 +750,10 @@ def test_pairs_2_and_3_write_nothing_while_the_reading_is_unset(rig: Rig) -> Non
 def follow(rig: Rig, motion: StepperMotion) -> Verdict:
     """Start ``motion`` and judge every poll after it, as the node's goal thread does."""
     motion.start()
+    return follow_started(rig, motion)
+
+
+def follow_started(rig: Rig, motion: StepperMotion) -> Verdict:
     started = time.monotonic()
     while True:
         snapshot = rig.device.poll()
@@ -803,6 +808,64 @@ def test_a_line_on_the_configured_motors_says_which_moved(rig: Rig, pair: int, m
     verdict = follow(rig, line_goal(rig, pair))
     assert verdict.outcome is Outcome.REACHED, verdict.message
     assert verdict.message.endswith(f"motors moved: {moved} (coordinates read back)")
+
+
+def home_goal(rig: Rig, motor: int, **kwargs: Any) -> HomeMotion:
+    rig.device.poll()  # the configuration, as the node has it before any goal
+    return HomeMotion(rig.device, [JointScale()] * 5, "home", (motor,), tolerance=0.01, **kwargs)
+
+
+def test_homing_is_judged_by_the_home_input_not_a_zero_coordinate(rig: Rig) -> None:
+    """Issue 20: a controller that does not zero the coordinate at home ends the homing
+    REACHED (home input on, motor stopped) with the coordinate it reads; it used to end
+    LIMIT (home is wired to the reverse limit input)."""
+    d, fake = rig.device, rig.fake
+    fake.zero_at_home = False
+    d.set_speed(2, 1200)
+    verdict = follow(rig, home_goal(rig, 2))
+    assert verdict.outcome is Outcome.REACHED, verdict.message
+    assert "motor 2 IN4 on at coordinate -50" in verdict.message
+    assert verdict.message.endswith("coordinates not zeroed (zero_after_home)")
+    assert fake.position[2] == 0.0 and d.poll().coordinates[1] == -START_POSITION
+    assert (5, Table.COIL, 43, (1,)) not in rig.writes()  # no zero coordinates coil
+
+
+def test_zero_after_home_sends_the_zero_coil_and_checks_it(rig: Rig) -> None:
+    d, fake = rig.device, rig.fake
+    fake.zero_at_home = False
+    d.set_speed(3, 1200)
+
+    def zero(motors: Any) -> tuple[bool, str, dict[int, float]]:
+        return True, "", d.zero_coordinates(motors)
+
+    verdict = follow(rig, home_goal(rig, 3, zero=zero))
+    assert verdict.outcome is Outcome.REACHED, verdict.message
+    assert "coordinates zeroed (coil 00044" in verdict.message
+    assert rig.writes()[-1] == (5, Table.COIL, 43, (1,)) and d.poll().coordinates[2] == 0.0
+    # A coil that leaves a coordinate off 0 (here: answered, ignored) is a FAULT.
+    fake.position[3] = 10.0
+    d.poll()
+
+    def ignored(motors: Any) -> tuple[bool, str, dict[int, float]]:
+        return True, "", {3: 1.5}
+
+    verdict = follow(rig, home_goal(rig, 3, zero=ignored))
+    assert verdict.outcome is Outcome.FAULT and "motor 3 reads 1.5" in verdict.message
+
+
+def test_homing_that_ends_off_the_home_input(rig: Rig) -> None:
+    d, fake = rig.device, rig.fake
+    d.set_speed(4, 60)  # 5 units/s: stopped on the way
+    motion = home_goal(rig, 4)
+    motion.start()
+    wait_until(lambda: d.poll().running[3])
+    d.motor_action(4, "stop")
+    verdict = follow_started(rig, motion)
+    assert verdict.outcome is Outcome.STOPPED and "home input IN8 off" in verdict.message
+    d.set_limit_inputs(5, 9, 10, 0)
+    with pytest.raises(CommandRejected, match="motor 5 has no home input"):
+        home_goal(rig, 5)
+    assert fake.motion[5] is None
 
 
 def test_stepper_sim_cli_on_its_own_pty(tmp_path: Path) -> None:
