@@ -36,7 +36,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
-from bridge_core.channel import RegisterIO
+from bridge_core.channel import Priority, RegisterIO
 from bridge_core.checks import (
     check_choice,
     check_finite,
@@ -85,6 +85,8 @@ LIMIT_FIELDS = ("positive_limit_input", "negative_limit_input", "home_input")
 DEFAULT_CONFIG_REFRESH_S = 5.0
 DEFAULT_JOG_TIMEOUT_S = 0.5
 SPEED_MAX_RPM = 0xFFFF
+# Coils that stop motion: sent at Priority.STOP (with each motor's stop coil).
+_STOP_COILS = frozenset({"emergency_stop", "arc_stop", "line_stop"})
 JOINT_TYPES = ("prismatic", "revolute")
 # interpolation_pair_reading: which of the manual's two readings of pair types 2 and 3 the
 # controller follows (README stepper decision 19). Unset until the hardware check in
@@ -430,7 +432,10 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
                 self._configured_speed[motor] = int(value)
 
     def _coil(self, name: str) -> None:
-        self.io.write_coil(STEPPER_MAP[name].address, True)
+        # Stops go in the line's next free slot, before other controllers' commands and
+        # polls (README stepper decision 18).
+        priority = Priority.STOP if name in _STOP_COILS else Priority.COMMAND
+        self.io.write_coil(STEPPER_MAP[name].address, True, priority)
 
     # ------------------------------------------------------------------ motor commands
     def motor_action(self, motor: int, action: str) -> None:
@@ -444,7 +449,8 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
                 # (the service takes the motor over from any jog).
                 self.restore_speeds([motor], include_jogging=True)
             try:
-                self.io.write_coil(motor_coil(motor, action), True)
+                priority = Priority.STOP if action == "stop" else Priority.COMMAND
+                self.io.write_coil(motor_coil(motor, action), True, priority)
             except LinkError:
                 if action == "stop":
                     self.jogs.stop_failed(motor)  # a jog it meant to end: its stop pending
@@ -628,7 +634,7 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
             raise
 
     def _jog_stop_coil(self, motor: int) -> None:
-        self.io.write_coil(motor_coil(motor, "stop"), True)
+        self.io.write_coil(motor_coil(motor, "stop"), True, Priority.STOP)
         self._direction[motor] = 0
 
     # ------------------------------------------------------------------ jog speed restore
