@@ -34,7 +34,7 @@ import itertools
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from bridge_core.channel import Priority, RegisterIO
 from bridge_core.checks import (
@@ -153,12 +153,29 @@ class StepperConfig:
 
 @dataclass(frozen=True)
 class InterpolationRun:
-    """A line / arc the bridge started: its motors (under both readings of the pair) and
-    the first poll sequence number that began after its start coil was sent."""
+    """A line / arc the bridge started: its motors (under both readings of the pair), the
+    first poll sequence number that began after its start coil was sent, the pair's motors
+    by the configured reading and every motor's coordinate read before the start."""
 
     kind: str
     motors: tuple[int, ...]
     first_poll: int
+    pair: int = 0
+    expected: tuple[int, ...] = ()
+    start_coordinates: dict[int, float] = field(default_factory=dict)
+
+    def moved(self, coordinates: Sequence[float]) -> list[int]:
+        """Motors of either reading whose coordinate is off its value at the start by a
+        step or more (the registers count hundredths of a unit)."""
+        return [
+            m
+            for m, at_start in self.start_coordinates.items()
+            if round(coordinates[m - 1] * DISTANCE_SCALE) != round(at_start * DISTANCE_SCALE)
+        ]
+
+    def wrong_motors(self, coordinates: Sequence[float]) -> list[int]:
+        """Moved motors outside the configured pair (the controller reads it otherwise)."""
+        return [m for m in self.moved(coordinates) if m not in self.expected]
 
 
 @dataclass(frozen=True)
@@ -328,6 +345,10 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
         # "插补过程运行中不可调节"; a second line / arc is refused meanwhile.
         self._next_poll = 0
         self.interpolation_run: InterpolationRun | None = None
+        # A line / arc that moved a motor outside its configured pair, once per run: the
+        # node stops it (README stepper decision 19). Set by a poll, taken by the node.
+        self._wrong_pair: str | None = None
+        self._wrong_pair_run: InterpolationRun | None = None
         self.estops = 0  # e-stops this bridge sent (acknowledged)
 
     # ------------------------------------------------------------------ reads
@@ -391,12 +412,12 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
         self._next_poll += 1
         v, read_time = self.poll_status(STATUS_PLAN, STAMP_REGISTER)
         running = tuple(bool(v[motor_register(m, "running")]) for m in range(1, MOTORS + 1))
+        coordinates = tuple(float(v[motor_register(m, "coordinate")]) for m in range(1, MOTORS + 1))
+        self._note_wrong_pair(coordinates)
         self._note_running(sequence, running)
         return StepperSnapshot(
             read_time=read_time,
-            coordinates=tuple(
-                float(v[motor_register(m, "coordinate")]) for m in range(1, MOTORS + 1)
-            ),
+            coordinates=coordinates,
             running=running,
             inputs=tuple(bool(v[f"input_{n}"]) for n in range(1, INPUTS + 1)),
             outputs=tuple(bool(v[f"output_{n}"]) for n in range(1, OUTPUTS + 1)),
@@ -736,9 +757,7 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
         """The "坐标清零" coil (00044; it names no motor: every coordinate), then the
         coordinates of ``motors`` read back (user units)."""
         self.system_command("zero_coordinates")
-        names = {m: motor_register(m, "coordinate") for m in motors}
-        values = self.read_named(*names.values())
-        return {m: float(values[name]) for m, name in names.items()}
+        return self._coordinates(motors)
 
     def destructive_command(self, name: str, confirmation: str) -> None:
         """Factory reset (00073) or clear all parameters (00097): ``confirmation`` must
@@ -809,6 +828,7 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
     ) -> None:
         """Line interpolation: 40202-40211 in one FC 10, then the start coil (00102)."""
         self.check_line_move(pair, start, end, speed_rpm)
+        at_start = self._coordinates(self.pair_motors(pair))
         # The motors first run to the start each at its own speed (40202 note 2).
         self._restore_for_interpolation(pair)
         self._write_values(
@@ -821,7 +841,7 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
                 ("line_speed", int(speed_rpm)),
             ]
         )
-        self._start_interpolation("line", pair)
+        self._start_interpolation("line", pair, at_start)
 
     def arc_move(
         self,
@@ -840,6 +860,7 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
         The point the mode does not use is written as given (the device ignores it).
         """
         self.check_arc_move(pair, mode, start, end, center, via, speed_rpm)
+        at_start = self._coordinates(self.pair_motors(pair))
         self._restore_for_interpolation(pair)
         self._write_values(
             [
@@ -857,7 +878,7 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
                 ("arc_speed", int(speed_rpm)),
             ]
         )
-        self._start_interpolation("arc", pair)
+        self._start_interpolation("arc", pair, at_start)
 
     def _restore_for_interpolation(self, pair: int) -> None:
         """The pair's motors (under either reading) that a jog left at its speed, unless
@@ -888,13 +909,45 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
             sorted(set(INTERPOLATION_PAIRS[pair]) | set(INTERPOLATION_PAIRS_POINT_ROWS[pair]))
         )
 
-    def _start_interpolation(self, kind: str, pair: int) -> None:
+    def _coordinates(self, motors: Sequence[int]) -> dict[int, float]:
+        """The coordinates of ``motors`` read now (user units)."""
+        names = {m: motor_register(m, "coordinate") for m in motors}
+        values = self.read_named(*names.values())
+        return {m: float(values[name]) for m, name in names.items()}
+
+    def _start_interpolation(self, kind: str, pair: int, at_start: dict[int, float]) -> None:
         """The start coil; from then on (even when its reply is lost: it may have started)
         the move counts as running until a later poll shows its motors stopped."""
         try:
             self._coil(f"{kind}_start")
         finally:
-            self.interpolation_run = InterpolationRun(kind, self.pair_motors(pair), self._next_poll)
+            self.interpolation_run = InterpolationRun(
+                kind,
+                self.pair_motors(pair),
+                self._next_poll,
+                pair,
+                self.pair_axes(pair),
+                dict(at_start),
+            )
+
+    def _note_wrong_pair(self, coordinates: Sequence[float]) -> None:
+        run = self.interpolation_run
+        if run is None or run is self._wrong_pair_run:
+            return
+        wrong = run.wrong_motors(coordinates)
+        if wrong:
+            self._wrong_pair_run = run
+            self._wrong_pair = _wrong_pair_text(run, wrong, coordinates, self.pair_reading)
+
+    def take_wrong_pair(self) -> str | None:
+        """Why the running line / arc must be stopped (a motor outside its configured pair
+        moved), once; None when nothing is wrong."""
+        why, self._wrong_pair = self._wrong_pair, None
+        return why
+
+    def wrong_pair_not_stopped(self) -> None:
+        """The stop after ``take_wrong_pair`` failed: the next poll says so again."""
+        self._wrong_pair_run = None
 
     def _note_running(self, sequence: int, running: tuple[bool, ...]) -> None:
         run = self.interpolation_run
@@ -1253,50 +1306,43 @@ class InterpolationMotion(StepperMotion):
             interpolation=True,
             idle_polls_to_end=2,  # the approach to the start, then the line / arc
         )
-        self.pair = pair
-        self.expected = (a, b)
-        self.start_coordinates: dict[int, float] = {}
+        self.run = InterpolationRun("", (), 0)  # the device's, once started
         self._begin = begin
 
     def begin(self) -> None:
-        names = [motor_register(m, "coordinate") for m in self.motors]
-        values = self.device.read_named(*names)
-        self.start_coordinates = {
-            m: float(values[name]) for m, name in zip(self.motors, names, strict=True)
-        }
         self._begin()
-
-    def moved(self, snapshot: StepperSnapshot) -> list[int]:
-        """The motors of either reading whose coordinate left its value at the start."""
-        return [
-            m
-            for m, at_start in self.start_coordinates.items()
-            if not within(snapshot.coordinates[m - 1], at_start, self.tolerance)
-        ]
+        # The device read every motor's coordinate just before the start coil.
+        run = self.device.interpolation_run
+        self.run = run if run is not None else InterpolationRun("", (), 0)
 
     def fault(self, snapshot: StepperSnapshot) -> Verdict | None:
-        wrong = [m for m in self.moved(snapshot) if m not in self.expected]
+        wrong = self.run.wrong_motors(snapshot.coordinates)
         if not wrong:
             return None
-        a, b = self.expected
-        where = ", ".join(
-            f"motor {m} {self.start_coordinates[m]:g} -> {snapshot.coordinates[m - 1]:g}"
-            for m in wrong
-        )
-        return Verdict(
-            Outcome.HALTED,
-            f"{self.what}: stopped, a motor outside the pair moved ({where} units): "
-            f"interpolation_pair_reading {self.device.pair_reading} names motors {a}+{b} "
-            f"for pair {self.pair}, the controller follows the other reading "
-            "(docs/stepper.md hardware check)",
-        )
+        why = _wrong_pair_text(self.run, wrong, snapshot.coordinates, self.device.pair_reading)
+        return Verdict(Outcome.HALTED, f"{self.what}: stopped, {why}")
 
     def ended(self, snapshot: StepperSnapshot) -> Verdict:
         verdict = super().ended(snapshot)
-        moved = "+".join(map(str, self.moved(snapshot))) or "none"
+        moved = "+".join(map(str, self.run.moved(snapshot.coordinates))) or "none"
         return Verdict(
             verdict.outcome, f"{verdict.message}; motors moved: {moved} (coordinates read back)"
         )
+
+
+def _wrong_pair_text(
+    run: InterpolationRun, wrong: Sequence[int], coordinates: Sequence[float], reading: str
+) -> str:
+    """One line: which motor outside the configured pair moved, and what to do."""
+    where = ", ".join(
+        f"motor {m} {run.start_coordinates[m]:g} -> {coordinates[m - 1]:g}" for m in wrong
+    )
+    expected = "+".join(map(str, run.expected))
+    return (
+        f"a motor outside the pair moved ({where} units): interpolation_pair_reading "
+        f"{reading} names motors {expected} for pair {run.pair}, the controller follows the "
+        "other reading (docs/stepper.md hardware check)"
+    )
 
 
 def _limit_on(snapshot: StepperSnapshot, motor: int) -> str | None:

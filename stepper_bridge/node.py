@@ -309,6 +309,8 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
         self.device.invalidate_config()
 
     def publish_snapshot(self, s: StepperSnapshot) -> None:
+        if (why := self.device.take_wrong_pair()) is not None:
+            self._stop_wrong_pair(why)
         motors = s.config.motors
         positions = [self.scales[k].to_si(s.coordinates[k], motors[k].lead) for k in range(MOTORS)]
         self.publish_joints(s.read_time, positions)
@@ -321,6 +323,21 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
         copy_fields(m, s.config.interpolation, INTERPOLATION_FIELDS)
         m.interpolation_running = self.device.interpolation_run is not None
         self.state_pub.publish(m)
+
+    def _stop_wrong_pair(self, why: str) -> None:
+        """A line / arc (service or goal) moved a motor outside its configured pair: the
+        interpolation stops now (a goal following it also ends HALTED, decision 19)."""
+        ok, message, _ = self.run_command(
+            "stop_interpolation (wrong motors)",
+            self.device.stop_interpolation,
+            stop=True,
+            own_motion=True,
+        )
+        if not ok:
+            self.device.wrong_pair_not_stopped()  # tried again after the next poll
+        self.get_logger().error(
+            f"line / arc stopped: {why}" if ok else f"line / arc NOT stopped: {why}; {message}"
+        )
 
     def device_report(self) -> Report | None:
         s = self.last_snapshot

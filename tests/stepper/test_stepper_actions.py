@@ -4,6 +4,7 @@ its own, the simulator on a socat pty pair."""
 
 from __future__ import annotations
 
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -17,7 +18,7 @@ from std_srvs.srv import Trigger
 from bridge_core.registers import Table
 from msg_defs.action import ArcMotion, LineMotion, StepperMoveBy, StepperRun
 from msg_defs.msg import MotionOutcome
-from msg_defs.srv import SetHomingOrder
+from msg_defs.srv import LineMove, SetHomingOrder
 from stepper_bridge.registers import MOTORS, motor_coil, motor_register
 from stepper_bridge.sim import START_POSITION, TRAVEL, StepperSimDevice
 
@@ -224,6 +225,17 @@ def test_a_line_on_the_wrong_motors_is_stopped_and_homing_needs_no_zero(
         )
         result = outcome_of(goal, GoalStatus.STATUS_SUCCEEDED)
         assert result.outcome.message.endswith("motors moved: 1+3 (coordinates read back)")
+        # The same line from the service: no goal follows it, the node stops it itself.
+        device.pair_reading = "point_rows"
+        mark, called = len(writes(device)), time.monotonic()
+        reply = b.call(
+            LineMove, "line_move", pair=2, start=[0.01, 0.0], end=[0.012, 0.004], speed_rpm=600
+        )
+        assert reply.success, reply.message
+        client.wait_log(
+            "stepper_bridge", "line / arc stopped: a motor outside the pair moved", since=called
+        )
+        assert coil_writes(device, mark)[-2:] == [100, 102] and device.interpolation is None
         device.zero_at_home = False
         mark = len(writes(device))
         result = outcome_of(b.send_goal(StepperRun, "motor_4/home"), GoalStatus.STATUS_SUCCEEDED)

@@ -799,6 +799,22 @@ def test_a_line_on_other_motors_than_the_configured_reading_is_stopped(
     assert rig.writes()[-2:] == [(5, Table.COIL, 100, (1,)), (5, Table.COIL, 102, (1,))]
 
 
+def test_a_line_service_on_other_motors_is_flagged_for_a_stop(rig: Rig) -> None:
+    """The same for a line started by the service (no goal follows it): a poll flags it,
+    once, for the node to stop."""
+    d, fake = rig.device, rig.fake
+    for motor in (1, 2, 3):
+        d.set_speed(motor, 1200)
+    d.pair_reading, fake.pair_reading = "type_rows", "point_rows"
+    d.line_move(2, (5.0, 4.0), (9.0, 12.0), 1200)
+    why = wait_until(lambda: d.poll() and d.take_wrong_pair())
+    assert "motor 2 0 ->" in why and "names motors 1+3 for pair 2" in why and "\n" not in why
+    d.poll()
+    assert d.take_wrong_pair() is None  # once per line
+    d.stop_interpolation()
+    assert fake.interpolation is None
+
+
 @pytest.mark.parametrize(("pair", "moved"), [(1, "1+2"), (2, "1+3"), (3, "2+3")])
 def test_a_line_on_the_configured_motors_says_which_moved(rig: Rig, pair: int, moved: str) -> None:
     d, fake = rig.device, rig.fake
