@@ -18,7 +18,7 @@ import pytest
 import serial
 from pymodbus.framer import FramerRTU
 
-from bridge_core.channel import DeviceChannel
+from bridge_core.channel import DeviceChannel, Priority
 from bridge_core.errors import CommandRejected, DeviceException, LinkError
 from bridge_core.goals import Outcome, Verdict
 from bridge_core.registers import Table
@@ -32,7 +32,7 @@ from stepper_bridge.device import (
     StepperMotion,
     pair_axes,
 )
-from stepper_bridge.registers import STEPPER_MAP, UNDEFINED_HOLDING, holding
+from stepper_bridge.registers import STEPPER_MAP, UNDEFINED_HOLDING, holding, motor_coil
 from stepper_bridge.sim import START_POSITION, StepperSimDevice, make_simulator
 
 from ..support.serial_pair import socat_pair
@@ -717,6 +717,47 @@ def test_joint_scale_with_a_reduction() -> None:
     for bad in (-1.0, math.nan, math.inf):
         with pytest.raises(ValueError, match="units_per_revolution"):
             JointScale("revolute", units_per_revolution=bad)
+
+
+class PriorityRecorder:
+    """The rig's channel, with the priority of every coil write recorded."""
+
+    def __init__(self, channel: DeviceChannel) -> None:
+        self.channel = channel
+        self.coils: list[tuple[int, Priority]] = []
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.channel, name)
+
+    def write_coil(self, address: int, on: bool, priority: Priority = Priority.COMMAND) -> None:
+        self.coils.append((address, priority))
+        self.channel.write_coil(address, on, priority)
+
+
+def test_stops_go_at_stop_priority(rig: Rig) -> None:
+    """Issue 20: on a shared line every stop coil goes in the next free slot
+    (Priority.STOP), before other controllers' commands and polls; motions do not."""
+    io = PriorityRecorder(rig.channel)
+    d = StepperDevice(io)
+    d.poll()
+    d.motor_action(1, "forward")
+    d.motor_action(1, "stop")
+    d.jog(2, 60.0)
+    d.jog_stop(2)
+    d.line_move(1, (1.0, 1.0), (2.0, 2.0), 60)
+    d.stop_interpolation()
+    d.system_command("emergency_stop")
+    stop, command = Priority.STOP, Priority.COMMAND
+    assert io.coils == [
+        (motor_coil(1, "forward"), command),
+        (motor_coil(1, "stop"), stop),
+        (motor_coil(2, "forward"), command),
+        (motor_coil(2, "stop"), stop),
+        (STEPPER_MAP["line_start"].address, command),
+        (STEPPER_MAP["arc_stop"].address, stop),
+        (STEPPER_MAP["line_stop"].address, stop),
+        (STEPPER_MAP["emergency_stop"].address, stop),
+    ]
 
 
 def test_pairs_2_and_3_are_refused_until_the_reading_is_set() -> None:
