@@ -1080,6 +1080,8 @@ class StepperMotion(Motion[StepperSnapshot]):
         return any(snapshot.running[m - 1] for m in self.motors)
 
     def judge(self, snapshot: StepperSnapshot, since_start_s: float = math.inf) -> Verdict | None:
+        if (fault := self.fault(snapshot)) is not None:
+            return fault  # at once, running or not: never held back for the idle polls
         verdict = super().judge(snapshot, since_start_s)
         if verdict is not None and self.seen_running and self.idle_polls < self.idle_polls_to_end:
             return None  # home_all: the next motor of the order may not have begun yet
@@ -1197,6 +1199,10 @@ class HomeMotion(CoilMotion):
     motors' coordinates read back (or raises, or says why it failed); any of them off 0
     ends the goal FAULT.
     """
+
+    # The result reports the coordinates: a poll may have read them before the motor
+    # reached the switch and its running flag after (a second idle poll confirms).
+    confirm_reached = True
 
     def __init__(
         self,

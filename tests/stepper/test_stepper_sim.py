@@ -5,6 +5,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import signal
 import subprocess
@@ -840,6 +841,26 @@ def test_a_line_on_other_motors_than_the_configured_reading_is_stopped(
     assert rig.writes()[-2:] == [(5, Table.COIL, 100, (1,)), (5, Table.COIL, 102, (1,))]
 
 
+def test_a_wrong_motor_ends_the_goal_even_after_it_was_seen_running(rig: Rig) -> None:
+    """The wrong-motor verdict is not held back for the idle polls a running line waits
+    for (a goal that had seen its motors run never ended: found by a flaky ROS test)."""
+    d, fake = rig.device, rig.fake
+    for motor in (1, 2, 3):
+        d.set_speed(motor, 60)
+    d.pair_reading, fake.pair_reading = "type_rows", "point_rows"
+    motion = line_goal(rig, 2)
+    motion.start()
+    d.stop_interpolation()  # the snapshots below are made up from this one
+    here = d.poll()
+    running = dataclasses.replace(here, running=(True, True, True, False, False))
+    assert motion.judge(dataclasses.replace(running, coordinates=(0.0,) * 5), 1.0) is None
+    assert motion.seen_running
+    moved = dataclasses.replace(running, coordinates=(0.0, 0.5, 0.2, 0.0, 0.0))
+    verdict = motion.judge(moved, 1.1)
+    assert verdict is not None and verdict.outcome is Outcome.HALTED, verdict
+    assert "motor 2 0 -> 0.5" in verdict.message
+
+
 def test_a_line_service_on_other_motors_is_flagged_for_a_stop(rig: Rig) -> None:
     """The same for a line started by the service (no goal follows it): a poll flags it,
     once, for the node to stop."""
@@ -885,6 +906,26 @@ def test_homing_is_judged_by_the_home_input_not_a_zero_coordinate(rig: Rig) -> N
     assert verdict.message.endswith("coordinates not zeroed (zero_after_home)")
     assert fake.position[2] == 0.0 and d.poll().coordinates[1] == -START_POSITION
     assert (5, Table.COIL, 43, (1,)) not in rig.writes()  # no zero coordinates coil
+
+
+def test_homing_reports_the_coordinate_of_a_second_idle_poll(rig: Rig) -> None:
+    """A poll reads the coordinates before the running flags: the coordinate of the poll
+    that first shows the motor stopped may predate the controller's zero at the switch
+    (the result once said -50 for a motor at 0); REACHED waits for a second idle poll."""
+    d = rig.device
+    motion = home_goal(rig, 2)
+    motion.start()
+    d.motor_action(2, "stop")  # the snapshots below are made up from this one
+    here = d.poll()
+    inputs = tuple(n == 4 for n in range(1, 14))  # IN4: motor 2's home input
+    running = dataclasses.replace(here, running=(False, True, False, False, False))
+    assert motion.judge(running, 1.0) is None
+    torn = dataclasses.replace(here, inputs=inputs, coordinates=(0.0, -50.0, 0.0, 0.0, 0.0))
+    assert motion.judge(torn, 1.1) is None
+    settled = dataclasses.replace(torn, coordinates=(0.0,) * 5)
+    verdict = motion.judge(settled, 1.2)
+    assert verdict is not None and verdict.outcome is Outcome.REACHED, verdict
+    assert "motor 2 IN4 on at coordinate 0" in verdict.message
 
 
 def test_zero_after_home_sends_the_zero_coil_and_checks_it(rig: Rig) -> None:
