@@ -48,16 +48,20 @@ UNIT_ID_MAX = 247
 
 
 class Priority(IntEnum):
-    """Who goes first on a link (``PriorityLock``): watchdog feeds, commands, polls.
+    """Who goes first on a link (``PriorityLock``): watchdog feeds, stops, commands, polls.
 
     A feed goes before commands so that the longest it can wait for the line is one
     transaction per device on the link (the bound ``lifeguard_ms`` is checked against);
     it is one short write to a live device, so a stop waits a few ms for it at most.
+    A stop goes in the next free slot, before other devices' commands and polls: on a
+    shared line it waits for the one transaction in progress (a probe of a device that is
+    down waits only ``down_write_timeout_s``) and any feeds.
     """
 
     KEEPALIVE = 0
-    COMMAND = 1
-    POLL = 2
+    STOP = 1
+    COMMAND = 2
+    POLL = 3
 
 
 class RegisterIO(Protocol):
@@ -71,7 +75,7 @@ class RegisterIO(Protocol):
     ) -> list[bool]: ...
     def write_register(self, address: int, value: int, priority: Priority = ...) -> None: ...
     def write_registers(self, address: int, values: Sequence[int]) -> None: ...
-    def write_coil(self, address: int, on: bool) -> None: ...
+    def write_coil(self, address: int, on: bool, priority: Priority = ...) -> None: ...
     def write_coils(self, address: int, values: Sequence[bool]) -> None: ...
     def mask_write_register(self, address: int, and_mask: int, or_mask: int) -> None: ...
     def read_write_registers(
@@ -196,9 +200,11 @@ class DeviceChannel:
         self.link = link
         self.unit_id = unit_id
         self.retries = retries
-        # Reply timeout of a write to a device marked down (only stops are sent then): a
-        # stop repeated while the line is dead must not be the one still waiting out a long
-        # timeout when the line comes back (None: the link's timeout).
+        # Reply timeout of every request to a device marked down (stops, and the probes
+        # that look for it again): a stop repeated while the line is dead must not be the
+        # one still waiting out a long timeout when the line comes back, and a probe of an
+        # absent device on a shared line holds it no longer than that while another
+        # device's stop waits (None: the link's timeout).
         self.down_write_timeout_s = down_write_timeout_s
         self.backoff = Backoff(RECONNECT_INITIAL_S, reconnect_max_s, clock)
         self.stats = LinkStats()
@@ -303,7 +309,7 @@ class DeviceChannel:
                 started = time.perf_counter()
                 if request.is_write:  # on the wire from here on, whatever comes back
                     self._session.writes = self.writes_tried() + 1
-                if request.is_write and not self._connected and self.down_write_timeout_s:
+                if not self._connected and self.down_write_timeout_s:
                     reply = self.link.execute(self.unit_id, request, self.down_write_timeout_s)
                 else:
                     reply = self.link.execute(self.unit_id, request)
@@ -374,8 +380,8 @@ class DeviceChannel:
     def write_registers(self, address: int, values: Sequence[int]) -> None:
         self.transact(WriteRegisters(address, tuple(values)), Priority.COMMAND)
 
-    def write_coil(self, address: int, on: bool) -> None:
-        self.transact(WriteCoil(address, on), Priority.COMMAND)
+    def write_coil(self, address: int, on: bool, priority: Priority = Priority.COMMAND) -> None:
+        self.transact(WriteCoil(address, on), priority)
 
     def write_coils(self, address: int, values: Sequence[bool]) -> None:
         self.transact(WriteCoils(address, tuple(values)), Priority.COMMAND)

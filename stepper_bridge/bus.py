@@ -5,8 +5,9 @@ MOTEC does:
 
 - ``stepper_bus``: the bus owner (``bridge_core.node_base.BusNode``) with the serial
   parameters (``serial_port``, ``baudrate``, ``parity``, ``stopbits``, ``timeout_s``,
-  ``frame_gap_s``) and ``unit_ids`` (1-255, at most ``MAX_CONTROLLERS_PER_BUS``: the manual
-  advises "建议 485 总线在没有中继器的情况下,挂载控制器个数<12 个"). It opens the one link.
+  ``frame_gap_s``) and ``unit_ids`` (1-247, Modbus RTU's addresses, though 40212 takes
+  1-255; at most ``MAX_CONTROLLERS_PER_BUS``: the manual advises "建议 485 总线在没有中继器
+  的情况下,挂载控制器个数<12 个"). It opens the one link.
 - ``stepper_<id>`` per unit id: the single-controller node (``StepperBridgeNode``) on the
   shared link, with its own channel, poll, topics, services, parameters and jog deadman.
 
@@ -24,15 +25,19 @@ from typing import Any
 
 from rclpy.node import Node
 
+from bridge_core.channel import UNIT_ID_MAX
 from bridge_core.errors import ConfigurationError
 from bridge_core.node_base import BusNode, spin_nodes
 
-from .node import STEPPER_DEFAULTS, StepperBridgeNode
+from .node import STEPPER_DEFAULTS, StepperBridgeNode, check_reply_timeout
 from .registers import DEVICE_IDS
 
 BUS_NODE_NAME = "stepper_bus"
 # 40212: "挂载控制器个数<12 个" without a repeater.
 MAX_CONTROLLERS_PER_BUS = 11
+# 40212 takes 1-255, but an RTU request addresses 1-247 only (248-255 are reserved): a
+# controller set to 248-255 cannot be reached, so such ids are refused at start.
+BUS_UNIT_IDS = range(DEVICE_IDS.start, UNIT_ID_MAX + 1)
 
 
 def controller_node_name(unit_id: int) -> str:
@@ -43,7 +48,8 @@ class StepperBusNode(BusNode):
     """The RS-485 line shared by every controller node of the process."""
 
     def __init__(self, **kwargs: Any) -> None:
-        super().__init__(BUS_NODE_NAME, STEPPER_DEFAULTS, unit_id_range=DEVICE_IDS, **kwargs)
+        super().__init__(BUS_NODE_NAME, STEPPER_DEFAULTS, unit_id_range=BUS_UNIT_IDS, **kwargs)
+        check_reply_timeout(self.settings)
         if len(self.unit_ids) > MAX_CONTROLLERS_PER_BUS:
             raise ConfigurationError(
                 f"unit_ids: {len(self.unit_ids)} controllers on one bus; the manual advises "

@@ -34,9 +34,9 @@ import itertools
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
-from bridge_core.channel import RegisterIO
+from bridge_core.channel import Priority, RegisterIO
 from bridge_core.checks import (
     check_choice,
     check_finite,
@@ -85,7 +85,18 @@ LIMIT_FIELDS = ("positive_limit_input", "negative_limit_input", "home_input")
 DEFAULT_CONFIG_REFRESH_S = 5.0
 DEFAULT_JOG_TIMEOUT_S = 0.5
 SPEED_MAX_RPM = 0xFFFF
+# Coils that stop motion: sent at Priority.STOP (with each motor's stop coil).
+_STOP_COILS = frozenset({"emergency_stop", "arc_stop", "line_stop"})
 JOINT_TYPES = ("prismatic", "revolute")
+# interpolation_pair_reading: which of the manual's two readings of pair types 2 and 3 the
+# controller follows (README stepper decision 19). Unset until the hardware check in
+# docs/stepper.md settles it: pairs 2 and 3 are refused meanwhile.
+PAIR_READING_UNSET = "unset"
+PAIR_READINGS: dict[str, dict[int, tuple[int, int]]] = {
+    "type_rows": INTERPOLATION_PAIRS,
+    "point_rows": INTERPOLATION_PAIRS_POINT_ROWS,
+}
+PAIR_READING_CHOICES = (PAIR_READING_UNSET, *PAIR_READINGS)
 
 
 # ---------------------------------------------------------------- snapshots
@@ -142,12 +153,29 @@ class StepperConfig:
 
 @dataclass(frozen=True)
 class InterpolationRun:
-    """A line / arc the bridge started: its motors (under both readings of the pair) and
-    the first poll sequence number that began after its start coil was sent."""
+    """A line / arc the bridge started: its motors (under both readings of the pair), the
+    first poll sequence number that began after its start coil was sent, the pair's motors
+    by the configured reading and every motor's coordinate read before the start."""
 
     kind: str
     motors: tuple[int, ...]
     first_poll: int
+    pair: int = 0
+    expected: tuple[int, ...] = ()
+    start_coordinates: dict[int, float] = field(default_factory=dict)
+
+    def moved(self, coordinates: Sequence[float]) -> list[int]:
+        """Motors of either reading whose coordinate is off its value at the start by a
+        step or more (the registers count hundredths of a unit)."""
+        return [
+            m
+            for m, at_start in self.start_coordinates.items()
+            if round(coordinates[m - 1] * DISTANCE_SCALE) != round(at_start * DISTANCE_SCALE)
+        ]
+
+    def wrong_motors(self, coordinates: Sequence[float]) -> list[int]:
+        """Moved motors outside the configured pair (the controller reads it otherwise)."""
+        return [m for m in self.moved(coordinates) if m not in self.expected]
 
 
 @dataclass(frozen=True)
@@ -245,35 +273,27 @@ class JointScale:
         return si * factor
 
 
-def check_pair_reading(pair: int, scales: Sequence[JointScale], leads: Sequence[float]) -> None:
-    """Refuse an interpolation pair whose SI -> units conversion depends on which of the
-    manual's two readings of the type is right (registers.INTERPOLATION_PAIRS).
+def pair_axes(pair: int, reading: str) -> tuple[int, int]:
+    """The (first, second) motor of an interpolation pair under the configured reading.
 
-    A coordinate position (first or second) is ambiguous when the readings name different
-    motors for it (types 2 and 3: motor 1 or 2 first). The pair is allowed when, for each
-    such position, those motors have the same joint type and convert with the same factor
-    (units_per_meter, or units_per_revolution / the device's lead): then the values
-    written are the same under either reading. ``scales`` and ``leads`` are per motor 1-5.
+    Pair 1 is motors 1+2 under both readings of the manual. Pairs 2 and 3 are motors 1+3
+    and 2+3 by the type rows (40182 / 40202) but 2+3 and 1+3 by the point rows under them:
+    refused (one line) until ``interpolation_pair_reading`` names the reading the hardware
+    check showed (registers.INTERPOLATION_PAIRS).
     """
-    if pair not in INTERPOLATION_PAIRS:
-        return  # refused with the full message where it is written
-    taken, other = INTERPOLATION_PAIRS[pair], INTERPOLATION_PAIRS_POINT_ROWS[pair]
-    for a, b in zip(taken, other, strict=True):
-        if a == b:
-            continue
-        first, second = scales[a - 1], scales[b - 1]
-        same = first.joint_type == second.joint_type and first.units_per_si(
-            leads[a - 1]
-        ) == second.units_per_si(leads[b - 1])
-        if not same:
-            low, high = sorted((a, b))
-            raise CommandRejected(
-                f"pair {pair} is motors {taken[0]}+{taken[1]} by the manual's 40182/40202 "
-                f"rows but {other[0]}+{other[1]} by its point rows, and motors {low} and "
-                f"{high} convert differently: until hardware confirms the reading, give "
-                f"motors {low} and {high} the same joint_types, units_per_meter / "
-                "units_per_revolution (and lead), or use pair 1"
-            )
+    _check_pair(pair)
+    by_type, by_points = INTERPOLATION_PAIRS[pair], INTERPOLATION_PAIRS_POINT_ROWS[pair]
+    if by_type == by_points:
+        return by_type
+    if reading not in PAIR_READINGS:
+        raise CommandRejected(
+            f"interpolation pair {pair} refused: the manual names motors "
+            f"{by_type[0]}+{by_type[1]} for it in its type rows (40182/40202) and "
+            f"{by_points[0]}+{by_points[1]} in its point rows; run the hardware check in "
+            "docs/stepper.md, then set interpolation_pair_reading to type_rows or point_rows "
+            "(pair 1 needs neither)"
+        )
+    return PAIR_READINGS[reading][pair]
 
 
 # ---------------------------------------------------------------- the device
@@ -288,9 +308,12 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
         *,
         config_refresh_s: float = DEFAULT_CONFIG_REFRESH_S,
         jog_timeout_s: float = DEFAULT_JOG_TIMEOUT_S,
+        pair_reading: str = PAIR_READING_UNSET,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
         super().__init__(io, STEPPER_MAP, CONFIG_PLAN, config_refresh_s, clock)
+        # Which reading of pair types 2 and 3 the controller follows (PAIR_READING_CHOICES).
+        self.pair_reading = pair_reading
         # The jog streams (one per motor) and the direction coil each motor was last sent
         # by a jog: +1 forward, -1 reverse, 0 stopped, None unknown (a write was lost).
         self.jogs: StreamGuard[int] = StreamGuard(
@@ -322,6 +345,10 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
         # "插补过程运行中不可调节"; a second line / arc is refused meanwhile.
         self._next_poll = 0
         self.interpolation_run: InterpolationRun | None = None
+        # A line / arc that moved a motor outside its configured pair, once per run: the
+        # node stops it (README stepper decision 19). Set by a poll, taken by the node.
+        self._wrong_pair: str | None = None
+        self._wrong_pair_run: InterpolationRun | None = None
         self.estops = 0  # e-stops this bridge sent (acknowledged)
 
     # ------------------------------------------------------------------ reads
@@ -385,12 +412,12 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
         self._next_poll += 1
         v, read_time = self.poll_status(STATUS_PLAN, STAMP_REGISTER)
         running = tuple(bool(v[motor_register(m, "running")]) for m in range(1, MOTORS + 1))
+        coordinates = tuple(float(v[motor_register(m, "coordinate")]) for m in range(1, MOTORS + 1))
+        self._note_wrong_pair(coordinates)
         self._note_running(sequence, running)
         return StepperSnapshot(
             read_time=read_time,
-            coordinates=tuple(
-                float(v[motor_register(m, "coordinate")]) for m in range(1, MOTORS + 1)
-            ),
+            coordinates=coordinates,
             running=running,
             inputs=tuple(bool(v[f"input_{n}"]) for n in range(1, INPUTS + 1)),
             outputs=tuple(bool(v[f"output_{n}"]) for n in range(1, OUTPUTS + 1)),
@@ -426,7 +453,10 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
                 self._configured_speed[motor] = int(value)
 
     def _coil(self, name: str) -> None:
-        self.io.write_coil(STEPPER_MAP[name].address, True)
+        # Stops go in the line's next free slot, before other controllers' commands and
+        # polls (README stepper decision 18).
+        priority = Priority.STOP if name in _STOP_COILS else Priority.COMMAND
+        self.io.write_coil(STEPPER_MAP[name].address, True, priority)
 
     # ------------------------------------------------------------------ motor commands
     def motor_action(self, motor: int, action: str) -> None:
@@ -440,7 +470,8 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
                 # (the service takes the motor over from any jog).
                 self.restore_speeds([motor], include_jogging=True)
             try:
-                self.io.write_coil(motor_coil(motor, action), True)
+                priority = Priority.STOP if action == "stop" else Priority.COMMAND
+                self.io.write_coil(motor_coil(motor, action), True, priority)
             except LinkError:
                 if action == "stop":
                     self.jogs.stop_failed(motor)  # a jog it meant to end: its stop pending
@@ -624,7 +655,7 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
             raise
 
     def _jog_stop_coil(self, motor: int) -> None:
-        self.io.write_coil(motor_coil(motor, "stop"), True)
+        self.io.write_coil(motor_coil(motor, "stop"), True, Priority.STOP)
         self._direction[motor] = 0
 
     # ------------------------------------------------------------------ jog speed restore
@@ -722,6 +753,12 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
                 self.interpolation_run = None  # "完成所有电机急停": the move ended
                 self._restore_after_stop(list(range(1, MOTORS + 1)))
 
+    def zero_coordinates(self, motors: Sequence[int]) -> dict[int, float]:
+        """The "坐标清零" coil (00044; it names no motor: every coordinate), then the
+        coordinates of ``motors`` read back (user units)."""
+        self.system_command("zero_coordinates")
+        return self._coordinates(motors)
+
     def destructive_command(self, name: str, confirmation: str) -> None:
         """Factory reset (00073) or clear all parameters (00097): ``confirmation`` must
         repeat the command's name."""
@@ -753,7 +790,7 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
         self, pair: int, start: tuple[float, float], end: tuple[float, float], speed_rpm: int
     ) -> None:
         """A line's pair, points and speed checked (no I/O)."""
-        _check_pair(pair)
+        self.pair_axes(pair)
         _check_integer("speed", speed_rpm, low=1)
         _check_points([("start", start), ("end", end)])
         if _same(start, end):
@@ -771,7 +808,7 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
         speed_rpm: int,
     ) -> None:
         """An arc's pair, mode, points and speed checked (no I/O)."""
-        _check_pair(pair)
+        self.pair_axes(pair)
         _check_choice("arc mode", mode, (ARC_MODE_CENTER, ARC_MODE_THREE_POINTS))
         _check_integer("speed", speed_rpm, low=1)
         _check_points([("start", start), ("end", end), ("center", center), ("via", via)])
@@ -791,6 +828,7 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
     ) -> None:
         """Line interpolation: 40202-40211 in one FC 10, then the start coil (00102)."""
         self.check_line_move(pair, start, end, speed_rpm)
+        at_start = self._coordinates(self.pair_motors(pair))
         # The motors first run to the start each at its own speed (40202 note 2).
         self._restore_for_interpolation(pair)
         self._write_values(
@@ -803,7 +841,7 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
                 ("line_speed", int(speed_rpm)),
             ]
         )
-        self._start_interpolation("line", pair)
+        self._start_interpolation("line", pair, at_start)
 
     def arc_move(
         self,
@@ -822,6 +860,7 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
         The point the mode does not use is written as given (the device ignores it).
         """
         self.check_arc_move(pair, mode, start, end, center, via, speed_rpm)
+        at_start = self._coordinates(self.pair_motors(pair))
         self._restore_for_interpolation(pair)
         self._write_values(
             [
@@ -839,7 +878,7 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
                 ("arc_speed", int(speed_rpm)),
             ]
         )
-        self._start_interpolation("arc", pair)
+        self._start_interpolation("arc", pair, at_start)
 
     def _restore_for_interpolation(self, pair: int) -> None:
         """The pair's motors (under either reading) that a jog left at its speed, unless
@@ -860,19 +899,55 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
         self.interpolation_run = None
 
     # ------------------------------------------------------------------ interpolation state
+    def pair_axes(self, pair: int) -> tuple[int, int]:
+        """The pair's (first, second) motor by the configured reading (``pair_axes``)."""
+        return pair_axes(pair, self.pair_reading)
+
     def pair_motors(self, pair: int) -> tuple[int, ...]:
         """The pair's motors under either reading of the type (decision 11)."""
         return tuple(
             sorted(set(INTERPOLATION_PAIRS[pair]) | set(INTERPOLATION_PAIRS_POINT_ROWS[pair]))
         )
 
-    def _start_interpolation(self, kind: str, pair: int) -> None:
+    def _coordinates(self, motors: Sequence[int]) -> dict[int, float]:
+        """The coordinates of ``motors`` read now (user units)."""
+        names = {m: motor_register(m, "coordinate") for m in motors}
+        values = self.read_named(*names.values())
+        return {m: float(values[name]) for m, name in names.items()}
+
+    def _start_interpolation(self, kind: str, pair: int, at_start: dict[int, float]) -> None:
         """The start coil; from then on (even when its reply is lost: it may have started)
         the move counts as running until a later poll shows its motors stopped."""
         try:
             self._coil(f"{kind}_start")
         finally:
-            self.interpolation_run = InterpolationRun(kind, self.pair_motors(pair), self._next_poll)
+            self.interpolation_run = InterpolationRun(
+                kind,
+                self.pair_motors(pair),
+                self._next_poll,
+                pair,
+                self.pair_axes(pair),
+                dict(at_start),
+            )
+
+    def _note_wrong_pair(self, coordinates: Sequence[float]) -> None:
+        run = self.interpolation_run
+        if run is None or run is self._wrong_pair_run:
+            return
+        wrong = run.wrong_motors(coordinates)
+        if wrong:
+            self._wrong_pair_run = run
+            self._wrong_pair = _wrong_pair_text(run, wrong, coordinates, self.pair_reading)
+
+    def take_wrong_pair(self) -> str | None:
+        """Why the running line / arc must be stopped (a motor outside its configured pair
+        moved), once; None when nothing is wrong."""
+        why, self._wrong_pair = self._wrong_pair, None
+        return why
+
+    def wrong_pair_not_stopped(self) -> None:
+        """The stop after ``take_wrong_pair`` failed: the next poll says so again."""
+        self._wrong_pair_run = None
 
     def _note_running(self, sequence: int, running: tuple[bool, ...]) -> None:
         run = self.interpolation_run
@@ -1005,6 +1080,8 @@ class StepperMotion(Motion[StepperSnapshot]):
         return any(snapshot.running[m - 1] for m in self.motors)
 
     def judge(self, snapshot: StepperSnapshot, since_start_s: float = math.inf) -> Verdict | None:
+        if (fault := self.fault(snapshot)) is not None:
+            return fault  # at once, running or not: never held back for the idle polls
         verdict = super().judge(snapshot, since_start_s)
         if verdict is not None and self.seen_running and self.idle_polls < self.idle_polls_to_end:
             return None  # home_all: the next motor of the order may not have begun yet
@@ -1108,8 +1185,109 @@ class CoilMotion(StepperMotion):
             self.device.system_command(self.command)
 
 
+class HomeMotion(CoilMotion):
+    """Homing one motor (its home coil) or all in the homing order (00046), judged by the
+    home input (README stepper decision 20).
+
+    Over when its motors stand (running flags off, two idle polls for home_all); REACHED
+    when each homed motor's home input (40083+) is on, the message giving the coordinate
+    there. The manual stops homing at the home switch ("直到碰到机械零点信号才停止") and
+    wires home to the reverse limit input ("一般情况下反限位与原点设定同一个触发信号输入口"),
+    but never says that the controller zeroes the coordinate there (it has a separate
+    "坐标清零" coil, 00044): the coordinate is reported as read. ``zero`` (the node's
+    ``zero_after_home``) sends that coil after a REACHED homing and returns the homed
+    motors' coordinates read back (or raises, or says why it failed); any of them off 0
+    ends the goal FAULT.
+    """
+
+    # The result reports the coordinates: a poll may have read them before the motor
+    # reached the switch and its running flag after (a second idle poll confirms).
+    confirm_reached = True
+
+    def __init__(
+        self,
+        device: StepperDevice,
+        scales: Sequence[JointScale],
+        command: str,
+        motors: Sequence[int],
+        *,
+        tolerance: float,
+        homed: Sequence[int] | None = None,
+        zero: Callable[[Sequence[int]], tuple[bool, str, dict[int, float] | None]] | None = None,
+    ) -> None:
+        super().__init__(device, scales, command, motors, tolerance=tolerance, homed=homed)
+        self.homed = tuple(motors if homed is None else homed)
+        config = device.config  # refused until the configuration was read
+        for motor in self.homed:
+            number = config.motors[motor - 1].home_input
+            if not 1 <= number <= INPUTS:
+                raise CommandRejected(
+                    f"motor {motor} has no home input (40083+ reads {number}): homing would "
+                    "run in reverse until a stop (直到碰到机械零点信号才停止); set one with "
+                    f"~/motor_{motor}/set_limit_inputs"
+                )
+        self.zero = zero
+
+    def ended(self, snapshot: StepperSnapshot) -> Verdict:
+        coordinates = snapshot.coordinates
+        if self.device.estops > self.estops_at_start:
+            return Verdict(Outcome.LIMIT, f"{self.what}: ended by the e-stop (~/emergency_stop)")
+        at_home: list[str] = []
+        for motor in self.homed:
+            number = snapshot.config.motors[motor - 1].home_input
+            if not (1 <= number <= len(snapshot.inputs) and snapshot.inputs[number - 1]):
+                here = f"coordinate {coordinates[motor - 1]:g}"
+                if (switch := _limit_on(snapshot, motor)) is not None:
+                    return Verdict(
+                        Outcome.LIMIT,
+                        f"{self.what}: motor {motor} stopped at its {switch}, its home input "
+                        f"IN{number} off ({here})",
+                    )
+                return Verdict(
+                    Outcome.STOPPED,
+                    f"{self.what}: motor {motor} stopped with its home input IN{number} off "
+                    f"({here})",
+                )
+            at_home.append(f"motor {motor} IN{number} on at coordinate {coordinates[motor - 1]:g}")
+        return Verdict(Outcome.REACHED, f"{self.what}: done, home input on ({', '.join(at_home)})")
+
+    def judge(self, snapshot: StepperSnapshot, since_start_s: float = math.inf) -> Verdict | None:
+        verdict = super().judge(snapshot, since_start_s)
+        if verdict is None or verdict.outcome is not Outcome.REACHED:
+            return verdict
+        if self.zero is None:
+            return Verdict(
+                verdict.outcome, f"{verdict.message}; coordinates not zeroed (zero_after_home)"
+            )
+        ok, message, read_back = self.zero(self.homed)
+        if not ok or read_back is None:
+            return Verdict(Outcome.FAULT, f"{verdict.message}; zeroing failed: {message}")
+        off = [
+            f"motor {m} reads {v:g}"
+            for m, v in read_back.items()
+            if not within(v, 0.0, self.tolerance)
+        ]
+        if off:
+            return Verdict(
+                Outcome.FAULT,
+                f"{verdict.message}; after the zero coordinates coil (00044) {', '.join(off)}",
+            )
+        return Verdict(
+            verdict.outcome,
+            f"{verdict.message}; coordinates zeroed (coil 00044: every motor's coordinate)",
+        )
+
+
 class InterpolationMotion(StepperMotion):
-    """Line / arc interpolation: ``begin`` is the device's line_move / arc_move."""
+    """Line / arc interpolation: ``begin`` is the device's line_move / arc_move.
+
+    The target is the end point on the pair's motors by the configured reading. The
+    coordinates of every motor either reading names (1-3 for pairs 2 and 3) are read
+    before the start: a motor outside the configured pair that moves away from its
+    coordinate (the controller follows the other reading) ends the goal at once, HALTED
+    (the interpolation stops are sent), naming the motors that moved; every other ending
+    says which motors moved (README stepper decision 19).
+    """
 
     def __init__(
         self,
@@ -1122,9 +1300,7 @@ class InterpolationMotion(StepperMotion):
         *,
         tolerance: float,
     ) -> None:
-        _check_pair(pair)
-        readings = (INTERPOLATION_PAIRS[pair], INTERPOLATION_PAIRS_POINT_ROWS[pair])
-        targets = [{a: end[0], b: end[1]} for a, b in readings]
+        a, b = device.pair_axes(pair)
         motors = device.pair_motors(pair)
         super().__init__(
             device,
@@ -1132,14 +1308,47 @@ class InterpolationMotion(StepperMotion):
             motors,
             what,
             tolerance=tolerance,
-            targets=targets,
+            targets=[{a: end[0], b: end[1]}],
             interpolation=True,
             idle_polls_to_end=2,  # the approach to the start, then the line / arc
         )
+        self.run = InterpolationRun("", (), 0)  # the device's, once started
         self._begin = begin
 
     def begin(self) -> None:
         self._begin()
+        # The device read every motor's coordinate just before the start coil.
+        run = self.device.interpolation_run
+        self.run = run if run is not None else InterpolationRun("", (), 0)
+
+    def fault(self, snapshot: StepperSnapshot) -> Verdict | None:
+        wrong = self.run.wrong_motors(snapshot.coordinates)
+        if not wrong:
+            return None
+        why = _wrong_pair_text(self.run, wrong, snapshot.coordinates, self.device.pair_reading)
+        return Verdict(Outcome.HALTED, f"{self.what}: stopped, {why}")
+
+    def ended(self, snapshot: StepperSnapshot) -> Verdict:
+        verdict = super().ended(snapshot)
+        moved = "+".join(map(str, self.run.moved(snapshot.coordinates))) or "none"
+        return Verdict(
+            verdict.outcome, f"{verdict.message}; motors moved: {moved} (coordinates read back)"
+        )
+
+
+def _wrong_pair_text(
+    run: InterpolationRun, wrong: Sequence[int], coordinates: Sequence[float], reading: str
+) -> str:
+    """One line: which motor outside the configured pair moved, and what to do."""
+    where = ", ".join(
+        f"motor {m} {run.start_coordinates[m]:g} -> {coordinates[m - 1]:g}" for m in wrong
+    )
+    expected = "+".join(map(str, run.expected))
+    return (
+        f"a motor outside the pair moved ({where} units): interpolation_pair_reading "
+        f"{reading} names motors {expected} for pair {run.pair}, the controller follows the "
+        "other reading (docs/stepper.md hardware check)"
+    )
 
 
 def _limit_on(snapshot: StepperSnapshot, motor: int) -> str | None:
@@ -1156,9 +1365,12 @@ def _limit_on(snapshot: StepperSnapshot, motor: int) -> str | None:
 
 __all__ = [
     "DESTRUCTIVE_COMMANDS",
+    "PAIR_READING_CHOICES",
+    "PAIR_READING_UNSET",
     "SYSTEM_COILS",
     "SYSTEM_COMMANDS",
     "CoilMotion",
+    "HomeMotion",
     "InterpolationConfig",
     "InterpolationMotion",
     "JointScale",

@@ -15,9 +15,10 @@ the motor's speed register; when the jog ends (0, deadman, stop service, e-stop,
 shutdown) the configured speed is written back after the stop (a failure is logged and
 shown in diagnostics, and retried).
 
-Interpolation pairs: types 2 and 3 are refused unless motors 1 and 2 convert alike (the
-manual's two readings of the type, README stepper decision 11); a second line / arc is
-refused while one this bridge started runs (decision 14).
+Interpolation pairs: types 2 and 3 are refused until ``interpolation_pair_reading`` says
+which of the manual's two readings the controller follows (README stepper decisions 11,
+19); a line / arc goal that moves a motor outside the configured pair is stopped; a second
+line / arc is refused while one this bridge started runs (decision 14).
 
 Standalone setters per motor: ``set_speed`` (rpm, like ``configure`` and the jog),
 ``set_direction`` (0/1), ``set_run_distance`` (m / rad, like ``move_by``) and
@@ -40,6 +41,8 @@ from bridge_core.diagnostics import Level, Report
 from bridge_core.errors import CommandRejected, ConfigurationError
 from bridge_core.node_base import BridgeNode, DeviceDefaults, copy_fields, spin_node
 from bridge_core.parameters import ParameterSpec, padded
+from bridge_core.serial_timing import char_time_s
+from bridge_core.transport import SerialSettings
 from msg_defs.action import ArcMotion, LineMotion, StepperMoveBy, StepperRun
 from msg_defs.msg import StepperState
 from msg_defs.srv import (
@@ -58,21 +61,25 @@ from msg_defs.srv import (
 from .device import (
     DESTRUCTIVE_COMMANDS,
     JOINT_TYPES,
+    PAIR_READING_CHOICES,
+    PAIR_READING_UNSET,
     SYSTEM_COMMANDS,
     CoilMotion,
+    HomeMotion,
     InterpolationMotion,
     JointScale,
     MoveByMotion,
     StepperDevice,
     StepperSnapshot,
-    check_pair_reading,
 )
 from .registers import (
     DEFAULT_BAUDRATE,
     INTERPOLATION_PAIRS,
+    LONGEST_REPLY_BYTES,
     MOTOR_ACTIONS,
     MOTOR_FORBIDDEN_DURING_INTERPOLATION,
     MOTORS,
+    REPLY_DELAY_S,
 )
 
 # StepperState fields copied from the snapshot, and per-motor configuration fields.
@@ -118,11 +125,15 @@ CLEAR_ALL_WARNING = (
 # most of the line.
 JOG_WRITE_RATE_HZ = 5.0
 
-# §3: "485 接口通信时每帧数据响应时间不能低于 35ms" (replies take at least 35 ms). The
-# largest read (49 registers, a 103-byte reply) takes 107 ms at 9600 baud more, so a
-# reply timeout below 0.15 s cannot be met: refused at start. The other reading (the host
-# must leave 35 ms between frames) is served by ``frame_gap_s`` (default 0: t3.5).
-TIMEOUT_MIN_S = 0.15
+# §3: "485 接口通信时每帧数据响应时间不能低于 35ms": the controller answers no sooner than
+# 35 ms after a request (README stepper decision 7). The reply timeout counts from the
+# request's last byte, so it must cover those 35 ms and the longest reply (a 49-register
+# read, 103 bytes: 107 ms at 9600 baud, 215 ms at 4800), plus a margin, rounded up to
+# 10 ms: 0.15 s at 9600 baud 8N1, 0.26 s at 4800, 0.10 s at 19200, 0.07 s at 38400
+# (``reply_timeout_floor_s``). A lower ``timeout_s`` is refused at start. The other
+# reading (the host must leave 35 ms between frames) is served by ``frame_gap_s``.
+TIMEOUT_MARGIN_S = 0.005
+TIMEOUT_STEP_S = 0.01
 # Actions' "reached" band (live parameter goal_tolerance): one step of the coordinate
 # registers (x100 of the user's unit, 40108+); an open-loop stepper ends on its target.
 GOAL_TOLERANCE_UNITS = 0.01
@@ -132,12 +143,36 @@ STEPPER_DEFAULTS = DeviceDefaults(
     "rtu",
     poll_rate_hz=3.0,  # a poll takes ~0.29 s at 9600 baud (README)
     baudrate=DEFAULT_BAUDRATE,
-    timeout_min_s=TIMEOUT_MIN_S,
-    # A stop coil's reply is 8 bytes after the controller's <= 35 ms: the least timeout
-    # the manual's rule allows is plenty, and keeps a stop over a line that comes back
-    # within 0.3 s of it (bench/stop_after_outage.py).
-    stop_timeout_s=TIMEOUT_MIN_S,
+    # No baud rate makes a reply come sooner than 35 ms; the floor at the configured baud
+    # rate is checked at start (check_reply_timeout).
+    timeout_min_s=REPLY_DELAY_S,
+    # A stop coil's reply is 8 bytes, no sooner than 35 ms after the request: the least
+    # timeout the manual's rule allows is plenty, and keeps a stop over a line that comes
+    # back within 0.3 s of it (bench/stop_after_outage.py). Scaled with the baud rate at
+    # start (StepperBridgeNode); this is its value at the default 9600.
+    stop_timeout_s=0.15,
 )
+
+
+def reply_timeout_floor_s(settings: SerialSettings) -> float:
+    """The least reply timeout the manual's 35 ms rule allows on this line (s)."""
+    char = char_time_s(settings.baudrate, settings.bytesize, settings.parity, settings.stopbits)
+    least = REPLY_DELAY_S + LONGEST_REPLY_BYTES * char + TIMEOUT_MARGIN_S
+    return math.ceil(round(least / TIMEOUT_STEP_S, 6)) * TIMEOUT_STEP_S
+
+
+def check_reply_timeout(settings: object) -> None:
+    """Refuse (one line) a ``timeout_s`` below the floor at the line's baud rate."""
+    if not isinstance(settings, SerialSettings):
+        return
+    floor = reply_timeout_floor_s(settings)
+    if settings.timeout_s < floor - 1e-9:
+        raise ConfigurationError(
+            f"timeout_s {settings.timeout_s:g} is below {floor:.2f} s, the least a reply can "
+            f"take at {settings.baudrate} baud: the controller answers no sooner than "
+            f"{REPLY_DELAY_S * 1000:.0f} ms after a request and the longest reply is "
+            f"{LONGEST_REPLY_BYTES} bytes (README stepper decision 7)"
+        )
 
 
 class StepperBridgeNode(BridgeNode[StepperSnapshot]):
@@ -145,6 +180,14 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
 
     def __init__(self, node_name: str = "stepper_bridge", **kwargs: Any) -> None:
         super().__init__(node_name, STEPPER_DEFAULTS, **kwargs)
+        settings = self.link.settings
+        if self._owned_link is not None:
+            check_reply_timeout(settings)  # a bus checks its own line (StepperBusNode)
+        if isinstance(settings, SerialSettings):
+            # Stops and probes while the controller is down wait this long for a reply.
+            self.channel.down_write_timeout_s = min(
+                reply_timeout_floor_s(settings), settings.timeout_s
+            )
         values = self.declare_specs(
             [
                 ParameterSpec(
@@ -190,6 +233,20 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
                     live=True,
                 ),
                 ParameterSpec(
+                    "interpolation_pair_reading",
+                    PAIR_READING_UNSET,
+                    "which motors interpolation pairs 2 and 3 drive: the manual's type rows "
+                    "(2 = motors 1+3, 3 = 2+3) or point rows (2 = 2+3, 3 = 1+3); unset "
+                    "refuses pairs 2 and 3 until the hardware check in docs/stepper.md",
+                    choices=PAIR_READING_CHOICES,
+                ),
+                ParameterSpec(
+                    "zero_after_home",
+                    False,
+                    "home actions: after the home input is reached, send the zero coordinates "
+                    "coil (00044, every motor's coordinate) and check the homed motors read 0",
+                ),
+                ParameterSpec(
                     "config_refresh_s",
                     5.0,
                     "re-read the motor parameters this often",
@@ -205,9 +262,11 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
             self.channel,
             config_refresh_s=float(values["config_refresh_s"]),
             jog_timeout_s=float(values["command_timeout_s"]),
+            pair_reading=str(values["interpolation_pair_reading"]).lower(),
         )
         self.device.on_speed_restore_failure = self._speed_restore_failed
         self.goal_tolerance = float(values["goal_tolerance"])
+        self.zero_after_home = bool(values["zero_after_home"])
         self.on_parameter("goal_tolerance", lambda value: setattr(self, "goal_tolerance", value))
         self.joint_names = [f"{self.joint_prefix}motor_{m}" for m in range(1, MOTORS + 1)]
         self.state_pub = self.create_publisher(StepperState, "~/state", 10)
@@ -250,6 +309,8 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
         self.device.invalidate_config()
 
     def publish_snapshot(self, s: StepperSnapshot) -> None:
+        if (why := self.device.take_wrong_pair()) is not None:
+            self._stop_wrong_pair(why)
         motors = s.config.motors
         positions = [self.scales[k].to_si(s.coordinates[k], motors[k].lead) for k in range(MOTORS)]
         self.publish_joints(s.read_time, positions)
@@ -263,6 +324,21 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
         m.interpolation_running = self.device.interpolation_run is not None
         self.state_pub.publish(m)
 
+    def _stop_wrong_pair(self, why: str) -> None:
+        """A line / arc (service or goal) moved a motor outside its configured pair: the
+        interpolation stops now (a goal following it also ends HALTED, decision 19)."""
+        ok, message, _ = self.run_command(
+            "stop_interpolation (wrong motors)",
+            self.device.stop_interpolation,
+            stop=True,
+            own_motion=True,
+        )
+        if not ok:
+            self.device.wrong_pair_not_stopped()  # tried again after the next poll
+        self.get_logger().error(
+            f"line / arc stopped: {why}" if ok else f"line / arc NOT stopped: {why}; {message}"
+        )
+
     def device_report(self) -> Report | None:
         s = self.last_snapshot
         if s is None:
@@ -273,6 +349,7 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
             ("device id", str(s.config.device_id)),
             ("baud rate", str(s.config.baud_rate)),
             ("system mode", str(s.config.system_mode)),
+            ("interpolation pair reading", self.device.pair_reading),
             ("motors running", ", ".join(running) or "none"),
             (
                 "jogging",
@@ -450,20 +527,21 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
             self.actions.motion(
                 StepperRun,
                 f"~/motor_{n}/home",
-                lambda _goal, n=n: CoilMotion(  # type: ignore[misc]
-                    d, self.scales, "home", (n,), tolerance=self.goal_tolerance
+                lambda _goal, n=n: HomeMotion(  # type: ignore[misc]
+                    d, self.scales, "home", (n,), tolerance=self.goal_tolerance, zero=self._zero()
                 ),
             )
         self.actions.motion(
             StepperRun,
             "~/home_all",
-            lambda _goal: CoilMotion(
+            lambda _goal: HomeMotion(
                 d,
                 self.scales,
                 "home_all",
                 every_motor,
                 tolerance=self.goal_tolerance,
                 homed=self._homing_order(),
+                zero=self._zero(),
             ),
         )
         self.actions.motion(
@@ -476,6 +554,14 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
         self.actions.motion(LineMotion, "~/line_move", self._line_motion)
         self.actions.motion(ArcMotion, "~/arc_move", self._arc_motion)
 
+    def _zero(self) -> Callable[[Sequence[int]], tuple[bool, str, dict[int, float] | None]] | None:
+        """zero_after_home: the zero coordinates coil as a guarded command, read back."""
+        if not self.zero_after_home:
+            return None
+        return lambda motors: self.run_command(
+            "zero coordinates after homing", lambda: self.device.zero_coordinates(motors)
+        )
+
     def _homing_order(self) -> list[int]:
         order = [m for m in self.device.config.homing_order if m]
         if not order:
@@ -487,7 +573,6 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
 
     def _line_motion(self, goal: Any) -> InterpolationMotion:
         self._check_interpolation_allowed()
-        self._check_pair_reading(goal.pair)
         start = self._pair_units(goal.pair, goal.start, "start") or (0.0, 0.0)
         end = self._pair_units(goal.pair, goal.end, "end") or (0.0, 0.0)
         speed = int(goal.speed_rpm)
@@ -504,7 +589,6 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
 
     def _arc_motion(self, goal: Any) -> InterpolationMotion:
         self._check_interpolation_allowed()
-        self._check_pair_reading(goal.pair)
         start, end, center, via = (
             self._pair_units(goal.pair, point, what) or (0.0, 0.0)
             for point, what in (
@@ -547,17 +631,12 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
     def _clear_all_reply(response: Any, _result: object) -> None:
         response.message = f"{response.message}; {CLEAR_ALL_WARNING}"
 
-    def _check_pair_reading(self, pair: int) -> None:
-        """Types 2 and 3 only while the manual's two readings convert alike."""
-        leads = [self._lead(m) for m in range(1, MOTORS + 1)]
-        check_pair_reading(pair, self.scales, leads)
-
     def _pair_units(
         self, pair: int, point: Sequence[float], what: str
     ) -> tuple[float, float] | None:
         if pair not in INTERPOLATION_PAIRS:
             return None  # the device layer refuses the pair with the full message
-        a, b = INTERPOLATION_PAIRS[pair]
+        a, b = self.device.pair_axes(pair)  # refused while the reading is unset
         if len(point) != 2:
             raise CommandRejected(f"{what} needs 2 coordinates")
         return (self.to_units(a, point[0]), self.to_units(b, point[1]))
@@ -572,14 +651,12 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
 
     def _line_move(self, r: Any) -> None:
         self._check_interpolation_allowed()
-        self._check_pair_reading(r.pair)
         start = self._pair_units(r.pair, r.start, "start") or (0.0, 0.0)
         end = self._pair_units(r.pair, r.end, "end") or (0.0, 0.0)
         self.device.line_move(r.pair, start, end, r.speed_rpm)
 
     def _arc_move(self, r: Any) -> None:
         self._check_interpolation_allowed()
-        self._check_pair_reading(r.pair)
         points = [
             self._pair_units(r.pair, p, what) or (0.0, 0.0)
             for p, what in (

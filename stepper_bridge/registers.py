@@ -37,9 +37,9 @@ Readings taken (also in README "stepper decisions"):
   40137-40147, 40160-40167, 40173-40176, 40215-40299) are not in the map: the planner
   never reads through them and the simulator answers 0x02.
 - Interpolation pair types (40182 / 40202): the type rows say 1 = motors 1+2, 2 = 1+3,
-  3 = 2+3; the point rows below them say 2 = 2+3, 3 = 1+3. The type rows are taken (see
-  INTERPOLATION_PAIRS); types 2 and 3 are refused by the node while the two readings would
-  convert the first coordinate differently.
+  3 = 2+3; the point rows below them say 2 = 2+3, 3 = 1+3. Descriptions follow the type
+  rows (INTERPOLATION_PAIRS); types 2 and 3 are refused until the node's
+  interpolation_pair_reading says which reading the controller follows.
 - Value ranges: where the manual gives one (direction 0/1, input numbers 1-13 or 0 for
   none, homing order 0-5, interpolation type 0-3, arc mode and direction 0/1, device id
   1-255, system mode 0-5, baud rates 4800/9600/19200/38400) it is enforced; elsewhere the
@@ -80,11 +80,15 @@ I32_SCALED_MAX = ((1 << 31) - 1) / DISTANCE_SCALE
 # §3: "485 接口通信时每帧数据响应时间不能低于 35ms".
 REPLY_DELAY_S = 0.035
 MAX_REGISTERS_PER_REQUEST = 49  # §4: "可连续读取<50 个寄存器", "可连续写<50 个寄存器"
+# The longest reply: a read of 49 registers (unit, function, byte count, 98 data bytes, CRC).
+LONGEST_REPLY_BYTES = 5 + 2 * MAX_REGISTERS_PER_REQUEST
 FUNCTION_CODES = frozenset({0x03, 0x05, 0x06, 0x10})  # §4
 DEFAULT_BAUDRATE = 9600  # §3
 BAUD_RATES = (4800, 9600, 19200, 38400)  # §5(1) 40213: "一般为:4800,9600,19200,38400"
 SYSTEM_MODES = range(0, 6)  # §5(3) 40300: 0 normal, modes 1-5
-DEVICE_IDS = range(1, 256)  # §5(1) 40212: "范围 1-255"
+# §5(1) 40212: "范围 1-255": the register's range. A request can address only 1-247 (Modbus
+# RTU; 248-255 are reserved), so the bridge's unit ids stop there (bridge_core.channel).
+DEVICE_IDS = range(1, 256)
 
 # Fields of a motor block, in address order: (field, offset, type, scale, unit, min, max).
 MOTOR_FIELDS: tuple[tuple[str, int, ValueType, float, str, float, float], ...] = (
@@ -127,10 +131,10 @@ OUTPUT_COIL_FIRST = 49  # 00049-00072: output n on = 49 + 2(n-1), off = 50 + 2(n
 # - every point row (40184-40199, 40203-40210): first coordinate "若为类型 1、3,则为 1 号
 #   电机...;若为类型 2, 则为 2 号电机", second "若为类型 1,则为 2 号电机...;若为类型2、3,
 #   则为3号电机" (1 = 1+2, 2 = 2+3, 3 = 1+3).
-# The bridge takes the type rows: they define the register written, say it identically
-# twice, and name the pairs in order. Only the first coordinate of types 2 and 3 differs
-# (motor 1 or 2); until hardware confirms the reading the node refuses those types unless
-# motors 1 and 2 convert SI -> units alike (stepper_bridge.device.check_pair_reading).
+# Descriptions follow the type rows: they define the register written, say it identically
+# twice, and name the pairs in order. Types 2 and 3 are refused until the node's
+# interpolation_pair_reading names the reading a hardware check showed (README stepper
+# decision 19, stepper_bridge.device.pair_axes).
 INTERPOLATION_PAIRS: dict[int, tuple[int, int]] = {1: (1, 2), 2: (1, 3), 3: (2, 3)}
 # The point rows' reading, kept to tell which motors the two readings disagree on.
 INTERPOLATION_PAIRS_POINT_ROWS: dict[int, tuple[int, int]] = {1: (1, 2), 2: (2, 3), 3: (1, 3)}

@@ -13,7 +13,8 @@ Behaviour (from the manual, plus what a test needs to see):
   register's rpm x lead (units per second, read live: "运行中可以调节") until the stop
   coil, the e-stop or the limit input in that direction; a single run covers the run
   distance in the direction register's sense; home runs in reverse until the motor's
-  home input is on, then its coordinate is 0; "return to zero" runs each motor back to
+  home input is on, then its coordinate is 0 (unless ``zero_at_home`` is False: a
+  controller that leaves it, README stepper decision 20); "return to zero" runs each motor back to
   coordinate 0; "home all" homes the motors of 40177-40181 one after the other. Speed 0
   (or lead 0) does not run ("若速度为0则不运行");
 - switches: each motor's home and negative limit switch is at physical 0, its positive
@@ -24,9 +25,11 @@ Behaviour (from the manual, plus what a test needs to see):
 - outputs: 0xFF00 to coil 00049+2(n-1) switches output n on, to 00050+2(n-1) off; all on
   / all off; the e-stop stops every motor, every interpolation and switches every output
   off;
-- line and arc interpolation: the pair's motors first run to the start point each at its
-  own speed, then follow the line / arc at the interpolation speed (rpm x the first
-  motor's lead); the stop coils end it;
+- line and arc interpolation: the pair's motors (by the type rows, 40182 / 40202; a test
+  sets ``pair_reading`` to "point_rows" to play a controller that follows the point rows,
+  README stepper decision 19) first run to the start point each at its own speed, then
+  follow the line / arc at the interpolation speed (rpm x the first motor's lead); the stop
+  coils end it;
 - while a line or arc interpolation runs (approach included), a write to 40182-40211 or
   to a start coil (00100 / 00102) answers 0x03 and changes nothing (§5(1) 40201 / 40211
   "插补过程运行中不可调节"; README stepper decision 14); the stop coils and the e-stop work;
@@ -65,6 +68,7 @@ from .registers import (
     DEFAULT_BAUDRATE,
     INPUTS,
     INTERPOLATION_PAIRS,
+    INTERPOLATION_PAIRS_POINT_ROWS,
     INTERPOLATION_REGISTERS,
     MOTOR_ACTIONS,
     MOTOR_COILS,
@@ -145,6 +149,12 @@ class StepperSimDevice(SimulatedDevice):
         self.homing_queue: list[int] = []
         self.forced_inputs: set[int] = set()
         self.saves = 0
+        # Which reading of pair types 2 and 3 this controller follows: "type_rows" (1+3,
+        # 2+3) or "point_rows" (2+3, 1+3).
+        self.pair_reading = "type_rows"
+        # Whether homing sets the coordinate to 0 at the home switch (the manual does not
+        # say; README stepper decision 20): False plays a controller that leaves it.
+        self.zero_at_home = True
         # Told (old id, new id) when the device id changes, so the server answers the new
         # unit only (make_simulator re-keys its units).
         self.on_unit_id_change: Callable[[int, int], None] = lambda _old, _new: None
@@ -343,7 +353,8 @@ class StepperSimDevice(SimulatedDevice):
         pair = int(self.get(f"{prefix}_pair"))
         if pair not in INTERPOLATION_PAIRS:
             return
-        a, b = INTERPOLATION_PAIRS[pair]
+        pairs = INTERPOLATION_PAIRS_POINT_ROWS if self.pair_reading == "point_rows" else None
+        a, b = (pairs or INTERPOLATION_PAIRS)[pair]
 
         def point(name: str) -> tuple[float, float]:
             return (float(self.get(f"{name}_a")), float(self.get(f"{name}_b")))
@@ -409,7 +420,8 @@ class StepperSimDevice(SimulatedDevice):
                 return
             direction, target = (1.0 if motion.target > p else -1.0), motion.target
         if motion.kind == "home" and self.input_on(self._assigned(m, "home")):
-            self.offset[m] = p  # at the home switch: the coordinate is 0
+            if self.zero_at_home:
+                self.offset[m] = p  # at the home switch: the coordinate is 0
             self._finish(m)
             return
         if self._blocked(m, direction):

@@ -28,7 +28,7 @@ class FlakyIO:
             raise LinkTimeout("no reply")
         self.writes.append((kind, address, value))
 
-    def write_coil(self, address: int, on: bool) -> None:
+    def write_coil(self, address: int, on: bool, priority: Priority = Priority.COMMAND) -> None:
         self._write("coil", address, on)
 
     def write_register(

@@ -43,13 +43,29 @@ def test_padded() -> None:
 
 
 def test_the_stepper_refuses_a_reply_timeout_its_replies_cannot_meet() -> None:
-    """§3: replies take at least 35 ms, the largest 107 ms more at 9600 baud."""
+    """§3: replies come no sooner than 35 ms, the largest (103 bytes) takes 107 ms more at
+    9600 baud and twice that at 4800: the floor scales with the baud rate."""
+    from bridge_core.errors import ConfigurationError
     from bridge_core.node_base import transport_specs
-    from stepper_bridge.node import STEPPER_DEFAULTS, TIMEOUT_MIN_S
+    from bridge_core.transport import SerialSettings, TcpSettings
+    from stepper_bridge.node import STEPPER_DEFAULTS, check_reply_timeout, reply_timeout_floor_s
 
+    floors = {
+        baud: reply_timeout_floor_s(SerialSettings("/dev/null", baud))
+        for baud in (4800, 9600, 19200, 38400)
+    }
+    assert floors == pytest.approx({4800: 0.26, 9600: 0.15, 19200: 0.10, 38400: 0.07})
+    assert reply_timeout_floor_s(SerialSettings("/dev/null", 9600, "E")) == pytest.approx(0.16)
+    check_reply_timeout(SerialSettings("/dev/null", 9600, timeout_s=0.15))
+    check_reply_timeout(SerialSettings("/dev/null", 38400, timeout_s=0.07))
+    check_reply_timeout(TcpSettings("localhost", 502, 0.01))  # not a serial line
+    for baud, floor in ((4800, "0.26"), (9600, "0.15")):
+        with pytest.raises(ConfigurationError) as refused:
+            check_reply_timeout(SerialSettings("/dev/null", baud, timeout_s=0.14))
+        line = str(refused.value)
+        assert f"below {floor} s" in line and f"at {baud} baud" in line and "\n" not in line
+        assert "no sooner than 35 ms" in line
     specs = {spec.name: spec for spec in transport_specs(STEPPER_DEFAULTS)}
-    timeout = specs["timeout_s"]
-    assert timeout.validate(0.1) is not None and str(TIMEOUT_MIN_S) in str(timeout.validate(0.1))
-    assert timeout.validate(TIMEOUT_MIN_S) is None
+    assert specs["timeout_s"].validate(0.03) is not None  # below 35 ms at any baud rate
     assert specs["frame_gap_s"].validate(0.035) is None
     assert specs["frame_gap_s"].default == 0.0

@@ -417,7 +417,7 @@ class FakeIO:
     def write_registers(self, address: int, values: Sequence[int]) -> None:
         self.writes.append(("16", address, list(values)))
 
-    def write_coil(self, address: int, on: bool) -> None:
+    def write_coil(self, address: int, on: bool, priority: Priority = Priority.COMMAND) -> None:
         self.writes.append(("05", address, on))
 
     def write_coils(self, address: int, values: Sequence[bool]) -> None:

@@ -4,6 +4,7 @@ its own, the simulator on a socat pty pair."""
 
 from __future__ import annotations
 
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -17,7 +18,7 @@ from std_srvs.srv import Trigger
 from bridge_core.registers import Table
 from msg_defs.action import ArcMotion, LineMotion, StepperMoveBy, StepperRun
 from msg_defs.msg import MotionOutcome
-from msg_defs.srv import SetHomingOrder
+from msg_defs.srv import LineMove, SetHomingOrder
 from stepper_bridge.registers import MOTORS, motor_coil, motor_register
 from stepper_bridge.sim import START_POSITION, TRAVEL, StepperSimDevice
 
@@ -194,3 +195,50 @@ def test_stepper_actions(sim: tuple[StepperSimDevice, str], client: Client, tmp_
         assert not b.send_goal(StepperMoveBy, "motor_1/move_by", distance=10 * MM).accepted
         client.wait_log("stepper_bridge", "move_by goal rejected: the node is not active")
         assert writes(device)[mark:] == []
+
+
+def test_a_line_on_the_wrong_motors_is_stopped_and_homing_needs_no_zero(
+    sim: tuple[StepperSimDevice, str], client: Client, tmp_path: Path
+) -> None:
+    """Issue 20: configured for the type rows (pair 2 = motors 1+3) on a controller that
+    follows the point rows (2+3): motor 2 moves, the goal is stopped (the interpolation
+    stop coils) and aborted, its result naming the motor; a matching one says which moved.
+    A controller that leaves the coordinate at home: the home goal succeeds (home input on,
+    motor stopped) with the coordinate there, nothing zeroed (zero_after_home false)."""
+    device, port = sim
+    device.pair_reading = "point_rows"
+    with bridge(client, tmp_path, port, interpolation_pair_reading="type_rows") as (b, _proc):
+        client.wait_message(b.state)
+        goal = b.send_goal(
+            LineMotion, "line_move", pair=2, start=[0.005, 0.004], end=[0.009, 0.012], speed_rpm=600
+        )
+        assert goal.accepted
+        result = outcome_of(goal, fed=False)
+        outcome = result.outcome
+        assert outcome.code == MotionOutcome.HALTED and outcome.stop_sent, outcome.message
+        assert "motor 2 0 ->" in outcome.message and "type_rows" in outcome.message
+        assert device.interpolation is None
+        assert coil_writes(device)[-2:] == [100, 102]  # arc stop 00101, line stop 00103
+        device.pair_reading = "type_rows"
+        goal = b.send_goal(
+            LineMotion, "line_move", pair=2, start=[0.0, 0.0], end=[0.004, 0.002], speed_rpm=600
+        )
+        result = outcome_of(goal, GoalStatus.STATUS_SUCCEEDED)
+        assert result.outcome.message.endswith("motors moved: 1+3 (coordinates read back)")
+        # The same line from the service: no goal follows it, the node stops it itself.
+        device.pair_reading = "point_rows"
+        mark, called = len(writes(device)), time.monotonic()
+        reply = b.call(
+            LineMove, "line_move", pair=2, start=[0.01, 0.0], end=[0.012, 0.004], speed_rpm=600
+        )
+        assert reply.success, reply.message
+        client.wait_log(
+            "stepper_bridge", "line / arc stopped: a motor outside the pair moved", since=called
+        )
+        assert coil_writes(device, mark)[-2:] == [100, 102] and device.interpolation is None
+        device.zero_at_home = False
+        mark = len(writes(device))
+        result = outcome_of(b.send_goal(StepperRun, "motor_4/home"), GoalStatus.STATUS_SUCCEEDED)
+        assert "motor 4 IN8 on at coordinate -50" in result.outcome.message
+        assert result.positions[3] == pytest.approx(-START_POSITION * MM)
+        assert coil_writes(device, mark) == [motor_coil(4, "home")]

@@ -124,6 +124,8 @@ def test_two_controllers_share_one_line(client: Client, tmp_path: Path) -> None:
         ({"unit_ids": list(range(1, 13))}, "fewer than 12"),
         ({"unit_ids": [1, 2]}, "joint_prefix"),
         ({"unit_ids": [0]}, "unit id 0"),
+        ({"unit_ids": [250]}, "unit id 250 outside 1-247"),
+        ({"unit_ids": [1], "baudrate": 4800, "timeout_s": 0.15}, "below 0.26 s"),
     ],
 )
 def test_bus_settings_refused_at_start(params: dict[str, object], text: str) -> None:

@@ -16,6 +16,7 @@ from std_msgs.msg import Float64
 from std_srvs.srv import SetBool, Trigger
 
 from bridge_core.registers import Table
+from msg_defs.action import LineMotion
 from msg_defs.msg import StepperState
 from msg_defs.srv import (
     ArcMove,
@@ -621,8 +622,8 @@ def test_refusals_write_nothing(sim, client: Client, tmp_path: Path) -> None:  #
 
 def test_revolute_joints_with_a_reduction(sim, client: Client, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     """units_per_revolution: lead 5 per motor turn, 50 per joint turn (1:10). A coordinate
-    of 25 is pi rad; move_by and interpolation points convert the same way. Motors 1 and 2
-    alike: pairs 2 and 3 convert identically under both readings and are allowed."""
+    of 25 is pi rad; move_by and interpolation points convert the same way (pairs 2 and 3
+    by the type rows, as configured)."""
     device, port = sim
     H = Table.HOLDING  # noqa: N806
     device.position[1] = START_POSITION + 25.0
@@ -633,6 +634,7 @@ def test_revolute_joints_with_a_reduction(sim, client: Client, tmp_path: Path) -
         port,
         joint_types=["revolute", "revolute", "prismatic", "prismatic", "revolute"],
         units_per_revolution=[50.0, 50.0, 0.0, 0.0, 0.0],
+        interpolation_pair_reading="type_rows",
     ) as (b, _):
         js = client.wait_message(b.joint_states)
         assert list(js.position[:2]) == pytest.approx([math.pi, 2 * math.pi])
@@ -663,10 +665,12 @@ def test_revolute_joints_with_a_reduction(sim, client: Client, tmp_path: Path) -
         ]
 
 
-def test_pairs_read_two_ways_need_alike_motors(sim, client: Client, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
-    """Pairs 2 and 3 (motor 1 or 2 first, by the manual's two readings) are refused, with
-    what to do, while motors 1 and 2 convert differently; nothing is written, and pair 1
-    goes through."""
+def test_pairs_2_and_3_are_refused_until_the_reading_is_set(
+    sim: tuple[StepperSimDevice, str], client: Client, tmp_path: Path
+) -> None:
+    """Issue 20: pairs 2 and 3 (motors 1+3 / 2+3 or 2+3 / 1+3 by the manual's two
+    readings) are refused, services and actions, in one line saying what to do, while
+    interpolation_pair_reading is unset (the default); nothing is written, pair 1 goes."""
     device, port = sim
     units_per_meter = [1000.0, 500.0, 1000.0, 1000.0, 1000.0]
     with bridge(client, tmp_path, port, units_per_meter=units_per_meter) as (b, _):
@@ -682,8 +686,13 @@ def test_pairs_read_two_ways_need_alike_motors(sim, client: Client, tmp_path: Pa
             reply = b.call(srv, name, pair=pair, **fields)
             assert not reply.success, name
             message = reply.message
-            assert "refused" in message and "until hardware confirms" in message, message
-            assert "motors 1 and 2" in message and "\n" not in message, message
+            assert "refused" in message and "interpolation_pair_reading" in message, message
+            assert "\n" not in message, message
+        for pair in (LineMotion.Goal.PAIR_MOTORS_1_3, LineMotion.Goal.PAIR_MOTORS_2_3):
+            goal = b.send_goal(LineMotion, "line_move", pair=pair, end=[0.01, 0.0], speed_rpm=10)
+            assert not goal.accepted
+            client.wait_log("stepper_bridge", f"interpolation pair {pair} refused")
+        assert writes(device) == []
         reply = b.call(
             LineMove,
             "line_move",

@@ -5,6 +5,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import signal
 import subprocess
@@ -18,13 +19,21 @@ import pytest
 import serial
 from pymodbus.framer import FramerRTU
 
-from bridge_core.channel import DeviceChannel
+from bridge_core.channel import DeviceChannel, Priority
 from bridge_core.errors import CommandRejected, DeviceException, LinkError
+from bridge_core.goals import Outcome, Verdict
 from bridge_core.registers import Table
 from bridge_core.sim_base import Simulator
 from bridge_core.transport import ModbusLink, SerialSettings
-from stepper_bridge.device import JointScale, StepperDevice, check_pair_reading
-from stepper_bridge.registers import STEPPER_MAP, UNDEFINED_HOLDING, holding
+from stepper_bridge.device import (
+    HomeMotion,
+    InterpolationMotion,
+    JointScale,
+    StepperDevice,
+    StepperMotion,
+    pair_axes,
+)
+from stepper_bridge.registers import STEPPER_MAP, UNDEFINED_HOLDING, holding, motor_coil
 from stepper_bridge.sim import START_POSITION, StepperSimDevice, make_simulator
 
 from ..support.serial_pair import socat_pair
@@ -325,6 +334,7 @@ def test_outputs_and_inputs(rig: Rig) -> None:
 
 def test_line_and_arc_interpolation(rig: Rig) -> None:
     d, fake = rig.device, rig.fake
+    d.pair_reading = "type_rows"  # the simulator's (pair 3 below)
     for motor in (1, 2, 3):
         d.set_speed(motor, 1200)
     d.line_move(1, (5.0, 10.0), (15.0, 20.0), 1200)
@@ -424,6 +434,7 @@ def test_a_second_interpolation_is_refused_while_one_runs(rig: Rig) -> None:
     """Issue 10: "插补过程运行中不可调节": the bridge refuses a second line / arc, nothing
     written, until a poll begun after the start shows the motors stopped (or a stop)."""
     d, fake = rig.device, rig.fake
+    d.pair_reading = "type_rows"  # pair 3 below: refused for this reason, not the reading
     d.line_move(1, (0.0, 0.0), (40.0, 40.0), 1)  # the approach and path take long
     assert fake.interpolation is not None and d.interpolation_run is not None
     writes = len(fake.write_log)
@@ -709,53 +720,250 @@ def test_joint_scale_with_a_reduction() -> None:
             JointScale("revolute", units_per_revolution=bad)
 
 
-MM = JointScale("prismatic", 1000.0)
-LEADS = [5.0] * 5
+class PriorityRecorder:
+    """The rig's channel, with the priority of every coil write recorded."""
+
+    def __init__(self, channel: DeviceChannel) -> None:
+        self.channel = channel
+        self.coils: list[tuple[int, Priority]] = []
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.channel, name)
+
+    def write_coil(self, address: int, on: bool, priority: Priority = Priority.COMMAND) -> None:
+        self.coils.append((address, priority))
+        self.channel.write_coil(address, on, priority)
 
 
-def scales(**by_motor: JointScale) -> list[JointScale]:
-    """Five prismatic mm scales, some replaced (``m2=...``)."""
-    out = [MM] * 5
-    for key, scale in by_motor.items():
-        out[int(key[1:]) - 1] = scale
-    return out
-
-
-def test_pair_1_is_read_alike_and_always_allowed() -> None:
-    check_pair_reading(1, scales(m2=JointScale("revolute")), LEADS)
-    check_pair_reading(1, scales(m1=JointScale("prismatic", 1.0)), LEADS)
-
-
-@pytest.mark.parametrize("pair", [2, 3])
-def test_pairs_the_readings_disagree_on_need_motors_1_and_2_alike(pair: int) -> None:
-    check_pair_reading(pair, scales(), LEADS)  # all mm: the same values either way
-    # Motor 3 is the second motor under both readings: its scale does not matter.
-    check_pair_reading(pair, scales(m3=JointScale("prismatic", 1.0)), LEADS)
-    refusals = [
-        (scales(m2=JointScale("prismatic", 500.0)), LEADS),
-        (scales(m1=JointScale("revolute"), m2=JointScale("prismatic")), LEADS),
-        (scales(m1=JointScale("revolute"), m2=JointScale("revolute")), [5.0, 6.0, 5.0, 5.0, 5.0]),
-        (
-            scales(m1=JointScale("revolute", units_per_revolution=50.0), m2=JointScale("revolute")),
-            LEADS,
-        ),
+def test_stops_go_at_stop_priority(rig: Rig) -> None:
+    """Issue 20: on a shared line every stop coil goes in the next free slot
+    (Priority.STOP), before other controllers' commands and polls; motions do not."""
+    io = PriorityRecorder(rig.channel)
+    d = StepperDevice(io)
+    d.poll()
+    d.motor_action(1, "forward")
+    d.motor_action(1, "stop")
+    d.jog(2, 60.0)
+    d.jog_stop(2)
+    d.line_move(1, (1.0, 1.0), (2.0, 2.0), 60)
+    d.stop_interpolation()
+    d.system_command("emergency_stop")
+    stop, command = Priority.STOP, Priority.COMMAND
+    assert io.coils == [
+        (motor_coil(1, "forward"), command),
+        (motor_coil(1, "stop"), stop),
+        (motor_coil(2, "forward"), command),
+        (motor_coil(2, "stop"), stop),
+        (STEPPER_MAP["line_start"].address, command),
+        (STEPPER_MAP["arc_stop"].address, stop),
+        (STEPPER_MAP["line_stop"].address, stop),
+        (STEPPER_MAP["emergency_stop"].address, stop),
     ]
-    for motor_scales, leads in refusals:
-        with pytest.raises(CommandRejected, match="until hardware confirms") as refused:
-            check_pair_reading(pair, motor_scales, leads)
-        assert "\n" not in str(refused.value) and "pair 1" in str(refused.value)
-    # Revolute alike: the same lead read from the device, or the same units per joint
-    # revolution (then the lead is not used), or one's units_per_revolution = the other's lead.
-    rev = JointScale("revolute")
-    geared = JointScale("revolute", units_per_revolution=50.0)
-    check_pair_reading(pair, scales(m1=rev, m2=rev), LEADS)
-    check_pair_reading(pair, scales(m1=geared, m2=geared), [5.0, 6.0, 5.0, 5.0, 5.0])
-    check_pair_reading(pair, scales(m1=geared, m2=rev), [5.0, 50.0, 5.0, 5.0, 5.0])
 
 
-def test_unknown_pairs_are_left_to_the_device_layer() -> None:
-    for pair in (0, 4):
-        check_pair_reading(pair, scales(m2=JointScale("revolute")), LEADS)
+def test_pairs_2_and_3_are_refused_until_the_reading_is_set() -> None:
+    """Issue 20: pairs 2 and 3 are motors 1+3 / 2+3 by the manual's type rows and 2+3 /
+    1+3 by its point rows; pair 1 is 1+2 either way."""
+    for reading in ("unset", "type_rows", "point_rows"):
+        assert pair_axes(1, reading) == (1, 2)
+    assert (pair_axes(2, "type_rows"), pair_axes(3, "type_rows")) == ((1, 3), (2, 3))
+    assert (pair_axes(2, "point_rows"), pair_axes(3, "point_rows")) == ((2, 3), (1, 3))
+    for pair in (2, 3):
+        with pytest.raises(CommandRejected, match="interpolation_pair_reading") as refused:
+            pair_axes(pair, "unset")
+        assert "\n" not in str(refused.value) and "docs/stepper.md" in str(refused.value)
+    with pytest.raises(CommandRejected, match="pair 4"):
+        pair_axes(4, "type_rows")
+
+
+def test_pairs_2_and_3_write_nothing_while_the_reading_is_unset(rig: Rig) -> None:
+    d = rig.device
+    d.set_speed(1, 600)
+    mark = len(rig.writes())
+    for pair in (2, 3):
+        with pytest.raises(CommandRejected, match="interpolation_pair_reading"):
+            d.line_move(pair, (1.0, 1.0), (2.0, 2.0), 60)
+        with pytest.raises(CommandRejected, match="interpolation_pair_reading"):
+            d.arc_move(pair, 0, (1.0, 0.0), (0.0, 1.0), (0.0, 0.0), (0.0, 0.0), True, 60)
+    assert rig.writes()[mark:] == []
+    d.line_move(1, (1.0, 1.0), (2.0, 2.0), 60)  # pair 1: the same under both readings
+
+
+def follow(rig: Rig, motion: StepperMotion) -> Verdict:
+    """Start ``motion`` and judge every poll after it, as the node's goal thread does."""
+    motion.start()
+    return follow_started(rig, motion)
+
+
+def follow_started(rig: Rig, motion: StepperMotion) -> Verdict:
+    started = time.monotonic()
+    while True:
+        snapshot = rig.device.poll()
+        verdict = motion.judge(snapshot, time.monotonic() - started)
+        if verdict is not None:
+            return verdict
+        assert time.monotonic() - started < 30.0, "the motion never ended"
+        time.sleep(0.02)
+
+
+def line_goal(rig: Rig, pair: int) -> InterpolationMotion:
+    d = rig.device
+    start, end = (5.0, 4.0), (9.0, 12.0)
+    return InterpolationMotion(
+        d,
+        [JointScale()] * 5,
+        pair,
+        end,
+        f"line_move pair {pair}",
+        lambda: d.line_move(pair, start, end, 1200),
+        tolerance=0.01,
+    )
+
+
+@pytest.mark.parametrize("reading", ["type_rows", "point_rows"])
+def test_a_line_on_other_motors_than_the_configured_reading_is_stopped(
+    rig: Rig, reading: str
+) -> None:
+    """Issue 20: a controller that follows the other reading moves a motor outside the
+    configured pair; the goal ends HALTED (its stop sent) naming it, not REACHED."""
+    d, fake = rig.device, rig.fake
+    for motor in (1, 2, 3):
+        d.set_speed(motor, 1200)
+    d.pair_reading = reading
+    fake.pair_reading = "point_rows" if reading == "type_rows" else "type_rows"
+    motion = line_goal(rig, 2)
+    wrong = 2 if reading == "type_rows" else 1  # the first motor of the other reading
+    verdict = follow(rig, motion)
+    assert verdict.outcome is Outcome.HALTED, verdict.message
+    assert f"motor {wrong} 0 ->" in verdict.message and reading in verdict.message
+    motion.stop()  # what the node's goal thread sends for a HALTED verdict
+    assert fake.interpolation is None
+    assert rig.writes()[-2:] == [(5, Table.COIL, 100, (1,)), (5, Table.COIL, 102, (1,))]
+
+
+def test_a_wrong_motor_ends_the_goal_even_after_it_was_seen_running(rig: Rig) -> None:
+    """The wrong-motor verdict is not held back for the idle polls a running line waits
+    for (a goal that had seen its motors run never ended: found by a flaky ROS test)."""
+    d, fake = rig.device, rig.fake
+    for motor in (1, 2, 3):
+        d.set_speed(motor, 60)
+    d.pair_reading, fake.pair_reading = "type_rows", "point_rows"
+    motion = line_goal(rig, 2)
+    motion.start()
+    d.stop_interpolation()  # the snapshots below are made up from this one
+    here = d.poll()
+    running = dataclasses.replace(here, running=(True, True, True, False, False))
+    assert motion.judge(dataclasses.replace(running, coordinates=(0.0,) * 5), 1.0) is None
+    assert motion.seen_running
+    moved = dataclasses.replace(running, coordinates=(0.0, 0.5, 0.2, 0.0, 0.0))
+    verdict = motion.judge(moved, 1.1)
+    assert verdict is not None and verdict.outcome is Outcome.HALTED, verdict
+    assert "motor 2 0 -> 0.5" in verdict.message
+
+
+def test_a_line_service_on_other_motors_is_flagged_for_a_stop(rig: Rig) -> None:
+    """The same for a line started by the service (no goal follows it): a poll flags it,
+    once, for the node to stop."""
+    d, fake = rig.device, rig.fake
+    for motor in (1, 2, 3):
+        d.set_speed(motor, 1200)
+    d.pair_reading, fake.pair_reading = "type_rows", "point_rows"
+    d.line_move(2, (5.0, 4.0), (9.0, 12.0), 1200)
+    why = wait_until(lambda: d.poll() and d.take_wrong_pair())
+    assert "motor 2 0 ->" in why and "names motors 1+3 for pair 2" in why and "\n" not in why
+    d.poll()
+    assert d.take_wrong_pair() is None  # once per line
+    d.stop_interpolation()
+    assert fake.interpolation is None
+
+
+@pytest.mark.parametrize(("pair", "moved"), [(1, "1+2"), (2, "1+3"), (3, "2+3")])
+def test_a_line_on_the_configured_motors_says_which_moved(rig: Rig, pair: int, moved: str) -> None:
+    d, fake = rig.device, rig.fake
+    for motor in (1, 2, 3):
+        d.set_speed(motor, 1200)
+    d.pair_reading = fake.pair_reading = "type_rows"
+    verdict = follow(rig, line_goal(rig, pair))
+    assert verdict.outcome is Outcome.REACHED, verdict.message
+    assert verdict.message.endswith(f"motors moved: {moved} (coordinates read back)")
+
+
+def home_goal(rig: Rig, motor: int, **kwargs: Any) -> HomeMotion:
+    rig.device.poll()  # the configuration, as the node has it before any goal
+    return HomeMotion(rig.device, [JointScale()] * 5, "home", (motor,), tolerance=0.01, **kwargs)
+
+
+def test_homing_is_judged_by_the_home_input_not_a_zero_coordinate(rig: Rig) -> None:
+    """Issue 20: a controller that does not zero the coordinate at home ends the homing
+    REACHED (home input on, motor stopped) with the coordinate it reads; it used to end
+    LIMIT (home is wired to the reverse limit input)."""
+    d, fake = rig.device, rig.fake
+    fake.zero_at_home = False
+    d.set_speed(2, 1200)
+    verdict = follow(rig, home_goal(rig, 2))
+    assert verdict.outcome is Outcome.REACHED, verdict.message
+    assert "motor 2 IN4 on at coordinate -50" in verdict.message
+    assert verdict.message.endswith("coordinates not zeroed (zero_after_home)")
+    assert fake.position[2] == 0.0 and d.poll().coordinates[1] == -START_POSITION
+    assert (5, Table.COIL, 43, (1,)) not in rig.writes()  # no zero coordinates coil
+
+
+def test_homing_reports_the_coordinate_of_a_second_idle_poll(rig: Rig) -> None:
+    """A poll reads the coordinates before the running flags: the coordinate of the poll
+    that first shows the motor stopped may predate the controller's zero at the switch
+    (the result once said -50 for a motor at 0); REACHED waits for a second idle poll."""
+    d = rig.device
+    motion = home_goal(rig, 2)
+    motion.start()
+    d.motor_action(2, "stop")  # the snapshots below are made up from this one
+    here = d.poll()
+    inputs = tuple(n == 4 for n in range(1, 14))  # IN4: motor 2's home input
+    running = dataclasses.replace(here, running=(False, True, False, False, False))
+    assert motion.judge(running, 1.0) is None
+    torn = dataclasses.replace(here, inputs=inputs, coordinates=(0.0, -50.0, 0.0, 0.0, 0.0))
+    assert motion.judge(torn, 1.1) is None
+    settled = dataclasses.replace(torn, coordinates=(0.0,) * 5)
+    verdict = motion.judge(settled, 1.2)
+    assert verdict is not None and verdict.outcome is Outcome.REACHED, verdict
+    assert "motor 2 IN4 on at coordinate 0" in verdict.message
+
+
+def test_zero_after_home_sends_the_zero_coil_and_checks_it(rig: Rig) -> None:
+    d, fake = rig.device, rig.fake
+    fake.zero_at_home = False
+    d.set_speed(3, 1200)
+
+    def zero(motors: Any) -> tuple[bool, str, dict[int, float]]:
+        return True, "", d.zero_coordinates(motors)
+
+    verdict = follow(rig, home_goal(rig, 3, zero=zero))
+    assert verdict.outcome is Outcome.REACHED, verdict.message
+    assert "coordinates zeroed (coil 00044" in verdict.message
+    assert rig.writes()[-1] == (5, Table.COIL, 43, (1,)) and d.poll().coordinates[2] == 0.0
+    # A coil that leaves a coordinate off 0 (here: answered, ignored) is a FAULT.
+    fake.position[3] = 10.0
+    d.poll()
+
+    def ignored(motors: Any) -> tuple[bool, str, dict[int, float]]:
+        return True, "", {3: 1.5}
+
+    verdict = follow(rig, home_goal(rig, 3, zero=ignored))
+    assert verdict.outcome is Outcome.FAULT and "motor 3 reads 1.5" in verdict.message
+
+
+def test_homing_that_ends_off_the_home_input(rig: Rig) -> None:
+    d, fake = rig.device, rig.fake
+    d.set_speed(4, 60)  # 5 units/s: stopped on the way
+    motion = home_goal(rig, 4)
+    motion.start()
+    wait_until(lambda: d.poll().running[3])
+    d.motor_action(4, "stop")
+    verdict = follow_started(rig, motion)
+    assert verdict.outcome is Outcome.STOPPED and "home input IN8 off" in verdict.message
+    d.set_limit_inputs(5, 9, 10, 0)
+    with pytest.raises(CommandRejected, match="motor 5 has no home input"):
+        home_goal(rig, 5)
+    assert fake.motion[5] is None
 
 
 def test_stepper_sim_cli_on_its_own_pty(tmp_path: Path) -> None:
