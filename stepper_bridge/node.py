@@ -175,6 +175,13 @@ def check_reply_timeout(settings: object) -> None:
         )
 
 
+# Axes of the node's motion ledger (what services set moving; a halt stops them).
+ALL_MOTORS = "all motors"  # home_all / return_to_zero
+PAIR = "interpolation"  # line_move / arc_move
+ALL_MOTOR_MOTIONS = ("home_all", "return_to_zero")
+EVERY_AXIS = (ALL_MOTORS, PAIR, *(("motor", n) for n in range(1, MOTORS + 1)))
+
+
 class StepperBridgeNode(BridgeNode[StepperSnapshot]):
     """The 5-axis stepper controller: one node per controller, on its own serial line."""
 
@@ -394,18 +401,22 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
         d = self.device
         for n in range(1, MOTORS + 1):
             ns = f"~/motor_{n}"
+            motor_started = (("motor", n), _bind(d.motor_action, n, "stop"))
             for action in MOTOR_ACTIONS:
                 self.trigger_service(
                     f"{ns}/{action}",
                     f"motor {n} {action}",
                     _bind(d.motor_action, n, action),
                     stop=action == "stop",
+                    starts=None if action == "stop" else motor_started,
+                    stops_axes=(("motor", n),) if action == "stop" else (),
                 )
             self.command_service(
                 MoveBy,
                 f"{ns}/move_by",
                 lambda r, n=n: f"motor {n} move_by {r.distance}",  # type: ignore[misc]
                 lambda r, n=n: d.move_by(n, self.to_units(n, r.distance)),  # type: ignore[misc]
+                starts=lambda _r, started=motor_started: started,  # type: ignore[misc]
             )
             self.command_service(
                 ConfigureMotor,
@@ -461,6 +472,8 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
                 name,
                 _bind(d.system_command, name),
                 stop=name == "emergency_stop",
+                starts=(ALL_MOTORS, self._stop_every_motor) if name in ALL_MOTOR_MOTIONS else None,
+                stops_axes=EVERY_AXIS if name == "emergency_stop" else (),
             )
         for name in DESTRUCTIVE_COMMANDS:
             self.command_service(
@@ -496,15 +509,40 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
             lambda r: f"set_system_mode {r.value}",
             lambda r: d.set_system_mode(r.value),
         )
+        pair_started = (PAIR, d.stop_interpolation)
         self.command_service(
-            LineMove, "~/line_move", lambda r: f"line_move pair {r.pair}", self._line_move
+            LineMove,
+            "~/line_move",
+            lambda r: f"line_move pair {r.pair}",
+            self._line_move,
+            starts=lambda _r: pair_started,
         )
         self.command_service(
-            ArcMove, "~/arc_move", lambda r: f"arc_move pair {r.pair}", self._arc_move
+            ArcMove,
+            "~/arc_move",
+            lambda r: f"arc_move pair {r.pair}",
+            self._arc_move,
+            starts=lambda _r: pair_started,
         )
         self.trigger_service(
-            "~/stop_interpolation", "stop_interpolation", d.stop_interpolation, stop=True
+            "~/stop_interpolation",
+            "stop_interpolation",
+            d.stop_interpolation,
+            stop=True,
+            stops_axes=(PAIR,),
         )
+
+    def _stop_every_motor(self) -> None:
+        """Each motor's own stop coil (not the e-stop, which also switches every output
+        off): what a halt sends after a service's ``home_all`` / ``return_to_zero``."""
+        errors: list[Exception] = []
+        for motor in range(1, MOTORS + 1):
+            try:
+                self.device.motor_action(motor, "stop")
+            except Exception as err:  # every motor's stop is tried
+                errors.append(err)
+        if errors:
+            raise errors[0]
 
     # ------------------------------------------------------------ actions
     def _create_actions(self) -> None:
