@@ -27,7 +27,7 @@ from collections.abc import Callable, Hashable
 from dataclasses import dataclass
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Started:
     """One motion a service started: its words and the stop that ends it."""
 
@@ -51,6 +51,11 @@ class MotionLedger:
     def started(self, axis: Hashable, what: str, stop: Callable[[], object]) -> None:
         with self._lock:
             self._started[axis] = Started(what, stop)
+
+    def pending(self) -> bool:
+        """Whether a halt's stop of some motion failed and waits to be tried again."""
+        with self._lock:
+            return any(entry.pending for entry in self._started.values())
 
     def stopped(self, *axes: Hashable) -> None:
         with self._lock:
@@ -84,8 +89,7 @@ class MotionLedger:
                 results.append(StopResult(axis, entry.what, err))
                 continue
             with self._lock:
-                current = self._started.get(axis)
-                if current is not None and current.stop is entry.stop:
+                if self._started.get(axis) is entry:  # not a newer start of the axis
                     del self._started[axis]
             results.append(StopResult(axis, entry.what, None))
         return results

@@ -41,7 +41,11 @@ from rcl_interfaces.msg import (
     ParameterType,
     SetParametersResult,
 )
-from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.callback_groups import (
+    CallbackGroup,
+    MutuallyExclusiveCallbackGroup,
+    ReentrantCallbackGroup,
+)
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
@@ -77,6 +81,11 @@ T = TypeVar("T")
 SnapshotT = TypeVar("SnapshotT")
 DIAGNOSTICS_PERIOD_S = 1.0
 LINK_DOWN_LOG_PERIOD_S = 10.0  # while a device stays down, say so this often on the console
+# A halt's stop of a service's motion that failed is tried again this often (a probe of a
+# dead line each time: the streams' deadman retries at 0.05 s).
+PENDING_STOP_RETRY_S = 0.25
+# How long a halt waits for a command that was past its guards (on the wire) to finish.
+HALT_COMMAND_WAIT_S = 30.0
 JOINT_STATES_DEPTH = 10
 PARITIES = ("N", "E", "O")
 UNIT_ID_RANGE = (0, 247)
@@ -465,6 +474,11 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
         self.diagnostics_timer = self.create_timer(
             DIAGNOSTICS_PERIOD_S, self.publish_diagnostics, callback_group=self.diagnostics_group
         )
+        self.create_timer(
+            PENDING_STOP_RETRY_S,
+            self._retry_pending_stops,
+            callback_group=MutuallyExclusiveCallbackGroup(),  # never in a stop service's way
+        )
 
     # ------------------------------------------------------------ for subclasses
     def param(self, name: str) -> Any:
@@ -489,13 +503,22 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
         poll; if it fails again the link is still down and the poller says so."""
         for guard in self.stream_guards:
             for key in guard.pending_stops():
-                guard.stop(key)
+                try:
+                    guard.stop(key)
+                except DeviceException as err:  # answered: not a link fault; polls go on
+                    self.get_logger().error(f"stream {key}: the device refused its stop: {err}")
+                    continue
                 self.get_logger().info(f"stream {key}: the pending stop was sent on reconnect")
         for stopped in self.service_motions.retry_pending():
-            if isinstance(stopped.error, LinkError):
+            if isinstance(stopped.error, DeviceException):
+                # Answered: the device refused the stop. Said loudly, not retried for ever
+                # (polls must go on); the motion may still run.
+                self.service_motions.stopped(stopped.axis)
+                self.get_logger().error(
+                    f"{stopped.what}: the device refused its pending stop: {stopped.error}"
+                )
+            elif stopped.error is not None:
                 raise stopped.error  # still down: the poller says so, and tries again
-            if stopped.error is not None:
-                self.get_logger().error(f"{stopped.what}: its pending stop: {stopped.error}")
             else:
                 self.get_logger().info(f"{stopped.what}: the pending stop was sent on reconnect")
         self.on_link_up()
@@ -596,7 +619,18 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
         poll and publish no more."""
         self._halted = True
         self.stop_motion(reason)
+        self._wait_for_command_on_the_wire()
         self.poller.pause()
+
+    def _wait_for_command_on_the_wire(self) -> None:
+        """A command past its guards when the halt came finishes (its own check then stops
+        what it started: ``_halted_meanwhile``) before the halt goes on; bounded."""
+        if self._command_mutex.acquire(timeout=HALT_COMMAND_WAIT_S):
+            self._command_mutex.release()
+        else:
+            self.get_logger().error(
+                f"a command still runs {HALT_COMMAND_WAIT_S:g} s after the halt began"
+            )
 
     def _close_owned_link(self) -> None:
         if self._owned_link is not None:
@@ -647,6 +681,7 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
         self.read_only = bool(value)
         if value and not was:
             self.stop_motion("read_only was set")
+            self._wait_for_command_on_the_wire()
 
     # ------------------------------------------------------------ commands
     def run_command(
@@ -690,12 +725,23 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
                 )
             writes_before = self.channel.writes_tried()
             outcome = self._run_guarded(what, action, writes=writes, stop=stop)
-            if starts is not None and self.channel.writes_tried() > writes_before:
+            wrote = self.channel.writes_tried() > writes_before
+            if starts is not None and wrote:
                 # Acknowledged, or written and then lost or refused (it may be running).
                 self.service_motions.started(starts[0], what, starts[1])
             if outcome[0]:
                 self.service_motions.stopped(*stops_axes)
+            if not stop and wrote and (self._halted or (self.read_only and not own_motion)):
+                return self._halted_meanwhile(what)
             return outcome
+
+    def _halted_meanwhile(self, what: str) -> tuple[bool, str, None]:
+        """A command that was on the wire when a halt came (deactivate, exit, read_only):
+        the halt's stops went out before its writes, so everything is stopped again now
+        (``stop_motion``: what it started, the streams it may have taken over locked)."""
+        self.get_logger().warn(f"{what} went out while the node halted: stopping again")
+        self.stop_motion(f"{what} went out while the node halted")
+        return False, f"{what} went out while the node halted, and was stopped again", None
 
     def _run_guarded(
         self, what: str, action: Callable[[], T], *, writes: bool, stop: bool
@@ -720,6 +766,8 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
                 hint = "; nothing was sent"
             elif isinstance(err, NotSent):
                 hint = f"; {went_out} earlier write(s) of it went out, the rest was not sent"
+            elif writes and not went_out:
+                hint = "; nothing was written"
             else:
                 hint = " (it may or may not have been executed)" if writes else ""
             return False, f"{what} failed: {bounded_text(str(err))}{hint}", None
@@ -768,7 +816,13 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
                 fill(response, result)  # type: ignore[arg-type]
             return response
 
-        group = self.stop_group if stop else self.command_group
+        group: CallbackGroup = self.command_group
+        if callable(stop):
+            # Stops and non-stops in one service (enable true / false): reentrant, so a
+            # non-stop waiting for its turn holds no group a stop needs.
+            group = ReentrantCallbackGroup()
+        elif stop:
+            group = self.stop_group
         self.create_service(srv_type, name, handle, callback_group=group)
 
     def trigger_service(
@@ -933,12 +987,17 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
                 self.get_logger().warn(message, throttle_duration_sec=2.0)
 
     def stop_motion(self, reason: str = "the node stops") -> None:
-        """Stop everything this node's streams and action goals started; tried on the
-        wire even while the link is marked down (no connected guard, no command session)."""
-        self.actions.stop_all(reason)
+        """Stop everything this node's streams, services and action goals started; tried on
+        the wire even while the link is marked down (no connected guard, no command
+        session). Each part is tried whatever another raised; the streams' and services'
+        stops go before the goals' (whose stop may wait for a start on the wire)."""
         for guard in self.stream_guards:
-            moving = guard.moving()
-            failed = guard.stop_all()
+            try:
+                moving = guard.moving()
+                failed = guard.stop_all()
+            except Exception as bug:  # a bug in one part must not skip the others
+                self.get_logger().error(f"stopping streams failed: {bug}")
+                continue
             for key, err in failed:
                 self.get_logger().error(f"stopping stream {key} failed: {err}")
             for key in set(moving) - {key for key, _ in failed}:
@@ -948,7 +1007,26 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
                 self.get_logger().info(f"{stopped.what}: stopped ({reason})")
             else:
                 self.get_logger().error(
-                    f"{stopped.what}: its stop failed ({reason}): {stopped.error}"
+                    f"{stopped.what}: its stop failed ({reason}): {stopped.error}; "
+                    "tried again until it gets through"
+                )
+        try:
+            self.actions.stop_all(reason)
+        except Exception as err:
+            self.get_logger().error(f"stopping action goals failed: {err}")
+
+    def _retry_pending_stops(self) -> None:
+        """A halt's stop that failed (the link was down) is tried again on a timer, also
+        while the node is inactive (nobody reactivates it to get the stop out)."""
+        if not self.service_motions.pending():
+            return
+        for stopped in self.service_motions.retry_pending():
+            if stopped.error is None:
+                self.get_logger().info(f"{stopped.what}: the pending stop got through")
+            else:
+                self.get_logger().warn(
+                    f"{stopped.what}: its stop still fails: {stopped.error}",
+                    throttle_duration_sec=LINK_DOWN_LOG_PERIOD_S,
                 )
 
     # ------------------------------------------------------------ diagnostics
@@ -1001,6 +1079,7 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
         self._halted = True  # nothing but stops from here on
         try:
             self.stop_motion("the node is exiting")
+            self._wait_for_command_on_the_wire()
         finally:
             self.poller.stop()
             self._close_owned_link()

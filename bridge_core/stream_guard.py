@@ -296,19 +296,26 @@ class StreamGuard(Generic[Key]):
         return [key for key, stream in self.streams.items() if stream.may_move]
 
     @_locked
+    def halt(self) -> None:
+        """Every stream locked (until a 0 or ``timeout_s`` of silence) and every offered
+        non-zero value dropped; an offered 0 is kept (it is a stop someone asked for)."""
+        with self._inbox_lock:
+            for stream in self.streams.values():
+                if stream.offered != 0:
+                    stream.offered = None
+                stream.locked = True
+
+    @_locked
     def stop_all(self) -> list[tuple[Key, BridgeError]]:
         """Stop every stream that may move; every stop is tried. Returns the failures.
 
-        First every offered value is dropped and every stream locked (until a 0 or
-        ``timeout_s`` of silence, as after a service stop): a value offered before the halt
-        is never written after it, and a joystick still held when the node comes back
-        cannot restart the motor. ``after_stop`` runs once, after all of them (also when
-        none was moving).
+        First every offered non-zero value is dropped and every stream locked
+        (``halt``: until a 0 or ``timeout_s`` of silence, as after a service stop): a value
+        offered before the halt is never written after it, and a joystick still held when
+        the node comes back cannot restart the motor. ``after_stop`` runs once, after all
+        of them (also when none was moving).
         """
-        with self._inbox_lock:
-            for stream in self.streams.values():
-                stream.offered = None
-                stream.locked = True
+        self.halt()
         failures: list[tuple[Key, BridgeError]] = []
         stopped: list[Key] = []
         for key in self.moving():

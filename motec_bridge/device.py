@@ -982,9 +982,10 @@ class MoveToMotion(Motion[MotecSnapshot]):
         return not snapshot.stands(self.tolerance_counts)
 
     def default_timeout_s(self, node_default_s: float) -> float:
-        """Its own limit from the distance and the speed (decision 17) replaces the node's
-        ``goal_timeout_s``; ``move_time_margin`` 0, set explicitly, means none at all."""
-        return 0.0
+        """Its own limit from the distance and the speed (decision 17) is judged on the
+        polls; the node's ``goal_timeout_s`` stays a backstop for when no poll comes (a
+        device that refuses every poll but the link is up)."""
+        return node_default_s
 
     def judge(self, snapshot: MotecSnapshot, since_start_s: float = math.inf) -> Verdict | None:
         if since_start_s != math.inf and since_start_s > self.time_limit_s:

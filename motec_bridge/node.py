@@ -411,7 +411,9 @@ class MotecDriveNode(BridgeNode[MotecSnapshot]):
             lambda r: f"move {'by' if r.relative else 'to'} {r.position} rad",
             self._move,
             fill=lambda response, counts: setattr(response, "counts", counts),
-            starts=lambda _r: (DRIVE, d.stop),  # a halt stops the move it set going
+            # A halt stops the move it set going: 0x29 = 0 at once, verified (stop_move;
+            # ~/stop's mode read first could keep it off the wire on a bad line).
+            starts=lambda _r: (DRIVE, d.stop_move),
         )
         self.command_service(
             Trigger,

@@ -10,6 +10,7 @@ device must stand still. A stop service in between means nothing is left to stop
 from __future__ import annotations
 
 import signal
+import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -50,6 +51,11 @@ pytestmark = pytest.mark.ros
 
 BAUD = 115200
 EXIT_TIMEOUT_S = 20.0
+# Replies delayed this long: the R6 start is on the wire for a while (readiness read).
+IN_FLIGHT_DELAY_S = 1.0
+# The start's guards pass at once; its readiness read then waits the reply delay: the
+# deactivate is sent this long after the start, inside that window.
+IN_FLIGHT_LEAD_S = 0.3
 
 
 @pytest.fixture(scope="module")
@@ -225,3 +231,49 @@ def test_a_motion_its_stop_service_ended_is_not_stopped_again(
         halt(client, rig, "sigint")
         late = rig.writes()[before:]
         assert not any(rig.is_stop(r) for r in late), f"a stop sent again: {late}"
+
+
+def test_a_start_on_the_wire_when_the_node_deactivates_is_stopped(
+    client: Client, tmp_path: Path
+) -> None:
+    """The R6's ``~/start`` reads its readiness rows, then writes 20003. A deactivate that
+    comes while it runs (replies delayed 1 s) has nothing to stop yet; the start's write
+    goes out after the halt's stops. The command sees the halt when it ends and stops what
+    it started (pause 20001 after the 20003), and its reply says so."""
+    simulator = make_r6(axis_count=6)
+    port = simulator.start_tcp()
+    device = simulator.device
+    assert isinstance(device, R6SimDevice)
+    ns = unique_namespace("service_motion_inflight")
+    bridge = Bridge(client, ns, "r6_bridge", R6State)
+    try:
+        with node_process(
+            "r6_bridge.node",
+            {"port": port, "poll_rate_hz": 20.0, "timeout_s": 2.0},
+            tmp_path,
+            ["-r", f"__ns:={ns}"],
+        ):
+            bridge.wait_connected(True, timeout=30)
+            start = client.node.create_client(Trigger, bridge.service("start"))
+            change = client.node.create_client(ChangeState, bridge.service("change_state"))
+            for service in (start, change):
+                wait_for(service.service_is_ready, WAIT_S, "the node's services")
+            simulator.reply_delay_s = IN_FLIGHT_DELAY_S
+            started = start.call_async(Trigger.Request())
+            time.sleep(IN_FLIGHT_LEAD_S)  # orders the two requests; nothing is judged by it
+            request = ChangeState.Request()
+            request.transition.id = Transition.TRANSITION_DEACTIVATE
+            changed = change.call_async(request)
+            wait_for(lambda: started.done() and changed.done(), WAIT_S * 2, "both replies")
+            assert changed.result().success
+            reply = started.result()
+            if "not active" in reply.message:
+                pytest.skip("the deactivate came before the start's turn: no race this time")
+            addresses = [r.address for r in device.write_log]
+            assert COMMANDS["start"] in addresses, addresses
+            after = addresses[addresses.index(COMMANDS["start"]) :]
+            assert COMMANDS["pause"] in after, f"the start was not stopped: {addresses}"
+            assert not reply.success and "went out while the node halted" in reply.message
+            wait_for(lambda: not device.running, WAIT_S, "the program paused")
+    finally:
+        simulator.stop()
