@@ -64,6 +64,31 @@ def client() -> Iterator[Client]:
         yield c
 
 
+def stepper_params(port: str) -> dict[str, object]:
+    return {
+        "serial_port": port,
+        "baudrate": BAUD,
+        "poll_rate_hz": 20.0,
+        "timeout_s": 1.0,
+        "command_timeout_s": 60.0,  # the deadman must not be what stops or unlocks it
+        "command_rate_hz": 50.0,
+    }
+
+
+def motec_params(port: str) -> dict[str, object]:
+    return {**stepper_params(port), "unit_ids": [1]}
+
+
+def velocity_control(bridge: Bridge) -> None:
+    """The drive in velocity control and enabled: cmd_velocity moves it."""
+    for name, srv, fields in (
+        ("set_control_mode", SetControlMode, {"mode": SetControlMode.Request.VELOCITY}),
+        ("enable", SetBool, {"data": True}),
+    ):
+        reply = bridge.call(srv, name, **fields)
+        assert reply.success, reply.message
+
+
 class Joystick:
     """Publishes ``value`` at ``rate_hz`` on its own thread until closed."""
 
@@ -195,14 +220,7 @@ def test_stepper_jog_never_restarts_after_a_halt(
         ns = unique_namespace("halt_race_stepper")
         bridge = Bridge(client, ns, "stepper_bridge", StepperState)
         client.subscribe(_diagnostics_type(), "/diagnostics")
-        params = {
-            "serial_port": port,
-            "baudrate": BAUD,
-            "poll_rate_hz": 20.0,
-            "timeout_s": 1.0,
-            "command_timeout_s": 60.0,  # the deadman must not be what stops or unlocks it
-            "command_rate_hz": 50.0,
-        }
+        params = stepper_params(port)
         with node_process("stepper_bridge.node", params, tmp_path, ["-r", f"__ns:={ns}"]):
             bridge.wait_connected(True, timeout=30)
             node = Node(client, f"{ns}/stepper_bridge")
@@ -234,23 +252,10 @@ def test_motec_velocity_never_restarts_after_a_halt(
         ns = unique_namespace("halt_race_motec")
         bridge = Bridge(client, ns, "motec_1", MotecState)
         client.subscribe(_diagnostics_type(), "/diagnostics")
-        params = {
-            "serial_port": port,
-            "baudrate": BAUD,
-            "unit_ids": [1],
-            "poll_rate_hz": 20.0,
-            "timeout_s": 1.0,
-            "command_timeout_s": 60.0,
-            "command_rate_hz": 50.0,
-        }
+        params = motec_params(port)
         with node_process("motec_bridge.node", params, tmp_path, ["-r", f"__ns:={ns}"]):
             client.wait_message(bridge.state, timeout=30)
-            for name, srv, fields in (
-                ("set_control_mode", SetControlMode, {"mode": SetControlMode.Request.VELOCITY}),
-                ("enable", SetBool, {"data": True}),
-            ):
-                reply = bridge.call(srv, name, **fields)
-                assert reply.success, reply.message
+            velocity_control(bridge)
             node = Node(client, f"{ns}/motec_1")
             joystick = Joystick(client, f"{ns}/motec_1/cmd_velocity", rate_hz)
 
@@ -301,14 +306,7 @@ def _exit_stepper(client: Client, log_dir: Path, rep: int) -> None:
     with stepper_on_pty(BAUD) as (device, port):
         ns = unique_namespace("halt_exit_stepper")
         bridge = Bridge(client, ns, "stepper_bridge", StepperState)
-        params = {
-            "serial_port": port,
-            "baudrate": BAUD,
-            "poll_rate_hz": 20.0,
-            "timeout_s": 1.0,
-            "command_timeout_s": 60.0,
-            "command_rate_hz": 50.0,
-        }
+        params = stepper_params(port)
         speed = STEPPER_MAP[f"motor{MOTOR}_speed"].address
         configured = tuple(device.get_words(Table.HOLDING, speed, 1))
         with node_process("stepper_bridge.node", params, log_dir, ["-r", f"__ns:={ns}"]) as proc:
@@ -339,23 +337,10 @@ def _exit_motec(client: Client, log_dir: Path, rep: int) -> None:
         drive = simulator.drive(1)
         ns = unique_namespace("halt_exit_motec")
         bridge = Bridge(client, ns, "motec_1", MotecState)
-        params = {
-            "serial_port": port,
-            "baudrate": BAUD,
-            "unit_ids": [1],
-            "poll_rate_hz": 20.0,
-            "timeout_s": 1.0,
-            "command_timeout_s": 60.0,
-            "command_rate_hz": 50.0,
-        }
+        params = motec_params(port)
         with node_process("motec_bridge.node", params, log_dir, ["-r", f"__ns:={ns}"]) as proc:
             client.wait_message(bridge.state, timeout=30)
-            for name, srv, fields in (
-                ("set_control_mode", SetControlMode, {"mode": SetControlMode.Request.VELOCITY}),
-                ("enable", SetBool, {"data": True}),
-            ):
-                reply = bridge.call(srv, name, **fields)
-                assert reply.success, reply.message
+            velocity_control(bridge)
             joystick = Joystick(client, f"{ns}/motec_1/cmd_velocity", 200.0)
             try:
                 joystick.value = JOG
