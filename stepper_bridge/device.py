@@ -4,10 +4,10 @@ No ROS here. Every command validates all of its inputs before its first write, s
 refused command writes nothing. Values are in the manual's units: the user's length unit
 for lead, run distance and coordinates (the device stores them x100), rpm, Hz, degrees.
 
-Polling. A poll reads the four status blocks (coordinates 40108-40117, inputs
-40124-40136, outputs 40148-40159, running flags 40168-40172: four requests, the undefined
-rows between them cannot be read through). The configuration (motor parameters, limit
-inputs, homing order, system mode) changes rarely; it is read whole when the link comes
+Polling. A poll reads the four status blocks (running flags 40168-40172 first, then
+coordinates 40108-40117, inputs 40124-40136, outputs 40148-40159: four requests, the
+undefined rows between them cannot be read through). The configuration (motor parameters,
+limit inputs, homing order, system mode) changes rarely; it is read whole when the link comes
 up, then refreshed one request per poll every ``config_refresh_s``, and the cache is
 updated from every write the bridge makes.
 
@@ -210,7 +210,14 @@ def _config_names() -> list[str]:
 
 # Speed register name -> its motor (a speed written by a command is the configured one).
 _SPEED_REGISTERS = {motor_register(m, "speed"): m for m in range(1, MOTORS + 1)}
-STATUS_PLAN: list[ReadRequest] = plan_reads(STEPPER_MAP, STEPPER_MAP.select(_status_names()))
+_RUNNING_REGISTERS = frozenset(motor_register(m, "running") for m in range(1, MOTORS + 1))
+# The running flags are read first: a coordinate read after a flag that says "stands" is
+# where the motor stopped. In address order (coordinates first) a motor that stops between
+# the two reads would be reported standing at a coordinate from before its last step.
+STATUS_PLAN: list[ReadRequest] = sorted(
+    plan_reads(STEPPER_MAP, STEPPER_MAP.select(_status_names())),
+    key=lambda request: not any(r.name in _RUNNING_REGISTERS for r in request.registers),
+)
 # joint_states is stamped with the read time of the block holding the coordinates.
 STAMP_REGISTER = motor_register(1, "coordinate")
 CONFIG_PLAN: list[ReadRequest] = plan_reads(STEPPER_MAP, STEPPER_MAP.select(_config_names()))

@@ -287,8 +287,8 @@ def test_stale_data_and_reconnect(tmp_path: Path, client: Client) -> None:
     with bridge(client, tmp_path, description.path, port=port) as (b, _):
         b.wait_connected(True)
         client.wait_message(b.joint_states)
+        lost = time.monotonic()  # before the stop: the node may see the loss while it joins
         simulator.stop()
-        lost = time.monotonic()
         b.wait_connected(False, lost)
         down = time.monotonic()
         reply = call(b, WriteRegister, "write", name="run", value=1.0)

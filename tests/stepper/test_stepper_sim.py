@@ -107,6 +107,20 @@ def test_poll_reads_status_and_configuration(rig: Rig) -> None:
     assert s.config.system_mode == 0 and s.config.homing_order == (0,) * 5
 
 
+def test_a_poll_reads_the_running_flags_before_the_coordinates(rig: Rig) -> None:
+    """A coordinate read after a flag that says "stands" is where the motor stopped; read
+    the other way round, a motor that stops between the two reads is reported standing
+    at a coordinate from before its last step (seen as REACHED at 19.99 for 20)."""
+    rig.device.poll()  # the configuration is read whole first
+    rig.fake.log_reads = True
+    rig.device.poll()
+    rig.fake.log_reads = False
+    status = [r for r in rig.fake.read_log if r.table is Table.HOLDING]
+    running = next(i for i, r in enumerate(status) if r.covers(Table.HOLDING, holding(40168)))
+    coordinates = next(i for i, r in enumerate(status) if r.covers(Table.HOLDING, holding(40108)))
+    assert running < coordinates
+
+
 def test_move_by_covers_the_distance_both_ways(rig: Rig) -> None:
     rig.device.set_speed(3, 600)  # 600 rpm x 5.00 per rev = 50 units/s
     rig.device.move_by(3, 12.34)
