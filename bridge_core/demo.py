@@ -41,7 +41,6 @@ import importlib
 import math
 import os
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -53,17 +52,13 @@ from importlib.metadata import entry_points
 from pathlib import Path
 from typing import Any
 
+from .ports import free_port
+
 DEFAULT_DOMAIN_ID = 42
 CONNECT_TIMEOUT_S = 30.0
 ROOT = Path(__file__).resolve().parent.parent
 ENTRY_POINT_GROUP = "modbus_bridges.demo"
 PROJECT_NAME = "modbus-ros-bridges"
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 @dataclass
@@ -330,7 +325,7 @@ def main(argv: Sequence[str] | None = None, modules: Sequence[str] | None = None
     monitor: Monitor | None = None
     try:
         for device in devices:
-            where: Any = logs / f"{device.name.lower()}.pty" if device.serial else _free_port()
+            where: Any = logs / f"{device.name.lower()}.pty" if device.serial else free_port()
             spawn(f"{device.name.lower()}_sim", device.simulator_command(where))
             spawn(device.node_name, device.node_command(where))
         monitor = Monitor(devices)

@@ -68,6 +68,8 @@ from .registers import (
     STEPPER_MAP,
     SYSTEM_COILS,
     SYSTEM_MODES,
+    U16_MAX,
+    U32_MAX,
     motor_coil,
     motor_register,
     output_coil,
@@ -84,7 +86,9 @@ DESTRUCTIVE_COMMANDS = ("factory_reset", "clear_all_parameters")
 LIMIT_FIELDS = ("positive_limit_input", "negative_limit_input", "home_input")
 DEFAULT_CONFIG_REFRESH_S = 5.0
 DEFAULT_JOG_TIMEOUT_S = 0.5
-SPEED_MAX_RPM = 0xFFFF
+SPEED_MAX_RPM = U16_MAX
+# A prismatic motor's controller units per metre unless configured: the user's unit is mm.
+DEFAULT_UNITS_PER_METER = 1000.0
 # Coils that stop motion: sent at Priority.STOP (with each motor's stop coil).
 _STOP_COILS = frozenset({"emergency_stop", "arc_stop", "line_stop"})
 JOINT_TYPES = ("prismatic", "revolute")
@@ -237,7 +241,7 @@ class JointScale:
     """
 
     joint_type: str = "prismatic"
-    units_per_meter: float = 1000.0
+    units_per_meter: float = DEFAULT_UNITS_PER_METER
     units_per_revolution: float = 0.0
 
     def __post_init__(self) -> None:
@@ -505,7 +509,7 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
         _check_finite(field, value)
         reg = STEPPER_MAP[motor_register(motor, field)]
         if reg.scale == 1.0:
-            _check_integer(field, value, low=0, high=0xFFFF_FFFF)
+            _check_integer(field, value, low=0, high=U32_MAX)
             self._write_values([(reg.name, int(value))])
         else:
             self._write_values([(reg.name, float(value))])
@@ -1004,7 +1008,7 @@ _check_choice = check_choice
 _check_finite = check_finite
 
 
-def _check_integer(what: str, value: float, low: int = 0, high: int = 0xFFFF) -> None:
+def _check_integer(what: str, value: float, low: int = 0, high: int = U16_MAX) -> None:
     check_whole_number(what, value, low, high)
 
 

@@ -31,6 +31,7 @@ from __future__ import annotations
 import math
 import sys
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 from std_msgs.msg import Float64
@@ -59,6 +60,9 @@ from msg_defs.srv import (
 )
 
 from .device import (
+    DEFAULT_CONFIG_REFRESH_S,
+    DEFAULT_JOG_TIMEOUT_S,
+    DEFAULT_UNITS_PER_METER,
     DESTRUCTIVE_COMMANDS,
     JOINT_TYPES,
     PAIR_READING_CHOICES,
@@ -204,7 +208,7 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
                 ),
                 ParameterSpec(
                     "units_per_meter",
-                    [1000.0] * MOTORS,
+                    [DEFAULT_UNITS_PER_METER] * MOTORS,
                     "per prismatic motor: controller units per metre (1000: mm)",
                     item_positive=True,
                 ),
@@ -216,7 +220,7 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
                 ),
                 ParameterSpec(
                     "command_timeout_s",
-                    0.5,
+                    DEFAULT_JOG_TIMEOUT_S,
                     "jog deadman: stop a jogging motor after this silence",
                     0.05,
                     60.0,
@@ -255,7 +259,7 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
                 ),
                 ParameterSpec(
                     "config_refresh_s",
-                    5.0,
+                    DEFAULT_CONFIG_REFRESH_S,
                     "re-read the motor parameters this often",
                     0.5,
                     3600.0,
@@ -513,15 +517,15 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
         self.command_service(
             LineMove,
             "~/line_move",
-            lambda r: f"line_move pair {r.pair}",
-            self._line_move,
+            lambda r: _pair_move_text("line_move", r.pair),
+            lambda r: self._prepare_line(r).send(),
             starts=lambda _r: pair_started,
         )
         self.command_service(
             ArcMove,
             "~/arc_move",
-            lambda r: f"arc_move pair {r.pair}",
-            self._arc_move,
+            lambda r: _pair_move_text("arc_move", r.pair),
+            lambda r: self._prepare_arc(r).send(),
             starts=lambda _r: pair_started,
         )
         self.trigger_service(
@@ -589,8 +593,12 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
                 d, self.scales, "return_to_zero", every_motor, tolerance=self.goal_tolerance
             ),
         )
-        self.actions.motion(LineMotion, "~/line_move", self._line_motion)
-        self.actions.motion(ArcMotion, "~/arc_move", self._arc_motion)
+        self.actions.motion(
+            LineMotion, "~/line_move", lambda goal: self._pair_motion(self._prepare_line(goal))
+        )
+        self.actions.motion(
+            ArcMotion, "~/arc_move", lambda goal: self._pair_motion(self._prepare_arc(goal))
+        )
 
     def _zero(self) -> Callable[[Sequence[int]], tuple[bool, str, dict[int, float] | None]] | None:
         """zero_after_home: the zero coordinates coil as a guarded command, read back."""
@@ -609,45 +617,56 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
             )
         return order
 
-    def _line_motion(self, goal: Any) -> InterpolationMotion:
+    # ------------------------------------------------------------ line / arc
+    def _prepare_line(self, r: Any) -> _PairMove:
+        """A LineMove request or LineMotion goal checked (every refusal before a write)
+        and in controller units: one preparation, so the service and the action agree."""
         self._check_interpolation_allowed()
-        start = self._pair_units(goal.pair, goal.start, "start") or (0.0, 0.0)
-        end = self._pair_units(goal.pair, goal.end, "end") or (0.0, 0.0)
-        speed = int(goal.speed_rpm)
-        self.device.check_line_move(goal.pair, start, end, speed)
+        start, end = self._pair_points(r.pair, (r.start, "start"), (r.end, "end"))
+        pair, speed = r.pair, int(r.speed_rpm)
+        self.device.check_line_move(pair, start, end, speed)
+        return _PairMove(
+            pair,
+            end,
+            _pair_move_text("line_move", pair),
+            lambda: self.device.line_move(pair, start, end, speed),
+        )
+
+    def _prepare_arc(self, r: Any) -> _PairMove:
+        """An ArcMove request or ArcMotion goal, as ``_prepare_line``."""
+        self._check_interpolation_allowed()
+        start, end, center, via = self._pair_points(
+            r.pair, (r.start, "start"), (r.end, "end"), (r.center, "center"), (r.via, "via")
+        )
+        pair, speed = r.pair, int(r.speed_rpm)
+        args = (pair, r.mode, start, end, center, via)
+        self.device.check_arc_move(*args, speed)
+        counterclockwise = bool(r.counterclockwise)
+        return _PairMove(
+            pair,
+            end,
+            _pair_move_text("arc_move", pair),
+            lambda: self.device.arc_move(*args, counterclockwise, speed),
+        )
+
+    def _pair_motion(self, move: _PairMove) -> InterpolationMotion:
+        """The action of a prepared line / arc: its send is the goal's begin."""
         return InterpolationMotion(
             self.device,
             self.scales,
-            goal.pair,
-            end,
-            f"line_move pair {goal.pair}",
-            lambda: self.device.line_move(goal.pair, start, end, speed),
+            move.pair,
+            move.end,
+            move.what,
+            move.send,
             tolerance=self.goal_tolerance,
         )
 
-    def _arc_motion(self, goal: Any) -> InterpolationMotion:
-        self._check_interpolation_allowed()
-        start, end, center, via = (
-            self._pair_units(goal.pair, point, what) or (0.0, 0.0)
-            for point, what in (
-                (goal.start, "start"),
-                (goal.end, "end"),
-                (goal.center, "center"),
-                (goal.via, "via"),
-            )
-        )
-        speed = int(goal.speed_rpm)
-        args = (goal.pair, goal.mode, start, end, center, via)
-        self.device.check_arc_move(*args, speed)
-        return InterpolationMotion(
-            self.device,
-            self.scales,
-            goal.pair,
-            end,
-            f"arc_move pair {goal.pair}",
-            lambda: self.device.arc_move(*args, bool(goal.counterclockwise), speed),
-            tolerance=self.goal_tolerance,
-        )
+    def _pair_points(
+        self, pair: int, *points: tuple[Sequence[float], str]
+    ) -> list[tuple[float, float]]:
+        """Each (SI point, name) in the pair's controller units, checked in order; (0, 0)
+        for a pair that does not exist, which the device's check refuses with its text."""
+        return [self._pair_units(pair, point, what) or (0.0, 0.0) for point, what in points]
 
     def _set_run_distance(self, motor: int, distance: float) -> None:
         """Run distance in m / rad like move_by's; a magnitude (the sign is 40005+)."""
@@ -687,33 +706,20 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
                 f"motor {motor} is running: the manual forbids it during interpolation"
             )
 
-    def _line_move(self, r: Any) -> None:
-        self._check_interpolation_allowed()
-        start = self._pair_units(r.pair, r.start, "start") or (0.0, 0.0)
-        end = self._pair_units(r.pair, r.end, "end") or (0.0, 0.0)
-        self.device.line_move(r.pair, start, end, r.speed_rpm)
 
-    def _arc_move(self, r: Any) -> None:
-        self._check_interpolation_allowed()
-        points = [
-            self._pair_units(r.pair, p, what) or (0.0, 0.0)
-            for p, what in (
-                (r.start, "start"),
-                (r.end, "end"),
-                (r.center, "center"),
-                (r.via, "via"),
-            )
-        ]
-        self.device.arc_move(
-            r.pair,
-            r.mode,
-            points[0],
-            points[1],
-            points[2],
-            points[3],
-            r.counterclockwise,
-            r.speed_rpm,
-        )
+@dataclass(frozen=True)
+class _PairMove:
+    """A checked line / arc: the pair, its end (controller units), its text, and ``send``
+    (the writes and the start coil; the device checks again just before them)."""
+
+    pair: int
+    end: tuple[float, float]
+    what: str
+    send: Callable[[], None]
+
+
+def _pair_move_text(kind: str, pair: int) -> str:
+    return f"{kind} pair {pair}"
 
 
 def _bind(action: Callable[..., object], *args: Any) -> Callable[[], object]:
@@ -732,7 +738,7 @@ def _joint_scales(
             raise ConfigurationError(
                 f"joint_types: {joint_type!r} is not one of {', '.join(JOINT_TYPES)}"
             )
-    units = padded(units_per_meter, MOTORS, 1000.0)
+    units = padded(units_per_meter, MOTORS, DEFAULT_UNITS_PER_METER)
     per_revolution = padded(units_per_revolution, MOTORS, 0.0)
     for value in per_revolution:
         if not math.isfinite(value) or value < 0:

@@ -73,7 +73,8 @@ MOTOR_COILS = 5  # coils per motor: single run, forward, reverse, home, stop
 DISTANCE_SCALE = 100  # lead, run distance, coordinates: x100 of the user's unit
 STEP_ANGLE_SCALE = 100
 U16_MAX = 0xFFFF
-U32_SCALED_MAX = 0xFFFF_FFFF / DISTANCE_SCALE
+U32_MAX = 0xFFFF_FFFF
+U32_SCALED_MAX = U32_MAX / DISTANCE_SCALE
 I32_SCALED_MIN = -(1 << 31) / DISTANCE_SCALE
 I32_SCALED_MAX = ((1 << 31) - 1) / DISTANCE_SCALE
 

@@ -6,7 +6,6 @@ socket or a pty and check the ``bridge_core.errors`` type and the cause behind i
 
 from __future__ import annotations
 
-import socket
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -17,6 +16,7 @@ from pymodbus.exceptions import ModbusIOException
 
 from bridge_core.channel import Backoff, DeviceChannel, Priority, PriorityLock
 from bridge_core.errors import DeviceException, FrameError, LinkDown, LinkTimeout
+from bridge_core.ports import free_port
 from bridge_core.registers import (
     Access,
     DeviceLimits,
@@ -573,10 +573,7 @@ def test_short_replies_are_frame_errors_and_padding_is_cut() -> None:
 
 
 def test_refused_connection_is_link_down() -> None:
-    with socket.socket() as probe:  # a port nothing listens on once the probe is closed
-        probe.bind(("127.0.0.1", 0))
-        port = probe.getsockname()[1]
-    link = ModbusLink(TcpSettings(port=port, timeout_s=0.5))
+    link = ModbusLink(TcpSettings(port=free_port(), timeout_s=0.5))  # nothing listens
     with pytest.raises(LinkDown):
         link.open()
     assert not link.is_open

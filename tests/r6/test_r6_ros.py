@@ -17,6 +17,7 @@ import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from std_srvs.srv import Trigger
 
+from bridge_core.ports import free_port
 from bridge_core.registers import Table
 from bridge_core.sim_base import Simulator
 from msg_defs.msg import R6State
@@ -36,7 +37,6 @@ from msg_defs.srv import (
 from r6_bridge.registers import COMMANDS
 from r6_bridge.sim import R6SimDevice, make_simulator
 
-from ..conftest import free_port
 from ..support.ros import Client, ros_client, start_bridge, values_of
 
 pytestmark = pytest.mark.ros

@@ -12,7 +12,6 @@ from __future__ import annotations
 import contextlib
 import os
 import signal
-import socket
 import subprocess
 import sys
 from collections.abc import Mapping
@@ -20,6 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from bridge_core.ports import free_port
 from bridge_core.registers import Register
 from bridge_core.sim_base import ReadRecord, WriteRecord, read_read_log, read_write_log
 from modbus_bridge.description import load as load_description
@@ -242,12 +242,6 @@ BRIDGES: tuple[BridgeInfo, ...] = (
 )
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 class SimProcess:
     """A bridge's simulator as its own process (and process group, with its socat).
 
@@ -348,4 +342,4 @@ class SimProcess:
         return read_read_log(self.read_log)
 
 
-__all__ = ["BRIDGES", "BridgeInfo", "Call", "SimProcess", "free_port"]
+__all__ = ["BRIDGES", "BridgeInfo", "Call", "SimProcess"]
