@@ -19,6 +19,32 @@ MAX_READ_BITS = 2000
 MAX_WRITE_BITS = 1968
 
 
+# The function codes that read each table, and that write the writable ones (single, multiple).
+READ_FUNCTION = {"coil": 1, "discrete_input": 2, "holding": 3, "input": 4}
+WRITE_FUNCTIONS = {"coil": (5, 15), "holding": (6, 16)}
+
+
+@dataclass(frozen=True)
+class Fault:
+    """One broken rule: the field at fault (None: the entry as a whole) and what is wrong,
+    with what is allowed, worded for any source of registers (a map module, a YAML file).
+    ``index``: the position of the register at fault in a ``RegisterMap``."""
+
+    field: str | None
+    message: str
+    index: int | None = None
+
+
+class RuleError(ValueError):
+    """A ``Register``, ``RegisterMap`` or ``DeviceLimits`` refused: all its faults, so a
+    caller can point each at where it was written (modbus_bridge's YAML key and line)."""
+
+    def __init__(self, subject: str, faults: Sequence[Fault]) -> None:
+        self.subject = subject
+        self.faults = tuple(faults)
+        super().__init__(f"{subject}: " + "; ".join(fault.message for fault in self.faults))
+
+
 class Table(enum.Enum):
     """The four Modbus data tables."""
 
@@ -120,28 +146,52 @@ class Register:
     description: str = ""
 
     def __post_init__(self) -> None:
-        problems = []
+        faults = self.faults()
+        if faults:
+            raise RuleError(f"register {self.name!r} @ {self.address}", faults)
+
+    def faults(self) -> list[Fault]:
+        """The rules this register breaks, each naming its field and what is allowed."""
+        kind, table, label = self.value_type, self.table, self.value_type.label
+        found: list[Fault] = []
         if not self.name.isidentifier():
-            problems.append("name must be an identifier")
+            found.append(Fault("name", f"{self.name!r} is not a name (allowed: an identifier)"))
         if not self.doc:
-            problems.append("doc must cite the manual")
-        if self.value_type is ValueType.STRING:
-            if self.length <= 0:
-                problems.append("STRING needs a length in registers")
-        elif self.length:
-            problems.append("length is for STRING only")
-        if self.table.is_bit != (self.value_type is ValueType.BOOL):
-            problems.append("bit tables hold BOOL values and only they do")
-        if not self.address >= 0 or self.address + self.count - 1 > MAX_ADDRESS:
-            problems.append("address out of 0..65535")
+            found.append(Fault("doc", "empty: cite the manual section the register comes from"))
+        if table.is_bit != (kind is ValueType.BOOL):
+            allowed = "bool" if table.is_bit else "any type but bool"
+            found.append(
+                Fault("value_type", f"{label} in the {table.value} table (allowed: {allowed})")
+            )
+        if kind is ValueType.STRING and self.length <= 0:
+            found.append(Fault("length", "missing: a string needs its length in registers"))
+        if kind is not ValueType.STRING and self.length:
+            found.append(Fault("length", "only a string has a length (its type fixes the size)"))
+        if self.access.writable and not table.writable:
+            access = self.access.value.upper()
+            found.append(Fault("access", f"{access} on the read-only {table.value} table (R)"))
+        if self.address < 0:
+            found.append(
+                Fault("address", f"{self.address}: must be greater than or equal to 0 (0..65535)")
+            )
+        elif self.address > MAX_ADDRESS:
+            found.append(
+                Fault("address", f"{self.address}: must be less than or equal to 65535 (0..65535)")
+            )
+        elif self.end - 1 > MAX_ADDRESS:
+            found.append(Fault("address", f"{self.address}+{self.count} runs past 65535"))
         if self.scale <= 0:
-            problems.append("scale must be positive")
-        if self.access.writable and not self.table.writable:
-            problems.append(f"{self.table.value} table is read-only")
+            found.append(Fault("scale", f"{self.scale}: must be greater than 0 (raw per unit)"))
+        if kind in (ValueType.BOOL, ValueType.STRING) and (
+            self.scale != 1.0
+            or self.offset != 0.0
+            or self.minimum is not None
+            or self.maximum is not None
+        ):
+            found.append(Fault(None, f"a {label} has no scale, offset or range"))
         if self.minimum is not None and self.maximum is not None and self.minimum > self.maximum:
-            problems.append("minimum > maximum")
-        if problems:
-            raise ValueError(f"register {self.name!r} @ {self.address}: " + "; ".join(problems))
+            found.append(Fault("minimum", f"[{self.minimum}, {self.maximum}]: minimum > maximum"))
+        return found
 
     @property
     def count(self) -> int:
@@ -206,12 +256,29 @@ class DeviceLimits:
     reply_delay_s: float = 0.0
 
     def __post_init__(self) -> None:
-        if not 1 <= self.max_read_registers <= MAX_READ_REGISTERS:
-            raise ValueError("max_read_registers out of 1..125")
-        if not 1 <= self.max_write_registers <= MAX_WRITE_REGISTERS:
-            raise ValueError("max_write_registers out of 1..123")
-        if self.max_gap is not None and self.max_gap < 0:
-            raise ValueError("max_gap must be >= 0")
+        found = [
+            fault
+            for name, top in (
+                ("max_read_registers", MAX_READ_REGISTERS),
+                ("max_write_registers", MAX_WRITE_REGISTERS),
+                ("max_read_bits", MAX_READ_BITS),
+            )
+            if (fault := _bounded(name, getattr(self, name), 1, top)) is not None
+        ]
+        if self.max_gap is not None:
+            gap = _bounded("max_gap", self.max_gap, 0, MAX_READ_REGISTERS)
+            found += [gap] if gap is not None else []
+        if found:
+            raise RuleError("device limits", found)
+
+
+def _bounded(name: str, value: int, low: int, high: int) -> Fault | None:
+    """A fault if ``value`` is outside ``low..high``."""
+    if value < low:
+        return Fault(name, f"{value}: must be greater than or equal to {low} ({low}..{high})")
+    if value > high:
+        return Fault(name, f"{value}: must be less than or equal to {high} ({low}..{high})")
+    return None
 
 
 @dataclass(frozen=True)
@@ -223,22 +290,63 @@ class RegisterMap:
     limits: DeviceLimits = field(default_factory=DeviceLimits)
 
     def __post_init__(self) -> None:
-        names: set[str] = set()
+        faults: list[Fault] = []
         owner: dict[tuple[Table, int], str] = {}
-        for reg in self.registers:
-            if reg.name in names:
-                raise ValueError(f"{self.device}: duplicate register name {reg.name!r}")
-            names.add(reg.name)
-            for address in reg.addresses():
-                key = (reg.table, address)
-                if key in owner:
-                    raise ValueError(
-                        f"{self.device}: {reg.name!r} overlaps {owner[key]!r} at "
-                        f"{reg.table.value} {address}"
-                    )
-                owner[key] = reg.name
+        names: set[str] = set()
+        for index, reg in enumerate(self.registers):
+            faults += [
+                Fault(fault.field, fault.message, index)
+                for fault in self._faults(reg, names, owner)
+            ]
+        if faults:
+            raise RuleError(self.device, faults)
         object.__setattr__(self, "_by_name", {r.name: r for r in self.registers})
         object.__setattr__(self, "_owner", owner)
+
+    def _faults(
+        self, reg: Register, names: set[str], owner: dict[tuple[Table, int], str]
+    ) -> list[Fault]:
+        """The map's rules for one register: a unique name, a size one read takes, the
+        function codes its access needs, and addresses no other register holds."""
+        found: list[Fault] = []
+        if reg.name in names:
+            message = f"duplicate name: register {reg.name!r} defined twice (names are unique)"
+            found.append(Fault("name", message))
+        names.add(reg.name)
+        table, codes = reg.table.value, self.limits.function_codes
+        limit = self.limits.max_read_bits if reg.table.is_bit else self.limits.max_read_registers
+        if reg.access.readable and reg.count > limit:
+            field = "length" if reg.value_type is ValueType.STRING else "value_type"
+            found.append(Fault(field, f"{reg.count} registers: more than one read takes ({limit})"))
+        if reg.access.readable and READ_FUNCTION[table] not in codes:
+            found.append(
+                Fault(
+                    "table",
+                    f"readable {table} needs function code {READ_FUNCTION[table]} "
+                    "in the device's function_codes (or access W)",
+                )
+            )
+        if reg.access.writable and reg.table.writable and not codes & set(WRITE_FUNCTIONS[table]):
+            found.append(
+                Fault(
+                    "access",
+                    f"writable {table} needs function code "
+                    f"{' or '.join(str(c) for c in WRITE_FUNCTIONS[table])} "
+                    "in the device's function_codes",
+                )
+            )
+        for address in reg.addresses():
+            other = owner.setdefault((reg.table, address), reg.name)
+            if other != reg.name:
+                found.append(
+                    Fault(
+                        "address",
+                        f"{reg.name} overlaps {other} at {table} {address} "
+                        "(each address belongs to one register)",
+                    )
+                )
+                break
+        return found
 
     def __getitem__(self, name: str) -> Register:
         by_name: dict[str, Register] = self._by_name  # type: ignore[attr-defined]

@@ -16,10 +16,11 @@ from typing import Any
 
 from rclpy.node import Node
 
+from bridge_core.channel import UNIT_ID_MAX
 from bridge_core.errors import ConfigurationError
 from bridge_core.node_base import BusNode, DeviceDefaults, ParameterNode, spin_nodes
 
-from .description import UNIT_ID_MAX, Description
+from .description import Description
 from .node import ModbusBridgeNode, defaults_of, described_by_parameter
 
 BUS_NODE_NAME = "modbus_bus"

@@ -1,0 +1,205 @@
+"""The joints of a description file: which registers give a joint's position, velocity and
+effort, the factor to SI (REP 103) from each register's unit, and how ``modbus_sim``
+moves the joint. Register does not know joints: these rules are the description's.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+from bridge_core.registers import Register, RegisterMap, ValueType
+from bridge_core.units import DEG, MM, RPM_TO_RAD_S
+
+from .description_commands import writable
+from .description_schema import DeviceFileSpec, JointSimSpec, JointSpec, JointValueSpec
+from .description_yaml import Checker, Loc
+
+# Register units a joint value may have, as (SI unit, factor to it). REP 103: positions in
+# rad or m, velocities in rad/s or m/s, efforts in N·m or N.
+UNITS_TO_SI: dict[str, tuple[str, float]] = {
+    "rad": ("rad", 1.0),
+    "mrad": ("rad", 1e-3),
+    "deg": ("rad", DEG),
+    "rev": ("rad", 2.0 * math.pi),
+    "m": ("m", 1.0),
+    "mm": ("m", MM),
+    "um": ("m", 1e-6),
+    "rad/s": ("rad/s", 1.0),
+    "deg/s": ("rad/s", DEG),
+    "rpm": ("rad/s", RPM_TO_RAD_S),
+    # A drive's frequency: one revolution per cycle, or ``per_revolution`` cycles (Hz) per
+    # revolution (e.g. a motor's pole pairs); the factor is 2 pi / per_revolution.
+    "Hz": ("rad/s", 2.0 * math.pi),
+    "m/s": ("m/s", 1.0),
+    "mm/s": ("m/s", MM),
+    "N.m": ("N.m", 1.0),
+    "mN.m": ("N.m", 1e-3),
+    "N": ("N", 1.0),
+    "kN": ("N", 1e3),
+}
+SI_UNITS = {
+    ("revolute", "position"): "rad",
+    ("revolute", "velocity"): "rad/s",
+    ("revolute", "effort"): "N.m",
+    ("prismatic", "position"): "m",
+    ("prismatic", "velocity"): "m/s",
+    ("prismatic", "effort"): "N",
+}
+
+
+@dataclass(frozen=True)
+class JointSource:
+    """A register and the factor that turns its engineering value into SI."""
+
+    register: str
+    to_si: float
+
+
+@dataclass(frozen=True)
+class JointMotion:
+    """The simulator's rule for a joint: ``command`` (to SI by ``to_si``) is a velocity or
+    a target position; a target is approached at ``speed`` (SI/s; None: at once); a
+    velocity follows its command with ``time_constant_s`` (None: at once), and only while
+    ``run_register`` holds one of ``run_values``."""
+
+    command: str
+    to_si: float
+    mode: Literal["velocity", "position"]
+    speed: float | None
+    time_constant_s: float | None = None
+    run_register: str | None = None
+    run_values: tuple[float, ...] = ()
+
+
+@dataclass(frozen=True)
+class Joint:
+    name: str
+    position: JointSource | None  # None: a velocity-only joint (NaN in joint_states)
+    velocity: JointSource | None
+    effort: JointSource | None
+    motion: JointMotion | None = None
+
+
+def _joint_source(
+    register_map: RegisterMap,
+    joint: JointSpec,
+    what: Literal["position", "velocity", "effort"],
+    spec: JointValueSpec,
+    check: Checker,
+    at: Loc,
+) -> JointSource | None:
+    if spec.register_name not in register_map:
+        check.add((*at, what, "register"), f"no register named {spec.register_name!r}")
+        return None
+    if spec.factor == 0:
+        check.add((*at, what, "factor"), "0 would make every value 0 (allowed: non-zero)")
+        return None
+    register = register_map[spec.register_name]
+    if not register.access.readable or register.value_type in (ValueType.BOOL, ValueType.STRING):
+        check.add(
+            (*at, what, "register"),
+            f"{spec.register_name} is not a readable number (access R or RW, a numeric type)",
+        )
+        return None
+    wanted = SI_UNITS[(joint.kind, what)]
+    unit = UNITS_TO_SI.get(register.unit)
+    if unit is None or unit[0] != wanted:
+        allowed = ", ".join(u for u, (si, _) in UNITS_TO_SI.items() if si == wanted)
+        check.add(
+            (*at, what, "register"),
+            f"{spec.register_name}'s unit {register.unit!r} is not a {joint.kind} {what} "
+            f"(REP 103 {wanted}; allowed units: {allowed})",
+        )
+        return None
+    per_revolution = _per_revolution(register, spec.per_revolution, check, (*at, what))
+    if per_revolution is None:
+        return None
+    return JointSource(spec.register_name, unit[1] * spec.factor / per_revolution)
+
+
+def _per_revolution(
+    register: Register, given: float | None, check: Checker, at: Loc
+) -> float | None:
+    """A Hz register's cycles per revolution (default 1); only a Hz register has one."""
+    if given is not None and register.unit != "Hz":
+        check.add(
+            (*at, "per_revolution"),
+            f"{register.name}'s unit is {register.unit!r}: per_revolution is for a Hz register",
+        )
+        return None
+    return 1.0 if given is None else given
+
+
+def build_joints(
+    spec: DeviceFileSpec, register_map: RegisterMap, check: Checker
+) -> tuple[Joint, ...]:
+    joints: list[Joint] = []
+    names: set[str] = set()
+    for index, joint in enumerate(spec.joints):
+        at: Loc = ("joints", index)
+        if joint.name in names:
+            check.add((*at, "name"), f"joint {joint.name!r} given twice (names are unique)")
+        names.add(joint.name)
+        if joint.position is None and joint.velocity is None:
+            check.add(at, f"joint {joint.name!r} needs a position or a velocity register")
+            continue
+        position = velocity = effort = None
+        if joint.position is not None:
+            position = _joint_source(register_map, joint, "position", joint.position, check, at)
+        if joint.velocity is not None:
+            velocity = _joint_source(register_map, joint, "velocity", joint.velocity, check, at)
+        if joint.effort is not None:
+            effort = _joint_source(register_map, joint, "effort", joint.effort, check, at)
+        motion = None
+        if joint.sim is not None:
+            motion = _joint_motion(register_map, joint, joint.sim, check, (*at, "sim"))
+        if not check.problems:
+            joints.append(Joint(joint.name, position, velocity, effort, motion))
+    return tuple(joints)
+
+
+def _joint_motion(
+    register_map: RegisterMap, joint: JointSpec, sim: JointSimSpec, check: Checker, at: Loc
+) -> JointMotion | None:
+    if joint.position is None and sim.mode == "position":
+        check.add((*at, "mode"), "a joint without a position register moves by velocity")
+        return None
+    register = writable(register_map, sim.command, check, at, field="command")
+    if register is None:
+        return None
+    wanted = SI_UNITS[(joint.kind, sim.mode)]
+    unit = UNITS_TO_SI.get(register.unit)
+    if unit is None or unit[0] != wanted:
+        allowed = ", ".join(u for u, (si, _) in UNITS_TO_SI.items() if si == wanted)
+        check.add(
+            (*at, "command"),
+            f"{sim.command}'s unit {register.unit!r} is not a {joint.kind} {sim.mode} "
+            f"({wanted}; allowed units: {allowed})",
+        )
+        return None
+    if sim.speed is not None and sim.mode == "velocity":
+        check.add((*at, "speed"), "speed is for mode position (a velocity command sets it)")
+        return None
+    if sim.mode == "position" and (sim.time_constant_s is not None or sim.run_register):
+        check.add(at, "time_constant_s and run_register are for mode velocity")
+        return None
+    per_revolution = _per_revolution(register, sim.per_revolution, check, at)
+    if per_revolution is None:
+        return None
+    if (sim.run_register is None) != (sim.run_values is None):
+        check.add(at, "give run_register and run_values together")
+        return None
+    if sim.run_register is not None and sim.run_register not in register_map:
+        check.add((*at, "run_register"), f"no register named {sim.run_register!r}")
+        return None
+    return JointMotion(
+        sim.command,
+        unit[1] / per_revolution,
+        sim.mode,
+        sim.speed,
+        sim.time_constant_s,
+        sim.run_register,
+        tuple(sim.run_values or ()),
+    )
