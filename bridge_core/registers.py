@@ -19,11 +19,6 @@ MAX_READ_BITS = 2000
 MAX_WRITE_BITS = 1968
 
 
-# The function codes that read each table, and that write the writable ones (single, multiple).
-READ_FUNCTION = {"coil": 1, "discrete_input": 2, "holding": 3, "input": 4}
-WRITE_FUNCTIONS = {"coil": (5, 15), "holding": (6, 16)}
-
-
 @dataclass(frozen=True)
 class Fault:
     """One broken rule: the field at fault (None: the entry as a whole) and what is wrong,
@@ -60,6 +55,12 @@ class Table(enum.Enum):
     @property
     def writable(self) -> bool:
         return self in (Table.COIL, Table.HOLDING)
+
+
+# The function code that reads each table, and those that write the writable ones
+# (single, multiple): a map's registers need them in the device's function codes.
+READ_FUNCTION = {Table.COIL: 1, Table.DISCRETE_INPUT: 2, Table.HOLDING: 3, Table.INPUT: 4}
+WRITE_FUNCTIONS = {Table.COIL: (5, 15), Table.HOLDING: (6, 16)}
 
 
 class ValueType(enum.Enum):
@@ -146,14 +147,15 @@ class Register:
     description: str = ""
 
     def __post_init__(self) -> None:
-        faults = self.faults()
+        faults = self._faults()
         if faults:
             raise RuleError(f"register {self.name!r} @ {self.address}", faults)
 
-    def faults(self) -> list[Fault]:
+    def _faults(self) -> list[Fault]:
         """The rules this register breaks, each naming its field and what is allowed."""
         kind, table, label = self.value_type, self.table, self.value_type.label
         found: list[Fault] = []
+        span = f"(0..{MAX_ADDRESS})"
         if not self.name.isidentifier():
             found.append(Fault("name", f"{self.name!r} is not a name (allowed: an identifier)"))
         if not self.doc:
@@ -172,14 +174,16 @@ class Register:
             found.append(Fault("access", f"{access} on the read-only {table.value} table (R)"))
         if self.address < 0:
             found.append(
-                Fault("address", f"{self.address}: must be greater than or equal to 0 (0..65535)")
+                Fault("address", f"{self.address}: must be greater than or equal to 0 {span}")
             )
         elif self.address > MAX_ADDRESS:
             found.append(
-                Fault("address", f"{self.address}: must be less than or equal to 65535 (0..65535)")
+                Fault(
+                    "address", f"{self.address}: must be less than or equal to {MAX_ADDRESS} {span}"
+                )
             )
         elif self.end - 1 > MAX_ADDRESS:
-            found.append(Fault("address", f"{self.address}+{self.count} runs past 65535"))
+            found.append(Fault("address", f"{self.address}+{self.count} runs past {MAX_ADDRESS}"))
         if self.scale <= 0:
             found.append(Fault("scale", f"{self.scale}: must be greater than 0 (raw per unit)"))
         if kind in (ValueType.BOOL, ValueType.STRING) and (
@@ -318,23 +322,18 @@ class RegisterMap:
         if reg.access.readable and reg.count > limit:
             field = "length" if reg.value_type is ValueType.STRING else "value_type"
             found.append(Fault(field, f"{reg.count} registers: more than one read takes ({limit})"))
-        if reg.access.readable and READ_FUNCTION[table] not in codes:
-            found.append(
-                Fault(
-                    "table",
-                    f"readable {table} needs function code {READ_FUNCTION[table]} "
-                    "in the device's function_codes (or access W)",
-                )
+        read = READ_FUNCTION[reg.table]
+        if reg.access.readable and read not in codes:
+            message = f"readable {table} needs function code {read} in the device's function_codes"
+            found.append(Fault("table", message + " (or access W)"))
+        # (a writable register of a read-only table is the Register's fault already)
+        writes = WRITE_FUNCTIONS.get(reg.table, ())
+        if reg.access.writable and writes and not codes & set(writes):
+            either = " or ".join(str(code) for code in writes)
+            message = (
+                f"writable {table} needs function code {either} in the device's function_codes"
             )
-        if reg.access.writable and reg.table.writable and not codes & set(WRITE_FUNCTIONS[table]):
-            found.append(
-                Fault(
-                    "access",
-                    f"writable {table} needs function code "
-                    f"{' or '.join(str(c) for c in WRITE_FUNCTIONS[table])} "
-                    "in the device's function_codes",
-                )
-            )
+            found.append(Fault("access", message))
         for address in reg.addresses():
             other = owner.setdefault((reg.table, address), reg.name)
             if other != reg.name:

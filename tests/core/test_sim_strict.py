@@ -30,7 +30,8 @@ STRICT_MAP = RegisterMap(
     "strict",
     (
         Register("word", 0, ValueType.U16, "test", access=Access.READ_WRITE),
-        Register("coil", 0, ValueType.BOOL, "test", table=Table.COIL, access=Access.READ_WRITE),
+        # write-only: the device lacks FC 01 (a map refuses a readable coil without it)
+        Register("coil", 0, ValueType.BOOL, "test", table=Table.COIL, access=Access.WRITE),
     ),
     DeviceLimits(function_codes=frozenset({3, 5, 6, 16})),
 )
