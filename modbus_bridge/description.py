@@ -25,6 +25,7 @@ from typing import Literal
 import yaml  # type: ignore[import-untyped]
 from pydantic import BaseModel, ValidationError
 
+from bridge_core.channel import UNIT_ID_MAX
 from bridge_core.codec import CodecError, encode, to_raw
 from bridge_core.registers import (
     Access,
@@ -183,13 +184,13 @@ def _build_registers(device: DeviceFileSpec, check: Checker) -> RegisterMap | No
     built: list[tuple[int, Register]] = []
     for index, spec in enumerate(device.registers):
         at: Loc = ("registers", index)
-        _check_values_key(spec, checks[index], at)
+        values_ok = _check_values_key(spec, checks[index], at)
         try:
             register = _register(spec, WordOrder(d.word_order))
         except RuleError as err:
             checks[index].faults(at, err.faults, REGISTER_KEYS)
             continue
-        if _writes_fit(spec, register, checks[index], at):
+        if values_ok and _writes_fit(spec, register, checks[index], at):
             built.append((index, register))
     register_map = None
     if limits is not None:
@@ -225,14 +226,15 @@ def _register(spec: RegisterSpec, default_order: WordOrder) -> Register:
     )
 
 
-def _check_values_key(spec: RegisterSpec, check: Checker, at: Loc) -> None:
+def _check_values_key(spec: RegisterSpec, check: Checker, at: Loc) -> bool:
     """``values`` (the writes allowed) is the description's own key: for a writable number."""
-    if spec.values is None:
-        return
-    if spec.type in ("bool", "string"):
+    if spec.values is not None and spec.type in ("bool", "string"):
         check.add((*at, "values"), f"a {spec.type} has no values (a number register has)")
-    elif spec.access == "R":
+    elif spec.values is not None and spec.access == "R":
         check.add((*at, "values"), "values are the writes allowed: for access W or RW")
+    else:
+        return True
+    return False
 
 
 def _writes_fit(spec: RegisterSpec, register: Register, check: Checker, at: Loc) -> bool:
@@ -273,7 +275,8 @@ def _build_device(
             check.add(("device", "link"), "give exactly one of tcp and rtu")
     rtu_alone = link is not None and link.rtu is not None and link.tcp is None
     if (on_line or rtu_alone) and spec.device.unit_id == 0:
-        check.add(("device", "unit_id"), "0 is the RTU broadcast: nobody answers (1-247)")
+        broadcast = f"0 is the RTU broadcast: nobody answers (1-{UNIT_ID_MAX})"
+        check.add(("device", "unit_id"), broadcast)
     register_map = _build_registers(spec, check)
     if register_map is None:
         return None
