@@ -14,7 +14,7 @@ from typing import Literal
 from bridge_core.codec import CodecError, encode, to_raw
 from bridge_core.registers import Register, RegisterMap, Table, ValueType
 
-from .description_schema import DEFAULT_MOTION_GROUP, DeviceFileSpec
+from .description_schema import DEFAULT_MOTION_GROUP, DeviceFileSpec, WriteSpec
 from .description_yaml import Checker, Loc
 
 # Names the node gives its own services and topics: a command may not take them.
@@ -110,6 +110,35 @@ def not_allowed(name: str, value: float, allowed: Sequence[float]) -> str:
     return f"{name} takes one of {values}, not {number_text(value)}"
 
 
+def _check_write(
+    spec: DeviceFileSpec, register_map: RegisterMap, write: WriteSpec, check: Checker, where: Loc
+) -> None:
+    """One write of a trigger: a writable register and a value the codec can write (and one
+    of the register's ``values``, if it has them)."""
+    if write.register_name not in register_map:
+        check.add((*where, "register"), f"no register named {write.register_name!r}")
+        return
+    register = register_map[write.register_name]
+    if not register.access.writable:
+        check.add((*where, "register"), f"{write.register_name} is read only (needs W or RW)")
+        return
+    value = write.value
+    if isinstance(value, bool) != (register.value_type is ValueType.BOOL) or not (
+        isinstance(value, int | float)
+    ):
+        allowed = "true or false" if register.value_type is ValueType.BOOL else "a number"
+        check.add((*where, "value"), f"{value!r} for {write.register_name} (allowed: {allowed})")
+        return
+    try:
+        encode(register, value)
+    except CodecError as err:
+        check.add((*where, "value"), str(err))
+        return
+    choices = allowed_values(spec).get(write.register_name)
+    if choices is not None and float(value) not in choices:
+        check.add((*where, "value"), not_allowed(write.register_name, value, choices))
+
+
 def check_commands(spec: DeviceFileSpec, register_map: RegisterMap, check: Checker) -> None:
     commands = spec.commands
     seen: set[str] = set()
@@ -136,33 +165,7 @@ def check_commands(spec: DeviceFileSpec, register_map: RegisterMap, check: Check
                 + " (the bridge sends it on every way out)",
             )
         for k, write in enumerate(trigger.writes):
-            where = (*at, "writes", k)
-            if write.register_name not in register_map:
-                check.add((*where, "register"), f"no register named {write.register_name!r}")
-                continue
-            register = register_map[write.register_name]
-            if not register.access.writable:
-                check.add(
-                    (*where, "register"), f"{write.register_name} is read only (needs W or RW)"
-                )
-                continue
-            value = write.value
-            if isinstance(value, bool) != (register.value_type is ValueType.BOOL) or not (
-                isinstance(value, int | float)
-            ):
-                allowed = "true or false" if register.value_type is ValueType.BOOL else "a number"
-                check.add(
-                    (*where, "value"), f"{value!r} for {write.register_name} (allowed: {allowed})"
-                )
-                continue
-            try:
-                encode(register, value)
-            except CodecError as err:
-                check.add((*where, "value"), str(err))
-                continue
-            choices = allowed_values(spec).get(write.register_name)
-            if choices is not None and float(value) not in choices:
-                check.add((*where, "value"), not_allowed(write.register_name, value, choices))
+            _check_write(spec, register_map, write, check, (*at, "writes", k))
     for index, value_service in enumerate(commands.values):
         at = ("commands", "values", index)
         named(value_service.name, at)
