@@ -379,7 +379,7 @@ BAD = [
     ("range: [-3000, 3000]", "range: [-3000, 300000000]", "registers[0].range", 8, "does not fit"),
     ("range: [-3000, 3000]", "range: [1, 2, 3]", "registers[0].range", 8, "at most 2 items"),
     (', manual: "s4.9"', "", "registers[3].manual", 11, "missing (required)"),
-    (', manual: "s4.9"', ', manual: ""', "registers[3].manual", 11, "empty: cite the manual section"),
+    (', manual: "s4.9"', ', manual: ""', "registers[3].manual", 11, "empty: cite the manual"),
     (
         "name: label, table: holding, address: 100",
         "name: label, table: holding, address: 11",
