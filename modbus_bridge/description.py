@@ -42,6 +42,7 @@ from bridge_core.registers import (
     ValueType,
     WordOrder,
 )
+from bridge_core.stream_guard import COMMAND_TIMEOUT_RANGE_S
 from bridge_core.units import DEG, MM, RPM_TO_RAD_S
 
 # Function codes a description may list: the reads and writes of the four tables, and
@@ -55,7 +56,6 @@ UNIT_ID_MAX = 247
 BAUDRATE_RANGE = (300, 4_000_000)
 TIMEOUT_RANGE_S = (0.01, 10.0)
 POLL_RATE_RANGE_HZ = (0.1, 1000.0)
-COMMAND_TIMEOUT_RANGE_S = (0.05, 60.0)
 COMMAND_RATE_RANGE_HZ = (0.1, 100.0)
 # Names the node gives its own services and topics: a command may not take them.
 RESERVED_NAMES = frozenset({"read", "write", "state", "connected"})
