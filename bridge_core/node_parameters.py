@@ -3,8 +3,9 @@
 ``ParameterNode`` is the managed (lifecycle) node that declares its parameters from
 ``ParameterSpec``s (start-up-only ones read-only, live ones validated and applied when
 ``ros2 param set`` changes them). ``DeviceDefaults`` and the spec builders
-(``transport_specs``, ``channel_specs``, ``AUTOSTART_SPEC``) are the parameters every
-bridge and bus owner shares, so that the nodes, the bus owners and the docs agree on them.
+(``transport_specs``, ``unit_id_spec``, ``channel_specs``, ``node_specs``,
+``AUTOSTART_SPEC``) are the parameters every bridge and bus owner shares, so that the
+nodes, the bus owners and the docs agree on them.
 """
 
 from __future__ import annotations
