@@ -100,7 +100,7 @@ from stepper_bridge.registers import REPLY_DELAY_S as STEPPER_REPLY_DELAY_S  # n
 
 RESULTS = ROOT / "bench" / "results" / "rtu_devices.json"
 MOTEC_BAUD = 115200
-# Node defaults (bridge_core/node_base.py parameters, motec_bridge/node.py bus parameters;
+# Node defaults (bridge_core/node_parameters.py parameters, motec_bridge/node.py bus parameters;
 # not imported: those modules need rclpy).
 NODE_RETRIES = 1  # "retries"
 NODE_RECONNECT_MAX_S = 5.0  # "reconnect_max_s"

@@ -36,6 +36,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 from rclpy.action.server import ActionServer, CancelResponse, GoalResponse, ServerGoalHandle
 from rclpy.callback_groups import ReentrantCallbackGroup
 
+from .action_results import filled, finish_run, refuse_goal, result_of, send_result
 from .checks import bounded_text
 from .errors import CommandRejected, LinkError
 from .goals import GoalRun, Motion, Outcome, Verdict, needs_stop
@@ -55,8 +56,6 @@ STOP_WAIT_S = 30.0
 # many, and one for a preempting goal (goals on one axis preempt each other, so few run at
 # once).
 MAX_GOAL_THREADS = 8
-# How long a cancelled goal's result waits for rclpy to have moved it to CANCELING.
-CANCEL_STATE_WAIT_S = 1.0
 # ``goal_timeout_s``: the time limit of a goal that gives ``timeout_s`` 0 (a goal whose
 # client vanished must end by itself); a node with action servers declares it, live.
 GOAL_TIMEOUT_DEFAULT_S = 600.0
@@ -157,7 +156,7 @@ class ActionHost:
             if handle.is_active:
                 handle.abort()
             message = f"{name} failed: internal error: {err}"
-            return _result_of(action_type, Verdict(Outcome.HALTED, message), message)
+            return result_of(action_type, Verdict(Outcome.HALTED, message), message)
 
     def _server(
         self,
@@ -236,12 +235,12 @@ class ActionHost:
         try:
             motion = make_motion(goal)
         except CommandRejected as err:  # the device's state changed since the goal came
-            return self._refused(action_type, handle, f"{name} refused: {err}")
+            return refuse_goal(self.node, action_type, handle, f"{name} refused: {err}")
         timeout_s = float(goal.timeout_s) or motion.default_timeout_s(self.goal_timeout_s)
         run: GoalRun[Any] = GoalRun(motion, timeout_s=timeout_s)
         run.thread = threading.current_thread()
         if reason := self._take_axes(key, run):
-            return self._refused(action_type, handle, reason)
+            return refuse_goal(self.node, action_type, handle, reason)
         try:
             self._start(run, handle, name)
             self._follow(run, handle, action_type)
@@ -257,7 +256,9 @@ class ActionHost:
         finally:
             with self._lock:
                 self._runs.pop(key, None)
-        return self._finish(run, handle, action_type, name, motion.result(run.last_snapshot))
+        return finish_run(
+            self.node, run, handle, action_type, name, motion.result(run.last_snapshot)
+        )
 
     def _start(self, run: GoalRun[Any], handle: ServerGoalHandle, name: str) -> None:
         """Write the motion's start unless the goal ended first; a start the link lost
@@ -327,7 +328,7 @@ class ActionHost:
             verdict = run.next_ending(node.channel.connected, snapshot)
             if snapshot is not None:  # every poll's, the one that ends the goal too
                 handle.publish_feedback(
-                    _filled(action_type.Feedback(), run.motion.feedback(snapshot))
+                    filled(action_type.Feedback(), run.motion.feedback(snapshot))
                 )
             if verdict is None:
                 continue
@@ -370,52 +371,6 @@ class ActionHost:
         for run in runs:
             if run.starting and run.thread is not threading.current_thread():
                 run.done.wait(max(0.0, deadline - time.monotonic()))
-
-    def _finish(
-        self,
-        run: GoalRun[Any],
-        handle: ServerGoalHandle,
-        action_type: Any,
-        name: str,
-        fields: dict[str, Any],
-    ) -> Any:
-        verdict = run.verdict or Verdict(Outcome.HALTED, f"{run.motion.what}: ended")
-        message = verdict.message
-        if run.stop_message:
-            message += f"; {run.stop_message}"
-        return self._result(action_type, handle, name, verdict, message, run.stop_sent, fields)
-
-    def _result(
-        self,
-        action_type: Any,
-        handle: ServerGoalHandle,
-        name: str,
-        verdict: Verdict,
-        message: str,
-        stop_sent: bool,
-        fields: dict[str, Any],
-    ) -> Any:
-        result = _result_of(action_type, verdict, message, stop_sent, fields)
-        if verdict.outcome is Outcome.CANCELLED:
-            # The cancel callback runs before rclpy moves the goal to CANCELING.
-            _wait_for(lambda: handle.is_cancel_requested, CANCEL_STATE_WAIT_S)
-        if verdict.outcome is Outcome.REACHED:
-            handle.succeed()
-        elif verdict.outcome is Outcome.CANCELLED and handle.is_cancel_requested:
-            handle.canceled()
-        else:
-            handle.abort()
-        line = f"{name}: {verdict.outcome.name}: {message}"
-        if verdict.outcome is Outcome.REACHED:
-            self.node.get_logger().info(line)
-        else:
-            self.node.get_logger().warn(line)
-        return result
-
-    def _refused(self, action_type: Any, handle: ServerGoalHandle, message: str) -> Any:
-        handle.abort()
-        self.node.get_logger().warn(message)
-        return _result_of(action_type, Verdict(Outcome.REFUSED, message), message)
 
     def offer(self, snapshot: Any, poll_started: float) -> None:
         """A published snapshot (the poller's publisher thread)."""
@@ -470,7 +425,7 @@ class ActionHost:
         try:
             steps = make_steps(goal)
         except CommandRejected as err:
-            return self._refused(action_type, handle, f"{name} refused: {err}")
+            return refuse_goal(self.node, action_type, handle, f"{name} refused: {err}")
         run = StepsRun(steps, float(goal.timeout_s) or self.goal_timeout_s)
         with self._lock:
             older = [old for old in self._steps.values() if old.steps.axes & steps.axes]
@@ -481,7 +436,8 @@ class ActionHost:
             if not old.done.wait(PREEMPT_WAIT_S):
                 with self._lock:
                     self._steps.pop(key, None)
-                return self._refused(
+                return refuse_goal(
+                    self.node,
                     action_type,
                     handle,
                     f"{steps.what} refused: the goal it preempts ({old.steps.what}) did not "
@@ -503,7 +459,7 @@ class ActionHost:
                         outcome = Outcome.LINK_LOST
                     run.end(outcome, message)
                     break
-                handle.publish_feedback(_filled(action_type.Feedback(), steps.feedback()))
+                handle.publish_feedback(filled(action_type.Feedback(), steps.feedback()))
             run.end(Outcome.REACHED, f"{steps.what}: done")
             ended = run.verdict
             if ended is not None and ended.outcome is not Outcome.REACHED and steps.sent:
@@ -520,7 +476,9 @@ class ActionHost:
             run.done.set()
         verdict = run.verdict or Verdict(Outcome.REACHED, f"{steps.what}: done")
         message = f"{verdict.message} ({steps.sent} of {steps.total} sent){undo}"
-        return self._result(action_type, handle, name, verdict, message, False, steps.result())
+        return send_result(
+            self.node, action_type, handle, name, verdict, message, False, steps.result()
+        )
 
 
 class StepsRun:
@@ -538,40 +496,6 @@ class StepsRun:
         with self._lock:
             if self.verdict is None:
                 self.verdict = Verdict(outcome, message)
-
-
-def _wait_for(condition: Callable[[], bool], timeout_s: float) -> bool:
-    deadline = time.monotonic() + timeout_s
-    while not condition():
-        if time.monotonic() >= deadline:
-            return False
-        time.sleep(0.005)
-    return True
-
-
-def _result_of(
-    action_type: Any,
-    verdict: Verdict,
-    message: str,
-    stop_sent: bool = False,
-    fields: dict[str, Any] | None = None,
-) -> Any:
-    """The action's result message: ``fields`` and the ``MotionOutcome`` of ``verdict``."""
-    result = _filled(action_type.Result(), fields or {})
-    outcome = result.outcome
-    outcome.code = int(verdict.outcome)
-    outcome.name = verdict.outcome.name
-    outcome.message = message
-    outcome.fault_code = int(verdict.fault_code)
-    outcome.fault_text = verdict.fault_text
-    outcome.stop_sent = bool(stop_sent)
-    return result
-
-
-def _filled(msg: Any, fields: dict[str, Any]) -> Any:
-    for field, value in fields.items():
-        setattr(msg, field, value)
-    return msg
 
 
 __all__ = ["PREEMPT_WAIT_S", "STOP_WAIT_S", "ActionHost", "Steps", "StepsRun"]

@@ -45,7 +45,7 @@ from pymodbus.transport import serialtransport as _serialtransport
 
 from .codec import Value, decode, encode
 from .registers import DeviceLimits, RegisterMap, Table, ValueType
-from .serial_timing import open_serial
+from .serial_port import open_serial
 
 FUNCTION_TABLES: dict[int, Table] = {
     1: Table.COIL,
@@ -612,7 +612,7 @@ def serve_until_signalled(sim: Simulator, banner: str, port_file: Path | None = 
 
 class _SerialModule:
     """pyserial as pymodbus's serial transport sees it, with ``serial_for_url`` opening a
-    plain path as ``serial_timing.ParityTolerantSerial``."""
+    plain path as ``serial_port.ParityTolerantSerial``."""
 
     def __init__(self, module: Any) -> None:
         self._module = module

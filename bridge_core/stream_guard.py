@@ -1,4 +1,4 @@
-"""The one guard for jog / velocity command streams (DESIGN §2 "deadman").
+"""The one guard for jog / velocity command streams (the deadman).
 
 A stream is a topic that sets a speed until told otherwise: stepper ``~/motor_<n>/jog``,
 MOTEC ``~/cmd_velocity``. Each stream key (a motor number, a drive) has the same rules:
@@ -46,6 +46,9 @@ Key = TypeVar("Key", bound=Hashable)
 # Least pause between two tries of a pending stop, from the end of one to the start of the
 # next: a stop repeated over a dead line must leave the shared bus to the live devices.
 STOP_RETRY_GAP_S = 0.05
+# The range of a stream's deadman silence, the live parameter ``command_timeout_s`` (a
+# modbus_bridge command topic's ``<name>_timeout_s``) of every bridge.
+COMMAND_TIMEOUT_RANGE_S = (0.05, 60.0)
 Result = TypeVar("Result")
 
 

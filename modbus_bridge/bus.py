@@ -4,7 +4,7 @@ One process: a bus owner (``ModbusBusNode``, node ``modbus_bus``: the line's par
 ``serial_port`` / ``baudrate`` / ``parity`` / ``stopbits`` / ``frame_gap_s`` /
 ``timeout_s``, their defaults from the file's ``line``) and one ``ModbusBridgeNode`` per
 device of the file, named after it, on the bus's one link (the MOTEC bridge's pattern:
-``bridge_core.node_base.BusNode``). The devices take turns on the line through its
+``bridge_core.process.BusNode``). The devices take turns on the line through its
 priority lock; each has its own poll rate, diagnostics, lifecycle and commands.
 """
 
@@ -18,7 +18,8 @@ from rclpy.node import Node
 
 from bridge_core.channel import UNIT_ID_MAX
 from bridge_core.errors import ConfigurationError
-from bridge_core.node_base import BusNode, DeviceDefaults, ParameterNode, spin_nodes
+from bridge_core.node_parameters import DeviceDefaults, ParameterNode
+from bridge_core.process import BusNode, spin_nodes
 
 from .description import Description
 from .node import ModbusBridgeNode, defaults_of, described_by_parameter

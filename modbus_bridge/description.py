@@ -51,7 +51,6 @@ from .description_commands import (
 from .description_joints import Joint, JointSource, build_joints
 from .description_schema import (
     COMMAND_RATE_RANGE_HZ,
-    COMMAND_TIMEOUT_RANGE_S,
     BusFileSpec,
     CommandsSpec,
     DeviceFileSpec,
@@ -65,7 +64,6 @@ from .description_yaml import Checker, DescriptionError, Loc, Problem, compose, 
 
 __all__ = [
     "COMMAND_RATE_RANGE_HZ",
-    "COMMAND_TIMEOUT_RANGE_S",
     "NODE_PARAMETERS",
     "TOPIC_PARAMETER_SUFFIXES",
     "Description",

@@ -21,6 +21,7 @@ from bridge_core.registers import (
     MAX_WRITE_BITS,
     MAX_WRITE_REGISTERS,
 )
+from bridge_core.stream_guard import COMMAND_TIMEOUT_RANGE_S
 
 from .description_yaml import Loc, Problem, format_loc, line_of
 
@@ -32,7 +33,6 @@ DEFAULT_FUNCTION_CODES: tuple[FunctionCode, ...] = (1, 2, 3, 4, 5, 6, 15, 16)
 BAUDRATE_RANGE = (300, 4_000_000)
 TIMEOUT_RANGE_S = (0.01, 10.0)
 POLL_RATE_RANGE_HZ = (0.1, 1000.0)
-COMMAND_TIMEOUT_RANGE_S = (0.05, 60.0)
 COMMAND_RATE_RANGE_HZ = (0.1, 100.0)
 NAME_PATTERN = r"^[A-Za-z][A-Za-z0-9_]*$"
 PARITY_WORDS = {"none": "N", "even": "E", "odd": "O", "n": "N", "e": "E", "o": "O"}

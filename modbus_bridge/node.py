@@ -28,17 +28,18 @@ from bridge_core.codec import Value
 from bridge_core.diagnostics import Level, Report
 from bridge_core.errors import CommandRejected, ConfigurationError, DeviceException, LinkError
 from bridge_core.keepalive import FEED_WAKE_S, Keepalive
-from bridge_core.node_base import BridgeNode, DeviceDefaults, ParameterNode, spin_node
+from bridge_core.node_base import BridgeNode
+from bridge_core.node_parameters import DeviceDefaults, ParameterNode
 from bridge_core.parameters import ParameterSpec
+from bridge_core.process import spin_node
 from bridge_core.registers import ValueType
-from bridge_core.stream_guard import StreamGuard
+from bridge_core.stream_guard import COMMAND_TIMEOUT_RANGE_S, StreamGuard
 from bridge_core.transport import ModbusLink
 from msg_defs.msg import DeviceValues
 from msg_defs.srv import ReadRegisters, SetValue, WriteRegister
 
 from .description import (
     COMMAND_RATE_RANGE_HZ,
-    COMMAND_TIMEOUT_RANGE_S,
     Description,
     Device,
     Link,
@@ -396,7 +397,7 @@ class ModbusBridgeNode(BridgeNode[DeviceSnapshot]):
                 stop_when_idle=False,
             )
             self.device.attach_stream(topic.name, guard)
-            self.stream_topic(
+            self.streams.topic(
                 guard,
                 Float64,
                 {topic.name: f"~/{topic.name}"},

@@ -2,7 +2,7 @@
 
 One process, one serial port, one node per drive. ``main`` starts:
 
-- ``motec_bridge``: the bus owner (``bridge_core.node_base.BusNode``). It has the serial
+- ``motec_bridge``: the bus owner (``bridge_core.process.BusNode``). It has the serial
   parameters (``serial_port``, ``baudrate``, ``parity``, ``stopbits``, ``timeout_s``)
   ``unit_ids`` and ``interface`` (rs485 / rs232: at most 31 / 8 drives, §1.1), opens the
   one ``ModbusLink`` every drive shares, and offers ``~/disable_all`` (one broadcast write,
@@ -42,8 +42,11 @@ from bridge_core.checks import board_zero_index
 from bridge_core.diagnostics import Level, Report
 from bridge_core.errors import CommandRejected, ConfigurationError, DeviceException, LinkError
 from bridge_core.keepalive import Keepalive
-from bridge_core.node_base import BridgeNode, BusNode, DeviceDefaults, copy_fields, spin_nodes
+from bridge_core.node_base import BridgeNode, copy_fields
+from bridge_core.node_parameters import DeviceDefaults
 from bridge_core.parameters import ParameterSpec
+from bridge_core.process import BusNode, spin_nodes
+from bridge_core.stream_guard import COMMAND_TIMEOUT_RANGE_S
 from bridge_core.transport import ModbusLink
 from msg_defs.action import MoveTo
 from msg_defs.msg import MotecState
@@ -89,6 +92,7 @@ BUS_NODE_NAME = "motec_bridge"
 # A speed write is one FC 06 of ~2-3 ms at 115200 baud: 20 a second per drive cost a few
 # percent of the bus that every drive's polls share.
 VELOCITY_WRITE_RATE_HZ = 20.0
+VELOCITY_RATE_RANGE_HZ = (0.5, 1000.0)  # command_rate_hz
 # ~/move_to's "reached" band (live parameter): the simulator lands on the target; a real
 # drive's position loop settles within a few counts of it (10 counts = 0.36 deg of a
 # 10000-count motor turn).
@@ -165,16 +169,14 @@ class MotecDriveNode(BridgeNode[MotecSnapshot]):
                     "command_timeout_s",
                     0.5,
                     "cmd_velocity deadman: 0 rpm after this silence",
-                    0.05,
-                    60.0,
+                    *COMMAND_TIMEOUT_RANGE_S,
                     live=True,
                 ),
                 ParameterSpec(
                     "command_rate_hz",
                     VELOCITY_WRITE_RATE_HZ,
                     "cmd_velocity: most speed changes written per second (a 0 at once)",
-                    0.5,
-                    1000.0,
+                    *VELOCITY_RATE_RANGE_HZ,
                     live=True,
                 ),
                 ParameterSpec(
@@ -267,7 +269,7 @@ class MotecDriveNode(BridgeNode[MotecSnapshot]):
         self.joint_names = [f"{self.joint_prefix}drive_{unit_id}"]
         self.state_pub = self.create_publisher(MotecState, "~/state", 10)
         self._create_services()
-        self.stream_topic(
+        self.streams.topic(
             self.device.stream,
             Float64,
             {VELOCITY_STREAM: "~/cmd_velocity"},

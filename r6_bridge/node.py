@@ -10,8 +10,10 @@ from geometry_msgs.msg import PoseStamped
 
 from bridge_core.diagnostics import Level, Report
 from bridge_core.errors import CommandRejected, DeviceException, FrameError
-from bridge_core.node_base import BridgeNode, DeviceDefaults, copy_fields, spin_node
+from bridge_core.node_base import BridgeNode, copy_fields
+from bridge_core.node_parameters import DeviceDefaults
 from bridge_core.parameters import ParameterSpec, padded
+from bridge_core.process import spin_node
 from bridge_core.units import DEG, MM, RPM_TO_RAD_S, euler_xyz_deg_to_quaternion
 from msg_defs.action import PointUpload, RunCycle
 from msg_defs.msg import R6State

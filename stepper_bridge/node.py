@@ -40,9 +40,12 @@ from std_srvs.srv import SetBool
 from bridge_core.checks import board_zero_index
 from bridge_core.diagnostics import Level, Report
 from bridge_core.errors import CommandRejected, ConfigurationError
-from bridge_core.node_base import BridgeNode, DeviceDefaults, copy_fields, spin_node
+from bridge_core.node_base import BridgeNode, copy_fields
+from bridge_core.node_parameters import DeviceDefaults
 from bridge_core.parameters import ParameterSpec, padded
+from bridge_core.process import spin_node
 from bridge_core.serial_timing import char_time_s
+from bridge_core.stream_guard import COMMAND_TIMEOUT_RANGE_S
 from bridge_core.transport import SerialSettings
 from msg_defs.action import ArcMotion, LineMotion, StepperMoveBy, StepperRun
 from msg_defs.msg import StepperState
@@ -128,6 +131,7 @@ CLEAR_ALL_WARNING = (
 # delay (plus a direction coil when it reverses): 5 a second per motor leave the polls
 # most of the line.
 JOG_WRITE_RATE_HZ = 5.0
+JOG_RATE_RANGE_HZ = (0.5, 100.0)  # command_rate_hz
 
 # §3: "485 接口通信时每帧数据响应时间不能低于 35ms": the controller answers no sooner than
 # 35 ms after a request (README stepper decision 7). The reply timeout counts from the
@@ -222,16 +226,14 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
                     "command_timeout_s",
                     DEFAULT_JOG_TIMEOUT_S,
                     "jog deadman: stop a jogging motor after this silence",
-                    0.05,
-                    60.0,
+                    *COMMAND_TIMEOUT_RANGE_S,
                     live=True,
                 ),
                 ParameterSpec(
                     "command_rate_hz",
                     JOG_WRITE_RATE_HZ,
                     "jog: most speed changes written per second per motor (a 0 at once)",
-                    0.5,
-                    100.0,
+                    *JOG_RATE_RANGE_HZ,
                     live=True,
                 ),
                 ParameterSpec(
@@ -283,7 +285,7 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
         self.state_pub = self.create_publisher(StepperState, "~/state", 10)
         self._create_services()
         self._create_actions()
-        self.stream_topic(
+        self.streams.topic(
             self.device.jogs,
             Float64,
             {n: f"~/motor_{n}/jog" for n in range(1, MOTORS + 1)},

@@ -12,8 +12,10 @@ from std_srvs.srv import Trigger
 from bridge_core.checks import board_zero_index
 from bridge_core.diagnostics import Level, Report
 from bridge_core.errors import ConfigurationError
-from bridge_core.node_base import BridgeNode, DeviceDefaults, copy_fields, spin_node
+from bridge_core.node_base import BridgeNode, copy_fields
+from bridge_core.node_parameters import DeviceDefaults
 from bridge_core.parameters import ParameterSpec
+from bridge_core.process import spin_node
 from bridge_core.units import (
     DEG,
     MM,

@@ -50,6 +50,7 @@ from bridge_core.requests import (
     WriteCoil,
     WriteCoils,
 )
+from bridge_core.serial_port import write_all
 from bridge_core.serial_timing import (
     BROADCAST_TURNAROUND_S,
     TimedSerialClient,
@@ -57,7 +58,6 @@ from bridge_core.serial_timing import (
     longest_hold_s,
     reply_length,
     silence_s,
-    write_all,
 )
 from bridge_core.sim_base import SimulatedDevice, Simulator
 from bridge_core.transport import (

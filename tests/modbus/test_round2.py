@@ -20,7 +20,8 @@ from bridge_core.channel import DeviceChannel
 from bridge_core.codec import encode
 from bridge_core.errors import CommandRejected
 from bridge_core.registers import Table
-from bridge_core.serial_timing import ParityTolerantSerial, char_time_s, open_serial, silence_s
+from bridge_core.serial_port import ParityTolerantSerial, open_serial
+from bridge_core.serial_timing import char_time_s, silence_s
 from bridge_core.sim_base import PtyPair
 from bridge_core.transport import ModbusLink, SerialSettings
 from modbus_bridge.description import Description, DescriptionError, load

@@ -12,7 +12,7 @@ import sys
 
 from rclpy.node import Node
 
-from bridge_core.node_base import spin_nodes
+from bridge_core.process import spin_nodes
 from stepper_bridge.node import StepperBridgeNode
 
 CHECK_S = 0.05
@@ -27,7 +27,7 @@ def build(nodes: list[Node]) -> None:
     nodes.append(node)
 
     def fail_once_moving() -> None:
-        if any(guard.moving() for guard in node.stream_guards):
+        if any(guard.moving() for guard in node.streams.guards):
             raise InjectedFatalError("injected: an error no callback handles")
 
     node.create_timer(CHECK_S, fail_once_moving)

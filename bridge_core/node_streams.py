@@ -1,0 +1,225 @@
+"""Command streams of the bridge nodes: jog / velocity topics and their deadman.
+
+Part of the node base (imports rclpy). ``StreamHost`` puts the ``bridge_core.stream_guard``
+guards of one node behind its command topics, like ``node_actions.ActionHost`` does for
+action goals: arrivals are recorded in a callback group of their own, values are written
+through the node's command guard (``BridgeNode.run_command``), and a timer stops streams
+that fell silent. The node's halts stop every stream through ``stop_all``.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any, TypeVar
+
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+
+from .errors import DeviceException
+from .stream_guard import StreamGuard
+
+if TYPE_CHECKING:
+    from .node_base import BridgeNode
+
+T = TypeVar("T")
+# The deadman looks every command_timeout_s / DEADMAN_CHECKS (within these bounds): its
+# stop comes at most one period after the timeout (issue 9: within command_timeout_s and
+# one bus transaction of the last message).
+DEADMAN_CHECKS = 20
+DEADMAN_PERIOD_MIN_S = 0.01
+DEADMAN_PERIOD_MAX_S = 0.05
+STREAM_DEPTH = 1  # command streams: only the newest message matters
+
+
+class StreamHost:
+    """The command streams of one bridge node: their topics, writers and deadman."""
+
+    def __init__(self, node: BridgeNode[Any]) -> None:
+        self.node = node
+        # Command stream arrivals: recorded at once, never behind a write (``topic``).
+        self.inbox_group = MutuallyExclusiveCallbackGroup()
+        self.guards: list[StreamGuard[Any]] = []
+        self.refusals = 0  # stream commands refused (diagnostics)
+
+    def topic(
+        self,
+        guard: StreamGuard[T],
+        msg_type: Any,
+        topics: dict[T, str],
+        what: Callable[[T, float], str],
+        value_of: Callable[[Any], float],
+        *,
+        convert: Callable[[T, float], float] = lambda _key, value: value,
+        timeout_parameter: str = "command_timeout_s",
+        rate_parameter: str = "command_rate_hz",
+    ) -> None:
+        """Command topics of one guard (jog, cmd_velocity) with their deadman.
+
+        Arrival and writing are apart. A message is only recorded (``guard.offer``: newest
+        value per stream, the deadman counts from its arrival) in a callback group of its
+        own with a depth-1 subscription, so a flood costs no bus time and never waits
+        behind a write. The writer runs in the command group, woken by each arrival and by
+        the deadman timer: it applies what the guard says is ``ready`` (a 0 at once, other
+        values at most ``rate_parameter`` times a second per stream) through the command
+        guard (a refused value stops what the stream had started). The timer also stops
+        streams that fell silent. Both parameters are live; ``close()`` stops every stream.
+        ``convert`` checks a value and turns it into the guard's units (inside the command
+        guard: a bad value is a refusal, not an exception in a callback).
+        """
+        node = self.node
+        self.guards.append(guard)
+        guard.permit = self._permit
+
+        def write_ready() -> None:
+            self._write_ready(guard, convert, what)
+
+        writer = node.create_guard_condition(write_ready, callback_group=node.command_group)
+        for key, topic in topics.items():
+            node.create_subscription(
+                msg_type,
+                topic,
+                self._callback(guard, key, value_of, writer.trigger),
+                STREAM_DEPTH,
+                callback_group=self.inbox_group,
+            )
+
+        def period() -> float:
+            return min(
+                DEADMAN_PERIOD_MAX_S, max(DEADMAN_PERIOD_MIN_S, guard.timeout_s / DEADMAN_CHECKS)
+            )
+
+        def tick() -> None:
+            write_ready()  # values held back by the rate limit
+            self._deadman(guard, what)
+
+        timer = node.create_timer(period(), tick, callback_group=node.command_group)
+
+        def set_timeout(value: float) -> None:
+            guard.timeout_s = float(value)
+            timer.timer_period_ns = int(period() * 1e9)
+            timer.reset()
+
+        def set_rate(rate_hz: float) -> None:
+            guard.min_interval_s = 1.0 / float(rate_hz)
+
+        node.on_parameter(timeout_parameter, set_timeout)
+        node.on_parameter(rate_parameter, set_rate)
+        set_rate(node.param(rate_parameter))
+
+    def _permit(self) -> str | None:
+        """Asked by a stream guard, under its lock, before every non-zero write."""
+        if not self.node.active:
+            return "the node is not active (lifecycle): nothing was written"
+        if self.node.read_only:
+            return "read_only is set, nothing was written"
+        return None
+
+    def _callback(
+        self,
+        guard: StreamGuard[T],
+        key: T,
+        value_of: Callable[[Any], float],
+        wake_writer: Callable[[], None],
+    ) -> Callable[[Any], None]:
+        def arrived(msg: Any) -> None:
+            if guard.offer(key, value_of(msg)):
+                wake_writer()  # else the deadman timer's pass applies it (a flood wakes
+                # the writer at most command_rate_hz times a second, not per message)
+
+        return arrived
+
+    def _write_ready(
+        self,
+        guard: StreamGuard[T],
+        convert: Callable[[T, float], float],
+        what: Callable[[T, float], str],
+    ) -> None:
+        for key in guard.ready():
+            value = guard.take(key)
+            if value is None:
+                continue
+            ok, message, _ = self.node.run_command(
+                what(key, value), functools.partial(_apply, guard, key, value, convert)
+            )
+            if not ok:
+                self._refused(guard, key, message, what)
+
+    def _refused(
+        self, guard: StreamGuard[T], key: T, message: str, what: Callable[[T, float], str]
+    ) -> None:
+        self.refusals += 1
+        self.node.get_logger().warn(message, throttle_duration_sec=2.0)
+        stream = guard[key]
+        if stream.may_move and not stream.stop_pending:
+            # A refused value must not leave the motor running at the previous one. A stop
+            # already pending is the deadman's: it retries at its own period, not per message.
+            self.node.run_command(
+                f"{what(key, 0.0)} (stop after a refused command)",
+                lambda: guard.stop(key),
+                stop=True,
+                own_motion=True,
+            )
+
+    def _deadman(self, guard: StreamGuard[T], what: Callable[[T, float], str]) -> None:
+        for key in guard.due():
+            was_moving = guard[key].may_move
+            ok, message, _ = self.node.run_command(
+                f"{what(key, 0.0)} (deadman)",
+                functools.partial(guard.expire, key),
+                stop=True,
+                own_motion=True,
+            )
+            if not was_moving:
+                continue
+            if ok:
+                self.node.get_logger().info(
+                    f"{what(key, 0.0)}: no command for {guard.timeout_s} s, stopped"
+                )
+            else:
+                self.node.get_logger().warn(message, throttle_duration_sec=2.0)
+
+    def stop_all(self) -> None:
+        """Stop every stream that may be moving (the node's ``stop_motion``); a bug in one
+        guard does not skip the others."""
+        logger = self.node.get_logger()
+        for guard in self.guards:
+            try:
+                moving = guard.moving()
+                failed = guard.stop_all()
+            except Exception as bug:  # a bug in one part must not skip the others
+                logger.error(f"stopping streams failed: {bug}")
+                continue
+            for key, err in failed:
+                logger.error(f"stopping stream {key} failed: {err}")
+            for key in set(moving) - {key for key, _ in failed}:
+                logger.info(f"stream {key}: stopped")
+
+    def send_pending_stops(self) -> None:
+        """Before the first poll after a reconnect: the stops that failed while the link
+        was down. A refusal is said and polls go on; a link error propagates (still down)."""
+        for guard in self.guards:
+            for key in guard.pending_stops():
+                try:
+                    guard.stop(key)
+                except DeviceException as err:  # answered: not a link fault; polls go on
+                    self.node.get_logger().error(
+                        f"stream {key}: the device refused its stop: {err}"
+                    )
+                    continue
+                self.node.get_logger().info(f"stream {key}: the pending stop was sent on reconnect")
+
+
+def _apply(
+    guard: StreamGuard[T], key: T, value: float, convert: Callable[[T, float], float]
+) -> bool:
+    """One stream command: checked and converted, then through the guard."""
+    return guard.command(key, convert(key, value))
+
+
+__all__ = [
+    "DEADMAN_CHECKS",
+    "DEADMAN_PERIOD_MAX_S",
+    "DEADMAN_PERIOD_MIN_S",
+    "STREAM_DEPTH",
+    "StreamHost",
+]
