@@ -17,7 +17,7 @@ from .channel import Priority, RegisterIO
 from .codec import Value
 from .errors import CommandRejected
 from .planner import ReadRequest
-from .poller import read_blocks, read_named
+from .reads import read_blocks, read_named
 from .registers import RegisterMap
 from .stream_guard import StreamGuard
 

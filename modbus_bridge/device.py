@@ -22,7 +22,7 @@ from bridge_core.checks import check_finite
 from bridge_core.codec import Value, decode, encode
 from bridge_core.errors import CommandRejected, LinkError
 from bridge_core.planner import ReadRequest, plan_reads
-from bridge_core.poller import read_blocks, read_named
+from bridge_core.reads import read_blocks, read_named
 from bridge_core.registers import Register, Table, ValueType
 from bridge_core.stream_guard import StreamGuard
 

@@ -52,7 +52,7 @@ from bridge_core.errors import CommandRejected, LinkError, NotSent
 from bridge_core.goals import Motion, Outcome, Verdict
 from bridge_core.keepalive import FEED_WAKE_S
 from bridge_core.planner import ReadRequest, plan_reads
-from bridge_core.poller import read_blocks
+from bridge_core.reads import read_blocks
 from bridge_core.registers import Register, Table
 from bridge_core.stream_guard import StreamGuard
 

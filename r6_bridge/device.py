@@ -22,7 +22,7 @@ from bridge_core.errors import (
 )
 from bridge_core.goals import Motion, Outcome, Verdict
 from bridge_core.planner import ReadRequest, plan_reads
-from bridge_core.poller import holds, read_blocks, read_named
+from bridge_core.reads import holds, read_blocks, read_named
 from bridge_core.registers import MAX_READ_REGISTERS, MAX_WRITE_REGISTERS, WordOrder
 
 from .registers import (

@@ -17,7 +17,7 @@ from bridge_core.checks import check_index, check_whole_number
 from bridge_core.codec import Value, encode
 from bridge_core.errors import CommandRejected, ConfigurationError, LinkError, NotConfirmed
 from bridge_core.planner import ReadRequest, plan_reads
-from bridge_core.poller import read_blocks, read_named
+from bridge_core.reads import read_blocks, read_named
 
 from .registers import (
     COIL_FENCE_MODE,

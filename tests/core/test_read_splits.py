@@ -13,7 +13,8 @@ from bridge_core.channel import DeviceChannel, Priority
 from bridge_core.codec import Value
 from bridge_core.errors import DeviceException
 from bridge_core.planner import plan_reads
-from bridge_core.poller import Poller, PollOutcome, read_blocks, read_splits
+from bridge_core.poller import Poller, PollOutcome
+from bridge_core.reads import read_blocks, read_splits
 from bridge_core.registers import Access, DeviceLimits, Register, RegisterMap, Table, ValueType
 from bridge_core.sim_base import ILLEGAL_VALUE, SimulatedDevice, Simulator
 from bridge_core.transport import ModbusLink, TcpSettings

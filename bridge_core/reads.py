@@ -1,0 +1,154 @@
+"""How a device reads its registers: a plan's blocks, a few named registers.
+
+``read_blocks`` returns the values and the wall-clock time the reply of the block holding
+a named register (the joint positions) arrived, so every snapshot is stamped with the read
+time of its positions (DESIGN §2), not with the time of the first or last request of the
+poll. A merged read the device refuses is split at once and remembered (``ReadSplits``).
+
+Plain Python over ``RegisterIO``: the device modules use it, and the poller only reports
+what was split.
+"""
+
+from __future__ import annotations
+
+import collections
+import threading
+import time
+import weakref
+from collections.abc import Callable, Iterable, Sequence
+
+from .channel import Priority, RegisterIO
+from .codec import Value
+from .errors import ILLEGAL_DATA_ADDRESS, DeviceException
+from .planner import ReadRequest, decode_reply, plan_reads, split_request
+from .registers import RegisterMap, Table
+
+
+def read_blocks(
+    io: RegisterIO,
+    plan: Sequence[ReadRequest],
+    priority: Priority = Priority.POLL,
+    stamp_register: str | None = None,
+    clock: Callable[[], float] = time.time,
+) -> tuple[dict[str, Value], float]:
+    """Read every block of ``plan``; the values, and the time ``stamp_register`` was read.
+
+    The time is taken when the reply to the block holding ``stamp_register`` arrived: the
+    device sampled the registers between that request's arrival and its reply, so the
+    stamp is within one transaction time of the read, also when that block or any other
+    one was retried. Without ``stamp_register`` it is the time of the last reply.
+    """
+    values: dict[str, Value] = {}
+    read_time = 0.0
+    stamped = False
+    splits = read_splits(io)
+    pending = collections.deque(plan)
+    while pending:
+        request = pending.popleft()
+        replaced = splits.replacement(request)
+        if replaced is not None:
+            pending.extendleft(reversed(replaced))
+            continue
+        try:
+            raw = _read(io, request, priority)
+        except DeviceException as err:
+            # A merged read the device refuses (a row between its registers it does not
+            # serve): read its parts now, so this poll still ends, and from now on.
+            parts = split_request(request)
+            if err.exception_code != ILLEGAL_DATA_ADDRESS or not parts:
+                raise
+            splits.remember(request, parts, err)
+            pending.extendleft(reversed(parts))
+            continue
+        if not stamped:
+            read_time = clock()
+            stamped = stamp_register is not None and holds(request, stamp_register)
+        values.update(decode_reply(request, raw))
+    if stamp_register is not None and not stamped:
+        raise ValueError(f"no block of the plan holds {stamp_register!r}")
+    return values, read_time
+
+
+def _read(
+    io: RegisterIO, request: ReadRequest, priority: Priority
+) -> Sequence[int] | Sequence[bool]:
+    if request.table.is_bit:
+        return io.read_bits(request.address, request.count, request.table, priority=priority)
+    return io.read_registers(request.address, request.count, request.table, priority=priority)
+
+
+class ReadSplits:
+    """The merged reads one device refused with ILLEGAL DATA ADDRESS, and their parts.
+
+    A map may merge reads through rows a real device does not serve (MOTEC's unnamed
+    0x2A-0x2C, a described device with ``read_undefined: true``), and such a device would
+    refuse every poll. ``read_blocks`` splits a refused merged read at once (the poll goes
+    on with its other blocks) and remembers it here, so the next polls read the parts
+    directly; what was split is said once (``news``, which the poller logs).
+    """
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._parts: dict[tuple[Table, int, int, frozenset[str]], tuple[ReadRequest, ...]] = {}
+        self._news: list[str] = []
+
+    @staticmethod
+    def _key(request: ReadRequest) -> tuple[Table, int, int, frozenset[str]]:
+        return (request.table, request.address, request.count, request.names)
+
+    def replacement(self, request: ReadRequest) -> tuple[ReadRequest, ...] | None:
+        with self._lock:
+            return self._parts.get(self._key(request))
+
+    def remember(
+        self, request: ReadRequest, parts: Sequence[ReadRequest], err: DeviceException
+    ) -> None:
+        spans = ", ".join(f"{part.address}+{part.count}" for part in parts)
+        with self._lock:
+            self._parts[self._key(request)] = tuple(parts)
+            self._news.append(
+                f"the device refused the merged read of {request.table.value} "
+                f"{request.address}+{request.count} ({err.name}): reading it as {spans} "
+                "from now on"
+            )
+
+    def __len__(self) -> int:
+        with self._lock:
+            return len(self._parts)
+
+    def news(self) -> list[str]:
+        """What was split since the last call (each split once)."""
+        with self._lock:
+            news, self._news = self._news, []
+        return news
+
+
+_SPLITS: weakref.WeakKeyDictionary[object, ReadSplits] = weakref.WeakKeyDictionary()
+_SPLITS_LOCK = threading.Lock()
+
+
+def read_splits(io: object) -> ReadSplits:
+    """The refused merged reads of the device behind ``io`` (its channel), kept as long as
+    the channel lives; a fresh, unkept one for an ``io`` that cannot be a weak key."""
+    with _SPLITS_LOCK:
+        try:
+            splits = _SPLITS.get(io)
+            if splits is None:
+                splits = _SPLITS[io] = ReadSplits()
+        except TypeError:
+            return ReadSplits()
+    return splits
+
+
+def read_named(io: RegisterIO, register_map: RegisterMap, names: Iterable[str]) -> dict[str, Value]:
+    """Values of named registers, at command priority, in as few requests as the device
+    allows (the map's limits); the read a service makes on request."""
+    plan = plan_reads(register_map, register_map.select(list(names)))
+    return read_blocks(io, plan, Priority.COMMAND)[0]
+
+
+def holds(request: ReadRequest, register_name: str) -> bool:
+    return register_name in request.names
+
+
+__all__ = ["ReadSplits", "holds", "read_blocks", "read_named", "read_splits"]
