@@ -6,7 +6,9 @@
   a priority (so several drives on one bus take turns fairly).
 - ``DeviceChannel``: one unit id on a ``Transport`` (``bridge_core.transport.ModbusLink``),
   with its own health, capped exponential reconnect ``Backoff`` and ``LinkStats``, so a dead
-  drive on a shared RS-485 bus backs off on its own while the others keep their rate.
+  drive on a shared RS-485 bus backs off on its own while the others keep their rate. It
+  owns the device's ``LinkState`` (``bridge_core.link_state``): every transaction updates
+  it, and its listeners hear when the link goes up or down.
 
 Nothing here imports pymodbus or ``bridge_core.transport``; errors arrive already
 translated into ``bridge_core.errors`` types.
@@ -26,6 +28,7 @@ from enum import IntEnum
 from typing import Any, Protocol
 
 from .errors import DeviceException, FrameError, LinkDown, LinkError, LinkTimeout, NotSent
+from .link_state import LinkState
 from .registers import Table
 from .requests import (
     MaskWriteRegister,
@@ -208,27 +211,36 @@ class DeviceChannel:
         self.down_write_timeout_s = down_write_timeout_s
         self.backoff = Backoff(RECONNECT_INITIAL_S, reconnect_max_s, clock)
         self.stats = LinkStats()
-        self._connected = False
-        self._ever_connected = False
-        # Bumped each time the device comes up (by a poll, or by a stop sent while down):
-        # the poller runs its link-up work once per generation.
-        self.generation = 0
-        # Bumped whenever the device is marked down: a command started on an older epoch
-        # must not run on a link that was lost (and maybe reopened) meanwhile.
-        self._epoch = 0
+        self.link_state = LinkState()
         self._session = threading.local()
 
     @property
     def connected(self) -> bool:
         """True while the device's last transaction succeeded (or answered an exception)."""
-        return self._connected
+        return self.link_state.connected
+
+    @property
+    def generation(self) -> int:
+        """Bumped each time the device comes up (by a poll, or by a stop sent while down)."""
+        return self.link_state.generation
 
     def may_attempt(self) -> bool:
         """Whether a poll should try the device now (connected, or backoff elapsed)."""
-        return self._connected or self.backoff.ready()
+        return self.link_state.connected or self.backoff.ready()
 
     @contextmanager
-    def command_session(self, *, probe: bool = False) -> Iterator[None]:
+    def labelled(self, what: str) -> Iterator[None]:
+        """Name this thread's transactions: a loss they cause is announced as ``what: error``
+        (the node names each command so)."""
+        outer = getattr(self._session, "label", None)
+        self._session.label = what
+        try:
+            yield
+        finally:
+            self._session.label = outer
+
+    @contextmanager
+    def command_session(self, *, probe: bool = False) -> Iterator[int]:
         """Tie this thread's transactions to the connection they started on.
 
         Inside it, every transaction is refused (``LinkDown``, nothing sent) once the
@@ -240,13 +252,18 @@ class DeviceChannel:
         ``probe``: for a poll that starts while the device is down: its transactions may
         reconnect, but are refused once the device is marked down again after the session
         began (a stop that failed meanwhile is pending, and goes first on the next try).
+
+        Yields the epoch it began on: a poll that got through confirms the link with it
+        (``LinkState.confirm``), which a loss since then refuses.
         """
+        state = self.link_state
+        epoch = state.epoch
         if probe:
-            self._session.epoch = (self._epoch, False)
+            self._session.epoch = (epoch, False)
         else:
-            self._session.epoch = (self._epoch if self._connected else -1, True)
+            self._session.epoch = (epoch if state.connected else -1, True)
         try:
-            yield
+            yield epoch
         finally:
             self._session.epoch = None
 
@@ -256,16 +273,17 @@ class DeviceChannel:
         return int(getattr(self._session, "writes", 0))
 
     def mark_down(self, error: LinkError | str) -> None:
-        self._epoch += 1
+        """The device failed on the link: down (its listeners hear of a loss), backing off."""
         text = str(error)
         self.stats.last_error = text
         self.stats.last_error_time = time.time()
-        if self._connected or self.backoff.ready():
+        if self.link_state.connected or self.backoff.ready():
             self.backoff.failed()
-        self._connected = False
         if not self.link.is_serial:
             # TCP: drop the socket so a late reply cannot be taken for the next answer.
             self.link.close()
+        label = getattr(self._session, "label", None)
+        self.link_state.went_down(f"{label}: {text}" if label else text)
 
     def transact(self, request: Request, priority: Priority = Priority.POLL) -> Reply:
         """Run one request; reads are retried ``retries`` times, writes never are.
@@ -276,7 +294,7 @@ class DeviceChannel:
         meanwhile goes between a failed attempt and its retry: no request ever waits for
         more than one timeout of another device.
         """
-        attempts = 1 if request.is_write or not self._connected else 1 + self.retries
+        attempts = 1 if request.is_write or not self.link_state.connected else 1 + self.retries
         last: LinkError = LinkDown("no attempt made")
         for attempt in range(attempts):
             outcome = self._attempt(request, priority, final=attempt == attempts - 1)
@@ -291,11 +309,12 @@ class DeviceChannel:
         """One try under the link lock: the reply, or the link error (the device is marked
         down after the ``final`` try fails, or at once if the link itself is down)."""
         lock = self.link.lock
+        state = self.link_state
         lock.acquire(priority)  # acquire/release, not a context manager: the poll hot path
         try:
             session = getattr(self._session, "epoch", None)
             if session is not None and (
-                session[0] != self._epoch or (session[1] and not self._connected)
+                session[0] != state.epoch or (session[1] and not state.connected)
             ):
                 raise NotSent(
                     f"{self.describe()}: the link was lost while the command waited; not sent"
@@ -309,7 +328,7 @@ class DeviceChannel:
                 started = time.perf_counter()
                 if request.is_write:  # on the wire from here on, whatever comes back
                     self._session.writes = self.writes_tried() + 1
-                if not self._connected and self.down_write_timeout_s:
+                if not state.connected and self.down_write_timeout_s:
                     reply = self.link.execute(self.unit_id, request, self.down_write_timeout_s)
                 else:
                     reply = self.link.execute(self.unit_id, request)
@@ -337,19 +356,18 @@ class DeviceChannel:
             stats = self.stats
             stats.transactions += 1
             stats.latencies_s.append(time.perf_counter() - started)
-            if not self._connected:
+            if not state.connected:
                 self._note_alive()
             return reply
         finally:
             lock.release()
 
     def _note_alive(self) -> None:
-        if not self._connected:
-            if self._ever_connected:
+        state = self.link_state
+        if not state.connected:
+            if state.ever_connected:
                 self.stats.reconnects += 1
-            self._ever_connected = True
-            self.generation += 1
-        self._connected = True
+            state.answered()
         self.backoff.succeeded()
 
     # Convenience wrappers, named after the Modbus functions they send.

@@ -50,6 +50,7 @@ from .errors import (
     NotConfirmed,
     NotSent,
 )
+from .link_state import LinkEvent
 from .motion_ledger import MotionLedger
 from .node_actions import ActionHost
 from .node_diagnostics import DiagnosticsPublisher
@@ -164,9 +165,10 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
             link_up=self._link_up,
             replan=self.replan,
             report=self._poll_report,
-            connected_changed=self._poll_connected,
             name=node_name,
         )
+        # After the poller's: a loss is said on the console before ~/connected goes false.
+        self.channel.link_state.add_listener(self._link_changed)
         self.poller.pause()  # polls and publishes only while the node is active (lifecycle)
         self.on_parameter("read_only", self._set_read_only)
         self.on_parameter("poll_rate_hz", lambda rate: setattr(self.poller, "rate_hz", rate))
@@ -353,11 +355,13 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
         else:
             logger.error(text)
 
-    def _poll_connected(self, up: bool) -> None:
+    def _link_changed(self, event: LinkEvent, _text: str) -> None:
+        """The channel's link went up (a good poll after a (re)connect) or down (whatever
+        lost it): ``~/connected`` follows."""
         self.actions.wake_all()  # a goal ends at once when its link is lost
-        if up:
+        if event is LinkEvent.UP:
             self.get_logger().info(f"connected to {self.channel.describe()}")
-        self._publish_connected(up)
+        self._publish_connected(event is LinkEvent.UP)
 
     def _publish_connected(self, connected: bool) -> None:
         with self._connected_lock:
@@ -441,8 +445,12 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
         writes_before = self.channel.writes_tried()
         try:
             # A stop is not tied to the connection it started on (command_session): it
-            # must go out on whatever link there is now.
-            with contextlib.nullcontext() if stop else self.channel.command_session():
+            # must go out on whatever link there is now. A link it loses is announced by
+            # the channel, named after the command.
+            with (
+                self.channel.labelled(what),
+                contextlib.nullcontext() if stop else self.channel.command_session(),
+            ):
                 result = action()
         except CommandRejected as err:
             return False, f"{what} refused: {bounded_text(str(err))}", None
@@ -451,8 +459,6 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
         except DeviceException as err:
             return False, f"{what}: the device answered {err}", None
         except LinkError as err:
-            if not self.channel.connected:
-                self.poller.link_lost(f"{what}: {err}")
             went_out = self.channel.writes_tried() - writes_before
             if isinstance(err, NotSent) and not went_out:
                 hint = "; nothing was sent"

@@ -9,6 +9,9 @@ What it owns (DESIGN §1 "poller"):
   but refused part of the poll) makes the device re-derive its plan from its configuration
   (R6: re-read the axis and board counts, §3.1.8) instead of failing forever; a lost
   link is reported once per loss; any other error is reported and never ends the loop;
+- the link's "up": a good poll confirms it to the channel's ``LinkState``, which owns the
+  up/down state and tells its listeners (this poller's reports among them) each edge,
+  whichever transaction (a poll, a command, a stop) lost the link;
 - the hand-off to the publisher thread: the newest snapshots wait in a short queue
   (the oldest is dropped when the publisher falls behind), so building and publishing the
   messages overlaps the device's time to answer the next request.
@@ -31,6 +34,7 @@ from typing import Generic, Protocol, TypeVar
 
 from .diagnostics import RateTracker
 from .errors import DeviceException, LinkError, PollIncomplete
+from .link_state import LinkEvent, LinkState
 from .reads import read_splits
 
 Snapshot = TypeVar("Snapshot")
@@ -59,9 +63,9 @@ class PollChannel(Protocol):
     @property
     def connected(self) -> bool: ...
     @property
-    def generation(self) -> int: ...  # bumped each time the device comes up
+    def link_state(self) -> LinkState: ...
     def may_attempt(self) -> bool: ...
-    def command_session(self, *, probe: bool = False) -> AbstractContextManager[None]: ...
+    def command_session(self, *, probe: bool = False) -> AbstractContextManager[int]: ...
 
 
 def next_deadline(deadline: float, now: float, period_s: float) -> float:
@@ -83,7 +87,6 @@ class Poller(Generic[Snapshot]):
         link_up: Callable[[], None] = lambda: None,
         replan: Callable[[], None] = lambda: None,
         report: Callable[[PollOutcome, str], None] = lambda _outcome, _text: None,
-        connected_changed: Callable[[bool], None] = lambda _up: None,
         name: str = "bridge",
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
@@ -93,16 +96,13 @@ class Poller(Generic[Snapshot]):
         self._link_up = link_up
         self._replan = replan
         self._report = report
-        self._connected_changed = connected_changed
         self._clock = clock
         self.rate_hz = rate_hz
         self.rate = RateTracker(clock=clock)
         self.failures = 0
         self.snapshots_dropped = 0
         self.last_error: str | None = None
-        self._reported_up: bool | None = None
-        self._generation = -1  # the channel generation whose link-up work was done
-        self._state_lock = threading.Lock()
+        self._unsubscribe = channel.link_state.add_listener(self._link_changed)
         self._snapshots: queue.Queue[Snapshot] = queue.Queue(maxsize=PUBLISH_BACKLOG)
         self._stop = threading.Event()
         self._wake = threading.Event()
@@ -134,16 +134,18 @@ class Poller(Generic[Snapshot]):
         """One poll attempt; its snapshot (if any) goes to the publisher's queue."""
         if not self.channel.may_attempt():
             return PollOutcome.SKIPPED
+        state = self.channel.link_state
+        losses = state.losses
         try:
             # Link-up work once per connection, also when a command (a stop sent while
             # the link was down) reconnected it between two polls.
-            if not self.channel.connected or self.channel.generation != self._generation:
+            if state.link_up_due:
                 self._link_up()
             # A poll stops at its next request once the link is marked down after it began
             # (a command or a stop failed meanwhile): what the link sends first when it is
             # back is then the link-up work (pending stops first), not the poll's rest. A
             # poll that starts while the link is down is the probe that may reconnect it.
-            with self.channel.command_session(probe=not self.channel.connected):
+            with self.channel.command_session(probe=not self.channel.connected) as session:
                 snapshot = self._poll()
         except PollIncomplete as err:
             self._report(PollOutcome.INCOMPLETE, str(err))
@@ -159,7 +161,10 @@ class Poller(Generic[Snapshot]):
         except LinkError as err:
             self.failures += 1
             self.last_error = str(err)
-            self.link_lost(str(err))
+            # Down already if the channel saw the fault; a reply too short is a loss too.
+            state.lose(str(err))
+            if state.losses == losses:  # no loss announced since this poll began
+                self._report(PollOutcome.STILL_DOWN, str(err))
             return PollOutcome.LINK_LOST
         except Exception as err:  # a device fault must never end the loop
             self.failures += 1
@@ -168,37 +173,23 @@ class Poller(Generic[Snapshot]):
             return PollOutcome.FAILED
         for news in read_splits(self.channel).news():
             self._report(PollOutcome.SPLIT, news)
-        self._generation = self.channel.generation
-        self._set_up(True)
+        # Up (announced once per connection), unless a command lost the link after the
+        # poll's last reply: then its loss stands, and the next poll probes.
+        state.confirm(session)
         self.last_error = None
         self.rate.tick()
         self._hand_off(snapshot)
         return PollOutcome.PUBLISHED
 
-    def link_lost(self, text: str) -> None:
-        """A poll or a command on the same channel failed on the link: reported as
-        UNREACHABLE (never up yet), LINK_LOST (it was up) or STILL_DOWN (each further
-        failed attempt: the node throttles those); connected again after a good poll."""
-        # Read and set in one step: a command and a poll that fail together on one loss
-        # report it once (LINK_LOST), the later one as STILL_DOWN (throttled).
-        with self._state_lock:
-            was_up = self._reported_up
-            self._reported_up = False
-        if was_up is None:
-            self._report(PollOutcome.UNREACHABLE, text)
-        elif was_up:
+    def _link_changed(self, event: LinkEvent, text: str) -> None:
+        """The channel's link went down (a poll's, a command's or a stop's failure):
+        reported once per loss, as LINK_LOST (it was up) or UNREACHABLE (never up yet);
+        each further failed poll while it is down is a STILL_DOWN (the node throttles
+        those)."""
+        if event is LinkEvent.LOST:
             self._report(PollOutcome.LINK_LOST, text)
-        else:
-            self._report(PollOutcome.STILL_DOWN, text)
-        if was_up is not False:
-            self._connected_changed(False)
-
-    def _set_up(self, up: bool) -> None:
-        with self._state_lock:
-            if up == self._reported_up:
-                return
-            self._reported_up = up
-        self._connected_changed(up)
+        elif event is LinkEvent.UNREACHABLE:
+            self._report(PollOutcome.UNREACHABLE, text)
 
     def _hand_off(self, snapshot: Snapshot) -> None:
         try:
@@ -243,6 +234,7 @@ class Poller(Generic[Snapshot]):
         """Stop both threads; returns once they ended (or ``join_s`` passed)."""
         self._stop.set()
         self._wake.set()
+        self._unsubscribe()
         for thread in self._threads:
             if thread.is_alive() and thread is not threading.current_thread():
                 thread.join(join_s)

@@ -4,11 +4,17 @@ from __future__ import annotations
 
 import contextlib
 import threading
-import time
 
 import pytest
 
-from bridge_core.errors import DeviceException, LinkTimeout, PollIncomplete
+from bridge_core.errors import (
+    DeviceException,
+    FrameError,
+    LinkError,
+    LinkTimeout,
+    PollIncomplete,
+)
+from bridge_core.link_state import LinkEvent, LinkState
 from bridge_core.poller import Poller, PollOutcome, next_deadline
 
 
@@ -21,25 +27,26 @@ class FakeClock:
 
 
 class FakeChannel:
-    """may_attempt / connected / generation as a DeviceChannel would report them."""
+    """may_attempt / connected / link_state as a DeviceChannel would report them."""
 
     def __init__(self) -> None:
-        self._connected = False
-        self.generation = 0
+        self.link_state = LinkState()
         self.backoff_elapsed = True
 
     @property
     def connected(self) -> bool:
-        return self._connected
+        return self.link_state.connected
 
     @connected.setter
     def connected(self, up: bool) -> None:
-        if up and not self._connected:
-            self.generation += 1  # as DeviceChannel._note_alive
-        self._connected = up
+        # As DeviceChannel: an answer, or a failure (a poll's or a command's).
+        if up:
+            self.link_state.answered()
+        else:
+            self.link_state.went_down("no reply")
 
-    def command_session(self, *, probe: bool = False) -> contextlib.AbstractContextManager[None]:
-        return contextlib.nullcontext()
+    def command_session(self, *, probe: bool = False) -> contextlib.AbstractContextManager[int]:
+        return contextlib.nullcontext(self.link_state.epoch)
 
     def may_attempt(self) -> bool:
         return self.connected or self.backoff_elapsed
@@ -59,8 +66,8 @@ class FakeDevice:
         self.polls += 1
         if self.errors:
             error = self.errors.pop(0)
-            if not isinstance(error, DeviceException | PollIncomplete):
-                self.channel.connected = False
+            if isinstance(error, LinkError) and not isinstance(error, DeviceException):
+                self.channel.connected = False  # as the channel marks it down
             raise error
         self.channel.connected = True
         return self.polls
@@ -70,6 +77,13 @@ class FakeDevice:
 
     def replan(self) -> None:
         self.replans += 1
+
+
+def listen(channel: FakeChannel) -> list[bool]:
+    """What a node would publish on ``~/connected``: each edge the channel announces."""
+    ups: list[bool] = []
+    channel.link_state.add_listener(lambda event, _text: ups.append(event is LinkEvent.UP))
+    return ups
 
 
 def make(
@@ -91,10 +105,8 @@ def test_publishes_and_reports_connected_once() -> None:
     channel = FakeChannel()
     device = FakeDevice(channel)
     published: list[int] = []
-    ups: list[bool] = []
-    poller = Poller(
-        channel, device.poll, published.append, rate_hz=5.0, connected_changed=ups.append
-    )
+    ups = listen(channel)
+    poller = Poller(channel, device.poll, published.append, rate_hz=5.0)
     assert poller.tick() is PollOutcome.PUBLISHED
     assert poller.tick() is PollOutcome.PUBLISHED
     assert poller.publish_pending() == 2
@@ -122,7 +134,7 @@ def test_link_loss_reported_once_and_backoff_respected() -> None:
     channel = FakeChannel()
     device = FakeDevice(channel)
     events: list[PollOutcome] = []
-    ups: list[bool] = []
+    ups = listen(channel)
     poller = Poller(
         channel,
         device.poll,
@@ -130,7 +142,6 @@ def test_link_loss_reported_once_and_backoff_respected() -> None:
         rate_hz=10.0,
         link_up=device.link_up,
         report=lambda outcome, _text: events.append(outcome),
-        connected_changed=ups.append,
     )
     assert poller.tick() is PollOutcome.PUBLISHED
     assert device.link_ups == 1  # before the first poll
@@ -214,18 +225,18 @@ def test_a_command_that_loses_the_link_is_followed_by_connected_again() -> None:
     (two owners of the connected state once left it false while polls succeeded)."""
     channel = FakeChannel()
     device = FakeDevice(channel)
-    ups: list[bool] = []
+    ups = listen(channel)
     events: list[PollOutcome] = []
     poller = Poller(
         channel,
         device.poll,
         lambda _s: None,
         rate_hz=10.0,
-        connected_changed=ups.append,
         report=lambda outcome, _text: events.append(outcome),
     )
     assert poller.tick() is PollOutcome.PUBLISHED
-    poller.link_lost("stop: no reply")  # what the node does after a failed command
+    channel.connected = False  # a command's failure: the channel's, nobody tells the poller
+    assert events == [PollOutcome.LINK_LOST]
     assert poller.tick() is PollOutcome.PUBLISHED
     assert ups == [True, False, True]
     assert events == [PollOutcome.LINK_LOST]
@@ -233,37 +244,66 @@ def test_a_command_that_loses_the_link_is_followed_by_connected_again() -> None:
 
 def test_one_link_loss_seen_by_a_command_and_a_poll_at_once_is_reported_once() -> None:
     """A command and a poll fail together on one loss: one LINK_LOST (the console's ERROR
-    line), the other a STILL_DOWN (throttled), and one connected=false edge. The first
-    report is held until the second call has run, so the two overlap every time."""
+    line) and one connected=false edge, whichever failed first."""
     channel = FakeChannel()
     device = FakeDevice(channel)
-    ups: list[bool] = []
+    ups = listen(channel)
     events: list[PollOutcome] = []
-    second_done = threading.Event()
 
-    def report(outcome: PollOutcome, _text: str) -> None:
-        events.append(outcome)
-        if len(events) == 1:
-            second_done.wait(5)
+    def poll() -> int:
+        if device.polls:  # the second poll: a command fails on another thread meanwhile
+            command = threading.Thread(target=setattr, args=(channel, "connected", False))
+            command.start()
+            command.join(5)
+        return device.poll()
 
     poller = Poller(
         channel,
-        device.poll,
+        poll,
         lambda _s: None,
         rate_hz=10.0,
-        connected_changed=ups.append,
-        report=report,
+        report=lambda outcome, _text: events.append(outcome),
     )
     assert poller.tick() is PollOutcome.PUBLISHED
-    first = threading.Thread(target=poller.link_lost, args=("command: no reply",))
-    first.start()
-    while not events:
-        time.sleep(0.001)
-    poller.link_lost("poll: no reply")
-    second_done.set()
-    first.join(5)
-    assert events == [PollOutcome.LINK_LOST, PollOutcome.STILL_DOWN]
+    device.errors.append(LinkTimeout("no reply"))
+    assert poller.tick() is PollOutcome.LINK_LOST
+    assert events == [PollOutcome.LINK_LOST]
     assert ups == [True, False]
+
+
+def test_a_reply_too_short_is_a_loss_until_the_next_good_poll() -> None:
+    """A LinkError the transport did not see (a short reply: the channel stays connected)
+    is a loss all the same, and the next good poll says up again without link-up work
+    (the connection was never closed)."""
+    channel = FakeChannel()
+    ups = listen(channel)
+    events: list[PollOutcome] = []
+    link_ups: list[int] = []
+    replies: list[Exception | None] = [None, FrameError("short reply: 1 of 2 values"), None]
+
+    def poll() -> int:
+        channel.connected = True  # answered
+        error = replies.pop(0)
+        if error is not None:
+            raise error
+        return 1
+
+    poller = Poller(
+        channel,
+        poll,
+        lambda _s: None,
+        rate_hz=10.0,
+        link_up=lambda: link_ups.append(channel.link_state.generation),
+        report=lambda outcome, _text: events.append(outcome),
+    )
+    assert [poller.tick() for _ in range(3)] == [
+        PollOutcome.PUBLISHED,
+        PollOutcome.LINK_LOST,
+        PollOutcome.PUBLISHED,
+    ]
+    assert events == [PollOutcome.LINK_LOST]
+    assert ups == [True, False, True]
+    assert link_ups == [0] and channel.connected
 
 
 def test_a_stop_that_reconnected_between_polls_still_gets_the_link_up_work() -> None:

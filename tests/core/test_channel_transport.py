@@ -1,4 +1,5 @@
-"""The link layer: lock ordering, backoff, faults over TCP and RTU (real sockets and ptys).
+"""The channel and its transport: lock ordering, backoff, faults over TCP and RTU (real
+sockets and ptys).
 
 The error translation tests drive the real pymodbus clients against replay peers on a
 socket or a pty and check the ``bridge_core.errors`` type and the cause behind it.
