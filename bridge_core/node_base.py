@@ -168,7 +168,7 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
             name=node_name,
         )
         # After the poller's: a loss is said on the console before ~/connected goes false.
-        self.channel.link_state.add_listener(self._link_changed)
+        self._unlisten = self.channel.link_state.add_listener(self._link_changed)
         self.poller.pause()  # polls and publishes only while the node is active (lifecycle)
         self.on_parameter("read_only", self._set_read_only)
         self.on_parameter("poll_rate_hz", lambda rate: setattr(self.poller, "rate_hz", rate))
@@ -588,6 +588,7 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
             self._wait_for_command_on_the_wire()
         finally:
             self.poller.stop()
+            self._unlisten()
             self._close_owned_link()
 
 
