@@ -43,13 +43,7 @@ from std_msgs.msg import Bool
 from .channel import DeviceChannel, Priority
 from .checks import bounded_text
 from .diagnostics import Report
-from .errors import (
-    CommandRejected,
-    DeviceException,
-    LinkError,
-    NotConfirmed,
-    NotSent,
-)
+from .errors import CommandRejected, DeviceException, LinkError, NotConfirmed, NotSent
 from .link_state import LinkEvent
 from .motion_ledger import MotionLedger
 from .node_actions import ActionHost
