@@ -1,5 +1,6 @@
 #!/usr/bin/env python3
-"""Bridge benchmark: poll rate, latency and CPU per cycle, as ratios (DESIGN §5).
+"""Bridge benchmark: poll rate, latency and CPU per cycle, as ratios
+(docs/architecture.md, "Performance: how it is measured").
 
 One bench for the TCP bridges, ``--device r6`` (default), ``--device xarm``, or
 ``--device modbus`` (modbus_bridge with config/devices/xarm.yaml, against the xArm's own

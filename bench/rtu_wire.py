@@ -1,5 +1,6 @@
 #!/usr/bin/env python3
-"""RTU throughput against the wire limit, on an emulated byte-timed line (DESIGN §5).
+"""RTU throughput against the wire limit, on an emulated byte-timed line
+(docs/architecture.md, "Performance: how it is measured").
 
 Prints figures and writes them to bench/results/rtu_wire.json; asserts nothing.
 

@@ -1,5 +1,6 @@
 #!/usr/bin/env python3
-"""How far a snapshot's stamp lies from the read of its joint positions (DESIGN §2).
+"""How far a snapshot's stamp lies from the read of its joint positions
+(docs/architecture.md, "The read path").
 
 For the TCP bridges' device layers (R6, xArm) against their simulators over real TCP,
 polled through ``bridge_core.poller.Poller`` exactly as the nodes do (the node copies the

@@ -1,7 +1,7 @@
 """RTU wire timing for pymodbus's sync serial client.
 
-pymodbus 3.16's ``ModbusSerialClient`` has two timing gaps on a real RS-485 line (measured
-in shared/notes/pymodbus-and-timing.md):
+pymodbus 3.16's ``ModbusSerialClient`` has two timing gaps on a real RS-485 line (measured;
+docs/architecture.md, "pymodbus pitfalls we work around"):
 
 - it never waits for the 3.5-character silence before sending, so it may start a request
   while a device still treats the line as inside the previous frame (devices then merge

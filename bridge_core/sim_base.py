@@ -10,7 +10,8 @@ A multi-drop server stays silent for unit ids it does not own, as an RS-485 devi
 
 The datastore plugs into pymodbus 3.16 as an "old simulator" ``ModbusServerContext``
 (the server then calls ``async_getValues``/``async_setValues`` on it directly), which
-gives async hooks for reply delays and withheld replies. Pinned: see notes.
+gives async hooks for reply delays and withheld replies. Pinned: see
+docs/architecture.md, "pymodbus pitfalls we work around".
 """
 
 from __future__ import annotations

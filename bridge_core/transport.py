@@ -1,9 +1,9 @@
 """The transport: one pymodbus client (TCP or RTU) behind a small interface.
 
 Together with ``serial_timing`` (our RTU client) and ``sim_base`` (the simulators) this is
-the only module that imports pymodbus; its API moves between minor versions (see
-shared/notes/pymodbus-and-timing.md), so the version is pinned and every pymodbus error is
-translated here into ``bridge_core.errors``.
+the only module that imports pymodbus; its API moves between minor versions
+(docs/architecture.md, "pymodbus pitfalls we work around"), so the version is pinned and
+every pymodbus error is translated here into ``bridge_core.errors``.
 
 ``ModbusLink`` is only the pipe: open, close, and ``execute`` one request for one unit id
 under the caller's hold of its ``lock``. The policy (retries, backoff, health, priorities)

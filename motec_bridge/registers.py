@@ -1,6 +1,6 @@
 """Register map of the MOTEC β servo drive (Modbus RTU slave, RS-232 / RS-485 multi-drop).
 
-Source: "MOTEC 伺服驱动器 MODBUS 操作手册" (shared/seeds/003_ecdb118885a9a3e8.txt). Sections
+Source: "MOTEC 伺服驱动器 MODBUS 操作手册" (seed 003, docs/manuals.md). Sections
 cited below: §1.1.2 RS-485 (31 drives), §1.2-1.3 link settings (115200 8N1), §2 function
 codes and §2.1-2.6 their frames, §2.7 exception replies, §3.1.1 FC 06 example (0x6D),
 §3.1.2 FC 16 example (0x26) and the word order note, §3.2 FC 03 example (0xAC), §3.3 IO

@@ -1,6 +1,6 @@
 """Register map of the Huacheng R6 controller's Modbus TCP slave.
 
-Source: "R6 系统-ModbusTCP 从站使用说明书" V3.0 (shared/seeds/000_2d9ab2422ebc167c.txt).
+Source: "R6 系统-ModbusTCP 从站使用说明书" V3.0 (seed 000, docs/manuals.md).
 Section names below: §2 data format, §3.x examples, §4 the FC 03/04/06/10 address table,
 §5 the FC 01/05 coil table.
 
@@ -38,7 +38,7 @@ MAX_COUNTERS = 1024
 MAX_VERSION_BYTES = 128
 PARAMETER_COUNT = 1000
 # §3.3.4 gives the writable range as "0x4f4c (20300)~0x56d5 (22229)": index 964 is the last
-# whole value inside it. Indexes 965-999 (DESIGN's 0-999) are read, never written (decision 5).
+# whole value inside it. Indexes 965-999 (of 0-999) are read, never written (decision 5).
 PARAMETER_WRITE_LAST_INDEX = (22229 - 20300) // 2
 PARAMETER_BASE = 20300
 TORQUE_RATED_RAW = 2580  # §3.1.13: 2580 = one times rated torque
@@ -75,7 +75,7 @@ COMMANDS: dict[str, int] = {
 # The commands that end motion: tried on the wire even while the link is marked down.
 STOP_COMMANDS = frozenset({"stop", "pause", "stop_button"})
 
-# Rows the host's network port does not offer (seeds README; §4 "主机网口不支持" etc.).
+# Rows the host's network port does not offer (§4 rows marked "主机网口不支持" etc.).
 NOT_OFFERED: dict[str, range] = {
     "mold number (主机网口不支持)": range(65, 130),
     "current user and mold list (主机无该项)": range(2472, 2538),

@@ -1,6 +1,6 @@
 """Register map of the 5-axis stepper motion controller (Modbus RTU, RS-232 / RS-485).
 
-Source: the controller's Modbus manual (shared/seeds/002_58ccb78962a5328e.txt). Section
+Source: the controller's Modbus manual (seed 002, docs/manuals.md). Section
 names below: §2 protocol addresses, §3 default link settings, §4 function codes, §5(1)
 holding registers, §5(2) coils, §5(3) special modes, §6 example frames.
 

@@ -1,4 +1,5 @@
-"""The behaviour every bridge promises (DESIGN §2), checked once for all four bridges.
+"""The behaviour every bridge promises (README "Behaviour every bridge has"), checked once
+for all four bridges.
 
 Each test runs against the table in ``tests/support/bridges.py``: the simulator in its
 own process (write and read requests logged to files, SIGKILL-able), the node in

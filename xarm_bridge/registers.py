@@ -1,12 +1,13 @@
 """Register map of the UFactory xArm controller's Modbus TCP interface.
 
-Source: "UF_ModbusTCP_Manual" (shared/seeds/001_935450836202d885.txt), its appendix
+Source: "UF_ModbusTCP_Manual" (seed 001, docs/manuals.md), its appendix
 tables: coils (C), discrete inputs (D), holding registers (H), input registers (I).
 
 Readings taken (also in README "xArm decisions"):
 
 - All values are 16-bit big-endian; scaled values (x10, x1000) are signed 16-bit
-  (seeds README); the 32-bit counter I34-35 is high word first ("0x22 存储计数器的高16位").
+  (docs/manuals.md, "Word order and framing, per device"); the 32-bit counter I34-35 is
+  high word first ("0x22 存储计数器的高16位").
 - Joint temperatures: the table says "86 ~ 102 | 0x60~0x66"; 86 would overlap the TCP and
   base offsets and the joint angles, so the hex column (96-102, 7 joints) wins.
 - The "reserved 36 ~ 63 | 0x23 ~0x3F" row: 0x23 is the counter's low word; 36 (0x24) wins.
@@ -122,7 +123,7 @@ ROTATION_VECTOR = ("rx", "ry", "rz")  # I70-72: the TCP orientation as axis time
 
 
 def _scaled(name: str, address: int, scale: float, unit: str, doc: str) -> Register:
-    """A signed 16-bit input register scaled by 10 or 1000 (seeds README)."""
+    """A signed 16-bit input register scaled by 10 or 1000 (docs/manuals.md, word order)."""
     return Register(name, address, ValueType.I16, doc, table=Table.INPUT, scale=scale, unit=unit)
 
 

@@ -4,7 +4,8 @@ What the bridge sends is captured by an RTU replay peer on the device end of a s
 pair: each step names the request frame the bridge must send (CRC included) and the
 reply to answer with. CRCs come from pymodbus's RTU framer (never typed by hand), and the
 manual's own CRCs are checked against it. Also here: the register map against the
-manual's tables, and the decisions on the example/table contradictions (seeds README 5, 6).
+manual's tables, and the decisions on the example/table contradictions
+(README "Stepper decisions" 2-4).
 """
 
 from __future__ import annotations
@@ -118,7 +119,7 @@ def test_fc06_write_microstep_4() -> None:
 
 
 def test_fc10_run_distance_200_goes_to_the_table_address() -> None:
-    # Decision (seeds README 5a): the table's 40009-40010 = address 8-9, low word first.
+    # Stepper decision 2: the table's 40009-40010 = address 8-9, low word first.
     request = with_crc("01 10 00 08 00 02 04 00 C8 00 00")
     reply = with_crc("01 10 00 08 00 02")
     run([(request, reply, "run distance 2.00 (raw 200)")], lambda d: d.set_run_distance(1, 2.00))
@@ -134,7 +135,7 @@ def test_fc10_example_address_would_cut_two_values() -> None:
 
 
 def test_fc05_example_frame_is_motor_2_reverse() -> None:
-    # Decision (seeds README 5b): coil address 7 = coil 00008 = motor 2 reverse.
+    # Stepper decision 3: coil address 7 = coil 00008 = motor 2 reverse.
     frame = hexbytes(MANUAL_FRAMES["FC 05 coil address 7 on"])
     run([echo(frame, "motor 2 reverse")], lambda d: d.motor_action(2, "reverse"))
     assert STEPPER_MAP["motor2_reverse"].address == 7
@@ -155,7 +156,7 @@ def test_move_by_is_direction_distance_then_single_run() -> None:
 
 
 def test_outputs_are_coil_pairs() -> None:
-    # Decision (seeds README 6): output n on = 0xFF00 to coil 00049+2(n-1), off = 0xFF00 to
+    # Stepper decision 4: output n on = 0xFF00 to coil 00049+2(n-1), off = 0xFF00 to
     # coil 00050+2(n-1).
     steps = [
         echo(with_crc("01 05 00 30 FF 00"), "output 1 on: coil 00049"),
