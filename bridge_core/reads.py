@@ -2,8 +2,9 @@
 
 ``read_blocks`` returns the values and the wall-clock time the reply of the block holding
 a named register (the joint positions) arrived, so every snapshot is stamped with the read
-time of its positions (DESIGN §2), not with the time of the first or last request of the
-poll. A merged read the device refuses is split at once and remembered (``ReadSplits``).
+time of its positions (docs/architecture.md, "The read path"), not with the time of the
+first or last request of the poll. A merged read the device refuses is split at once and
+remembered (``ReadSplits``).
 
 Plain Python over ``RegisterIO``: the device modules use it, and the poller only reports
 what was split.

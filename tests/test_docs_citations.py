@@ -151,7 +151,8 @@ ARCHITECTURE_CITATION = re.compile(r'docs/architecture\.md,\s*"([^"]+)"')
 
 
 def test_architecture_citations_name_its_sections() -> None:
-    """``docs/architecture.md, "Section"`` in any tracked file names a heading of the page."""
+    """A tracked file that cites a section of docs/architecture.md by its quoted name names
+    a heading of that page."""
     headings = anchors(DOCS / "architecture.md")
     wrong = []
     for name in tracked_files():
