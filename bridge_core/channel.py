@@ -245,9 +245,10 @@ class DeviceChannel:
 
         Inside it, every transaction is refused (``LinkDown``, nothing sent) once the
         device was marked down after the session began, even if a poll has reconnected
-        since: DESIGN §2, nothing is queued across a reconnect. The node's command guard
-        wraps each command in one, the poller each poll that starts on a live link (its
-        rest is not sent once a command lost the link); stops run outside.
+        since: nothing is queued across a reconnect
+        (docs/architecture.md, "The write path"). The node's command guard wraps each
+        command in one, the poller each poll that starts on a live link (its rest is not
+        sent once a command lost the link); stops run outside.
 
         ``probe``: for a poll that starts while the device is down: its transactions may
         reconnect, but are refused once the device is marked down again after the session

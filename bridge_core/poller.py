@@ -1,6 +1,6 @@
 """The poll loop every bridge shares, in plain Python (clock injectable, no rclpy).
 
-What it owns (DESIGN §1 "poller"):
+What it owns (docs/architecture.md, "The read path"):
 
 - pacing: one poll per period, never bursting to catch up after an overrun;
 - the "may attempt" guard: a device that is down is probed only when its reconnect

@@ -1,4 +1,4 @@
-"""ROS 2 nodes for MOTEC β servo drives on one RS-485 bus (DESIGN §3, motec_bridge).
+"""ROS 2 nodes for MOTEC β servo drives on one RS-485 bus (README "motec_bridge").
 
 One process, one serial port, one node per drive. ``main`` starts:
 

@@ -1,4 +1,4 @@
-"""ROS 2 node for the Huacheng R6 controller (DESIGN §3, r6_bridge)."""
+"""ROS 2 node for the Huacheng R6 controller (README "r6_bridge")."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""ROS 2 node for the 5-axis stepper controller (DESIGN §3, stepper_bridge).
+"""ROS 2 node for the 5-axis stepper controller (README "stepper_bridge").
 
 Units: ``joint_states`` and every positional command (``move_by``, ``line_move``,
 ``arc_move``) are SI per motor: a prismatic motor's coordinate (user units) / its

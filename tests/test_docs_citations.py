@@ -32,15 +32,6 @@ OUTSIDE = tuple(
 )
 
 # Being rewritten on other branches; their citations are fixed after those merges.
-PENDING = (
-    "bridge_core/poller.py",
-    "bridge_core/channel.py",
-    "r6_bridge/node.py",
-    "xarm_bridge/node.py",
-    "stepper_bridge/node.py",
-    "motec_bridge/node.py",
-    "modbus_bridge/node.py",
-)
 
 LINK = re.compile(r"(?<!!)\[[^\]]*\]\(([^)\s]+)(?:\s+\"[^\"]*\")?\)")
 HEADING = re.compile(r"^#{1,6}\s+(.+?)\s*#*\s*$")
@@ -82,23 +73,8 @@ def outside_citations(name: str) -> list[str]:
 
 
 def test_no_citation_outside_the_repository() -> None:
-    found = [
-        hit for name in tracked_files() if name not in PENDING for hit in outside_citations(name)
-    ]
+    found = [hit for name in tracked_files() for hit in outside_citations(name)]
     assert not found, "cite docs/architecture.md or docs/manuals.md instead:\n" + "\n".join(found)
-
-
-@pytest.mark.parametrize(
-    "name",
-    [
-        pytest.param(
-            name, marks=pytest.mark.xfail(reason="rewritten elsewhere; fixed after the merge")
-        )
-        for name in PENDING
-    ],
-)
-def test_no_citation_outside_the_repository_pending(name: str) -> None:
-    assert not outside_citations(name)
 
 
 def slug(heading: str) -> str:

@@ -1,4 +1,4 @@
-"""ROS 2 node for the UFactory xArm controller (DESIGN §3, xarm_bridge)."""
+"""ROS 2 node for the UFactory xArm controller (README "xarm_bridge")."""
 
 from __future__ import annotations
 
