@@ -104,19 +104,20 @@ class DemoDevice:
         return ["-m", f"{self.package}.node", *ros_args]
 
 
-def entry_specs(root: Path = ROOT) -> list[str]:
-    """The ``module:attr`` of every declared demo entry (see the module docstring)."""
+def entry_specs(root: Path = ROOT, group: str = ENTRY_POINT_GROUP) -> list[str]:
+    """The ``module:attr`` of every declared demo entry (see the module docstring), or of
+    another group's (``bridge_core.interface``)."""
     pyproject = root / "pyproject.toml"
     if pyproject.is_file():
         with pyproject.open("rb") as f:
             project = tomllib.load(f).get("project", {})
         if project.get("name") == PROJECT_NAME:
-            table = project.get("entry-points", {}).get(ENTRY_POINT_GROUP, {})
+            table = project.get("entry-points", {}).get(group, {})
             return [str(spec) for spec in table.values()]
     # A name declared twice (a colcon install sourced over the editable install) is the
     # same device: the first on the path wins, as for imports.
     found: dict[str, str] = {}
-    for entry in entry_points(group=ENTRY_POINT_GROUP):
+    for entry in entry_points(group=group):
         found.setdefault(entry.name, entry.value)
     return list(found.values())
 

@@ -40,6 +40,7 @@ from .action_results import filled, finish_run, refuse_goal, result_of, send_res
 from .checks import bounded_text
 from .errors import CommandRejected, LinkError
 from .goals import GoalRun, Motion, Outcome, Verdict, needs_stop
+from .parameters import GOAL_TIMEOUT_DEFAULT_S, GOAL_TIMEOUT_SPEC
 
 if TYPE_CHECKING:
     from .node_base import BridgeNode
@@ -56,10 +57,6 @@ STOP_WAIT_S = 30.0
 # many, and one for a preempting goal (goals on one axis preempt each other, so few run at
 # once).
 MAX_GOAL_THREADS = 8
-# ``goal_timeout_s``: the time limit of a goal that gives ``timeout_s`` 0 (a goal whose
-# client vanished must end by itself); a node with action servers declares it, live.
-GOAL_TIMEOUT_DEFAULT_S = 600.0
-GOAL_TIMEOUT_MAX_S = 86400.0
 
 
 class Steps(Protocol):
@@ -94,17 +91,7 @@ class ActionHost:
         no such parameter: it would do nothing)."""
         if self.servers:
             return
-        from .parameters import ParameterSpec
-
-        spec = ParameterSpec(
-            "goal_timeout_s",
-            GOAL_TIMEOUT_DEFAULT_S,
-            "time limit (s) of an action goal that gives timeout_s 0; 0 = none",
-            0.0,
-            GOAL_TIMEOUT_MAX_S,
-            live=True,
-        )
-        value = self.node.declare_specs([spec])["goal_timeout_s"]
+        value = self.node.declare_specs([GOAL_TIMEOUT_SPEC])["goal_timeout_s"]
         self.goal_timeout_s = float(value)
         self.node.on_parameter("goal_timeout_s", self._set_goal_timeout)
 

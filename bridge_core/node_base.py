@@ -48,15 +48,9 @@ from .link_state import LinkEvent
 from .motion_ledger import MotionLedger
 from .node_actions import ActionHost
 from .node_diagnostics import DiagnosticsPublisher
-from .node_parameters import (
-    DeviceDefaults,
-    ParameterNode,
-    link_settings,
-    node_specs,
-    transport_specs,
-    unit_id_spec,
-)
+from .node_parameters import DeviceDefaults, ParameterNode, link_settings
 from .node_streams import StreamHost
+from .parameters import bridge_specs
 from .poller import Poller, PollOutcome
 from .transport import ModbusLink
 
@@ -110,10 +104,7 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
         # is refused instead of restarting what the halt stopped.
         self._halted = False
 
-        specs = node_specs(defaults)
-        if link is None:
-            specs = [*transport_specs(defaults), unit_id_spec(defaults), *specs]
-        values = self.declare_specs(specs)
+        values = self.declare_specs(bridge_specs(defaults, owns_link=link is None))
         self.joint_prefix = str(values["joint_prefix"])
         self.autostart = bool(values["autostart"])
         self.frame_id = str(values["frame_id"])

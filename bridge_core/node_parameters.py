@@ -4,14 +4,14 @@
 ``ParameterSpec``s (start-up-only ones read-only, live ones validated and applied when
 ``ros2 param set`` changes them). ``DeviceDefaults`` and the spec builders
 (``transport_specs``, ``unit_id_spec``, ``channel_specs``, ``node_specs``,
-``AUTOSTART_SPEC``) are the parameters every bridge and bus owner shares, so that the
-nodes, the bus owners and the docs agree on them.
+``AUTOSTART_SPEC``: the parameters every bridge and bus owner shares, so that the nodes,
+the bus owners and the docs agree on them) are plain data in ``bridge_core.parameters``
+(listed without ROS by ``bridge_core.interface``), imported here for the nodes.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass
 from typing import Any
 
 from rcl_interfaces.msg import (
@@ -26,16 +26,21 @@ from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.lifecycle import LifecycleNode
 from rclpy.parameter import Parameter
 
-from .channel import UNIT_ID_MAX, UNIT_ID_MIN
 from .errors import ConfigurationError
-from .parameters import ParameterSpec, ParameterValue
+from .parameters import (
+    AUTOSTART_SPEC,
+    PARITIES,
+    RTU_UNIT_ID_RANGE,
+    UNIT_ID_RANGE,
+    DeviceDefaults,
+    ParameterSpec,
+    ParameterValue,
+    channel_specs,
+    node_specs,
+    transport_specs,
+    unit_id_spec,
+)
 from .transport import SerialSettings, TcpSettings
-
-PARITIES = ("N", "E", "O")
-UNIT_ID_RANGE = (UNIT_ID_MIN, UNIT_ID_MAX)
-# RTU: unit 0 is the broadcast address, and no device answers a broadcast (a bridge that
-# polls it never gets a reply). TCP devices often answer unit 0, so it stays allowed there.
-RTU_UNIT_ID_RANGE = (UNIT_ID_MIN + 1, UNIT_ID_MAX)
 
 _KINDS: dict[type, int] = {
     bool: ParameterType.PARAMETER_BOOL,
@@ -64,82 +69,6 @@ def descriptor(spec: ParameterSpec) -> ParameterDescriptor:
     return result
 
 
-@dataclass(frozen=True)
-class DeviceDefaults:
-    """A kind of device as its bridge knows it: its name and the defaults of its parameters.
-
-    One value per bridge (e.g. ``R6_DEFAULTS``), so that the node, the bus owner and the
-    docs agree on them; users override each default with a ROS parameter.
-    """
-
-    device_name: str
-    transport: str  # "tcp" or "rtu"
-    poll_rate_hz: float = 20.0
-    host: str = "127.0.0.1"
-    port: int = 502
-    serial_port: str = "/dev/ttyUSB0"
-    baudrate: int = 9600
-    parity: str = "N"
-    stopbits: int = 1
-    unit_id: int = 1
-    timeout_s: float = 0.5
-    timeout_min_s: float = 0.01  # a reply timeout below this can never be met
-    frame_gap_s: float = 0.0  # RTU: least silence between frames beyond t3.5
-    # RTU: reply timeout of a stop sent while the device is marked down (None: timeout_s).
-    # Short, so that a stop repeated over a dead line is not still waiting out a long
-    # timeout when the line comes back (issue 9: a stop within 0.3 s of the line's return).
-    stop_timeout_s: float | None = None
-
-
-def transport_specs(defaults: DeviceDefaults) -> list[ParameterSpec]:
-    """Where the device is: the parameters of a node (or bus) that opens its own link."""
-    if defaults.transport == "tcp":
-        specs = [
-            ParameterSpec("host", defaults.host, "device IP address or host name"),
-            ParameterSpec("port", defaults.port, "Modbus TCP port", 1, 65535),
-        ]
-    else:
-        specs = [
-            ParameterSpec(
-                "serial_port",
-                defaults.serial_port,
-                "serial device path or pyserial URL (e.g. socket://host:port)",
-            ),
-            ParameterSpec("baudrate", defaults.baudrate, "serial baud rate", 300, 4_000_000),
-            ParameterSpec("parity", defaults.parity, "serial parity", choices=PARITIES),
-            ParameterSpec("stopbits", defaults.stopbits, "serial stop bits", 1, 2),
-            ParameterSpec(
-                "frame_gap_s",
-                defaults.frame_gap_s,
-                "least silence between frames beyond the 3.5 characters of Modbus RTU",
-                0.0,
-                1.0,
-            ),
-        ]
-    return [
-        *specs,
-        ParameterSpec(
-            "timeout_s",
-            defaults.timeout_s,
-            "reply timeout per transaction",
-            defaults.timeout_min_s,
-            10.0,
-        ),
-    ]
-
-
-def channel_specs() -> list[ParameterSpec]:
-    """One device's retry and reconnect policy."""
-    return [
-        ParameterSpec(
-            "retries", 1, "extra attempts for a failed read; writes are never retried", 0, 10
-        ),
-        ParameterSpec(
-            "reconnect_max_s", 5.0, "cap of the exponential reconnect backoff", 0.1, 300.0
-        ),
-    ]
-
-
 def link_settings(values: dict[str, Any]) -> TcpSettings | SerialSettings:
     """Typed link settings from the transport parameters' values."""
     if "host" in values:
@@ -152,43 +81,6 @@ def link_settings(values: dict[str, Any]) -> TcpSettings | SerialSettings:
         timeout_s=float(values["timeout_s"]),
         frame_gap_s=float(values["frame_gap_s"]),
     )
-
-
-AUTOSTART_SPEC = ParameterSpec(
-    "autostart", True, "configure and activate at start (false: wait for lifecycle transitions)"
-)
-
-
-def unit_id_spec(defaults: DeviceDefaults) -> ParameterSpec:
-    """The device's unit id, for a node that opens its own link (RTU: no broadcast)."""
-    rtu = defaults.transport == "rtu"
-    return ParameterSpec(
-        "unit_id",
-        defaults.unit_id,
-        "Modbus unit (slave) id" + (" (0 is the RTU broadcast: nobody answers)" if rtu else ""),
-        *(RTU_UNIT_ID_RANGE if rtu else UNIT_ID_RANGE),
-    )
-
-
-def node_specs(defaults: DeviceDefaults) -> list[ParameterSpec]:
-    """The parameters of every bridge node (besides where its device is)."""
-    return [
-        *channel_specs(),
-        ParameterSpec(
-            "poll_rate_hz",
-            defaults.poll_rate_hz,
-            "full-state polls per second",
-            0.1,
-            1000.0,
-            live=True,
-        ),
-        ParameterSpec("joint_prefix", "", "prefix of every joint name"),
-        ParameterSpec("frame_id", "base_link", "frame of published poses and states"),
-        ParameterSpec(
-            "read_only", False, "refuse every command that writes to the device", live=True
-        ),
-        AUTOSTART_SPEC,
-    ]
 
 
 class ParameterNode(LifecycleNode):

@@ -1,6 +1,9 @@
 """One spec per node parameter: type, default, range or choices, start-up-only or live.
 
-Plain Python (the node base turns a spec into a ``ParameterDescriptor``): a start-up-only
+Plain Python, importable without rclpy (the node base turns a spec into a
+``ParameterDescriptor``; ``bridge_core.interface`` lists them without starting ROS). This
+module also holds the specs every node shares (where the device is, the retry policy, the
+poll rate ...). A start-up-only
 parameter is declared ``read_only`` so ``ros2 param set`` is refused with a reason instead
 of answering "successful" and changing nothing; a live one is validated here and applied
 by the node's set-parameters callback. An integer given for a double parameter
@@ -9,9 +12,13 @@ by the node's set-parameters callback. An integer given for a double parameter
 
 from __future__ import annotations
 
+import dataclasses
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import Any
+
+from .channel import UNIT_ID_MAX, UNIT_ID_MIN
 
 ParameterValue = bool | int | float | str | list[bool] | list[int] | list[float] | list[str]
 
@@ -26,6 +33,9 @@ class ParameterSpec:
     choices: tuple[str, ...] = ()  # allowed strings (case-insensitive), e.g. parity
     live: bool = False  # may change at run time (applied by the node), else read-only
     item_positive: bool = False  # every item of a double array must be > 0 and finite
+    # The description when it depends on run-time values (MOTEC ``lifeguard_ms``: the
+    # floor of its bus): ``described(**facts)`` calls it with the node's facts.
+    text_of: Callable[..., str] | None = field(default=None, compare=False, repr=False)
     kind: type = field(init=False)
 
     def __post_init__(self) -> None:
@@ -50,6 +60,22 @@ class ParameterSpec:
         reason = self.validate(self.default)
         if reason is not None:
             raise ValueError(f"parameter {self.name}: default refused: {reason}")
+
+    def described(self, **facts: Any) -> ParameterSpec:
+        """This spec with its description for these run-time facts (if it names
+        ``text_of``; else itself)."""
+        if self.text_of is None:
+            return self
+        return dataclasses.replace(self, description=self.text_of(**facts))
+
+    @property
+    def type_name(self) -> str:
+        """The ROS parameter type: bool, integer, double, string, or an array of one."""
+        names = {bool: "bool", int: "integer", float: "double", str: "string"}
+        if isinstance(self.default, list):
+            item = type(self.default[0]) if self.default else str
+            return f"{names[item]}[]"
+        return names[self.kind]
 
     def coerce(self, value: ParameterValue) -> ParameterValue:
         """An integer for a double parameter becomes that double (and int lists likewise)."""
@@ -110,10 +136,174 @@ def _within(value: object, low: float, high: float) -> bool:
     )
 
 
+# ---------------------------------------------------------------- the shared specs
+PARITIES = ("N", "E", "O")
+UNIT_ID_RANGE = (UNIT_ID_MIN, UNIT_ID_MAX)
+# RTU: unit 0 is the broadcast address, and no device answers a broadcast (a bridge that
+# polls it never gets a reply). TCP devices often answer unit 0, so it stays allowed there.
+RTU_UNIT_ID_RANGE = (UNIT_ID_MIN + 1, UNIT_ID_MAX)
+# ``goal_timeout_s``: the time limit of a goal that gives ``timeout_s`` 0 (a goal whose
+# client vanished must end by itself); a node with action servers declares it, live.
+GOAL_TIMEOUT_DEFAULT_S = 600.0
+GOAL_TIMEOUT_MAX_S = 86400.0
+
+
+@dataclass(frozen=True)
+class DeviceDefaults:
+    """A kind of device as its bridge knows it: its name and the defaults of its parameters.
+
+    One value per bridge (e.g. ``R6_DEFAULTS``), so that the node, the bus owner and the
+    docs agree on them; users override each default with a ROS parameter.
+    """
+
+    device_name: str
+    transport: str  # "tcp" or "rtu"
+    poll_rate_hz: float = 20.0
+    host: str = "127.0.0.1"
+    port: int = 502
+    serial_port: str = "/dev/ttyUSB0"
+    baudrate: int = 9600
+    parity: str = "N"
+    stopbits: int = 1
+    unit_id: int = 1
+    timeout_s: float = 0.5
+    timeout_min_s: float = 0.01  # a reply timeout below this can never be met
+    frame_gap_s: float = 0.0  # RTU: least silence between frames beyond t3.5
+    # RTU: reply timeout of a stop sent while the device is marked down (None: timeout_s).
+    # Short, so that a stop repeated over a dead line is not still waiting out a long
+    # timeout when the line comes back (issue 9: a stop within 0.3 s of the line's return).
+    stop_timeout_s: float | None = None
+
+
+def transport_specs(defaults: DeviceDefaults) -> tuple[ParameterSpec, ...]:
+    """Where the device is: the parameters of a node (or bus) that opens its own link."""
+    specs: tuple[ParameterSpec, ...]
+    if defaults.transport == "tcp":
+        specs = (
+            ParameterSpec("host", defaults.host, "device IP address or host name"),
+            ParameterSpec("port", defaults.port, "Modbus TCP port", 1, 65535),
+        )
+    else:
+        specs = (
+            ParameterSpec(
+                "serial_port",
+                defaults.serial_port,
+                "serial device path or pyserial URL (e.g. socket://host:port)",
+            ),
+            ParameterSpec("baudrate", defaults.baudrate, "serial baud rate", 300, 4_000_000),
+            ParameterSpec("parity", defaults.parity, "serial parity", choices=PARITIES),
+            ParameterSpec("stopbits", defaults.stopbits, "serial stop bits", 1, 2),
+            ParameterSpec(
+                "frame_gap_s",
+                defaults.frame_gap_s,
+                "least silence between frames beyond the 3.5 characters of Modbus RTU",
+                0.0,
+                1.0,
+            ),
+        )
+    return (
+        *specs,
+        ParameterSpec(
+            "timeout_s",
+            defaults.timeout_s,
+            "reply timeout per transaction",
+            defaults.timeout_min_s,
+            10.0,
+        ),
+    )
+
+
+def channel_specs() -> tuple[ParameterSpec, ...]:
+    """One device's retry and reconnect policy."""
+    return (
+        ParameterSpec(
+            "retries", 1, "extra attempts for a failed read; writes are never retried", 0, 10
+        ),
+        ParameterSpec(
+            "reconnect_max_s", 5.0, "cap of the exponential reconnect backoff", 0.1, 300.0
+        ),
+    )
+
+
+AUTOSTART_SPEC = ParameterSpec(
+    "autostart", True, "configure and activate at start (false: wait for lifecycle transitions)"
+)
+UNIT_IDS_SPEC = ParameterSpec("unit_ids", [1], "devices on the bus, one node each")
+GOAL_TIMEOUT_SPEC = ParameterSpec(
+    "goal_timeout_s",
+    GOAL_TIMEOUT_DEFAULT_S,
+    "time limit (s) of an action goal that gives timeout_s 0; 0 = none",
+    0.0,
+    GOAL_TIMEOUT_MAX_S,
+    live=True,
+)
+
+
+def unit_id_spec(defaults: DeviceDefaults) -> ParameterSpec:
+    """The device's unit id, for a node that opens its own link (RTU: no broadcast)."""
+    rtu = defaults.transport == "rtu"
+    return ParameterSpec(
+        "unit_id",
+        defaults.unit_id,
+        "Modbus unit (slave) id" + (" (0 is the RTU broadcast: nobody answers)" if rtu else ""),
+        *(RTU_UNIT_ID_RANGE if rtu else UNIT_ID_RANGE),
+    )
+
+
+def node_specs(defaults: DeviceDefaults) -> tuple[ParameterSpec, ...]:
+    """The parameters of every bridge node (besides where its device is)."""
+    return (
+        *channel_specs(),
+        ParameterSpec(
+            "poll_rate_hz",
+            defaults.poll_rate_hz,
+            "full-state polls per second",
+            0.1,
+            1000.0,
+            live=True,
+        ),
+        ParameterSpec("joint_prefix", "", "prefix of every joint name"),
+        ParameterSpec("frame_id", "base_link", "frame of published poses and states"),
+        ParameterSpec(
+            "read_only", False, "refuse every command that writes to the device", live=True
+        ),
+        AUTOSTART_SPEC,
+    )
+
+
+def bridge_specs(defaults: DeviceDefaults, *, owns_link: bool) -> tuple[ParameterSpec, ...]:
+    """What a bridge node declares (``BridgeNode``): where its device is, unless it is on a
+    bus another node owns (``owns_link`` false), then ``node_specs``."""
+    where = (*transport_specs(defaults), unit_id_spec(defaults)) if owns_link else ()
+    return (*where, *node_specs(defaults))
+
+
+def bus_specs(defaults: DeviceDefaults, *, unit_ids: bool = True) -> tuple[ParameterSpec, ...]:
+    """What a bus owner declares (``BusNode``): the line, and ``unit_ids`` unless something
+    else names the devices (a ``modbus_bridge`` description file)."""
+    return (*transport_specs(defaults), *((UNIT_IDS_SPEC,) if unit_ids else ()), AUTOSTART_SPEC)
+
+
 def padded(values: Sequence[float], count: int, default: float) -> list[float]:
     """A per-joint list parameter cut or padded with ``default`` to ``count`` items."""
     out = [float(v) for v in values][:count]
     return out + [default] * (count - len(out))
 
 
-__all__ = ["ParameterSpec", "ParameterValue", "padded"]
+__all__ = [
+    "AUTOSTART_SPEC",
+    "GOAL_TIMEOUT_SPEC",
+    "PARITIES",
+    "RTU_UNIT_ID_RANGE",
+    "UNIT_ID_RANGE",
+    "DeviceDefaults",
+    "ParameterSpec",
+    "ParameterValue",
+    "bridge_specs",
+    "bus_specs",
+    "channel_specs",
+    "node_specs",
+    "padded",
+    "transport_specs",
+    "unit_id_spec",
+]

@@ -26,15 +26,8 @@ from rclpy.utilities import try_shutdown
 from .channel import Priority
 from .errors import ConfigurationError
 from .node_base import BridgeNode
-from .node_parameters import (
-    AUTOSTART_SPEC,
-    DeviceDefaults,
-    ParameterNode,
-    link_settings,
-    one_line,
-    transport_specs,
-)
-from .parameters import ParameterSpec
+from .node_parameters import DeviceDefaults, ParameterNode, link_settings, one_line
+from .parameters import bus_specs
 from .transport import ModbusLink
 
 # The poll threads wait on the line and then need the GIL for a moment; with Python's
@@ -69,12 +62,7 @@ class BusNode(ParameterNode):
             defaults = defaults(self)  # as BridgeNode's (a modbus_bridge device file)
         # unit_ids: the devices' ids when something else names them (a device file);
         # else the ``unit_ids`` parameter.
-        own_units = (
-            []
-            if unit_ids is not None
-            else [ParameterSpec("unit_ids", [1], "devices on the bus, one node each")]
-        )
-        values = self.declare_specs([*transport_specs(defaults), *own_units, AUTOSTART_SPEC])
+        values = self.declare_specs(bus_specs(defaults, unit_ids=unit_ids is None))
         self.autostart = bool(values["autostart"])
         units = [int(u) for u in (values["unit_ids"] if unit_ids is None else unit_ids())]
         if not units or len(set(units)) != len(units):

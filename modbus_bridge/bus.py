@@ -22,9 +22,8 @@ from bridge_core.node_parameters import DeviceDefaults, ParameterNode
 from bridge_core.process import BusNode, spin_nodes
 
 from .description import Description
-from .node import ModbusBridgeNode, defaults_of, described_by_parameter
-
-BUS_NODE_NAME = "modbus_bus"
+from .interface import BUS_NODE_NAME, LINE_FILE_SPEC, defaults_of
+from .node import ModbusBridgeNode, described_by_parameter
 
 
 class ModbusBusNode(BusNode):
@@ -41,9 +40,7 @@ class ModbusBusNode(BusNode):
         )
 
     def _defaults_from_file(self, node: ParameterNode) -> DeviceDefaults:
-        path, description = described_by_parameter(
-            node, "description of the line's devices (required)"
-        )
+        path, description = described_by_parameter(node, LINE_FILE_SPEC)
         if description.line is None:
             raise ConfigurationError(
                 f"{path} describes one device with its own link: run modbus_bridge for it"

@@ -33,53 +33,19 @@ from bridge_core.node_parameters import DeviceDefaults, ParameterNode
 from bridge_core.parameters import ParameterSpec
 from bridge_core.process import spin_node
 from bridge_core.registers import ValueType
-from bridge_core.stream_guard import COMMAND_TIMEOUT_RANGE_S, StreamGuard
+from bridge_core.stream_guard import StreamGuard
 from bridge_core.transport import ModbusLink
 from msg_defs.msg import DeviceValues
 from msg_defs.srv import ReadRegisters, SetValue, WriteRegister
 
 from .description import (
-    COMMAND_RATE_RANGE_HZ,
     Description,
     Device,
-    Link,
     TopicSpec,
     load,
 )
 from .device import KEEPALIVE_FEEDS_PER_PERIOD, DescribedDevice, DeviceSnapshot
-
-NODE_NAME = "modbus_bridge"
-
-
-def defaults_of(device: Device, line: Link | None = None) -> DeviceDefaults:
-    """The node's (or with ``line``, the bus's) parameter defaults from the description."""
-    spec = device.spec.device
-    link = device.link or line
-    if link is None:  # a device on a line its bus node opens
-        return DeviceDefaults(spec.title or spec.name, "rtu", poll_rate_hz=spec.poll_rate_hz)
-    if link.tcp is not None:
-        return DeviceDefaults(
-            spec.title or spec.name,
-            "tcp",
-            poll_rate_hz=spec.poll_rate_hz,
-            host=link.tcp.host,
-            port=link.tcp.port,
-            timeout_s=link.timeout_s,
-            unit_id=spec.unit_id,
-        )
-    assert link.rtu is not None
-    return DeviceDefaults(
-        spec.title or spec.name,
-        "rtu",
-        poll_rate_hz=spec.poll_rate_hz,
-        serial_port=link.rtu.serial_port,
-        baudrate=link.rtu.baudrate,
-        parity=link.rtu.parity,
-        stopbits=link.rtu.stopbits,
-        frame_gap_s=link.rtu.frame_gap_s,
-        timeout_s=link.timeout_s,
-        unit_id=spec.unit_id,
-    )
+from .interface import DEVICE_FILE_SPEC, NODE_NAME, defaults_of, stream_parameters
 
 
 def _number(value: Value) -> float:
@@ -88,10 +54,10 @@ def _number(value: Value) -> float:
     return float(value)
 
 
-def described_by_parameter(node: ParameterNode, help_text: str) -> tuple[str, Description]:
+def described_by_parameter(node: ParameterNode, spec: ParameterSpec) -> tuple[str, Description]:
     """The ``device_file`` parameter (start-up only) and the description it names, read
     before the link parameters (their defaults come from it)."""
-    values = node.declare_specs([ParameterSpec("device_file", "", help_text)])
+    values = node.declare_specs([spec])
     path = str(values["device_file"])
     if not path:
         raise ConfigurationError("no device description: give -p device_file:=FILE")
@@ -170,7 +136,7 @@ class ModbusBridgeNode(BridgeNode[DeviceSnapshot]):
             self.keepalive.start()
 
     def _defaults_from_file(self, node: ParameterNode) -> DeviceDefaults:
-        path, description = described_by_parameter(node, "device description YAML (required)")
+        path, description = described_by_parameter(node, DEVICE_FILE_SPEC)
         if description.line is not None:
             raise ConfigurationError(
                 f"{path} describes {len(description.devices)} devices on one line: "
@@ -369,26 +335,8 @@ class ModbusBridgeNode(BridgeNode[DeviceSnapshot]):
     # ------------------------------------------------------------ command topics
     def _create_topics(self) -> None:
         for topic in self.described.commands.topics:
-            timeout_name = f"{topic.name}_timeout_s"
-            rate_name = f"{topic.name}_rate_hz"
-            self.declare_specs(
-                [
-                    ParameterSpec(
-                        timeout_name,
-                        topic.timeout_s,
-                        f"~/{topic.name} deadman: write {topic.stop_value} after this silence",
-                        *COMMAND_TIMEOUT_RANGE_S,
-                        live=True,
-                    ),
-                    ParameterSpec(
-                        rate_name,
-                        topic.rate_hz,
-                        f"~/{topic.name}: most values written per second (a 0 at once)",
-                        *COMMAND_RATE_RANGE_HZ,
-                        live=True,
-                    ),
-                ]
-            )
+            timeout_name, rate_name = (spec.name for spec in stream_parameters(topic))
+            self.declare_specs(stream_parameters(topic))
             guard: StreamGuard[str] = StreamGuard(
                 [topic.name],
                 _sender(self.device, topic),

@@ -43,10 +43,7 @@ from bridge_core.diagnostics import Level, Report
 from bridge_core.errors import CommandRejected, ConfigurationError, DeviceException, LinkError
 from bridge_core.keepalive import Keepalive
 from bridge_core.node_base import BridgeNode, copy_fields
-from bridge_core.node_parameters import DeviceDefaults
-from bridge_core.parameters import ParameterSpec
 from bridge_core.process import BusNode, spin_nodes
-from bridge_core.stream_guard import COMMAND_TIMEOUT_RANGE_S
 from bridge_core.transport import ModbusLink
 from msg_defs.action import MoveTo
 from msg_defs.msg import MotecState
@@ -60,10 +57,6 @@ from msg_defs.srv import (
 )
 
 from .device import (
-    DEFAULT_CONFIG_REFRESH_S,
-    DEFAULT_MAX_SPEED_RPM,
-    MOVE_TIME_MARGIN,
-    SPEED_LIMIT_RPM,
     VELOCITY_STREAM,
     DriveScale,
     MotecDevice,
@@ -74,14 +67,11 @@ from .device import (
     lifeguard_min_ms,
     start_all,
 )
+from .interface import BUS_PARAMETERS, MOTEC_DEFAULTS, drive_parameters
 from .registers import (
     BROADCAST_UNIT,
-    DEFAULT_BAUDRATE,
     INTERFACE_RS232,
-    INTERFACE_RS485,
     MAX_DRIVES,
-    OUTPUT1_COIL_CHOICES,
-    OUTPUT1_COIL_DEFAULT,
     UNIT_IDS,
     control_mode_name,
     fault_text,
@@ -89,31 +79,6 @@ from .registers import (
 )
 
 BUS_NODE_NAME = "motec_bridge"
-# A speed write is one FC 06 of ~2-3 ms at 115200 baud: 20 a second per drive cost a few
-# percent of the bus that every drive's polls share.
-VELOCITY_WRITE_RATE_HZ = 20.0
-VELOCITY_RATE_RANGE_HZ = (0.5, 1000.0)  # command_rate_hz
-# ~/move_to's "reached" band (live parameter): the simulator lands on the target; a real
-# drive's position loop settles within a few counts of it (10 counts = 0.36 deg of a
-# 10000-count motor turn).
-GOAL_TOLERANCE_COUNTS = 10
-GOAL_TOLERANCE_COUNTS_MAX = 1_000_000
-STOP_TIMEOUT_S = 0.05
-# ~/move_to without a timeout_s: limited to the move's time at its speed limit x this
-# (plus the ramps' allowance, decision 17); 0 (set explicitly) = no default limit.
-MOVE_TIME_MARGIN_MAX = 100.0
-
-MOTEC_DEFAULTS = DeviceDefaults(
-    "MOTEC β servo drive",
-    "rtu",
-    poll_rate_hz=10.0,  # per drive; a poll is 4 reads (~15-25 ms at 115200 baud)
-    baudrate=DEFAULT_BAUDRATE,
-    timeout_s=0.1,  # a reply is a few ms at 115200: a dead drive costs little bus time
-    # A stop or lifeguard feed sent while the drive is marked down: one try this long (a
-    # reply is a few ms), so a dead line costs the other drives little per feed period.
-    stop_timeout_s=STOP_TIMEOUT_S,
-)
-
 
 # MotecState fields copied as they are from the snapshot and its configuration.
 STATE_FIELDS = (
@@ -157,91 +122,7 @@ class MotecDriveNode(BridgeNode[MotecSnapshot]):
         hold_s = link.settings.longest_hold_s()
         self.lifeguard_floor_ms = lifeguard_min_ms(drives_on_bus, hold_s)
         self.lifeguard_bound = lifeguard_bound_text(drives_on_bus, hold_s)
-        values = self.declare_specs(
-            [
-                ParameterSpec(
-                    "counts_per_rev", 10000.0, "encoder counts per motor revolution", 1.0, 1e9
-                ),
-                ParameterSpec(
-                    "gear_ratio", 1.0, "motor revolutions per joint revolution", 1e-6, 1e6
-                ),
-                ParameterSpec(
-                    "command_timeout_s",
-                    0.5,
-                    "cmd_velocity deadman: 0 rpm after this silence",
-                    *COMMAND_TIMEOUT_RANGE_S,
-                    live=True,
-                ),
-                ParameterSpec(
-                    "command_rate_hz",
-                    VELOCITY_WRITE_RATE_HZ,
-                    "cmd_velocity: most speed changes written per second (a 0 at once)",
-                    *VELOCITY_RATE_RANGE_HZ,
-                    live=True,
-                ),
-                ParameterSpec(
-                    "lifeguard_ms",
-                    0,
-                    f"drive watchdog 0x112/0x114: armed on connect and fed by the bridge; at "
-                    f"least {self.lifeguard_floor_ms} ms on this bus = {self.lifeguard_bound}. "
-                    f"0 at start: leave the drive's own setting; set to 0 at run time: disarm",
-                    0,
-                    65535,
-                    live=True,
-                ),
-                ParameterSpec(
-                    "max_speed_rpm",
-                    DEFAULT_MAX_SPEED_RPM,
-                    "largest |speed| a command may ask (rpm)",
-                    1,
-                    SPEED_LIMIT_RPM,
-                ),
-                ParameterSpec(
-                    "config_refresh_s",
-                    DEFAULT_CONFIG_REFRESH_S,
-                    "re-read 0x6D, 0x112, 0x114 this often",
-                    0.5,
-                    3600.0,
-                ),
-                ParameterSpec(
-                    "output1_coil",
-                    OUTPUT1_COIL_DEFAULT,
-                    "coil (and output-word bit) of OUTPUT1: 0 as the FC 01 example (07 = three "
-                    "outputs on), 1 as the FC 05 example (OUTPUT2 at 0x0002)",
-                    min(OUTPUT1_COIL_CHOICES),
-                    max(OUTPUT1_COIL_CHOICES),
-                ),
-                ParameterSpec(
-                    "goal_tolerance_counts",
-                    GOAL_TOLERANCE_COUNTS,
-                    "~/move_to: reached when the drive stands within this many counts of "
-                    "its target",
-                    0,
-                    GOAL_TOLERANCE_COUNTS_MAX,
-                    live=True,
-                ),
-                ParameterSpec(
-                    "read_io_tables",
-                    False,
-                    "every poll also reads 0x79, FC 01 (outputs) and FC 02 (inputs): 3 more reads",
-                ),
-                ParameterSpec(
-                    "allow_unlisted_parameters",
-                    False,
-                    "~/write_parameter may write Pr.N the manual does not name (FC 06, one "
-                    "word; the drive checks the value and answers exception 03)",
-                ),
-                ParameterSpec(
-                    "move_time_margin",
-                    MOVE_TIME_MARGIN,
-                    "~/move_to without timeout_s: stopped after the move's time at its speed "
-                    "limit x this + a ramp allowance; 0 = no default limit",
-                    0.0,
-                    MOVE_TIME_MARGIN_MAX,
-                    live=True,
-                ),
-            ]
-        )
+        values = self.declare_specs(drive_parameters(drives_on_bus, hold_s))
         self.scale = DriveScale(float(values["counts_per_rev"]), float(values["gear_ratio"]))
         self.lifeguard_ms = int(values["lifeguard_ms"])
         if reason := self._lifeguard_refusal(self.lifeguard_ms):
@@ -580,19 +461,7 @@ class MotecBusNode(BusNode):
             unit_id_range=range(min(UNIT_IDS), max(UNIT_IDS) + 1),
             **kwargs,
         )
-        values = self.declare_specs(
-            [
-                ParameterSpec(
-                    "read_only", False, "refuse ~/disable_all and ~/start_all", live=True
-                ),
-                ParameterSpec(
-                    "interface",
-                    INTERFACE_RS485,
-                    "the line: rs485 (31 drives, §1.1.2) or rs232 (8 drives, §1.1.1)",
-                    choices=tuple(MAX_DRIVES),
-                ),
-            ]
-        )
+        values = self.declare_specs(BUS_PARAMETERS)
         interface = str(values["interface"]).lower()
         if len(self.unit_ids) > MAX_DRIVES[interface]:
             raise ConfigurationError(

@@ -11,8 +11,7 @@ from geometry_msgs.msg import PoseStamped
 from bridge_core.diagnostics import Level, Report
 from bridge_core.errors import CommandRejected, DeviceException, FrameError
 from bridge_core.node_base import BridgeNode, copy_fields
-from bridge_core.node_parameters import DeviceDefaults
-from bridge_core.parameters import ParameterSpec, padded
+from bridge_core.parameters import padded
 from bridge_core.process import spin_node
 from bridge_core.units import DEG, MM, RPM_TO_RAD_S, euler_xyz_deg_to_quaternion
 from msg_defs.action import PointUpload, RunCycle
@@ -40,6 +39,7 @@ from .device import (
     RunCycleMotion,
 )
 from .device import PointUpload as PointUploadSteps
+from .interface import EXTRA_WORLD_AXES, PARAMETERS, R6_DEFAULTS
 from .registers import COMMANDS, MAX_AXES, STOP_COMMANDS
 
 T = TypeVar("T")
@@ -62,50 +62,12 @@ STATE_FIELDS = (
 )
 
 
-# World axes past X-W (§3.1.9 rows 2344-2347), read every poll; published when configured.
-EXTRA_WORLD_AXES = ("m7", "m8")
-
-R6_DEFAULTS = DeviceDefaults("Huacheng R6", "tcp", poll_rate_hz=50.0)
-
-
 class R6BridgeNode(BridgeNode[R6Snapshot]):
     """The R6 controller: one node per controller, on its own TCP link."""
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("r6_bridge", R6_DEFAULTS, **kwargs)
-        values = self.declare_specs(
-            [
-                ParameterSpec(
-                    "gear_ratios",
-                    [1.0] * MAX_AXES,
-                    "motor rpm per joint rpm, per axis",
-                    item_positive=True,
-                ),
-                ParameterSpec(
-                    "rated_torques",
-                    [1.0] * MAX_AXES,
-                    "rated torque (N m) per axis; effort = fraction x this",
-                    item_positive=True,
-                ),
-                ParameterSpec(
-                    "m_boards",
-                    False,
-                    "the controller offers M board values: poll and switch them (decision 21)",
-                ),
-                ParameterSpec(
-                    "eu_board",
-                    False,
-                    "an EU board is fitted: poll and switch its IO (decision 21)",
-                ),
-                ParameterSpec(
-                    "extra_world_axes",
-                    0,
-                    "world M7/M8 values published in ~/state world_extra (0-2)",
-                    low=0,
-                    high=len(EXTRA_WORLD_AXES),
-                ),
-            ]
-        )
+        values = self.declare_specs(PARAMETERS)
         self.extra_world_axes = EXTRA_WORLD_AXES[: int(values["extra_world_axes"])]
         self.gear_ratios = padded(values["gear_ratios"], MAX_AXES, 1.0)
         self.rated_torques = padded(values["rated_torques"], MAX_AXES, 1.0)

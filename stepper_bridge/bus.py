@@ -29,7 +29,8 @@ from bridge_core.channel import UNIT_ID_MAX
 from bridge_core.errors import ConfigurationError
 from bridge_core.process import BusNode, spin_nodes
 
-from .node import STEPPER_DEFAULTS, StepperBridgeNode, check_reply_timeout
+from .interface import STEPPER_DEFAULTS
+from .node import StepperBridgeNode, check_reply_timeout
 from .registers import DEVICE_IDS
 
 BUS_NODE_NAME = "stepper_bus"

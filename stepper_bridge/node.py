@@ -41,11 +41,9 @@ from bridge_core.checks import board_zero_index
 from bridge_core.diagnostics import Level, Report
 from bridge_core.errors import CommandRejected, ConfigurationError
 from bridge_core.node_base import BridgeNode, copy_fields
-from bridge_core.node_parameters import DeviceDefaults
-from bridge_core.parameters import ParameterSpec, padded
+from bridge_core.parameters import padded
 from bridge_core.process import spin_node
 from bridge_core.serial_timing import char_time_s
-from bridge_core.stream_guard import COMMAND_TIMEOUT_RANGE_S
 from bridge_core.transport import SerialSettings
 from msg_defs.action import ArcMotion, LineMotion, StepperMoveBy, StepperRun
 from msg_defs.msg import StepperState
@@ -63,13 +61,9 @@ from msg_defs.srv import (
 )
 
 from .device import (
-    DEFAULT_CONFIG_REFRESH_S,
-    DEFAULT_JOG_TIMEOUT_S,
     DEFAULT_UNITS_PER_METER,
     DESTRUCTIVE_COMMANDS,
     JOINT_TYPES,
-    PAIR_READING_CHOICES,
-    PAIR_READING_UNSET,
     SYSTEM_COMMANDS,
     CoilMotion,
     HomeMotion,
@@ -79,8 +73,8 @@ from .device import (
     StepperDevice,
     StepperSnapshot,
 )
+from .interface import PARAMETERS, STEPPER_DEFAULTS
 from .registers import (
-    DEFAULT_BAUDRATE,
     INTERPOLATION_PAIRS,
     LONGEST_REPLY_BYTES,
     MOTOR_ACTIONS,
@@ -127,12 +121,6 @@ CLEAR_ALL_WARNING = (
 )
 
 
-# A jog speed change is one FC 06 of ~52 ms at 9600 baud with the manual's 35 ms reply
-# delay (plus a direction coil when it reverses): 5 a second per motor leave the polls
-# most of the line.
-JOG_WRITE_RATE_HZ = 5.0
-JOG_RATE_RANGE_HZ = (0.5, 100.0)  # command_rate_hz
-
 # §3: "485 接口通信时每帧数据响应时间不能低于 35ms": the controller answers no sooner than
 # 35 ms after a request (README stepper decision 7). The reply timeout counts from the
 # request's last byte, so it must cover those 35 ms and the longest reply (a 49-register
@@ -142,24 +130,6 @@ JOG_RATE_RANGE_HZ = (0.5, 100.0)  # command_rate_hz
 # reading (the host must leave 35 ms between frames) is served by ``frame_gap_s``.
 TIMEOUT_MARGIN_S = 0.005
 TIMEOUT_STEP_S = 0.01
-# Actions' "reached" band (live parameter goal_tolerance): one step of the coordinate
-# registers (x100 of the user's unit, 40108+); an open-loop stepper ends on its target.
-GOAL_TOLERANCE_UNITS = 0.01
-
-STEPPER_DEFAULTS = DeviceDefaults(
-    "stepper controller",
-    "rtu",
-    poll_rate_hz=3.0,  # a poll takes ~0.29 s at 9600 baud (README)
-    baudrate=DEFAULT_BAUDRATE,
-    # No baud rate makes a reply come sooner than 35 ms; the floor at the configured baud
-    # rate is checked at start (check_reply_timeout).
-    timeout_min_s=REPLY_DELAY_S,
-    # A stop coil's reply is 8 bytes, no sooner than 35 ms after the request: the least
-    # timeout the manual's rule allows is plenty, and keeps a stop over a line that comes
-    # back within 0.3 s of it (bench/stop_after_outage.py). Scaled with the baud rate at
-    # start (StepperBridgeNode); this is its value at the default 9600.
-    stop_timeout_s=0.15,
-)
 
 
 def reply_timeout_floor_s(settings: SerialSettings) -> float:
@@ -203,71 +173,7 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
             self.channel.down_write_timeout_s = min(
                 reply_timeout_floor_s(settings), settings.timeout_s
             )
-        values = self.declare_specs(
-            [
-                ParameterSpec(
-                    "joint_types",
-                    ["prismatic"] * MOTORS,
-                    "per motor: prismatic (m) or revolute (rad)",
-                ),
-                ParameterSpec(
-                    "units_per_meter",
-                    [DEFAULT_UNITS_PER_METER] * MOTORS,
-                    "per prismatic motor: controller units per metre (1000: mm)",
-                    item_positive=True,
-                ),
-                ParameterSpec(
-                    "units_per_revolution",
-                    [0.0] * MOTORS,
-                    "per revolute motor: controller units per joint revolution "
-                    "(0: the lead read from the controller, i.e. no reduction)",
-                ),
-                ParameterSpec(
-                    "command_timeout_s",
-                    DEFAULT_JOG_TIMEOUT_S,
-                    "jog deadman: stop a jogging motor after this silence",
-                    *COMMAND_TIMEOUT_RANGE_S,
-                    live=True,
-                ),
-                ParameterSpec(
-                    "command_rate_hz",
-                    JOG_WRITE_RATE_HZ,
-                    "jog: most speed changes written per second per motor (a 0 at once)",
-                    *JOG_RATE_RANGE_HZ,
-                    live=True,
-                ),
-                ParameterSpec(
-                    "goal_tolerance",
-                    GOAL_TOLERANCE_UNITS,
-                    "actions: a motion reached its target when each coordinate is within "
-                    "this many controller units of it",
-                    0.0,
-                    1e6,
-                    live=True,
-                ),
-                ParameterSpec(
-                    "interpolation_pair_reading",
-                    PAIR_READING_UNSET,
-                    "which motors interpolation pairs 2 and 3 drive: the manual's type rows "
-                    "(2 = motors 1+3, 3 = 2+3) or point rows (2 = 2+3, 3 = 1+3); unset "
-                    "refuses pairs 2 and 3 until the hardware check in docs/stepper.md",
-                    choices=PAIR_READING_CHOICES,
-                ),
-                ParameterSpec(
-                    "zero_after_home",
-                    False,
-                    "home actions: after the home input is reached, send the zero coordinates "
-                    "coil (00044, every motor's coordinate) and check the homed motors read 0",
-                ),
-                ParameterSpec(
-                    "config_refresh_s",
-                    DEFAULT_CONFIG_REFRESH_S,
-                    "re-read the motor parameters this often",
-                    0.5,
-                    3600.0,
-                ),
-            ]
-        )
+        values = self.declare_specs(PARAMETERS)
         self.scales = _joint_scales(
             values["joint_types"], values["units_per_meter"], values["units_per_revolution"]
         )

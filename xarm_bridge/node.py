@@ -13,8 +13,6 @@ from bridge_core.checks import board_zero_index
 from bridge_core.diagnostics import Level, Report
 from bridge_core.errors import ConfigurationError
 from bridge_core.node_base import BridgeNode, copy_fields
-from bridge_core.node_parameters import DeviceDefaults
-from bridge_core.parameters import ParameterSpec
 from bridge_core.process import spin_node
 from bridge_core.units import (
     DEG,
@@ -35,7 +33,8 @@ from msg_defs.srv import (
 )
 
 from .device import XArmDevice, XArmSnapshot, error_text, mode_name, state_name, warning_text
-from .registers import JOINT_COUNTS, JOINTS, SET_STATE_START, USER_COILS, WORLD
+from .interface import PARAMETERS, XARM_DEFAULTS
+from .registers import SET_STATE_START, USER_COILS, WORLD
 
 T = TypeVar("T")
 
@@ -74,9 +73,6 @@ STATE_FIELDS = (
 )
 
 
-XARM_DEFAULTS = DeviceDefaults("UFactory xArm", "tcp", poll_rate_hz=50.0)
-
-
 # The axis of what the services set moving (the node's motion ledger).
 ARM = "arm"
 
@@ -86,32 +82,7 @@ class XArmBridgeNode(BridgeNode[XArmSnapshot]):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("xarm_bridge", XARM_DEFAULTS, **kwargs)
-        values = self.declare_specs(
-            [
-                ParameterSpec(
-                    "joint_count",
-                    JOINTS,
-                    "joints of the arm: 5 (xArm 5), 6 (xArm 6, Lite 6) or 7 (xArm 7)",
-                    JOINT_COUNTS.start,
-                    JOINT_COUNTS.stop - 1,
-                ),
-                ParameterSpec(
-                    "user_coil_first",
-                    USER_COILS.start,
-                    "first user coil (C256-511) read into ~/state and writable",
-                    USER_COILS.start,
-                    USER_COILS.stop - 1,
-                ),
-                ParameterSpec(
-                    "user_coil_count",
-                    0,
-                    "user coils read from user_coil_first on (0: none; any other adds one "
-                    "FC 01 request to every poll)",
-                    0,
-                    len(USER_COILS),
-                ),
-            ]
-        )
+        values = self.declare_specs(PARAMETERS)
         first, count = int(values["user_coil_first"]), int(values["user_coil_count"])
         if first + count > USER_COILS.stop:
             raise ConfigurationError(

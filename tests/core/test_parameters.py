@@ -46,9 +46,10 @@ def test_the_stepper_refuses_a_reply_timeout_its_replies_cannot_meet() -> None:
     """§3: replies come no sooner than 35 ms, the largest (103 bytes) takes 107 ms more at
     9600 baud and twice that at 4800: the floor scales with the baud rate."""
     from bridge_core.errors import ConfigurationError
-    from bridge_core.node_parameters import transport_specs
+    from bridge_core.parameters import transport_specs
     from bridge_core.transport import SerialSettings, TcpSettings
-    from stepper_bridge.node import STEPPER_DEFAULTS, check_reply_timeout, reply_timeout_floor_s
+    from stepper_bridge.interface import STEPPER_DEFAULTS
+    from stepper_bridge.node import check_reply_timeout, reply_timeout_floor_s
 
     floors = {
         baud: reply_timeout_floor_s(SerialSettings("/dev/null", baud))

@@ -24,7 +24,7 @@ from std_msgs.msg import Float64
 from bridge_core.registers import Table
 from bridge_core.sim_base import WriteRecord
 from msg_defs.msg import StepperState
-from stepper_bridge.node import JOG_WRITE_RATE_HZ
+from stepper_bridge.interface import JOG_WRITE_RATE_HZ
 from stepper_bridge.registers import STEPPER_MAP, motor_coil, motor_register
 from stepper_bridge.sim import StepperSimDevice
 
