@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Callable, Iterator
-from contextlib import ExitStack, contextmanager
+from contextlib import ExitStack, contextmanager, suppress
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -153,9 +153,7 @@ def test_the_listing_needs_no_rclpy() -> None:
 
 
 @pytest.mark.parametrize("executable", sorted(RUNS))
-def test_running_nodes_match_their_listing(
-    client: Client, tmp_path: Path, executable: str
-) -> None:
+def test_running_nodes_match_their_listing(client: Client, tmp_path: Path, executable: str) -> None:
     with ExitStack() as stack:
         run: Run = stack.enter_context(RUNS[executable](tmp_path))
         expected = {name: node for node in run.nodes for name in node.node_names()}
@@ -181,10 +179,8 @@ def settled(fetch: Callable[[], Any], expected: Any) -> Any:
         last[0] = fetch()
         return bool(last[0] == expected)
 
-    try:
+    with suppress(AssertionError):
         wait_for(equal, SETTLE_S, "the graph to settle")
-    except AssertionError:
-        pass
     return last[0]
 
 
@@ -217,9 +213,10 @@ def check_node(client: Client, run: Run, name: str, node: NodeInterface) -> None
     assert settled(lambda: by_node(graph.get_publisher_names_and_types_by_node), published) == (
         published
     ), f"{name}: published topics"
-    assert settled(
-        lambda: by_node(graph.get_subscriber_names_and_types_by_node), subscribed
-    ) == subscribed, f"{name}: subscribed topics"
+    assert (
+        settled(lambda: by_node(graph.get_subscriber_names_and_types_by_node), subscribed)
+        == subscribed
+    ), f"{name}: subscribed topics"
     assert settled(lambda: by_node(graph.get_service_names_and_types_by_node), services) == (
         services
     ), f"{name}: services"
@@ -235,9 +232,7 @@ def check_node(client: Client, run: Run, name: str, node: NodeInterface) -> None
     check_parameters(client, f"{ns}/{name}", node, run.given)
 
 
-def check_parameters(
-    client: Client, path: str, node: NodeInterface, given: dict[str, Any]
-) -> None:
+def check_parameters(client: Client, path: str, node: NodeInterface, given: dict[str, Any]) -> None:
     specs = {spec.name: spec for spec in node.parameters}
     reply = client.call(ListParameters, f"{path}/list_parameters", ListParameters.Request())
     assert set(reply.result.names) == set(specs) | set(interface.ROS_PARAMETERS), path
