@@ -19,7 +19,7 @@ from typing import Any
 import pytest
 from rcl_interfaces.msg import ParameterType
 from rcl_interfaces.srv import DescribeParameters, GetParameters, ListParameters
-from rclpy.action import get_action_server_names_and_types_by_node
+from rclpy.action.graph import get_action_server_names_and_types_by_node
 from rclpy.node import NodeNameNonExistentError
 from rclpy.parameter import parameter_value_to_python
 
