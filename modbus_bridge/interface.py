@@ -23,7 +23,7 @@ from .description import (
 
 NODE_NAME = "modbus_bridge"
 BUS_NODE_NAME = "modbus_bus"
-DEVICES = Path(__file__).resolve().parent.parent / "config" / "devices"
+DEVICES = Path(__file__).resolve().parent.parent / "config" / "devices"  # in a checkout
 DEFAULT_DEVICE_FILE = DEVICES / "xarm.yaml"  # launch/modbus.launch.py's default
 DEFAULT_LINE_FILE = DEVICES / "rtu_multidrop.yaml"
 
@@ -142,6 +142,20 @@ def described_nodes(path: Path | str) -> tuple[NodeInterface, ...]:
     )
 
 
+def installed(path: Path) -> Path:
+    """An example description in the checkout, else in the package's ament share
+    (a colcon or ament-index install: ``share/modbus_bridge/config/devices``)."""
+    if path.is_file():
+        return path
+    from ament_index_python.packages import get_package_share_directory
+
+    share = Path(get_package_share_directory("modbus_bridge"))
+    return share / "config" / "devices" / path.name
+
+
 def default_nodes() -> tuple[NodeInterface, ...]:
     """The nodes of the launch file's default description and of the multi-drop example."""
-    return (*described_nodes(DEFAULT_DEVICE_FILE), *described_nodes(DEFAULT_LINE_FILE))
+    return (
+        *described_nodes(installed(DEFAULT_DEVICE_FILE)),
+        *described_nodes(installed(DEFAULT_LINE_FILE)),
+    )
