@@ -10,6 +10,7 @@ every node (``interface.standard_*``) is the only addition.
 from __future__ import annotations
 
 import sys
+import tomllib
 from collections.abc import Callable, Iterator
 from contextlib import ExitStack, contextmanager, suppress
 from dataclasses import dataclass, replace
@@ -35,7 +36,7 @@ from motec_bridge.interface import drive_parameters
 from stepper_bridge.sim import make_bus_simulator
 
 from .support.bridges import BRIDGES, RTU_BAUD, SimProcess
-from .support.ros import Client, node_process, ros_client, unique_namespace, wait_for
+from .support.ros import ROOT, Client, node_process, ros_client, unique_namespace, wait_for
 from .support.serial_pair import served_on_pty
 
 pytestmark = pytest.mark.ros
@@ -138,8 +139,15 @@ def client() -> Iterator[Client]:
 
 
 def test_every_executable_is_listed_and_checked() -> None:
-    """Each console script that starts bridge nodes has a listing, and a run here."""
-    assert {node.executable for node in interface.nodes()} == set(RUNS)
+    """Each console script that starts bridge nodes (pyproject.toml: a ``node`` or ``bus``
+    module's main) has a listing, and a run here."""
+    scripts = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["scripts"]
+    starting_nodes = {
+        name
+        for name, target in scripts.items()
+        if target.split(":")[0].rsplit(".", 1)[-1] in ("node", "bus")
+    }
+    assert {node.executable for node in interface.nodes()} == starting_nodes == set(RUNS)
 
 
 def test_the_listing_needs_no_rclpy() -> None:
@@ -149,7 +157,7 @@ def test_the_listing_needs_no_rclpy() -> None:
         "import sys; from bridge_core import interface; assert interface.nodes(); "
         "assert not [m for m in sys.modules if m.startswith('rclpy')], 'rclpy imported'"
     )
-    subprocess.run([sys.executable, "-c", code], check=True, cwd=Path(__file__).parents[1])
+    subprocess.run([sys.executable, "-c", code], check=True, cwd=ROOT)
 
 
 @pytest.mark.parametrize("executable", sorted(RUNS))
