@@ -26,7 +26,7 @@ from rclpy.parameter import parameter_value_to_python
 
 from bridge_core import interface
 from bridge_core.interface import NodeInterface
-from bridge_core.node_base import descriptor
+from bridge_core.node_parameters import descriptor
 from bridge_core.parameters import ParameterSpec
 from bridge_core.transport import SerialSettings
 from modbus_bridge.description import load as load_description
