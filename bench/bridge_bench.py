@@ -275,8 +275,8 @@ def run_worker(args: argparse.Namespace) -> None:
 
         close: Callable[[], None] = client.close
     else:
-        from bridge_core.channel import DeviceChannel
-        from bridge_core.transport import ModbusLink, TcpSettings
+        from bridge_core.wire.channel import DeviceChannel
+        from bridge_core.wire.transport import ModbusLink, TcpSettings
 
         link = ModbusLink(TcpSettings("127.0.0.1", args.port, 1.0))
         channel = DeviceChannel(link, UNIT_ID)

@@ -153,7 +153,7 @@ def make_executor(kind: str):  # type: ignore[no-untyped-def]
     if kind == "single":
         return SingleThreadedExecutor()
     if kind == "multi":
-        # What the bridges use (bridge_core.process.spin_node).
+        # What the bridges use (bridge_core.ros.process.spin_node).
         return MultiThreadedExecutor(num_threads=3)
     if kind == "events":
         from rclpy.experimental.events_executor import EventsExecutor

@@ -63,7 +63,7 @@ def armed(drive: Any) -> bool:
 
 def run(timeout_s: float, seconds: float) -> list[tuple[str, int, list[str]]]:
     """Both phases at one timeout; rows of (phase, lifeguard_ms, one cell per drive)."""
-    from bridge_core.transport import SerialSettings
+    from bridge_core.wire.transport import SerialSettings
     from motec_bridge.device import lifeguard_min_ms
     from motec_bridge.registers import CONTROL_MODE_VELOCITY, OPERATION_MODE_NETWORK
     from motec_bridge.sim import make_simulator

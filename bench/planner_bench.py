@@ -22,8 +22,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from bridge_core.planner import plan_reads  # noqa: E402
-from bridge_core.registers import RegisterMap  # noqa: E402
+from bridge_core.wire.planner import plan_reads  # noqa: E402
+from bridge_core.wire.registers import RegisterMap  # noqa: E402
 from modbus_bridge.description import load  # noqa: E402
 from motec_bridge.registers import MOTEC_MAP  # noqa: E402
 from r6_bridge.registers import R6_MAP  # noqa: E402

@@ -22,9 +22,9 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from bridge_core.channel import DeviceChannel
-from bridge_core.reads import read_blocks
-from bridge_core.transport import ModbusLink, TcpSettings
+from bridge_core.runtime.reads import read_blocks
+from bridge_core.wire.channel import DeviceChannel
+from bridge_core.wire.transport import ModbusLink, TcpSettings
 from r6_bridge.device import STAMP_REGISTER, R6Device
 from r6_bridge.registers import R6_MAP
 from r6_bridge.sim import R6SimDevice, make_simulator

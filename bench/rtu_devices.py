@@ -19,7 +19,7 @@ relay holds a reply until t3.5 after the request, as a real RTU device must wait
 The simulators tick their devices' motion every 0.1 s instead of 10 ms
 (``--sim-tick-s``): nothing moves here, and 100 Hz ticks of 8 drives take CPU from the
 client on a 2-vCPU machine that a real drive would not (see ``SIM_TICK_S``).
-Each drive gets the nodes' own poller (``bridge_core.poller.Poller``):
+Each drive gets the nodes' own poller (``bridge_core.runtime.poller.Poller``):
 pacing, backoff guard and re-plan (``NodePoller``; no ROS, nothing
 published), with the nodes' default channel settings.
 
@@ -91,17 +91,17 @@ from bench.line_relay import (  # noqa: E402
     transactions,
 )
 from bench.rtu_wire import transaction_wire_s  # noqa: E402
-from bridge_core.channel import DeviceChannel  # noqa: E402
-from bridge_core.poller import Poller  # noqa: E402
-from bridge_core.serial_timing import silence_s  # noqa: E402
-from bridge_core.transport import ModbusLink, SerialSettings  # noqa: E402
+from bridge_core.runtime.poller import Poller  # noqa: E402
+from bridge_core.wire.channel import DeviceChannel  # noqa: E402
+from bridge_core.wire.serial_timing import silence_s  # noqa: E402
+from bridge_core.wire.transport import ModbusLink, SerialSettings  # noqa: E402
 from motec_bridge.device import MotecDevice  # noqa: E402
 from stepper_bridge.device import StepperDevice  # noqa: E402
 from stepper_bridge.registers import REPLY_DELAY_S as STEPPER_REPLY_DELAY_S  # noqa: E402
 
 RESULTS = ROOT / "bench" / "results" / "rtu_devices.json"
 MOTEC_BAUD = 115200
-# Node defaults (bridge_core/node_parameters.py parameters, motec_bridge/node.py bus parameters;
+# Node defaults (bridge_core/ros/node_parameters.py parameters, motec_bridge/node.py bus parameters;
 # not imported: those modules need rclpy).
 NODE_RETRIES = 1  # "retries"
 NODE_RECONNECT_MAX_S = 5.0  # "reconnect_max_s"
@@ -190,7 +190,7 @@ def line(
 
 
 class NodePoller:
-    """One device's poll thread: the nodes' own ``bridge_core.poller.Poller`` (pacing,
+    """One device's poll thread: the nodes' own ``bridge_core.runtime.poller.Poller`` (pacing,
     backoff guard, ``invalidate_config`` before the first poll after (re)connecting),
     with the poll wrapped to record when each attempt started and each success ended."""
 

@@ -65,18 +65,18 @@ from bench.line_relay import (  # noqa: E402
     silence_violations,
     transactions,
 )
-from bridge_core.channel import DeviceChannel  # noqa: E402
-from bridge_core.errors import LinkError  # noqa: E402
-from bridge_core.registers import (  # noqa: E402
+from bridge_core.sim.sim_base import SimulatedDevice, Simulator  # noqa: E402
+from bridge_core.wire.channel import DeviceChannel  # noqa: E402
+from bridge_core.wire.errors import LinkError  # noqa: E402
+from bridge_core.wire.registers import (  # noqa: E402
     Access,
     DeviceLimits,
     RegisterMap,
     ValueType,
     register_array,
 )
-from bridge_core.serial_timing import silence_s  # noqa: E402
-from bridge_core.sim_base import SimulatedDevice, Simulator  # noqa: E402
-from bridge_core.transport import ModbusLink, SerialSettings  # noqa: E402
+from bridge_core.wire.serial_timing import silence_s  # noqa: E402
+from bridge_core.wire.transport import ModbusLink, SerialSettings  # noqa: E402
 
 BITS_PER_CHAR = 10
 REQUEST_BYTES = 8  # FC 03: unit, function, address (2), count (2), CRC (2)

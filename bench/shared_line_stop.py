@@ -84,8 +84,8 @@ def main() -> None:
 def run(args: argparse.Namespace, client: Any) -> list[tuple[float, str]]:
     from std_srvs.srv import Trigger
 
-    from bridge_core.registers import Table
-    from bridge_core.transport import SerialSettings
+    from bridge_core.wire.registers import Table
+    from bridge_core.wire.transport import SerialSettings
     from msg_defs.msg import StepperState
     from stepper_bridge.node import reply_timeout_floor_s
     from stepper_bridge.registers import motor_coil

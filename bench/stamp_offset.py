@@ -3,7 +3,7 @@
 (docs/architecture.md, "The read path").
 
 For the TCP bridges' device layers (R6, xArm) against their simulators over real TCP,
-polled through ``bridge_core.poller.Poller`` exactly as the nodes do (the node copies the
+polled through ``bridge_core.runtime.poller.Poller`` exactly as the nodes do (the node copies the
 snapshot's ``read_time`` into ``joint_states`` unchanged). The simulator logs the wall
 time it handled each read request; per poll the bench prints
 
@@ -28,11 +28,11 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from bridge_core.channel import DeviceChannel
-from bridge_core.poller import Poller, PollOutcome
-from bridge_core.registers import RegisterMap
-from bridge_core.sim_base import SimulatedDevice, Simulator
-from bridge_core.transport import ModbusLink, TcpSettings
+from bridge_core.runtime.poller import Poller, PollOutcome
+from bridge_core.sim.sim_base import SimulatedDevice, Simulator
+from bridge_core.wire.channel import DeviceChannel
+from bridge_core.wire.registers import RegisterMap
+from bridge_core.wire.transport import ModbusLink, TcpSettings
 
 TIMEOUT_S = 0.2
 SLOW_S = 0.3  # longer than TIMEOUT_S: the first attempt of the slow block times out

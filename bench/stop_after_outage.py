@@ -97,7 +97,7 @@ def run_case(args: argparse.Namespace, client: Any, case: str) -> list[tuple[flo
     from std_msgs.msg import Float64
     from std_srvs.srv import Trigger
 
-    from bridge_core.registers import Table
+    from bridge_core.wire.registers import Table
     from msg_defs.msg import StepperState
     from stepper_bridge.registers import motor_coil
     from stepper_bridge.sim import StepperSimDevice, make_simulator

@@ -52,7 +52,7 @@ def one_cycle(node: Any) -> Callable[[], None]:
 
         return cycle
 
-    def old_cycle() -> None:  # trees before bridge_core.poller
+    def old_cycle() -> None:  # trees before bridge_core.runtime.poller
         node._poll_tick()
         node.publish_snapshot(node._snapshots.get_nowait())
 

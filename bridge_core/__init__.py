@@ -1,14 +1,10 @@
 """Shared runtime of the Modbus bridges: each concern two bridges share is solved here once.
 
-ROS-free: ``registers`` (maps as data), ``codec``, ``planner``, ``requests``,
-``transport`` (the pymodbus pipe), ``serial_timing`` (RTU timing) and ``serial_port``,
-``channel`` (one device on a link: backoff, priority lock, counters), ``poller`` (pacing,
-re-plan, stamped snapshots), ``stream_guard`` (jog / velocity deadman), ``checks``,
-``parameters`` (specs), ``config_cache``, ``diagnostics``, ``sim_base``. ROS: ``node_base``
-(BridgeNode) with ``node_parameters``, ``node_streams``, ``node_actions`` /
-``action_results``, ``node_diagnostics``, ``process`` (BusNode, spin_nodes); ``recorder``,
-``demo``.
-
-Only ``transport``, ``serial_timing`` and ``sim_base`` import pymodbus; only the node modules
-above, ``recorder`` and ``demo`` import rclpy.
+Four layers (docs/architecture.md, "The rooms of bridge_core"), each a sub-package:
+``wire`` (Modbus on the wire: maps, codec, planner, transport, channel, link state),
+``runtime`` (what a bridge does, in plain Python: polling, reads, streams, goals, checks,
+parameter specs, the interface listing), ``ros`` (the rclpy side: node base, parameters,
+streams, actions, diagnostics, process runner, recorder, plot, demo) and ``sim`` (the
+simulators' pymodbus server). A module imports its own layer and the layers below; only
+``ros`` imports rclpy, only ``wire`` and ``sim`` import pymodbus (tests/core/test_layers.py).
 """

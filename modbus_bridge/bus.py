@@ -4,7 +4,7 @@ One process: a bus owner (``ModbusBusNode``, node ``modbus_bus``: the line's par
 ``serial_port`` / ``baudrate`` / ``parity`` / ``stopbits`` / ``frame_gap_s`` /
 ``timeout_s``, their defaults from the file's ``line``) and one ``ModbusBridgeNode`` per
 device of the file, named after it, on the bus's one link (the MOTEC bridge's pattern:
-``bridge_core.process.BusNode``). The devices take turns on the line through its
+``bridge_core.ros.process.BusNode``). The devices take turns on the line through its
 priority lock; each has its own poll rate, diagnostics, lifecycle and commands.
 """
 
@@ -16,10 +16,10 @@ from typing import Any
 
 from rclpy.node import Node
 
-from bridge_core.channel import UNIT_ID_MAX
-from bridge_core.errors import ConfigurationError
-from bridge_core.node_parameters import DeviceDefaults, ParameterNode
-from bridge_core.process import BusNode, spin_nodes
+from bridge_core.ros.node_parameters import DeviceDefaults, ParameterNode
+from bridge_core.ros.process import BusNode, spin_nodes
+from bridge_core.wire.channel import UNIT_ID_MAX
+from bridge_core.wire.errors import ConfigurationError
 
 from .description import Description
 from .interface import BUS_NODE_NAME, LINE_FILE_SPEC, defaults_of

@@ -25,9 +25,9 @@ from typing import Literal
 import yaml  # type: ignore[import-untyped]
 from pydantic import BaseModel, ValidationError
 
-from bridge_core.channel import UNIT_ID_MAX
-from bridge_core.codec import CodecError, encode, to_raw
-from bridge_core.registers import (
+from bridge_core.wire.channel import UNIT_ID_MAX
+from bridge_core.wire.codec import CodecError, encode, to_raw
+from bridge_core.wire.registers import (
     Access,
     DeviceLimits,
     Register,

@@ -11,15 +11,15 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal
 
-from bridge_core.codec import CodecError, encode, to_raw
-from bridge_core.registers import Register, RegisterMap, Table, ValueType
+from bridge_core.wire.codec import CodecError, encode, to_raw
+from bridge_core.wire.registers import Register, RegisterMap, Table, ValueType
 
 from .description_schema import DEFAULT_MOTION_GROUP, DeviceFileSpec, WriteSpec
 from .description_yaml import Checker, Loc
 
 # Names the node gives its own services and topics: a command may not take them.
 RESERVED_NAMES = frozenset({"read", "write", "state", "connected"})
-# The parameters the node declares itself (rclpy, bridge_core.node_base, ``device_file``): a
+# The parameters the node declares itself (rclpy, bridge_core.ros.node_base, ``device_file``): a
 # command topic's generated parameters (<name>_timeout_s, <name>_rate_hz) may not be one
 # (a topic ``poll`` would declare ``poll_rate_hz``). tests/modbus/test_modbus_ros.py checks
 # this list against a running node's.

@@ -9,8 +9,8 @@ import math
 from dataclasses import dataclass
 from typing import Literal
 
-from bridge_core.registers import Register, RegisterMap, ValueType
-from bridge_core.units import DEG, MM, RPM_TO_RAD_S
+from bridge_core.runtime.units import DEG, MM, RPM_TO_RAD_S
+from bridge_core.wire.registers import Register, RegisterMap, ValueType
 
 from .description_commands import writable
 from .description_schema import DeviceFileSpec, JointSimSpec, JointSpec, JointValueSpec

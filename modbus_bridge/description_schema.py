@@ -3,7 +3,7 @@ and pydantic's refusals as problems at their key and line (unknown keys first, w
 key a typo probably meant).
 
 The rules of a register and a device's limits are not repeated here: the built
-``Register``, ``RegisterMap`` and ``DeviceLimits`` (bridge_core.registers) state them.
+``Register``, ``RegisterMap`` and ``DeviceLimits`` (bridge_core.wire.registers) state them.
 """
 
 from __future__ import annotations
@@ -14,14 +14,14 @@ from typing import Annotated, Any, Literal, get_args, get_origin
 import yaml  # type: ignore[import-untyped]
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from bridge_core.channel import UNIT_ID_MAX
-from bridge_core.registers import (
+from bridge_core.runtime.stream_guard import COMMAND_TIMEOUT_RANGE_S
+from bridge_core.wire.channel import UNIT_ID_MAX
+from bridge_core.wire.registers import (
     MAX_READ_BITS,
     MAX_READ_REGISTERS,
     MAX_WRITE_BITS,
     MAX_WRITE_REGISTERS,
 )
-from bridge_core.stream_guard import COMMAND_TIMEOUT_RANGE_S
 
 from .description_yaml import Loc, Problem, format_loc, line_of
 

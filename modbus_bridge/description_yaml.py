@@ -16,8 +16,8 @@ from typing import Any, ClassVar
 
 import yaml  # type: ignore[import-untyped]
 
-from bridge_core.errors import ConfigurationError
-from bridge_core.registers import Fault
+from bridge_core.wire.errors import ConfigurationError
+from bridge_core.wire.registers import Fault
 
 
 @dataclass(frozen=True)
@@ -331,7 +331,7 @@ class Checker:
         self.problems.append(Problem(line_of(self.root, full), format_loc(full), message))
 
     def faults(self, at: Loc, faults: Iterable[Fault], keys: dict[str, str]) -> None:
-        """The rulebook's faults (bridge_core.registers) at the keys their fields are
+        """The rulebook's faults (bridge_core.wire.registers) at the keys their fields are
         written under (``keys``: field -> key where they differ; no field: ``at`` itself)."""
         for fault in faults:
             where = at if fault.field is None else (*at, keys.get(fault.field, fault.field))

@@ -17,14 +17,14 @@ from collections.abc import Callable, Collection, Sequence
 from contextlib import ExitStack
 from dataclasses import dataclass
 
-from bridge_core.channel import Priority, RegisterIO
-from bridge_core.checks import check_finite
-from bridge_core.codec import Value, decode, encode
-from bridge_core.errors import CommandRejected, LinkError
-from bridge_core.planner import ReadRequest, plan_reads
-from bridge_core.reads import read_blocks, read_named
-from bridge_core.registers import Register, Table, ValueType
-from bridge_core.stream_guard import StreamGuard
+from bridge_core.runtime.checks import check_finite
+from bridge_core.runtime.reads import read_blocks, read_named
+from bridge_core.runtime.stream_guard import StreamGuard
+from bridge_core.wire.channel import Priority, RegisterIO
+from bridge_core.wire.codec import Value, decode, encode
+from bridge_core.wire.errors import CommandRejected, LinkError
+from bridge_core.wire.planner import ReadRequest, plan_reads
+from bridge_core.wire.registers import Register, Table, ValueType
 
 from .description import Device, Joint, JointSource, Keepalive, TopicSpec, not_allowed
 

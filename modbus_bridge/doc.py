@@ -10,7 +10,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from bridge_core.registers import Access, Register, ValueType
+from bridge_core.wire.registers import Access, Register, ValueType
 
 from .description import Description, DescriptionError, Device, load
 

@@ -1,6 +1,6 @@
 """The modbus_bridge nodes' ROS interface as data (no rclpy), from a description file:
 ``modbus_bridge.node`` and ``modbus_bridge.bus`` declare these parameters;
-``bridge_core.interface`` lists the nodes of the launch file's default description
+``bridge_core.runtime.interface`` lists the nodes of the launch file's default description
 (config/devices/xarm.yaml) and of the multi-drop example (rtu_multidrop.yaml);
 tests/test_interface.py checks the topics and services against running nodes."""
 
@@ -9,9 +9,9 @@ from __future__ import annotations
 from dataclasses import replace
 from pathlib import Path
 
-from bridge_core.interface import NodeInterface, Service, Topic, bridge_node, bus_node
-from bridge_core.parameters import DeviceDefaults, ParameterSpec
-from bridge_core.stream_guard import COMMAND_TIMEOUT_RANGE_S
+from bridge_core.runtime.interface import NodeInterface, Service, Topic, bridge_node, bus_node
+from bridge_core.runtime.parameters import DeviceDefaults, ParameterSpec
+from bridge_core.runtime.stream_guard import COMMAND_TIMEOUT_RANGE_S
 
 from .description import (
     COMMAND_RATE_RANGE_HZ,

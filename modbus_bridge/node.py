@@ -3,7 +3,7 @@
 ``-p device_file:=FILE`` names the description (``modbus_bridge/description.py``); its
 link settings are the defaults of the usual link parameters (``host``, ``port``,
 ``serial_port``, ``baudrate`` ...), which override them. Everything else is the shared
-runtime of the four hand-written bridges (``bridge_core.node_base.BridgeNode``): polling,
+runtime of the four hand-written bridges (``bridge_core.ros.node_base.BridgeNode``): polling,
 stale data, diagnostics, lifecycle, the command guard, the deadman of command streams.
 
 Interfaces: ``joint_states`` (the file's joints in SI, REP 103), ``~/state``
@@ -24,17 +24,17 @@ from rclpy.lifecycle import LifecycleState, TransitionCallbackReturn
 from std_msgs.msg import Float64
 from std_srvs.srv import SetBool
 
-from bridge_core.codec import Value
-from bridge_core.diagnostics import Level, Report
-from bridge_core.errors import CommandRejected, ConfigurationError, DeviceException, LinkError
-from bridge_core.keepalive import FEED_WAKE_S, Keepalive
-from bridge_core.node_base import BridgeNode
-from bridge_core.node_parameters import DeviceDefaults, ParameterNode
-from bridge_core.parameters import ParameterSpec
-from bridge_core.process import spin_node
-from bridge_core.registers import ValueType
-from bridge_core.stream_guard import StreamGuard
-from bridge_core.transport import ModbusLink
+from bridge_core.ros.node_base import BridgeNode
+from bridge_core.ros.node_parameters import DeviceDefaults, ParameterNode
+from bridge_core.ros.process import spin_node
+from bridge_core.runtime.diagnostics import Level, Report
+from bridge_core.runtime.keepalive import FEED_WAKE_S, Keepalive
+from bridge_core.runtime.parameters import ParameterSpec
+from bridge_core.runtime.stream_guard import StreamGuard
+from bridge_core.wire.codec import Value
+from bridge_core.wire.errors import CommandRejected, ConfigurationError, DeviceException, LinkError
+from bridge_core.wire.registers import ValueType
+from bridge_core.wire.transport import ModbusLink
 from msg_defs.msg import DeviceValues
 from msg_defs.srv import ReadRegisters, SetValue, WriteRegister
 
@@ -124,7 +124,7 @@ class ModbusBridgeNode(BridgeNode[DeviceSnapshot]):
                 f"(1.5 x ({FEED_WAKE_S:g} s wake-up + {devices_on_line} device(s) x "
                 f"{self.link.settings.longest_hold_s():.3f} s, the longest transaction))"
             )
-        # Fed from a thread of its own at the link's top priority (bridge_core.keepalive).
+        # Fed from a thread of its own at the link's top priority (bridge_core.runtime.keepalive).
         self.keepalive: Keepalive | None = None
         if self.device.keepalive is not None:
             self.keepalive = Keepalive(

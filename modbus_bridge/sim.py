@@ -38,9 +38,7 @@ from collections import defaultdict
 from collections.abc import Sequence
 from pathlib import Path
 
-from bridge_core.codec import decode
-from bridge_core.registers import Register, Table, ValueType
-from bridge_core.sim_base import (
+from bridge_core.sim.sim_base import (
     ILLEGAL_ADDRESS,
     ILLEGAL_VALUE,
     SimulatedDevice,
@@ -50,6 +48,8 @@ from bridge_core.sim_base import (
     serve_serial_until_signalled,
     serve_tcp_until_signalled,
 )
+from bridge_core.wire.codec import decode
+from bridge_core.wire.registers import Register, Table, ValueType
 
 from .description import Description, DescriptionError, Device, Joint, load
 

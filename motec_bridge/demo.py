@@ -1,10 +1,10 @@
-"""The MOTEC drives' entry in ``bridge_demo`` (bridge_core.demo): three drives on one bus."""
+"""The MOTEC drives' entry in ``bridge_demo`` (bridge_core.ros.demo): three drives on one bus."""
 
 from __future__ import annotations
 
 from typing import Any
 
-from bridge_core.demo import DemoDevice
+from bridge_core.ros.demo import DemoDevice
 
 UNITS = (1, 2, 3)
 

@@ -37,8 +37,7 @@ from collections.abc import Callable, Hashable, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from bridge_core.channel import Priority, RegisterIO
-from bridge_core.checks import (
+from bridge_core.runtime.checks import (
     check_choice,
     check_converted,
     check_finite,
@@ -46,15 +45,16 @@ from bridge_core.checks import (
     check_range,
     check_whole_number,
 )
-from bridge_core.codec import Value, encode
-from bridge_core.config_cache import ConfiguredDevice
-from bridge_core.errors import CommandRejected, LinkError, NotSent
-from bridge_core.goals import Motion, Outcome, Verdict
-from bridge_core.keepalive import FEED_WAKE_S
-from bridge_core.planner import ReadRequest, plan_reads
-from bridge_core.reads import read_blocks
-from bridge_core.registers import Register, Table
-from bridge_core.stream_guard import StreamGuard
+from bridge_core.runtime.config_cache import ConfiguredDevice
+from bridge_core.runtime.goals import Motion, Outcome, Verdict
+from bridge_core.runtime.keepalive import FEED_WAKE_S
+from bridge_core.runtime.reads import read_blocks
+from bridge_core.runtime.stream_guard import StreamGuard
+from bridge_core.wire.channel import Priority, RegisterIO
+from bridge_core.wire.codec import Value, encode
+from bridge_core.wire.errors import CommandRejected, LinkError, NotSent
+from bridge_core.wire.planner import ReadRequest, plan_reads
+from bridge_core.wire.registers import Register, Table
 
 from .registers import (
     CONTROL_MODE_POSITION,

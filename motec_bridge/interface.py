@@ -1,13 +1,13 @@
 """The MOTEC nodes' ROS interface as data (no rclpy): ``motec_bridge.node`` declares these
-parameters (the bus node and each drive node); ``bridge_core.interface`` lists the nodes;
+parameters (the bus node and each drive node); ``bridge_core.runtime.interface`` lists the nodes;
 tests/test_interface.py checks the topics, services and actions against running nodes."""
 
 from __future__ import annotations
 
-from bridge_core.interface import Action, Service, Topic, bridge_node, bus_node
-from bridge_core.parameters import DeviceDefaults, ParameterSpec
-from bridge_core.serial_timing import longest_hold_s
-from bridge_core.stream_guard import COMMAND_TIMEOUT_RANGE_S
+from bridge_core.runtime.interface import Action, Service, Topic, bridge_node, bus_node
+from bridge_core.runtime.parameters import DeviceDefaults, ParameterSpec
+from bridge_core.runtime.stream_guard import COMMAND_TIMEOUT_RANGE_S
+from bridge_core.wire.serial_timing import longest_hold_s
 
 from .device import (
     DEFAULT_CONFIG_REFRESH_S,

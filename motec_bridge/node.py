@@ -2,7 +2,7 @@
 
 One process, one serial port, one node per drive. ``main`` starts:
 
-- ``motec_bridge``: the bus owner (``bridge_core.process.BusNode``). It has the serial
+- ``motec_bridge``: the bus owner (``bridge_core.ros.process.BusNode``). It has the serial
   parameters (``serial_port``, ``baudrate``, ``parity``, ``stopbits``, ``timeout_s``)
   ``unit_ids`` and ``interface`` (rs485 / rs232: at most 31 / 8 drives, §1.1), opens the
   one ``ModbusLink`` every drive shares, and offers ``~/disable_all`` (one broadcast write,
@@ -37,14 +37,14 @@ from rclpy.node import Node
 from std_msgs.msg import Float64
 from std_srvs.srv import SetBool, Trigger
 
-from bridge_core.channel import DeviceChannel
-from bridge_core.checks import board_zero_index
-from bridge_core.diagnostics import Level, Report
-from bridge_core.errors import CommandRejected, ConfigurationError, DeviceException, LinkError
-from bridge_core.keepalive import Keepalive
-from bridge_core.node_base import BridgeNode, copy_fields
-from bridge_core.process import BusNode, spin_nodes
-from bridge_core.transport import ModbusLink
+from bridge_core.ros.node_base import BridgeNode, copy_fields
+from bridge_core.ros.process import BusNode, spin_nodes
+from bridge_core.runtime.checks import board_zero_index
+from bridge_core.runtime.diagnostics import Level, Report
+from bridge_core.runtime.keepalive import Keepalive
+from bridge_core.wire.channel import DeviceChannel
+from bridge_core.wire.errors import CommandRejected, ConfigurationError, DeviceException, LinkError
+from bridge_core.wire.transport import ModbusLink
 from msg_defs.action import MoveTo
 from msg_defs.msg import MotecState
 from msg_defs.srv import (
@@ -160,7 +160,7 @@ class MotecDriveNode(BridgeNode[MotecSnapshot]):
         )
         self.configured = False  # lifecycle: set by on_configure (autostart does it at once)
         self.on_parameter_write("lifeguard_ms", self._set_lifeguard)
-        # Fed from a thread of its own, not an executor timer (bridge_core.keepalive).
+        # Fed from a thread of its own, not an executor timer (bridge_core.runtime.keepalive).
         self.keepalive = Keepalive(
             f"{self.get_name()}-lifeguard",
             self._next_feed,

@@ -89,7 +89,7 @@ from __future__ import annotations
 
 import functools
 
-from bridge_core.registers import (
+from bridge_core.wire.registers import (
     Access,
     DeviceLimits,
     Register,

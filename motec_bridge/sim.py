@@ -49,9 +49,7 @@ import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 
-from bridge_core.codec import decode
-from bridge_core.registers import Table
-from bridge_core.sim_base import (
+from bridge_core.sim.sim_base import (
     ILLEGAL_ADDRESS,
     ILLEGAL_VALUE,
     TICK_S,
@@ -61,6 +59,8 @@ from bridge_core.sim_base import (
     add_serial_arguments,
     serve_serial_until_signalled,
 )
+from bridge_core.wire.codec import decode
+from bridge_core.wire.registers import Table
 
 from .registers import (
     BIT_TABLE_WIDTH,

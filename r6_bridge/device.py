@@ -10,20 +10,20 @@ from collections.abc import Hashable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from bridge_core.channel import Priority, RegisterIO
-from bridge_core.checks import check_whole_number
-from bridge_core.codec import Value, encode, int_to_words, words_to_int
-from bridge_core.errors import (
+from bridge_core.runtime.checks import check_whole_number
+from bridge_core.runtime.goals import Motion, Outcome, Verdict
+from bridge_core.runtime.reads import holds, read_blocks, read_named
+from bridge_core.wire.channel import Priority, RegisterIO
+from bridge_core.wire.codec import Value, encode, int_to_words, words_to_int
+from bridge_core.wire.errors import (
     CommandRejected,
     FrameError,
     LinkError,
     NotConfirmed,
     PollIncomplete,
 )
-from bridge_core.goals import Motion, Outcome, Verdict
-from bridge_core.planner import ReadRequest, plan_reads
-from bridge_core.reads import holds, read_blocks, read_named
-from bridge_core.registers import MAX_READ_REGISTERS, MAX_WRITE_REGISTERS, WordOrder
+from bridge_core.wire.planner import ReadRequest, plan_reads
+from bridge_core.wire.registers import MAX_READ_REGISTERS, MAX_WRITE_REGISTERS, WordOrder
 
 from .registers import (
     COMMANDS,

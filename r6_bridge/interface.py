@@ -1,11 +1,11 @@
 """The R6 node's ROS interface as data (no rclpy): ``r6_bridge.node`` declares these
-parameters; ``bridge_core.interface`` lists the node; tests/test_interface.py checks the
+parameters; ``bridge_core.runtime.interface`` lists the node; tests/test_interface.py checks the
 topics, services and actions against a running node."""
 
 from __future__ import annotations
 
-from bridge_core.interface import Action, Service, Topic, bridge_node
-from bridge_core.parameters import DeviceDefaults, ParameterSpec
+from bridge_core.runtime.interface import Action, Service, Topic, bridge_node
+from bridge_core.runtime.parameters import DeviceDefaults, ParameterSpec
 
 from .registers import COMMANDS, MAX_AXES
 

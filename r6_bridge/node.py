@@ -8,12 +8,12 @@ from typing import Any, TypeVar
 
 from geometry_msgs.msg import PoseStamped
 
-from bridge_core.diagnostics import Level, Report
-from bridge_core.errors import CommandRejected, DeviceException, FrameError
-from bridge_core.node_base import BridgeNode, copy_fields
-from bridge_core.parameters import padded
-from bridge_core.process import spin_node
-from bridge_core.units import DEG, MM, RPM_TO_RAD_S, euler_xyz_deg_to_quaternion
+from bridge_core.ros.node_base import BridgeNode, copy_fields
+from bridge_core.ros.process import spin_node
+from bridge_core.runtime.diagnostics import Level, Report
+from bridge_core.runtime.parameters import padded
+from bridge_core.runtime.units import DEG, MM, RPM_TO_RAD_S, euler_xyz_deg_to_quaternion
+from bridge_core.wire.errors import CommandRejected, DeviceException, FrameError
 from msg_defs.action import PointUpload, RunCycle
 from msg_defs.msg import R6State
 from msg_defs.srv import (

@@ -15,7 +15,7 @@ fraction of rated (13), world U, V, W in degrees (14), point data raw (15).
 
 from __future__ import annotations
 
-from bridge_core.registers import (
+from bridge_core.wire.registers import (
     Access,
     DeviceLimits,
     Register,

@@ -26,9 +26,7 @@ import dataclasses
 import math
 from collections.abc import Sequence
 
-from bridge_core.codec import int_to_words, words_to_int
-from bridge_core.registers import Table, WordOrder
-from bridge_core.sim_base import (
+from bridge_core.sim.sim_base import (
     FUNCTION_TABLES,
     ILLEGAL_ADDRESS,
     ILLEGAL_FUNCTION,
@@ -40,6 +38,8 @@ from bridge_core.sim_base import (
     add_tcp_arguments,
     serve_tcp_until_signalled,
 )
+from bridge_core.wire.codec import int_to_words, words_to_int
+from bridge_core.wire.registers import Table, WordOrder
 
 from .registers import COIL_BANKS, COMMANDS, MAX_AXES, MAX_COUNTERS, MAX_IO_BOARDS, R6_MAP
 

@@ -7,4 +7,4 @@ ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 bash "$ROOT/scripts/setup.sh"
 export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
 cd "$ROOT"
-exec "$ROOT/.venv/bin/python" -m bridge_core.demo "$@"
+exec "$ROOT/.venv/bin/python" -m bridge_core.ros.demo "$@"

@@ -3,7 +3,7 @@
 ``stepper_bus`` (``python -m stepper_bridge.bus``) starts one process on one serial port, as
 MOTEC does:
 
-- ``stepper_bus``: the bus owner (``bridge_core.process.BusNode``) with the serial
+- ``stepper_bus``: the bus owner (``bridge_core.ros.process.BusNode``) with the serial
   parameters (``serial_port``, ``baudrate``, ``parity``, ``stopbits``, ``timeout_s``,
   ``frame_gap_s``) and ``unit_ids`` (1-247, Modbus RTU's addresses, though 40212 takes
   1-255; at most ``MAX_CONTROLLERS_PER_BUS``: the manual advises "建议 485 总线在没有中继器
@@ -25,9 +25,9 @@ from typing import Any
 
 from rclpy.node import Node
 
-from bridge_core.channel import UNIT_ID_MAX
-from bridge_core.errors import ConfigurationError
-from bridge_core.process import BusNode, spin_nodes
+from bridge_core.ros.process import BusNode, spin_nodes
+from bridge_core.wire.channel import UNIT_ID_MAX
+from bridge_core.wire.errors import ConfigurationError
 
 from .interface import STEPPER_DEFAULTS
 from .node import StepperBridgeNode, check_reply_timeout

@@ -1,10 +1,10 @@
-"""The stepper controller's entry in ``bridge_demo`` (bridge_core.demo)."""
+"""The stepper controller's entry in ``bridge_demo`` (bridge_core.ros.demo)."""
 
 from __future__ import annotations
 
 from typing import Any
 
-from bridge_core.demo import DemoDevice
+from bridge_core.ros.demo import DemoDevice
 
 
 def format_state(state: Any) -> str:

@@ -36,21 +36,21 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
-from bridge_core.channel import Priority, RegisterIO
-from bridge_core.checks import (
+from bridge_core.runtime.checks import (
     check_choice,
     check_finite,
     check_index,
     check_range,
     check_whole_number,
 )
-from bridge_core.codec import Value, decode, encode
-from bridge_core.config_cache import ConfiguredDevice
-from bridge_core.errors import CommandRejected, DeviceException, LinkError
-from bridge_core.goals import Motion, Outcome, Verdict, within
-from bridge_core.planner import ReadRequest, plan_reads
-from bridge_core.registers import Register
-from bridge_core.stream_guard import StreamGuard
+from bridge_core.runtime.config_cache import ConfiguredDevice
+from bridge_core.runtime.goals import Motion, Outcome, Verdict, within
+from bridge_core.runtime.stream_guard import StreamGuard
+from bridge_core.wire.channel import Priority, RegisterIO
+from bridge_core.wire.codec import Value, decode, encode
+from bridge_core.wire.errors import CommandRejected, DeviceException, LinkError
+from bridge_core.wire.planner import ReadRequest, plan_reads
+from bridge_core.wire.registers import Register
 
 from .registers import (
     ARC_MODE_CENTER,

@@ -1,12 +1,12 @@
 """The stepper nodes' ROS interface as data (no rclpy): ``stepper_bridge.node`` and
-``stepper_bridge.bus`` declare these parameters; ``bridge_core.interface`` lists the nodes;
+``stepper_bridge.bus`` declare these parameters; ``bridge_core.runtime.interface`` lists the nodes;
 tests/test_interface.py checks the topics, services and actions against running nodes."""
 
 from __future__ import annotations
 
-from bridge_core.interface import Action, Service, Topic, bridge_node, bus_node
-from bridge_core.parameters import DeviceDefaults, ParameterSpec
-from bridge_core.stream_guard import COMMAND_TIMEOUT_RANGE_S
+from bridge_core.runtime.interface import Action, Service, Topic, bridge_node, bus_node
+from bridge_core.runtime.parameters import DeviceDefaults, ParameterSpec
+from bridge_core.runtime.stream_guard import COMMAND_TIMEOUT_RANGE_S
 
 from .device import (
     DEFAULT_CONFIG_REFRESH_S,
@@ -144,7 +144,7 @@ EXPANSION = {
     "system_command": SYSTEM_COMMANDS,
     "destructive_command": DESTRUCTIVE_COMMANDS,
 }
-# stepper_bus: the default unit_ids (bridge_core.parameters.UNIT_IDS_SPEC).
+# stepper_bus: the default unit_ids (bridge_core.runtime.parameters.UNIT_IDS_SPEC).
 BUS_EXPANSION = {**EXPANSION, "unit_id": (1,)}
 
 NODES = (

@@ -37,14 +37,14 @@ from typing import Any
 from std_msgs.msg import Float64
 from std_srvs.srv import SetBool
 
-from bridge_core.checks import board_zero_index
-from bridge_core.diagnostics import Level, Report
-from bridge_core.errors import CommandRejected, ConfigurationError
-from bridge_core.node_base import BridgeNode, copy_fields
-from bridge_core.parameters import padded
-from bridge_core.process import spin_node
-from bridge_core.serial_timing import char_time_s
-from bridge_core.transport import SerialSettings
+from bridge_core.ros.node_base import BridgeNode, copy_fields
+from bridge_core.ros.process import spin_node
+from bridge_core.runtime.checks import board_zero_index
+from bridge_core.runtime.diagnostics import Level, Report
+from bridge_core.runtime.parameters import padded
+from bridge_core.wire.errors import CommandRejected, ConfigurationError
+from bridge_core.wire.serial_timing import char_time_s
+from bridge_core.wire.transport import SerialSettings
 from msg_defs.action import ArcMotion, LineMotion, StepperMoveBy, StepperRun
 from msg_defs.msg import StepperState
 from msg_defs.srv import (

@@ -49,7 +49,7 @@ Readings taken (also in README "stepper decisions"):
 
 from __future__ import annotations
 
-from bridge_core.registers import (
+from bridge_core.wire.registers import (
     Access,
     DeviceLimits,
     Register,
@@ -88,7 +88,7 @@ DEFAULT_BAUDRATE = 9600  # §3
 BAUD_RATES = (4800, 9600, 19200, 38400)  # §5(1) 40213: "一般为:4800,9600,19200,38400"
 SYSTEM_MODES = range(0, 6)  # §5(3) 40300: 0 normal, modes 1-5
 # §5(1) 40212: "范围 1-255": the register's range. A request can address only 1-247 (Modbus
-# RTU; 248-255 are reserved), so the bridge's unit ids stop there (bridge_core.channel).
+# RTU; 248-255 are reserved), so the bridge's unit ids stop there (bridge_core.wire.channel).
 DEVICE_IDS = range(1, 256)
 
 # Fields of a motor block, in address order: (field, offset, type, scale, unit, min, max).

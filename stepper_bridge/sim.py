@@ -51,9 +51,7 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
-from bridge_core.codec import decode
-from bridge_core.registers import Table
-from bridge_core.sim_base import (
+from bridge_core.sim.sim_base import (
     ILLEGAL_VALUE,
     SimulatedDevice,
     Simulator,
@@ -61,6 +59,8 @@ from bridge_core.sim_base import (
     add_serial_arguments,
     serve_serial_until_signalled,
 )
+from bridge_core.wire.codec import decode
+from bridge_core.wire.registers import Table
 
 from .registers import (
     ARC_MODE_CENTER,

@@ -15,7 +15,7 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from bridge_core.ports import free_port  # noqa: E402 (needs the path above)
+from bridge_core.wire.ports import free_port  # noqa: E402 (needs the path above)
 
 # Fast DDS accepts domain ids 0-101 (and 215-232) with default ports; 1-100 by pid.
 os.environ.setdefault("ROS_DOMAIN_ID", str(1 + os.getpid() % 100))

@@ -22,7 +22,7 @@ from types import ModuleType
 
 import pytest
 
-from bridge_core.ports import free_port
+from bridge_core.wire.ports import free_port
 
 from .support.colcon import BUILD_TIMEOUT_S, colcon_build, venv_env
 from .support.ros import ROOT, ros_client, unique_namespace, wait_for

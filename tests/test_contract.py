@@ -34,7 +34,7 @@ from rclpy.node import NodeNameNonExistentError
 from rclpy.parameter import Parameter, parameter_value_to_python
 from std_msgs.msg import Bool
 
-from bridge_core.codec import encode
+from bridge_core.wire.codec import encode
 from modbus_bridge.description import load as load_description
 from msg_defs.msg import DeviceValues
 from msg_defs.srv import ReadRegisters, SetValue

@@ -23,7 +23,7 @@ def test_demo_shows_moving_r6(tmp_path: Path) -> None:
 
     env = dict(os.environ)
     result = subprocess.run(
-        [sys.executable, "-m", "bridge_core.demo", "--duration", "6"],
+        [sys.executable, "-m", "bridge_core.ros.demo", "--duration", "6"],
         cwd=ROOT,
         capture_output=True,
         text=True,
@@ -88,7 +88,7 @@ def test_demo_ends_cleanly_on_ctrl_c(tmp_path: Path) -> None:
     out_path = tmp_path / "demo.out"
     with out_path.open("wb") as out:
         proc = subprocess.Popen(
-            [sys.executable, "-m", "bridge_core.demo", "--devices", "R6"],
+            [sys.executable, "-m", "bridge_core.ros.demo", "--devices", "R6"],
             cwd=ROOT,
             stdout=out,
             stderr=subprocess.STDOUT,
@@ -116,7 +116,7 @@ def test_demo_monitor_leaves_ctrl_c_to_python() -> None:
 
     from rclpy.signals import SignalHandlerOptions, get_current_signal_handlers_options
 
-    from bridge_core.demo import Monitor
+    from bridge_core.ros.demo import Monitor
 
     monitor = Monitor([])
     try:

@@ -14,7 +14,7 @@ import pytest
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
 from rcl_interfaces.srv import SetParameters
 
-from bridge_core.registers import Table
+from bridge_core.wire.registers import Table
 from msg_defs.action import StepperMoveBy
 from msg_defs.msg import StepperState
 from stepper_bridge.registers import motor_coil

@@ -1,4 +1,4 @@
-"""``bridge_core.interface`` lists what each node really declares and advertises.
+"""``bridge_core.runtime.interface`` lists what each node really declares and advertises.
 
 One process per executable (each against its simulator, as the other ROS tests run them);
 every node of the process is compared with its listing through the ROS graph: parameters
@@ -24,11 +24,11 @@ from rclpy.action.graph import get_action_server_names_and_types_by_node
 from rclpy.node import NodeNameNonExistentError
 from rclpy.parameter import parameter_value_to_python
 
-from bridge_core import interface
-from bridge_core.interface import NodeInterface
-from bridge_core.node_parameters import descriptor
-from bridge_core.parameters import ParameterSpec
-from bridge_core.transport import SerialSettings
+from bridge_core.ros.node_parameters import descriptor
+from bridge_core.runtime import interface
+from bridge_core.runtime.interface import NodeInterface
+from bridge_core.runtime.parameters import ParameterSpec
+from bridge_core.wire.transport import SerialSettings
 from modbus_bridge.description import load as load_description
 from modbus_bridge.interface import DEFAULT_LINE_FILE, described_nodes
 from modbus_bridge.sim import make_simulator as make_described_simulator
@@ -57,7 +57,7 @@ class Run:
 
 def listed(executable: str) -> list[NodeInterface]:
     found = [node for node in interface.nodes() if node.executable == executable]
-    assert found, f"bridge_core.interface lists no node of {executable}"
+    assert found, f"bridge_core.runtime.interface lists no node of {executable}"
     return found
 
 
@@ -154,7 +154,7 @@ def test_the_listing_needs_no_rclpy() -> None:
     import subprocess
 
     code = (
-        "import sys; from bridge_core import interface; assert interface.nodes(); "
+        "import sys; from bridge_core.runtime import interface; assert interface.nodes(); "
         "assert not [m for m in sys.modules if m.startswith('rclpy')], 'rclpy imported'"
     )
     subprocess.run([sys.executable, "-c", code], check=True, cwd=ROOT)

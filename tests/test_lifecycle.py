@@ -18,7 +18,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
-from bridge_core.registers import Table
+from bridge_core.wire.registers import Table
 from stepper_bridge.registers import motor_coil
 from stepper_bridge.sim import StepperSimDevice, make_simulator
 

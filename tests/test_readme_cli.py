@@ -70,7 +70,7 @@ def demo(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Client]:
     out = tmp_path_factory.mktemp("demo") / "demo.out"
     log = out.open("wb")
     proc = subprocess.Popen(
-        [sys.executable, "-m", "bridge_core.demo", "--duration", str(DEMO_S)],
+        [sys.executable, "-m", "bridge_core.ros.demo", "--duration", str(DEMO_S)],
         cwd=ROOT,
         env=dict(os.environ),
         stdout=log,

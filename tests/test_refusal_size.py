@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from bridge_core.checks import MESSAGE_MAX_CHARS
+from bridge_core.runtime.checks import MESSAGE_MAX_CHARS
 from msg_defs.msg import XArmState
 from msg_defs.srv import SetOutputs
 from xarm_bridge.sim import XArmSimDevice, make_simulator

@@ -3,7 +3,7 @@
 A fire-and-forget service (the R6's ``~/start``, the xArm's ``~/run_offline_task``, a
 MOTEC drive's ``~/move``, a stepper motor's ``~/motor_<n>/forward``) sets the device
 moving; then the node is deactivated or gets SIGINT. The halt must stop that motion on
-the wire (the node's motion ledger, ``bridge_core/motion_ledger.py``), and the simulated
+the wire (the node's motion ledger, ``bridge_core/runtime/motion_ledger.py``), and the simulated
 device must stand still. A stop service in between means nothing is left to stop.
 """
 
@@ -22,8 +22,8 @@ from lifecycle_msgs.msg import Transition
 from lifecycle_msgs.srv import ChangeState
 from std_srvs.srv import SetBool, Trigger
 
-from bridge_core.registers import Table
-from bridge_core.sim_base import WriteRecord
+from bridge_core.sim.sim_base import WriteRecord
+from bridge_core.wire.registers import Table
 from motec_bridge.sim import MotecSimDrive
 from msg_defs.msg import MotecState, R6State, StepperState, XArmState
 from msg_defs.srv import PositionMove, RunOfflineTask, SetControlMode

@@ -17,7 +17,7 @@ import pytest
 from std_msgs.msg import Float64
 from std_srvs.srv import SetBool
 
-from bridge_core.registers import Table
+from bridge_core.wire.registers import Table
 from motec_bridge.sim import make_simulator as make_motec_simulator
 from msg_defs.action import StepperMoveBy
 from msg_defs.msg import MotecState, StepperState

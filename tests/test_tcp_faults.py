@@ -18,9 +18,9 @@ import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from std_srvs.srv import Trigger
 
-from bridge_core.node_base import LINK_DOWN_LOG_PERIOD_S
-from bridge_core.ports import free_port
-from bridge_core.sim_base import read_write_log
+from bridge_core.ros.node_base import LINK_DOWN_LOG_PERIOD_S
+from bridge_core.sim.sim_base import read_write_log
+from bridge_core.wire.ports import free_port
 from msg_defs.msg import R6State, XArmState
 
 from .support.ros import (

@@ -12,12 +12,12 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
-from bridge_core.channel import Priority, RegisterIO
-from bridge_core.checks import check_index, check_whole_number
-from bridge_core.codec import Value, encode
-from bridge_core.errors import CommandRejected, ConfigurationError, LinkError, NotConfirmed
-from bridge_core.planner import ReadRequest, plan_reads
-from bridge_core.reads import read_blocks, read_named
+from bridge_core.runtime.checks import check_index, check_whole_number
+from bridge_core.runtime.reads import read_blocks, read_named
+from bridge_core.wire.channel import Priority, RegisterIO
+from bridge_core.wire.codec import Value, encode
+from bridge_core.wire.errors import CommandRejected, ConfigurationError, LinkError, NotConfirmed
+from bridge_core.wire.planner import ReadRequest, plan_reads
 
 from .registers import (
     COIL_FENCE_MODE,

@@ -1,11 +1,11 @@
 """The xArm node's ROS interface as data (no rclpy): ``xarm_bridge.node`` declares these
-parameters; ``bridge_core.interface`` lists the node; tests/test_interface.py checks the
+parameters; ``bridge_core.runtime.interface`` lists the node; tests/test_interface.py checks the
 topics and services against a running node."""
 
 from __future__ import annotations
 
-from bridge_core.interface import Service, Topic, bridge_node
-from bridge_core.parameters import DeviceDefaults, ParameterSpec
+from bridge_core.runtime.interface import Service, Topic, bridge_node
+from bridge_core.runtime.parameters import DeviceDefaults, ParameterSpec
 
 from .registers import JOINT_COUNTS, JOINTS, USER_COILS
 

@@ -9,18 +9,18 @@ from typing import Any, TypeVar
 from geometry_msgs.msg import PoseStamped
 from std_srvs.srv import Trigger
 
-from bridge_core.checks import board_zero_index
-from bridge_core.diagnostics import Level, Report
-from bridge_core.errors import ConfigurationError
-from bridge_core.node_base import BridgeNode, copy_fields
-from bridge_core.process import spin_node
-from bridge_core.units import (
+from bridge_core.ros.node_base import BridgeNode, copy_fields
+from bridge_core.ros.process import spin_node
+from bridge_core.runtime.checks import board_zero_index
+from bridge_core.runtime.diagnostics import Level, Report
+from bridge_core.runtime.units import (
     DEG,
     MM,
     euler_xyz_deg_to_quaternion,
     quaternion_angle_deg,
     rotation_vector_deg_to_quaternion,
 )
+from bridge_core.wire.errors import ConfigurationError
 from msg_defs.msg import XArmState
 from msg_defs.srv import (
     RunOfflineTask,

@@ -25,7 +25,7 @@ Readings taken (also in README "xArm decisions"):
 
 from __future__ import annotations
 
-from bridge_core.registers import (
+from bridge_core.wire.registers import (
     Access,
     DeviceLimits,
     Register,

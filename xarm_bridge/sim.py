@@ -27,8 +27,8 @@ import argparse
 import math
 from collections.abc import Sequence
 
-from bridge_core.registers import Table
-from bridge_core.sim_base import (
+from bridge_core.runtime.units import euler_xyz_deg_to_quaternion, quaternion_to_rotation_vector_deg
+from bridge_core.sim.sim_base import (
     ILLEGAL_ADDRESS,
     ILLEGAL_FUNCTION,
     ILLEGAL_VALUE,
@@ -38,7 +38,7 @@ from bridge_core.sim_base import (
     add_tcp_arguments,
     serve_tcp_until_signalled,
 )
-from bridge_core.units import euler_xyz_deg_to_quaternion, quaternion_to_rotation_vector_deg
+from bridge_core.wire.registers import Table
 
 from .registers import (
     BRAKE_FIRST,

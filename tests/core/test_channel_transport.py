@@ -2,7 +2,7 @@
 sockets and ptys).
 
 The error translation tests drive the real pymodbus clients against replay peers on a
-socket or a pty and check the ``bridge_core.errors`` type and the cause behind it.
+socket or a pty and check the ``bridge_core.wire.errors`` type and the cause behind it.
 """
 
 from __future__ import annotations
@@ -15,10 +15,11 @@ from contextlib import contextmanager, suppress
 import pytest
 from pymodbus.exceptions import ModbusIOException
 
-from bridge_core.channel import Backoff, DeviceChannel, Priority, PriorityLock
-from bridge_core.errors import DeviceException, FrameError, LinkDown, LinkTimeout
-from bridge_core.ports import free_port
-from bridge_core.registers import (
+from bridge_core.sim.sim_base import SimulatedDevice, Simulator
+from bridge_core.wire.channel import Backoff, DeviceChannel, Priority, PriorityLock
+from bridge_core.wire.errors import DeviceException, FrameError, LinkDown, LinkTimeout
+from bridge_core.wire.ports import free_port
+from bridge_core.wire.registers import (
     Access,
     DeviceLimits,
     Register,
@@ -26,10 +27,9 @@ from bridge_core.registers import (
     ValueType,
     register_array,
 )
-from bridge_core.requests import ReadRegisters, Reply, Request
-from bridge_core.serial_timing import ReplyCrcError, ReplyFromOtherUnit
-from bridge_core.sim_base import SimulatedDevice, Simulator
-from bridge_core.transport import (
+from bridge_core.wire.requests import ReadRegisters, Reply, Request
+from bridge_core.wire.serial_timing import ReplyCrcError, ReplyFromOtherUnit
+from bridge_core.wire.transport import (
     ModbusLink,
     ReplyFromOtherTransaction,
     SerialSettings,

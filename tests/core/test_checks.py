@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from bridge_core.checks import (
+from bridge_core.runtime.checks import (
     MESSAGE_MAX_CHARS,
     board_zero_index,
     bounded_text,
@@ -16,8 +16,8 @@ from bridge_core.checks import (
     check_raw,
     check_whole_number,
 )
-from bridge_core.errors import CommandRejected
-from bridge_core.registers import ValueType
+from bridge_core.wire.errors import CommandRejected
+from bridge_core.wire.registers import ValueType
 
 
 @pytest.mark.parametrize("value", [float("nan"), float("inf"), -float("inf"), True, "1", None])

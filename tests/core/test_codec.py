@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from bridge_core.codec import (
+from bridge_core.wire.codec import (
     CodecError,
     decode,
     encode,
@@ -13,7 +13,7 @@ from bridge_core.codec import (
     words_to_int,
     words_to_string,
 )
-from bridge_core.registers import Access, Register, ValueType, WordOrder
+from bridge_core.wire.registers import Access, Register, ValueType, WordOrder
 
 HIGH, LOW = WordOrder.HIGH_FIRST, WordOrder.LOW_FIRST
 

@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-from bridge_core.channel import Priority
-from bridge_core.codec import Value
-from bridge_core.config_cache import ConfigCache
-from bridge_core.planner import ReadRequest, plan_reads
-from bridge_core.registers import DeviceLimits, Register, RegisterMap, ValueType
+from bridge_core.runtime.config_cache import ConfigCache
+from bridge_core.wire.channel import Priority
+from bridge_core.wire.codec import Value
+from bridge_core.wire.planner import ReadRequest, plan_reads
+from bridge_core.wire.registers import DeviceLimits, Register, RegisterMap, ValueType
 
 MAP = RegisterMap(
     "cfg",

@@ -7,9 +7,9 @@ from typing import Any
 
 import pytest
 
-from bridge_core.channel import Priority
-from bridge_core.errors import LinkTimeout
-from bridge_core.registers import Table
+from bridge_core.wire.channel import Priority
+from bridge_core.wire.errors import LinkTimeout
+from bridge_core.wire.registers import Table
 from motec_bridge.device import MotecDevice
 from stepper_bridge.device import StepperDevice
 

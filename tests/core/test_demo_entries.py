@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from bridge_core import demo
+from bridge_core.ros import demo
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -64,7 +64,7 @@ def test_another_projects_pyproject_is_not_read(tmp_path: Path) -> None:
 
 def test_loading_the_entries_imports_no_rclpy() -> None:
     code = (
-        "import sys; from bridge_core import demo; demo.load_devices(demo.entry_specs()); "
+        "import sys; from bridge_core.ros import demo; demo.load_devices(demo.entry_specs()); "
         "assert 'rclpy' not in sys.modules, sorted(m for m in sys.modules if 'rcl' in m)"
     )
     subprocess.run([sys.executable, "-c", code], cwd=ROOT, check=True, timeout=60)

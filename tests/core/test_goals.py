@@ -1,4 +1,4 @@
-"""bridge_core.goals: how a goal's run decides its ending (no ROS, fake clock)."""
+"""bridge_core.runtime.goals: how a goal's run decides its ending (no ROS, fake clock)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import pytest
 
-from bridge_core.goals import (
+from bridge_core.runtime.goals import (
     CONFIRM_POLLS,
     START_GRACE_S,
     START_POLLS,

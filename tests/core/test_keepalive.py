@@ -1,4 +1,4 @@
-"""bridge_core.keepalive: the watchdog feeder thread (no ROS, real threads)."""
+"""bridge_core.runtime.keepalive: the watchdog feeder thread (no ROS, real threads)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import threading
 import time
 from collections.abc import Callable
 
-from bridge_core.keepalive import Keepalive
+from bridge_core.runtime.keepalive import Keepalive
 
 WAIT_S = 10.0
 

@@ -13,13 +13,13 @@ from collections.abc import Callable, Iterator
 
 import pytest
 
-from bridge_core.channel import DeviceChannel
-from bridge_core.errors import LinkTimeout
-from bridge_core.link_state import LinkEvent, LinkState
-from bridge_core.poller import Poller, PollOutcome
-from bridge_core.registers import Access, Register, RegisterMap, ValueType
-from bridge_core.sim_base import SimulatedDevice, Simulator
-from bridge_core.transport import ModbusLink, TcpSettings
+from bridge_core.runtime.poller import Poller, PollOutcome
+from bridge_core.sim.sim_base import SimulatedDevice, Simulator
+from bridge_core.wire.channel import DeviceChannel
+from bridge_core.wire.errors import LinkTimeout
+from bridge_core.wire.link_state import LinkEvent, LinkState
+from bridge_core.wire.registers import Access, Register, RegisterMap, ValueType
+from bridge_core.wire.transport import ModbusLink, TcpSettings
 
 MAP = RegisterMap(
     "link",

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from bridge_core.errors import LinkTimeout
-from bridge_core.motion_ledger import MotionLedger
+from bridge_core.runtime.motion_ledger import MotionLedger
+from bridge_core.wire.errors import LinkTimeout
 
 
 def test_a_halt_stops_every_started_motion_once_and_keeps_a_failed_one() -> None:

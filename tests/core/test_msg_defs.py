@@ -20,7 +20,7 @@ from rclpy.serialization import deserialize_message, serialize_message
 
 import msg_defs.action
 import msg_defs.srv
-from bridge_core.goals import Outcome
+from bridge_core.runtime.goals import Outcome
 from msg_defs.msg import MotionOutcome, R6State
 
 pytestmark = pytest.mark.ros
@@ -240,7 +240,7 @@ def test_every_action_is_defined_with_its_fields() -> None:
 
 
 def test_motion_outcome_codes_are_the_goal_runtimes() -> None:
-    """``bridge_core.goals.Outcome`` (plain Python) and the message agree code by code."""
+    """``bridge_core.runtime.goals.Outcome`` (plain Python) and the message agree code by code."""
     constants = {
         name: getattr(MotionOutcome, name)
         for name in dir(MotionOutcome)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from bridge_core.parameters import ParameterSpec, padded
+from bridge_core.runtime.parameters import ParameterSpec, padded
 
 
 def test_integer_for_a_double_is_taken_as_that_double() -> None:
@@ -45,9 +45,9 @@ def test_padded() -> None:
 def test_the_stepper_refuses_a_reply_timeout_its_replies_cannot_meet() -> None:
     """§3: replies come no sooner than 35 ms, the largest (103 bytes) takes 107 ms more at
     9600 baud and twice that at 4800: the floor scales with the baud rate."""
-    from bridge_core.errors import ConfigurationError
-    from bridge_core.parameters import transport_specs
-    from bridge_core.transport import SerialSettings, TcpSettings
+    from bridge_core.runtime.parameters import transport_specs
+    from bridge_core.wire.errors import ConfigurationError
+    from bridge_core.wire.transport import SerialSettings, TcpSettings
     from stepper_bridge.interface import STEPPER_DEFAULTS
     from stepper_bridge.node import check_reply_timeout, reply_timeout_floor_s
 

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from bridge_core.planner import decode_reply, plan_reads
-from bridge_core.registers import DeviceLimits, Register, RegisterMap, Table, ValueType
+from bridge_core.wire.planner import decode_reply, plan_reads
+from bridge_core.wire.registers import DeviceLimits, Register, RegisterMap, Table, ValueType
 
 
 def make_map(limits: DeviceLimits) -> RegisterMap:
@@ -71,7 +71,7 @@ def test_tables_are_planned_separately_and_decoded() -> None:
 
 
 def test_write_only_register_cannot_be_planned() -> None:
-    from bridge_core.registers import Access
+    from bridge_core.wire.registers import Access
 
     m = RegisterMap("w", (Register("cmd", 0, ValueType.U16, "t", access=Access.WRITE),))
     with pytest.raises(ValueError, match="write-only"):
@@ -90,7 +90,7 @@ def test_map_validation() -> None:
     with pytest.raises(ValueError, match="cite"):
         Register("a", 0, ValueType.U16, "")
     with pytest.raises(ValueError, match="read-only"):
-        from bridge_core.registers import Access
+        from bridge_core.wire.registers import Access
 
         Register("a", 0, ValueType.U16, "t", table=Table.INPUT, access=Access.WRITE)
 
@@ -98,8 +98,8 @@ def test_map_validation() -> None:
 def test_block_decoder_matches_the_codec_for_every_type_and_order() -> None:
     import random
 
-    from bridge_core.codec import decode, encode
-    from bridge_core.registers import Access, WordOrder
+    from bridge_core.wire.codec import decode, encode
+    from bridge_core.wire.registers import Access, WordOrder
 
     rng = random.Random(7)
     for order in WordOrder:

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import random
 
-from bridge_core.planner import ReadRequest, plan_reads, split_request
-from bridge_core.registers import Access, DeviceLimits, Register, RegisterMap, Table, ValueType
+from bridge_core.wire.planner import ReadRequest, plan_reads, split_request
+from bridge_core.wire.registers import Access, DeviceLimits, Register, RegisterMap, Table, ValueType
 
 KINDS = (ValueType.U16, ValueType.I16, ValueType.U32, ValueType.F32, ValueType.U64)
 MAPS = 200

@@ -7,15 +7,15 @@ import threading
 
 import pytest
 
-from bridge_core.errors import (
+from bridge_core.runtime.poller import Poller, PollOutcome, next_deadline
+from bridge_core.wire.errors import (
     DeviceException,
     FrameError,
     LinkError,
     LinkTimeout,
     PollIncomplete,
 )
-from bridge_core.link_state import LinkEvent, LinkState
-from bridge_core.poller import Poller, PollOutcome, next_deadline
+from bridge_core.wire.link_state import LinkEvent, LinkState
 
 
 class FakeClock:
@@ -331,7 +331,7 @@ class ScriptedTransport:
     """A Transport that answers every read with zeros and records what it was sent."""
 
     def __init__(self) -> None:
-        from bridge_core.channel import PriorityLock
+        from bridge_core.wire.channel import PriorityLock
 
         self.lock = PriorityLock()
         self.is_serial = True
@@ -355,7 +355,7 @@ class ScriptedTransport:
 def test_a_poll_stops_at_its_next_request_once_a_command_lost_the_link() -> None:
     """The rest of a poll is not sent after the link was marked down mid-poll: when the
     link is back, the first thing sent is the link-up work (pending stops first)."""
-    from bridge_core.channel import DeviceChannel
+    from bridge_core.wire.channel import DeviceChannel
 
     transport = ScriptedTransport()
     channel = DeviceChannel(transport, 1, retries=0)
@@ -384,7 +384,7 @@ def test_a_poll_stops_at_its_next_request_once_a_command_lost_the_link() -> None
 def test_a_probe_poll_yields_to_a_stop_that_failed_while_it_waited() -> None:
     """A poll that starts while the link is down may reconnect it, unless the link was
     marked down again meanwhile (a deadman stop failed: it is pending and goes first)."""
-    from bridge_core.channel import DeviceChannel
+    from bridge_core.wire.channel import DeviceChannel
 
     transport = ScriptedTransport()
     channel = DeviceChannel(transport, 1, retries=0)  # never connected: polls are probes

@@ -9,15 +9,15 @@ from contextlib import contextmanager
 
 import pytest
 
-from bridge_core.channel import DeviceChannel, Priority
-from bridge_core.codec import Value
-from bridge_core.errors import DeviceException
-from bridge_core.planner import plan_reads
-from bridge_core.poller import Poller, PollOutcome
-from bridge_core.reads import read_blocks, read_splits
-from bridge_core.registers import Access, DeviceLimits, Register, RegisterMap, Table, ValueType
-from bridge_core.sim_base import ILLEGAL_VALUE, SimulatedDevice, Simulator
-from bridge_core.transport import ModbusLink, TcpSettings
+from bridge_core.runtime.poller import Poller, PollOutcome
+from bridge_core.runtime.reads import read_blocks, read_splits
+from bridge_core.sim.sim_base import ILLEGAL_VALUE, SimulatedDevice, Simulator
+from bridge_core.wire.channel import DeviceChannel, Priority
+from bridge_core.wire.codec import Value
+from bridge_core.wire.errors import DeviceException
+from bridge_core.wire.planner import plan_reads
+from bridge_core.wire.registers import Access, DeviceLimits, Register, RegisterMap, Table, ValueType
+from bridge_core.wire.transport import ModbusLink, TcpSettings
 from motec_bridge.device import MotecDevice
 from motec_bridge.sim import MotecSimDrive
 

@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import pytest
 
-from bridge_core.channel import Priority
-from bridge_core.planner import plan_reads
-from bridge_core.reads import read_blocks
-from bridge_core.registers import Register, RegisterMap, Table, ValueType
+from bridge_core.runtime.reads import read_blocks
+from bridge_core.wire.channel import Priority
+from bridge_core.wire.planner import plan_reads
+from bridge_core.wire.registers import Register, RegisterMap, Table, ValueType
 
 
 class FakeClock:

@@ -22,7 +22,7 @@ from rclpy.utilities import try_shutdown
 from rosbags.rosbag2 import Reader, StoragePlugin
 from std_msgs.msg import Bool
 
-from bridge_core.recorder import Recorder, typestore_for
+from bridge_core.ros.recorder import Recorder, typestore_for
 from r6_bridge.sim import R6SimDevice, make_simulator
 
 from ..support.ros import ROOT, node_process, wait_for
@@ -54,7 +54,7 @@ def test_bag_of_a_running_bridge(tmp_path: Path, monkeypatch: pytest.MonkeyPatch
                 [
                     sys.executable,
                     "-m",
-                    "bridge_core.recorder",
+                    "bridge_core.ros.recorder",
                     "-o",
                     str(bag),
                     *topics,
@@ -121,7 +121,7 @@ def test_bag_of_a_running_bridge(tmp_path: Path, monkeypatch: pytest.MonkeyPatch
     # bridge_plot draws it: a PNG, and the summary counts what the bag holds.
     picture = tmp_path / "bag.png"
     result = subprocess.run(
-        [sys.executable, "-m", "bridge_core.plot", str(bag), "-o", str(picture)],
+        [sys.executable, "-m", "bridge_core.ros.plot", str(bag), "-o", str(picture)],
         cwd=ROOT,
         capture_output=True,
         text=True,

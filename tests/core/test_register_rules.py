@@ -1,11 +1,11 @@
-"""The rulebook's refusals (bridge_core.registers): every fault names the field at fault
+"""The rulebook's refusals (bridge_core.wire.registers): every fault names the field at fault
 and what is allowed, so a description file can point it at its key and line."""
 
 from __future__ import annotations
 
 import pytest
 
-from bridge_core.registers import (
+from bridge_core.wire.registers import (
     Access,
     DeviceLimits,
     Fault,

@@ -32,9 +32,10 @@ from bench.line_relay import (
     request_gaps,
     silence_violations,
 )
-from bridge_core.channel import DeviceChannel
-from bridge_core.errors import DeviceException, FrameError, LinkTimeout
-from bridge_core.registers import (
+from bridge_core.sim.sim_base import SimulatedDevice, Simulator
+from bridge_core.wire.channel import DeviceChannel
+from bridge_core.wire.errors import DeviceException, FrameError, LinkTimeout
+from bridge_core.wire.registers import (
     Access,
     DeviceLimits,
     RegisterMap,
@@ -42,7 +43,7 @@ from bridge_core.registers import (
     ValueType,
     register_array,
 )
-from bridge_core.requests import (
+from bridge_core.wire.requests import (
     MaskWriteRegister,
     ReadBits,
     ReadRegisters,
@@ -50,8 +51,8 @@ from bridge_core.requests import (
     WriteCoil,
     WriteCoils,
 )
-from bridge_core.serial_port import write_all
-from bridge_core.serial_timing import (
+from bridge_core.wire.serial_port import write_all
+from bridge_core.wire.serial_timing import (
     BROADCAST_TURNAROUND_S,
     TimedSerialClient,
     expected_reply_length,
@@ -59,8 +60,7 @@ from bridge_core.serial_timing import (
     reply_length,
     silence_s,
 )
-from bridge_core.sim_base import SimulatedDevice, Simulator
-from bridge_core.transport import (
+from bridge_core.wire.transport import (
     ModbusLink,
     SerialSettings,
 )

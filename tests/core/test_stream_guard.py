@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from bridge_core.errors import CommandRejected, LinkTimeout
-from bridge_core.stream_guard import STOP_RETRY_GAP_S, StreamGuard
+from bridge_core.runtime.stream_guard import STOP_RETRY_GAP_S, StreamGuard
+from bridge_core.wire.errors import CommandRejected, LinkTimeout
 
 
 class Clock:

@@ -1,4 +1,4 @@
-"""Orientation conversions of bridge_core.units: the rotation vector (axis times angle)
+"""Orientation conversions of bridge_core.runtime.units: the rotation vector (axis times angle)
 the xArm reports beside roll/pitch/yaw (I64-72), against known rotations."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import random
 
 import pytest
 
-from bridge_core.units import (
+from bridge_core.runtime.units import (
     euler_xyz_deg_to_quaternion,
     quaternion_angle_deg,
     quaternion_to_rotation_vector_deg,

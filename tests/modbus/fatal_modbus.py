@@ -12,7 +12,7 @@ import sys
 
 from rclpy.node import Node
 
-from bridge_core.process import spin_nodes
+from bridge_core.ros.process import spin_nodes
 from modbus_bridge.node import ModbusBridgeNode
 
 CHECK_S = 0.05

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from bridge_core.codec import decode, encode
-from bridge_core.registers import Access, Table, ValueType, WordOrder
+from bridge_core.wire.codec import decode, encode
+from bridge_core.wire.registers import Access, Table, ValueType, WordOrder
 from modbus_bridge.description import DescriptionError, load
 from xarm_bridge.registers import SETTABLE_STATES, XARM_MAP
 

@@ -22,8 +22,8 @@ from lifecycle_msgs.msg import Transition
 from lifecycle_msgs.srv import ChangeState
 from std_srvs.srv import Trigger
 
-from bridge_core.registers import Table
-from bridge_core.sim_base import Simulator
+from bridge_core.sim.sim_base import Simulator
+from bridge_core.wire.registers import Table
 from modbus_bridge.description import load
 from modbus_bridge.sim import DescribedSimDevice, make_simulator
 from msg_defs.msg import DeviceValues

@@ -16,9 +16,9 @@ from rcl_interfaces.srv import ListParameters
 from std_msgs.msg import Float64
 from std_srvs.srv import SetBool, Trigger
 
-from bridge_core.registers import Table
-from bridge_core.sim_base import Simulator
-from bridge_core.units import DEG
+from bridge_core.runtime.units import DEG
+from bridge_core.sim.sim_base import Simulator
+from bridge_core.wire.registers import Table
 from modbus_bridge.description import (
     NODE_PARAMETERS,
     TOPIC_PARAMETER_SUFFIXES,

@@ -12,13 +12,13 @@ from pathlib import Path
 
 import pytest
 
-from bridge_core.channel import DeviceChannel
-from bridge_core.errors import CommandRejected, DeviceException, LinkError, LinkTimeout
-from bridge_core.registers import Table
-from bridge_core.sim_base import Simulator
-from bridge_core.stream_guard import StreamGuard
-from bridge_core.transport import ModbusLink, SerialSettings, TcpSettings
-from bridge_core.units import DEG
+from bridge_core.runtime.stream_guard import StreamGuard
+from bridge_core.runtime.units import DEG
+from bridge_core.sim.sim_base import Simulator
+from bridge_core.wire.channel import DeviceChannel
+from bridge_core.wire.errors import CommandRejected, DeviceException, LinkError, LinkTimeout
+from bridge_core.wire.registers import Table
+from bridge_core.wire.transport import ModbusLink, SerialSettings, TcpSettings
 from modbus_bridge.description import Description, load
 from modbus_bridge.device import DescribedDevice
 from modbus_bridge.sim import DescribedSimDevice, make_simulator

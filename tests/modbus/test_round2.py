@@ -16,14 +16,14 @@ from pathlib import Path
 import pytest
 
 from bench.line_relay import REQUEST, LineRelay, silence_violations
-from bridge_core.channel import DeviceChannel
-from bridge_core.codec import encode
-from bridge_core.errors import CommandRejected
-from bridge_core.registers import Table
-from bridge_core.serial_port import ParityTolerantSerial, open_serial
-from bridge_core.serial_timing import char_time_s, silence_s
-from bridge_core.sim_base import PtyPair
-from bridge_core.transport import ModbusLink, SerialSettings
+from bridge_core.sim.sim_base import PtyPair
+from bridge_core.wire.channel import DeviceChannel
+from bridge_core.wire.codec import encode
+from bridge_core.wire.errors import CommandRejected
+from bridge_core.wire.registers import Table
+from bridge_core.wire.serial_port import ParityTolerantSerial, open_serial
+from bridge_core.wire.serial_timing import char_time_s, silence_s
+from bridge_core.wire.transport import ModbusLink, SerialSettings
 from modbus_bridge.description import Description, DescriptionError, load
 from modbus_bridge.device import DescribedDevice
 from modbus_bridge.sim import DescribedSimDevice, make_simulator

@@ -10,10 +10,10 @@ from pathlib import Path
 import pytest
 from sensor_msgs.msg import JointState
 
-from bridge_core.channel import DeviceChannel
-from bridge_core.registers import Table
-from bridge_core.transport import ModbusLink, TcpSettings
-from bridge_core.units import DEG
+from bridge_core.runtime.units import DEG
+from bridge_core.wire.channel import DeviceChannel
+from bridge_core.wire.registers import Table
+from bridge_core.wire.transport import ModbusLink, TcpSettings
 from modbus_bridge.description import load
 from modbus_bridge.device import DescribedDevice
 from msg_defs.msg import DeviceValues, XArmState

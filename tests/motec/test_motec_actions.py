@@ -13,7 +13,7 @@ from action_msgs.msg import GoalStatus
 from diagnostic_msgs.msg import DiagnosticArray
 from std_srvs.srv import SetBool, Trigger
 
-from bridge_core.registers import Table
+from bridge_core.wire.registers import Table
 from motec_bridge.registers import MOTEC_MAP, START_MOVE, STOP_MOVE
 from motec_bridge.sim import MotecSimDrive, MotecSimulator
 from msg_defs.action import MoveTo

@@ -18,11 +18,11 @@ from typing import Any
 import pytest
 from pymodbus.framer import FramerRTU
 
-from bridge_core.channel import DeviceChannel, Priority
-from bridge_core.errors import CommandRejected, DeviceException, LinkTimeout, NotSent
-from bridge_core.goals import Outcome
-from bridge_core.registers import Table, ValueType, WordOrder
-from bridge_core.transport import ModbusLink, SerialSettings
+from bridge_core.runtime.goals import Outcome
+from bridge_core.wire.channel import DeviceChannel, Priority
+from bridge_core.wire.errors import CommandRejected, DeviceException, LinkTimeout, NotSent
+from bridge_core.wire.registers import Table, ValueType, WordOrder
+from bridge_core.wire.transport import ModbusLink, SerialSettings
 from motec_bridge.device import (
     CONFIG_PLAN,
     MODE_PLAN,

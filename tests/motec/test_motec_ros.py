@@ -24,8 +24,8 @@ from std_msgs.msg import Bool, Float64
 from std_srvs.srv import SetBool, Trigger
 
 from bench.line_relay import LineRelay
-from bridge_core.registers import Table
-from bridge_core.transport import SerialSettings
+from bridge_core.wire.registers import Table
+from bridge_core.wire.transport import SerialSettings
 from motec_bridge.device import lifeguard_min_ms
 from motec_bridge.sim import LIFEGUARD_FAULT_CODE, MotecSimDrive, MotecSimulator, make_simulator
 from msg_defs.msg import MotecState

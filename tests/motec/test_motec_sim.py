@@ -10,10 +10,10 @@ from dataclasses import dataclass
 
 import pytest
 
-from bridge_core.channel import DeviceChannel, Priority
-from bridge_core.errors import CommandRejected, DeviceException, LinkTimeout
-from bridge_core.registers import Table
-from bridge_core.transport import ModbusLink, SerialSettings
+from bridge_core.wire.channel import DeviceChannel, Priority
+from bridge_core.wire.errors import CommandRejected, DeviceException, LinkTimeout
+from bridge_core.wire.registers import Table
+from bridge_core.wire.transport import ModbusLink, SerialSettings
 from motec_bridge.device import MotecDevice, disable_all, start_all
 from motec_bridge.registers import (
     CONTROL_MODE_POSITION,
@@ -39,7 +39,7 @@ DT = 0.01
 
 def write(drive: MotecSimDrive, name: str, value: int) -> int | None:
     """A write as the bus would deliver it (FC 06 / 16), through guards and hooks."""
-    from bridge_core.codec import encode
+    from bridge_core.wire.codec import encode
 
     reg = MOTEC_MAP[name]
     words = encode(reg, value)

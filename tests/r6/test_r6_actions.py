@@ -13,9 +13,9 @@ import pytest
 from action_msgs.msg import GoalStatus
 from std_srvs.srv import Trigger
 
-from bridge_core.channel import DeviceChannel
-from bridge_core.sim_base import Simulator, WriteRecord
-from bridge_core.transport import ModbusLink, TcpSettings
+from bridge_core.sim.sim_base import Simulator, WriteRecord
+from bridge_core.wire.channel import DeviceChannel
+from bridge_core.wire.transport import ModbusLink, TcpSettings
 from msg_defs.action import PointUpload, RunCycle
 from msg_defs.msg import MotionOutcome, R6State
 from msg_defs.srv import ClearAlarmAndNext, ReadDataSource, UploadPoints

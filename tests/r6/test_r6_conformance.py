@@ -1,6 +1,6 @@
 """Every example frame of the R6 manual, byte-exact, over a real TCP socket.
 
-The bridge's device layer (through the real pymodbus client of ``bridge_core.transport``) talks
+The bridge's device layer (through the real pymodbus client of ``bridge_core.wire.transport``) talks
 to a replay peer that checks each request PDU against the manual and answers with the
 manual's reply; the decoded values must be the ones the manual states. Frames are copied
 as printed (MBAP header included) and the header is dropped: our transaction ids differ,
@@ -14,8 +14,8 @@ from typing import Any
 
 import pytest
 
-from bridge_core.channel import DeviceChannel
-from bridge_core.transport import ModbusLink, TcpSettings
+from bridge_core.wire.channel import DeviceChannel
+from bridge_core.wire.transport import ModbusLink, TcpSettings
 from r6_bridge.device import R6Device
 
 from ..support.replay import ReplayServer, Step, pdu_of
@@ -429,6 +429,6 @@ def test_large_upload_is_split_into_frames_of_at_most_256_bytes() -> None:
 def test_tcp_pose_euler_convention(
     u: float, v: float, w: float, expected: tuple[float, ...]
 ) -> None:
-    from bridge_core.units import euler_xyz_deg_to_quaternion
+    from bridge_core.runtime.units import euler_xyz_deg_to_quaternion
 
     assert euler_xyz_deg_to_quaternion(u, v, w) == pytest.approx(expected, abs=1e-12)

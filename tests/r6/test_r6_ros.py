@@ -17,9 +17,9 @@ import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from std_srvs.srv import Trigger
 
-from bridge_core.ports import free_port
-from bridge_core.registers import Table
-from bridge_core.sim_base import Simulator
+from bridge_core.sim.sim_base import Simulator
+from bridge_core.wire.ports import free_port
+from bridge_core.wire.registers import Table
 from msg_defs.msg import R6State
 from msg_defs.srv import (
     ClearAlarmAndNext,

@@ -11,12 +11,12 @@ from collections.abc import Callable, Iterator
 
 import pytest
 
-from bridge_core.channel import DeviceChannel
-from bridge_core.errors import CommandRejected, DeviceException, NotConfirmed
-from bridge_core.goals import Outcome, Verdict
-from bridge_core.registers import Table
-from bridge_core.sim_base import WriteRecord
-from bridge_core.transport import ModbusLink, TcpSettings
+from bridge_core.runtime.goals import Outcome, Verdict
+from bridge_core.sim.sim_base import WriteRecord
+from bridge_core.wire.channel import DeviceChannel
+from bridge_core.wire.errors import CommandRejected, DeviceException, NotConfirmed
+from bridge_core.wire.registers import Table
+from bridge_core.wire.transport import ModbusLink, TcpSettings
 from r6_bridge.device import PointUpload, R6Device, R6Snapshot, RunCycleMotion
 from r6_bridge.registers import MAX_AXES, NOT_OFFERED, R6_LIMITS, R6_MAP
 from r6_bridge.sim import MANUAL_VERSION, R6SimDevice, axis_speed_deg_s, make_simulator
@@ -309,7 +309,7 @@ def test_poller_recovers_when_axes_or_boards_go_away(
     cached plan reads removed rows, the controller answers 0x02, and the poller must
     re-derive the plan from the counts instead of failing forever (issue: 0 joint_states
     while connected)."""
-    from bridge_core.poller import Poller, PollOutcome
+    from bridge_core.runtime.poller import Poller, PollOutcome
 
     device, sim, channel = r6
     sim.tick = lambda dt: None  # type: ignore[method-assign]

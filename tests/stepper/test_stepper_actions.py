@@ -15,7 +15,7 @@ from lifecycle_msgs.msg import Transition
 from lifecycle_msgs.srv import ChangeState
 from std_srvs.srv import Trigger
 
-from bridge_core.registers import Table
+from bridge_core.wire.registers import Table
 from msg_defs.action import ArcMotion, LineMotion, StepperMoveBy, StepperRun
 from msg_defs.msg import MotionOutcome
 from msg_defs.srv import LineMove, SetHomingOrder

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 
-from bridge_core.registers import Table
+from bridge_core.wire.registers import Table
 from msg_defs.msg import StepperState
 from msg_defs.srv import MoveBy
 from stepper_bridge.sim import StepperSimDevice, make_bus_simulator

@@ -17,10 +17,10 @@ from typing import Any
 import pytest
 from pymodbus.framer import FramerRTU
 
-from bridge_core.channel import DeviceChannel
-from bridge_core.errors import DeviceException
-from bridge_core.registers import Table, ValueType, WordOrder
-from bridge_core.transport import ModbusLink, SerialSettings
+from bridge_core.wire.channel import DeviceChannel
+from bridge_core.wire.errors import DeviceException
+from bridge_core.wire.registers import Table, ValueType, WordOrder
+from bridge_core.wire.transport import ModbusLink, SerialSettings
 from stepper_bridge.device import StepperDevice
 from stepper_bridge.registers import (
     MAX_REGISTERS_PER_REQUEST,

@@ -15,7 +15,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from std_msgs.msg import Float64
 from std_srvs.srv import SetBool, Trigger
 
-from bridge_core.registers import Table
+from bridge_core.wire.registers import Table
 from msg_defs.action import LineMotion
 from msg_defs.msg import StepperState
 from msg_defs.srv import (

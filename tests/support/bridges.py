@@ -19,9 +19,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from bridge_core.ports import free_port
-from bridge_core.registers import Register
-from bridge_core.sim_base import ReadRecord, WriteRecord, read_read_log, read_write_log
+from bridge_core.sim.sim_base import ReadRecord, WriteRecord, read_read_log, read_write_log
+from bridge_core.wire.ports import free_port
+from bridge_core.wire.registers import Register
 from modbus_bridge.description import load as load_description
 from motec_bridge.registers import MOTEC_MAP
 from msg_defs.msg import DeviceValues, MotecState, R6State, StepperState, XArmState

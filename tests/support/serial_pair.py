@@ -8,7 +8,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from bridge_core.sim_base import PtyPair, Simulator
+from bridge_core.sim.sim_base import PtyPair, Simulator
 
 
 @contextmanager

@@ -12,9 +12,9 @@ from typing import Any
 
 import pytest
 
-from bridge_core.channel import DeviceChannel
-from bridge_core.errors import DeviceException
-from bridge_core.transport import ModbusLink, TcpSettings
+from bridge_core.wire.channel import DeviceChannel
+from bridge_core.wire.errors import DeviceException
+from bridge_core.wire.transport import ModbusLink, TcpSettings
 from xarm_bridge.device import XArmDevice
 
 from ..support.replay import ReplayServer, Step, pdu_of

@@ -12,7 +12,7 @@ import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from std_srvs.srv import Trigger
 
-from bridge_core.registers import Table
+from bridge_core.wire.registers import Table
 from msg_defs.msg import XArmState
 from msg_defs.srv import (
     RunOfflineTask,

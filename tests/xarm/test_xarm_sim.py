@@ -10,16 +10,21 @@ from contextlib import contextmanager
 
 import pytest
 
-from bridge_core.channel import DeviceChannel
-from bridge_core.errors import CommandRejected, ConfigurationError, DeviceException, NotConfirmed
-from bridge_core.registers import Table
-from bridge_core.sim_base import WriteRecord
-from bridge_core.transport import ModbusLink, TcpSettings
-from bridge_core.units import (
+from bridge_core.runtime.units import (
     euler_xyz_deg_to_quaternion,
     quaternion_angle_deg,
     rotation_vector_deg_to_quaternion,
 )
+from bridge_core.sim.sim_base import WriteRecord
+from bridge_core.wire.channel import DeviceChannel
+from bridge_core.wire.errors import (
+    CommandRejected,
+    ConfigurationError,
+    DeviceException,
+    NotConfirmed,
+)
+from bridge_core.wire.registers import Table
+from bridge_core.wire.transport import ModbusLink, TcpSettings
 from xarm_bridge.device import POLL_PLAN, XArmDevice, error_text, poll_plan
 from xarm_bridge.registers import COIL_PAUSED, COIL_STOPPED, XARM_MAP
 from xarm_bridge.sim import IN_MOTION, PAUSED, SLEEPING, STOPPED, XArmSimDevice, make_simulator

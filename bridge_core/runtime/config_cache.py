@@ -13,12 +13,12 @@ import time
 from collections.abc import Callable, Sequence
 from typing import Any, Generic, TypeVar
 
-from .channel import Priority, RegisterIO
-from .codec import Value
-from .errors import CommandRejected
-from .planner import ReadRequest
+from ..wire.channel import Priority, RegisterIO
+from ..wire.codec import Value
+from ..wire.errors import CommandRejected
+from ..wire.planner import ReadRequest
+from ..wire.registers import RegisterMap
 from .reads import read_blocks, read_named
-from .registers import RegisterMap
 from .stream_guard import StreamGuard
 
 ConfigT = TypeVar("ConfigT")

@@ -3,12 +3,12 @@
 Together with ``serial_timing`` (our RTU client) and ``sim_base`` (the simulators) this is
 the only module that imports pymodbus; its API moves between minor versions
 (docs/architecture.md, "pymodbus pitfalls we work around"), so the version is pinned and
-every pymodbus error is translated here into ``bridge_core.errors``.
+every pymodbus error is translated here into ``bridge_core.wire.errors``.
 
 ``ModbusLink`` is only the pipe: open, close, and ``execute`` one request for one unit id
 under the caller's hold of its ``lock``. The policy (retries, backoff, health, priorities)
-is ``bridge_core.channel.DeviceChannel``'s. The request dataclasses are defined in the
-pymodbus-free ``bridge_core.requests`` and re-exported here.
+is ``bridge_core.wire.channel.DeviceChannel``'s. The request dataclasses are defined in the
+pymodbus-free ``bridge_core.wire.requests`` and re-exported here.
 
 How pymodbus 3.16.1's sync clients report a failed transaction, and what it becomes here,
 told apart by exception type (never by the message text):

@@ -11,7 +11,7 @@ first wins; the ones that need the motion stopped send the stop.
 - ``GoalRun``: one goal's life, fed with snapshots by the poller's publisher thread and
   told of cancel / preemption / shutdown by the node; ``next_ending`` says when it is over.
 
-``bridge_core.node_actions`` puts these behind rclpy action servers. No ROS here.
+``bridge_core.ros.node_actions`` puts these behind rclpy action servers. No ROS here.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Command streams of the bridge nodes: jog / velocity topics and their deadman.
 
-Part of the node base (imports rclpy). ``StreamHost`` puts the ``bridge_core.stream_guard``
+Part of the node base (imports rclpy). ``StreamHost`` puts the ``bridge_core.runtime.stream_guard``
 guards of one node behind its command topics, like ``node_actions.ActionHost`` does for
 action goals: arrivals are recorded in a callback group of their own, values are written
 through the node's command guard (``BridgeNode.run_command``), and a timer stops streams
@@ -15,8 +15,8 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 
-from .errors import DeviceException
-from .stream_guard import StreamGuard
+from ..runtime.stream_guard import StreamGuard
+from ..wire.errors import DeviceException
 
 if TYPE_CHECKING:
     from .node_base import BridgeNode

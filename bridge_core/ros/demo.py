@@ -45,20 +45,18 @@ import subprocess
 import sys
 import tempfile
 import time
-import tomllib
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
-from importlib.metadata import entry_points
 from pathlib import Path
 from typing import Any
 
-from .ports import free_port
+from ..runtime import entries
+from ..wire.ports import free_port
 
 DEFAULT_DOMAIN_ID = 42
 CONNECT_TIMEOUT_S = 30.0
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = entries.ROOT
 ENTRY_POINT_GROUP = "modbus_bridges.demo"
-PROJECT_NAME = "modbus-ros-bridges"
 
 
 @dataclass
@@ -104,22 +102,9 @@ class DemoDevice:
         return ["-m", f"{self.package}.node", *ros_args]
 
 
-def entry_specs(root: Path = ROOT, group: str = ENTRY_POINT_GROUP) -> list[str]:
-    """The ``module:attr`` of every declared demo entry (see the module docstring), or of
-    another group's (``bridge_core.interface``)."""
-    pyproject = root / "pyproject.toml"
-    if pyproject.is_file():
-        with pyproject.open("rb") as f:
-            project = tomllib.load(f).get("project", {})
-        if project.get("name") == PROJECT_NAME:
-            table = project.get("entry-points", {}).get(group, {})
-            return [str(spec) for spec in table.values()]
-    # A name declared twice (a colcon install sourced over the editable install) is the
-    # same device: the first on the path wins, as for imports.
-    found: dict[str, str] = {}
-    for entry in entry_points(group=group):
-        found.setdefault(entry.name, entry.value)
-    return list(found.values())
+def entry_specs(root: Path = ROOT) -> list[str]:
+    """The ``module:attr`` of every declared demo entry (see the module docstring)."""
+    return entries.entry_specs(ENTRY_POINT_GROUP, root)
 
 
 def load_devices(specs: Iterable[str]) -> list[DemoDevice]:
@@ -387,9 +372,9 @@ def main(argv: Sequence[str] | None = None, modules: Sequence[str] | None = None
 
 
 if __name__ == "__main__":
-    # Run as ``python -m bridge_core.demo`` this file is ``__main__``, while the entries
-    # build their DemoDevice from ``bridge_core.demo``: run that module's main so both
+    # Run as ``python -m bridge_core.ros.demo`` this file is ``__main__``, while the entries
+    # build their DemoDevice from ``bridge_core.ros.demo``: run that module's main so both
     # sides share one DemoDevice class.
-    from bridge_core.demo import main as _main
+    from bridge_core.ros.demo import main as _main
 
     _main()

@@ -4,14 +4,14 @@
   modules stay free of pymodbus and can be driven by ``DeviceChannel`` or by any fake.
 - ``PriorityLock``: one transaction at a time on a link, commands before polls, FIFO within
   a priority (so several drives on one bus take turns fairly).
-- ``DeviceChannel``: one unit id on a ``Transport`` (``bridge_core.transport.ModbusLink``),
+- ``DeviceChannel``: one unit id on a ``Transport`` (``bridge_core.wire.transport.ModbusLink``),
   with its own health, capped exponential reconnect ``Backoff`` and ``LinkStats``, so a dead
   drive on a shared RS-485 bus backs off on its own while the others keep their rate. It
-  owns the device's ``LinkState`` (``bridge_core.link_state``): every transaction updates
+  owns the device's ``LinkState`` (``bridge_core.wire.link_state``): every transaction updates
   it, and its listeners hear when the link goes up or down.
 
-Nothing here imports pymodbus or ``bridge_core.transport``; errors arrive already
-translated into ``bridge_core.errors`` types.
+Nothing here imports pymodbus or ``bridge_core.wire.transport``; errors arrive already
+translated into ``bridge_core.wire.errors`` types.
 """
 
 from __future__ import annotations
@@ -121,9 +121,9 @@ class PriorityLock:
 
 
 class Transport(Protocol):
-    """The link a ``DeviceChannel`` runs on (``bridge_core.transport.ModbusLink``).
+    """The link a ``DeviceChannel`` runs on (``bridge_core.wire.transport.ModbusLink``).
 
-    ``execute`` raises only ``bridge_core.errors`` types: ``LinkDown`` (not open, refused,
+    ``execute`` raises only ``bridge_core.wire.errors`` types: ``LinkDown`` (not open, refused,
     lost), ``LinkTimeout`` (no reply), ``FrameError`` (a reply that is not the answer) and
     ``DeviceException`` (the device answered with an exception).
     """

@@ -5,8 +5,8 @@
 ``ros2 param set`` changes them). ``DeviceDefaults`` and the spec builders
 (``transport_specs``, ``unit_id_spec``, ``channel_specs``, ``node_specs``,
 ``AUTOSTART_SPEC``: the parameters every bridge and bus owner shares, so that the nodes,
-the bus owners and the docs agree on them) are plain data in ``bridge_core.parameters``
-(listed without ROS by ``bridge_core.interface``), imported here for the nodes.
+the bus owners and the docs agree on them) are plain data in ``bridge_core.runtime.parameters``
+(listed without ROS by ``bridge_core.runtime.interface``), imported here for the nodes.
 """
 
 from __future__ import annotations
@@ -26,8 +26,7 @@ from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.lifecycle import LifecycleNode
 from rclpy.parameter import Parameter
 
-from .errors import ConfigurationError
-from .parameters import (
+from ..runtime.parameters import (
     AUTOSTART_SPEC,
     PARITIES,
     RTU_UNIT_ID_RANGE,
@@ -40,7 +39,8 @@ from .parameters import (
     transport_specs,
     unit_id_spec,
 )
-from .transport import SerialSettings, TcpSettings
+from ..wire.errors import ConfigurationError
+from ..wire.transport import SerialSettings, TcpSettings
 
 _KINDS: dict[type, int] = {
     bool: ParameterType.PARAMETER_BOOL,

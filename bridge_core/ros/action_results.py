@@ -16,7 +16,7 @@ from typing import Any
 from rclpy.action.server import ServerGoalHandle
 from rclpy.node import Node
 
-from .goals import GoalRun, Outcome, Verdict
+from ..runtime.goals import GoalRun, Outcome, Verdict
 
 # How long a cancelled goal's result waits for rclpy to have moved it to CANCELING.
 CANCEL_STATE_WAIT_S = 1.0

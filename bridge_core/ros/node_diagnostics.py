@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 
-from .diagnostics import Level, link_report
+from ..runtime.diagnostics import Level, link_report
 
 if TYPE_CHECKING:
     from .node_base import BridgeNode

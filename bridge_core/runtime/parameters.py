@@ -1,7 +1,7 @@
 """One spec per node parameter: type, default, range or choices, start-up-only or live.
 
 Plain Python, importable without rclpy (the node base turns a spec into a
-``ParameterDescriptor``; ``bridge_core.interface`` lists them without starting ROS). This
+``ParameterDescriptor``; ``bridge_core.runtime.interface`` lists them without starting ROS). This
 module also holds the specs every node shares (where the device is, the retry policy, the
 poll rate ...). A start-up-only
 parameter is declared ``read_only`` so ``ros2 param set`` is refused with a reason instead
@@ -18,7 +18,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from .channel import UNIT_ID_MAX, UNIT_ID_MIN
+from ..wire.channel import UNIT_ID_MAX, UNIT_ID_MIN
 
 ParameterValue = bool | int | float | str | list[bool] | list[int] | list[float] | list[str]
 

@@ -1,6 +1,6 @@
 """Action servers of the bridge nodes: motions that take time (README "Actions").
 
-Part of the node base (imports rclpy). ``ActionHost`` puts ``bridge_core.goals`` behind
+Part of the node base (imports rclpy). ``ActionHost`` puts ``bridge_core.runtime.goals`` behind
 ``rclpy.action.ActionServer``s with the rules every bridge action follows:
 
 - **Rejected, nothing written**, under the service guards: node not active, ``read_only``,
@@ -36,11 +36,11 @@ from typing import TYPE_CHECKING, Any, Protocol
 from rclpy.action.server import ActionServer, CancelResponse, GoalResponse, ServerGoalHandle
 from rclpy.callback_groups import ReentrantCallbackGroup
 
+from ..runtime.checks import bounded_text
+from ..runtime.goals import GoalRun, Motion, Outcome, Verdict, needs_stop
+from ..runtime.parameters import GOAL_TIMEOUT_DEFAULT_S, GOAL_TIMEOUT_SPEC
+from ..wire.errors import CommandRejected, LinkError
 from .action_results import filled, finish_run, refuse_goal, result_of, send_result
-from .checks import bounded_text
-from .errors import CommandRejected, LinkError
-from .goals import GoalRun, Motion, Outcome, Verdict, needs_stop
-from .parameters import GOAL_TIMEOUT_DEFAULT_S, GOAL_TIMEOUT_SPEC
 
 if TYPE_CHECKING:
     from .node_base import BridgeNode

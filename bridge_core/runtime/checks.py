@@ -13,8 +13,8 @@ import math
 from collections.abc import Iterable, Sequence
 from typing import TypeVar
 
-from .errors import CommandRejected
-from .registers import ValueType
+from ..wire.errors import CommandRejected
+from ..wire.registers import ValueType
 
 Choice = TypeVar("Choice")
 

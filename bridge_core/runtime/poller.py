@@ -16,7 +16,7 @@ What it owns (docs/architecture.md, "The read path"):
   (the oldest is dropped when the publisher falls behind), so building and publishing the
   messages overlaps the device's time to answer the next request.
 
-How a device reads its registers (``read_blocks``, ``read_named``) is ``bridge_core.reads``:
+How a device reads its registers (``read_blocks``, ``read_named``) is ``bridge_core.runtime.reads``:
 the device modules import that, and only the node side imports this module.
 """
 
@@ -32,9 +32,9 @@ from collections.abc import Callable
 from contextlib import AbstractContextManager
 from typing import Generic, Protocol, TypeVar
 
+from ..wire.errors import DeviceException, LinkError, PollIncomplete
+from ..wire.link_state import LinkEvent, LinkState
 from .diagnostics import RateTracker
-from .errors import DeviceException, LinkError, PollIncomplete
-from .link_state import LinkEvent, LinkState
 from .reads import read_splits
 
 Snapshot = TypeVar("Snapshot")

@@ -13,7 +13,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from enum import IntEnum
 
-from .channel import DeviceChannel
+from ..wire.channel import DeviceChannel
 
 RATE_WINDOW_S = 5.0
 

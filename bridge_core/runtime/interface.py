@@ -5,7 +5,7 @@ Each bridge package declares its nodes in ``<bridge>/interface.py`` (``NODES``: 
 publishes or subscribes, its services and actions) and names that tuple in the entry-point
 group ``modbus_bridges.interface`` of pyproject.toml (or a function that returns them:
 ``modbus_bridge``'s come from description files), as the demo entries are named
-(``bridge_core.demo.entry_specs``). ``nodes()`` collects them::
+(``bridge_core.runtime.entries``). ``nodes()`` collects them::
 
     for node in interface.nodes():
         print(node.executable, node.node, [spec.name for spec in node.parameters])
@@ -27,6 +27,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import TypeVar
 
+from . import entries
 from .parameters import (
     GOAL_TIMEOUT_SPEC,
     DeviceDefaults,
@@ -213,10 +214,8 @@ def standard_services(node: NodeInterface) -> tuple[Service, ...]:
 
 def entry_specs() -> list[str]:
     """The ``module:attr`` of every bridge's ``NODES`` (pyproject.toml in a checkout, else
-    the installed entry points: ``bridge_core.demo.entry_specs``)."""
-    from .demo import entry_specs as specs_of
-
-    return specs_of(group=ENTRY_POINT_GROUP)
+    the installed entry points: ``bridge_core.runtime.entries``)."""
+    return entries.entry_specs(ENTRY_POINT_GROUP)
 
 
 def nodes(specs: Sequence[str] | None = None) -> list[NodeInterface]:

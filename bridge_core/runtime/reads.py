@@ -18,11 +18,11 @@ import time
 import weakref
 from collections.abc import Callable, Iterable, Sequence
 
-from .channel import Priority, RegisterIO
-from .codec import Value
-from .errors import ILLEGAL_DATA_ADDRESS, DeviceException
-from .planner import ReadRequest, decode_reply, plan_reads, split_request
-from .registers import RegisterMap, Table
+from ..wire.channel import Priority, RegisterIO
+from ..wire.codec import Value
+from ..wire.errors import ILLEGAL_DATA_ADDRESS, DeviceException
+from ..wire.planner import ReadRequest, decode_reply, plan_reads, split_request
+from ..wire.registers import RegisterMap, Table
 
 
 def read_blocks(

@@ -1,7 +1,7 @@
 """The rclpy node base every bridge shares: ``BridgeNode``.
 
 What it gives a bridge: the common parameters (``node_parameters``), the link and its
-channel (or a channel on a bus someone else owns), the poller (``bridge_core.poller``: its
+channel (or a channel on a bus someone else owns), the poller (``bridge_core.runtime.poller``: its
 own thread, pacing, re-plan on device exceptions, a publisher thread), ``joint_states`` /
 ``~/connected`` / ``/diagnostics``, the stale-data policy (no fresh stamps while the link
 is down), the lifecycle, and the command guard that refuses, writing nothing, when the
@@ -40,19 +40,19 @@ from rclpy.time import Time
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 
-from .channel import DeviceChannel, Priority
-from .checks import bounded_text
-from .diagnostics import Report
-from .errors import CommandRejected, DeviceException, LinkError, NotConfirmed, NotSent
-from .link_state import LinkEvent
-from .motion_ledger import MotionLedger
+from ..runtime.checks import bounded_text
+from ..runtime.diagnostics import Report
+from ..runtime.motion_ledger import MotionLedger
+from ..runtime.parameters import bridge_specs
+from ..runtime.poller import Poller, PollOutcome
+from ..wire.channel import DeviceChannel, Priority
+from ..wire.errors import CommandRejected, DeviceException, LinkError, NotConfirmed, NotSent
+from ..wire.link_state import LinkEvent
+from ..wire.transport import ModbusLink
 from .node_actions import ActionHost
 from .node_diagnostics import DiagnosticsPublisher
 from .node_parameters import DeviceDefaults, ParameterNode, link_settings
 from .node_streams import StreamHost
-from .parameters import bridge_specs
-from .poller import Poller, PollOutcome
-from .transport import ModbusLink
 
 T = TypeVar("T")
 SnapshotT = TypeVar("SnapshotT")

@@ -39,7 +39,7 @@ from collections.abc import Callable, Hashable, Iterable
 from dataclasses import dataclass
 from typing import Any, Generic, TypeVar
 
-from .errors import BridgeError, CommandRejected, LinkError
+from ..wire.errors import BridgeError, CommandRejected, LinkError
 
 Key = TypeVar("Key", bound=Hashable)
 

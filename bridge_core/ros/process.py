@@ -23,12 +23,12 @@ from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import try_shutdown
 
-from .channel import Priority
-from .errors import ConfigurationError
+from ..runtime.parameters import bus_specs
+from ..wire.channel import Priority
+from ..wire.errors import ConfigurationError
+from ..wire.transport import ModbusLink
 from .node_base import BridgeNode
 from .node_parameters import DeviceDefaults, ParameterNode, link_settings, one_line
-from .parameters import bus_specs
-from .transport import ModbusLink
 
 # The poll threads wait on the line and then need the GIL for a moment; with Python's
 # default 5 ms switch interval, each such moment waits out a busy thread's whole slice

@@ -44,9 +44,9 @@ from pymodbus.pdu.decoders import DecodePDU
 from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 from pymodbus.transport import serialtransport as _serialtransport
 
-from .codec import Value, decode, encode
-from .registers import DeviceLimits, RegisterMap, Table, ValueType
-from .serial_port import open_serial
+from ..wire.codec import Value, decode, encode
+from ..wire.registers import DeviceLimits, RegisterMap, Table, ValueType
+from ..wire.serial_port import open_serial
 
 FUNCTION_TABLES: dict[int, Table] = {
     1: Table.COIL,

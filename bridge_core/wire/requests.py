@@ -3,7 +3,7 @@
 They are the vocabulary between ``channel.DeviceChannel`` (which builds them) and
 ``transport.ModbusLink`` (which sends them), so they live apart from both: the channel
 must not import the transport (and with it pymodbus) to name a request.
-``bridge_core.transport`` re-exports them.
+``bridge_core.wire.transport`` re-exports them.
 """
 
 from __future__ import annotations

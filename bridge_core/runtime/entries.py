@@ -1,0 +1,30 @@
+"""Where the bridges' declared entries are found: pyproject.toml in a checkout, else the
+installed entry points (plain Python, so ROS-free listings can use it as the demo does).
+
+A name declared twice (a colcon install sourced over the editable install) is the same
+device: the first on the path wins, as for imports.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from importlib.metadata import entry_points
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]  # the checkout (or site-packages) holding us
+PROJECT_NAME = "modbus-ros-bridges"
+
+
+def entry_specs(group: str, root: Path = ROOT) -> list[str]:
+    """The ``module:attr`` of every entry of ``group``."""
+    pyproject = root / "pyproject.toml"
+    if pyproject.is_file():
+        with pyproject.open("rb") as f:
+            project = tomllib.load(f).get("project", {})
+        if project.get("name") == PROJECT_NAME:
+            table = project.get("entry-points", {}).get(group, {})
+            return [str(spec) for spec in table.values()]
+    found: dict[str, str] = {}
+    for entry in entry_points(group=group):
+        found.setdefault(entry.name, entry.value)
+    return list(found.values())
