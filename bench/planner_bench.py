@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Read planner figures: requests per plan and planning time for every bridge's map.
 
-Prints a table; asserts nothing (tests/core/test_planner_optimal.py checks the optimum).
+Prints a table; asserts nothing (tests/core/wire/test_planner_optimal.py checks the optimum).
 
     .venv/bin/python bench/planner_bench.py [--repeat 20]
 

@@ -28,7 +28,7 @@ stale list, or none. The table in the checkout is always the current one, and af
 clean clone plus scripts/setup.sh both sources agree. Why not scan the packages next to
 ``bridge_core`` for a ``demo.py``: installed, those siblings are all of site-packages,
 and importing whatever ``*/demo.py`` lies there is not safe; the explicit table is one
-list for both cases, and tests/core/test_demo_entries.py checks that every ``<bridge>/demo.py``
+list for both cases, and tests/core/ros/test_demo_entries.py checks that every ``<bridge>/demo.py``
 in the checkout is declared in it. Entry points carry no order, so ``DemoDevice.order``
 sets the order of the status blocks.
 """

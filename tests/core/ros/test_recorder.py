@@ -25,7 +25,7 @@ from std_msgs.msg import Bool
 from bridge_core.ros.recorder import Recorder, typestore_for
 from r6_bridge.sim import R6SimDevice, make_simulator
 
-from ..support.ros import ROOT, node_process, wait_for
+from ...support.ros import ROOT, node_process, wait_for
 
 pytestmark = pytest.mark.ros
 

@@ -36,11 +36,11 @@ from bridge_core.wire.transport import (
     TcpSettings,
 )
 
-from ..support.replay import ReplayServer
-from ..support.replay import Step as TcpStep
-from ..support.rtu_replay import RtuReplay, rtu_frame
-from ..support.rtu_replay import Step as RtuStep
-from ..support.serial_pair import socat_pair
+from ...support.replay import ReplayServer
+from ...support.replay import Step as TcpStep
+from ...support.rtu_replay import RtuReplay, rtu_frame
+from ...support.rtu_replay import Step as RtuStep
+from ...support.serial_pair import socat_pair
 
 TEST_MAP = RegisterMap(
     "test",

@@ -10,7 +10,7 @@ import pytest
 
 from bridge_core.ros import demo
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 
 
 def test_every_bridge_demo_module_is_declared() -> None:

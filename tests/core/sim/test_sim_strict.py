@@ -22,7 +22,7 @@ from pymodbus.framer import FramerRTU
 from bridge_core.sim.sim_base import SimulatedDevice, Simulator
 from bridge_core.wire.registers import Access, DeviceLimits, Register, RegisterMap, Table, ValueType
 
-from ..support.serial_pair import socat_pair
+from ...support.serial_pair import socat_pair
 
 UNIT = 1
 BAUD = 19200
