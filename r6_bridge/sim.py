@@ -324,7 +324,13 @@ class R6SimDevice(SimulatedDevice):
             return False
         self.step = 0
         self.cycles_completed += 1
-        self.set("last_cycle_time", int(self._time_in_cycle_ms))
+        elapsed_ms = int(self._time_in_cycle_ms)
+        if elapsed_ms == int(self.get("last_cycle_time")):
+            # Never the last cycle's time to the millisecond: the bridge reads an unchanged
+            # 2401 as a cycle that did not finish (README R6 decision 23, the safe side), and
+            # this simulator's cycles, the same path at the same speed, often tie.
+            elapsed_ms += 1
+        self.set("last_cycle_time", elapsed_ms)
         self._time_in_cycle_ms = 0.0
         self.set("current_cycle_time", 0)
         if self.single_cycle:

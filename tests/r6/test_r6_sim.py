@@ -18,7 +18,7 @@ from bridge_core.wire.errors import CommandRejected, DeviceException, NotConfirm
 from bridge_core.wire.registers import Table
 from bridge_core.wire.transport import ModbusLink, TcpSettings
 from r6_bridge.device import PointUpload, R6Device, R6Snapshot, RunCycleMotion
-from r6_bridge.registers import MAX_AXES, NOT_OFFERED, R6_LIMITS, R6_MAP
+from r6_bridge.registers import COMMANDS, MAX_AXES, NOT_OFFERED, R6_LIMITS, R6_MAP
 from r6_bridge.sim import MANUAL_VERSION, R6SimDevice, axis_speed_deg_s, make_simulator
 
 
@@ -386,6 +386,23 @@ def timed_program(*seconds: float) -> tuple[tuple[float, ...], ...]:
 
 def axis_1(snap: R6Snapshot) -> float:
     return snap.axis_positions_deg[0]
+
+
+def test_two_cycles_of_the_same_program_never_tie_in_the_last_cycle_time() -> None:
+    """The bridge reads an unchanged 2401 as a cycle that did not finish (README R6
+    decision 23); cycles of one program at one speed tie, to the millisecond, whenever
+    the ticks fall alike (here always: a fixed tick), so the simulator never repeats it."""
+    sim = R6SimDevice()
+    sim.program = timed_program(0.05, 0.0)
+    sim.set("global_speed", 100.0)
+    times = []
+    for _ in range(3):
+        sim._command(COMMANDS["single_cycle"])
+        while sim.running:
+            sim.tick(0.01)
+        times.append(int(sim.get("last_cycle_time")))
+    assert sim.cycles_completed == 3
+    assert times[0] != times[1] != times[2], times
 
 
 def test_single_cycle_runs_to_the_end_of_the_cycle_then_stops(
