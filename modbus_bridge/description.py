@@ -18,6 +18,7 @@ This module is the import point: the names the rest of the package uses are here
 from __future__ import annotations
 
 import json
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -62,8 +63,12 @@ from .description_schema import (
 )
 from .description_yaml import Checker, DescriptionError, Loc, Problem, compose, node_at
 
+# The exit status of a command-line tool given a description it cannot load.
+EXIT_BAD_DESCRIPTION = 2
+
 __all__ = [
     "COMMAND_RATE_RANGE_HZ",
+    "EXIT_BAD_DESCRIPTION",
     "NODE_PARAMETERS",
     "TOPIC_PARAMETER_SUFFIXES",
     "Description",
@@ -75,6 +80,7 @@ __all__ = [
     "Link",
     "TopicSpec",
     "load",
+    "load_for_command",
     "not_allowed",
 ]
 
@@ -238,17 +244,16 @@ def _check_values_key(spec: RegisterSpec, check: Checker, at: Loc) -> bool:
 def _writes_fit(spec: RegisterSpec, register: Register, check: Checker, at: Loc) -> bool:
     """Whether the ends of ``range`` and every one of ``values`` can be written (the
     codec's rule: its refusal is the message)."""
-    for end in spec.range or ():
-        try:
-            encode(register, end)
-        except CodecError as err:
-            check.add((*at, "range"), f"{end} does not fit the register: {err}")
-            return False
-    for value in spec.values or ():
+    writes = [((*at, "range"), end, f"{end} does not fit the register") for end in spec.range or ()]
+    writes += [
+        ((*at, "values"), value, f"{number_text(value)} cannot be written")
+        for value in spec.values or ()
+    ]
+    for where, value, what in writes:
         try:
             encode(register, value)
         except CodecError as err:
-            check.add((*at, "values"), f"{number_text(value)} cannot be written: {err}")
+            check.add(where, f"{what}: {err}")
             return False
     return True
 
@@ -316,6 +321,16 @@ def _address_texts(spec: DeviceFileSpec, check: Checker) -> dict[str, str]:
         if isinstance(node, yaml.ScalarNode) and str(node.value) != str(register.address):
             texts[register.name] = str(node.value)
     return texts
+
+
+def load_for_command(path: str | Path) -> Description | None:
+    """``load`` for a command-line tool (``modbus_doc``, ``modbus_sim``): the refusal
+    printed on stderr and None returned, the tool then exits ``EXIT_BAD_DESCRIPTION``."""
+    try:
+        return load(path)
+    except DescriptionError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return None
 
 
 def load(path: str | Path) -> Description:

@@ -12,9 +12,13 @@ from collections.abc import Sequence
 
 from bridge_core.wire.registers import Access, Register, ValueType
 
-from .description import Description, DescriptionError, Device, load
+from .description import (
+    EXIT_BAD_DESCRIPTION,
+    Description,
+    Device,
+    load_for_command,
+)
 
-EXIT_BAD_DESCRIPTION = 2
 ACCESS_TEXT = {Access.READ: "R", Access.READ_WRITE: "RW", Access.WRITE: "W"}  # the file's
 REGISTER_COLUMNS = (
     "name",
@@ -200,10 +204,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description="print a device description as Markdown")
     parser.add_argument("file", help="device description YAML")
     args = parser.parse_args(argv)
-    try:
-        description = load(args.file)
-    except DescriptionError as err:
-        print(f"error: {err}", file=sys.stderr)
+    description = load_for_command(args.file)
+    if description is None:
         return EXIT_BAD_DESCRIPTION
     sys.stdout.write(markdown(description))
     return 0

@@ -127,13 +127,9 @@ class ModbusBridgeNode(BridgeNode[DeviceSnapshot]):
         # Fed from a thread of its own at the link's top priority (bridge_core.runtime.keepalive).
         self.keepalive: Keepalive | None = None
         if self.device.keepalive is not None:
-            self.keepalive = Keepalive(
-                f"{self.get_name()}-keepalive",
-                self._next_feed,
-                self._feed_keepalive,
-                lambda err: self.get_logger().error(f"keepalive feed failed: {err}"),
+            self.keepalive = self.start_keepalive(
+                "keepalive", self._next_feed, self._feed_keepalive
             )
-            self.keepalive.start()
 
     def _defaults_from_file(self, node: ParameterNode) -> DeviceDefaults:
         path, description = described_by_parameter(node, DEVICE_FILE_SPEC)

@@ -51,9 +51,14 @@ from bridge_core.sim.sim_base import (
 from bridge_core.wire.codec import decode
 from bridge_core.wire.registers import Register, Table, ValueType
 
-from .description import Description, DescriptionError, Device, Joint, load
+from .description import (
+    EXIT_BAD_DESCRIPTION,
+    Description,
+    Device,
+    Joint,
+    load_for_command,
+)
 
-EXIT_BAD_DESCRIPTION = 2
 DEFAULT_TCP_PORT = 5020
 # Largest finite value of each float type (IEEE 754 binary32 / binary64).
 FLOAT_LIMITS = {ValueType.F32: 3.4028234663852886e38, ValueType.F64: sys.float_info.max}
@@ -238,10 +243,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--stopbits", type=int, choices=(1, 2), help="default: the file's, else 1")
     add_log_arguments(parser)
     args = parser.parse_args(argv)
-    try:
-        description = load(args.device_file)
-    except DescriptionError as err:
-        print(f"error: {err}", file=sys.stderr)
+    description = load_for_command(args.device_file)
+    if description is None:
         return EXIT_BAD_DESCRIPTION
     link = description.line or description.device.link
     rtu = link.rtu if link is not None else None

@@ -41,7 +41,6 @@ from bridge_core.ros.node_base import BridgeNode, copy_fields
 from bridge_core.ros.process import BusNode, spin_nodes
 from bridge_core.runtime.checks import board_zero_index
 from bridge_core.runtime.diagnostics import Level, Report
-from bridge_core.runtime.keepalive import Keepalive
 from bridge_core.wire.channel import DeviceChannel
 from bridge_core.wire.errors import CommandRejected, ConfigurationError, DeviceException, LinkError
 from bridge_core.wire.transport import ModbusLink
@@ -160,14 +159,7 @@ class MotecDriveNode(BridgeNode[MotecSnapshot]):
         )
         self.configured = False  # lifecycle: set by on_configure (autostart does it at once)
         self.on_parameter_write("lifeguard_ms", self._set_lifeguard)
-        # Fed from a thread of its own, not an executor timer (bridge_core.runtime.keepalive).
-        self.keepalive = Keepalive(
-            f"{self.get_name()}-lifeguard",
-            self._next_feed,
-            self._feed_lifeguard,
-            lambda err: self.get_logger().error(f"lifeguard feed failed: {err}"),
-        )
-        self.keepalive.start()
+        self.keepalive = self.start_keepalive("lifeguard", self._next_feed, self._feed_lifeguard)
 
     # ------------------------------------------------------------ polling
     def on_link_up(self) -> None:

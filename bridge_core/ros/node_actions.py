@@ -106,29 +106,21 @@ class ActionHost:
         make_motion: Callable[[Any], Motion[Any]],
     ) -> None:
         """An action whose goal starts a motion the polls follow (``goal.timeout_s``)."""
-
-        def execute(handle: ServerGoalHandle) -> Any:
-            return self._guarded(
-                action_type,
-                name,
-                handle,
-                lambda: self._execute_motion(action_type, name, make_motion, handle),
-            )
-
-        self._server(action_type, name, make_motion, execute)
+        self._server(
+            action_type,
+            name,
+            make_motion,
+            lambda handle: self._execute_motion(action_type, name, make_motion, handle),
+        )
 
     def steps(self, action_type: Any, name: str, make_steps: Callable[[Any], Steps]) -> None:
         """An action whose goal the bridge carries out in steps (``goal.timeout_s``)."""
-
-        def execute(handle: ServerGoalHandle) -> Any:
-            return self._guarded(
-                action_type,
-                name,
-                handle,
-                lambda: self._execute_steps(action_type, name, make_steps, handle),
-            )
-
-        self._server(action_type, name, make_steps, execute)
+        self._server(
+            action_type,
+            name,
+            make_steps,
+            lambda handle: self._execute_steps(action_type, name, make_steps, handle),
+        )
 
     def _guarded(
         self, action_type: Any, name: str, handle: ServerGoalHandle, execute: Callable[[], Any]
@@ -150,9 +142,14 @@ class ActionHost:
         action_type: Any,
         name: str,
         check: Callable[[Any], object],
-        execute: Callable[[ServerGoalHandle], Any],
+        run: Callable[[ServerGoalHandle], Any],
     ) -> None:
+        """The action server: goals refused by ``check`` and the node's state, each
+        accepted goal ``run`` in its thread, guarded (``_guarded``)."""
         self._declare_goal_timeout()
+
+        def execute(handle: ServerGoalHandle) -> Any:
+            return self._guarded(action_type, name, handle, lambda: run(handle))
 
         def goal_callback(goal: Any) -> GoalResponse:
             reason = self._refusal(goal, check)

@@ -42,6 +42,7 @@ from std_msgs.msg import Bool
 
 from ..runtime.checks import bounded_text
 from ..runtime.diagnostics import Report
+from ..runtime.keepalive import Keepalive
 from ..runtime.motion_ledger import MotionLedger
 from ..runtime.parameters import bridge_specs
 from ..runtime.poller import Poller, PollOutcome
@@ -109,6 +110,32 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
         self.autostart = bool(values["autostart"])
         self.frame_id = str(values["frame_id"])
         self.read_only = bool(values["read_only"])
+        self.channel = self._open_channel(defaults, values, link, unit_id)
+        self.hardware_id = f"{self.device_name}@{self.channel.describe()}"
+
+        self._create_link_publishers()
+        self.actions = ActionHost(self)
+        self._create_poller(float(values["poll_rate_hz"]), node_name)
+        self.on_parameter("read_only", self._set_read_only)
+        self.on_parameter("poll_rate_hz", lambda rate: setattr(self.poller, "rate_hz", rate))
+        # Start polling once the executor runs, i.e. after the subclass finished __init__.
+        self._poll_starter = self.create_timer(0.0, self._start_polling)
+        self.diagnostics = DiagnosticsPublisher(self)
+        self.create_timer(
+            PENDING_STOP_RETRY_S,
+            self._retry_pending_stops,
+            callback_group=MutuallyExclusiveCallbackGroup(),  # never in a stop service's way
+        )
+
+    def _open_channel(
+        self,
+        defaults: DeviceDefaults,
+        values: dict[str, Any],
+        link: ModbusLink | None,
+        unit_id: int | None,
+    ) -> DeviceChannel:
+        """The device's channel: on a link of its own, opened from its transport
+        parameters, or on the ``link`` it was given (a bus's, never closed here)."""
         self._owned_link: ModbusLink | None = None
         if link is None:
             link = self._owned_link = ModbusLink(link_settings(values))
@@ -119,15 +146,16 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
         stop_timeout_s = defaults.stop_timeout_s
         if stop_timeout_s is not None:
             stop_timeout_s = min(stop_timeout_s, link.settings.timeout_s)
-        self.channel = DeviceChannel(
+        return DeviceChannel(
             link,
             unit_id,
             retries=int(values["retries"]),
             reconnect_max_s=float(values["reconnect_max_s"]),
             down_write_timeout_s=stop_timeout_s,
         )
-        self.hardware_id = f"{self.device_name}@{self.channel.describe()}"
 
+    def _create_link_publishers(self) -> None:
+        """``joint_states`` and the latched ``~/connected`` (false until a poll answers)."""
         self.joint_states_pub = self.create_publisher(
             JointState, "joint_states", JOINT_STATES_DEPTH
         )
@@ -141,12 +169,14 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
         self._connected_lock = threading.Lock()
         self._down_said_at = 0.0  # monotonic time the console last said the link is down
         self._publish_connected(False)
-        self.actions = ActionHost(self)
+
+    def _create_poller(self, rate_hz: float, node_name: str) -> None:
+        """The poller, paused until the node is active, and told of the link's edges."""
         self.poller: Poller[tuple[float, SnapshotT]] = Poller(
             self.channel,
             self._poll,
             self._publish,
-            rate_hz=float(values["poll_rate_hz"]),
+            rate_hz=rate_hz,
             link_up=self._link_up,
             replan=self.replan,
             report=self._poll_report,
@@ -155,20 +185,24 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
         # After the poller's: a loss is said on the console before ~/connected goes false.
         self._unlisten = self.channel.link_state.add_listener(self._link_changed)
         self.poller.pause()  # polls and publishes only while the node is active (lifecycle)
-        self.on_parameter("read_only", self._set_read_only)
-        self.on_parameter("poll_rate_hz", lambda rate: setattr(self.poller, "rate_hz", rate))
-        # Start polling once the executor runs, i.e. after the subclass finished __init__.
-        self._poll_starter = self.create_timer(0.0, self._start_polling)
-        self.diagnostics = DiagnosticsPublisher(self)
-        self.create_timer(
-            PENDING_STOP_RETRY_S,
-            self._retry_pending_stops,
-            callback_group=MutuallyExclusiveCallbackGroup(),  # never in a stop service's way
-        )
 
     # ------------------------------------------------------------ for subclasses
     def param(self, name: str) -> Any:
         return self.get_parameter(name).value
+
+    def start_keepalive(
+        self, what: str, next_feed: Callable[[], float | None], feed: Callable[[], None]
+    ) -> Keepalive:
+        """A device watchdog (``what``: its name in the manual) fed from a thread of its
+        own, not an executor timer (``bridge_core.runtime.keepalive``); the caller closes it."""
+        keepalive = Keepalive(
+            f"{self.get_name()}-{what}",
+            next_feed,
+            feed,
+            lambda err: self.get_logger().error(f"{what} feed failed: {err}"),
+        )
+        keepalive.start()
+        return keepalive
 
     def poll_device(self) -> SnapshotT:
         """Read the device's state; raise LinkError on failure."""
