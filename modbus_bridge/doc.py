@@ -94,23 +94,26 @@ def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
     return lines
 
 
-def device_markdown(device: Device, heading: str = "##") -> list[str]:
-    spec = device.spec.device
+def _link_line(device: Device) -> list[str]:
+    """The device's default link, as its file gives it (none: the line's, or the node's)."""
+    if device.link is None:
+        return []
+    if device.link.tcp is not None:
+        where = f"Modbus TCP {device.link.tcp.host}:{device.link.tcp.port}"
+    else:
+        assert device.link.rtu is not None
+        rtu = device.link.rtu
+        where = f"Modbus RTU {rtu.serial_port} {rtu.baudrate} {rtu.parity}{rtu.stopbits}" + (
+            f", frame gap {rtu.frame_gap_s} s" if rtu.frame_gap_s else ""
+        )
+    return [f"Link (default): {where}, timeout {device.link.timeout_s} s."]
+
+
+def _limits_line(device: Device) -> str:
+    """What the device accepts on the wire (its limits) and the poll rate."""
     limits = device.register_map.limits
-    lines = [f"{heading} {spec.name}" + (f": {spec.title}" if spec.title else ""), ""]
-    lines.append(f"Manual: {spec.manual}. Unit id {spec.unit_id}.")
-    if device.link is not None:
-        if device.link.tcp is not None:
-            where = f"Modbus TCP {device.link.tcp.host}:{device.link.tcp.port}"
-        else:
-            assert device.link.rtu is not None
-            rtu = device.link.rtu
-            where = f"Modbus RTU {rtu.serial_port} {rtu.baudrate} {rtu.parity}{rtu.stopbits}" + (
-                f", frame gap {rtu.frame_gap_s} s" if rtu.frame_gap_s else ""
-            )
-        lines.append(f"Link (default): {where}, timeout {device.link.timeout_s} s.")
     codes = " ".join(f"{code:02X}" for code in sorted(limits.function_codes))
-    lines.append(
+    return (
         f"Function codes {codes}; at most {limits.max_read_registers} registers per read, "
         f"{limits.max_write_registers} per write, {limits.max_read_bits} bits per read; "
         + (
@@ -119,27 +122,30 @@ def device_markdown(device: Device, heading: str = "##") -> list[str]:
             else "no read spans an undefined row"
         )
         + (f"; reply delay {limits.reply_delay_s} s" if limits.reply_delay_s else "")
-        + f"; poll {_number(spec.poll_rate_hz)} Hz."
+        + f"; poll {_number(device.spec.device.poll_rate_hz)} Hz."
     )
-    lines += ["", f"{heading}# Registers", ""]
-    lines += _table(
-        REGISTER_COLUMNS,
-        [
-            register_row(
-                r, device.allowed_values.get(r.name, ()), device.address_texts.get(r.name, "")
-            )
-            for r in device.register_map
-        ],
-    )
-    if device.joints:
-        lines += ["", f"{heading}# Joints (joint_states, SI per REP 103)", ""]
-        rows = []
-        for joint in device.joints:
-            cells = [f"`{joint.name}`"]
-            for source in (joint.position, joint.velocity, joint.effort):
-                cells.append("" if source is None else f"`{source.register}` * {source.to_si:.12g}")
-            rows.append(cells)
-        lines += _table(("joint", "position", "velocity", "effort"), rows)
+
+
+def _joint_lines(device: Device, heading: str) -> list[str]:
+    """The joints section: each joint's registers and their factors to SI."""
+    if not device.joints:
+        return []
+    rows = []
+    for joint in device.joints:
+        cells = [f"`{joint.name}`"]
+        for source in (joint.position, joint.velocity, joint.effort):
+            cells.append("" if source is None else f"`{source.register}` * {source.to_si:.12g}")
+        rows.append(cells)
+    return [
+        "",
+        f"{heading}# Joints (joint_states, SI per REP 103)",
+        "",
+        *_table(("joint", "position", "velocity", "effort"), rows),
+    ]
+
+
+def _command_rows(device: Device) -> list[list[str]]:
+    """A row per command the node offers: triggers, values, coils, then topics."""
     commands = device.commands
     rows = []
     for trigger in commands.triggers:
@@ -164,24 +170,50 @@ def device_markdown(device: Device, heading: str = "##") -> list[str]:
                 _cell(topic.description),
             ]
         )
+    return rows
+
+
+def _keepalive_lines(device: Device) -> list[str]:
+    """The keepalive the node feeds, if the device has one."""
+    keepalive = device.keepalive
+    if keepalive is None:
+        return []
+    period = (
+        f"{_number(keepalive.period_s)} s"
+        if keepalive.period_s is not None
+        else f"read from `{keepalive.period_register}`"
+    )
+    return [
+        "",
+        f"Keepalive: `{keepalive.register}` ({keepalive.mode}), the device's watchdog "
+        f"time {period}, fed three times per period"
+        + ("; motion commands wait for it" if device.spec.device.require_keepalive else "")
+        + ".",
+    ]
+
+
+def device_markdown(device: Device, heading: str = "##") -> list[str]:
+    spec = device.spec.device
+    lines = [f"{heading} {spec.name}" + (f": {spec.title}" if spec.title else ""), ""]
+    lines.append(f"Manual: {spec.manual}. Unit id {spec.unit_id}.")
+    lines += _link_line(device)
+    lines.append(_limits_line(device))
+    lines += ["", f"{heading}# Registers", ""]
+    lines += _table(
+        REGISTER_COLUMNS,
+        [
+            register_row(
+                r, device.allowed_values.get(r.name, ()), device.address_texts.get(r.name, "")
+            )
+            for r in device.register_map
+        ],
+    )
+    lines += _joint_lines(device, heading)
+    rows = _command_rows(device)
     if rows:
         lines += ["", f"{heading}# Commands", ""]
         lines += _table(("name", "kind", "writes", "description"), rows)
-    keepalive = device.keepalive
-    if keepalive is not None:
-        period = (
-            f"{_number(keepalive.period_s)} s"
-            if keepalive.period_s is not None
-            else f"read from `{keepalive.period_register}`"
-        )
-        lines += [
-            "",
-            f"Keepalive: `{keepalive.register}` ({keepalive.mode}), the device's watchdog "
-            f"time {period}, fed three times per period"
-            + ("; motion commands wait for it" if device.spec.device.require_keepalive else "")
-            + ".",
-        ]
-    return lines
+    return lines + _keepalive_lines(device)
 
 
 def markdown(description: Description) -> str:

@@ -260,8 +260,10 @@ def render(monitor: Monitor, device: DemoDevice, rates: dict[str, float]) -> str
     return "\n".join(lines)
 
 
-def main(argv: Sequence[str] | None = None, modules: Sequence[str] | None = None) -> None:
-    """Run the demo; ``modules``: the demo entries to use instead of the declared ones."""
+def _chosen_devices(
+    argv: Sequence[str] | None, modules: Sequence[str] | None
+) -> tuple[argparse.Namespace, list[DemoDevice]]:
+    """The command line and the devices it picks (a usage error exits, as argparse does)."""
     parser = argparse.ArgumentParser(description="run the bridges against their simulators")
     parser.add_argument("--duration", type=float, default=0.0, help="seconds; 0 = until Ctrl-C")
     parser.add_argument(
@@ -288,6 +290,81 @@ def main(argv: Sequence[str] | None = None, modules: Sequence[str] | None = None
     if unknown or not devices:
         names = ", ".join(d.name for d in known)
         parser.error(f"no known device in {args.devices!r} (known: {names})")
+    return args, devices
+
+
+def _call_start_services(monitor: Monitor, devices: Sequence[DemoDevice]) -> None:
+    """Once the devices are connected (or the wait ran out), the services that set them moving."""
+    # The start services need a connected device: on a busy machine the simulators
+    # and bridges take a while to come up, and a service called earlier is refused.
+    for topic in monitor.wait_connected(devices, CONNECT_TIMEOUT_S):
+        print(f"  {topic}: not connected after {CONNECT_TIMEOUT_S:.0f} s", flush=True)
+    for device in devices:
+        for service, type_name, fields in device.start_services:
+            print(
+                "  "
+                + monitor.call(
+                    # with several state nodes, the service names its node itself
+                    f"/{device.name.lower()}/{service}"
+                    if device.state_nodes
+                    else f"/{device.name.lower()}/{device.node_name}/{service}",
+                    type_name,
+                    fields,
+                ),
+                flush=True,
+            )
+
+
+def _show_until_stopped(
+    monitor: Monitor,
+    devices: Sequence[DemoDevice],
+    processes: Sequence[subprocess.Popen[bytes]],
+    duration_s: float,
+    stop: dict[str, bool],
+    logs: Path,
+) -> None:
+    """Each second the devices' state on the console, until ``duration_s`` (0: never),
+    a SIGTERM (``stop``), or a process that exited (SystemExit)."""
+    started = time.monotonic()
+    last_counts = dict(monitor.counts)
+    while not stop["now"] and (duration_s <= 0 or time.monotonic() - started < duration_s):
+        monitor.spin_for(1.0)
+        rates = {}
+        for device in devices:
+            ns = f"/{device.name.lower()}"
+            topic = f"{ns}/joint_states"
+            rates[ns] = float(monitor.counts[topic] - last_counts.get(topic, 0))
+        last_counts = dict(monitor.counts)
+        print(f"--- t = {time.monotonic() - started:5.1f} s", flush=True)
+        for device in devices:
+            print(render(monitor, device, rates), flush=True)
+        for proc in processes:
+            if proc.poll() is not None:
+                raise SystemExit(f"bridge_demo: a process exited ({proc.args!r}); see {logs}")
+
+
+def _shut_down(monitor: Monitor | None, processes: Sequence[subprocess.Popen[bytes]]) -> None:
+    """The monitor closed, then every process asked to stop (SIGINT), newest first."""
+    # A second Ctrl-C must not cut the clean-up short (the bridges' own stops run in
+    # their processes, which got the terminal's SIGINT too): it is bounded anyway.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if monitor is not None:
+        with contextlib.suppress(Exception):  # its context may be gone already
+            monitor.close()
+    for proc in reversed(processes):
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+    for proc in reversed(processes):
+        try:
+            proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+    print("bridge_demo: stopped", flush=True)
+
+
+def main(argv: Sequence[str] | None = None, modules: Sequence[str] | None = None) -> None:
+    """Run the demo; ``modules``: the demo entries to use instead of the declared ones."""
+    args, devices = _chosen_devices(argv, modules)
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"  # everything here is local
     os.environ.pop("ROS_LOCALHOST_ONLY", None)
     os.environ.setdefault("ROS_DOMAIN_ID", str(DEFAULT_DOMAIN_ID))
@@ -315,60 +392,12 @@ def main(argv: Sequence[str] | None = None, modules: Sequence[str] | None = None
             spawn(f"{device.name.lower()}_sim", device.simulator_command(where))
             spawn(device.node_name, device.node_command(where))
         monitor = Monitor(devices)
-        # The start services need a connected device: on a busy machine the simulators
-        # and bridges take a while to come up, and a service called earlier is refused.
-        for topic in monitor.wait_connected(devices, CONNECT_TIMEOUT_S):
-            print(f"  {topic}: not connected after {CONNECT_TIMEOUT_S:.0f} s", flush=True)
-        for device in devices:
-            for service, type_name, fields in device.start_services:
-                print(
-                    "  "
-                    + monitor.call(
-                        # with several state nodes, the service names its node itself
-                        f"/{device.name.lower()}/{service}"
-                        if device.state_nodes
-                        else f"/{device.name.lower()}/{device.node_name}/{service}",
-                        type_name,
-                        fields,
-                    ),
-                    flush=True,
-                )
-        started = time.monotonic()
-        last_counts = dict(monitor.counts)
-        while not stop["now"] and (
-            args.duration <= 0 or time.monotonic() - started < args.duration
-        ):
-            monitor.spin_for(1.0)
-            rates = {}
-            for device in devices:
-                ns = f"/{device.name.lower()}"
-                topic = f"{ns}/joint_states"
-                rates[ns] = float(monitor.counts[topic] - last_counts.get(topic, 0))
-            last_counts = dict(monitor.counts)
-            print(f"--- t = {time.monotonic() - started:5.1f} s", flush=True)
-            for device in devices:
-                print(render(monitor, device, rates), flush=True)
-            for proc in processes:
-                if proc.poll() is not None:
-                    raise SystemExit(f"bridge_demo: a process exited ({proc.args!r}); see {logs}")
+        _call_start_services(monitor, devices)
+        _show_until_stopped(monitor, devices, processes, args.duration, stop, logs)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
-        # A second Ctrl-C must not cut the clean-up short (the bridges' own stops run in
-        # their processes, which got the terminal's SIGINT too): it is bounded anyway.
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
-        if monitor is not None:
-            with contextlib.suppress(Exception):  # its context may be gone already
-                monitor.close()
-        for proc in reversed(processes):
-            if proc.poll() is None:
-                proc.send_signal(signal.SIGINT)
-        for proc in reversed(processes):
-            try:
-                proc.wait(10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-        print("bridge_demo: stopped", flush=True)
+        _shut_down(monitor, processes)
 
 
 if __name__ == "__main__":
