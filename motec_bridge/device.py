@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Hashable, Iterable, Mapping
+from collections.abc import Callable, Hashable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -795,24 +795,9 @@ def disable_all(broadcast: RegisterIO, drives: Mapping[int, RegisterIO]) -> tupl
     return ok, "; ".join(lines)
 
 
-def start_all(
-    broadcast: RegisterIO,
-    drives: Mapping[int, RegisterIO],
-    read_only: Iterable[int] = (),
-    sleep: Callable[[float], None] = time.sleep,
-) -> tuple[bool, str]:
-    """A synchronised start (§4.1 step 6 "0x29 写 1" sent to unit 0, §2.5: "支持广播通信方式
-    ... 不回应广播"): every drive starts the move it was given (0x26, 0x2D, 0xAE).
-
-    Before: ``~/move``'s checks for every drive (network mode, position control, enabled,
-    a speed limit 0xAE > 0), no fault code, and no drive whose node is ``read_only``;
-    refused, nothing sent, otherwise. After (nothing answers a broadcast): every drive's
-    0x28 / 0x29 / 0xAA / 0xAF read back. A drive took the start if its setpoint 0xAA moved
-    since the check or |0xAF| is above the standstill band (0x29 may read 1 from an
-    earlier move: it proves nothing). One that did not leaves a start that is not
-    synchronised, so the drives that did are stopped (``verified_position_stop``) and the
-    answer is False (decision 15); a zero-length move counts as not started.
-    """
+def _start_checked(drives: Mapping[int, RegisterIO], read_only: Iterable[int]) -> dict[int, int]:
+    """``start_all``'s checks before it sends anything (refused: ``CommandRejected``,
+    naming every drive that fails one); the setpoint 0xAA each drive had, by unit."""
     refused = [f"drive {u}'s node is read_only" for u in sorted(set(read_only) & set(drives))]
     before: dict[int, int] = {}
     for unit, io in drives.items():
@@ -837,6 +822,48 @@ def start_all(
             f"enabled, without a fault, with a speed limit 0xAE > 0 and writable; "
             f"{'; '.join(refused)}; nothing was sent"
         )
+    return before
+
+
+def _stop_the_started(
+    drives: Mapping[int, RegisterIO], missed: Sequence[int], sleep: Callable[[float], None]
+) -> list[str]:
+    """A start not every drive took: the drives that did take it stopped, a line each."""
+    stops: list[str] = []
+    for unit, io in drives.items():
+        if unit in missed:
+            continue
+
+        def write(name: str, value: Value, io: RegisterIO = io) -> None:
+            r = MOTEC_MAP[name]
+            io.write_register(r.address, encode(r, value)[0])
+
+        try:
+            stops.append(f"drive {unit}: {verified_position_stop(io, write, sleep)}")
+        except LinkError as err:
+            stops.append(f"drive {unit}: stop failed: {err}")
+    return stops
+
+
+def start_all(
+    broadcast: RegisterIO,
+    drives: Mapping[int, RegisterIO],
+    read_only: Iterable[int] = (),
+    sleep: Callable[[float], None] = time.sleep,
+) -> tuple[bool, str]:
+    """A synchronised start (§4.1 step 6 "0x29 写 1" sent to unit 0, §2.5: "支持广播通信方式
+    ... 不回应广播"): every drive starts the move it was given (0x26, 0x2D, 0xAE).
+
+    Before: ``~/move``'s checks for every drive (network mode, position control, enabled,
+    a speed limit 0xAE > 0), no fault code, and no drive whose node is ``read_only``;
+    refused, nothing sent, otherwise. After (nothing answers a broadcast): every drive's
+    0x28 / 0x29 / 0xAA / 0xAF read back. A drive took the start if its setpoint 0xAA moved
+    since the check or |0xAF| is above the standstill band (0x29 may read 1 from an
+    earlier move: it proves nothing). One that did not leaves a start that is not
+    synchronised, so the drives that did are stopped (``verified_position_stop``) and the
+    answer is False (decision 15); a zero-length move counts as not started.
+    """
+    before = _start_checked(drives, read_only)
     reg = MOTEC_MAP["start"]
     broadcast.write_register(reg.address, encode(reg, START_MOVE)[0])
     seen: dict[int, Mapping[str, Value] | None] = {}
@@ -859,19 +886,7 @@ def start_all(
     ]
     if not missed:
         return True, "; ".join(lines)
-    stops: list[str] = []
-    for unit, io in drives.items():
-        if unit in missed:
-            continue
-
-        def write(name: str, value: Value, io: RegisterIO = io) -> None:
-            r = MOTEC_MAP[name]
-            io.write_register(r.address, encode(r, value)[0])
-
-        try:
-            stops.append(f"drive {unit}: {verified_position_stop(io, write, sleep)}")
-        except LinkError as err:
-            stops.append(f"drive {unit}: stop failed: {err}")
+    stops = _stop_the_started(drives, missed, sleep)
     return False, (
         f"drives {missed} did not take the start ({'; '.join(lines)}); the others were "
         f"stopped: {'; '.join(stops) or 'none had started'}"
