@@ -162,6 +162,7 @@ U16_MAX = 0xFFFF
 _reg = functools.partial(Register, access=R)
 
 
+# One table: a row per register the manual's examples name; splitting it would scatter the map.
 def _build() -> tuple[Register, ...]:
     u16, i16, u32, i32 = ValueType.U16, ValueType.I16, ValueType.U32, ValueType.I32
     regs = [

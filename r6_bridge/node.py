@@ -167,6 +167,8 @@ class R6BridgeNode(BridgeNode[R6Snapshot]):
         decision 23: the step is kept for the operator's next start)."""
         return PROGRAM, lambda: self.device.command("pause")
 
+    # One table: a row per service (type, name, log text, device call); splitting it would
+    # scatter the node's interface.
     def _create_services(self) -> None:
         d = self.device
         for name in COMMANDS:

@@ -93,6 +93,7 @@ def parameter_offered(index: int) -> bool:
     return 0 <= index < PARAMETER_COUNT and not _overlaps_not_offered(PARAMETER_BASE + 2 * index)
 
 
+# One table: a row per register of the manual's §4 and §5; splitting it would scatter the map.
 def _build() -> tuple[Register, ...]:
     regs: list[Register] = [
         Register(

@@ -309,6 +309,8 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
         return Report(Level.OK, "connected", values)
 
     # ------------------------------------------------------------ services
+    # One table: a row per service of each motor and of the controller (type, name, log
+    # text, device call); splitting it would scatter the node's interface.
     def _create_services(self) -> None:
         d = self.device
         for n in range(1, MOTORS + 1):

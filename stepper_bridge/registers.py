@@ -256,6 +256,7 @@ def _coil_register(name: str, plc: int, description: str) -> Register:
     )
 
 
+# One table: the manual's §5 rows in address order; splitting it would scatter the map.
 def _build() -> tuple[Register, ...]:
     regs: list[Register] = []
     # Motor 1-5 basic parameters, 40001-40050.

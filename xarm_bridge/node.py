@@ -167,6 +167,8 @@ class XArmBridgeNode(BridgeNode[XArmSnapshot]):
         return Report(Level.OK, "connected", values)
 
     # ------------------------------------------------------------ services
+    # One table: a row per service (type, name, log text, device call); splitting it would
+    # scatter the node's interface.
     def _create_services(self) -> None:
         d = self.device
 

@@ -144,6 +144,7 @@ def _coil(name: str, address: int, doc: str) -> Register:
     return Register(name, address, ValueType.BOOL, doc, table=Table.COIL, access=Access.READ_WRITE)
 
 
+# One table: the manual's appendix tables (C, D, H, I) in order; splitting it would scatter the map.
 def _build() -> tuple[Register, ...]:
     regs: list[Register] = [
         *_coils("controller_do", 0, CONTROLLER_DIGITAL_CHANNELS, f"{A} coils 0-31"),
