@@ -31,7 +31,7 @@ import threading
 import time
 import traceback
 from collections.abc import Callable, Hashable
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 
 from rclpy.action.server import ActionServer, CancelResponse, GoalResponse, ServerGoalHandle
 from rclpy.callback_groups import ReentrantCallbackGroup
@@ -44,6 +44,8 @@ from .action_results import filled, finish_run, refuse_goal, result_of, send_res
 
 if TYPE_CHECKING:
     from .node_base import BridgeNode
+
+MadeT = TypeVar("MadeT")  # what an action's goal makes: a Motion, or Steps
 
 # How long a new goal waits for the goal it preempts to have sent its stop. The stop is
 # one transaction (bounded by the link's timeout); past this, the new goal is refused.
@@ -110,7 +112,7 @@ class ActionHost:
             action_type,
             name,
             make_motion,
-            lambda handle: self._execute_motion(action_type, name, make_motion, handle),
+            lambda handle, motion: self._execute_motion(action_type, name, motion, handle),
         )
 
     def steps(self, action_type: Any, name: str, make_steps: Callable[[Any], Steps]) -> None:
@@ -119,7 +121,7 @@ class ActionHost:
             action_type,
             name,
             make_steps,
-            lambda handle: self._execute_steps(action_type, name, make_steps, handle),
+            lambda handle, steps: self._execute_steps(action_type, name, steps, handle),
         )
 
     def _guarded(
@@ -141,18 +143,26 @@ class ActionHost:
         self,
         action_type: Any,
         name: str,
-        check: Callable[[Any], object],
-        run: Callable[[ServerGoalHandle], Any],
+        make: Callable[[Any], MadeT],
+        run: Callable[[ServerGoalHandle, MadeT], Any],
     ) -> None:
-        """The action server: goals refused by ``check`` and the node's state, each
-        accepted goal ``run`` in its thread, guarded (``_guarded``)."""
+        """The action server: goals refused by the node's state and ``make`` (its checks,
+        nothing written); an accepted goal's motion or steps made again in its thread and
+        ``run`` there, guarded (``_guarded``)."""
         self._declare_goal_timeout()
 
+        def start(handle: ServerGoalHandle) -> Any:
+            try:
+                made = make(handle.request)
+            except CommandRejected as err:  # the device's state changed since the goal came
+                return refuse_goal(self.node, action_type, handle, f"{name} refused: {err}")
+            return run(handle, made)
+
         def execute(handle: ServerGoalHandle) -> Any:
-            return self._guarded(action_type, name, handle, lambda: run(handle))
+            return self._guarded(action_type, name, handle, lambda: start(handle))
 
         def goal_callback(goal: Any) -> GoalResponse:
-            reason = self._refusal(goal, check)
+            reason = self._refusal(goal, make)
             if reason is None:
                 return GoalResponse.ACCEPT
             self.node.get_logger().warn(f"{name} goal rejected: {reason}")
@@ -211,15 +221,11 @@ class ActionHost:
         self,
         action_type: Any,
         name: str,
-        make_motion: Callable[[Any], Motion[Any]],
+        motion: Motion[Any],
         handle: ServerGoalHandle,
     ) -> Any:
         goal = handle.request
         key = bytes(handle.goal_id.uuid)
-        try:
-            motion = make_motion(goal)
-        except CommandRejected as err:  # the device's state changed since the goal came
-            return refuse_goal(self.node, action_type, handle, f"{name} refused: {err}")
         timeout_s = float(goal.timeout_s) or motion.default_timeout_s(self.goal_timeout_s)
         run: GoalRun[Any] = GoalRun(motion, timeout_s=timeout_s)
         run.thread = threading.current_thread()
@@ -401,15 +407,11 @@ class ActionHost:
         self,
         action_type: Any,
         name: str,
-        make_steps: Callable[[Any], Steps],
+        steps: Steps,
         handle: ServerGoalHandle,
     ) -> Any:
         goal = handle.request
         key = bytes(handle.goal_id.uuid)
-        try:
-            steps = make_steps(goal)
-        except CommandRejected as err:
-            return refuse_goal(self.node, action_type, handle, f"{name} refused: {err}")
         run = StepsRun(steps, float(goal.timeout_s) or self.goal_timeout_s)
         with self._lock:
             older = [old for old in self._steps.values() if old.steps.axes & steps.axes]
