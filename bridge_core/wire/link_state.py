@@ -42,23 +42,21 @@ class LinkState:
 
     def __init__(self) -> None:
         self._lock = threading.RLock()
-        self._connected = False
+        # Read by anyone, written only by the methods below (under the lock): plain
+        # attributes, because the channel reads them on every transaction.
+        # ``connected``: the device's last transaction got an answer (data or an exception).
+        self.connected = False
         self._ever_connected = False
         # Bumped each time the device answers after being down (a poll's, or a stop's
         # sent while down): the poller's link-up work is due once per generation.
         self._generation = 0
         # Bumped whenever the device is marked down: a session (a command, a poll) that
         # began on an older epoch must not run on, or confirm, a link lost meanwhile.
-        self._epoch = 0
+        self.epoch = 0
         self._announced: bool | None = None  # what the listeners were told (None: nothing)
         self._confirmed = 0  # the generation a good poll confirmed (its link-up work done)
         self._losses = 0
         self._listeners: list[LinkListener] = []
-
-    @property
-    def connected(self) -> bool:
-        """True while the device's last transaction got an answer (data or an exception)."""
-        return self._connected
 
     @property
     def ever_connected(self) -> bool:
@@ -67,10 +65,6 @@ class LinkState:
     @property
     def generation(self) -> int:
         return self._generation
-
-    @property
-    def epoch(self) -> int:
-        return self._epoch
 
     @property
     def losses(self) -> int:
@@ -83,7 +77,7 @@ class LinkState:
         """The poller's link-up work is due before the next poll: the device is down (the
         next poll is a probe), or it came up since the last good poll (a stop sent while
         down reconnected it between two polls)."""
-        return not self._connected or self._generation != self._confirmed
+        return not self.connected or self._generation != self._confirmed
 
     def add_listener(self, listener: LinkListener) -> Callable[[], None]:
         """Tell ``listener`` every edge from now on; returns what unsubscribes it."""
@@ -100,16 +94,16 @@ class LinkState:
     def answered(self) -> None:
         """A transaction got an answer: connected (a new generation if it was down)."""
         with self._lock:
-            if not self._connected:
+            if not self.connected:
                 self._ever_connected = True
                 self._generation += 1
-                self._connected = True
+                self.connected = True
 
     def went_down(self, text: str) -> None:
         """A transaction failed on the link: down, a new epoch, and a loss if it was up."""
         with self._lock:
-            self._epoch += 1
-            self._connected = False
+            self.epoch += 1
+            self.connected = False
             self._announce_down(text)
 
     def lose(self, text: str) -> None:
@@ -123,7 +117,7 @@ class LinkState:
         """A whole poll was answered in a session begun at ``epoch``: up (announced once
         per connection), unless the link was marked down since the session began."""
         with self._lock:
-            if not self._connected or epoch != self._epoch:
+            if not self.connected or epoch != self.epoch:
                 return False
             self._confirmed = self._generation
             if self._announced is not True:
