@@ -11,7 +11,6 @@ codes the file lists: FC 05 (else 0F) for one coil, FC 06 (else 10) for one regi
 from __future__ import annotations
 
 import math
-import threading
 import time
 from collections.abc import Callable, Collection, Sequence
 from contextlib import ExitStack
@@ -102,12 +101,9 @@ class DescribedDevice:
         self._positions: list[JointSource | None] = (
             [j.position for j in joints] if any(j.position for j in joints) else []
         )
-        # Motion groups a starts_motion trigger started since their last stop; the stops
-        # the bridge must send on its way out (``exit_stops``).
+        # The trigger that stops each motion group a starts_motion trigger belongs to: the
+        # node's motion ledger sends it on every way out (``BridgeNode.stop_motion``).
         self.exit_stops = device.exit_stops()
-        self.started: set[str] = set()
-        self.stop_pending: set[str] = set()  # exit stops that failed on the link
-        self._started_lock = threading.Lock()
         self.keepalive = KeepaliveFeeder(io, device) if device.keepalive is not None else None
         self._velocities = (
             [j.velocity for j in joints if j.velocity is not None]
@@ -261,16 +257,9 @@ class DescribedDevice:
             return ", ".join(done)
 
         if spec.stop:
-            done = self._as_stop({w.register_name for w in spec.writes}, send)
-            with self._started_lock:
-                self.started.discard(spec.group)
-                self.stop_pending.discard(spec.group)
-            return done
+            return self._as_stop({w.register_name for w in spec.writes}, send)
         if spec.starts_motion:
             self.check_keepalive(name)
-            with self._started_lock:
-                # Before the first write: a start the link cut may have run on the device.
-                self.started.add(spec.group)
         return send()
 
     def check_keepalive(self, what: str) -> None:
@@ -280,25 +269,6 @@ class DescribedDevice:
             raise CommandRejected(
                 f"{what}: the device's keepalive is not armed yet (require_keepalive)"
             )
-
-    def stop_started(self) -> list[tuple[str, str, Exception | None]]:
-        """Send the stop of every motion group a trigger started since its last stop (and
-        of every such stop still pending): [(group, stop trigger, error or None)]. Tried on
-        the wire whatever the link's state; a failed stop stays pending (``on_link_up``)."""
-        with self._started_lock:
-            groups = sorted(self.started | self.stop_pending)
-        results: list[tuple[str, str, Exception | None]] = []
-        for group in groups:
-            stop = self.exit_stops[group]
-            try:
-                self.trigger(stop)
-            except Exception as err:  # reported by the caller; the other groups go on
-                with self._started_lock:
-                    self.stop_pending.add(group)
-                results.append((group, stop, err))
-            else:
-                results.append((group, stop, None))
-        return results
 
     def stream_allowed(self, topic: TopicSpec, register_value: float) -> None:
         if register_value != 0:

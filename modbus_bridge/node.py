@@ -144,31 +144,9 @@ class ModbusBridgeNode(BridgeNode[DeviceSnapshot]):
     def device_names(self) -> tuple[str, ...]:
         return self.described.state_names
 
-    # ------------------------------------------------------------ stop what it started
-    def stop_motion(self, reason: str = "the node stops") -> None:
-        """The base's stops (streams, goals), then the stop trigger of every motion group a
-        ``starts_motion`` trigger started since that group's last stop: on every way out
-        (SIGINT, SIGTERM, deactivate, shutdown, a fatal error, read_only), tried on the wire
-        even while the link is marked down; one that fails is sent again on reconnect."""
-        try:
-            super().stop_motion(reason)
-        finally:
-            for group, stop, err in self.device.stop_started():
-                if err is None:
-                    self.get_logger().info(f"{stop}: sent ({reason}): {group} stopped")
-                else:
-                    self.get_logger().error(
-                        f"{stop} ({reason}) failed: {err}; {group} may still move "
-                        "(sent again on reconnect)"
-                    )
-
     def on_link_up(self) -> None:
-        """A stop that failed on the way is sent first; then the keepalive arms (the
-        device may have been power-cycled, its watchdog time changed)."""
-        for group in sorted(self.device.stop_pending):
-            stop = self.device.exit_stops[group]
-            self.device.trigger(stop)
-            self.get_logger().info(f"{stop}: the pending stop of {group} was sent on reconnect")
+        """The keepalive arms (the device may have been power-cycled, its watchdog time
+        changed); pending stops went out before (``BridgeNode._link_up``)."""
         feeder = self.device.keepalive
         if feeder is None or self.read_only:
             return
@@ -258,8 +236,8 @@ class ModbusBridgeNode(BridgeNode[DeviceSnapshot]):
             state += ", NOT fed (read_only)" if self.read_only else ", fed by the bridge"
             values.append(("keepalive", state))
             values.append(("keepalive floor on this link", f"{self.keepalive_floor_s:.3f} s"))
-        if self.device.started:
-            values.append(("motion started", ", ".join(sorted(self.device.started))))
+        if moving := self.service_motions.moving():
+            values.append(("motion started", ", ".join(sorted(str(g) for g in moving))))
         if self.keepalive_error or self.keepalive_refused:
             return Report(Level.WARN, str(self.keepalive_error or self.keepalive_refused), values)
         return Report(Level.OK, "connected", values)
@@ -291,11 +269,18 @@ class ModbusBridgeNode(BridgeNode[DeviceSnapshot]):
             fill=lambda response, written: setattr(response, "message", f"{written}: done"),
         )
         for trigger in self.described.commands.triggers:
+            # A starts_motion trigger's group is in the node's motion ledger once its write
+            # went out, with its group's stop trigger: every way out sends that stop.
+            exit_stop = device.exit_stops.get(trigger.group) if trigger.starts_motion else None
             self.trigger_service(
                 f"~/{trigger.name}",
                 trigger.name,
                 _bind(device.trigger, trigger.name),
                 stop=trigger.stop,
+                starts=None
+                if exit_stop is None
+                else (trigger.group, _bind(device.trigger, exit_stop)),
+                stops_axes=(trigger.group,) if trigger.stop else (),
             )
         for value in self.described.commands.values:
             name = value.name

@@ -30,7 +30,7 @@ def build(nodes: list[Node]) -> None:
         # Once a poll read the started motion back: the start's write is done (a fatal
         # error while it is still on the wire is test_service_motion_stops's case).
         snapshot = node.last_snapshot
-        if not node.device.started or snapshot is None:
+        if not node.service_motions.moving() or snapshot is None:
             return
         if dict(zip(snapshot.names, snapshot.values, strict=True)).get("control_word") == 1:
             raise InjectedFatalError("injected: an error no callback handles")

@@ -152,7 +152,7 @@ def test_a_silent_line_still_gets_the_stop_tried(client: Client, tmp_path: Path)
         proc.send_signal(signal.SIGINT)
         assert proc.wait(EXIT_TIMEOUT_S) == 0
         log = (tmp_path / "modbus_bridge_node.log").read_text()
-        assert "stop (the node is exiting) failed" in log, log
+        assert "run_forward: its stop failed (the node is exiting)" in log, log
 
 
 def test_kill_9_leaves_the_drive_to_its_keepalive_watchdog(client: Client, tmp_path: Path) -> None:

@@ -148,18 +148,15 @@ def test_the_vfd_example_moves_in_the_simulator_and_stops() -> None:
         device.set_value("set_frequency", 25.0)
         assert device.poll().velocities == (0.0,)  # not running: the setpoint alone
         device.trigger("run_forward")
-        assert device.started == {"motion"}
         # 25 Hz on a 4-pole motor: 12.5 rev/s.
         wait_for(lambda: sim.velocities_si["motor"] > 0.5 * 25 * math.pi, "the ramp")
         snapshot = device.poll()
         assert len(snapshot.positions) == 0  # no joint has a position register
         assert 0 < snapshot.velocities[0] <= 25 * math.pi + 1e-9
-        results = device.stop_started()
-        assert [(group, stop, err) for group, stop, err in results] == [("motion", "stop", None)]
+        assert device.exit_stops == {"motion": "stop"}  # what the node's halts send
+        device.trigger(device.exit_stops["motion"])
         assert writes(sim)[-1] == (6, Table.HOLDING, 0x2000, (5,))
-        assert device.started == set()
         wait_for(lambda: sim.velocities_si["motor"] < 0.01, "the ramp down")
-        assert device.stop_started() == []  # nothing started since the stop
 
 
 def test_a_velocity_only_joint_publishes_nan_beside_a_joint_with_a_position(
@@ -218,7 +215,7 @@ def test_motion_is_refused_until_the_keepalive_is_armed_then_fed_and_counted() -
     with over_tcp(load(VFD)) as (device, sim, _):
         with pytest.raises(CommandRejected, match="keepalive is not armed"):
             device.trigger("run_forward")
-        assert sim.write_log == [] and device.started == set()
+        assert sim.write_log == []
         keepalive = device.keepalive
         assert keepalive is not None and keepalive.next_feed() == -math.inf  # arm now
         keepalive.due()
