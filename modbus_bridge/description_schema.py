@@ -14,6 +14,12 @@ from typing import Annotated, Any, Literal, get_args, get_origin
 import yaml  # type: ignore[import-untyped]
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
+from bridge_core.runtime.parameters import (
+    BAUDRATE_RANGE,
+    POLL_RATE_RANGE_HZ,
+    TIMEOUT_MAX_S,
+    DeviceDefaults,
+)
 from bridge_core.runtime.stream_guard import COMMAND_TIMEOUT_RANGE_S
 from bridge_core.wire.channel import UNIT_ID_MAX
 from bridge_core.wire.registers import (
@@ -30,9 +36,7 @@ from .description_yaml import Loc, Problem, format_loc, line_of
 KNOWN_FUNCTION_CODES = (1, 2, 3, 4, 5, 6, 15, 16, 22, 23)
 FunctionCode = Literal[1, 2, 3, 4, 5, 6, 15, 16, 22, 23]
 DEFAULT_FUNCTION_CODES: tuple[FunctionCode, ...] = (1, 2, 3, 4, 5, 6, 15, 16)
-BAUDRATE_RANGE = (300, 4_000_000)
-TIMEOUT_RANGE_S = (0.01, 10.0)
-POLL_RATE_RANGE_HZ = (0.1, 1000.0)
+TIMEOUT_RANGE_S = (DeviceDefaults.timeout_min_s, TIMEOUT_MAX_S)
 COMMAND_RATE_RANGE_HZ = (0.1, 100.0)
 NAME_PATTERN = r"^[A-Za-z][A-Za-z0-9_]*$"
 PARITY_WORDS = {"none": "N", "even": "E", "odd": "O", "n": "N", "e": "E", "o": "O"}

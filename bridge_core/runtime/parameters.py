@@ -148,6 +148,13 @@ GOAL_TIMEOUT_DEFAULT_S = 600.0
 GOAL_TIMEOUT_MAX_S = 86400.0
 
 
+# The ranges of the common parameters, once: the bridges' nodes and modbus_bridge's
+# description files take them from here.
+BAUDRATE_RANGE = (300, 4_000_000)
+TIMEOUT_MAX_S = 10.0
+POLL_RATE_RANGE_HZ = (0.1, 1000.0)
+
+
 @dataclass(frozen=True)
 class DeviceDefaults:
     """A kind of device as its bridge knows it: its name and the defaults of its parameters.
@@ -190,7 +197,7 @@ def transport_specs(defaults: DeviceDefaults) -> tuple[ParameterSpec, ...]:
                 defaults.serial_port,
                 "serial device path or pyserial URL (e.g. socket://host:port)",
             ),
-            ParameterSpec("baudrate", defaults.baudrate, "serial baud rate", 300, 4_000_000),
+            ParameterSpec("baudrate", defaults.baudrate, "serial baud rate", *BAUDRATE_RANGE),
             ParameterSpec("parity", defaults.parity, "serial parity", choices=PARITIES),
             ParameterSpec("stopbits", defaults.stopbits, "serial stop bits", 1, 2),
             ParameterSpec(
@@ -208,7 +215,7 @@ def transport_specs(defaults: DeviceDefaults) -> tuple[ParameterSpec, ...]:
             defaults.timeout_s,
             "reply timeout per transaction",
             defaults.timeout_min_s,
-            10.0,
+            TIMEOUT_MAX_S,
         ),
     )
 
@@ -258,8 +265,7 @@ def node_specs(defaults: DeviceDefaults) -> tuple[ParameterSpec, ...]:
             "poll_rate_hz",
             defaults.poll_rate_hz,
             "full-state polls per second",
-            0.1,
-            1000.0,
+            *POLL_RATE_RANGE_HZ,
             live=True,
         ),
         ParameterSpec("joint_prefix", "", "prefix of every joint name"),
