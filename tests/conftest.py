@@ -6,6 +6,7 @@ Set before anything imports rclpy, and inherited by every child process a test s
 from __future__ import annotations
 
 import os
+import signal
 import sys
 from pathlib import Path
 
@@ -21,6 +22,11 @@ from bridge_core.wire.ports import free_port  # noqa: E402 (needs the path above
 os.environ.setdefault("ROS_DOMAIN_ID", str(1 + os.getpid() % 100))
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ.pop("ROS_LOCALHOST_ONLY", None)
+# Ctrl-C as a terminal gives it, whatever the runner left: a shell that starts the suite in
+# the background without job control sets SIGINT to ignored, every child inherits that,
+# and the tests that send SIGINT to a node or the demo would see it do nothing. Python's
+# handler is reset to the default at exec, so the children get Ctrl-C back too.
+signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 @pytest.fixture
