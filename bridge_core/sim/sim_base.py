@@ -654,10 +654,24 @@ class PtyPair:
             time.sleep(0.01)
 
     def close(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.terminate()
-            self.proc.wait(5)
+        end_socat(self.proc)
         self._tmp.cleanup()
+
+
+SOCAT_TERM_WAIT_S = 5.0  # socat 1.7.4 now and then misses a SIGTERM (seen in CI): then SIGKILL
+
+
+def end_socat(proc: subprocess.Popen[bytes], term_wait_s: float = SOCAT_TERM_WAIT_S) -> None:
+    """Stop a socat pty pair: SIGTERM, and SIGKILL if it has not gone ``term_wait_s``
+    later, so the ptys vanish either way."""
+    if proc.poll() is not None:
+        return
+    proc.terminate()
+    try:
+        proc.wait(term_wait_s)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
 
 
 def add_log_arguments(parser: argparse.ArgumentParser) -> None:

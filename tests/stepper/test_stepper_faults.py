@@ -25,6 +25,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from pymodbus.framer import FramerRTU
 from std_srvs.srv import Trigger
 
+from bridge_core.sim.sim_base import end_socat
 from msg_defs.msg import StepperState
 from stepper_bridge.sim import StepperSimDevice, make_simulator
 
@@ -227,8 +228,7 @@ def test_line_faults(client: Client, tmp_path: Path) -> None:
                 # 4. The bridge's serial port vanishes (pty closed) and comes back.
                 failed = int(values_of(b.diagnostics()[-1])["failed connects"])
                 t = time.monotonic()
-                pair_a.terminate()
-                pair_a.wait(5)
+                end_socat(pair_a)
                 down_then_up("unplugged", t)
                 # It stays down a while: two reconnect attempts fail.
                 status_after(b, t, 2, connects=lambda v: int(v["failed connects"]) >= failed + 2)
@@ -244,5 +244,4 @@ def test_line_faults(client: Client, tmp_path: Path) -> None:
         finally:
             relay.close()
             simulator.stop()
-            pair_a.terminate()
-            pair_a.wait(5)
+            end_socat(pair_a)
