@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import math
 import subprocess
 import sys
@@ -93,15 +94,16 @@ def test_demo_ends_cleanly_on_ctrl_c(tmp_path: Path) -> None:
             stdout=out,
             stderr=subprocess.STDOUT,
             env=dict(os.environ),
+            start_new_session=True,  # its own group: a failed test kills its children too
         )
         try:
             wait_for(lambda: "--- t =" in out_path.read_text(), 120, "the demo's first report")
             proc.send_signal(signal.SIGINT)
             code = proc.wait(60)
         finally:
-            if proc.poll() is None:
-                proc.kill()
-                proc.wait(10)
+            with contextlib.suppress(ProcessLookupError):  # the simulators and nodes it left
+                os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait(10)
     text = out_path.read_text()
     assert code == 0, text
     assert "Traceback" not in text and "Exception" not in text, text
