@@ -126,3 +126,20 @@ def test_demo_monitor_leaves_ctrl_c_to_python() -> None:
         assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
     finally:
         monitor.close()
+
+
+def test_a_ctrl_c_ends_the_monitor_between_two_spins() -> None:
+    """main()'s SIGINT handler only flags the Ctrl-C; the monitor raises KeyboardInterrupt
+    at its next spin, in Python code: never inside an rclpy call, where pybind11 would turn
+    it into a RuntimeError traceback."""
+    from bridge_core.ros.demo import INTERRUPTED, Monitor
+
+    monitor = Monitor([])
+    try:
+        monitor.spin_for(0.05)  # not interrupted: spins and returns
+        INTERRUPTED.set()
+        with pytest.raises(KeyboardInterrupt):  # at once, not after the hour
+            monitor.spin_for(3600.0)
+    finally:
+        INTERRUPTED.clear()
+        monitor.close()

@@ -44,6 +44,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
@@ -54,6 +55,11 @@ from ..runtime import entries
 from ..wire.ports import free_port
 
 DEFAULT_DOMAIN_ID = 42
+# Ctrl-C seen: the demo ends at its monitor's next spin. Python's own SIGINT handler raises
+# KeyboardInterrupt wherever the main thread is, and inside an rclpy call (a message being
+# taken) pybind11 turns it into "RuntimeError: Unable to convert call argument": a
+# traceback and exit 1 instead of a clean stop (seen in a CI run).
+INTERRUPTED = threading.Event()
 CONNECT_TIMEOUT_S = 30.0
 ROOT = entries.ROOT
 ENTRY_POINT_GROUP = "modbus_bridges.demo"
@@ -138,8 +144,9 @@ class Monitor:
         from sensor_msgs.msg import JointState
         from std_msgs.msg import Bool
 
-        # No rclpy signal handler: Ctrl-C is the plain KeyboardInterrupt main() ends on
-        # (rclpy's own would shut the context down under a spin: a traceback, exit 1).
+        # No rclpy signal handler: Ctrl-C is the KeyboardInterrupt main() ends on (rclpy's
+        # own would shut the context down under a spin: a traceback, exit 1); main()'s
+        # handler only sets INTERRUPTED, which spin_for turns into that exception.
         rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
         self.rclpy = rclpy
         self.node = rclpy.create_node("bridge_demo_monitor")
@@ -178,8 +185,11 @@ class Monitor:
             self.latest[f"diag:{status.hardware_id}"] = status
 
     def spin_for(self, seconds: float) -> None:
+        """Spin ``seconds``; KeyboardInterrupt here, between two spins, after a Ctrl-C."""
         end = time.monotonic() + seconds
         while time.monotonic() < end:
+            if INTERRUPTED.is_set():
+                raise KeyboardInterrupt
             self.executor.spin_once(timeout_sec=max(0.0, min(0.05, end - time.monotonic())))
 
     def call(
@@ -385,6 +395,7 @@ def main(argv: Sequence[str] | None = None, modules: Sequence[str] | None = None
 
     stop = {"now": False}
     signal.signal(signal.SIGTERM, lambda *_: stop.update(now=True))
+    signal.signal(signal.SIGINT, lambda *_: INTERRUPTED.set())
     monitor: Monitor | None = None
     try:
         for device in devices:
