@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import json
 import sys
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -112,6 +113,7 @@ class Device:
     # Register name -> its address as the file wrote it, where not in decimal (0x2100).
     address_texts: dict[str, str] = field(default_factory=dict)
     keepalive: Keepalive | None = None
+    slow_names: tuple[str, ...] = ()  # registers polled every slow_poll_period_s
 
     def exit_stops(self) -> dict[str, str]:
         """Motion group -> the trigger that stops it (the group's first stop trigger), for
@@ -288,12 +290,15 @@ def _build_device(
     keepalive = build_keepalive(spec, register_map, check)
     if spec.device.require_keepalive and spec.keepalive is None:
         check.add(("device", "require_keepalive"), "true, but the file has no keepalive")
-    readable = [r.name for r in register_map if r.access.readable]
+    polls = _check_poll_groups(spec, register_map, joints, check)
+    readable = [r.name for r in register_map if r.access.readable and polls[r.name] != "never"]
     state = spec.device.state
     if state is not None:
         for index, name in enumerate(state):
             if name not in register_map or not register_map[name].access.readable:
                 check.add(("device", "state", index), f"{name!r} is not a readable register")
+            elif polls[name] == "never":
+                check.add(("device", "state", index), f"{name!r} has poll: never (not polled)")
     if check.problems:
         return None
     built_link = None
@@ -310,7 +315,32 @@ def _build_device(
         allowed_values(spec),
         _address_texts(spec, check),
         keepalive,
+        tuple(name for name, group in polls.items() if group == "slow"),
     )
+
+
+def _check_poll_groups(
+    spec: DeviceFileSpec, register_map: RegisterMap, joints: Sequence[Joint], check: Checker
+) -> dict[str, str]:
+    """Each register's rate group; a joint's registers are fast (joint_states is read
+    every poll), and only a readable register is polled."""
+    polls: dict[str, str] = {r.name: r.poll for r in spec.registers}
+    joint_registers = {
+        source.register: joint.name
+        for joint in joints
+        for source in (joint.position, joint.velocity, joint.effort)
+        if source is not None
+    }
+    for index, register in enumerate(spec.registers):
+        where = ("registers", index, "poll")
+        if register.poll == "fast" or register.name not in register_map:
+            continue
+        if not register_map[register.name].access.readable:
+            check.add(where, f"{register.poll}: a write-only register is never polled")
+        elif register.name in joint_registers:
+            joint = joint_registers[register.name]
+            check.add(where, f"{register.poll}, but joint {joint!r} reads it (joints are fast)")
+    return polls
 
 
 def _address_texts(spec: DeviceFileSpec, check: Checker) -> dict[str, str]:

@@ -37,6 +37,7 @@ NODE_PARAMETERS = frozenset(
         "retries",
         "reconnect_max_s",
         "poll_rate_hz",
+        "slow_poll_period_s",
         "joint_prefix",
         "frame_id",
         "read_only",

@@ -133,6 +133,9 @@ class RegisterSpec(_Lenient):
     access: Literal["R", "RW", "W"] = "R"
     range: tuple[Finite, Finite] | None = None
     values: list[Finite] | None = Field(None, min_length=1, description="the allowed writes")
+    # Its rate group: fast (every poll), slow (every slow_poll_period_s), never (read on
+    # request only: ~/read).
+    poll: Literal["fast", "slow", "never"] = "fast"
     description: str = ""
 
 

@@ -17,12 +17,13 @@ from contextlib import ExitStack
 from dataclasses import dataclass
 
 from bridge_core.runtime.checks import check_finite
-from bridge_core.runtime.reads import read_blocks, read_named
+from bridge_core.runtime.rate_groups import SLOW_POLL_PERIOD_DEFAULT_S, PollGroups, plan_groups
+from bridge_core.runtime.reads import read_named
 from bridge_core.runtime.stream_guard import StreamGuard
 from bridge_core.wire.channel import Priority, RegisterIO
 from bridge_core.wire.codec import Value, decode, encode
 from bridge_core.wire.errors import CommandRejected, LinkError
-from bridge_core.wire.planner import ReadRequest, plan_reads
+from bridge_core.wire.planner import ReadRequest
 from bridge_core.wire.registers import Register, Table, ValueType
 
 from .description import Device, Joint, JointSource, Keepalive, TopicSpec, not_allowed
@@ -40,6 +41,7 @@ class DeviceSnapshot:
     """One poll: the values of ``state_names`` (register units) and the joints in SI."""
 
     read_time: float  # wall clock when the block holding the first joint's position was read
+    slow_read_time: float  # wall clock when the slow group was read (0.0: none)
     names: tuple[str, ...]
     values: tuple[Value, ...]
     positions: tuple[float, ...]
@@ -64,28 +66,37 @@ def _stamp_source(joint: Joint) -> JointSource:
     return source
 
 
-def poll_plan(device: Device) -> tuple[list[ReadRequest], str | None]:
-    """The requests of one poll and the register that stamps it (the first joint's
-    position; its block is read last, so a joint change reaches joint_states soonest)."""
+def poll_plan(device: Device) -> tuple[list[ReadRequest], list[ReadRequest], str | None]:
+    """The requests of every poll (the fast group), those of the slow group (registers
+    with ``poll: slow``), and the register that stamps a poll (the first joint's position;
+    its block is read last, so a joint change reaches joint_states soonest)."""
     register_map = device.register_map
+    slow = set(device.slow_names)
     names = list(dict.fromkeys([*device.state_names, *_joint_registers(device)]))
-    plan = plan_reads(register_map, register_map.select(names))
+    fast_plan, slow_plan = plan_groups(
+        register_map, [n for n in names if n not in slow], [n for n in names if n in slow]
+    )
     stamp = _stamp_source(device.joints[0]).register if device.joints else None
     if stamp is not None:
-        plan.sort(key=lambda request: stamp in request.names)
-    return plan, stamp
+        fast_plan.sort(key=lambda request: stamp in request.names)
+    return fast_plan, slow_plan, stamp
 
 
 class DescribedDevice:
     """Poll and command one described device through ``io`` (a ``DeviceChannel``)."""
 
     def __init__(
-        self, io: RegisterIO, device: Device, clock: Callable[[], float] = time.time
+        self,
+        io: RegisterIO,
+        device: Device,
+        clock: Callable[[], float] = time.time,
+        slow_period_s: float = SLOW_POLL_PERIOD_DEFAULT_S,
     ) -> None:
         self.io = io
         self.device = device
         self.map = device.register_map
-        self.plan, self.stamp_register = poll_plan(device)
+        fast, slow, self.stamp_register = poll_plan(device)
+        self.groups = PollGroups(fast, slow, period_s=slow_period_s, wall_clock=clock).follow(io)
         self.functions = self.map.limits.function_codes
         self._clock = clock
         self.triggers = {t.name: t for t in device.commands.triggers}
@@ -118,9 +129,8 @@ class DescribedDevice:
 
     # ------------------------------------------------------------------ polling
     def poll(self) -> DeviceSnapshot:
-        values, read_time = read_blocks(
-            self.io, self.plan, Priority.POLL, self.stamp_register, self._clock
-        )
+        read = self.groups.read(self.io, self.stamp_register)
+        values = read.values
 
         def si(sources: Sequence[JointSource | None]) -> tuple[float, ...]:
             return tuple(
@@ -129,7 +139,8 @@ class DescribedDevice:
 
         names = self.device.state_names
         return DeviceSnapshot(
-            read_time=read_time,
+            read_time=read.read_time,
+            slow_read_time=read.slow_read_time,
             names=names,
             values=tuple(values[name] for name in names),
             positions=si(self._positions),

@@ -30,6 +30,7 @@ from bridge_core.ros.process import spin_node
 from bridge_core.runtime.diagnostics import Level, Report
 from bridge_core.runtime.keepalive import FEED_WAKE_S, Keepalive
 from bridge_core.runtime.parameters import ParameterSpec
+from bridge_core.runtime.rate_groups import PollGroups
 from bridge_core.runtime.stream_guard import StreamGuard
 from bridge_core.wire.codec import Value
 from bridge_core.wire.errors import CommandRejected, ConfigurationError, DeviceException, LinkError
@@ -97,7 +98,9 @@ class ModbusBridgeNode(BridgeNode[DeviceSnapshot]):
                 device.name, defaults_of(device), link=link, unit_id=device.unit_id, **kwargs
             )
         self.described: Device = device
-        self.device: DescribedDevice = DescribedDevice(self.channel, self.described)
+        self.device: DescribedDevice = DescribedDevice(
+            self.channel, self.described, slow_period_s=self.slow_poll_period_s
+        )
         self.hardware_id = f"{self.described.name}@{self.channel.describe()}"
         self.joint_names = [f"{self.joint_prefix}{joint.name}" for joint in self.described.joints]
         self.units: list[str] = [
@@ -210,6 +213,9 @@ class ModbusBridgeNode(BridgeNode[DeviceSnapshot]):
                 self.keepalive.close()
 
     # ------------------------------------------------------------ polling
+    def poll_groups(self) -> PollGroups:
+        return self.device.groups
+
     def poll_device(self) -> DeviceSnapshot:
         return self.device.poll()
 
@@ -219,6 +225,7 @@ class ModbusBridgeNode(BridgeNode[DeviceSnapshot]):
                 snapshot.read_time, snapshot.positions, snapshot.velocities, snapshot.efforts
             )
         message = self.stamped(DeviceValues(), snapshot.read_time)
+        message.slow_stamp = self.stamp(snapshot.slow_read_time)
         message.names = list(snapshot.names)
         message.values = [_number(value) for value in snapshot.values]
         message.units = self.units

@@ -48,6 +48,7 @@ from bridge_core.runtime.checks import (
 from bridge_core.runtime.config_cache import ConfiguredDevice
 from bridge_core.runtime.goals import Motion, Outcome, Verdict
 from bridge_core.runtime.keepalive import FEED_WAKE_S
+from bridge_core.runtime.rate_groups import SLOW_POLL_PERIOD_DEFAULT_S, PollGroups
 from bridge_core.runtime.reads import read_blocks
 from bridge_core.runtime.stream_guard import StreamGuard
 from bridge_core.wire.channel import Priority, RegisterIO
@@ -108,13 +109,16 @@ MOVE_TIME_ALLOWANCE_S = 2.0
 STOP_CHECK_READS = 2
 STOP_CHECK_PERIOD_S = 0.1
 
-STATUS_NAMES = (
-    "operation_mode",
-    "control_mode",
-    "target_distance",
-    "enable",
-    "start",
-    "motion_mode",
+CONFIG_NAMES = ("analog_max_speed", "lifeguard_time", "lifeguard_mode")
+MODE_NAMES = ("operation_mode", "control_mode", "target_distance", "enable", "start")
+
+# Rate groups (README MOTEC decision 20). Fast, every poll: 0xAA-0xAF (joint_states, the
+# moves' verdicts) and 0xC5-0xC9 (the fault code: a move ends FAULT at once; the inputs
+# share the request). Slow: 0x24-0x2D (the modes, enable, start: host-written; a drive
+# that drops enable on a lifeguard trip also raises its fault code, which is fast; every
+# command that depends on a mode reads it at command priority) and 0x109 (the analog
+# input: nothing the bridge decides reads it).
+FAST_NAMES = (
     "position_setpoint",
     "position_actual",
     "speed_setpoint",
@@ -122,12 +126,12 @@ STATUS_NAMES = (
     "input_word",
     "output_state",
     "fault_code",
-    "analog_input",
 )
-CONFIG_NAMES = ("analog_max_speed", "lifeguard_time", "lifeguard_mode")
-MODE_NAMES = ("operation_mode", "control_mode", "target_distance", "enable", "start")
-
+SLOW_NAMES = (*MODE_NAMES, "motion_mode", "analog_input")
+STATUS_NAMES = (*FAST_NAMES, *SLOW_NAMES)
 STATUS_PLAN: list[ReadRequest] = plan_reads(MOTEC_MAP, MOTEC_MAP.select(STATUS_NAMES))
+FAST_PLAN: list[ReadRequest] = plan_reads(MOTEC_MAP, MOTEC_MAP.select(FAST_NAMES))
+SLOW_PLAN: list[ReadRequest] = plan_reads(MOTEC_MAP, MOTEC_MAP.select(SLOW_NAMES))
 CONFIG_PLAN: list[ReadRequest] = plan_reads(MOTEC_MAP, MOTEC_MAP.select(CONFIG_NAMES))
 MODE_PLAN: list[ReadRequest] = plan_reads(MOTEC_MAP, MOTEC_MAP.select(MODE_NAMES))
 OUTPUT_WORD_PLAN: list[ReadRequest] = plan_reads(MOTEC_MAP, MOTEC_MAP.select(("output_word",)))
@@ -187,7 +191,8 @@ class MotecConfig:
 class MotecSnapshot:
     """One poll of one drive (drive units)."""
 
-    read_time: float  # wall clock just before the first status read
+    read_time: float  # wall clock when 0xAA-0xAF were read
+    slow_read_time: float  # wall clock when the slow group was read (modes, analog input)
     modes: Modes
     motion_mode: int
     target_distance: int  # counts, as last written
@@ -320,6 +325,7 @@ class MotecDevice(ConfiguredDevice[MotecConfig]):
         *,
         max_speed_rpm: int = DEFAULT_MAX_SPEED_RPM,
         config_refresh_s: float = DEFAULT_CONFIG_REFRESH_S,
+        slow_period_s: float = SLOW_POLL_PERIOD_DEFAULT_S,
         velocity_timeout_s: float = DEFAULT_VELOCITY_TIMEOUT_S,
         output1_coil: int = OUTPUT1_COIL_DEFAULT,
         read_io_tables: bool = False,
@@ -337,7 +343,9 @@ class MotecDevice(ConfiguredDevice[MotecConfig]):
         self.allow_unlisted_parameters = allow_unlisted_parameters
         self._clock = clock
         self._sleep = sleep
-        super().__init__(io, MOTEC_MAP, CONFIG_PLAN, config_refresh_s, clock)
+        groups = PollGroups(FAST_PLAN, SLOW_PLAN, period_s=slow_period_s, clock=clock)
+        super().__init__(io, MOTEC_MAP, CONFIG_PLAN, config_refresh_s, clock, groups=groups)
+        self._io_tables: dict[str, Any] = {}  # read with the slow group (read_io_tables)
         # cmd_velocity: one stream (this drive). A 0 ends only the stream's own motion:
         # 0xAE is also a position move's speed limit (README "MOTEC decisions").
         self.stream: StreamGuard[int] = StreamGuard(
@@ -383,16 +391,20 @@ class MotecDevice(ConfiguredDevice[MotecConfig]):
         return int(read_blocks(self.io, OUTPUT_WORD_PLAN, priority)[0]["output_word"])
 
     def poll(self) -> MotecSnapshot:
-        v, read_time = self.poll_status(STATUS_PLAN, STAMP_REGISTER)
-        io: dict[str, Any] = {}
-        if self.read_io_tables:  # 3 more reads (README "MOTEC decisions" 12)
-            io = {
+        read = self.poll_status(STAMP_REGISTER)
+        v = read.values
+        if self.read_io_tables and (read.slow_refreshed or not self._io_tables):
+            # 3 more reads (README "MOTEC decisions" 12), with the slow group: copies of
+            # 0xC5 / 0xC6, which every poll reads. Empty until all three got through.
+            self._io_tables = {}
+            self._io_tables = {
                 "output_word_79": self.read_output_word_79(Priority.POLL),
                 "coil_outputs": self.read_outputs(Priority.POLL),
                 "discrete_inputs": self.read_inputs(Priority.POLL),
             }
         return MotecSnapshot(
-            read_time=read_time,
+            read_time=read.read_time,
+            slow_read_time=read.slow_read_time,
             modes=Modes(int(v["operation_mode"]), int(v["control_mode"]), bool(v["enable"])),
             motion_mode=int(v["motion_mode"]),
             target_distance=int(v["target_distance"]),
@@ -407,7 +419,7 @@ class MotecDevice(ConfiguredDevice[MotecConfig]):
             analog_input=int(v["analog_input"]),
             config=self.config,
             output1_coil=self.output1_coil,
-            **io,
+            **self._io_tables,
         )
 
     # ------------------------------------------------------------------ writes

@@ -28,6 +28,7 @@ x 2 pi (rad), velocity = 0xAF rpm x 2 pi / 60 / ``gear_ratio`` (rad/s); ``~/move
 
 from __future__ import annotations
 
+import functools
 import sys
 from collections.abc import Sequence
 from typing import Any
@@ -41,8 +42,10 @@ from bridge_core.ros.node_base import BridgeNode, copy_fields
 from bridge_core.ros.process import BusNode, spin_nodes
 from bridge_core.runtime.checks import board_zero_index
 from bridge_core.runtime.diagnostics import Level, Report
+from bridge_core.runtime.rate_groups import PollGroups
 from bridge_core.wire.channel import DeviceChannel
 from bridge_core.wire.errors import CommandRejected, ConfigurationError, DeviceException, LinkError
+from bridge_core.wire.requests import Span
 from bridge_core.wire.transport import ModbusLink
 from msg_defs.action import MoveTo
 from msg_defs.msg import MotecState
@@ -130,6 +133,7 @@ class MotecDriveNode(BridgeNode[MotecSnapshot]):
             self.channel,
             max_speed_rpm=int(values["max_speed_rpm"]),
             config_refresh_s=float(values["config_refresh_s"]),
+            slow_period_s=self.slow_poll_period_s,
             velocity_timeout_s=float(values["command_timeout_s"]),
             output1_coil=int(values["output1_coil"]),
             read_io_tables=bool(values["read_io_tables"]),
@@ -173,6 +177,9 @@ class MotecDriveNode(BridgeNode[MotecSnapshot]):
                 self.lifeguard_error = f"arming the lifeguard failed: the drive answered {err}"
                 self.get_logger().error(self.lifeguard_error)
 
+    def poll_groups(self) -> PollGroups:
+        return self.device.groups
+
     def poll_device(self) -> MotecSnapshot:
         return self.device.poll()
 
@@ -183,6 +190,7 @@ class MotecDriveNode(BridgeNode[MotecSnapshot]):
             [self.scale.velocity(s.speed_actual_rpm)],
         )
         m = copy_fields(self.stamped(MotecState(), s.read_time), s, STATE_FIELDS)
+        m.slow_stamp = self.stamp(s.slow_read_time)
         copy_fields(m, s.config, CONFIG_FIELDS)
         m.unit_id = self.unit_id
         m.operation_mode = s.modes.operation_mode
@@ -468,10 +476,24 @@ class MotecBusNode(BusNode):
         self.broadcast = DeviceChannel(self.link, BROADCAST_UNIT, retries=0)
         # One channel per drive for start_all's check (its own: no drive node's backoff).
         self.drive_channels = {u: DeviceChannel(self.link, u, retries=0) for u in self.unit_ids}
+        # Their writes (and the broadcast's) change what the drive nodes' slow groups hold
+        # (0x28, 0x29): those are read again at the next poll.
+        self.broadcast.add_write_listener(self._broadcast_written)
+        for unit, channel in self.drive_channels.items():
+            channel.add_write_listener(functools.partial(self._drive_written, unit))
         # The drive nodes of this process (build_nodes): start_all obeys their read_only.
         self.drive_nodes: dict[int, MotecDriveNode] = {}
         self.create_service(Trigger, "~/disable_all", self._disable_all)
         self.create_service(Trigger, "~/start_all", self._start_all)
+
+    def _broadcast_written(self, span: Span) -> None:
+        for unit in self.drive_nodes:
+            self._drive_written(unit, span)
+
+    def _drive_written(self, unit: int, span: Span) -> None:
+        drive = self.drive_nodes.get(unit)
+        if drive is not None:
+            drive.device.groups.note_write(span)
 
     def _disable_all(self, _request: Any, response: Any) -> Any:
         if self.read_only:

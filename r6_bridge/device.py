@@ -12,6 +12,7 @@ from typing import Any
 
 from bridge_core.runtime.checks import check_whole_number
 from bridge_core.runtime.goals import Motion, Outcome, Verdict
+from bridge_core.runtime.rate_groups import SLOW_POLL_PERIOD_DEFAULT_S, PollGroups
 from bridge_core.runtime.reads import holds, read_blocks, read_named
 from bridge_core.wire.channel import Priority, RegisterIO
 from bridge_core.wire.codec import Value, encode, int_to_words, words_to_int
@@ -63,6 +64,13 @@ POINT_FRAME_HEADER_REGISTERS = 2  # 30005 point count, 30006 clear flag
 # blocks before those two were read (README R6 decision 26).
 STAMP_REGISTER = "axis_position_1"
 WORLD_STAMP_REGISTER = "world_x"
+# The slow group (README R6 decision 28): read every slow_poll_period_s, and at the next
+# poll after a write to it. The axis count is configuration (§3.1.7; a count that shrinks
+# is also caught at once by the refused read of an axis no longer in use); the global
+# speed is a setting (§3.2.2) that ~/set_global_speed reads back itself. Everything else
+# moves by itself or is judged by a motion (alarm, moving, cycle times), or shares a
+# request with such a row; the IO board outputs stay fast: a running program switches them.
+SLOW_NAMES = frozenset({"axis_count", "global_speed"})
 MODE_AUTO = 2  # 2185: "2 自动" (decision 2)
 # The commands that set the program running (README R6 decision 23): checked first.
 PROGRAM_COMMANDS = ("start", "single_cycle", "clear_alarm_and_continue", "clear_alarm_and_next")
@@ -111,6 +119,7 @@ class R6Snapshot:
     # read_time (a snapshot built by hand).
     world_read_time: float = 0.0
     state_read_time: float = 0.0
+    slow_read_time: float = 0.0  # when the slow group (SLOW_NAMES) was read
     # Only with ``m_boards`` / ``eu_board`` (README R6 decision 21): empty / None otherwise.
     m_board_inputs: tuple[int, ...] = ()
     m_board_outputs: tuple[int, ...] = ()
@@ -125,7 +134,14 @@ class R6Snapshot:
 class R6Device:
     """The R6 controller behind one Modbus channel."""
 
-    def __init__(self, io: RegisterIO, *, m_boards: bool = False, eu_board: bool = False) -> None:
+    def __init__(
+        self,
+        io: RegisterIO,
+        *,
+        m_boards: bool = False,
+        eu_board: bool = False,
+        slow_period_s: float = SLOW_POLL_PERIOD_DEFAULT_S,
+    ) -> None:
         """``m_boards``: the controller offers the M boards' values (the manual withholds
         them from the handheld network-port version); ``eu_board``: an EU board is fitted.
         Each adds its IO rows to the poll and lets ``set_output`` switch its outputs."""
@@ -135,6 +151,10 @@ class R6Device:
         self.stops = 0  # stop / pause / stop_button commands acknowledged (RunCycleMotion)
         self._plan: list[ReadRequest] | None = None
         self._plan_counts: tuple[int, int] | None = None
+        # The slow group (SLOW_NAMES) and the fast head of the poll (the world block and
+        # the axis positions are read after it, each with its own stamp).
+        self.groups = PollGroups([], [], period_s=slow_period_s).follow(io)
+        self._grouped: list[ReadRequest] | None = None  # the plan the groups were set from
 
     # ------------------------------------------------------------------ polling
     def poll_plan(self, axis_count: int, io_board_count: int) -> list[ReadRequest]:
@@ -194,14 +214,22 @@ class R6Device:
         if self._plan is None or self._plan_counts is None:
             self._plan_counts = self.read_counts()
             self._plan = self.poll_plan(*self._plan_counts)
-        # Three reads, each with its time: the rest, the world block, the axis positions.
+        # Three reads, each with its time: the rest (with the slow group when it is due),
+        # the world block, the axis positions.
         plan = self._plan
-        head = [
-            r for r in plan if not holds(r, WORLD_STAMP_REGISTER) and not holds(r, STAMP_REGISTER)
-        ]
         world = [r for r in plan if holds(r, WORLD_STAMP_REGISTER)]
         positions = [r for r in plan if holds(r, STAMP_REGISTER) and r not in world]
-        values, state_time = read_blocks(self.io, head, Priority.POLL)
+        if self._grouped is not plan:
+            # The global speed first: slow_stamp is its read time.
+            slow = sorted(
+                (r for r in plan if r.names <= SLOW_NAMES),
+                key=lambda r: "global_speed" not in r.names,
+            )
+            head = [r for r in plan if r not in world and r not in positions and r not in slow]
+            self.groups.set_plans(head, slow)
+            self._grouped = plan
+        read = self.groups.read(self.io)
+        values, state_time = dict(read.values), read.read_time
         world_values, world_time = read_blocks(self.io, world, Priority.POLL, WORLD_STAMP_REGISTER)
         values.update(world_values)
         read_time = world_time
@@ -231,6 +259,7 @@ class R6Device:
         return R6Snapshot(
             read_time=read_time,
             world_read_time=world_time,
+            slow_read_time=read.slow_read_time,
             state_read_time=state_time,
             mode=i("mode"),
             alarm_code=i("alarm_code"),

@@ -12,6 +12,7 @@ from bridge_core.ros.node_base import BridgeNode, copy_fields
 from bridge_core.ros.process import spin_node
 from bridge_core.runtime.diagnostics import Level, Report
 from bridge_core.runtime.parameters import padded
+from bridge_core.runtime.rate_groups import PollGroups
 from bridge_core.runtime.units import DEG, MM, RPM_TO_RAD_S, euler_xyz_deg_to_quaternion
 from bridge_core.wire.errors import CommandRejected, DeviceException, FrameError
 from msg_defs.action import PointUpload, RunCycle
@@ -72,7 +73,10 @@ class R6BridgeNode(BridgeNode[R6Snapshot]):
         self.gear_ratios = padded(values["gear_ratios"], MAX_AXES, 1.0)
         self.rated_torques = padded(values["rated_torques"], MAX_AXES, 1.0)
         self.device = R6Device(
-            self.channel, m_boards=bool(values["m_boards"]), eu_board=bool(values["eu_board"])
+            self.channel,
+            m_boards=bool(values["m_boards"]),
+            eu_board=bool(values["eu_board"]),
+            slow_period_s=self.slow_poll_period_s,
         )
         self.firmware_version = ""
 
@@ -90,6 +94,9 @@ class R6BridgeNode(BridgeNode[R6Snapshot]):
             # A controller without the version rows still gets polled.
             self.firmware_version = f"unavailable ({err})"
         self.get_logger().info(f"R6 firmware {self.firmware_version!r}")
+
+    def poll_groups(self) -> PollGroups:
+        return self.device.groups
 
     def poll_device(self) -> R6Snapshot:
         return self.device.poll()
@@ -113,6 +120,7 @@ class R6BridgeNode(BridgeNode[R6Snapshot]):
         # Each message carries the read time of the rows it holds (decision 26).
         state_time = snapshot.state_read_time or snapshot.read_time
         state = copy_fields(self.stamped(R6State(), state_time), snapshot, STATE_FIELDS)
+        state.slow_stamp = self.stamp(snapshot.slow_read_time)
         state.world_extra = [snapshot.world[axis] for axis in self.extra_world_axes]
         state.m_board_inputs = list(snapshot.m_board_inputs)
         state.m_board_outputs = list(snapshot.m_board_outputs)

@@ -45,12 +45,14 @@ from bridge_core.runtime.checks import (
 )
 from bridge_core.runtime.config_cache import ConfiguredDevice
 from bridge_core.runtime.goals import Motion, Outcome, Verdict, within
+from bridge_core.runtime.rate_groups import SLOW_POLL_PERIOD_DEFAULT_S, PollGroups
 from bridge_core.runtime.stream_guard import StreamGuard
 from bridge_core.wire.channel import Priority, RegisterIO
 from bridge_core.wire.codec import Value, decode, encode
 from bridge_core.wire.errors import CommandRejected, DeviceException, LinkError
 from bridge_core.wire.planner import ReadRequest, plan_reads
-from bridge_core.wire.registers import Register
+from bridge_core.wire.registers import Register, Table
+from bridge_core.wire.requests import Span
 
 from .registers import (
     ARC_MODE_CENTER,
@@ -70,6 +72,7 @@ from .registers import (
     SYSTEM_MODES,
     U16_MAX,
     U32_MAX,
+    coil,
     motor_coil,
     motor_register,
     output_coil,
@@ -186,20 +189,33 @@ class InterpolationRun:
 class StepperSnapshot:
     """One poll: status as read now, configuration as last read."""
 
-    read_time: float  # wall clock when the first status register was read
+    read_time: float  # wall clock when the coordinates were read (joint_states)
+    # When the running flags, read first, were read (~/state): a state stamped after a
+    # stop shows flags read after it (the stop may go between the two reads).
+    state_read_time: float
+    slow_read_time: float  # wall clock when the slow group (the outputs) was read
     coordinates: tuple[float, ...]  # user units (register / 100)
     running: tuple[bool, ...]
     inputs: tuple[bool, ...]  # input 1 first
-    outputs: tuple[bool, ...]  # output 1 first
+    outputs: tuple[bool, ...]  # output 1 first; the slow group, read at slow_read_time
     config: StepperConfig
 
 
-def _status_names() -> list[str]:
+def _fast_names() -> list[str]:
+    """Every poll (README stepper decision 21): what moves by itself and what the motions
+    judge: the running flags (a motion ends, a limit or the home switch stops a motor),
+    the coordinates (joint_states), the inputs (the limit and home switches)."""
     names = [motor_register(m, "coordinate") for m in range(1, MOTORS + 1)]
     names += [f"input_{n}" for n in range(1, INPUTS + 1)]
-    names += [f"output_{n}" for n in range(1, OUTPUTS + 1)]
     names += [motor_register(m, "running") for m in range(1, MOTORS + 1)]
     return names
+
+
+def _slow_names() -> list[str]:
+    """Every ``slow_poll_period_s``: the outputs change only by coils (00049-00072, all
+    outputs on / off, the e-stop: ``OUTPUTS_TOUCHED_BY``), which refresh them at the next
+    poll; nothing the bridge decides reads them."""
+    return [f"output_{n}" for n in range(1, OUTPUTS + 1)]
 
 
 def _config_names() -> list[str]:
@@ -218,9 +234,25 @@ _RUNNING_REGISTERS = frozenset(motor_register(m, "running") for m in range(1, MO
 # The running flags are read first: a coordinate read after a flag that says "stands" is
 # where the motor stopped. In address order (coordinates first) a motor that stops between
 # the two reads would be reported standing at a coordinate from before its last step.
-STATUS_PLAN: list[ReadRequest] = sorted(
-    plan_reads(STEPPER_MAP, STEPPER_MAP.select(_status_names())),
+FAST_PLAN: list[ReadRequest] = sorted(
+    plan_reads(STEPPER_MAP, STEPPER_MAP.select(_fast_names())),
     key=lambda request: not any(r.name in _RUNNING_REGISTERS for r in request.registers),
+)
+SLOW_PLAN: list[ReadRequest] = plan_reads(STEPPER_MAP, STEPPER_MAP.select(_slow_names()))
+# The writes that change an output besides the outputs' own rows (which are read only).
+_OUTPUT_COILS = range(output_coil(1, True), output_coil(OUTPUTS, False) + 1)
+OUTPUTS_TOUCHED_BY: tuple[Span, ...] = (
+    Span(Table.COIL, _OUTPUT_COILS.start, len(_OUTPUT_COILS)),
+    *(
+        Span(Table.COIL, coil(SYSTEM_COILS[name]))
+        for name in (
+            "emergency_stop",
+            "all_outputs_on",
+            "all_outputs_off",
+            "factory_reset",
+            "clear_all_parameters",
+        )
+    ),
 )
 # joint_states is stamped with the read time of the block holding the coordinates.
 STAMP_REGISTER = motor_register(1, "coordinate")
@@ -318,11 +350,19 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
         io: RegisterIO,
         *,
         config_refresh_s: float = DEFAULT_CONFIG_REFRESH_S,
+        slow_period_s: float = SLOW_POLL_PERIOD_DEFAULT_S,
         jog_timeout_s: float = DEFAULT_JOG_TIMEOUT_S,
         pair_reading: str = PAIR_READING_UNSET,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
-        super().__init__(io, STEPPER_MAP, CONFIG_PLAN, config_refresh_s, clock)
+        groups = PollGroups(
+            FAST_PLAN,
+            SLOW_PLAN,
+            period_s=slow_period_s,
+            touched_by=OUTPUTS_TOUCHED_BY,
+            clock=clock,
+        )
+        super().__init__(io, STEPPER_MAP, CONFIG_PLAN, config_refresh_s, clock, groups=groups)
         # Which reading of pair types 2 and 3 the controller follows (PAIR_READING_CHOICES).
         self.pair_reading = pair_reading
         # The jog streams (one per motor) and the direction coil each motor was last sent
@@ -421,13 +461,16 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
     def poll(self) -> StepperSnapshot:
         sequence = self._next_poll
         self._next_poll += 1
-        v, read_time = self.poll_status(STATUS_PLAN, STAMP_REGISTER)
+        read = self.poll_status(STAMP_REGISTER)
+        v = read.values
         running = tuple(bool(v[motor_register(m, "running")]) for m in range(1, MOTORS + 1))
         coordinates = tuple(float(v[motor_register(m, "coordinate")]) for m in range(1, MOTORS + 1))
         self._note_wrong_pair(coordinates)
         self._note_running(sequence, running)
         return StepperSnapshot(
-            read_time=read_time,
+            read_time=read.read_time,
+            state_read_time=read.first_read_time,
+            slow_read_time=read.slow_read_time,
             coordinates=coordinates,
             running=running,
             inputs=tuple(bool(v[f"input_{n}"]) for n in range(1, INPUTS + 1)),

@@ -42,6 +42,7 @@ from bridge_core.ros.process import spin_node
 from bridge_core.runtime.checks import board_zero_index
 from bridge_core.runtime.diagnostics import Level, Report
 from bridge_core.runtime.parameters import padded
+from bridge_core.runtime.rate_groups import PollGroups
 from bridge_core.wire.errors import CommandRejected, ConfigurationError
 from bridge_core.wire.serial_timing import char_time_s
 from bridge_core.wire.transport import SerialSettings
@@ -180,6 +181,7 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
         self.device = StepperDevice(
             self.channel,
             config_refresh_s=float(values["config_refresh_s"]),
+            slow_period_s=self.slow_poll_period_s,
             jog_timeout_s=float(values["command_timeout_s"]),
             pair_reading=str(values["interpolation_pair_reading"]).lower(),
         )
@@ -220,6 +222,9 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
         # The controller may have been changed (or replaced) while the link was down.
         self.device.invalidate_config()
 
+    def poll_groups(self) -> PollGroups:
+        return self.device.groups
+
     def poll_device(self) -> StepperSnapshot:
         return self.device.poll()
 
@@ -233,7 +238,8 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
         motors = s.config.motors
         positions = [self.scales[k].to_si(s.coordinates[k], motors[k].lead) for k in range(MOTORS)]
         self.publish_joints(s.read_time, positions)
-        m = copy_fields(self.stamped(StepperState(), s.read_time), s, STATE_FIELDS)
+        m = copy_fields(self.stamped(StepperState(), s.state_read_time), s, STATE_FIELDS)
+        m.slow_stamp = self.stamp(s.slow_read_time)
         copy_fields(m, s.config, ("system_mode", "homing_order"))
         for name in MOTOR_FIELDS:  # one list per field, an item per motor
             setattr(m, name, [getattr(c, name) for c in motors])

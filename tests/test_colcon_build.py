@@ -177,7 +177,10 @@ def test_the_installed_bridge_serves_its_simulator_with_the_installed_config(
             stderr=subprocess.STDOUT,
         )
         try:
-            msg = client.wait_message(f"{namespace}/joint_states", timeout=60)
+            try:
+                msg = client.wait_message(f"{namespace}/joint_states", timeout=60)
+            except AssertionError as err:  # what the bridge said
+                raise AssertionError(f"{err}\n{(tmp_path / 'r6_bridge.log').read_text()}") from None
             assert len(msg.name) == len(msg.position) > 0
             assert bridge.poll() is None
         finally:

@@ -91,6 +91,8 @@ DESCRIBED: tuple[DescribedInfo, ...] = (
         good_write=(6, VFD_MAP["frequency_setpoint"].address, (2500,)),
         bad=Call("set_frequency", SetValue, {"value": 100.0}),
         position_register=VFD_MAP["output_frequency"],  # the velocity-only joint's
+        slow_register=VFD_MAP["accel_time"],  # poll: slow in vfd_rtu.yaml
+        slow_write=Call("set_accel_time", SetValue, {"value": 5.0}),
         unit_id=1,
         config="",
         startup_only=("serial_port", "baudrate", "parity", "stopbits", *MODBUS_STARTUP_ONLY),
@@ -115,6 +117,7 @@ DESCRIBED: tuple[DescribedInfo, ...] = (
         ),
         bad=Call("set_torque_limit", SetValue, {"value": 300.0}),
         position_register=INVERTER_MAP["motor_position"],
+        slow_register=INVERTER_MAP["torque_limit"],  # poll: slow in inverter_tcp_f32.yaml
         unit_id=1,
         config="",
         startup_only=("host", "port", *MODBUS_STARTUP_ONLY),
@@ -533,7 +536,10 @@ def test_simulator_killed_and_restarted(info: BridgeInfo, client: Client, tmp_pa
     stamped a little after the kill itself).
     """
     rate = 50.0 if info.transport == "tcp" else 20.0
-    with running(info, client, tmp_path, poll_rate_hz=rate, timeout_s=0.3) as r:
+    # A slow period longer than the test: only the reconnect can make the slow group due.
+    with running(
+        info, client, tmp_path, poll_rate_hz=rate, timeout_s=0.3, slow_poll_period_s=3600.0
+    ) as r:
         b = r.bridge
         killed = time.monotonic()
         r.sim.kill()
@@ -563,6 +569,11 @@ def test_simulator_killed_and_restarted(info: BridgeInfo, client: Client, tmp_pa
         client.wait_message(
             b.joint_states, lambda m: stamp_of(m) > restarted_wall, TIMEOUT, since=restarted
         )
+        # No slow value of the old connection: every ~/state after the restart has its
+        # slow group read on the new one.
+        client.wait_message(b.state, timeout=TIMEOUT, since=restarted)
+        for m in client.received(b.state, restarted):
+            assert slow_stamp_of(m) > restarted_wall, "a slow value read before the restart"
         assert r.proc.poll() is None
 
 
@@ -576,6 +587,12 @@ def test_stamp_is_the_read_time_of_the_position_block(shared: Running) -> None:
     since = time.monotonic()
     wait_for(lambda: len(r.joint_states(since)) >= 5, TIMEOUT, "5 joint_states")
     stamps = [stamp_of(m) for m in r.joint_states(since)[:5]]
+    assert_stamped_by_reads(r, reg, stamps)
+
+
+def assert_stamped_by_reads(r: Running, register: Any, stamps: Sequence[float]) -> None:
+    """Each stamp t lies between the handling of the last read covering ``register`` up to
+    t (t1) and the unit's next read request (t3)."""
 
     def unit_reads() -> list[Any]:
         return [rec for rec in r.sim.reads() if rec.unit_id == r.info.unit_id]
@@ -588,8 +605,112 @@ def test_stamp_is_the_read_time_of_the_position_block(shared: Running) -> None:
     reads = unit_reads()
     for t in stamps:
         covering = [
-            i for i, rec in enumerate(reads) if rec.covers(reg.table, reg.address) and rec.time <= t
+            i
+            for i, rec in enumerate(reads)
+            if rec.covers(register.table, register.address) and rec.time <= t
         ]
-        assert covering, f"no read of {reg.name} before the stamp {t}"
+        assert covering, f"no read of {register.name} before the stamp {t}"
         t1, t3 = reads[covering[-1]].time, reads[covering[-1] + 1].time
         assert t1 <= t <= t3, (t1, t, t3)
+
+
+# ---------------------------------------------------------------- 10. rate groups
+def slow_stamp_of(msg: Any) -> float:
+    return float(msg.slow_stamp.sec) + float(msg.slow_stamp.nanosec) * 1e-9
+
+
+def unit_reads_of(r: Running, register: Any, since: float = 0.0) -> list[Any]:
+    """The simulator's handled read requests of this unit covering ``register``."""
+    return [
+        rec
+        for rec in r.sim.reads()
+        if rec.unit_id == r.info.unit_id
+        and rec.covers(register.table, register.address)
+        and rec.time >= since
+    ]
+
+
+@contextmanager
+def slow_period(r: Running, period_s: float) -> Iterator[None]:
+    """``slow_poll_period_s`` set live for the block, then back to its default."""
+    (result,) = r.set_params(slow_poll_period_s=period_s)
+    assert result.successful, result.reason
+    try:
+        yield
+    finally:
+        r.set_params(slow_poll_period_s=1.0)
+
+
+def test_the_slow_group_is_read_less_often_than_the_fast_one(shared: Running) -> None:
+    """Every bridge's slow group is read, again and again, and less often than its joints;
+    ~/state's slow_stamp follows it."""
+    r = shared
+    slow = r.info.slow_register
+    assert slow is not None
+    with slow_period(r, 0.5):
+        since = time.time()
+        wait_for(lambda: len(unit_reads_of(r, slow, since)) >= 3, TIMEOUT, "3 slow reads")
+        slow_reads = unit_reads_of(r, slow, since)[:3]
+        until = slow_reads[-1].time
+        fast_reads = [
+            rec for rec in unit_reads_of(r, r.info.position_register, since) if rec.time <= until
+        ]
+        assert len(fast_reads) > len(slow_reads), (len(fast_reads), len(slow_reads))
+        wait_for(
+            lambda: any(slow_stamp_of(m) >= until for m in r.client.received(r.bridge.state)),
+            TIMEOUT,
+            "a ~/state with the newest slow_stamp",
+        )
+
+
+def test_slow_stamp_is_the_read_time_of_the_slow_group(shared: Running) -> None:
+    """slow_stamp t lies between the handling of a read covering the slow register (t1)
+    and the unit's next read request (t3), as the joint stamp does for its block."""
+    r = shared
+    slow = r.info.slow_register
+    assert slow is not None
+    with slow_period(r, 0.3):
+        since = time.monotonic()
+        wait_for(
+            lambda: len({slow_stamp_of(m) for m in r.client.received(r.bridge.state, since)}) >= 3,
+            TIMEOUT,
+            "3 distinct slow stamps",
+        )
+        stamps = sorted({slow_stamp_of(m) for m in r.client.received(r.bridge.state, since)})[:3]
+    assert_stamped_by_reads(r, slow, stamps)
+
+
+def test_a_write_to_the_slow_group_is_read_back_at_the_next_poll(shared: Running) -> None:
+    """With a period far longer than the test, the slow register is read again before the
+    joints are read twice after the write: only the write can have made it due."""
+    r = shared
+    slow = r.info.slow_register
+    assert slow is not None
+    call = r.info.slow_write or r.info.good
+    with slow_period(r, 3600.0):
+        settled = time.time()  # a refresh the period had made due is over after two polls
+        wait_for(
+            lambda: len(unit_reads_of(r, r.info.position_register, settled)) >= 2,
+            TIMEOUT,
+            "two polls",
+        )
+        before = time.time()
+        reply = r.call(call)
+        assert reply.success, reply.message
+        writes = [w for w in r.sim.writes() if w.time >= before]
+        assert writes, "the call wrote nothing"
+        written = writes[-1].time
+        wait_for(
+            lambda: len(unit_reads_of(r, r.info.position_register, written)) >= 2,
+            TIMEOUT,
+            "two polls after the write",
+        )
+        second_poll = unit_reads_of(r, r.info.position_register, written)[1].time
+        assert [rec for rec in unit_reads_of(r, slow, written) if rec.time <= second_poll], (
+            f"{slow.name} was not read again within a poll of the write"
+        )
+        wait_for(
+            lambda: any(slow_stamp_of(m) >= written for m in r.client.received(r.bridge.state)),
+            TIMEOUT,
+            "a ~/state whose slow group was read after the write",
+        )

@@ -13,6 +13,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 from bridge_core.runtime.checks import check_index, check_whole_number
+from bridge_core.runtime.rate_groups import SLOW_POLL_PERIOD_DEFAULT_S, PollGroups
 from bridge_core.runtime.reads import read_blocks, read_named
 from bridge_core.wire.channel import Priority, RegisterIO
 from bridge_core.wire.codec import Value, encode
@@ -112,6 +113,7 @@ class XArmSnapshot:
     Per-joint tuples hold the arm's joints only (``joint_count`` of them, J1 first)."""
 
     read_time: float  # wall clock when the joint angles (read last) were requested
+    slow_read_time: float  # wall clock when the slow group (README xArm decision 18) was read
     mode: int
     state: int
     error_code: int
@@ -218,7 +220,11 @@ class XArmDevice:
     default)."""
 
     def __init__(
-        self, io: RegisterIO, joint_count: int = JOINTS, user_coils: range = range(0)
+        self,
+        io: RegisterIO,
+        joint_count: int = JOINTS,
+        user_coils: range = range(0),
+        slow_period_s: float = SLOW_POLL_PERIOD_DEFAULT_S,
     ) -> None:
         if isinstance(joint_count, bool) or joint_count not in JOINT_COUNTS:
             raise ConfigurationError(
@@ -229,6 +235,14 @@ class XArmDevice:
         self.joint_count = joint_count
         self.user_coils = check_user_coils(user_coils)
         self.plan = poll_plan(joint_count, user_coils)
+        # The slow group (README xArm decision 18): the analog outputs (H3-4) and the user
+        # coils (C256-511) change only by writes, which refresh them at the next poll. The
+        # digital outputs stay fast: an offline task the arm runs may switch them.
+        slow_names = {*_AO, *_user_coil_names(user_coils)}
+        slow = [r for r in self.plan if r.names <= slow_names]
+        self.groups = PollGroups(
+            [r for r in self.plan if r not in slow], slow, period_s=slow_period_s
+        ).follow(io)
         self._angles = _joint_names("joint_angle", joint_count)
         self._speeds = _joint_names("joint_speed", joint_count)
         self._temperatures = _joint_names("joint_temperature", joint_count)
@@ -248,7 +262,8 @@ class XArmDevice:
 
     def poll(self) -> XArmSnapshot:
         # The angles are read last (a change reaches joint_states soonest) and stamp it.
-        v, read_time = self.read_plan(self.plan, Priority.POLL, self._angles[0])
+        read = self.groups.read(self.io, self._angles[0])
+        v = read.values
 
         def floats(names: tuple[str, ...]) -> tuple[float, ...]:
             return tuple(float(v[n]) for n in names)
@@ -261,7 +276,8 @@ class XArmDevice:
 
         rx, ry, rz = floats(ROTATION_VECTOR_NAMES)
         return XArmSnapshot(
-            read_time=read_time,
+            read_time=read.read_time,
+            slow_read_time=read.slow_read_time,
             mode=int(v["arm_mode"]),
             state=int(v["arm_state"]),
             error_code=int(v["error_code"]),

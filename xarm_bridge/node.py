@@ -13,6 +13,7 @@ from bridge_core.ros.node_base import BridgeNode, copy_fields
 from bridge_core.ros.process import spin_node
 from bridge_core.runtime.checks import board_zero_index
 from bridge_core.runtime.diagnostics import Level, Report
+from bridge_core.runtime.rate_groups import PollGroups
 from bridge_core.runtime.units import (
     DEG,
     MM,
@@ -91,13 +92,21 @@ class XArmBridgeNode(BridgeNode[XArmSnapshot]):
             )
         self.joint_count = int(values["joint_count"])
         self.user_coil_first = first
-        self.device = XArmDevice(self.channel, self.joint_count, range(first, first + count))
+        self.device = XArmDevice(
+            self.channel,
+            self.joint_count,
+            range(first, first + count),
+            slow_period_s=self.slow_poll_period_s,
+        )
         self.joint_names = [f"{self.joint_prefix}joint{j}" for j in range(1, self.joint_count + 1)]
         self.state_pub = self.create_publisher(XArmState, "~/state", 10)
         self.pose_pub = self.create_publisher(PoseStamped, "~/tcp_pose", 10)
         self._create_services()
 
     # ------------------------------------------------------------ polling
+    def poll_groups(self) -> PollGroups:
+        return self.device.groups
+
     def poll_device(self) -> XArmSnapshot:
         return self.device.poll()
 
@@ -119,6 +128,7 @@ class XArmBridgeNode(BridgeNode[XArmSnapshot]):
         self.pose_pub.publish(pose)
 
         m = copy_fields(self.stamped(XArmState(), s.read_time), s, STATE_FIELDS)
+        m.slow_stamp = self.stamp(s.slow_read_time)
         m.state_name = state_name(s.state)
         m.error_text = error_text(s.error_code)
         m.warning_text = warning_text(s.warning_code)

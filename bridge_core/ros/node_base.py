@@ -44,6 +44,7 @@ from ..runtime.keepalive import Keepalive
 from ..runtime.motion_ledger import MotionLedger
 from ..runtime.parameters import bridge_specs
 from ..runtime.poller import Poller, PollOutcome
+from ..runtime.rate_groups import PollGroups
 from ..wire.channel import DeviceChannel, Priority
 from ..wire.errors import CommandRejected, DeviceException, LinkError, NotConfirmed, NotSent
 from ..wire.link_state import LinkEvent
@@ -117,6 +118,8 @@ class BridgeNode(ParameterNode, CommandServices, Generic[SnapshotT]):
         self._create_poller(float(values["poll_rate_hz"]), node_name)
         self.on_parameter("read_only", self._set_read_only)
         self.on_parameter("poll_rate_hz", lambda rate: setattr(self.poller, "rate_hz", rate))
+        self.slow_poll_period_s = float(values["slow_poll_period_s"])  # the device's start value
+        self.on_parameter("slow_poll_period_s", self._set_slow_poll_period)
         # Start polling once the executor runs, i.e. after the subclass finished __init__.
         self._poll_starter = self.create_timer(0.0, self._start_polling)
         self.diagnostics = DiagnosticsPublisher(self)
@@ -234,6 +237,14 @@ class BridgeNode(ParameterNode, CommandServices, Generic[SnapshotT]):
             else:
                 self.get_logger().info(f"{stopped.what}: the pending stop was sent on reconnect")
         self.on_link_up()
+
+    def poll_groups(self) -> PollGroups:
+        """The device's rate groups (``slow_poll_period_s`` sets their period)."""
+        raise NotImplementedError
+
+    def _set_slow_poll_period(self, period_s: float) -> None:
+        self.slow_poll_period_s = period_s
+        self.poll_groups().period_s = period_s
 
     def device_report(self) -> Report | None:
         """The device's own status (alarm code and its meaning) for diagnostics."""

@@ -8,6 +8,7 @@ nothing.
 
 from __future__ import annotations
 
+import time
 import traceback
 from typing import TYPE_CHECKING, Any
 
@@ -15,6 +16,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 
 from ..runtime.diagnostics import Level, link_report
+from ..runtime.rate_groups import PollGroups
 
 if TYPE_CHECKING:
     from .node_base import BridgeNode
@@ -58,6 +60,7 @@ class DiagnosticsPublisher:
         level, message, values = link.level, link.message, list(link.values)
         values.append(("snapshots dropped (publisher behind)", str(poller.snapshots_dropped)))
         values.append(("read_only", str(node.read_only).lower()))
+        values.append(("slow group", slow_group_text(node.poll_groups(), time.time())))
         if node.streams.guards:
             values.append(("stream commands refused", str(node.streams.refusals)))
         if node.actions.servers:
@@ -79,4 +82,13 @@ class DiagnosticsPublisher:
         )
 
 
-__all__ = ["DIAGNOSTICS_PERIOD_S", "DiagnosticsPublisher"]
+def slow_group_text(groups: PollGroups, now: float) -> str:
+    """What the slow group is and how old its values are (the age a user checks)."""
+    if not groups.slow:
+        return "empty (every register is read every poll)"
+    requests = f"{len(groups.slow)} request(s) every {groups.period_s:g} s"
+    read = groups.slow_read_time
+    return f"{requests}, last read {now - read:.1f} s ago" if read else f"{requests}, not read yet"
+
+
+__all__ = ["DIAGNOSTICS_PERIOD_S", "DiagnosticsPublisher", "slow_group_text"]

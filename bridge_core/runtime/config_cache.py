@@ -18,6 +18,7 @@ from ..wire.codec import Value
 from ..wire.errors import CommandRejected
 from ..wire.planner import ReadRequest
 from ..wire.registers import RegisterMap
+from .rate_groups import GroupedRead, PollGroups
 from .reads import read_blocks, read_named
 from .stream_guard import StreamGuard
 
@@ -79,9 +80,12 @@ class ConfiguredDevice(Generic[ConfigT]):
     """Base of a device model whose configuration is cached (stepper, MOTEC).
 
     Reads go through ``read_request`` (bit or register table); ``poll_status`` reads the
-    status plan stamped by its position block, after reading the configuration whole when
-    it is missing and before one refresh request when one is due. A subclass builds its
-    typed ``config`` from ``cached()`` and lists its command streams in ``streams``.
+    status (``groups``: fast every poll, slow every ``slow_poll_period_s``) stamped by its
+    position block, after reading the configuration whole when it is missing and before one
+    refresh request when one is due. The configuration is a third group: refreshed a
+    request per poll every ``refresh_s``, so no poll is long on a slow line, and updated
+    by the bridge's own writes. A subclass builds its typed ``config`` from ``cached()``
+    and lists its command streams in ``streams``.
     """
 
     def __init__(
@@ -91,9 +95,12 @@ class ConfiguredDevice(Generic[ConfigT]):
         config_plan: Sequence[ReadRequest],
         refresh_s: float,
         clock: Callable[[], float] = time.monotonic,
+        *,
+        groups: PollGroups,
     ) -> None:
         self.io = io
         self.register_map = register_map
+        self.groups = groups.follow(io)
         self.streams: list[StreamGuard[Any]] = []
         self._cache = ConfigCache(config_plan, self.read_request, refresh_s, clock)
 
@@ -141,11 +148,9 @@ class ConfiguredDevice(Generic[ConfigT]):
         """The device may have changed (reconnect): the next poll reads it whole first."""
         self._cache.clear()
 
-    def poll_status(
-        self, plan: Sequence[ReadRequest], stamp_register: str
-    ) -> tuple[dict[str, Value], float]:
+    def poll_status(self, stamp_register: str) -> GroupedRead:
         if not self.has_config:
             self.read_whole_config()
-        values, read_time = read_blocks(self.io, plan, Priority.POLL, stamp_register)
+        read = self.groups.read(self.io, stamp_register)
         self._cache.refresh_step()  # one configuration request while a refresh is due
-        return values, read_time
+        return read

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from ..wire.channel import UNIT_ID_MAX, UNIT_ID_MIN
+from .rate_groups import SLOW_POLL_PERIOD_DEFAULT_S, SLOW_POLL_PERIOD_RANGE_S
 
 ParameterValue = bool | int | float | str | list[bool] | list[int] | list[float] | list[str]
 
@@ -266,6 +267,14 @@ def node_specs(defaults: DeviceDefaults) -> tuple[ParameterSpec, ...]:
             defaults.poll_rate_hz,
             "full-state polls per second",
             *POLL_RATE_RANGE_HZ,
+            live=True,
+        ),
+        ParameterSpec(
+            "slow_poll_period_s",
+            SLOW_POLL_PERIOD_DEFAULT_S,
+            "seconds between reads of the slow group (registers that do not move by "
+            "themselves: configuration, identity); every poll reads the fast group",
+            *SLOW_POLL_PERIOD_RANGE_S,
             live=True,
         ),
         ParameterSpec("joint_prefix", "", "prefix of every joint name"),

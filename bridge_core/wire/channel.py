@@ -37,10 +37,12 @@ from .requests import (
     ReadWriteRegisters,
     Reply,
     Request,
+    Span,
     WriteCoil,
     WriteCoils,
     WriteRegister,
     WriteRegisters,
+    written_span,
 )
 
 # First reconnect delay; it doubles per failure up to the node's reconnect_max_s.
@@ -213,6 +215,18 @@ class DeviceChannel:
         self.stats = LinkStats()
         self.link_state = LinkState()
         self._session = threading.local()
+        self._write_listeners: list[Callable[[Span], None]] = []
+
+    def add_write_listener(self, listener: Callable[[Span], None]) -> Callable[[], None]:
+        """``listener(span)`` for every write put on the wire (landed or not), under the
+        link lock: it must not transact (a device's slow group marks itself due)."""
+        self._write_listeners.append(listener)
+
+        def remove() -> None:
+            if listener in self._write_listeners:
+                self._write_listeners.remove(listener)
+
+        return remove
 
     @property
     def connected(self) -> bool:
@@ -329,6 +343,10 @@ class DeviceChannel:
                 started = time.perf_counter()
                 if request.is_write:  # on the wire from here on, whatever comes back
                     self._session.writes = self.writes_tried() + 1
+                    span = written_span(request)
+                    if span is not None:
+                        for listener in tuple(self._write_listeners):
+                            listener(span)
                 if not state.connected and self.down_write_timeout_s:
                     reply = self.link.execute(self.unit_id, request, self.down_write_timeout_s)
                 else:

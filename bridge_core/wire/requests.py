@@ -85,3 +85,36 @@ Request = (
     | ReadWriteRegisters
 )
 Reply = list[int] | list[bool] | None
+
+
+@dataclass(frozen=True)
+class Span:
+    """Registers (or bits) ``address`` .. ``address + count - 1`` of one table."""
+
+    table: Table
+    address: int
+    count: int = 1
+
+    def overlaps(self, other: Span) -> bool:
+        return (
+            self.table is other.table
+            and self.address < other.address + other.count
+            and other.address < self.address + self.count
+        )
+
+
+def written_span(request: Request) -> Span | None:
+    """What a write request may change on the device (None for a read)."""
+    if isinstance(request, WriteRegister):
+        return Span(Table.HOLDING, request.address)
+    if isinstance(request, WriteRegisters):
+        return Span(Table.HOLDING, request.address, len(request.values))
+    if isinstance(request, WriteCoil):
+        return Span(Table.COIL, request.address)
+    if isinstance(request, WriteCoils):
+        return Span(Table.COIL, request.address, len(request.values))
+    if isinstance(request, MaskWriteRegister):
+        return Span(Table.HOLDING, request.address)
+    if isinstance(request, ReadWriteRegisters):
+        return Span(Table.HOLDING, request.write_address, len(request.values))
+    return None

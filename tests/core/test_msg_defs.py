@@ -63,6 +63,7 @@ def make_state() -> Any:
 
 R6STATE_FIELDS = {
     "header": "std_msgs/Header",
+    "slow_stamp": "builtin_interfaces/Time",
     "mode": "uint16",
     "mode_name": "string",
     "alarm_code": "uint16",
@@ -395,6 +396,7 @@ def test_device_values_fields_and_round_trip() -> None:
     fields = DeviceValues.get_fields_and_field_types()
     assert fields == {
         "header": "std_msgs/Header",
+        "slow_stamp": "builtin_interfaces/Time",
         "names": "sequence<string>",
         "values": "sequence<double>",
         "units": "sequence<string>",

@@ -626,7 +626,46 @@ BAD += [
         22,
         "speed takes one of 100, 200.5, not 0",
     ),
+    (
+        'unit: deg, manual: "s4.2"',
+        'unit: deg, poll: slow, manual: "s4.2"',
+        "registers[1].poll",
+        9,
+        "slow, but joint 'shaft' reads it (joints are fast)",
+    ),
+    (
+        'access: RW, manual: "s5"',
+        'access: W, poll: slow, manual: "s5"',
+        "registers[2].poll",
+        10,
+        "slow: a write-only register is never polled",
+    ),
+    (
+        'length: 4, manual: "s4.9"',
+        'length: 4, poll: sometimes, manual: "s4.9"',
+        "registers[3].poll",
+        11,
+        "'fast', 'slow' or 'never'",
+    ),
 ]
+
+
+def test_poll_groups_split_the_plan_and_never_leaves_state(tmp_path: Path) -> None:
+    from modbus_bridge.device import poll_plan
+
+    text = GOOD.replace('length: 4, manual: "s4.9"', 'length: 4, poll: slow, manual: "s4.9"')
+    text = text.replace('access: RW, manual: "s5"', 'access: RW, poll: never, manual: "s5"')
+    device = load(write(tmp_path, text)).device
+    assert device.slow_names == ("label",)
+    assert "run" not in device.state_names and "label" in device.state_names
+    fast, slow, stamp = poll_plan(device)
+    assert [sorted(r.names) for r in slow] == [["label"]]
+    assert all("label" not in r.names and "run" not in r.names for r in fast)
+    assert stamp == "angle"
+    # A state list may not name a register that is never polled.
+    listed = text.replace("  unit_id: 3\n", "  unit_id: 3\n  state: [speed, run]\n")
+    with pytest.raises(DescriptionError, match=r"device\.state\[1\]: 'run' has poll: never"):
+        load(write(tmp_path, listed))
 
 
 @pytest.mark.parametrize(("old", "new", "key", "line", "words"), BAD)

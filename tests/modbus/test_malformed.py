@@ -154,7 +154,7 @@ def test_a_misspelt_key_is_the_line_the_user_sees(tmp_path: Path) -> None:
     assert str(caught.value) == (
         f"{path}:12: registers[0].adress: unknown key: did you mean `address`? (allowed: "
         "name, table, address, type, manual, length, word_order, scale, offset, unit, "
-        "access, range, values, description)"
+        "access, range, values, poll, description)"
     )
 
 

@@ -352,7 +352,7 @@ def test_undefined_rows_and_limits_as_the_file_says(tmp_path: Path) -> None:
             channel.write_coils(0, [True, True])  # more than max_write_bits
         assert sim.write_log == []
         # The holding rows merge through the undefined ones: one request for 0-13.
-        assert [(r.table, r.address, r.count) for r in device.plan] == [
+        assert [(r.table, r.address, r.count) for r in device.groups.fast] == [
             (Table.COIL, 0, 1),
             (Table.HOLDING, 0, 14),
         ]

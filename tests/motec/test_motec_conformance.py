@@ -599,6 +599,7 @@ def snapshot(setpoint: int, actual: int, speed: int) -> MotecSnapshot:
     """A poll of a drive in network mode, position control, enabled, no fault."""
     return MotecSnapshot(
         read_time=0.0,
+        slow_read_time=0.0,
         modes=Modes(0, CONTROL_MODE_POSITION, True),
         motion_mode=1,
         target_distance=10000,

@@ -30,6 +30,7 @@ from msg_defs.srv import (
     ReadParameter,
     ReadRegisters,
     SetChannelValue,
+    SetControlMode,
     SetOutput,
     SetValue,
 )
@@ -85,6 +86,10 @@ class BridgeInfo:
     read_services: Mapping[str, Call] = field(default_factory=dict)  # no writes: allowed
     mistyped: tuple[tuple[str, str], ...] = ()  # refused start-up values
     actions: int = 0  # action servers of its nodes (README "Actions")
+    # A register of the slow group (read every slow_poll_period_s), and a call that writes
+    # it or switches what it shows (None: ``good``).
+    slow_register: Register | None = None
+    slow_write: Call | None = None
 
     @property
     def nodes(self) -> tuple[str, ...]:
@@ -106,6 +111,7 @@ BRIDGES: tuple[BridgeInfo, ...] = (
         good_write=(6, R6_MAP["global_speed"].address, (250,)),
         bad=Call("set_global_speed", SetValue, {"value": 150.0}),
         position_register=R6_MAP["axis_position_1"],
+        slow_register=R6_MAP["global_speed"],
         unit_id=1,
         config="r6.yaml",
         startup_only=(
@@ -144,6 +150,7 @@ BRIDGES: tuple[BridgeInfo, ...] = (
         good_write=(6, XARM_MAP["controller_ao_0"].address, (2500,)),
         bad=Call("set_analog_output", SetChannelValue, {"channel": 0, "value": 100.0}),
         position_register=XARM_MAP["joint_angle_1"],
+        slow_register=XARM_MAP["controller_ao_0"],
         unit_id=1,
         config="xarm.yaml",
         startup_only=(
@@ -177,6 +184,7 @@ BRIDGES: tuple[BridgeInfo, ...] = (
         good_write=(5, STEPPER_MAP["output_1_on"].address, (1,)),
         bad=Call("set_output", SetOutput, {"board": 0, "index": 13, "state": True}),
         position_register=STEPPER_MAP["motor1_coordinate"],
+        slow_register=STEPPER_MAP["output_1"],  # set_output writes its ON coil
         unit_id=1,
         config="stepper.yaml",
         startup_only=(
@@ -203,6 +211,8 @@ BRIDGES: tuple[BridgeInfo, ...] = (
         good_write=(6, MOTEC_MAP["analog_max_speed"].address, (1500,)),
         bad=Call("set_analog_max_speed", SetValue, {"value": 70000.0}),
         position_register=MOTEC_MAP["position_actual"],
+        slow_register=MOTEC_MAP["control_mode"],
+        slow_write=Call("set_control_mode", SetControlMode, {"mode": 2}),  # position (0x25)
         unit_id=1,
         config="motec.yaml",
         startup_only=(
@@ -232,6 +242,7 @@ BRIDGES: tuple[BridgeInfo, ...] = (
         good_write=(6, XARM_DESCRIBED["controller_ao_0"].address, (2500,)),
         bad=Call("set_analog_output_0", SetValue, {"value": 100.0}),
         position_register=XARM_DESCRIBED["joint_angle_1"],
+        slow_register=XARM_DESCRIBED["controller_ao_0"],  # poll: slow in xarm.yaml
         unit_id=1,
         config="modbus.yaml",
         startup_only=("host", "port", "unit_id", "timeout_s", "joint_prefix", "device_file"),
