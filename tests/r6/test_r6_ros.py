@@ -7,6 +7,7 @@ to kill it for real.
 
 from __future__ import annotations
 
+import bisect
 import math
 import time
 from collections.abc import Iterator
@@ -34,16 +35,21 @@ from msg_defs.srv import (
     UploadPoints,
     WriteParameter,
 )
-from r6_bridge.registers import COMMANDS
+from r6_bridge.registers import COMMANDS, R6_MAP
 from r6_bridge.sim import R6SimDevice, make_simulator
 
-from ..support.ros import Client, ros_client, start_bridge, values_of
+from ..support.ros import WAIT_S, Client, ros_client, start_bridge, values_of, wait_for
 
 pytestmark = pytest.mark.ros
 
 # Far above what scheduling on a loaded machine can delay a reply by: only the faults a
 # test makes may look like a dead device.
 TIMEOUT_S = 1.0
+# The simulated controller's extra time over the world block and over the axis positions
+# (stamp test): fifty times a request's ~2 ms, far below TIMEOUT_S.
+BLOCK_DELAY_S = 0.1
+STAMP_POLLS = 5  # polls collected on each topic
+STAMP_SLACK_S = 0.001  # clock reading and float rounding between two processes' stamps
 
 
 @pytest.fixture(scope="module")
@@ -473,3 +479,71 @@ def test_program_starts_are_checked_and_write_nothing(  # type: ignore[no-untype
         reply = bridge.call(Trigger, name)
         assert not reply.success and reason in reply.message, reply.message
         assert device.write_log == [] and not device.running
+
+
+def _seconds(msg: Any) -> float:
+    """A message's header stamp as wall-clock seconds."""
+    return float(msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9)
+
+
+def test_pose_and_state_carry_the_read_time_of_their_own_rows(  # type: ignore[no-untyped-def]
+    sim, bridge_factory, client: Client
+) -> None:
+    """Issue 20 item 20, decision 26, through the node: ~/tcp_pose carries the time the
+    world block was read, joint_states that of the axis positions, ~/state that of the
+    other rows. The simulated controller takes BLOCK_DELAY_S over the world block and
+    over the positions, so the three reads of a poll are far apart; each stamp must then
+    fall after the device took its block's values and before it took the next block's
+    (the simulator's read log), whatever the machine's speed."""
+    device, port = sim
+    assert isinstance(device, R6SimDevice)
+    world, positions = R6_MAP["world_x"], R6_MAP["axis_position_1"]
+    serve = device.read
+
+    def slow_blocks(function_code: int, address: int, count: int) -> list[int] | int:
+        if any(address <= reg.address < address + count for reg in (world, positions)):
+            time.sleep(BLOCK_DELAY_S)  # before the values are taken (and the read logged)
+        return serve(function_code, address, count)
+
+    device.read = slow_blocks  # type: ignore[method-assign]
+    device.log_reads = True
+    with bridge_factory(port) as (bridge, _):
+        topics = (bridge.pose, bridge.joint_states, bridge.state)
+        wait_for(
+            lambda: all(len(client.received(t)) >= STAMP_POLLS for t in topics),
+            WAIT_S,
+            f"{STAMP_POLLS} polls on {topics}",
+        )
+        poses, joints, states = ([_seconds(m) for m in client.received(t)] for t in topics)
+    with device.lock:
+        reads = list(device.read_log)
+    times = [r.time for r in reads]
+    assert times == sorted(times)
+
+    def newest_read(stamp: float) -> int:
+        """The index of the last read the device had served when ``stamp`` was taken."""
+        return bisect.bisect_right(times, stamp) - 1
+
+    joint_polls = {newest_read(s): s for s in joints}
+    state_polls = {newest_read(s): s for s in states}
+    # Only the polls all three subscriptions heard: each matched at its own time, and a
+    # poll's last messages may still be on their way (each topic keeps its order).
+    first, last = max(min(joints), min(states)), min(max(joints), max(states))
+    checked = [p for p in poses if first < p < last]
+    assert len(checked) >= 2, (poses, joints, states)
+    for pose in checked:
+        i = newest_read(pose)
+        assert reads[i].covers(world.table, world.address), (pose, reads[i - 1 : i + 2])
+        after = reads[i + 1]
+        assert after.covers(positions.table, positions.address), (pose, after)
+        assert after.time - pose >= BLOCK_DELAY_S - STAMP_SLACK_S
+        # joint_states of the same poll: stamped after the positions were taken, a block
+        # delay after the pose.
+        assert i + 1 in joint_polls, (pose, sorted(joint_polls))
+        assert joint_polls[i + 1] - pose >= BLOCK_DELAY_S - STAMP_SLACK_S
+        # ~/state of the same poll: its rows are the read just before the world block.
+        head = reads[i - 1]
+        assert not head.covers(world.table, world.address), head
+        assert not head.covers(positions.table, positions.address), head
+        assert i - 1 in state_polls, (pose, sorted(state_polls), sorted(joint_polls))
+        assert reads[i].time - state_polls[i - 1] >= BLOCK_DELAY_S - STAMP_SLACK_S
