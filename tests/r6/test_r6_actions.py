@@ -4,6 +4,7 @@ serving TCP on a thread here (its write log and program are the test's to read).
 
 from __future__ import annotations
 
+import signal
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -11,6 +12,8 @@ from typing import Any
 
 import pytest
 from action_msgs.msg import GoalStatus
+from lifecycle_msgs.msg import Transition
+from lifecycle_msgs.srv import ChangeState
 from std_srvs.srv import Trigger
 
 from bridge_core.sim.sim_base import Simulator, WriteRecord
@@ -22,11 +25,19 @@ from msg_defs.srv import ClearAlarmAndNext, ReadDataSource, UploadPoints
 from r6_bridge.registers import COMMANDS, MAX_AXES, R6_MAP
 from r6_bridge.sim import R6SimDevice, make_simulator
 
-from ..support.ros import Bridge, Client, ros_client, start_bridge
+from ..support.ros import (
+    Bridge,
+    Client,
+    node_process,
+    ros_client,
+    start_bridge,
+    unique_namespace,
+)
 
 pytestmark = pytest.mark.ros
 
 TIMEOUT_S = 1.0
+EXIT_TIMEOUT_S = 20.0  # Ctrl-C to exit on a loaded machine (a bound, not a measure)
 # Two steps of 15 degrees: a cycle of about a second at 100 % global speed.
 PROGRAM = ((15.0,) * MAX_AXES, (0.0,) * MAX_AXES)
 POINT_COUNT = R6_MAP["point_count"].address
@@ -222,3 +233,37 @@ def test_upload_points_with_progress_and_cancel(
         assert result.outcome.code == MotionOutcome.TIMED_OUT, result.outcome.message
         assert result.frames_sent < 200
         assert device.points.get(11, []) == [] and result.points_held == 0
+
+
+@pytest.mark.parametrize("end", ["deactivate", "exit"])
+def test_a_halt_pauses_a_running_cycle(
+    sim: tuple[R6SimDevice, int], client: Client, tmp_path: Path, end: str
+) -> None:
+    """Issue 20 item 17: deactivate and exit end a run_cycle goal through the node's halt
+    (``stop_all``), not its cancel: that path too sends pause (20001), which keeps the
+    program's step, and never stop (20000), which would send the operator's next start
+    back to step 1 from wherever the arm stands."""
+    device, port = sim
+    b = Bridge(client, unique_namespace(f"r6_halt_{end}"), "r6_bridge", R6State)
+    params = {"port": port, "poll_rate_hz": 50.0, "timeout_s": TIMEOUT_S, "reconnect_max_s": 1.0}
+    with node_process("r6_bridge.node", params, tmp_path, ["-r", f"__ns:={b.ns}"]) as proc:
+        client.wait_message(b.state, lambda s: s.global_speed_percent == 100.0)
+        goal = b.send_goal(RunCycle, "run_cycle", single_cycle=False)
+        assert goal.accepted
+        goal.wait_feedback(lambda f: f.moving)
+        mark = len(device.write_log)
+        if end == "deactivate":
+            request = ChangeState.Request()
+            request.transition.id = Transition.TRANSITION_DEACTIVATE
+            assert client.call(ChangeState, b.service("change_state"), request).success
+            status, result = goal.result()
+            assert status == GoalStatus.STATUS_ABORTED
+            assert result.outcome.code == MotionOutcome.HALTED, result.outcome.message
+            assert "deactivated" in result.outcome.message, result.outcome.message
+            assert "pause (20001)" in result.outcome.message, result.outcome.message
+        else:
+            proc.send_signal(signal.SIGINT)
+            assert proc.wait(EXIT_TIMEOUT_S) == 0
+        assert commands(device, mark) == ["pause"]
+        assert not device.running
+        goal.close()
