@@ -26,7 +26,7 @@ from std_srvs.srv import SetBool, Trigger
 from bench.line_relay import LineRelay
 from bridge_core.wire.registers import Table
 from bridge_core.wire.transport import SerialSettings
-from motec_bridge.device import lifeguard_min_ms
+from motec_bridge.device import STANDSTILL_SPEED_RPM, lifeguard_min_ms
 from motec_bridge.sim import LIFEGUARD_FAULT_CODE, MotecSimDrive, MotecSimulator, make_simulator
 from msg_defs.msg import MotecState
 from msg_defs.srv import (
@@ -818,3 +818,38 @@ def test_more_than_eight_drives_on_rs232_are_refused_at_start() -> None:
     params = {"unit_ids": list(range(1, 10)), "interface": "rs232"}
     line = refused_at_start("motec_bridge.node", ros_args(params), WAIT_S * 2)
     assert "unit_ids has 9 drives, but an rs232 line takes at most 8" in line, line
+
+
+def reads_speed(rpm: int) -> Callable[[Any], bool]:
+    """A MotecState whose 0xAF reads ``rpm``."""
+    return lambda m: bool(m.speed_actual_rpm == rpm)
+
+
+def test_set_control_mode_refuses_a_turning_motor_not_speed_noise(
+    client: Client, tmp_path: Path
+) -> None:
+    """Issue 20 item 6, decision 17: a servo at rest dithers a few rpm on 0xAF; the
+    mode change is refused only above the standstill band, with nothing written."""
+    with motec_on_pty([1], BAUD) as (sim, port):
+        drive = sim.drive(1)
+        drive.tick = lambda dt: None  # type: ignore[method-assign]  # 0xAF stays as set here
+        params = bridge_params(port, unit_ids=[1])
+        with motec(client, tmp_path, params, units=[1]) as (b, _):
+            b.wait_connected(1, True)
+            velocity, position = SetControlMode.Request.VELOCITY, SetControlMode.Request.POSITION
+            # Standing, with noise inside the band: the manual's sequence goes out.
+            for rpm, mode in ((-2, velocity), (STANDSTILL_SPEED_RPM, position)):
+                drive.set("speed_actual", rpm)
+                b.wait_state(1, reads_speed(rpm), time.monotonic())
+                mark = len(drive.write_log)
+                b.ok(1, SetControlMode, "set_control_mode", mode=mode)
+                written = [(r.address, r.values) for r in drive.write_log[mark:]]
+                assert written[0] == (0x24, (0,)) and written[-1] == (0x25, (mode,)), written
+            # Turning faster than the band, either way: refused, nothing written.
+            for rpm in (STANDSTILL_SPEED_RPM + 1, -120):
+                drive.set("speed_actual", rpm)
+                b.wait_state(1, reads_speed(rpm), time.monotonic())
+                mark = len(drive.write_log)
+                reply = b.call(1, SetControlMode, "set_control_mode", mode=velocity)
+                assert not reply.success and f"turns at {rpm} rpm" in reply.message, reply.message
+                assert drive.write_log[mark:] == []
