@@ -176,10 +176,17 @@ def test_a_velocity_only_joint_publishes_nan_beside_a_joint_with_a_position(
     path = tmp_path / "two.yaml"
     path.write_text(text)
     with over_tcp(load(path)) as (device, sim, _):
+        sim.tick = lambda dt: None  # type: ignore[method-assign]
         sim.set("accel_time_deg", 90)
+        sim.set("output_frequency", 10.0)  # 10 Hz on a 4-pole motor: 5 rev/s
         snapshot = device.poll()
         assert snapshot.positions[0] == pytest.approx(math.pi / 2)
         assert math.isnan(snapshot.positions[1])
+        # The velocity array is published too, NaN for the joint without a velocity.
+        assert len(snapshot.velocities) == 2
+        assert math.isnan(snapshot.velocities[0])
+        assert snapshot.velocities[1] == pytest.approx(10 * math.pi)
+        assert snapshot.efforts == ()  # no joint has an effort register
 
 
 def test_the_inverter_example_reads_f32_in_cdab_and_abcd() -> None:
