@@ -255,13 +255,17 @@ class DescribedDevice:
         if name not in self.triggers:
             raise CommandRejected(f"no trigger named {name!r}")
         spec = self.triggers[name]
-        checked = [self.words_for(w.register_name, _written_value(w.value)) for w in spec.writes]
+        values = [_written_value(w.value) for w in spec.writes]
+        checked = [
+            self.words_for(w.register_name, value)
+            for w, value in zip(spec.writes, values, strict=True)
+        ]
 
         def send() -> str:
             done: list[str] = []
-            for (register, words), write in zip(checked, spec.writes, strict=True):
+            for (register, words), value in zip(checked, values, strict=True):
                 self._send(register, words)
-                done.append(f"{register.name} = {write.value}")
+                done.append(written_text(register, value, words))  # as ~/write answers
             return ", ".join(done)
 
         if spec.stop:

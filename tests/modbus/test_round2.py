@@ -220,6 +220,25 @@ def test_a_rounded_write_says_what_was_written() -> None:
         assert device.set_value("set_accel_time", 12.5) == "accel_time = 12.5"
 
 
+def test_a_trigger_says_what_it_wrote(tmp_path: Path) -> None:
+    """A trigger's value the register's 0.1 s rounds is answered as ``~/write`` answers it:
+    with what went on the wire."""
+    text = VFD.read_text().replace(
+        "  values:\n",
+        "    - {name: slow_ramp, writes: [{register: accel_time, value: 12.34},"
+        " {register: frequency_setpoint, value: 12.5}]}\n  values:\n",
+        1,
+    )
+    path = tmp_path / "vfd.yaml"
+    path.write_text(text)
+    with over_tcp(load(path)) as (device, sim, _):
+        assert device.trigger("slow_ramp") == (
+            "accel_time = 12.3 s written (12.34 rounded to the register's 0.1 s), "
+            "frequency_setpoint = 12.5"
+        )
+        assert sim.get("accel_time") == pytest.approx(12.3)
+
+
 def test_motion_is_refused_until_the_keepalive_is_armed_then_fed_and_counted() -> None:
     with over_tcp(load(VFD)) as (device, sim, _):
         with pytest.raises(CommandRejected, match="keepalive is not armed"):
