@@ -145,14 +145,25 @@ def test_a_fatal_error_sends_the_stop(client: Client, tmp_path: Path) -> None:
 
 
 def test_a_silent_line_still_gets_the_stop_tried(client: Client, tmp_path: Path) -> None:
+    """The link is marked down (the device hears but never answers): the exit's stop still
+    goes out on the wire (the silent simulator received its frame) and fails for want of
+    a reply, not for not being sent."""
     with running_forward(client, tmp_path) as (b, proc, simulator, _):
         cut = time.monotonic()
         simulator.withhold_replies = True
         b.wait_connected(False, since=cut, timeout=WAIT_S)
+        before = len(simulator.withheld_writes)
         proc.send_signal(signal.SIGINT)
         assert proc.wait(EXIT_TIMEOUT_S) == 0
+        heard = [
+            (r.function_code, r.table, r.address, r.values)
+            for r in simulator.withheld_writes[before:]
+            if r.address != WATCHDOG
+        ]
+        assert heard == [STOP_WRITE]
         log = (tmp_path / "modbus_bridge_node.log").read_text()
-        assert "run_forward: its stop failed (the node is exiting)" in log, log
+        failed = "run_forward: its stop failed (the node is exiting): unit 1: no reply within"
+        assert failed in log, log
 
 
 def test_kill_9_leaves_the_drive_to_its_keepalive_watchdog(client: Client, tmp_path: Path) -> None:
