@@ -51,6 +51,9 @@ EXIT_TIMEOUT_S = 20.0
 CONTROL_WORD = VFD_MAP["control_word"].address
 WATCHDOG = VFD_MAP["comm_watchdog"].address
 STOP_WRITE = (6, Table.HOLDING, CONTROL_WORD, (5,))
+KEEPALIVE = load(VFD).device.keepalive
+assert KEEPALIVE is not None
+KEEPALIVE_PERIOD_S = KEEPALIVE.period_s
 
 
 @pytest.fixture(scope="module")
@@ -167,6 +170,9 @@ def test_a_silent_line_still_gets_the_stop_tried(client: Client, tmp_path: Path)
 
 
 def test_kill_9_leaves_the_drive_to_its_keepalive_watchdog(client: Client, tmp_path: Path) -> None:
+    """The drive stops itself within its keepalive period of the bridge's last feed, by
+    the simulator's own records (its last feed and its trip; the margin is the one tick
+    that found the trip, as the simulator timed it), not by the test's clock."""
     with running_forward(client, tmp_path) as (_, proc, _, device):
         wait_for(lambda: device.velocities_si["motor"] > 1.0, WAIT_S, "the motor turning")
         before = len(device.write_log)
@@ -174,6 +180,10 @@ def test_kill_9_leaves_the_drive_to_its_keepalive_watchdog(client: Client, tmp_p
         proc.kill()
         proc.wait(EXIT_TIMEOUT_S)
         wait_for(lambda: device.keepalive_trips == 1, WAIT_S, "the watchdog (period_s 2 s)")
+        (trip,) = device.keepalive_trip_log
+        assert trip.period_s == KEEPALIVE_PERIOD_S
+        silent_s = trip.tripped_at - trip.fed_at  # from the last feed to the stop
+        assert trip.period_s < silent_s <= trip.period_s + trip.tick_s, trip
         assert commands(device, before) == []  # nothing came from the killed bridge
         assert device.get("control_word") == 5  # the drive stopped itself
         wait_for(lambda: device.velocities_si["motor"] < 0.01, WAIT_S, "the ramp down")
