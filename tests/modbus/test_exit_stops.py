@@ -4,8 +4,9 @@ way out, and a keepalive stops the device when the bridge is gone.
 The VFD example (config/devices/vfd_rtu.yaml, RTU 8E1 on a pty: parity end to end) runs
 forward from ``~/run_forward``; then SIGINT, SIGTERM, deactivate or a fatal error must put
 exactly its stop trigger's write on the wire (the simulator's write log, the keepalive's
-counter writes aside). A silent line still gets the stop tried (the node says it failed);
-``kill -9`` leaves the drive to its watchdog, which the simulator models.
+counter writes aside). A silent line still gets the stop on the wire (the silent simulator
+hears it; the node says it failed for want of a reply); ``kill -9`` leaves the drive to
+its watchdog, which the simulator models and times (it trips within its period).
 """
 
 from __future__ import annotations
