@@ -44,11 +44,11 @@ class DeviceSnapshot:
     slow_read_time: float  # wall clock when the slow group was read (0.0: none)
     names: tuple[str, ...]
     values: tuple[Value, ...]
+    # One entry per joint, NaN for a joint without that register (a velocity-only
+    # drive's position); empty when no joint has one (JointState's rule).
     positions: tuple[float, ...]
-    # positions: NaN for a joint without a position register (a velocity-only drive);
-    # empty when no joint has one
-    velocities: tuple[float, ...]  # empty unless every joint has a velocity register
-    efforts: tuple[float, ...]  # empty unless every joint has an effort register
+    velocities: tuple[float, ...]
+    efforts: tuple[float, ...]
 
 
 def _joint_registers(device: Device) -> list[str]:
@@ -58,6 +58,12 @@ def _joint_registers(device: Device) -> list[str]:
             if source is not None:
                 names.append(source.register)
     return names
+
+
+def _per_joint(sources: list[JointSource | None]) -> list[JointSource | None]:
+    """One source per joint (None: NaN) if any joint has one, else none: JointState's
+    arrays are empty or as long as ``name``."""
+    return sources if any(s is not None for s in sources) else []
 
 
 def _stamp_source(joint: Joint) -> JointSource:
@@ -107,25 +113,16 @@ class DescribedDevice:
         # locks every stream.
         self.guards: dict[str, StreamGuard[str]] = {}
         joints = device.joints
-        # A velocity-only joint's position is NaN (JointState: an array is empty or has
-        # one entry per name); no position at all: the array is empty.
-        self._positions: list[JointSource | None] = (
-            [j.position for j in joints] if any(j.position for j in joints) else []
-        )
+        # JointState: each array is empty or has one entry per name. A field some joint
+        # has is published for all, NaN for a joint without it (a velocity-only drive's
+        # position, a position-only joint's velocity); a field no joint has is empty.
+        self._positions = _per_joint([j.position for j in joints])
+        self._velocities = _per_joint([j.velocity for j in joints])
+        self._efforts = _per_joint([j.effort for j in joints])
         # The trigger that stops each motion group a starts_motion trigger belongs to: the
         # node's motion ledger sends it on every way out (``BridgeNode.stop_motion``).
         self.exit_stops = device.exit_stops()
         self.keepalive = KeepaliveFeeder(io, device) if device.keepalive is not None else None
-        self._velocities = (
-            [j.velocity for j in joints if j.velocity is not None]
-            if all(j.velocity is not None for j in joints)
-            else []
-        )
-        self._efforts = (
-            [j.effort for j in joints if j.effort is not None]
-            if all(j.effort is not None for j in joints)
-            else []
-        )
 
     # ------------------------------------------------------------------ polling
     def poll(self) -> DeviceSnapshot:
@@ -258,13 +255,17 @@ class DescribedDevice:
         if name not in self.triggers:
             raise CommandRejected(f"no trigger named {name!r}")
         spec = self.triggers[name]
-        checked = [self.words_for(w.register_name, _written_value(w.value)) for w in spec.writes]
+        values = [_written_value(w.value) for w in spec.writes]
+        checked = [
+            self.words_for(w.register_name, value)
+            for w, value in zip(spec.writes, values, strict=True)
+        ]
 
         def send() -> str:
             done: list[str] = []
-            for (register, words), write in zip(checked, spec.writes, strict=True):
+            for (register, words), value in zip(checked, values, strict=True):
                 self._send(register, words)
-                done.append(f"{register.name} = {write.value}")
+                done.append(written_text(register, value, words))  # as ~/write answers
             return ", ".join(done)
 
         if spec.stop:

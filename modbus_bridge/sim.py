@@ -23,7 +23,10 @@ As strict as the file says the device is (the simulator base does the rest):
   register; modes toggle and counter: a write that changes it), it trips when no feed
   came for its period (``period_s``, or the ``period_from`` register's value): the device
   stops itself as the file's stop triggers and command topics' stops would (those
-  registers take the stop values), and waits for the next feed to arm again.
+  registers take the stop values), and waits for the next feed to arm again. Each trip
+  is recorded in the simulator's own time (``keepalive_trip_log``: the last feed, the
+  tick before and the tick that tripped), so a test can judge the trip by the device's
+  clock, not its own.
 
 A bus file serves every device on one line, each under its unit id (silent for others).
 """
@@ -36,6 +39,7 @@ import sys
 import time
 from collections import defaultdict
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 from bridge_core.sim.sim_base import (
@@ -88,6 +92,22 @@ class _UndefinedReadable:
         return key in self.readable or key not in self.defined
 
 
+@dataclass(frozen=True)
+class KeepaliveTrip:
+    """One trip of the simulated watchdog, in the simulator's own (monotonic) time: it
+    tripped at the first tick that found ``period_s`` passed since the last feed."""
+
+    fed_at: float  # the last feed
+    checked_at: float  # the tick before, which found the watchdog still fed
+    tripped_at: float  # the tick that found it expired and stopped the device
+    period_s: float
+
+    @property
+    def tick_s(self) -> float:
+        """The tick that found the trip: how late after the period it may come."""
+        return self.tripped_at - self.checked_at
+
+
 class DescribedSimDevice(SimulatedDevice):
     """One described device: its map, limits, ranges and joint motion."""
 
@@ -102,10 +122,12 @@ class DescribedSimDevice(SimulatedDevice):
         self.positions_si = {joint.name: 0.0 for joint in device.joints}
         self.velocities_si = {joint.name: 0.0 for joint in device.joints}
         self.write_guards.append(self._guard)
-        # The keepalive watchdog: when it was last fed (monotonic; None: not armed).
+        # The keepalive watchdog: when it was last fed (monotonic; None: not armed), when
+        # it was last looked at (each tick), and every trip (the simulator's own times).
         self.keepalive = device.keepalive
         self.keepalive_fed_at: float | None = None
-        self.keepalive_trips = 0
+        self._keepalive_checked_at: float | None = None
+        self.keepalive_trip_log: list[KeepaliveTrip] = []
         if self.keepalive is not None:
             self.write_hooks.append(self._keepalive_write)
 
@@ -134,13 +156,21 @@ class DescribedSimDevice(SimulatedDevice):
         period = float(self.get(keepalive.period_register)) * keepalive.period_to_s
         return period if period > 0 else None
 
+    @property
+    def keepalive_trips(self) -> int:
+        return len(self.keepalive_trip_log)
+
     def _check_keepalive(self) -> None:
+        now = time.monotonic()
+        checked_at, self._keepalive_checked_at = self._keepalive_checked_at, now
         fed_at, period = self.keepalive_fed_at, self.keepalive_period_s()
-        if fed_at is None or period is None or time.monotonic() - fed_at <= period:
+        if fed_at is None or period is None or now - fed_at <= period:
             return
         self.keepalive_fed_at = None  # disarmed until the next feed
-        self.keepalive_trips += 1
         self.stop_all()
+        self.keepalive_trip_log.append(
+            KeepaliveTrip(fed_at, fed_at if checked_at is None else checked_at, now, period)
+        )
 
     def stop_all(self) -> None:
         """The device stops itself: every stop trigger's writes and every command topic's

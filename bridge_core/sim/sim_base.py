@@ -349,6 +349,13 @@ class _MapContext(ModbusServerContext):
     async def async_setValues(  # noqa: N802 - pymodbus name
         self, device_id: int, func_code: int, address: int, values: Sequence[int] | Sequence[bool]
     ) -> Any:
+        sim = self._sim
+        if sim.withhold_replies:
+            words = tuple(int(v) for v in values)
+            table = FUNCTION_TABLES[func_code]
+            sim.withheld_writes.append(
+                WriteRecord(time.time(), device_id, func_code, table, address, words)
+            )
         device = self._device(device_id, func_code)
         await self._sim.delay()
         if func_code not in device.limits.function_codes:
@@ -475,6 +482,10 @@ class Simulator:
         self.devices = {d.unit_id: d for d in devices}
         self.tick_s = tick_s
         self.withhold_replies = False
+        # The writes (FC 05, 06, 15, 16, 23) that came in whole (framing and CRC checked by
+        # the server) while replies were withheld: proof that a write reached a silent
+        # device's wire, e.g. a stop tried on a dead line.
+        self.withheld_writes: list[WriteRecord] = []
         # Units that miss every broadcast (noise on their stub) and still answer the rest.
         self.deaf_to_broadcast: set[int] = set()
         self.reply_delay_s = max(d.limits.reply_delay_s for d in devices)

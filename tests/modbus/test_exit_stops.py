@@ -4,8 +4,9 @@ way out, and a keepalive stops the device when the bridge is gone.
 The VFD example (config/devices/vfd_rtu.yaml, RTU 8E1 on a pty: parity end to end) runs
 forward from ``~/run_forward``; then SIGINT, SIGTERM, deactivate or a fatal error must put
 exactly its stop trigger's write on the wire (the simulator's write log, the keepalive's
-counter writes aside). A silent line still gets the stop tried (the node says it failed);
-``kill -9`` leaves the drive to its watchdog, which the simulator models.
+counter writes aside). A silent line still gets the stop on the wire (the silent simulator
+hears it; the node says it failed for want of a reply); ``kill -9`` leaves the drive to
+its watchdog, which the simulator models and times (it trips within its period).
 """
 
 from __future__ import annotations
@@ -51,6 +52,9 @@ EXIT_TIMEOUT_S = 20.0
 CONTROL_WORD = VFD_MAP["control_word"].address
 WATCHDOG = VFD_MAP["comm_watchdog"].address
 STOP_WRITE = (6, Table.HOLDING, CONTROL_WORD, (5,))
+KEEPALIVE = load(VFD).device.keepalive
+assert KEEPALIVE is not None
+KEEPALIVE_PERIOD_S = KEEPALIVE.period_s
 
 
 @pytest.fixture(scope="module")
@@ -145,17 +149,31 @@ def test_a_fatal_error_sends_the_stop(client: Client, tmp_path: Path) -> None:
 
 
 def test_a_silent_line_still_gets_the_stop_tried(client: Client, tmp_path: Path) -> None:
+    """The link is marked down (the device hears but never answers): the exit's stop still
+    goes out on the wire (the silent simulator received its frame) and fails for want of
+    a reply, not for not being sent."""
     with running_forward(client, tmp_path) as (b, proc, simulator, _):
         cut = time.monotonic()
         simulator.withhold_replies = True
         b.wait_connected(False, since=cut, timeout=WAIT_S)
+        before = len(simulator.withheld_writes)
         proc.send_signal(signal.SIGINT)
         assert proc.wait(EXIT_TIMEOUT_S) == 0
+        heard = [
+            (r.function_code, r.table, r.address, r.values)
+            for r in simulator.withheld_writes[before:]
+            if r.address != WATCHDOG
+        ]
+        assert heard == [STOP_WRITE]
         log = (tmp_path / "modbus_bridge_node.log").read_text()
-        assert "run_forward: its stop failed (the node is exiting)" in log, log
+        failed = "run_forward: its stop failed (the node is exiting): unit 1: no reply within"
+        assert failed in log, log
 
 
 def test_kill_9_leaves_the_drive_to_its_keepalive_watchdog(client: Client, tmp_path: Path) -> None:
+    """The drive stops itself within its keepalive period of the bridge's last feed, by
+    the simulator's own records (its last feed and its trip; the margin is the one tick
+    that found the trip, as the simulator timed it), not by the test's clock."""
     with running_forward(client, tmp_path) as (_, proc, _, device):
         wait_for(lambda: device.velocities_si["motor"] > 1.0, WAIT_S, "the motor turning")
         before = len(device.write_log)
@@ -163,6 +181,10 @@ def test_kill_9_leaves_the_drive_to_its_keepalive_watchdog(client: Client, tmp_p
         proc.kill()
         proc.wait(EXIT_TIMEOUT_S)
         wait_for(lambda: device.keepalive_trips == 1, WAIT_S, "the watchdog (period_s 2 s)")
+        (trip,) = device.keepalive_trip_log
+        assert trip.period_s == KEEPALIVE_PERIOD_S
+        silent_s = trip.tripped_at - trip.fed_at  # from the last feed to the stop
+        assert trip.period_s < silent_s <= trip.period_s + trip.tick_s, trip
         assert commands(device, before) == []  # nothing came from the killed bridge
         assert device.get("control_word") == 5  # the drive stopped itself
         wait_for(lambda: device.velocities_si["motor"] < 0.01, WAIT_S, "the ramp down")

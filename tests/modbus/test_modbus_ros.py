@@ -108,7 +108,10 @@ def test_joint_states_and_state_in_si(sim, client: Client, tmp_path: Path) -> No
         js = client.wait_message(b.joint_states)
         assert list(js.name) == ["arm_j1", "arm_j2"]
         assert list(js.position) == pytest.approx([-12.345 * DEG, math.pi / 2])
-        assert list(js.velocity) == []  # j2 has no velocity register: none published
+        # j2 has no velocity register: NaN beside j1's (one entry per name, decision 14)
+        assert js.velocity[0] == pytest.approx(4.5 * DEG)
+        assert len(js.velocity) == 2 and math.isnan(js.velocity[1])
+        assert list(js.effort) == []  # no joint has an effort register
         state = client.wait_message(b.state)
         assert list(state.names) == [
             "position",

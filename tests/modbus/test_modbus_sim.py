@@ -106,7 +106,10 @@ def test_poll_values_and_joints_in_si(tmp_path: Path) -> None:
         assert values["position"] == pytest.approx(-12.345) and values["run"] is True
         assert "secret" not in values  # write only: never read
         assert snapshot.positions == pytest.approx((-12.345 * DEG, 90.0 * DEG))
-        assert snapshot.velocities == ()  # j2 has no velocity register
+        # j2 has no velocity register: NaN beside j1's (one entry per joint, decision 14)
+        assert snapshot.velocities[0] == pytest.approx(4.5 * DEG)
+        assert len(snapshot.velocities) == 2 and math.isnan(snapshot.velocities[1])
+        assert snapshot.efforts == ()  # no joint has an effort register
         assert before <= snapshot.read_time <= time.time()
         assert device.read(["velocity", "target"]) == {"velocity": 4.5, "target": 0.0}
         with pytest.raises(CommandRejected, match="write only"):

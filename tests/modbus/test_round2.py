@@ -28,7 +28,7 @@ from modbus_bridge.description import Description, DescriptionError, load
 from modbus_bridge.device import DescribedDevice
 from modbus_bridge.sim import DescribedSimDevice, make_simulator
 
-from .test_modbus_sim import over_tcp, wait_for, writes
+from .test_modbus_sim import over_tcp, stream_of, wait_for, writes
 
 ROOT = Path(__file__).resolve().parents[2]
 VFD = ROOT / "config" / "devices" / "vfd_rtu.yaml"
@@ -176,10 +176,17 @@ def test_a_velocity_only_joint_publishes_nan_beside_a_joint_with_a_position(
     path = tmp_path / "two.yaml"
     path.write_text(text)
     with over_tcp(load(path)) as (device, sim, _):
+        sim.tick = lambda dt: None  # type: ignore[method-assign]
         sim.set("accel_time_deg", 90)
+        sim.set("output_frequency", 10.0)  # 10 Hz on a 4-pole motor: 5 rev/s
         snapshot = device.poll()
         assert snapshot.positions[0] == pytest.approx(math.pi / 2)
         assert math.isnan(snapshot.positions[1])
+        # The velocity array is published too, NaN for the joint without a velocity.
+        assert len(snapshot.velocities) == 2
+        assert math.isnan(snapshot.velocities[0])
+        assert snapshot.velocities[1] == pytest.approx(10 * math.pi)
+        assert snapshot.efforts == ()  # no joint has an effort register
 
 
 def test_the_inverter_example_reads_f32_in_cdab_and_abcd() -> None:
@@ -213,6 +220,25 @@ def test_a_rounded_write_says_what_was_written() -> None:
         assert device.set_value("set_accel_time", 12.5) == "accel_time = 12.5"
 
 
+def test_a_trigger_says_what_it_wrote(tmp_path: Path) -> None:
+    """A trigger's value the register's 0.1 s rounds is answered as ``~/write`` answers it:
+    with what went on the wire."""
+    text = VFD.read_text().replace(
+        "  values:\n",
+        "    - {name: slow_ramp, writes: [{register: accel_time, value: 12.34},"
+        " {register: frequency_setpoint, value: 12.5}]}\n  values:\n",
+        1,
+    )
+    path = tmp_path / "vfd.yaml"
+    path.write_text(text)
+    with over_tcp(load(path)) as (device, sim, _):
+        assert device.trigger("slow_ramp") == (
+            "accel_time = 12.3 s written (12.34 rounded to the register's 0.1 s), "
+            "frequency_setpoint = 12.5"
+        )
+        assert sim.get("accel_time") == pytest.approx(12.3)
+
+
 def test_motion_is_refused_until_the_keepalive_is_armed_then_fed_and_counted() -> None:
     with over_tcp(load(VFD)) as (device, sim, _):
         with pytest.raises(CommandRejected, match="keepalive is not armed"):
@@ -227,6 +253,32 @@ def test_motion_is_refused_until_the_keepalive_is_armed_then_fed_and_counted() -
         assert [r.values for r in sim.write_log] == [(1,), (2,), (3,)]  # a counter
         device.trigger("run_forward")
         assert sim.get("control_word") == 1
+
+
+def test_a_command_topic_value_is_refused_until_the_keepalive_is_armed(tmp_path: Path) -> None:
+    """require_keepalive: a non-zero command-topic value is refused, writing nothing, while
+    the keepalive is not armed (converted as the node converts a message, then offered to
+    the topic's guard); a 0, the stop, is not held back; once armed the value is taken."""
+    text = VFD.read_text().replace(
+        "  values:\n",
+        "  topics:\n    - {name: cmd_frequency, register: frequency_setpoint}\n  values:\n",
+        1,
+    )
+    path = tmp_path / "vfd.yaml"
+    path.write_text(text)
+    with over_tcp(load(path)) as (device, sim, _):
+        topic = device.topics["cmd_frequency"]
+        guard = stream_of(device, "cmd_frequency")
+        with pytest.raises(CommandRejected, match="cmd_frequency: the device's keepalive is not"):
+            guard.command(topic.name, device.stream_value(topic, 10.0))
+        assert device.stream_value(topic, 0.0) == 0.0
+        device.read(["control_word"])  # a later round trip: anything written is logged by now
+        assert sim.write_log == []
+        keepalive = device.keepalive
+        assert keepalive is not None
+        keepalive.arm()
+        guard.command(topic.name, device.stream_value(topic, 10.0))
+        assert sim.get("frequency_setpoint") == pytest.approx(10.0)
 
 
 def test_the_simulated_watchdog_trips_when_the_feeds_stop_and_stops_the_drive() -> None:
