@@ -217,6 +217,13 @@ class LineRelay:
         window = self._command(f"blackout {float(seconds)!r}")
         return float(window["from"]), float(window["until"])
 
+    def mute_replies(self, seconds: float) -> tuple[float, float]:
+        """Lose every reply for ``seconds`` from now while requests still reach the device
+        (a broken transmit pair or driver on the device's side): the device acts on what
+        it hears, the master hears nothing. Returns the window as ``blackout`` does."""
+        window = self._command(f"mute {float(seconds)!r}")
+        return float(window["from"]), float(window["until"])
+
     def stop(self) -> None:
         proc, self._proc = self._proc, None
         if proc is not None:
@@ -416,6 +423,7 @@ def _serve(config: dict[str, Any]) -> None:
     request_end = float("-inf")
     ctrl_buf = b""
     dark_from = dark_until = float("-inf")  # a blackout: bytes in it are lost
+    mute_from = mute_until = float("-inf")  # replies lost (the device hears, is not heard)
 
     while True:
         now = clock()
@@ -469,6 +477,10 @@ def _serve(config: dict[str, Any]) -> None:
                         dark_from = clock()
                         dark_until = dark_from + float(command.split()[1])
                         print(json.dumps({"from": dark_from, "until": dark_until}), flush=True)
+                    elif command.startswith("mute "):
+                        mute_from = clock()
+                        mute_until = mute_from + float(command.split()[1])
+                        print(json.dumps({"from": mute_from, "until": mute_until}), flush=True)
                     else:
                         print(json.dumps({"error": f"unknown command {command!r}"}), flush=True)
                 continue
@@ -477,6 +489,8 @@ def _serve(config: dict[str, Any]) -> None:
             if dark_from <= woke < dark_until:
                 continue  # lost in the blackout
             direction = source[fd]
+            if direction == REPLY and mute_from <= woke < mute_until:
+                continue  # the reply is lost: the device's transmitter is cut off
             start = max(arrived - in_latency[fd], line_free)
             if direction == REPLY:
                 start = max(start, request_end + turnaround_s)

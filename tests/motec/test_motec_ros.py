@@ -853,3 +853,35 @@ def test_set_control_mode_refuses_a_turning_motor_not_speed_noise(
                 reply = b.call(1, SetControlMode, "set_control_mode", mode=velocity)
                 assert not reply.success and f"turns at {rpm} rpm" in reply.message, reply.message
                 assert drive.write_log[mark:] == []
+
+
+def test_an_armed_drive_whose_replies_are_lost_is_still_fed(client: Client, tmp_path: Path) -> None:
+    """Issue 20 item 5, the node's half: the drive's replies are lost for four lifeguard
+    times while it still hears the line (a broken transmit pair). The bridge marks it
+    down, and its lifeguard feeds go on, one try each feed period with the short stop
+    timeout, so the drive never trips. The reconnect backoff is the default 5 s cap: the
+    probes' own re-arming (link-up work before each probe) comes 0.25, 0.5, 1, 2, 4 s
+    apart and alone would let a 1.9 s lifeguard trip. (Before the fix the feeds stopped
+    while the drive was down: it tripped and released its motor.)"""
+    armed = lifeguard_floor_ms(1) + 100
+    simulator = make_simulator([1])
+    drive = simulator.drive(1)
+    with LineRelay(BAUD) as line:
+        simulator.start_serial(line.device_path, BAUD)
+        try:
+            params = bridge_params(line.client_path, unit_ids=[1], reconnect_max_s=5.0)
+            with motec(client, tmp_path, params, port=line.client_path, units=[1]) as (b, proc):
+                b.wait_connected(1, True)
+                b.ok(1, SetControlMode, "set_control_mode", mode=SetControlMode.Request.VELOCITY)
+                result = b.set_param(1, "lifeguard_ms", armed)
+                assert result.successful, result.reason
+                b.wait_state(1, lambda m: m.lifeguard_armed)
+                trips = drive.lifeguard_trips
+                since = time.monotonic()
+                _, muted_until = line.mute_replies(4 * armed / 1000.0)
+                b.wait_connected(1, False, since)
+                b.wait_connected(1, True, muted_until)  # the replies are back
+                assert drive.lifeguard_trips == trips, "the drive tripped while it was down"
+                assert proc.poll() is None
+        finally:
+            simulator.stop()
