@@ -51,10 +51,14 @@ from .support.ros import (
 )
 from .support.sims import motec_on_pty, stepper_on_pty
 
-pytestmark = pytest.mark.ros
-
 BAUD = 115200
 REPS = int(os.environ.get("HALT_RACE_REPS", "10"))
+# A case's time limit grows with its repetitions (an exit repetition starts a bridge
+# process: about 5 s on a loaded 2-core machine, 50 of them pass the suite's 300 s).
+REP_TIMEOUT_S = 20
+CASE_TIMEOUT_S = max(300, 60 + REP_TIMEOUT_S * REPS)
+
+pytestmark = [pytest.mark.ros, pytest.mark.timeout(CASE_TIMEOUT_S)]
 MOTOR = 2  # the stepper motor the joystick jogs
 JOG = 30.0  # jog speed (rpm) / cmd_velocity (rad/s)
 SPEED_SETPOINT = 0xAE  # MOTEC speed setpoint register
