@@ -27,6 +27,7 @@ from std_srvs.srv import SetBool
 from bridge_core.ros.node_base import BridgeNode
 from bridge_core.ros.node_parameters import DeviceDefaults, ParameterNode
 from bridge_core.ros.process import spin_node
+from bridge_core.runtime.checks import listed
 from bridge_core.runtime.diagnostics import Level, Report
 from bridge_core.runtime.keepalive import FEED_WAKE_S, Keepalive
 from bridge_core.runtime.parameters import ParameterSpec
@@ -263,7 +264,7 @@ class ModbusBridgeNode(BridgeNode[DeviceSnapshot]):
         self.command_service(
             ReadRegisters,
             "~/read",
-            lambda r: f"read {', '.join(r.names) or '(none)'}",
+            lambda r: f"read {listed(r.names, 'names')}",
             lambda r: device.read(list(r.names)),
             writes=False,
             fill=fill_read,

@@ -705,7 +705,9 @@ class RunCycleMotion(Motion[R6Snapshot]):
     value read before the start: ``moving`` alone is a motion flag, not the program's
     state (README R6 decision 23). Otherwise its end is STOPPED, and so is a continuous
     run's (it runs until stopped). Ends this goal causes (cancel, timeout, link loss,
-    the node's halts) send pause (20001), which keeps the program's step."""
+    the node's halts) send pause (20001), which keeps the program's step. Both kinds take
+    the node's ``goal_timeout_s`` when the goal gives ``timeout_s`` 0, a continuous run
+    too: a goal whose client vanished must not keep the robot cycling (decision 27)."""
 
     axes: frozenset[Hashable] = frozenset({PROGRAM})
     confirm_reached = True  # the result's last cycle time is read apart from `moving`
@@ -735,12 +737,6 @@ class RunCycleMotion(Motion[R6Snapshot]):
         self.stops_at_start = device.stops
         self.last_cycle_at_start: int | None = None
         self.cycle_ms: int | None = None  # the current cycle time of the previous poll
-
-    def default_timeout_s(self, node_default_s: float) -> float:
-        """A single cycle ends by itself: the node's ``goal_timeout_s`` bounds it. A
-        continuous run is meant to run until stopped (cancel, ``~/stop``, the node's halts):
-        no limit unless the goal gives one (decision 27)."""
-        return node_default_s if self.single_cycle else 0.0
 
     def start(self) -> None:
         ready = self.device.check_program_command(self.command)

@@ -39,7 +39,7 @@ from std_srvs.srv import SetBool
 
 from bridge_core.ros.node_base import BridgeNode, copy_fields
 from bridge_core.ros.process import spin_node
-from bridge_core.runtime.checks import board_zero_index
+from bridge_core.runtime.checks import board_zero_index, listed
 from bridge_core.runtime.diagnostics import Level, Report
 from bridge_core.runtime.parameters import padded
 from bridge_core.runtime.rate_groups import PollGroups
@@ -420,7 +420,7 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
         self.command_service(
             SetHomingOrder,
             "~/set_homing_order",
-            lambda r: f"set_homing_order {list(r.motors)}",
+            lambda r: f"set_homing_order {listed(r.motors, 'motors')}",
             lambda r: d.set_homing_order([int(m) for m in r.motors]),
         )
         self.command_service(

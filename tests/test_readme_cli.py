@@ -1,4 +1,5 @@
-"""The README's ros2 command lines, run as typed against the demo (issue 11).
+"""The README's ros2 command lines, and the action examples of docs/*.md, run as typed
+against the demo (issues 11, 22).
 
 There is no ``ros2`` command here (PyPI wheels), so each line is done the way the CLI does
 it: its YAML read with ``yaml.safe_load`` (what ``ros2 service call`` / ``topic pub`` use)
@@ -11,6 +12,7 @@ from __future__ import annotations
 
 import importlib
 import os
+import re
 import shlex
 import signal
 import subprocess
@@ -37,6 +39,9 @@ DEMO_START_S = 180.0  # four simulators and bridges on a loaded machine
 
 # A README goal's longest run against the demo (the stepper's home at 9600 baud).
 ACTION_END_S = 90.0
+# A docs action example: its code span, and the mark of one that cannot run against the
+# demo, right after it.
+DOCS_SEND_GOAL = re.compile(r"`(ros2 action send_goal\b[^`]*)`(\s*\(real device only\b)?")
 
 
 def readme_commands(heading: str = SECTION) -> list[list[str]]:
@@ -166,25 +171,68 @@ def test_every_readme_command_line_works_as_typed(demo: Client) -> None:
                 raise AssertionError(f"{what}: not a command this test knows")
 
 
+def run_goal_to_its_end(client: Client, words: list[str]) -> None:
+    """One ``ros2 action send_goal [--feedback] <name> <type> <yaml>`` line as typed: the
+    goal is accepted, sends feedback and runs to its end, REACHED."""
+    what = " ".join(words)
+    assert words[:3] == ["ros2", "action", "send_goal"], what
+    arguments = [word for word in words[3:] if word != "--feedback"]
+    assert len(arguments) == 3, f"{what}: flags not handled here"
+    name, type_name, text = arguments
+    action = interface(type_name)
+    goal = client.send_goal(action, name, filled(action.Goal(), text), timeout=WAIT_S * 3)
+    try:
+        assert goal.accepted, f"{what}: rejected (see the demo's log)"
+        assert goal.fed_before_end(ACTION_END_S), f"{what}: no feedback"
+        _status, result = goal.result(timeout=ACTION_END_S)
+        assert result.outcome.name == "REACHED", f"{what}: {result.outcome}"
+    finally:
+        goal.close()
+
+
 def test_every_readme_action_line_works_as_typed(demo: Client) -> None:
     """The "Actions" block, as a user types it against the demo: each goal is accepted,
     sends feedback and runs to its end, REACHED."""
-    client = demo
     commands = readme_commands(ACTIONS_SECTION)
     assert len(commands) >= 3, commands
     for words in commands:
-        what = " ".join(words)
-        assert words[:4] == ["ros2", "action", "send_goal", "--feedback"], what
-        name, type_name, text = words[4:7]
-        action = interface(type_name)
-        goal = client.send_goal(action, name, filled(action.Goal(), text), timeout=WAIT_S * 3)
+        assert "--feedback" in words, " ".join(words)
+        run_goal_to_its_end(demo, words)
+
+
+def docs_action_lines() -> list[tuple[str, list[str], bool]]:
+    """Every ``ros2 action send_goal`` code span of docs/*.md (one wrapped over lines is
+    joined, as the shell would take it pasted on one line): (file, words, marked "real
+    device only")."""
+    found = []
+    for path in sorted((ROOT / "docs").glob("*.md")):
+        for match in DOCS_SEND_GOAL.finditer(path.read_text()):
+            words = shlex.split(" ".join(match.group(1).split()))
+            found.append((path.name, words, match.group(2) is not None))
+    return found
+
+
+def test_every_docs_action_line_works_as_typed_or_is_marked(demo: Client) -> None:
+    """docs/*.md's send_goal examples against the same demo: each runs to its end,
+    REACHED, unless it is marked "(real device only: why)" right after it (a check that
+    needs the pendant, the wiring or settings the demo does not start with). A line the
+    README's block holds too (but for ``--feedback``) ran there already."""
+    lines = docs_action_lines()
+    marked = [words for _file, words, real_only in lines if real_only]
+    runnable = [(file, words) for file, words, real_only in lines if not real_only]
+    assert len(marked) >= 3 and len(runnable) >= 3, lines
+    in_readme = {_without_feedback(words) for words in readme_commands(ACTIONS_SECTION)}
+    for file, words in runnable:
+        if _without_feedback(words) in in_readme:
+            continue
         try:
-            assert goal.accepted, f"{what}: rejected (see the demo's log)"
-            assert goal.fed_before_end(ACTION_END_S), f"{what}: no feedback"
-            _status, result = goal.result(timeout=ACTION_END_S)
-            assert result.outcome.name == "REACHED", f"{what}: {result.outcome}"
-        finally:
-            goal.close()
+            run_goal_to_its_end(demo, words)
+        except AssertionError as err:
+            raise AssertionError(f"docs/{file}: {err}") from err
+
+
+def _without_feedback(words: list[str]) -> tuple[str, ...]:
+    return tuple(word for word in words if word != "--feedback")
 
 
 def test_a_yaml_key_named_on_is_not_a_field_name() -> None:

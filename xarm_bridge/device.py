@@ -12,7 +12,7 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
-from bridge_core.runtime.checks import check_index, check_whole_number
+from bridge_core.runtime.checks import check_count, check_index, check_whole_number
 from bridge_core.runtime.rate_groups import SLOW_POLL_PERIOD_DEFAULT_S, PollGroups
 from bridge_core.runtime.reads import read_blocks, read_named
 from bridge_core.wire.channel import Priority, RegisterIO
@@ -406,6 +406,7 @@ class XArmDevice:
             indexes,
             states,
             lambda index: _check_channel("digital output", index, WRITABLE_DIGITAL_OUTPUTS),
+            len(WRITABLE_DIGITAL_OUTPUTS),
         )
         return self._write_runs("DO", changes)
 
@@ -418,7 +419,11 @@ class XArmDevice:
             )
         coils = self.user_coils
         changes = _changes(
-            "user coil", addresses, states, lambda address: check_index("user coil", address, coils)
+            "user coil",
+            addresses,
+            states,
+            lambda address: check_index("user coil", address, coils),
+            len(coils),
         )
         return self._write_runs("C", changes)
 
@@ -509,10 +514,16 @@ class XArmDevice:
 
 
 def _changes(
-    what: str, indexes: Sequence[int], states: Sequence[bool], check: Callable[[int], object]
+    what: str,
+    indexes: Sequence[int],
+    states: Sequence[bool],
+    check: Callable[[int], object],
+    most: int,
 ) -> dict[int, bool]:
-    """``indexes[k]`` -> ``states[k]``, checked: as many states as indexes, at least one,
-    each index once and passing ``check``."""
+    """``indexes[k]`` -> ``states[k]``, checked: at most ``most`` (each index once), as
+    many states as indexes, at least one, each passing ``check``. An oversized request
+    is refused by its size, before any index is looked at."""
+    check_count("indexes", len(indexes), most)
     if len(indexes) != len(states):
         raise CommandRejected(f"{len(indexes)} indexes but {len(states)} states: give one each")
     if not indexes:

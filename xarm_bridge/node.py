@@ -11,7 +11,7 @@ from std_srvs.srv import Trigger
 
 from bridge_core.ros.node_base import BridgeNode, copy_fields
 from bridge_core.ros.process import spin_node
-from bridge_core.runtime.checks import board_zero_index
+from bridge_core.runtime.checks import board_zero_index, listed
 from bridge_core.runtime.diagnostics import Level, Report
 from bridge_core.runtime.rate_groups import PollGroups
 from bridge_core.runtime.units import (
@@ -288,7 +288,7 @@ class XArmBridgeNode(BridgeNode[XArmSnapshot]):
         self.command_service(
             RunOfflineTask,
             "~/run_offline_task",
-            lambda r: f"run_offline_task {list(r.projects)}",
+            lambda r: f"run_offline_task {listed(r.projects, 'projects')}",
             lambda r: d.run_offline_task([int(p) for p in r.projects]),
             starts=lambda _r: arm_started,
         )
@@ -304,13 +304,14 @@ def orientation_mismatch_deg(s: XArmSnapshot) -> float:
 
 
 def _pairs(request: Any) -> str:
-    """``indexes``/``states`` of a SetOutputs request as "2 on, 9 off" (as given)."""
+    """``indexes``/``states`` of a SetOutputs request as "2 on, 9 off" (as given), or
+    their count when that would be long (``listed``)."""
     states = ["on" if state else "off" for state in request.states]
     pairs = [
         f"{index} {states[k] if k < len(states) else '?'}"
         for k, index in enumerate(request.indexes)
     ]
-    return ", ".join(pairs) if pairs else "(none)"
+    return listed(pairs, "outputs")
 
 
 def _written(response: Any, written: str) -> None:

@@ -486,7 +486,7 @@ class BridgeNode(ParameterNode, CommandServices, Generic[SnapshotT]):
         except NotConfirmed as err:
             return False, f"{what}: not confirmed: {bounded_text(str(err))}", None
         except DeviceException as err:
-            return False, f"{what}: the device answered {err}", None
+            return False, f"{what}: the device answered {bounded_text(str(err))}", None
         except LinkError as err:
             went_out = self.channel.writes_tried() - writes_before
             if isinstance(err, NotSent) and not went_out:
@@ -499,8 +499,9 @@ class BridgeNode(ParameterNode, CommandServices, Generic[SnapshotT]):
                 hint = " (it may or may not have been executed)" if writes else ""
             return False, f"{what} failed: {bounded_text(str(err))}{hint}", None
         except Exception as err:
-            self.get_logger().error(f"{what} failed: {err}\n{traceback.format_exc()}")
-            return False, f"{what} failed: internal error: {err}", None
+            text = bounded_text(str(err))
+            self.get_logger().error(f"{what} failed: {text}\n{traceback.format_exc()}")
+            return False, f"{what} failed: internal error: {text}", None
         return True, f"{what}: done", result
 
     def stop_motion(self, reason: str = "the node stops") -> None:

@@ -16,7 +16,9 @@ import os
 import sys
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -90,15 +92,54 @@ def offered_qos(profile: QoSProfile) -> Qos:
     )
 
 
+# How many recent samples of a topic are remembered to write each once: on a topic with
+# a volatile and a transient-local subscription, a latched publisher's messages come on both.
+RECENT_SAMPLES = 1000
+
+
+@dataclass
+class _Topic:
+    """What the recorder holds for one topic it records."""
+
+    type_name: str
+    store: Typestore
+    connection: Any  # the bag connection new messages go to
+    offered: list[Qos]  # its offered QoS, fixed once the connection is written
+    publishers_seen: set[bytes]
+    subscriptions: dict[bool, Any] = field(default_factory=dict)  # latched? -> subscription
+    recent: deque[tuple[int, int, int]] = field(default_factory=deque)
+    recent_keys: set[tuple[int, int, int]] = field(default_factory=set)
+
+    def first_time(self, data: bytes, info: dict[str, Any]) -> bool:
+        """False for a sample already written (the same source time and bytes came on the
+        topic's other subscription, or on the first before the second was made and got it
+        again as a latched value). Without a source time: always True."""
+        stamp = int(info.get("source_timestamp") or 0)
+        if not stamp:
+            return True
+        key = (stamp, len(data), hash(bytes(data)))
+        if key in self.recent_keys:
+            return False
+        self.recent.append(key)
+        self.recent_keys.add(key)
+        if len(self.recent) > RECENT_SAMPLES:
+            self.recent_keys.discard(self.recent.popleft())
+        return True
+
+
 class Recorder(Node):
     """Subscribes to topics as their publishers appear and writes every message to one bag.
 
     A topic is taken up once it has a publisher (a subscriber alone, such as a monitor,
-    says nothing of the QoS the messages come with): the subscription's durability follows
-    the publishers' (transient local if any offers it: the latched value too), and their
-    QoS goes into the bag. A publisher that appears later is checked on every pass: one
-    that offers transient local to a volatile subscription makes it resubscribe, and every
-    new publisher's QoS is added to the topic's offered QoS in the metadata.
+    says nothing of the QoS the messages come with), with a subscription each publisher
+    can deliver to: volatile for volatile publishers, transient local for latched ones
+    (their latched value too); a topic with both kinds gets both subscriptions, and a
+    sample that comes on both is written once. The publishers' QoS go into the bag. A
+    publisher that appears later is checked on every pass: it gets the subscription its
+    durability needs, and a QoS the topic's bag connection does not list yet opens a new
+    connection of the topic that lists every one (a connection's QoS is written with it
+    in the bag file and cannot change; the first connection's stays what
+    ``ros2 bag play`` offers).
     """
 
     def __init__(
@@ -110,11 +151,7 @@ class Recorder(Node):
         self.storage = storage
         self.counts: dict[str, int] = {t: 0 for t in self.topics}
         self._writer: Writer | None = None
-        self._connections: dict[str, Any] = {}
-        self._recording: dict[str, Any] = {}
-        self._latched: dict[str, bool] = {}
-        self._offered: dict[str, list[Qos]] = {}  # the connection's list: metadata at close
-        self._publishers_seen: dict[str, set[bytes]] = {}
+        self._recorded: dict[str, _Topic] = {}
         self._lock = threading.Lock()
         self.discover_passes = 0  # graph looks done (tests wait on it)
         self.create_timer(0.1, self._discover)
@@ -128,62 +165,94 @@ class Recorder(Node):
             publishers = self.get_publishers_info_by_topic(topic)
             if not publishers:
                 continue  # only subscribers known yet: their QoS is not the messages'
-            if topic not in self._connections:
+            if topic not in self._recorded:
                 self._take_up(topic, known[topic][0], publishers)
             else:
                 self._late_publishers(topic, publishers)
 
-    def _take_up(self, topic: str, type_name: str, publishers: list[Any]) -> None:
-        store = typestore_for([type_name])
-        offered = [info.qos_profile for info in publishers]
+    def _add_connection(
+        self, topic: str, type_name: str, store: Typestore, offered: list[Qos]
+    ) -> Any:
         with self._lock:
             if self._writer is None:
                 self._writer = Writer(self.output, version=9, storage_plugin=self.storage)
                 self._writer.open()
             connection = self._writer.add_connection(
-                topic,
-                type_name,
-                typestore=store,
-                offered_qos_profiles=[offered_qos(profile) for profile in offered],
+                topic, type_name, typestore=store, offered_qos_profiles=list(offered)
             )
-            self._connections[topic] = connection
-            ext = connection.ext
-            assert isinstance(ext, ConnectionExtRosbag2)
-            self._offered[topic] = ext.offered_qos_profiles
-        self._publishers_seen[topic] = {bytes(info.endpoint_gid) for info in publishers}
-        self._subscribe(topic, type_name, _offers_latched(offered))
+        assert isinstance(connection.ext, ConnectionExtRosbag2)
+        return connection
+
+    def _take_up(self, topic: str, type_name: str, publishers: list[Any]) -> None:
+        store = typestore_for([type_name])
+        offered = [offered_qos(info.qos_profile) for info in publishers]
+        connection = self._add_connection(topic, type_name, store, offered)
+        recorded = _Topic(
+            type_name,
+            store,
+            connection,
+            offered,
+            {bytes(info.endpoint_gid) for info in publishers},
+        )
+        with self._lock:
+            self._recorded[topic] = recorded
+        for latched in _durabilities(publishers):
+            self._subscribe(topic, latched)
         self.get_logger().info(f"recording {topic} ({type_name})")
 
     def _late_publishers(self, topic: str, publishers: list[Any]) -> None:
-        seen = self._publishers_seen[topic]
-        new = [info for info in publishers if bytes(info.endpoint_gid) not in seen]
+        recorded = self._recorded[topic]
+        new = [
+            info for info in publishers if bytes(info.endpoint_gid) not in recorded.publishers_seen
+        ]
         if not new:
             return
-        seen.update(bytes(info.endpoint_gid) for info in new)
-        with self._lock:
-            self._offered[topic].extend(offered_qos(info.qos_profile) for info in new)
-        if _offers_latched([info.qos_profile for info in new]) and not self._latched[topic]:
-            self.destroy_subscription(self._recording.pop(topic))
-            self._subscribe(topic, self._connections[topic].msgtype, latched=True)
-            self.get_logger().info(f"{topic}: a latched publisher appeared, resubscribed")
+        recorded.publishers_seen.update(bytes(info.endpoint_gid) for info in new)
+        for latched in _durabilities(new) - set(recorded.subscriptions):
+            self._subscribe(topic, latched)
+            kind = "a latched" if latched else "a volatile"
+            self.get_logger().info(f"{topic}: {kind} publisher appeared, subscribed for it too")
+        unlisted = []
+        for info in new:
+            qos = offered_qos(info.qos_profile)
+            if qos not in recorded.offered and qos not in unlisted:
+                unlisted.append(qos)
+        if unlisted:
+            offered = recorded.offered + unlisted
+            connection = self._add_connection(topic, recorded.type_name, recorded.store, offered)
+            with self._lock:
+                recorded.connection, recorded.offered = connection, offered
+            self.get_logger().info(
+                f"{topic}: a publisher with a QoS not yet in the bag appeared: a new connection "
+                "of the topic lists it"
+            )
 
-    def _subscribe(self, topic: str, type_name: str, latched: bool) -> None:
+    def _subscribe(self, topic: str, latched: bool) -> None:
+        recorded = self._recorded[topic]
         qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
         if latched:
             qos.durability = DurabilityPolicy.TRANSIENT_LOCAL  # the latched value too
-        self._latched[topic] = latched
-        self._recording[topic] = self.create_subscription(
-            message_class(type_name), topic, self._writer_for(topic), qos, raw=True
+        # A callback of two arguments gets the message info too (rclpy's stubs know only
+        # the one-argument form): its source time tells a sample that came on both.
+        subscription = self.create_subscription(
+            message_class(recorded.type_name),
+            topic,
+            self._writer_for(topic),  # type: ignore[arg-type]
+            qos,
+            raw=True,
         )
-
-    def _writer_for(self, topic: str) -> Callable[[bytes], None]:
-        return lambda data: self._write(topic, data)
-
-    def _write(self, topic: str, data: bytes) -> None:
         with self._lock:
-            if self._writer is None:
+            recorded.subscriptions[latched] = subscription
+
+    def _writer_for(self, topic: str) -> Callable[[bytes, dict[str, Any]], None]:
+        return lambda data, info: self._write(topic, data, info)
+
+    def _write(self, topic: str, data: bytes, info: dict[str, Any]) -> None:
+        with self._lock:
+            recorded = self._recorded[topic]
+            if self._writer is None or not recorded.first_time(data, info):
                 return
-            self._writer.write(self._connections[topic], time.time_ns(), data)
+            self._writer.write(recorded.connection, time.time_ns(), data)
             self.counts[topic] += 1
 
     def close(self) -> None:
@@ -193,8 +262,10 @@ class Recorder(Node):
                 self._writer = None
 
 
-def _offers_latched(profiles: Sequence[QoSProfile]) -> bool:
-    return any(q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in profiles)
+def _durabilities(publishers: Sequence[Any]) -> set[bool]:
+    """The subscriptions ``publishers`` need (True: transient local, False: volatile): a
+    transient-local subscription gets nothing from a volatile publisher."""
+    return {info.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL for info in publishers}
 
 
 def main(argv: Sequence[str] | None = None) -> None:

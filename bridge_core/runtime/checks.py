@@ -10,6 +10,7 @@ counts) is refused here, never an ``OverflowError`` with a traceback.
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Iterable, Sequence
 from typing import TypeVar
 
@@ -21,13 +22,41 @@ Choice = TypeVar("Choice")
 # The longest command description or refusal text a reply or log line carries: an
 # oversized request (300 KB of indexes) is named by its size, never echoed back.
 MESSAGE_MAX_CHARS = 240
+# The longest list a command description shows item by item; a longer one is named by
+# its count ("set_digital_outputs (30000 outputs)").
+LISTED_MAX_CHARS = 160
+# What of an oversized text is kept: its leading words, up to the first value.
+_LEADING_WORDS = re.compile(r"[A-Za-z_][A-Za-z_ ]*")
+LEADING_WORDS_MAX_CHARS = 60
 
 
 def bounded_text(text: str, limit: int = MESSAGE_MAX_CHARS) -> str:
-    """``text``, or its start and its size when it is longer than ``limit``."""
+    """``text``, or, when it is longer than ``limit``, only its leading words (what it is:
+    "set_digital_outputs", "no register named") and its size: never the values in it,
+    which can be a whole oversized request."""
     if len(text) <= limit:
         return text
-    return f"{text[:limit].rstrip()}… ({len(text)} characters in all, cut)"
+    match = _LEADING_WORDS.match(text)
+    leading = match.group(0)[:LEADING_WORDS_MAX_CHARS].strip() if match else ""
+    return f"{leading or 'a text'} ({len(text)} characters, not shown)"
+
+
+def listed(items: Iterable[object], noun: str) -> str:
+    """A command description's list: its items, or only their count when they would make
+    a long text (an oversized request is named by its size, never echoed)."""
+    shown = [str(item) for item in items]
+    text = ", ".join(shown)
+    if len(text) <= LISTED_MAX_CHARS:
+        return text or "(none)"
+    return f"({len(shown)} {noun})"
+
+
+def check_count(what: str, count: int, most: int) -> int:
+    """At most ``most`` items of a list request; the refusal names the count, not the
+    items ("30000 indexes, at most 16")."""
+    if count > most:
+        raise CommandRejected(f"{count} {what}, at most {most}")
+    return count
 
 
 def _is_number(value: object) -> bool:
@@ -117,13 +146,17 @@ def check_converted(what: str, value: float, low: float, high: float) -> float:
 
 
 __all__ = [
+    "MESSAGE_MAX_CHARS",
     "board_zero_index",
+    "bounded_text",
     "check_board",
     "check_choice",
     "check_converted",
+    "check_count",
     "check_finite",
     "check_index",
     "check_range",
     "check_raw",
     "check_whole_number",
+    "listed",
 ]

@@ -94,8 +94,9 @@ class Motion(ABC, Generic[SnapshotT]):
     def default_timeout_s(self, node_default_s: float) -> float:
         """The goal's time limit when it gives ``timeout_s`` 0: the node's
         ``goal_timeout_s`` (so a goal whose client vanished ends by itself). A motion with
-        a limit of its own (judged in ``judge``), or one that runs until stopped, returns
-        0 (none here)."""
+        a limit of its own (judged in ``judge``) returns 0 (none here). A motion meant to
+        run until stopped (an R6 continuous run_cycle) keeps the node's: the user who
+        wants it unbounded sets ``goal_timeout_s`` 0 (R6 decision 27)."""
         return node_default_s
 
     @abstractmethod

@@ -400,6 +400,7 @@ def test_rotation_vector_is_the_pose_orientation(xarm) -> None:  # type: ignore[
         (lambda d: d.set_digital_outputs([1, 16], [True, True]), "digital output 16"),
         (lambda d: d.set_digital_outputs([3, 3], [True, False]), "digital output 3 given twice"),
         (lambda d: d.set_digital_outputs([1, 2], [True]), "2 indexes but 1 states"),
+        (lambda d: d.set_digital_outputs([*range(17)], [True] * 17), "^17 indexes, at most 16$"),
         (lambda d: d.set_digital_outputs([], []), "no outputs"),
         (lambda d: d.set_user_coils([256], [True]), "no user coils configured"),
         (lambda d: d.set_joint_enable(8, True), "joint 8 outside 0-7"),

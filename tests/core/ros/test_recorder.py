@@ -187,3 +187,81 @@ def _record_a_late_publisher(run: int, bag: Path, context: Context, executor: An
     offered = entry["topic_metadata"]["offered_qos_profiles"]
     assert "transient_local" in str(offered), f"run {run}: offered QoS {offered!r}"
     assert entry["message_count"] == 1, f"run {run}"
+
+
+VOLATILE = QoSProfile(
+    depth=10, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE
+)
+
+
+def test_a_latched_publisher_that_appears_after_a_volatile_one(tmp_path: Path) -> None:
+    """A volatile publisher of a topic is discovered first (the recorder takes the topic
+    up volatile), a latched one appears later: the recorder subscribes transient local
+    too, so the bag holds the latched value (once), what the volatile publisher sends
+    afterwards still (a transient-local subscription alone gets nothing from it), and the
+    offered QoS of both; the bag reads back with rosbags' reader. Every time (20 runs)."""
+    context = Context()
+    rclpy.init(context=context)
+    executor = SingleThreadedExecutor(context=context)
+    try:
+        for run in range(LATE_PUBLISHER_RUNS):
+            _record_a_late_latched_publisher(run, tmp_path / f"bag_{run}", context, executor)
+    finally:
+        executor.shutdown()
+        try_shutdown(context=context)
+
+
+def _record_a_late_latched_publisher(run: int, bag: Path, context: Context, executor: Any) -> None:
+    def spin_until(predicate: Callable[[], bool], what: str) -> None:
+        def spun() -> bool:
+            executor.spin_once(timeout_sec=0.02)
+            return predicate()
+
+        wait_for(spun, 20, f"run {run}: {what}")
+
+    topic = f"/late_latched_{run}/connected"
+    volatile = Node(f"volatile_{run}", context=context)
+    live = volatile.create_publisher(Bool, topic, VOLATILE)
+    recorder = Recorder(bag, [topic], StoragePlugin.MCAP, context=context)
+    latched = Node(f"latched_{run}", context=context)
+    nodes = (volatile, recorder, latched)
+    for node in nodes:
+        executor.add_node(node)
+
+    def recorder_durabilities() -> list[DurabilityPolicy]:
+        """The durability of each subscription the recorder has on ``topic`` (the graph)."""
+        return sorted(
+            info.qos_profile.durability
+            for info in volatile.get_subscriptions_info_by_topic(topic)
+            if info.node_name == recorder.get_name()
+        )
+
+    both = sorted([DurabilityPolicy.VOLATILE, DurabilityPolicy.TRANSIENT_LOCAL])
+    try:
+        # The recorder takes the topic up from the volatile publisher alone.
+        spin_until(lambda: recorder_durabilities() != [], "the recorder subscribed")
+        assert recorder_durabilities() == [DurabilityPolicy.VOLATILE], f"run {run}"
+        passes = recorder.discover_passes
+        spin_until(lambda: recorder.discover_passes >= passes + 2, "two discovery passes")
+        latched.create_publisher(Bool, topic, LATCHED).publish(Bool(data=True))
+        spin_until(lambda: recorder_durabilities() == both, "a transient-local subscription")
+        spin_until(lambda: recorder.counts[topic] >= 1, "the latched value recorded")
+        live.publish(Bool(data=False))
+        spin_until(lambda: recorder.counts[topic] >= 2, "the volatile publisher's message")
+    finally:
+        recorder.close()
+        for node in nodes:
+            executor.remove_node(node)
+            node.destroy_node()
+    store = typestore_for(["std_msgs/msg/Bool"])
+    with Reader(bag) as reader:
+        offered = [c.ext.offered_qos_profiles for c in reader.connections]  # type: ignore[union-attr]
+        values = [
+            store.deserialize_cdr(raw, c.msgtype).data  # type: ignore[attr-defined]
+            for c, _, raw in reader.messages()
+        ]
+    assert values == [True, False], f"run {run}: {values}"
+    # The topic's newest connection lists both publishers' QoS (a connection's QoS cannot
+    # change once written: the volatile-only one stays first).
+    durabilities = sorted(profile.durability.name for profile in offered[-1])
+    assert durabilities == ["TRANSIENT_LOCAL", "VOLATILE"], f"run {run}: {offered}"

@@ -10,11 +10,13 @@ from bridge_core.runtime.checks import (
     bounded_text,
     check_choice,
     check_converted,
+    check_count,
     check_finite,
     check_index,
     check_range,
     check_raw,
     check_whole_number,
+    listed,
 )
 from bridge_core.wire.errors import CommandRejected
 from bridge_core.wire.registers import ValueType
@@ -88,10 +90,22 @@ def test_converted_overflow_is_a_refusal() -> None:
     assert check_converted("x", 5.0, 0, 10) == 5.0
 
 
-def test_bounded_text_names_the_size_of_what_it_cuts() -> None:
+def test_bounded_text_names_the_size_of_what_it_cuts_and_never_its_values() -> None:
     assert bounded_text("short") == "short"
+    assert bounded_text("index 99 outside 0-15") == "index 99 outside 0-15"  # normal size
     text = "set_digital_outputs " + str(list(range(30000)))
-    cut = bounded_text(text)
-    assert len(cut) < MESSAGE_MAX_CHARS + 60
-    assert cut.startswith("set_digital_outputs [0, 1, 2")
-    assert f"({len(text)} characters in all, cut)" in cut
+    assert bounded_text(text) == f"set_digital_outputs ({len(text)} characters, not shown)"
+    name = "x" * 300_000
+    said = bounded_text(f"no register named {name!r}")
+    assert said == f"no register named ({300_000 + 20} characters, not shown)"
+    assert bounded_text("7" * 1000) == "a text (1000 characters, not shown)"
+    assert len(bounded_text("y" * 10**6)) < MESSAGE_MAX_CHARS
+
+
+def test_a_long_list_is_described_by_its_count() -> None:
+    assert listed([2, 9], "outputs") == "2, 9"
+    assert listed([], "outputs") == "(none)"
+    assert listed(range(30000), "outputs") == "(30000 outputs)"
+    assert check_count("indexes", 16, 16) == 16
+    with pytest.raises(CommandRejected, match=r"^30000 indexes, at most 16$"):
+        check_count("indexes", 30000, 16)
