@@ -714,3 +714,40 @@ def test_a_write_to_the_slow_group_is_read_back_at_the_next_poll(shared: Running
             TIMEOUT,
             "a ~/state whose slow group was read after the write",
         )
+
+
+def test_diagnostics_show_the_wire_budget(shared: Running) -> None:
+    """Every bridge's diagnostics carry its wire budget once it polled without the slow
+    group: the load, the rate the wire carries, the wire time of a poll, and the measured
+    reply delay (serial) or round trip (TCP); a bus's devices also show their line's sum."""
+    r = shared
+    turnaround = "reply delay (ms)" if r.info.transport == "rtu" else "round trip (ms)"
+    since = time.monotonic()
+
+    def budget() -> dict[str, str] | None:
+        for status in reversed(r.statuses(since)):
+            values = values_of(status)
+            if values.get("wire load (%)", "n/a") != "n/a":
+                return values
+        return None
+
+    values = wait_for(budget, TIMEOUT, "diagnostics with the wire budget")
+    assert float(values["wire load (%)"]) >= 0
+    assert float(values["wire time per poll (ms)"]) > 0
+    assert float(values[turnaround]) >= 0
+    achievable = values["achievable poll rate (Hz)"]
+    assert achievable == "unbounded" or float(achievable) > 0
+    if r.info.bus_startup_only:  # a node on a line a bus owner shares
+        line = wait_for(
+            lambda: next(
+                (
+                    v["line load, all devices (%)"]
+                    for s in reversed(r.statuses(since))
+                    if (v := values_of(s)).get("line load, all devices (%)", "n/a") != "n/a"
+                ),
+                None,
+            ),
+            TIMEOUT,
+            "the line's load",
+        )
+        assert float(line) >= float(values["wire load (%)"])

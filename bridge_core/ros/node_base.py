@@ -45,6 +45,7 @@ from ..runtime.motion_ledger import MotionLedger
 from ..runtime.parameters import bridge_specs
 from ..runtime.poller import Poller, PollOutcome
 from ..runtime.rate_groups import PollGroups
+from ..runtime.wire_budget import WireBudget
 from ..wire.channel import DeviceChannel, Priority
 from ..wire.errors import CommandRejected, DeviceException, LinkError, NotConfirmed, NotSent
 from ..wire.link_state import LinkEvent
@@ -117,7 +118,10 @@ class BridgeNode(ParameterNode, CommandServices, Generic[SnapshotT]):
         self.actions = ActionHost(self)
         self._create_poller(float(values["poll_rate_hz"]), node_name)
         self.on_parameter("read_only", self._set_read_only)
-        self.on_parameter("poll_rate_hz", lambda rate: setattr(self.poller, "rate_hz", rate))
+        # What the polls ask of the wire: said once at start and after a rate change.
+        self.wire_budget = WireBudget(self.channel, self.poll_groups, lambda: self.poller.rate_hz)
+        self.line_load: Callable[[], str] | None = None  # set by the owner of a shared line
+        self.on_parameter("poll_rate_hz", self._set_poll_rate)
         self.slow_poll_period_s = float(values["slow_poll_period_s"])  # the device's start value
         self.on_parameter("slow_poll_period_s", self._set_slow_poll_period)
         # Start polling once the executor runs, i.e. after the subclass finished __init__.
@@ -242,9 +246,14 @@ class BridgeNode(ParameterNode, CommandServices, Generic[SnapshotT]):
         """The device's rate groups (``slow_poll_period_s`` sets their period)."""
         raise NotImplementedError
 
+    def _set_poll_rate(self, rate_hz: float) -> None:
+        self.poller.rate_hz = rate_hz
+        self.wire_budget.rearm()
+
     def _set_slow_poll_period(self, period_s: float) -> None:
         self.slow_poll_period_s = period_s
         self.poll_groups().period_s = period_s
+        self.wire_budget.rearm()
 
     def device_report(self) -> Report | None:
         """The device's own status (alarm code and its meaning) for diagnostics."""
@@ -284,7 +293,11 @@ class BridgeNode(ParameterNode, CommandServices, Generic[SnapshotT]):
         """The poll and the (monotonic) time it began: a goal judges only polls begun after
         its start was acknowledged."""
         began = time.monotonic()
-        return began, self.poll_device()
+        snapshot = self.wire_budget.around(self.poll_device)
+        warning = self.wire_budget.warning(f"{self.device_name} on {self.channel.describe()}")
+        if warning is not None:
+            self.get_logger().warning(warning)
+        return began, snapshot
 
     def _publish(self, polled: tuple[float, SnapshotT]) -> None:
         began, snapshot = polled

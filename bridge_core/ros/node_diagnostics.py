@@ -17,6 +17,7 @@ from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 
 from ..runtime.diagnostics import Level, link_report
 from ..runtime.rate_groups import PollGroups
+from ..runtime.wire_budget import budget_values
 
 if TYPE_CHECKING:
     from .node_base import BridgeNode
@@ -61,6 +62,9 @@ class DiagnosticsPublisher:
         values.append(("snapshots dropped (publisher behind)", str(poller.snapshots_dropped)))
         values.append(("read_only", str(node.read_only).lower()))
         values.append(("slow group", slow_group_text(node.poll_groups(), time.time())))
+        values += budget_values(node.wire_budget.budget(), node.link.is_serial)
+        if node.line_load is not None:
+            values.append(("line load, all devices (%)", node.line_load()))
         if node.streams.guards:
             values.append(("stream commands refused", str(node.streams.refusals)))
         if node.actions.servers:

@@ -24,6 +24,7 @@ from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import try_shutdown
 
 from ..runtime.parameters import bus_specs
+from ..runtime.wire_budget import WIRE_FULL, Budget, line_load, line_text
 from ..wire.channel import Priority
 from ..wire.errors import ConfigurationError
 from ..wire.transport import ModbusLink
@@ -38,6 +39,7 @@ from .node_parameters import DeviceDefaults, ParameterNode, link_settings, one_l
 GIL_SWITCH_INTERVAL_S = 0.0005
 EXIT_CONFIGURATION_ERROR = 2
 EXIT_FATAL_ERROR = 1  # a bug or an error nothing handled: motion stopped, then exit
+LINE_CHECK_PERIOD_S = 1.0  # how often a bus owner looks at its devices' wire budgets
 
 
 class BusNode(ParameterNode):
@@ -75,6 +77,34 @@ class BusNode(ParameterNode):
         self.unit_ids = units
         self.settings = link_settings(values)
         self.link = ModbusLink(self.settings)
+        self.devices: list[BridgeNode[Any]] = []  # the nodes polling this line (watch_line)
+        self._judged: int | None = None  # the devices' budget generations last judged
+
+    def watch_line(self, devices: Sequence[BridgeNode[Any]]) -> None:
+        """Sum the wire budgets of ``devices`` (they share this line): said once in a WARN
+        when together they ask more than it carries, at start and after a rate change;
+        each device's diagnostics show the sum."""
+        self.devices = list(devices)
+        for device in self.devices:
+            device.line_load = self.line_load_text
+        self.create_timer(LINE_CHECK_PERIOD_S, self._judge_line)
+
+    def _budgets(self) -> list[Budget] | None:
+        budgets = [d.wire_budget.budget() for d in self.devices if d.active]
+        return None if not budgets or None in budgets else budgets  # type: ignore[return-value]
+
+    def line_load_text(self) -> str:
+        budgets = self._budgets()
+        return "n/a" if budgets is None else f"{line_load(budgets) * 100:.1f}"
+
+    def _judge_line(self) -> None:
+        generation = sum(d.wire_budget.generation for d in self.devices)
+        budgets = self._budgets()
+        if budgets is None or generation == self._judged:
+            return
+        self._judged = generation
+        if line_load(budgets) > WIRE_FULL:
+            self.get_logger().warning(line_text(f"line {self.link.describe()}", budgets))
 
     def close(self) -> None:
         with self.link.lock.hold(Priority.COMMAND):
@@ -109,6 +139,14 @@ def _close_all(nodes: Sequence[Node]) -> None:
             node.close()
     for node in nodes:
         node.destroy_node()
+
+
+def _watch_lines(nodes: Sequence[Node]) -> None:
+    """Each bus owner judges the wire budgets of the bridges on its line."""
+    bridges = [node for node in nodes if isinstance(node, BridgeNode)]
+    for bus in nodes:
+        if isinstance(bus, BusNode):
+            bus.watch_line([b for b in bridges if b.link is bus.link])
 
 
 def _refuse_unused_parameters(nodes: Sequence[Node]) -> None:
@@ -153,6 +191,7 @@ def spin_nodes(
     try:
         build(nodes)
         _refuse_unused_parameters(nodes)
+        _watch_lines(nodes)
         for node in nodes:  # the bus owner first, then its devices
             if isinstance(node, LifecycleNode) and getattr(node, "autostart", False):
                 node.trigger_configure()

@@ -31,6 +31,7 @@ from .errors import DeviceException, FrameError, LinkDown, LinkError, LinkTimeou
 from .link_state import LinkState
 from .registers import Table
 from .requests import (
+    BROADCAST_UNIT,
     MaskWriteRegister,
     ReadBits,
     ReadRegisters,
@@ -48,6 +49,10 @@ from .requests import (
 # First reconnect delay; it doubles per failure up to the node's reconnect_max_s.
 RECONNECT_INITIAL_S = 0.25
 LATENCY_SAMPLES = 512
+# Turnarounds the wire budget takes its median of (a few seconds of polls at most).
+TURNAROUND_SAMPLES = 64
+# Frame times kept per read request (a poll repeats the same few reads; writes vary).
+FRAME_TIME_CACHE = 256
 UNIT_ID_MIN = 0
 UNIT_ID_MAX = 247
 
@@ -140,6 +145,7 @@ class Transport(Protocol):
     def open(self) -> None: ...
     def close(self) -> None: ...
     def execute(self, unit_id: int, request: Request, timeout_s: float | None = None) -> Reply: ...
+    def frame_time_s(self, request: Request) -> float: ...
 
 
 class Backoff:
@@ -185,6 +191,33 @@ class LinkStats:
     last_error: str = ""
     last_error_time: float = 0.0
     latencies_s: deque[float] = field(default_factory=lambda: deque(maxlen=LATENCY_SAMPLES))
+    wire: WireTally = field(default_factory=lambda: WireTally())
+
+
+@dataclass
+class WireTally:
+    """What the device's answered transactions cost the wire (the wire budget's input).
+
+    A transaction is its frames (``Transport.frame_time_s``: bytes at the baud rate and the
+    silence, 0 on TCP) and the device's turnaround: the rest of the time it took, i.e. the
+    reply delay on a serial line, the round trip on TCP. ``polls`` / ``poll_frames_s``
+    count the poll-priority ones: a poll's cost is their difference across it.
+    """
+
+    polls: int = 0
+    poll_frames_s: float = 0.0
+    turnarounds_s: deque[float] = field(default_factory=lambda: deque(maxlen=TURNAROUND_SAMPLES))
+
+    def note(self, frame_s: float, elapsed_s: float, poll: bool) -> None:
+        self.turnarounds_s.append(max(0.0, elapsed_s - frame_s))
+        if poll:
+            self.polls += 1
+            self.poll_frames_s += frame_s
+
+    def turnaround_s(self) -> float | None:
+        """The median turnaround of the recent transactions (None before the first)."""
+        samples = sorted(self.turnarounds_s)
+        return samples[len(samples) // 2] if samples else None
 
 
 class DeviceChannel:
@@ -216,6 +249,7 @@ class DeviceChannel:
         self.link_state = LinkState()
         self._session = threading.local()
         self._write_listeners: list[Callable[[Span], None]] = []
+        self._frame_times: dict[Request, float] = {}
 
     def add_write_listener(self, listener: Callable[[Span], None]) -> Callable[[], None]:
         """``listener(span)`` for every write put on the wire (landed or not), under the
@@ -227,6 +261,11 @@ class DeviceChannel:
                 self._write_listeners.remove(listener)
 
         return remove
+
+    @property
+    def wire(self) -> WireTally:
+        """What this device's transactions cost the wire (``runtime.wire_budget``)."""
+        return self.stats.wire
 
     @property
     def connected(self) -> bool:
@@ -374,12 +413,26 @@ class DeviceChannel:
                 return err
             stats = self.stats
             stats.transactions += 1
-            stats.latencies_s.append(time.perf_counter() - started)
+            elapsed = time.perf_counter() - started
+            stats.latencies_s.append(elapsed)
+            if self.unit_id != BROADCAST_UNIT or not self.link.is_serial:  # else no reply
+                stats.wire.note(self.frame_time_s(request), elapsed, priority is Priority.POLL)
             if not state.connected:
                 self._note_alive()
             return reply
         finally:
             lock.release()
+
+    def frame_time_s(self, request: Request) -> float:
+        """The link's ``frame_time_s``, kept for reads (a poll sends the same ones again)."""
+        if request.is_write:
+            return self.link.frame_time_s(request)
+        frame = self._frame_times.get(request)
+        if frame is None:
+            if len(self._frame_times) >= FRAME_TIME_CACHE:
+                self._frame_times.clear()
+            frame = self._frame_times[request] = self.link.frame_time_s(request)
+        return frame
 
     def _note_alive(self) -> None:
         state = self.link_state

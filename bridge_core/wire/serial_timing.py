@@ -43,6 +43,7 @@ from pymodbus.exceptions import ConnectionException, ModbusException
 from pymodbus.framer import FramerRTU
 from pymodbus.logging import Log
 
+from .requests import BROADCAST_UNIT
 from .serial_port import open_serial, write_all
 
 _log = logging.getLogger(__name__)
@@ -73,7 +74,6 @@ SPIN_S = 100e-6
 # The longest RTU frame (spec §2.5.1: 256 bytes, address and CRC included).
 MAX_RTU_FRAME_BYTES = 256
 
-BROADCAST_UNIT = 0
 EXCEPTION_FLAG = 0x80
 # unit id + function code: enough to tell a normal reply from an exception reply.
 REPLY_HEADER_LEN = 2

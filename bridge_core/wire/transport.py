@@ -46,14 +46,15 @@ from . import requests as rq
 from .channel import PriorityLock
 from .errors import DeviceException, FrameError, LinkDown, LinkTimeout
 from .registers import Table
-from .requests import Reply, Request
+from .requests import BROADCAST_UNIT, Reply, Request
 from .serial_timing import (
-    BROADCAST_UNIT,
     ReplyFrameError,
     ReplyFromOtherUnit,
     ReplyMismatch,
     TimedSerialClient,
+    char_time_s,
     longest_hold_s,
+    silence_s,
 )
 
 __all__ = [
@@ -117,6 +118,11 @@ class TcpSettings:
         """The longest one transaction holds the link: its reply timeout (a reconnect aside)."""
         return self.timeout_s
 
+    def frame_time_s(self, request: Request) -> float:
+        """Wire time of ``request`` and its reply beside the round trip: none counted (on a
+        LAN a frame takes microseconds; the measured round trip holds it)."""
+        return 0.0
+
 
 @dataclass(frozen=True)
 class SerialSettings:
@@ -143,6 +149,15 @@ class SerialSettings:
             parity=self.parity,
             stopbits=self.stopbits,
         )
+
+    def frame_time_s(self, request: Request) -> float:
+        """Wire time of ``request`` and its reply, and the silence that separates two
+        transactions (t3.5, or ``frame_gap_s``): one transaction but the device's turnaround."""
+        request_pdu, reply_pdu = rq.pdu_bytes(request)
+        char = char_time_s(self.baudrate, self.bytesize, self.parity, self.stopbits)
+        silence = silence_s(self.baudrate, self.bytesize, self.parity, self.stopbits)
+        frames = request_pdu + reply_pdu + 2 * rq.RTU_ADU_OVERHEAD
+        return frames * char + max(silence, self.frame_gap_s)
 
 
 LinkSettings = TcpSettings | SerialSettings
@@ -247,6 +262,10 @@ class ModbusLink:
     @property
     def is_open(self) -> bool:
         return self._open
+
+    def frame_time_s(self, request: Request) -> float:
+        """``request``'s wire time but the device's turnaround (the wire budget's part)."""
+        return self.settings.frame_time_s(request)
 
     def open(self) -> None:
         _LAST_ERROR.take()

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import re
 import signal
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -885,3 +886,47 @@ def test_an_armed_drive_whose_replies_are_lost_is_still_fed(client: Client, tmp_
                 assert proc.poll() is None
         finally:
             simulator.stop()
+
+
+def test_drives_that_together_exceed_their_line_are_said_once_by_the_bus_owner(
+    client: Client, tmp_path: Path
+) -> None:
+    """Issue 24, wire budget: three drives at 9600 baud, each asking 6 polls a second. A
+    poll is ~60 ms of frames at 9600 (the budget counts a real line's bytes; the pty moves
+    them faster), so each drive alone needs ~40 % of the line and the three ~120 %: the
+    bus owner says so once, with the rates the line carries, and each drive's diagnostics
+    show the line's sum."""
+    baud = 9600
+    with motec_on_pty(UNITS, baud) as (_sim, port):
+        params = bridge_params(port, baudrate=baud, poll_rate_hz=6.0)
+        with motec(client, tmp_path, params) as (b, proc):
+            owner = f"{b.ns}/motec_bridge".strip("/").replace("/", ".")
+            line = client.wait_log(owner, "the polls of its 3 devices need")
+            match = re.search(r"need (\d+)% of the line; .* carries about (.*) Hz", line.msg)
+            assert match is not None, line.msg
+            assert int(match.group(1)) > 100
+            carried = [float(rate) for rate in match.group(2).split(", ")]
+            assert len(carried) == 3 and all(0 < rate < 6.0 for rate in carried)
+            status = b.wait_diagnostic(
+                1, lambda s: values_of(s).get("line load, all devices (%)", "n/a") != "n/a"
+            )
+            values = values_of(status)
+            assert float(values["line load, all devices (%)"]) > 100
+            assert float(values["wire load (%)"]) < float(values["line load, all devices (%)"])
+            # Once: three more statuses of drive 1 (the owner judged meanwhile) and one line.
+            since = time.monotonic()
+            wait_for(
+                lambda: (
+                    sum(
+                        s.name.startswith(f"{b.ns}/motec_1: ")
+                        for a in client.received("/diagnostics", since)
+                        for s in a.status
+                    )
+                    >= 3
+                ),
+                WAIT_S,
+                "3 statuses of drive 1",
+            )
+            said = [m for m in client.received("/rosout") if "devices need" in m.msg]
+            assert len(said) == 1, [m.msg for m in said]
+            assert proc.poll() is None

@@ -351,6 +351,9 @@ class ScriptedTransport:
         self.sent.append(request)
         return [0] * int(getattr(request, "count", 1))
 
+    def frame_time_s(self, request: object) -> float:
+        return 0.0
+
 
 def test_a_poll_stops_at_its_next_request_once_a_command_lost_the_link() -> None:
     """The rest of a poll is not sent after the link was marked down mid-poll: when the

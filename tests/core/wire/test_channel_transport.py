@@ -131,6 +131,9 @@ class ScriptedBus:
             raise step
         return None if request.is_write else list(step)  # type: ignore[call-overload]
 
+    def frame_time_s(self, request: object) -> float:
+        return 0.0
+
 
 def test_a_retry_lets_a_queued_feed_go_first() -> None:
     """A read of a device that just died is retried, but each attempt takes the lock on
