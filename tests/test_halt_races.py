@@ -245,8 +245,11 @@ def repeat(case: Case, node: Node, bridge: Bridge, joystick: Joystick, path: str
         try:
             wait_refusal_after(bridge, time.monotonic())
         finally:
-            late = case.writes()[before:]
-            after = written_after_first_stop(case, late, f"repetition {rep}: the {path}")
+            whole = case.writes()
+            late = whole[before:]
+            # The log's tail says more than an empty window (seen once under heavy load).
+            what = f"repetition {rep}: the {path} (log {before} -> {len(whole)}: {whole[-4:]})"
+            after = written_after_first_stop(case, late, what)
             assert after == [], f"repetition {rep}: written after the {path}'s stop: {after}"
         assert not case.moving(), f"repetition {rep}: the motor runs after the {path}"
 
