@@ -420,7 +420,7 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
         self.command_service(
             SetHomingOrder,
             "~/set_homing_order",
-            lambda r: f"set_homing_order {listed(r.motors, 'motors')}",
+            lambda r: f"set_homing_order {listed(r.motors, 'motors', bracketed=True)}",
             lambda r: d.set_homing_order([int(m) for m in r.motors]),
         )
         self.command_service(

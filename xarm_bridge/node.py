@@ -288,7 +288,7 @@ class XArmBridgeNode(BridgeNode[XArmSnapshot]):
         self.command_service(
             RunOfflineTask,
             "~/run_offline_task",
-            lambda r: f"run_offline_task {listed(r.projects, 'projects')}",
+            lambda r: f"run_offline_task {listed(r.projects, 'projects', bracketed=True)}",
             lambda r: d.run_offline_task([int(p) for p in r.projects]),
             starts=lambda _r: arm_started,
         )

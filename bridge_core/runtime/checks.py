@@ -20,8 +20,11 @@ from ..wire.registers import ValueType
 Choice = TypeVar("Choice")
 
 # The longest command description or refusal text a reply or log line carries: an
-# oversized request (300 KB of indexes) is named by its size, never echoed back.
-MESSAGE_MAX_CHARS = 240
+# oversized request (300 KB of indexes) is named by its size, never echoed back. Long
+# enough for every explanation the bridges give (the longest, a stepper pair refusal with
+# its hardware check, is ~300 characters); the values of a request are bounded before
+# that (``listed``, ``check_count``).
+MESSAGE_MAX_CHARS = 1000
 # The longest list a command description shows item by item; a longer one is named by
 # its count ("set_digital_outputs (30000 outputs)").
 LISTED_MAX_CHARS = 160
@@ -41,14 +44,17 @@ def bounded_text(text: str, limit: int = MESSAGE_MAX_CHARS) -> str:
     return f"{leading or 'a text'} ({len(text)} characters, not shown)"
 
 
-def listed(items: Iterable[object], noun: str) -> str:
-    """A command description's list: its items, or only their count when they would make
-    a long text (an oversized request is named by its size, never echoed)."""
+def listed(items: Iterable[object], noun: str, *, bracketed: bool = False) -> str:
+    """A command description's list: its items (``[1, 2]`` with ``bracketed``, as a list
+    prints), or only their count when they would make a long text (an oversized request
+    is named by its size, never echoed)."""
     shown = [str(item) for item in items]
     text = ", ".join(shown)
-    if len(text) <= LISTED_MAX_CHARS:
-        return text or "(none)"
-    return f"({len(shown)} {noun})"
+    if len(text) > LISTED_MAX_CHARS:
+        return f"({len(shown)} {noun})"
+    if bracketed:
+        return f"[{text}]"
+    return text or "(none)"
 
 
 def check_count(what: str, count: int, most: int) -> int:

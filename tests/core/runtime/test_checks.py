@@ -98,12 +98,17 @@ def test_bounded_text_names_the_size_of_what_it_cuts_and_never_its_values() -> N
     name = "x" * 300_000
     said = bounded_text(f"no register named {name!r}")
     assert said == f"no register named ({300_000 + 20} characters, not shown)"
-    assert bounded_text("7" * 1000) == "a text (1000 characters, not shown)"
+    assert bounded_text("7" * 2000) == "a text (2000 characters, not shown)"
     assert len(bounded_text("y" * 10**6)) < MESSAGE_MAX_CHARS
+    # A long explanation (a refusal with its hardware check) is said whole.
+    reason = "line_move pair 2 refused: interpolation pairs 2 and 3 " + "x" * 250
+    assert bounded_text(reason) == reason
 
 
 def test_a_long_list_is_described_by_its_count() -> None:
     assert listed([2, 9], "outputs") == "2, 9"
+    assert listed([1, 2, 3], "projects", bracketed=True) == "[1, 2, 3]"  # as a list prints
+    assert listed(range(3000), "projects", bracketed=True) == "(3000 projects)"
     assert listed([], "outputs") == "(none)"
     assert listed(range(30000), "outputs") == "(30000 outputs)"
     assert check_count("indexes", 16, 16) == 16
