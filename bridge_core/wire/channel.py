@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 from enum import IntEnum
 from typing import Any, Protocol
 
+from .batches import Pipelining, run_batch
 from .errors import DeviceException, FrameError, LinkDown, LinkError, LinkTimeout, NotSent
 from .link_state import LinkState
 from .registers import Table
@@ -111,6 +112,12 @@ class PriorityLock:
                     self._cond.wait()
                 heapq.heappop(self._waiting)
             self._busy = True
+
+    def waiting_before(self, priority: Priority) -> bool:
+        """Whether a caller of higher priority than ``priority`` waits (a pipelined batch
+        sends no further request then: ``batches``)."""
+        with self._cond:
+            return bool(self._waiting) and self._waiting[0][0] < priority
 
     def release(self) -> None:
         with self._cond:
@@ -204,14 +211,18 @@ class WireTally:
     count the poll-priority ones: a poll's cost is their difference across it.
     """
 
-    polls: int = 0
+    polls: float = 0.0  # round trips' worth: a pipelined reply counts its share
     poll_frames_s: float = 0.0
     turnarounds_s: deque[float] = field(default_factory=lambda: deque(maxlen=TURNAROUND_SAMPLES))
 
-    def note(self, frame_s: float, elapsed_s: float, poll: bool) -> None:
+    def note(self, frame_s: float, elapsed_s: float, poll: bool, share: float = 1.0) -> None:
+        """One answered transaction. ``share``: the part of its turnaround the wire spent on
+        it alone, 1 for one request at a time; a pipelined reply that came while others
+        were in flight counts less (``batches``), so a batch sent in one go costs about
+        one round trip in the budget, as it does on the wire."""
         self.turnarounds_s.append(max(0.0, elapsed_s - frame_s))
         if poll:
-            self.polls += 1
+            self.polls += share
             self.poll_frames_s += frame_s
 
     def turnaround_s(self) -> float | None:
@@ -231,8 +242,11 @@ class DeviceChannel:
         retries: int = 1,
         reconnect_max_s: float = 5.0,
         down_write_timeout_s: float | None = None,
+        max_in_flight: int = 1,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
+        """``max_in_flight``: reads of one batch (``transact_many``) sent before the first
+        reply, on a link that can pipeline (TCP); 1 sends one request at a time."""
         if not UNIT_ID_MIN <= unit_id <= UNIT_ID_MAX:
             raise ValueError(f"unit id {unit_id} outside {UNIT_ID_MIN}..{UNIT_ID_MAX}")
         self.link = link
@@ -250,6 +264,7 @@ class DeviceChannel:
         self._session = threading.local()
         self._write_listeners: list[Callable[[Span], None]] = []
         self._frame_times: dict[Request, float] = {}
+        self.pipelining = Pipelining(max_in_flight)
 
     def add_write_listener(self, listener: Callable[[Span], None]) -> Callable[[], None]:
         """``listener(span)`` for every write put on the wire (landed or not), under the
@@ -366,13 +381,7 @@ class DeviceChannel:
         state = self.link_state
         lock.acquire(priority)  # acquire/release, not a context manager: the poll hot path
         try:
-            session = getattr(self._session, "epoch", None)
-            if session is not None and (
-                session[0] != state.epoch or (session[1] and not state.connected)
-            ):
-                raise NotSent(
-                    f"{self.describe()}: the link was lost while the command waited; not sent"
-                )
+            self.check_session()
             try:
                 if not self.link.is_open:
                     try:
@@ -422,6 +431,35 @@ class DeviceChannel:
             return reply
         finally:
             lock.release()
+
+    def check_session(self) -> None:
+        """Under the link lock: ``NotSent`` if this thread's session (``command_session``)
+        began on a connection that has been lost since."""
+        session = getattr(self._session, "epoch", None)
+        state = self.link_state
+        if session is not None and (
+            session[0] != state.epoch or (session[1] and not state.connected)
+        ):
+            raise NotSent(
+                f"{self.describe()}: the link was lost while the command waited; not sent"
+            )
+
+    def transact_many(
+        self,
+        next_request: Callable[[], Request | None],
+        on_reply: Callable[[int, Reply | DeviceException], None],
+        priority: Priority = Priority.POLL,
+    ) -> None:
+        """Reads one after another, pipelined up to ``max_in_flight`` where the link can.
+
+        ``next_request()`` gives the next read (None: no more); ``on_reply(index, outcome)``
+        gets each answer (the values, or the ``DeviceException`` the device answered) with
+        the index of its request in the order they were given, as they arrive, under the
+        link lock (it must not transact). One at a time (``max_in_flight`` 1, a serial
+        link, after a fallback) it is exactly ``transact`` for each; a link error raises
+        as ``transact`` does. How a batch keeps stops first and falls back: ``batches``.
+        """
+        run_batch(self, next_request, on_reply, priority)
 
     def frame_time_s(self, request: Request) -> float:
         """The link's ``frame_time_s``, kept for reads (a poll sends the same ones again)."""
