@@ -196,7 +196,7 @@ BAD = [
         "    tcp: {prot: 1}\n",
         "device.link.tcp.prot",
         5,
-        "unknown key: did you mean `port`? (allowed: host, port)",
+        "unknown key: did you mean `port`? (allowed: host, port, max_in_flight)",
     ),
     (
         "    tcp: {host: 127.0.0.1, port: 1502}\n",
