@@ -25,7 +25,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Protocol, TypeVar
 
-from ..wire.channel import WireTally
+from ..wire.link_stats import WireTally
 from ..wire.requests import Request
 from .rate_groups import PollGroups
 from .reads import as_request
