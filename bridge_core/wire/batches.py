@@ -177,6 +177,7 @@ def _hold(
     in_flight: dict[int, tuple[int, Request, float]] = {}  # tag: index, request, sent at
     sending: Item | None = None
     last_arrival = 0.0
+    calling = False
     lock.acquire(priority)
     try:
         channel.check_session()
@@ -210,9 +211,13 @@ def _hold(
                     stats.exceptions += 1
                     stats.last_error = str(outcome)
                     stats.last_error_time = time.time()
+                calling = True  # an error of the caller's is not the wire's
                 on_reply(index, outcome)
+                calling = False
         except (LinkTimeout, FrameError, LinkDown) as err:
-            if isinstance(err, NotSent):
+            if isinstance(err, NotSent) or calling:
+                if in_flight:
+                    channel.link.close()
                 raise
             if isinstance(err, LinkTimeout):
                 stats.timeouts += 1

@@ -17,7 +17,7 @@ import pytest
 from bridge_core.runtime.reads import read_plan
 from bridge_core.sim.sim_base import SimulatedDevice, Simulator
 from bridge_core.wire.channel import DeviceChannel, Priority
-from bridge_core.wire.errors import DeviceException
+from bridge_core.wire.errors import DeviceException, FrameError
 from bridge_core.wire.planner import plan_reads
 from bridge_core.wire.registers import Access, DeviceLimits, RegisterMap, ValueType, register_array
 from bridge_core.wire.requests import ReadRegisters, Reply, Request, WriteRegister
@@ -261,3 +261,19 @@ def test_writes_are_never_pipelined() -> None:
         channel.read_registers(0, 1)
         with pytest.raises(ValueError, match="only reads"):
             channel.link.send_pipelined(1, WriteRegister(0, 1))  # type: ignore[attr-defined]
+
+
+def test_an_error_of_the_callers_is_not_a_pipelining_failure() -> None:
+    """``on_reply`` raising (a short reply the caller refuses) ends the batch with that
+    error; the connection is dropped (replies in flight) but pipelining stays on."""
+    with simulated(4) as (_sim, _device, channel):
+        channel.read_registers(0, 1)
+        requests = iter([ReadRegisters(r.address, r.count) for r in PLAN])
+
+        def on_reply(index: int, outcome: Reply | DeviceException) -> None:
+            raise FrameError("refused by the caller")
+
+        with pytest.raises(FrameError, match="by the caller"):
+            channel.transact_many(lambda: next(requests, None), on_reply)
+        assert channel.pipelining.fallbacks == 0
+        assert read_plan(channel, PLAN).values == expected()
