@@ -156,6 +156,42 @@ def device_rate(
     return rate, cpu, statistics.median(latencies), channel.pipelining.fallbacks
 
 
+# The device loop of another checkout (``--base-tree``: the tree before this work, one
+# request at a time), run against the same simulator in a process of its own.
+BASE_LOOP = """
+import json, sys, time
+from bridge_core.wire.channel import DeviceChannel
+from bridge_core.wire.transport import ModbusLink, TcpSettings
+name, port, duration = sys.argv[1], int(sys.argv[2]), float(sys.argv[3])
+if name == "r6":
+    from r6_bridge.device import R6Device as Device
+else:
+    from xarm_bridge.device import XArmDevice as Device
+link = ModbusLink(TcpSettings("127.0.0.1", port, 1.0))
+device = Device(DeviceChannel(link, 1))
+for _ in range(3):
+    device.poll()
+polls, cpu, start = 0, time.process_time(), time.perf_counter()
+while (elapsed := time.perf_counter() - start) < duration:
+    device.poll()
+    polls += 1
+print(json.dumps([polls / elapsed, (time.process_time() - cpu) / max(polls, 1)]))
+"""
+
+
+def base_rate(tree: Path, name: str, port: int, duration_s: float) -> tuple[float, float]:
+    out = subprocess.run(
+        [sys.executable, "-c", BASE_LOOP, name, str(port), str(duration_s)],
+        cwd=tree,
+        env={"PYTHONPATH": str(tree), "PATH": "/usr/bin:/bin"},
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout
+    rate, cpu = json.loads(out.strip().splitlines()[-1])
+    return float(rate), float(cpu)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--devices", default=",".join(DEVICES))
@@ -163,6 +199,11 @@ def main() -> None:
     parser.add_argument("--windows", default="1,4,13")
     parser.add_argument("--duration", type=float, default=2.0, help="seconds per measurement")
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument(
+        "--base-tree",
+        type=Path,
+        help="also the device loop of this checkout (e.g. `git archive 62499ac | tar -x -C DIR`)",
+    )
     parser.add_argument("--json", type=Path, default=ROOT / "bench" / "results" / "pipelining.json")
     args = parser.parse_args()
     windows = [int(w) for w in args.windows.split(",")]
@@ -171,9 +212,13 @@ def main() -> None:
         for rtt in (float(x) for x in args.round_trips_ms.split(",")):
             with simulator(name, rtt) as port:
                 runs: dict[str, list[tuple[float, ...]]] = {"bare": []}
+                if args.base_tree is not None:
+                    runs["base"] = []
                 runs.update({str(w): [] for w in windows})
                 for _ in range(args.repeats):
                     runs["bare"].append(bare_rate(name, port, args.duration))
+                    if args.base_tree is not None:
+                        runs["base"].append(base_rate(args.base_tree, name, port, args.duration))
                     for w in windows:
                         runs[str(w)].append(device_rate(name, port, w, args.duration))
             row: dict[str, Any] = {"device": name, "round_trip_ms": rtt}
@@ -182,7 +227,7 @@ def main() -> None:
                     "polls_per_s": statistics.median(s[0] for s in samples),
                     "cpu_us_per_poll": statistics.median(s[1] for s in samples) * 1e6,
                 }
-                if key != "bare":
+                if key not in ("bare", "base"):
                     row[key]["transaction_ms"] = statistics.median(s[2] for s in samples) * 1e3
                     row[key]["fallbacks"] = max(int(s[3]) for s in samples)
             rows.append(row)
@@ -195,6 +240,8 @@ def main() -> None:
 def print_row(row: dict[str, Any], windows: list[int]) -> None:
     one = row["1"]["polls_per_s"]
     cells = [f"bare {row['bare']['polls_per_s']:.1f}"]
+    if "base" in row:
+        cells.append(f"base tree {row['base']['polls_per_s']:.1f}")
     for w in windows:
         r = row[str(w)]
         cells.append(
