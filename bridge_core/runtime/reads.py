@@ -58,9 +58,9 @@ def read_plan(
 ) -> PlanRead:
     """Read every block of ``plan`` in order; the values and each reply's time.
 
-    Through the channel's ``transact_many`` where ``io`` has it (pipelined on a TCP link
-    with ``max_in_flight`` > 1, else one request at a time exactly as before), else one
-    ``read_registers`` / ``read_bits`` after another (a test's stand-in). A refused merged
+    Through the channel's ``transact_many`` where it pipelines (a TCP link with
+    ``max_in_flight`` > 1), else one ``read_registers`` / ``read_bits`` after another,
+    exactly as before (and for a test's stand-in). A refused merged
     read is replaced by its parts, read next. A request split later keeps the times of its
     parts (each part its own reply's).
     """
@@ -102,7 +102,8 @@ def read_plan(
         result.times.append((request, origin, clock()))
         result.values.update(decode_reply(request, outcome[: request.count]))
 
-    transact_many = getattr(io, "transact_many", None)
+    # One at a time, the reads go as they always did (``read_registers`` / ``read_bits``).
+    transact_many = getattr(io, "transact_many", None) if getattr(io, "pipelines", False) else None
     if transact_many is not None:
 
         def next_request() -> Request | None:

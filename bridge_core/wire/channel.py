@@ -364,6 +364,12 @@ class DeviceChannel:
                 f"{self.describe()}: the link was lost while the command waited; not sent"
             )
 
+    @property
+    def pipelines(self) -> bool:
+        """Whether ``transact_many`` would keep several reads in flight now (a TCP link,
+        ``max_in_flight`` > 1, no fallback)."""
+        return self.pipelining.window > 1 and bool(getattr(self.link, "can_pipeline", False))
+
     def transact_many(
         self,
         next_request: Callable[[], Request | None],
