@@ -120,6 +120,7 @@ class BridgeNode(ParameterNode, CommandServices, Generic[SnapshotT]):
         self.on_parameter("read_only", self._set_read_only)
         # What the polls ask of the wire: said once at start and after a rate change.
         self.wire_budget = WireBudget(self.channel, self.poll_groups, lambda: self.poller.rate_hz)
+        self._budget_subject = f"{self.device_name} on {self.channel.describe()}"  # its WARN
         self.line_load: Callable[[], str] | None = None  # set by the owner of a shared line
         self.on_parameter("poll_rate_hz", self._set_poll_rate)
         self.slow_poll_period_s = float(values["slow_poll_period_s"])  # the device's start value
@@ -294,7 +295,7 @@ class BridgeNode(ParameterNode, CommandServices, Generic[SnapshotT]):
         its start was acknowledged."""
         began = time.monotonic()
         snapshot = self.wire_budget.around(self.poll_device)
-        warning = self.wire_budget.warning(f"{self.device_name} on {self.channel.describe()}")
+        warning = self.wire_budget.warning(self._budget_subject)
         if warning is not None:
             self.get_logger().warning(warning)
         return began, snapshot

@@ -90,8 +90,9 @@ class BusNode(ParameterNode):
         self.create_timer(LINE_CHECK_PERIOD_S, self._judge_line)
 
     def _budgets(self) -> list[Budget] | None:
-        budgets = [d.wire_budget.budget() for d in self.devices if d.active]
-        return None if not budgets or None in budgets else budgets  # type: ignore[return-value]
+        asked = [d.wire_budget.budget() for d in self.devices if d.active]
+        budgets = [b for b in asked if b is not None]
+        return budgets if asked and len(budgets) == len(asked) else None
 
     def line_load_text(self) -> str:
         budgets = self._budgets()
