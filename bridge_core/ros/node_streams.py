@@ -40,6 +40,7 @@ class StreamHost:
         self.inbox_group = MutuallyExclusiveCallbackGroup()
         self.guards: list[StreamGuard[Any]] = []
         self.refusals = 0  # stream commands refused (diagnostics)
+        self._wakers: dict[int, Callable[[], None]] = {}  # id(guard) -> its writer's trigger
 
     def topic(
         self,
@@ -58,13 +59,44 @@ class StreamHost:
         Arrival and writing are apart. A message is only recorded (``guard.offer``: newest
         value per stream, the deadman counts from its arrival) in a callback group of its
         own with a depth-1 subscription, so a flood costs no bus time and never waits
-        behind a write. The writer runs in the command group, woken by each arrival and by
-        the deadman timer: it applies what the guard says is ``ready`` (a 0 at once, other
-        values at most ``rate_parameter`` times a second per stream) through the command
-        guard (a refused value stops what the stream had started). The timer also stops
-        streams that fell silent. Both parameters are live; ``close()`` stops every stream.
-        ``convert`` checks a value and turns it into the guard's units (inside the command
-        guard: a bad value is a refusal, not an exception in a callback).
+        behind a write. The writer (``stream``) applies what the guard says is ``ready``.
+        """
+        self.stream(
+            guard,
+            what,
+            convert=convert,
+            timeout_parameter=timeout_parameter,
+            rate_parameter=rate_parameter,
+        )
+        for key, topic in topics.items():
+            self.node.create_subscription(
+                msg_type,
+                topic,
+                self._callback(guard, key, value_of),
+                STREAM_DEPTH,
+                callback_group=self.inbox_group,
+            )
+
+    def stream(
+        self,
+        guard: StreamGuard[T],
+        what: Callable[[T, float], str],
+        *,
+        convert: Callable[[T, float], float] = lambda _key, value: value,
+        timeout_parameter: str = "command_timeout_s",
+        rate_parameter: str = "command_rate_hz",
+    ) -> None:
+        """The writer and deadman of one guard, fed by ``offer`` (its topics, or
+        ``~/joint_commands``: ``bridge_core.ros.joint_commands``).
+
+        The writer runs in the command group, woken by an arrival that may be applied at
+        once and by the deadman timer: it applies what the guard says is ``ready`` (a 0
+        at once, other values at most ``rate_parameter`` times a second per stream)
+        through the command guard (a refused value stops what the stream had started).
+        The timer also stops streams that fell silent. Both parameters are live;
+        ``stop_all()`` stops every stream. ``convert`` checks a value and turns it into
+        the guard's units (inside the command guard: a bad value is a refusal, not an
+        exception in a callback).
         """
         node = self.node
         self.guards.append(guard)
@@ -74,14 +106,7 @@ class StreamHost:
             self._write_ready(guard, convert, what)
 
         writer = node.create_guard_condition(write_ready, callback_group=node.command_group)
-        for key, topic in topics.items():
-            node.create_subscription(
-                msg_type,
-                topic,
-                self._callback(guard, key, value_of, writer.trigger),
-                STREAM_DEPTH,
-                callback_group=self.inbox_group,
-            )
+        self._wakers[id(guard)] = writer.trigger
 
         def period() -> float:
             return min(
@@ -104,7 +129,16 @@ class StreamHost:
 
         node.on_parameter(timeout_parameter, set_timeout)
         node.on_parameter(rate_parameter, set_rate)
+        set_timeout(node.param(timeout_parameter))
         set_rate(node.param(rate_parameter))
+
+    def offer(self, guard: StreamGuard[T], key: T, value: float) -> None:
+        """A command arrived for ``guard``'s stream ``key``: recorded at once (any thread);
+        the writer is woken when it may be applied now, else the deadman timer's pass
+        applies it (a flood wakes the writer at most command_rate_hz times a second, not
+        per message)."""
+        if guard.offer(key, value):
+            self._wakers[id(guard)]()
 
     def _permit(self) -> str | None:
         """Asked by a stream guard, under its lock, before every non-zero write."""
@@ -115,16 +149,10 @@ class StreamHost:
         return None
 
     def _callback(
-        self,
-        guard: StreamGuard[T],
-        key: T,
-        value_of: Callable[[Any], float],
-        wake_writer: Callable[[], None],
+        self, guard: StreamGuard[T], key: T, value_of: Callable[[Any], float]
     ) -> Callable[[Any], None]:
         def arrived(msg: Any) -> None:
-            if guard.offer(key, value_of(msg)):
-                wake_writer()  # else the deadman timer's pass applies it (a flood wakes
-                # the writer at most command_rate_hz times a second, not per message)
+            self.offer(guard, key, value_of(msg))
 
         return arrived
 
