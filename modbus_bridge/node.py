@@ -24,6 +24,7 @@ from rclpy.lifecycle import LifecycleState, TransitionCallbackReturn
 from std_msgs.msg import Float64
 from std_srvs.srv import SetBool
 
+from bridge_core.ros.joint_commands import JointCommandTopic
 from bridge_core.ros.node_base import BridgeNode
 from bridge_core.ros.node_parameters import DeviceDefaults, ParameterNode
 from bridge_core.ros.process import spin_node
@@ -47,7 +48,15 @@ from .description import (
     load,
 )
 from .device import KEEPALIVE_FEEDS_PER_PERIOD, DescribedDevice, DeviceSnapshot
-from .interface import DEVICE_FILE_SPEC, NODE_NAME, defaults_of, stream_parameters
+from .interface import (
+    DEVICE_FILE_SPEC,
+    JOINT_COMMAND_PARAMETERS,
+    NODE_NAME,
+    commanded,
+    defaults_of,
+    stream_parameters,
+)
+from .joint_commands import JointStreams
 
 
 def _number(value: Value) -> float:
@@ -344,6 +353,29 @@ class ModbusBridgeNode(BridgeNode[DeviceSnapshot]):
                 timeout_parameter=timeout_name,
                 rate_parameter=rate_name,
             )
+        if commanded(self.described):
+            self._create_joint_commands()
+
+    def _create_joint_commands(self) -> None:
+        """``~/joint_commands`` (modbus_bridge/joint_commands.py): a joint's velocity goes
+        through the stream of the command topic on its register, when there is one."""
+        values = self.declare_specs(JOINT_COMMAND_PARAMETERS)
+        topic_guards = {
+            topic.register_name: (self.device.guards[topic.name], topic.name)
+            for topic in self.described.commands.topics
+        }
+        self.joint_streams = JointStreams(
+            self.device, topic_guards, float(values["command_timeout_s"])
+        )
+        for stream in self.joint_streams.own():
+            self.streams.stream(stream.guard, _describe_stream(stream.key))
+        self.joint_commands = JointCommandTopic(
+            self,
+            self.joint_streams.command_joints(
+                self.joint_prefix, self.command_gate(), self.streams.offer
+            ),
+        )
+        self.joint_command_refusals = self.joint_commands.counts
 
 
 def _bind(action: Any, name: str) -> Any:

@@ -37,6 +37,7 @@ from typing import Any
 from std_msgs.msg import Float64
 from std_srvs.srv import SetBool
 
+from bridge_core.ros.joint_commands import JointCommandTopic
 from bridge_core.ros.node_base import BridgeNode, copy_fields
 from bridge_core.ros.process import spin_node
 from bridge_core.runtime.checks import board_zero_index, listed
@@ -75,6 +76,7 @@ from .device import (
     StepperSnapshot,
 )
 from .interface import PARAMETERS, STEPPER_DEFAULTS
+from .joint_commands import MotorTargets, command_joints
 from .registers import (
     INTERPOLATION_PAIRS,
     LONGEST_REPLY_BYTES,
@@ -201,6 +203,24 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
             lambda msg: float(msg.data),
             convert=self.device.check_jog,
         )
+        # ~/joint_commands (stepper_bridge/joint_commands.py): velocities into the jog
+        # streams above, position targets into a stream of their own.
+        self.targets = MotorTargets(self.device)
+        self.streams.stream(
+            self.targets.guard, lambda n, units: f"motor {n} position target {units:g} units"
+        )
+        self.joint_commands = JointCommandTopic(
+            self,
+            command_joints(
+                self.joint_names,
+                self.device,
+                self.targets,
+                self.scales,
+                self.command_gate(),
+                self.streams.offer,
+            ),
+        )
+        self.joint_command_refusals = self.joint_commands.counts
 
     # ------------------------------------------------------------ units
     def to_units(self, motor: int, si: float) -> float:

@@ -1,0 +1,161 @@
+"""The stepper's ``~/joint_commands`` (issue 25, docs/ros2_control.md). No ROS here.
+
+Joints ``motor_1 .. motor_5`` (the names of ``joint_states``, with ``joint_prefix``):
+
+- **velocity** (rad/s or m/s): converted to motor rpm with the motor's own ``JointScale``
+  (controller units per SI unit, as ``joint_states``) and its lead (controller units per
+  motor revolution): rpm = v x units per SI / lead x 60, then offered to the motor's **jog
+  guard** (``StepperDevice.jogs``): the same stream as ``~/motor_<n>/jog``, with its rate,
+  deadman, 0 = stop coil and lock after a stop service or the e-stop;
+- **position** (rad or m): a target coordinate in controller units (``JointScale.to_units``,
+  the conversion ``joint_states`` uses backwards), rounded to the coordinate's step
+  (0.01 unit). The controller has only relative single runs (40009+, coil "single run"), so
+  a target is sent when the motor stands: its running flag (40168+) and coordinate
+  (40108+) are read at command priority, then the difference is written as the run
+  distance (and the direction register when it changes) and the single-run coil starts
+  it, at the motor's configured speed (40006+). While the motor still runs the stream's
+  previous target, a newer one waits (``Deferred``: nothing written, the newest tried at
+  the next pass); a motor running anything else (a jog, a service, a goal) refuses it. A
+  target within one step of the coordinate writes nothing.
+
+Limits: a target must be a coordinate the controller can hold (int32 x 0.01 unit), a
+velocity a speed the speed register holds (0-65535 rpm, whole rpm). A position stream has
+the jog stream's deadman (``command_timeout_s``: the motor's stop coil) and rate
+(``command_rate_hz``); it follows the jog guard, so a stop service, the e-stop, homing or
+a goal that takes the motor over takes the position stream over too.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+
+from bridge_core.runtime.checks import check_converted
+from bridge_core.runtime.joint_commands import CommandJoint, CommandStream, Gate, Offer
+from bridge_core.runtime.stream_guard import Deferred, StreamGuard
+from bridge_core.wire.channel import Priority
+from bridge_core.wire.errors import CommandRejected
+
+from .device import JointScale, StepperDevice
+from .registers import (
+    DISTANCE_SCALE,
+    I32_SCALED_MAX,
+    I32_SCALED_MIN,
+    MOTORS,
+    motor_coil,
+    motor_register,
+)
+
+SECONDS_PER_MINUTE = 60.0
+# The smallest run the controller takes: one step of its distance registers (0.01 unit).
+STEP_UNITS = 1.0 / DISTANCE_SCALE
+
+
+class MotorTargets:
+    """The position streams of the five motors (controller units), behind one guard that
+    follows the jog guard (one lock, the jogs' takeovers)."""
+
+    def __init__(
+        self, device: StepperDevice, *, clock: Callable[[], float] = time.monotonic
+    ) -> None:
+        self.device = device
+        self.guard: StreamGuard[int] = StreamGuard(
+            range(1, MOTORS + 1),
+            self._send,
+            self._stop,
+            timeout_s=device.jogs.timeout_s,
+            stop_when_idle=False,
+            zero_stops=False,
+            clock=clock,
+        )
+        self.guard.follow(device.jogs)
+        device.streams.append(self.guard)  # a reconnect forgets what it sent
+
+    def _send(self, motor: int, target: float, previous: float | None) -> None:
+        """Run the motor from where it stands to ``target`` (controller units)."""
+        if self._running(motor):
+            if previous is None:
+                raise CommandRejected(
+                    f"motor {motor} is running, not from joint_commands: stop it (or let it "
+                    "end) before position commands"
+                )
+            raise Deferred  # still on the way to the stream's previous target
+        name = motor_register(motor, "coordinate")
+        coordinate = float(self.device.read_named(name)[name])
+        distance = round(target - coordinate, 2)
+        if abs(distance) < STEP_UNITS:
+            return  # there already
+        direction = 0 if distance > 0 else 1
+        config = self.device.config.motors[motor - 1]
+        self.device.check_move_by(motor, distance)
+        if config.direction != direction:
+            self.device.set_direction(motor, direction)
+        if config.run_distance != abs(distance):
+            self.device.set_run_distance(motor, abs(distance))
+        self.device.motor_action(motor, "run_once")
+
+    def _running(self, motor: int) -> bool:
+        name = motor_register(motor, "running")
+        return bool(self.device.read_named(name)[name])
+
+    def _stop(self, motor: int) -> None:
+        """The motor's stop coil, at stop priority (as a jog's stop)."""
+        self.device.io.write_coil(motor_coil(motor, "stop"), True, Priority.STOP)
+
+
+def to_target(scale: JointScale, lead: float, si: float) -> float:
+    """A position target (m or rad) in controller units, on the coordinate's step; refused
+    outside the coordinate register's range."""
+    units = check_converted(
+        f"target {si:g} in controller units",
+        scale.to_units(si, lead),
+        I32_SCALED_MIN,
+        I32_SCALED_MAX,
+    )
+    return round(units, 2)
+
+
+def to_rpm(device: StepperDevice, motor: int, scale: JointScale, lead: float, si: float) -> float:
+    """A joint velocity (m/s or rad/s) as the motor's jog rpm (checked and rounded by the
+    jog's own check)."""
+    per_si = scale.units_per_si(lead)
+    if per_si is None or lead <= 0:
+        raise CommandRejected(f"motor {motor}'s lead is 0: a velocity cannot be converted to rpm")
+    rpm = check_converted(
+        f"velocity {si:g} in rpm", si * per_si / lead * SECONDS_PER_MINUTE, -1e12, 1e12
+    )
+    return device.check_jog(motor, rpm)
+
+
+def command_joints(
+    names: Sequence[str],
+    device: StepperDevice,
+    targets: MotorTargets,
+    scales: Sequence[JointScale],
+    gate: Gate,
+    offer: Offer,
+) -> list[CommandJoint]:
+    """The ``CommandJoint`` of each motor, named as in ``joint_states``."""
+    joints: list[CommandJoint] = []
+    for motor, name in enumerate(names, start=1):
+        scale = scales[motor - 1]
+
+        def position(si: float, motor: int = motor, scale: JointScale = scale) -> float:
+            return to_target(scale, device.lead(motor), si)
+
+        def velocity(si: float, motor: int = motor, scale: JointScale = scale) -> float:
+            return to_rpm(device, motor, scale, device.lead(motor), si)
+
+        joints.append(
+            CommandJoint(
+                name,
+                CommandStream(targets.guard, motor, position),
+                CommandStream(device.jogs, motor, velocity),
+                gate,
+                offer,
+            )
+        )
+    return joints
+
+
+__all__ = ["STEP_UNITS", "MotorTargets", "command_joints", "to_rpm", "to_target"]
