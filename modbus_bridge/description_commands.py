@@ -46,6 +46,7 @@ NODE_PARAMETERS = frozenset(
         # ~/joint_commands' deadman and rate (declared when a joint has a command)
         "command_timeout_s",
         "command_rate_hz",
+        "joint_command_max_jump",
         "use_sim_time",  # rclpy's own
         "start_type_description_service",
     }

@@ -10,6 +10,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from bridge_core.runtime.interface import NodeInterface, Service, Topic, bridge_node, bus_node
+from bridge_core.runtime.joint_commands import MAX_JUMP_SPEC
 from bridge_core.runtime.parameters import DeviceDefaults, ParameterSpec
 from bridge_core.runtime.stream_guard import COMMAND_TIMEOUT_RANGE_S
 
@@ -102,6 +103,7 @@ JOINT_COMMAND_PARAMETERS = (
         *COMMAND_RATE_RANGE_HZ,
         live=True,
     ),
+    MAX_JUMP_SPEC,
 )
 
 TOPICS = (

@@ -100,10 +100,18 @@ class JointStreams:
         """The streams the node gives a writer and deadman (``StreamHost.stream``)."""
         return [s for s in (*self.velocity.values(), *self.position.values()) if s.own]
 
-    def command_joints(self, prefix: str, gate: Gate, offer: Offer) -> list[CommandJoint]:
-        """The ``CommandJoint`` of each commanded joint, named as in ``joint_states``."""
+    def command_joints(
+        self,
+        prefix: str,
+        gate: Gate,
+        offer: Offer,
+        here: Callable[[int], float | None],
+        max_jump: Callable[[], float],
+    ) -> list[CommandJoint]:
+        """The ``CommandJoint`` of each commanded joint, named as in ``joint_states``;
+        ``here(index)``: the newest published position of the file's joint ``index``."""
         joints: list[CommandJoint] = []
-        for joint in self.device.device.joints:
+        for index, joint in enumerate(self.device.device.joints):
             if joint.command is None:
                 continue
             joints.append(
@@ -113,6 +121,8 @@ class JointStreams:
                     self._stream(joint, self.velocity, joint.command.velocity),
                     gate,
                     offer,
+                    lambda index=index: here(index),  # type: ignore[misc]
+                    max_jump,
                 )
             )
         return joints

@@ -30,6 +30,7 @@ from bridge_core.ros.node_parameters import DeviceDefaults, ParameterNode
 from bridge_core.ros.process import spin_node
 from bridge_core.runtime.checks import listed
 from bridge_core.runtime.diagnostics import Level, Report
+from bridge_core.runtime.joint_commands import MAX_JUMP_SPEC
 from bridge_core.runtime.keepalive import FEED_WAKE_S, Keepalive
 from bridge_core.runtime.parameters import ParameterSpec
 from bridge_core.runtime.rate_groups import PollGroups
@@ -317,6 +318,11 @@ class ModbusBridgeNode(BridgeNode[DeviceSnapshot]):
                 stop=_stops_when(coil.stop_on),
             )
 
+    def _published_position(self, index: int) -> float | None:
+        """Joint ``index``'s position in the newest joint_states (SI), None before it."""
+        s = self.last_snapshot
+        return None if s is None or not s.positions else s.positions[index]
+
     def _write_value(self, request: Any) -> Value:
         name = str(request.name)
         if name not in self.described.register_map:
@@ -360,6 +366,8 @@ class ModbusBridgeNode(BridgeNode[DeviceSnapshot]):
         """``~/joint_commands`` (modbus_bridge/joint_commands.py): a joint's velocity goes
         through the stream of the command topic on its register, when there is one."""
         values = self.declare_specs(JOINT_COMMAND_PARAMETERS)
+        self.max_jump = float(values[MAX_JUMP_SPEC.name])
+        self.on_parameter(MAX_JUMP_SPEC.name, lambda value: setattr(self, "max_jump", value))
         topic_guards = {
             topic.register_name: (self.device.guards[topic.name], topic.name)
             for topic in self.described.commands.topics
@@ -372,7 +380,11 @@ class ModbusBridgeNode(BridgeNode[DeviceSnapshot]):
         self.joint_commands = JointCommandTopic(
             self,
             self.joint_streams.command_joints(
-                self.joint_prefix, self.command_gate(), self.streams.offer
+                self.joint_prefix,
+                self.command_gate(),
+                self.streams.offer,
+                self._published_position,
+                lambda: self.max_jump,
             ),
         )
         self.joint_command_refusals = self.joint_commands.counts

@@ -5,6 +5,7 @@ tests/test_interface.py checks the topics, services and actions against running 
 from __future__ import annotations
 
 from bridge_core.runtime.interface import Action, Service, Topic, bridge_node, bus_node
+from bridge_core.runtime.joint_commands import MAX_JUMP_SPEC
 from bridge_core.runtime.parameters import DeviceDefaults, ParameterSpec
 from bridge_core.runtime.stream_guard import COMMAND_TIMEOUT_RANGE_S
 from bridge_core.wire.serial_timing import longest_hold_s
@@ -81,6 +82,7 @@ DRIVE_PARAMETERS = (
         *VELOCITY_RATE_RANGE_HZ,
         live=True,
     ),
+    MAX_JUMP_SPEC,
     ParameterSpec(
         "position_max_velocity",
         0.0,

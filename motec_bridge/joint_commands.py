@@ -72,8 +72,11 @@ def command_joint(
     scale: DriveScale,
     gate: Gate,
     offer: Offer,
+    here: Callable[[], float | None],
+    max_jump: Callable[[], float],
 ) -> CommandJoint:
-    """The drive's ``CommandJoint`` for the bus owner's topic."""
+    """The drive's ``CommandJoint`` for the bus owner's topic; ``here``: its newest
+    published position (rad)."""
     return CommandJoint(
         name,
         CommandStream(target.guard, VELOCITY_STREAM, lambda rad: _target(device, scale, rad)),
@@ -84,6 +87,8 @@ def command_joint(
         ),
         gate,
         offer,
+        here,
+        max_jump,
     )
 
 

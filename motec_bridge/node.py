@@ -43,7 +43,7 @@ from bridge_core.ros.node_base import BridgeNode, copy_fields
 from bridge_core.ros.process import BusNode, spin_nodes
 from bridge_core.runtime.checks import board_zero_index
 from bridge_core.runtime.diagnostics import Level, Report
-from bridge_core.runtime.joint_commands import CommandJoint
+from bridge_core.runtime.joint_commands import MAX_JUMP_SPEC, CommandJoint
 from bridge_core.runtime.rate_groups import PollGroups
 from bridge_core.wire.channel import DeviceChannel
 from bridge_core.wire.errors import CommandRejected, ConfigurationError, DeviceException, LinkError
@@ -166,6 +166,8 @@ class MotecDriveNode(BridgeNode[MotecSnapshot]):
         )
         # The bus owner's ~/joint_commands (motec_bridge/joint_commands.py): velocities
         # into the stream above, position targets into one of their own.
+        self.max_jump = float(values[MAX_JUMP_SPEC.name])
+        self.on_parameter(MAX_JUMP_SPEC.name, lambda value: setattr(self, "max_jump", value))
         self.position_max_velocity = float(values["position_max_velocity"])
         self.on_parameter(
             "position_max_velocity",
@@ -234,7 +236,14 @@ class MotecDriveNode(BridgeNode[MotecSnapshot]):
             self.scale,
             self.command_gate(),
             self.streams.offer,
+            self._published_position,
+            lambda: self.max_jump,
         )
+
+    def _published_position(self) -> float | None:
+        """The drive's position in the newest joint_states (rad), None before the first."""
+        s = self.last_snapshot
+        return None if s is None else self.scale.position(s.position_actual)
 
     def lifeguard_time_ms(self) -> int:
         """The watchdog time the bridge feeds: its parameter, or the drive's own setting."""

@@ -5,6 +5,7 @@ tests/test_interface.py checks the topics, services and actions against running 
 from __future__ import annotations
 
 from bridge_core.runtime.interface import Action, Service, Topic, bridge_node, bus_node
+from bridge_core.runtime.joint_commands import MAX_JUMP_SPEC
 from bridge_core.runtime.parameters import DeviceDefaults, ParameterSpec
 from bridge_core.runtime.stream_guard import COMMAND_TIMEOUT_RANGE_S
 
@@ -75,6 +76,7 @@ PARAMETERS = (
         *JOG_RATE_RANGE_HZ,
         live=True,
     ),
+    MAX_JUMP_SPEC,
     ParameterSpec(
         "goal_tolerance",
         GOAL_TOLERANCE_UNITS,

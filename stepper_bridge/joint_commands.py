@@ -134,8 +134,11 @@ def command_joints(
     scales: Sequence[JointScale],
     gate: Gate,
     offer: Offer,
+    here: Callable[[int], float | None],
+    max_jump: Callable[[], float],
 ) -> list[CommandJoint]:
-    """The ``CommandJoint`` of each motor, named as in ``joint_states``."""
+    """The ``CommandJoint`` of each motor, named as in ``joint_states``; ``here(motor)``:
+    its newest published position (SI)."""
     joints: list[CommandJoint] = []
     for motor, name in enumerate(names, start=1):
         scale = scales[motor - 1]
@@ -153,6 +156,8 @@ def command_joints(
                 CommandStream(device.jogs, motor, velocity),
                 gate,
                 offer,
+                lambda motor=motor: here(motor),  # type: ignore[misc]
+                max_jump,
             )
         )
     return joints

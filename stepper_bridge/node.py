@@ -42,6 +42,7 @@ from bridge_core.ros.node_base import BridgeNode, copy_fields
 from bridge_core.ros.process import spin_node
 from bridge_core.runtime.checks import board_zero_index, listed
 from bridge_core.runtime.diagnostics import Level, Report
+from bridge_core.runtime.joint_commands import MAX_JUMP_SPEC
 from bridge_core.runtime.parameters import padded
 from bridge_core.runtime.rate_groups import PollGroups
 from bridge_core.wire.errors import CommandRejected, ConfigurationError
@@ -205,6 +206,8 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
         )
         # ~/joint_commands (stepper_bridge/joint_commands.py): velocities into the jog
         # streams above, position targets into a stream of their own.
+        self.max_jump = float(values[MAX_JUMP_SPEC.name])
+        self.on_parameter(MAX_JUMP_SPEC.name, lambda value: setattr(self, "max_jump", value))
         self.targets = MotorTargets(self.device)
         self.streams.stream(
             self.targets.guard, lambda n, units: f"motor {n} position target {units:g} units"
@@ -218,11 +221,21 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
                 self.scales,
                 self.command_gate(),
                 self.streams.offer,
+                self._published_position,
+                lambda: self.max_jump,
             ),
         )
         self.joint_command_refusals = self.joint_commands.counts
 
     # ------------------------------------------------------------ units
+    def _published_position(self, motor: int) -> float | None:
+        """The motor's position in the newest joint_states (SI), None before the first."""
+        s = self.last_snapshot
+        if s is None:
+            return None
+        k = motor - 1
+        return self.scales[k].to_si(s.coordinates[k], s.config.motors[k].lead)
+
     def to_units(self, motor: int, si: float) -> float:
         """SI (m or rad) -> controller units for ``motor``."""
         return self.scales[motor - 1].to_units(float(si), self._lead(motor))

@@ -15,6 +15,10 @@ command topics already use), and ``plan`` checks one message against them:
   link is down, unless every value is a velocity 0 (a stop always goes);
 - every value finite and, converted by the joint's own conversion (the one its
   ``joint_states`` uses), inside the joint's limits;
+- a position target no farther than ``joint_command_max_jump`` (rad or m; 0: no check)
+  from the joint's newest published position: a jump is not a trajectory (the stock
+  interface publishes its initial command values, 0 unless given, until a controller
+  claims them: without this rule the joints would be driven there; docs/ros2_control.md);
 - a joint is driven by one kind at a time: a velocity while its position stream may still
   move it (or the reverse) is refused; a 0 velocity is always taken.
 
@@ -35,9 +39,23 @@ from typing import Any
 
 from ..wire.errors import CommandRejected
 from .checks import bounded_text, listed
+from .parameters import ParameterSpec
 from .stream_guard import StreamGuard
 
 TOPIC = "~/joint_commands"
+# The largest position jump a message may ask (rad or m), default: far more than a
+# trajectory leads its joint by between two polls, far less than a drive to 0 from afar.
+MAX_JUMP_DEFAULT = 0.1
+MAX_JUMP_LIMIT = 1e6
+MAX_JUMP_SPEC = ParameterSpec(
+    "joint_command_max_jump",
+    MAX_JUMP_DEFAULT,
+    "joint_commands: a position target farther than this (rad or m) from the joint's "
+    "newest published position is refused, the whole message; 0: no check",
+    0.0,
+    MAX_JUMP_LIMIT,
+    live=True,
+)
 DIAGNOSTICS_KEY = "joint_commands refused"  # the count by kind in a node's diagnostics
 POSITION = "position"
 VELOCITY = "velocity"
@@ -51,6 +69,7 @@ NOT_TAKEN = "a kind the joint does not take"
 NOT_FINITE = "not finite"
 OUT_OF_LIMITS = "outside the joint's limits"
 OTHER_KIND_MOVING = "the joint moves under the other kind"
+JUMP = "too far from where the joint is"
 INACTIVE = "inactive"
 READ_ONLY = "read_only"
 LINK_DOWN = "link down"
@@ -62,6 +81,7 @@ REFUSAL_KINDS = (
     NOT_TAKEN,
     NOT_FINITE,
     OUT_OF_LIMITS,
+    JUMP,
     OTHER_KIND_MOVING,
     INACTIVE,
     READ_ONLY,
@@ -110,6 +130,10 @@ class CommandJoint:
     velocity: CommandStream | None
     gate: Gate
     offer: Offer
+    # The joint's newest published position (SI; None: none yet, or NaN) and the node's
+    # joint_command_max_jump (0: no check).
+    here: Callable[[], float | None] = lambda: None
+    max_jump: Callable[[], float] = lambda: 0.0
 
     def stream(self, kind: str) -> CommandStream | None:
         return self.position if kind == POSITION else self.velocity
@@ -220,16 +244,42 @@ def plan(
             raise Refused(
                 OUT_OF_LIMITS, f"joint_commands: {joint.name} {kind} {value:g}: {err}"
             ) from None
+        if kind == POSITION:
+            _check_jump(joint, value)
         other = joint.other(kind)
         a_stop = kind == VELOCITY and value == 0.0
         if other is not None and other.may_move and not a_stop:
+            how = (
+                "send a 0 velocity (or none for command_timeout_s)"
+                if kind == POSITION
+                else "send no position target for command_timeout_s (its deadman stops it)"
+            )
             raise Refused(
                 OTHER_KIND_MOVING,
-                f"joint_commands: {joint.name} still moves under {_other_kind(kind)} commands: "
-                f"stop them (a 0 velocity, or command_timeout_s without them) before {kind} ones",
+                f"joint_commands: {joint.name} still moves under {_other_kind(kind)} "
+                f"commands: {how} before {kind} ones",
             )
         planned.append(Planned(joint, stream, converted))
     return planned
+
+
+def _check_jump(joint: CommandJoint, target: float) -> None:
+    """A target within ``max_jump`` of the joint's newest published position."""
+    limit = joint.max_jump()
+    if limit <= 0:
+        return
+    here = joint.here()
+    if here is None or not math.isfinite(here):
+        raise Refused(
+            JUMP, f"joint_commands: {joint.name} has no position published yet: no target taken"
+        )
+    if abs(target - here) > limit:
+        raise Refused(
+            JUMP,
+            f"joint_commands: {joint.name} target {target:g} is {abs(target - here):g} from "
+            f"where it is ({here:g}), more than joint_command_max_jump {limit:g}: a jump is "
+            "not a trajectory (docs/ros2_control.md)",
+        )
 
 
 def _other_kind(kind: str) -> str:
@@ -277,8 +327,10 @@ __all__ = [
     "BOTH_GIVEN",
     "DIAGNOSTICS_KEY",
     "INACTIVE",
+    "JUMP",
     "LINK_DOWN",
     "MALFORMED",
+    "MAX_JUMP_SPEC",
     "NEITHER_GIVEN",
     "NOT_FINITE",
     "NOT_TAKEN",
