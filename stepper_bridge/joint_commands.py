@@ -36,7 +36,7 @@ from bridge_core.runtime.stream_guard import Deferred, StreamGuard
 from bridge_core.wire.channel import Priority
 from bridge_core.wire.errors import CommandRejected
 
-from .device import JointScale, StepperDevice
+from .device import SPEED_MAX_RPM, JointScale, StepperDevice
 from .registers import (
     DISTANCE_SCALE,
     I32_SCALED_MAX,
@@ -82,7 +82,7 @@ class MotorTargets:
             raise Deferred  # still on the way to the stream's previous target
         name = motor_register(motor, "coordinate")
         coordinate = float(self.device.read_named(name)[name])
-        distance = round(target - coordinate, 2)
+        distance = on_step(target - coordinate)
         if abs(distance) < STEP_UNITS:
             return  # there already
         direction = 0 if distance > 0 else 1
@@ -103,6 +103,11 @@ class MotorTargets:
         self.device.io.write_coil(motor_coil(motor, "stop"), True, Priority.STOP)
 
 
+def on_step(units: float) -> float:
+    """``units`` on the step of the controller's distance registers (0.01 unit)."""
+    return round(units * DISTANCE_SCALE) / DISTANCE_SCALE
+
+
 def to_target(scale: JointScale, lead: float, si: float) -> float:
     """A position target (m or rad) in controller units, on the coordinate's step; refused
     outside the coordinate register's range."""
@@ -112,7 +117,7 @@ def to_target(scale: JointScale, lead: float, si: float) -> float:
         I32_SCALED_MIN,
         I32_SCALED_MAX,
     )
-    return round(units, 2)
+    return on_step(units)
 
 
 def to_rpm(device: StepperDevice, motor: int, scale: JointScale, lead: float, si: float) -> float:
@@ -122,7 +127,10 @@ def to_rpm(device: StepperDevice, motor: int, scale: JointScale, lead: float, si
     if per_si is None or lead <= 0:
         raise CommandRejected(f"motor {motor}'s lead is 0: a velocity cannot be converted to rpm")
     rpm = check_converted(
-        f"velocity {si:g} in rpm", si * per_si / lead * SECONDS_PER_MINUTE, -1e12, 1e12
+        f"velocity {si:g} in rpm",
+        si * per_si / lead * SECONDS_PER_MINUTE,
+        -SPEED_MAX_RPM,
+        SPEED_MAX_RPM,
     )
     return device.check_jog(motor, rpm)
 
@@ -163,4 +171,4 @@ def command_joints(
     return joints
 
 
-__all__ = ["STEP_UNITS", "MotorTargets", "command_joints", "to_rpm", "to_target"]
+__all__ = ["STEP_UNITS", "MotorTargets", "command_joints", "on_step", "to_rpm", "to_target"]
