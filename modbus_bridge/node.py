@@ -376,7 +376,11 @@ class ModbusBridgeNode(BridgeNode[DeviceSnapshot]):
             self.device, topic_guards, float(values["command_timeout_s"])
         )
         for stream in self.joint_streams.own():
-            self.streams.stream(stream.guard, _describe_stream(stream.key))
+            self.streams.stream(
+                stream.guard,
+                _describe_stream(stream.key),
+                stop_what=lambda key: f"{key} joint_commands stream",
+            )
         self.joint_commands = JointCommandTopic(
             self,
             self.joint_streams.command_joints(

@@ -177,7 +177,9 @@ class MotecDriveNode(BridgeNode[MotecSnapshot]):
             self.device, lambda: self.scale.to_rpm(self.position_max_velocity)
         )
         self.streams.stream(
-            self.target.guard, lambda _key, counts: f"position target {counts:g} counts"
+            self.target.guard,
+            lambda _key, counts: f"position target {counts:g} counts",
+            stop_what=lambda _key: "position stream",
         )
         self.configured = False  # lifecycle: set by on_configure (autostart does it at once)
         self.on_parameter_write("lifeguard_ms", self._set_lifeguard)

@@ -210,7 +210,9 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
         self.on_parameter(MAX_JUMP_SPEC.name, lambda value: setattr(self, "max_jump", value))
         self.targets = MotorTargets(self.device)
         self.streams.stream(
-            self.targets.guard, lambda n, units: f"motor {n} position target {units:g} units"
+            self.targets.guard,
+            lambda n, units: f"motor {n} position target {units:g} units",
+            stop_what=lambda n: f"motor {n} position stream",
         )
         self.joint_commands = JointCommandTopic(
             self,

@@ -85,6 +85,7 @@ class StreamHost:
         convert: Callable[[T, float], float] = lambda _key, value: value,
         timeout_parameter: str = "command_timeout_s",
         rate_parameter: str = "command_rate_hz",
+        stop_what: Callable[[T], str] | None = None,
     ) -> None:
         """The writer and deadman of one guard, fed by ``offer`` (its topics, or
         ``~/joint_commands``: ``bridge_core.ros.joint_commands``).
@@ -96,14 +97,16 @@ class StreamHost:
         The timer also stops streams that fell silent. Both parameters are live;
         ``stop_all()`` stops every stream. ``convert`` checks a value and turns it into
         the guard's units (inside the command guard: a bad value is a refusal, not an
-        exception in a callback).
+        exception in a callback). ``stop_what(key)`` names the stream's stop in logs
+        (default ``what(key, 0.0)``: a 0 is the stop of a jog or velocity stream).
         """
         node = self.node
+        stopping: Callable[[T], str] = stop_what or (lambda key: what(key, 0.0))
         self.guards.append(guard)
         guard.permit = self._permit
 
         def write_ready() -> None:
-            self._write_ready(guard, convert, what)
+            self._write_ready(guard, convert, what, stopping)
 
         writer = node.create_guard_condition(write_ready, callback_group=node.command_group)
         self._wakers[id(guard)] = writer.trigger
@@ -115,7 +118,7 @@ class StreamHost:
 
         def tick() -> None:
             write_ready()  # values held back by the rate limit
-            self._deadman(guard, what)
+            self._deadman(guard, stopping)
 
         timer = node.create_timer(period(), tick, callback_group=node.command_group)
 
@@ -161,6 +164,7 @@ class StreamHost:
         guard: StreamGuard[T],
         convert: Callable[[T, float], float],
         what: Callable[[T, float], str],
+        stopping: Callable[[T], str],
     ) -> None:
         for key in guard.ready():
             value = guard.take(key)
@@ -170,10 +174,10 @@ class StreamHost:
                 what(key, value), functools.partial(_apply, guard, key, value, convert)
             )
             if not ok:
-                self._refused(guard, key, message, what)
+                self._refused(guard, key, message, stopping)
 
     def _refused(
-        self, guard: StreamGuard[T], key: T, message: str, what: Callable[[T, float], str]
+        self, guard: StreamGuard[T], key: T, message: str, stopping: Callable[[T], str]
     ) -> None:
         self.refusals += 1
         self.node.get_logger().warn(message, throttle_duration_sec=2.0)
@@ -182,17 +186,17 @@ class StreamHost:
             # A refused value must not leave the motor running at the previous one. A stop
             # already pending is the deadman's: it retries at its own period, not per message.
             self.node.run_command(
-                f"{what(key, 0.0)} (stop after a refused command)",
+                f"{stopping(key)} (stop after a refused command)",
                 lambda: guard.stop(key),
                 stop=True,
                 own_motion=True,
             )
 
-    def _deadman(self, guard: StreamGuard[T], what: Callable[[T, float], str]) -> None:
+    def _deadman(self, guard: StreamGuard[T], stopping: Callable[[T], str]) -> None:
         for key in guard.due():
             was_moving = guard[key].may_move
             ok, message, _ = self.node.run_command(
-                f"{what(key, 0.0)} (deadman)",
+                f"{stopping(key)} (deadman)",
                 functools.partial(guard.expire, key),
                 stop=True,
                 own_motion=True,
@@ -201,7 +205,7 @@ class StreamHost:
                 continue
             if ok:
                 self.node.get_logger().info(
-                    f"{what(key, 0.0)}: no command for {guard.timeout_s} s, stopped"
+                    f"{stopping(key)}: no command for {guard.timeout_s} s, stopped"
                 )
             else:
                 self.node.get_logger().warn(message, throttle_duration_sec=2.0)
