@@ -200,10 +200,13 @@ class StreamGuard(Generic[Key]):
             self.stop(key)
             return True
         if stream.locked:
+            unlock = (
+                "send 0 (or nothing for the command timeout)"
+                if self.zero_stops
+                else "send nothing for the command timeout"
+            )
             raise CommandRejected(
-                refuse_reason
-                or "the motion was stopped: send 0 (or nothing for the command timeout) "
-                "before commanding it again"
+                refuse_reason or f"the motion was stopped: {unlock} before commanding it again"
             )
         refusal = self.permit() if self.permit is not None else None
         if refusal:
