@@ -16,9 +16,10 @@ command topics already use), and ``plan`` checks one message against them:
 - every value finite and, converted by the joint's own conversion (the one its
   ``joint_states`` uses), inside the joint's limits;
 - a position target no farther than ``joint_command_max_jump`` (rad or m; 0: no check)
-  from the joint's newest published position: a jump is not a trajectory (the stock
-  interface publishes its initial command values, 0 unless given, until a controller
-  claims them: without this rule the joints would be driven there; docs/ros2_control.md);
+  from the joint's previous target while its position stream runs, else from its newest
+  published position: a jump is not a trajectory (the stock interface publishes its
+  initial command values, 0 unless given, until a controller claims them: without this
+  rule the joints would be driven there; docs/ros2_control.md, decision 3);
 - a joint is driven by one kind at a time: a velocity while its position stream may still
   move it (or the reverse) is refused; a 0 velocity is always taken.
 
@@ -34,7 +35,7 @@ from __future__ import annotations
 import math
 import threading
 from collections.abc import Callable, Hashable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from ..wire.errors import CommandRejected
@@ -43,15 +44,16 @@ from .parameters import ParameterSpec
 from .stream_guard import StreamGuard
 
 TOPIC = "~/joint_commands"
-# The largest position jump a message may ask (rad or m), default: far more than a
-# trajectory leads its joint by between two polls, far less than a drive to 0 from afar.
+# The largest position jump a message may ask (rad or m), default: far more than a 100 Hz
+# trajectory moves between two messages, far less than a drive to 0 from afar.
 MAX_JUMP_DEFAULT = 0.1
 MAX_JUMP_LIMIT = 1e6
 MAX_JUMP_SPEC = ParameterSpec(
     "joint_command_max_jump",
     MAX_JUMP_DEFAULT,
     "joint_commands: a position target farther than this (rad or m) from the joint's "
-    "newest published position is refused, the whole message; 0: no check",
+    "previous target (from its newest published position when its position stream is "
+    "not running) is refused, the whole message; 0: no check",
     0.0,
     MAX_JUMP_LIMIT,
     live=True,
@@ -134,6 +136,9 @@ class CommandJoint:
     # joint_command_max_jump (0: no check).
     here: Callable[[], float | None] = lambda: None
     max_jump: Callable[[], float] = lambda: 0.0
+    # The last position target (SI) a message gave it (``apply``): the reference of the
+    # next one while its position stream runs.
+    last_target: list[float] = field(default_factory=list)
 
     def stream(self, kind: str) -> CommandStream | None:
         return self.position if kind == POSITION else self.velocity
@@ -149,6 +154,8 @@ class Planned:
     joint: CommandJoint
     stream: CommandStream
     value: float  # in the guard's units
+    si: float  # as the message gave it
+    kind: str
 
 
 def gate_of(
@@ -191,11 +198,11 @@ def plan(
     if len(set(names)) != count:
         twice = sorted({n for n in names if names.count(n) > 1})
         raise Refused(MALFORMED, f"joint_commands names {listed(twice, 'joints')} twice")
-    for field, values in (("position", positions), ("velocity", velocities)):
+    for given, values in (("position", positions), ("velocity", velocities)):
         if len(values) not in (0, count):
             raise Refused(
                 MALFORMED,
-                f"joint_commands has {len(values)} {field} values for {count} names "
+                f"joint_commands has {len(values)} {given} values for {count} names "
                 "(give one per name, or none)",
             )
     if len(efforts):
@@ -259,26 +266,33 @@ def plan(
                 f"joint_commands: {joint.name} still moves under {_other_kind(kind)} "
                 f"commands: {how} before {kind} ones",
             )
-        planned.append(Planned(joint, stream, converted))
+        planned.append(Planned(joint, stream, converted, value, kind))
     return planned
 
 
 def _check_jump(joint: CommandJoint, target: float) -> None:
-    """A target within ``max_jump`` of the joint's newest published position."""
+    """A target within ``max_jump`` of the previous one while the joint's position stream
+    runs, else of the joint's newest published position."""
     limit = joint.max_jump()
     if limit <= 0:
         return
-    here = joint.here()
-    if here is None or not math.isfinite(here):
-        raise Refused(
-            JUMP, f"joint_commands: {joint.name} has no position published yet: no target taken"
-        )
-    if abs(target - here) > limit:
+    stream = joint.position
+    if stream is not None and stream.may_move and joint.last_target:
+        reference, what = joint.last_target[-1], "its previous target"
+    else:
+        here = joint.here()
+        if here is None or not math.isfinite(here):
+            raise Refused(
+                JUMP,
+                f"joint_commands: {joint.name} has no position published yet: no target taken",
+            )
+        reference, what = here, "where it is"
+    if abs(target - reference) > limit:
         raise Refused(
             JUMP,
-            f"joint_commands: {joint.name} target {target:g} is {abs(target - here):g} from "
-            f"where it is ({here:g}), more than joint_command_max_jump {limit:g}: a jump is "
-            "not a trajectory (docs/ros2_control.md)",
+            f"joint_commands: {joint.name} target {target:g} is {abs(target - reference):g} "
+            f"from {what} ({reference:g}), more than joint_command_max_jump {limit:g}: a jump "
+            "is not a trajectory (docs/ros2_control.md)",
         )
 
 
@@ -289,6 +303,8 @@ def _other_kind(kind: str) -> str:
 def apply(planned: Sequence[Planned]) -> None:
     """Offer each value to its guard (newest wins there; nothing is written here)."""
     for item in planned:
+        if item.kind == POSITION:
+            item.joint.last_target[:] = [item.si]
         item.joint.offer(item.stream.guard, item.stream.key, item.value)
 
 

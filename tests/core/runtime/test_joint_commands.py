@@ -159,6 +159,22 @@ def test_a_target_far_from_where_the_joint_is_is_refused() -> None:
     assert node.offered == [("a", 125.0), ("b", 50.0)]
 
 
+def test_a_running_stream_is_judged_from_its_previous_target() -> None:
+    """Once the position stream runs, the reference is the last target a message gave,
+    not the polled position (which lags a moving joint by a poll or more)."""
+    node = Node(here={"a": 0.0}, max_jump=0.5)
+    made, _, position = joints(node)
+    apply(plan(made, ["a"], [0.25], []))
+    position.command("a", position.take("a") or 0.0)  # the writer sent it: running
+    node.here["a"] = -1.0  # an old poll: far behind
+    apply(plan(made, ["a"], [0.7], []))  # 0.45 from the previous target: taken
+    error = refused(jc.JUMP, node, ["a"], [1.5], [], made=made)
+    assert "from its previous target (0.7)" in error.text
+    position.stop("a")  # the deadman: the stream no longer runs
+    error = refused(jc.JUMP, node, ["a"], [0.7], [], made=made)
+    assert "from where it is (-1)" in error.text
+
+
 def test_no_target_before_a_position_was_published() -> None:
     refused(jc.JUMP, Node(here={"a": None}), ["a"], [0.0], [])
     refused(jc.JUMP, Node(here={"a": math.nan}), ["a"], [0.0], [])
