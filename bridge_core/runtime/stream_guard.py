@@ -330,11 +330,18 @@ class StreamGuard(Generic[Key]):
         silent ("until a 0 or silence"). A stop only pending (commands still coming) is sent
         again and the lock kept, so a joystick still held cannot restart the motor.
 
+        A silent stream's value still offered (held back by the rate limit, or ``Deferred``)
+        is dropped: it is older than ``timeout_s`` and must not restart the motor after the
+        deadman's stop. An offered stop is kept.
+
         True if a stop was sent (and acknowledged).
         """
         stream = self[key]
         if stream.last_seen is None or self._clock() - stream.last_seen > self.timeout_s:
             stream.locked = False
+            with self._inbox_lock:
+                if not self._is_stop(stream.offered):
+                    stream.offered = None
         if not stream.may_move:
             return False
         return self.stop(key)

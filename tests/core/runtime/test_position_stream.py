@@ -184,3 +184,20 @@ def test_a_lost_position_write_leaves_its_stop_pending() -> None:
     assert position[1].stop_pending and position.due() == [1]
     assert position.expire(1)
     assert target.log == [("stop", 1, None)]
+
+
+def test_the_deadman_drops_a_value_that_waited_past_the_silence() -> None:
+    """A target deferred (the motor still ran the previous one) when the client fell
+    silent is never written after the deadman's stop."""
+    _, position, _, target, clock = pair()
+    position.offer(1, 5.0)
+    position.command(1, position.take(1) or 0.0)
+    target.busy = True
+    clock.now = 0.3
+    position.offer(1, 6.0)
+    assert not position.command(1, position.take(1) or 0.0)  # deferred, offered again
+    clock.now = 0.9  # 0.6 s since the newest message: silent
+    assert position.due() == [1]
+    assert position.expire(1)
+    assert position[1].offered is None and position.ready() == []
+    assert target.log == [("send", 1, 5.0), ("stop", 1, None)]
