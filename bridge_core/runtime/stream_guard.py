@@ -140,9 +140,9 @@ class StreamGuard(Generic[Key]):
 
     def follow(self, leader: StreamGuard[Key]) -> None:
         """Share ``leader``'s lock and mirror its ``taken_over`` / ``hold`` /
-        ``stop_failed`` for the same key (call before the guards are used): a stop
-        service or a mode change that takes the leader's stream over takes this one's
-        too, and no write of one interleaves with a stop of the other."""
+        ``stop_failed`` for the same key, where this guard has it (call before the guards
+        are used): a stop service or a mode change that takes the leader's stream over
+        takes this one's too, and no write of one interleaves with a stop of the other."""
         self.lock = leader.lock
         leader._followers.append(self)
 
@@ -267,7 +267,8 @@ class StreamGuard(Generic[Key]):
         stream.stop_pending = False
         stream.locked = locked
         for follower in self._followers:
-            follower.taken_over(key, locked=locked)
+            if key in follower.streams:
+                follower.taken_over(key, locked=locked)
 
     @_locked
     def hold(self, key: Key) -> None:
@@ -277,7 +278,8 @@ class StreamGuard(Generic[Key]):
         deadman or the stop after a refused command still sends its own stop)."""
         self[key].locked = True
         for follower in self._followers:
-            follower.hold(key)
+            if key in follower.streams:
+                follower.hold(key)
 
     @_locked
     def stop_failed(self, key: Key) -> None:
@@ -290,7 +292,8 @@ class StreamGuard(Generic[Key]):
         if stream.may_move:
             stream.stop_pending = True
         for follower in self._followers:
-            follower.stop_failed(key)
+            if key in follower.streams:
+                follower.stop_failed(key)
 
     @_locked
     def forget_values(self) -> None:
