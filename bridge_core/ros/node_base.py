@@ -40,7 +40,7 @@ from std_msgs.msg import Bool
 
 from ..runtime.checks import bounded_text
 from ..runtime.diagnostics import Report
-from ..runtime.joint_commands import RefusalCounts, gate_of
+from ..runtime.joint_commands import Gate, RefusalCounts, gate_of
 from ..runtime.keepalive import Keepalive
 from ..runtime.motion_ledger import MotionLedger
 from ..runtime.parameters import bridge_specs
@@ -201,7 +201,7 @@ class BridgeNode(ParameterNode, CommandServices, Generic[SnapshotT]):
     def param(self, name: str) -> Any:
         return self.get_parameter(name).value
 
-    def command_gate(self) -> Any:
+    def command_gate(self) -> Gate:
         """``~/joint_commands``' view of this node's command guard: whether it is active,
         under ``read_only``, connected (``bridge_core.runtime.joint_commands.gate_of``)."""
         return gate_of(

@@ -360,6 +360,8 @@ __all__ = [
     "VELOCITY",
     "CommandJoint",
     "CommandStream",
+    "Gate",
+    "Offer",
     "Planned",
     "RefusalCounts",
     "Refused",
