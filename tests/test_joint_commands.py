@@ -170,7 +170,7 @@ def motec(client: Client, tmp_path_factory: pytest.TempPathFactory) -> Iterator[
         ):
             bridge.wait_connected(True)
             for unit in (1, 2, 3):
-                client.wait_message(bridge.joint_states, lambda m, u=unit: f"drive_{u}" in m.name)
+                client.wait_message(bridge.joint_states, names(f"drive_{unit}"))
             commands = f"{bridge.ns}/motec_bridge/joint_commands"
             yield Rig(sim, bridge, proc, commands, "motec_1")
     finally:
@@ -203,6 +203,11 @@ def axes(client: Client, tmp_path_factory: pytest.TempPathFactory) -> Iterator[R
 
 
 # ---------------------------------------------------------------- helpers
+def names(joint: str) -> Callable[[Any], bool]:
+    """A joint_states message that names ``joint``."""
+    return lambda msg: joint in msg.name
+
+
 def stamp_s(msg: Any) -> float:
     return float(msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9)
 
@@ -565,21 +570,30 @@ def test_motec_refuses_a_drive_in_the_wrong_mode(client: Client, motec: Rig) -> 
     publisher = client.node.create_publisher(JointState, motec.commands, 10)
     wait_subscribed(publisher)
     here = newest_position(client, motec, "drive_3")
+    refused_before = stream_refusals(client, "motec_3")
     before = len(motec.writes())
-    since = time.monotonic()
     publisher.publish(message(["drive_3"], position=[here + 0.01]))
     wait_for(
-        lambda: any(
-            status_node(st) == "motec_3"
-            and int(values_of(st).get("stream commands refused", 0)) > 0
-            for array in client.received("/diagnostics", since)
-            for st in array.status
-        ),
+        lambda: stream_refusals(client, "motec_3") > refused_before,
         WAIT_S,
         "motec_3's stream refusal",
     )
     assert [r for r in motec.writes(before) if r.unit_id == 3] == []
     client.node.destroy_publisher(publisher)
+
+
+def stream_refusals(client: Client, node: str) -> int:
+    """``stream commands refused`` of ``node`` in a status published from now on."""
+    now = time.monotonic()
+
+    def newest() -> int | None:
+        for array in reversed(client.received("/diagnostics", now)):
+            for status in array.status:
+                if status_node(status) == node:
+                    return int(values_of(status).get("stream commands refused", "0"))
+        return None
+
+    return int(wait_for(lambda: newest() is not None and [newest()], WAIT_S, node)[0])
 
 
 # ---------------------------------------------------------------- modbus_bridge
@@ -621,7 +635,8 @@ def test_modbus_unclaimed_zeros_are_refused_as_a_jump(client: Client, axes: Rig)
     lift = system(client, axes, ("lift",), "position")
     start = newest_position(client, axes, "lift")
     away = start + 0.02 if start < 0.1 else start - 0.02
-    lift.run(lambda t: {"lift": ramp(start, [(2.0, away)])(t)}, 2.0 + 2.0)
+    path = ramp(start, [(2.0, away)])
+    lift.run(lambda t: {"lift": path(t)}, 2.0 + 2.0)
     lift.close()
     here = settled_position(client, axes, "lift", time.time() + 0.1)
     assert abs(here) > 0.015, here
