@@ -11,7 +11,8 @@ Joints ``motor_1 .. motor_5`` (the names of ``joint_states``, with ``joint_prefi
   the conversion ``joint_states`` uses backwards), rounded to the coordinate's step
   (0.01 unit). The controller has only relative single runs (40009+, coil "single run"), so
   a target is sent when the motor stands: its running flag (40168+) and coordinate
-  (40108+) are read at command priority, then the difference is written as the run
+  (40108+) are read at command priority (``observe``, before the jogs' lock is taken:
+  a stop service waits only for the writes), then the difference is written as the run
   distance (and the direction register when it changes) and the single-run coil starts
   it, at the motor's configured speed (40006+). While the motor still runs the stream's
   previous target, a newer one waits (``Deferred``: nothing written, the newest tried at
@@ -70,18 +71,41 @@ class MotorTargets:
         )
         self.guard.follow(device.jogs)
         device.streams.append(self.guard)  # a reconnect forgets what it sent
+        # motor -> (running, coordinate or None): read by ``observe`` for the next send.
+        self._seen: dict[int, tuple[bool, float | None]] = {}
+
+    def observe(self, motor: int, target: float) -> float:
+        """The writer's ``convert``: read the motor's running flag, and its coordinate when
+        it stands, before the guard's lock is taken (the lock is the jogs' too, which a
+        stop service takes: it waits for the writes of a target, not for these reads).
+        Only a stop can come between these reads and the writes, and a stop locks the
+        stream, so a stale reading is never acted on. A repeat of the target in force
+        reads nothing (the guard writes nothing for it; should it send after all, it
+        reads then)."""
+        self._seen.pop(motor, None)
+        stream = self.guard[motor]
+        if stream.active and not stream.stop_pending and stream.value == target:
+            return target
+        running = self._read(motor, "running")
+        coordinate = None if running else self._read(motor, "coordinate")
+        self._seen[motor] = (bool(running), coordinate)
+        return target
+
+    def _read(self, motor: int, field: str) -> float:
+        name = motor_register(motor, field)
+        return float(self.device.read_named(name)[name])
 
     def _send(self, motor: int, target: float, previous: float | None) -> None:
         """Run the motor from where it stands to ``target`` (controller units)."""
-        if self._running(motor):
+        running, coordinate = self._seen.pop(motor, None) or self._observed(motor)
+        if running:
             if previous is None:
                 raise CommandRejected(
                     f"motor {motor} is running, not from joint_commands: stop it (or let it "
                     "end) before position commands"
                 )
             raise Deferred  # still on the way to the stream's previous target
-        name = motor_register(motor, "coordinate")
-        coordinate = float(self.device.read_named(name)[name])
+        assert coordinate is not None
         distance = on_step(target - coordinate)
         if abs(distance) < STEP_UNITS:
             return  # there already
@@ -94,9 +118,10 @@ class MotorTargets:
             self.device.set_run_distance(motor, abs(distance))
         self.device.motor_action(motor, "run_once")
 
-    def _running(self, motor: int) -> bool:
-        name = motor_register(motor, "running")
-        return bool(self.device.read_named(name)[name])
+    def _observed(self, motor: int) -> tuple[bool, float | None]:
+        """Read now (a send without ``observe`` first: tests, or a caller of the guard)."""
+        self.observe(motor, 0.0)
+        return self._seen.pop(motor)
 
     def _stop(self, motor: int) -> None:
         """The motor's stop coil, at stop priority (as a jog's stop)."""

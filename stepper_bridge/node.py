@@ -212,6 +212,7 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
         self.streams.stream(
             self.targets.guard,
             lambda n, units: f"motor {n} position target {units:g} units",
+            convert=self.targets.observe,
             stop_what=lambda n: f"motor {n} position stream",
         )
         self.joint_commands = JointCommandTopic(
