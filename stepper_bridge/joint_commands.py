@@ -97,7 +97,8 @@ class MotorTargets:
 
     def _send(self, motor: int, target: float, previous: float | None) -> None:
         """Run the motor from where it stands to ``target`` (controller units)."""
-        running, coordinate = self._seen.pop(motor, None) or self._observed(motor)
+        seen = self._seen.pop(motor) if motor in self._seen else self._observed(motor)
+        running, coordinate = seen
         if running:
             if previous is None:
                 raise CommandRejected(

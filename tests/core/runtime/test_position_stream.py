@@ -135,7 +135,12 @@ def test_a_writer_of_one_waits_while_the_other_stops() -> None:
     writer = threading.Thread(target=position.command, args=(1, 3.0))
     writer.start()
     assert entered.wait(5)
-    stopper = threading.Thread(target=lambda: (velocity.stop(1), order.append("stop")))
+
+    def stop() -> None:
+        velocity.stop(1)
+        order.append("stop")
+
+    stopper = threading.Thread(target=stop)
     stopper.start()
     stopper.join(0.2)
     assert stopper.is_alive()  # waits for the position write to finish
