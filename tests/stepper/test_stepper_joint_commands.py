@@ -128,7 +128,7 @@ def test_a_target_within_a_step_writes_nothing(rig: Rig) -> None:
 def test_the_stream_stop_is_the_stop_coil_and_a_stop_service_locks_it(rig: Rig) -> None:
     guard = rig.targets.guard
     guard.command(5, 40.0)
-    wait_for(lambda: rig.fake.motion[5] is not None, WAIT_S, "motor 5 running")
+    wait_for(lambda: rig.fake.coordinate(5) > 1.0, WAIT_S, "motor 5 a unit on its way")
     assert guard.stop(5)
     assert rig.writes()[-1] == (5, C, motor_coil(5, "stop"))
     wait_for(lambda: rig.fake.motion[5] is None, WAIT_S, "motor 5 stopped")
