@@ -344,7 +344,13 @@ def stop_time_after(
 def assert_deadman_timing(stop: float, last_sent: float, transaction_s: float) -> None:
     waited = stop - last_sent
     bound = COMMAND_TIMEOUT_S + DEADMAN_PERIOD_MAX_S + transaction_s + SCHEDULING_SLACK_S
+    print(f"deadman: the stop came {waited:.3f} s after the last command (bound {bound:.3f})")
     assert COMMAND_TIMEOUT_S * 0.9 <= waited <= bound, (waited, bound)
+
+
+def report(what: str, errors: Sequence[float]) -> None:
+    """The figure a run measured (pytest -s shows it)."""
+    print(f"{what}: max following error {max(errors):.5f} over {len(errors)} polls")
 
 
 # ---------------------------------------------------------------- the stepper
@@ -372,6 +378,7 @@ def test_stepper_follows_a_position_ramp(client: Client, stepper: Rig) -> None:
     s.close()
     for joint, path in paths.items():
         errors = following_errors(client, stepper, joint, path, wall0, duration + HOLD_S)
+        report(f"stepper {joint}", errors)
         assert len(errors) >= duration, (joint, errors)  # polled all along (3 Hz)
         assert max(errors) <= STEPPER_TOLERANCE_M, (joint, max(errors))
         end = settled_position(client, stepper, joint, wall0 + duration + HOLD_S)
@@ -390,6 +397,7 @@ def test_stepper_velocity_trapezoid_ends_where_its_distance_says(
     s.close()
     end = settled_position(client, stepper, "motor_3", wall0 + 5.0 + 1.0)
     expected = start + trapezoid_distance(0.003, 1.0, 2.0)
+    print(f"stepper motor_3: trapezoid ended {end - expected:+.5f} m from its distance")
     assert abs(end - expected) <= STEPPER_DISTANCE_TOLERANCE_M, (end, expected)
     # At most command_rate_hz speed writes a second over the run (and the stop coil).
     speeds = [r for r in stepper.writes(before) if r.function_code == 6]
@@ -500,12 +508,14 @@ def test_motec_bus_drives_three_joints_through_one_topic(client: Client, motec: 
     velocity.close()
     for joint, path in paths.items():
         errors = following_errors(client, motec, joint, path, walls["p"], duration + HOLD_S)
+        report(f"MOTEC {joint}", errors)
         assert len(errors) >= 5 * duration, (joint, len(errors))  # 10 Hz asked
         assert max(errors) <= MOTEC_TOLERANCE_RAD, (joint, max(errors))
         end = settled_position(client, motec, joint, walls["p"] + duration + HOLD_S)
         assert abs(end - ramp_end(waypoints[joint])) <= MOTEC_COUNT_RAD, (joint, end)
     end = settled_position(client, motec, "drive_3", walls["v"] + 5.0 + 1.0)
     expected = start["drive_3"] + trapezoid_distance(3.0, 1.0, 2.0)
+    print(f"MOTEC drive_3: trapezoid ended {end - expected:+.4f} rad from its distance")
     assert abs(end - expected) <= MOTEC_DISTANCE_TOLERANCE_RAD, (end, expected)
 
 
@@ -619,12 +629,14 @@ def test_modbus_position_and_velocity_joints(client: Client, axes: Rig) -> None:
     lift.close()
     spindle.close()
     errors = following_errors(client, axes, "lift", path, walls["p"], duration + HOLD_S)
+    report("modbus lift", errors)
     assert len(errors) >= 10 * duration, len(errors)
     assert max(errors) <= AXES_TOLERANCE_M, max(errors)
     end = settled_position(client, axes, "lift", walls["p"] + duration + HOLD_S)
     assert abs(end - ramp_end(waypoints)) <= AXES_STEP_M * 1.01, end
     end = settled_position(client, axes, "spindle", walls["v"] + 6.0 + 1.0)
     expected = start["spindle"] + trapezoid_distance(2.0, 1.0, 3.0)
+    print(f"modbus spindle: trapezoid ended {end - expected:+.4f} rad from its distance")
     assert abs(end - expected) <= AXES_DISTANCE_TOLERANCE_RAD, (end, expected)
 
 
