@@ -37,12 +37,15 @@ from .device import DescribedDevice
 
 @dataclass(frozen=True)
 class JointStream:
-    """A stream of ``~/joint_commands``: its guard and key, and whether the node must give
-    it a writer (``own``: not a command topic's, whose writer exists already)."""
+    """A stream of ``~/joint_commands``: its guard and key, whether the node must give it
+    a writer (``own``: not a command topic's, whose writer exists already), and what a
+    register value is divided by to be offered (a command topic's ``scale``: its writer
+    takes message values and multiplies them back)."""
 
     guard: StreamGuard[str]
     key: str
     own: bool
+    per_register: float = 1.0
 
 
 class JointStreams:
@@ -51,12 +54,13 @@ class JointStreams:
     def __init__(
         self,
         device: DescribedDevice,
-        topic_guards: Mapping[str, tuple[StreamGuard[str], str]],
+        topic_guards: Mapping[str, tuple[StreamGuard[str], str, float]],
         timeout_s: float,
         *,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
-        """``topic_guards``: register name -> (guard, key) of the command topic writing it."""
+        """``topic_guards``: register name -> (guard, key, scale) of the command topic
+        writing it."""
         self.device = device
         self.position: dict[str, JointStream] = {}
         self.velocity: dict[str, JointStream] = {}
@@ -67,7 +71,8 @@ class JointStreams:
             if command.velocity is not None:
                 shared = topic_guards.get(command.velocity.register)
                 if shared is not None:
-                    self.velocity[joint.name] = JointStream(shared[0], shared[1], own=False)
+                    guard, key, scale = shared
+                    self.velocity[joint.name] = JointStream(guard, key, False, scale)
                 else:
                     guard = StreamGuard(
                         [joint.name],
@@ -135,7 +140,9 @@ class JointStreams:
         stream = streams[joint.name]
         device = self.device
         return CommandStream(
-            stream.guard, stream.key, lambda si: register_value(device, source, si)
+            stream.guard,
+            stream.key,
+            lambda si: register_value(device, source, si) / stream.per_register,
         )
 
 

@@ -369,7 +369,7 @@ class ModbusBridgeNode(BridgeNode[DeviceSnapshot]):
         self.max_jump = float(values[MAX_JUMP_SPEC.name])
         self.on_parameter(MAX_JUMP_SPEC.name, lambda value: setattr(self, "max_jump", value))
         topic_guards = {
-            topic.register_name: (self.device.guards[topic.name], topic.name)
+            topic.register_name: (self.device.guards[topic.name], topic.name, topic.scale)
             for topic in self.described.commands.topics
         }
         self.joint_streams = JointStreams(

@@ -81,15 +81,20 @@ def command_joint(
         name,
         CommandStream(target.guard, VELOCITY_STREAM, lambda rad: _target(device, scale, rad)),
         CommandStream(
-            device.stream,
-            VELOCITY_STREAM,
-            lambda rad_s: device.check_velocity(scale.to_rpm(rad_s)),
+            device.stream, VELOCITY_STREAM, lambda rad_s: _velocity(device, scale, rad_s)
         ),
         gate,
         offer,
         here,
         max_jump,
     )
+
+
+def _velocity(device: MotecDevice, scale: DriveScale, rad_s: float) -> float:
+    """A velocity checked as ``~/cmd_velocity`` checks it (rpm within ``max_speed_rpm``),
+    offered in rad/s: the stream's writer converts what its topic and this one offer."""
+    device.check_velocity(scale.to_rpm(rad_s))
+    return rad_s
 
 
 def _target(device: MotecDevice, scale: DriveScale, rad: float) -> float:

@@ -103,8 +103,10 @@ class Refused(Exception):
 @dataclass(frozen=True)
 class CommandStream:
     """Where one kind of a joint's command goes: ``guard``'s stream ``key``, the value
-    converted by ``convert`` (SI -> the guard's units; ``CommandRejected`` outside the
-    joint's limits)."""
+    converted by ``convert`` (SI -> what the guard's writer takes, the units its own topic
+    offers, which the writer's own conversion turns into the device's: a MOTEC velocity
+    stays rad/s, a stepper velocity is rpm; ``CommandRejected`` outside the joint's
+    limits)."""
 
     guard: StreamGuard[Any]
     key: Hashable
