@@ -454,7 +454,10 @@ def test_stepper_flood_writes_at_most_the_rate(client: Client, stepper: Rig) -> 
 
 # ---------------------------------------------------------------- MOTEC, three drives
 def motec_modes(client: Client, rig: Rig, modes: Mapping[int, int]) -> None:
+    """Each drive in ``mode`` and enabled, once it stands (a mode change is refused while
+    the motor turns, judged on the newest poll)."""
     for unit, mode in modes.items():
+        wait_standing(client, rig, f"drive_{unit}")
         node = f"{rig.bridge.ns}/motec_{unit}"
         for name, srv, fields in (
             ("set_control_mode", SetControlMode, {"mode": mode}),
@@ -465,6 +468,20 @@ def motec_modes(client: Client, rig: Rig, modes: Mapping[int, int]) -> None:
                 setattr(request, key, value)
             reply = client.call(srv, f"{node}/{name}", request)
             assert reply.success, reply.message
+
+
+def wait_standing(client: Client, rig: Rig, joint: str) -> None:
+    """Until a joint_states message polled from now on shows ``joint`` at rest."""
+    now = time.time()
+
+    def standing() -> bool:
+        for msg in reversed(client.received(rig.bridge.joint_states)):
+            names = list(msg.name)
+            if joint in names and stamp_s(msg) > now:
+                return abs(float(msg.velocity[names.index(joint)])) < 0.05
+        return False
+
+    wait_for(standing, WAIT_S, f"{joint} standing")
 
 
 def test_motec_bus_drives_three_joints_through_one_topic(client: Client, motec: Rig) -> None:
