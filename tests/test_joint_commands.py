@@ -93,8 +93,10 @@ MOTEC_COUNT_RAD = 2 * math.pi / 10000  # one count of the default 10000 counts p
 MOTEC_TOLERANCE_RAD = 0.3  # 1 rad/s ramps, the drive turns to each new target at once
 MOTEC_DISTANCE_TOLERANCE_RAD = 0.6  # of 9 rad: whole rpm, 20 Hz, ramps of the drive
 
-# modbus_bridge: 20 Hz polls over TCP, the lift's simulator follows at 20 mm/s.
-AXES_TOLERANCE_M = 0.003
+# modbus_bridge: 20 Hz polls over TCP, targets written at 10 Hz (command_rate_hz), the
+# lift's simulator follows at 20 mm/s: a 10 mm/s ramp lags by ~2 mm (measured 2.2 mm on an
+# idle machine), 5 mm beside CPU burners.
+AXES_TOLERANCE_M = 0.005
 AXES_STEP_M = 1e-5  # lift_target's 0.01 mm
 AXES_DISTANCE_TOLERANCE_RAD = 0.8  # of 8 rad: whole rpm, 10 Hz, a 0.1 s lag
 
