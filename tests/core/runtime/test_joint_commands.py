@@ -125,7 +125,7 @@ def test_a_partial_message_commands_only_its_joints() -> None:
         (jc.MALFORMED, ([], [], [])),
         (jc.MALFORMED, (["a", "a"], [], [0.1, 0.1])),
         (jc.MALFORMED, (["a", "b"], [0.1], [])),  # a system mixing kinds
-        (jc.MALFORMED, (["a", "b", "c", "d"], [], [0.0] * 4)),
+        (jc.UNKNOWN_JOINT, (["a", "b", "c", "d"], [], [0.0] * 4)),
         (jc.NOT_FINITE, (["a"], [math.nan], [])),
         (jc.NOT_FINITE, (["a", "b"], [], [0.1, math.inf])),
         (jc.OUT_OF_LIMITS, (["a", "b"], [], [0.1, 3.0])),
