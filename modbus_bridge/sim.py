@@ -49,6 +49,7 @@ from bridge_core.sim.sim_base import (
     Simulator,
     WriteRecord,
     add_log_arguments,
+    add_network_arguments,
     serve_serial_until_signalled,
     serve_tcp_until_signalled,
 )
@@ -272,6 +273,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--parity", choices=("N", "E", "O"), help="default: the file's, else N")
     parser.add_argument("--stopbits", type=int, choices=(1, 2), help="default: the file's, else 1")
     add_log_arguments(parser)
+    add_network_arguments(parser)
     args = parser.parse_args(argv)
     description = load_for_command(args.device_file)
     if description is None:
