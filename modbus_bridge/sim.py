@@ -283,6 +283,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     sim = make_simulator(description)
     names = ", ".join(f"{d.name} (unit {d.unit_id})" for d in description.devices)
     if args.serial or args.pty:
+        if args.reply_delay_ms or args.one_request_at_a_time:
+            parser.error(
+                "--reply-delay-ms and --one-request-at-a-time simulate a TCP network; "
+                "they do not apply to --serial / --pty"
+            )
         args.baudrate = args.baudrate or (rtu.baudrate if rtu else 9600)
         args.parity = args.parity or (rtu.parity if rtu else "N")
         args.stopbits = args.stopbits or (rtu.stopbits if rtu else 1)
