@@ -188,7 +188,6 @@ __all__ = [
     "Budget",
     "BudgetChannel",
     "WireBudget",
-    "as_request",
     "budget_values",
     "exceeded_text",
     "line_load",
