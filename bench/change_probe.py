@@ -97,7 +97,12 @@ class ChangeProbe:
 
     @contextmanager
     def running(self) -> Iterator[ChangeProbe]:
-        """Change values in a thread of this process for the duration of the block."""
+        """Change values in a thread of this process for the duration of the block. The
+        first change waits for a snapshot of this block (another probe may have changed
+        the register since this one last saw it)."""
+        with self._lock:
+            self._latest = None
+            self._observed.clear()
         self._stop.clear()
         thread = threading.Thread(target=self._run, name="change-probe", daemon=True)
         thread.start()

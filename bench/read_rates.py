@@ -69,6 +69,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import datetime
+import io
 import json
 import multiprocessing
 import os
@@ -493,7 +494,8 @@ def node_point(
             )
     finally:
         procs.stop(sim_proc)
-    lat = bridge_bench.phase_latency(opts, procs, client)
+    with contextlib.redirect_stdout(io.StringIO()):  # its progress lines, not our table's
+        lat = bridge_bench.phase_latency(opts, procs, client)
     return {
         "device": name,
         "round_trip_ms": round_trip_ms,
