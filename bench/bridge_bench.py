@@ -816,6 +816,7 @@ def phase_latency(
     # The simulator's tick() keeps running: both simulators leave the joints alone while
     # idle (R6 not running, xArm sleeping), which is how they start.
     sim = importlib.import_module(f"{p.simulator}.sim").make_simulator(*p.sim_args)
+    sim.round_trip_s = opts.reply_delay_ms / 1000.0  # --reply-delay-ms, as in the other phases
     port = sim.start_tcp("127.0.0.1", 0)
     device = sim.device
     rng = random.Random(opts.seed)
@@ -1153,16 +1154,21 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     return opts
 
 
+def isolate_ros(domain_id: int) -> None:
+    """ROS discovery on this machine, in ``domain_id``: before rclpy is imported anywhere;
+    inherited by every child process (bench/read_rates.py calls it too)."""
+    os.environ["ROS_DOMAIN_ID"] = str(domain_id)
+    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    os.environ.pop("ROS_LOCALHOST_ONLY", None)
+    os.environ.setdefault("PYTHONUNBUFFERED", "1")
+
+
 def main(argv: list[str] | None = None) -> None:
     opts = parse_args(argv)
     if opts.worker:
         run_worker(opts)
         return
-    # Before rclpy is imported anywhere; inherited by every child process.
-    os.environ["ROS_DOMAIN_ID"] = str(opts.domain_id)
-    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    os.environ.pop("ROS_LOCALHOST_ONLY", None)
-    os.environ.setdefault("PYTHONUNBUFFERED", "1")
+    isolate_ros(opts.domain_id)
     phases = [p.strip() for p in opts.phases.split(",") if p.strip()]
     unknown = set(phases) - {"rate", "latency", "cpu"}
     if unknown:

@@ -18,19 +18,26 @@ Each figure is the median over ``--repeats`` rounds (every window measured once 
 round, in turn); also printed: the median transaction time one at a time (the round trip
 the simulator actually gives on this machine, its scheduling included), the CPU of this
 process per poll, and the ratio N / 1. Asserts nothing (bench/README.md).
+
+bench/read_rates.py reuses the loops: ``bare_rate`` with the device's own fast and slow
+plans (``device_groups``), ``device_rate`` with an observer of its snapshots, against
+``controlled_simulator`` (the same simulator, whose joint register it can set).
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
+import multiprocessing
 import statistics
 import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
+from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
 
@@ -38,7 +45,11 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from bench.bridge_bench import PROFILES  # noqa: E402
+from bench.change_probe import answer_changes  # noqa: E402
+from bridge_core.runtime.rate_groups import SLOW_POLL_PERIOD_DEFAULT_S  # noqa: E402
 from bridge_core.wire.channel import DeviceChannel  # noqa: E402
+from bridge_core.wire.planner import ReadRequest  # noqa: E402
 from bridge_core.wire.transport import ModbusLink, TcpSettings  # noqa: E402
 
 UNIT_ID = 1
@@ -46,6 +57,7 @@ TIMEOUT_S = 1.0
 SIM_START_S = 20.0
 WARMUP_POLLS = 3
 DEVICES = ("r6", "xarm")
+Plan = list[tuple[str, int, int]]  # (table, address, count) per request
 
 
 def make_device(name: str, channel: DeviceChannel) -> Any:
@@ -58,7 +70,11 @@ def make_device(name: str, channel: DeviceChannel) -> Any:
     return XArmDevice(channel)
 
 
-def full_plan(name: str) -> list[tuple[str, int, int]]:
+def as_plan(requests: Sequence[ReadRequest]) -> Plan:
+    return [(r.table.value, r.address, r.count) for r in requests]
+
+
+def full_plan(name: str) -> Plan:
     """(table, address, count) of the device's full poll plan (the bare loop's)."""
     if name == "r6":
         from r6_bridge.device import R6Device
@@ -68,7 +84,19 @@ def full_plan(name: str) -> list[tuple[str, int, int]]:
         from xarm_bridge.device import POLL_PLAN
 
         plan = POLL_PLAN
-    return [(r.table.value, r.address, r.count) for r in plan]
+    return as_plan(plan)
+
+
+def device_groups(name: str, port: int) -> tuple[Plan, Plan]:
+    """The device layer's fast and slow plans, in its order, as it sets them on its first
+    poll (the R6 plans by the counts it reads): a bare loop of the same plan issues them."""
+    link = ModbusLink(TcpSettings("127.0.0.1", port, TIMEOUT_S))
+    device = make_device(name, DeviceChannel(link, UNIT_ID))
+    try:
+        device.poll()
+    finally:
+        link.close()
+    return as_plan(device.groups.fast), as_plan(device.groups.slow)
 
 
 @contextmanager
@@ -103,6 +131,59 @@ def simulator(name: str, round_trip_ms: float) -> Iterator[int]:
             proc.wait(10)
 
 
+def observed(
+    poll: Callable[[], object], observer: Callable[[object, float], None]
+) -> Callable[[], object]:
+    """``poll``, telling ``observer`` of each snapshot and the time it returned."""
+
+    def cycle() -> object:
+        snapshot = poll()
+        observer(snapshot, time.monotonic())
+        return snapshot
+
+    return cycle
+
+
+def serve_controlled(
+    name: str, round_trip_ms: float, control: Connection[Any, Any], stop: Any
+) -> None:
+    """The device's simulator on a free port with the simulated round trip, until ``stop``
+    is set (a process of its own): sends the port, then sets joint 1 (the register of
+    bridge_bench.py's profile) to each value ``control`` brings
+    (``change_probe.answer_changes``). Built as bridge_bench.py's latency phase builds it
+    (``make_simulator``: R6 not running, xArm sleeping, so its tick leaves the joints
+    alone), not through its command line (``simulator``), so its registers can be set."""
+    profile = PROFILES[name]
+    sim = importlib.import_module(f"{profile.simulator}.sim").make_simulator(*profile.sim_args)
+    sim.round_trip_s = round_trip_ms / 1000.0
+    with sim:
+        control.send(sim.start_tcp("127.0.0.1", 0))
+        register = profile.joint_register
+        answer_changes(control, stop, lambda value: sim.device.set(register, value))
+
+
+@contextmanager
+def controlled_simulator(
+    name: str, round_trip_ms: float
+) -> Iterator[tuple[int, Connection[Any, Any]]]:
+    """(port, control) of ``serve_controlled`` in a process of its own, for the block."""
+    mp = multiprocessing.get_context("spawn")
+    mine, theirs = mp.Pipe()
+    stop = mp.Event()
+    proc = mp.Process(target=serve_controlled, args=(name, round_trip_ms, theirs, stop))
+    proc.start()
+    try:
+        if not mine.poll(SIM_START_S):
+            raise SystemExit(f"{name} simulator did not start")
+        yield int(mine.recv()), mine
+    finally:
+        stop.set()
+        proc.join(10)
+        if proc.is_alive():
+            proc.kill()
+            proc.join(5)
+
+
 def measure(cycle: Callable[[], object], duration_s: float) -> tuple[float, float]:
     """Polls per second and CPU (this process) per poll in ``duration_s``."""
     for _ in range(WARMUP_POLLS):
@@ -116,7 +197,17 @@ def measure(cycle: Callable[[], object], duration_s: float) -> tuple[float, floa
     return polls / elapsed, (time.process_time() - cpu) / max(polls, 1)
 
 
-def bare_rate(name: str, port: int, duration_s: float) -> tuple[float, float]:
+def bare_rate(
+    name: str,
+    port: int,
+    duration_s: float,
+    fast: Plan | None = None,
+    slow: Plan | None = None,
+    slow_period_s: float = SLOW_POLL_PERIOD_DEFAULT_S,
+) -> tuple[float, float]:
+    """Polls/s and CPU per poll of a bare pymodbus loop: ``fast`` (default: the device's
+    full plan) every poll, ``slow`` first in a poll once ``slow_period_s`` has passed since
+    it was last read (as ``PollGroups`` does)."""
     from pymodbus.client import ModbusTcpClient
 
     client = ModbusTcpClient("127.0.0.1", port=port, timeout=TIMEOUT_S, retries=0)
@@ -128,12 +219,23 @@ def bare_rate(name: str, port: int, duration_s: float) -> tuple[float, float]:
         "holding": client.read_holding_registers,
         "input": client.read_input_registers,
     }
-    requests = [(read[table], address, count) for table, address, count in full_plan(name)]
+    every_poll = [
+        (read[table], address, count)
+        for table, address, count in (full_plan(name) if fast is None else fast)
+    ]
+    slow_requests = [(read[table], address, count) for table, address, count in slow or []]
+    slow_due = 0.0  # read in the first poll
 
     def cycle() -> None:
+        nonlocal slow_due
+        requests = every_poll
+        if slow_requests and time.monotonic() >= slow_due:
+            requests = slow_requests + every_poll
         for method, address, count in requests:
             if method(address, count=count, device_id=UNIT_ID).isError():
                 raise RuntimeError(f"bare loop: exception reply at {address}")
+        if requests is not every_poll:
+            slow_due = time.monotonic() + slow_period_s
 
     try:
         return measure(cycle, duration_s)
@@ -142,14 +244,22 @@ def bare_rate(name: str, port: int, duration_s: float) -> tuple[float, float]:
 
 
 def device_rate(
-    name: str, port: int, window: int, duration_s: float
+    name: str,
+    port: int,
+    window: int,
+    duration_s: float,
+    observer: Callable[[object, float], None] | None = None,
 ) -> tuple[float, float, float, int]:
-    """Polls/s, CPU per poll, median transaction time (s), fallbacks."""
+    """Polls/s, CPU per poll, median transaction time (s), fallbacks. ``observer``: told of
+    every snapshot and the time its poll returned (``change_probe.ChangeProbe.observe``)."""
     link = ModbusLink(TcpSettings("127.0.0.1", port, TIMEOUT_S))
     channel = DeviceChannel(link, UNIT_ID, max_in_flight=window)
     device = make_device(name, channel)
+    cycle: Callable[[], object] = device.poll
+    if observer is not None:
+        cycle = observed(device.poll, observer)
     try:
-        rate, cpu = measure(device.poll, duration_s)
+        rate, cpu = measure(cycle, duration_s)
     finally:
         link.close()
     latencies = list(channel.stats.latencies_s)
