@@ -33,6 +33,7 @@ process gets ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST and ROS_DOMAIN_ID=--domain-
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import datetime
 import importlib
 import itertools
@@ -434,7 +435,9 @@ class Processes:
         return loop_figures(json.loads(out.decode().strip().splitlines()[-1])["samples"])
 
 
-def start_sim_process(procs: Processes, profile: Profile) -> tuple[subprocess.Popen[bytes], int]:
+def start_sim_process(
+    procs: Processes, profile: Profile, extra: tuple[str, ...] = ()
+) -> tuple[subprocess.Popen[bytes], int]:
     name = f"{profile.name}_sim"
     port_file = Path(tempfile.mkstemp(prefix=f"{name}_port_", dir=procs.log_dir)[1])
     port_file.write_text("")
@@ -450,6 +453,7 @@ def start_sim_process(procs: Processes, profile: Profile) -> tuple[subprocess.Po
             "0",
             "--port-file",
             str(port_file),
+            *extra,
         ],
     )
     deadline = time.monotonic() + 30
@@ -812,6 +816,7 @@ def phase_latency(
     # The simulator's tick() keeps running: both simulators leave the joints alone while
     # idle (R6 not running, xArm sleeping), which is how they start.
     sim = importlib.import_module(f"{p.simulator}.sim").make_simulator(*p.sim_args)
+    sim.round_trip_s = opts.reply_delay_ms / 1000.0  # --reply-delay-ms, as in the other phases
     port = sim.start_tcp("127.0.0.1", 0)
     device = sim.device
     rng = random.Random(opts.seed)
@@ -1108,6 +1113,15 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     )
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument(
+        "--reply-delay-ms",
+        type=float,
+        default=0.0,
+        help="the simulator's simulated round trip (bench/pipelining.py)",
+    )
+    parser.add_argument(
+        "--max-in-flight", type=int, default=1, help="the node's max_in_flight (default 1)"
+    )
+    parser.add_argument(
         "--json", type=Path, default=None, help="default bench/results/<device>_bench.json"
     )
     # worker mode (internal)
@@ -1118,6 +1132,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--sim-pid", type=int, default=0, help=argparse.SUPPRESS)
     opts = parser.parse_args(argv)
     opts.profile = PROFILES[opts.device]
+    opts.sim_extra = ("--reply-delay-ms", str(opts.reply_delay_ms)) if opts.reply_delay_ms else ()
+    if opts.max_in_flight != 1:
+        opts.profile = dataclasses.replace(
+            opts.profile,
+            node_params=(*opts.profile.node_params, f"max_in_flight:={opts.max_in_flight}"),
+        )
     opts.json = opts.json or RESULTS / f"{opts.device}_bench.json"
     if opts.quick:
         if "--duration" not in (argv if argv is not None else sys.argv):
@@ -1134,16 +1154,21 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     return opts
 
 
+def isolate_ros(domain_id: int) -> None:
+    """ROS discovery on this machine, in ``domain_id``: before rclpy is imported anywhere;
+    inherited by every child process (bench/read_rates.py calls it too)."""
+    os.environ["ROS_DOMAIN_ID"] = str(domain_id)
+    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    os.environ.pop("ROS_LOCALHOST_ONLY", None)
+    os.environ.setdefault("PYTHONUNBUFFERED", "1")
+
+
 def main(argv: list[str] | None = None) -> None:
     opts = parse_args(argv)
     if opts.worker:
         run_worker(opts)
         return
-    # Before rclpy is imported anywhere; inherited by every child process.
-    os.environ["ROS_DOMAIN_ID"] = str(opts.domain_id)
-    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    os.environ.pop("ROS_LOCALHOST_ONLY", None)
-    os.environ.setdefault("PYTHONUNBUFFERED", "1")
+    isolate_ros(opts.domain_id)
     phases = [p.strip() for p in opts.phases.split(",") if p.strip()]
     unknown = set(phases) - {"rate", "latency", "cpu"}
     if unknown:
@@ -1178,7 +1203,7 @@ def main(argv: list[str] | None = None) -> None:
     started = time.monotonic()
     try:
         if "rate" in phases or "cpu" in phases:
-            sim_proc, sim_port = start_sim_process(procs, opts.profile)
+            sim_proc, sim_port = start_sim_process(procs, opts.profile, opts.sim_extra)
             try:
                 if "rate" in phases:
                     results["rate"] = phase_rate(opts, procs, client, sim_port, sim_proc.pid)

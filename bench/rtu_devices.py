@@ -6,7 +6,7 @@ Prints tables and writes bench/results/rtu_devices.json; asserts nothing.
 
     .venv/bin/python bench/rtu_devices.py [--duration 10] [--quick]
         [--parts stepper,bus,dead] [--drives 1,4,8] [--fixed-rate-hz 10]
-        [--sim-tick-s 0.1] [--json PATH]
+        [--sim-tick-s 0.1] [--whole-map] [--json PATH]
 
 Everything runs the bridges' own device layers (``StepperDevice.poll()``,
 ``MotecDevice.poll()``: exactly the requests a node sends per poll cycle, configuration
@@ -21,7 +21,9 @@ The simulators tick their devices' motion every 0.1 s instead of 10 ms
 client on a 2-vCPU machine that a real drive would not (see ``SIM_TICK_S``).
 Each drive gets the nodes' own poller (``bridge_core.runtime.poller.Poller``):
 pacing, backoff guard and re-plan (``NodePoller``; no ROS, nothing
-published), with the nodes' default channel settings.
+published), with the nodes' default channel settings. ``--whole-map``: each device reads
+its whole map every poll, as before the rate groups (``read_whole_map``), for an A/B in
+one tree (``bench/read_rates.py`` prints both side by side).
 
 Parts:
 
@@ -75,6 +77,7 @@ import sys
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import asdict
+from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -82,6 +85,7 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from bench.change_probe import answer_changes  # noqa: E402
 from bench.line_relay import (  # noqa: E402
     REQUEST,
     Frame,
@@ -93,11 +97,14 @@ from bench.line_relay import (  # noqa: E402
 from bench.rtu_wire import transaction_wire_s  # noqa: E402
 from bridge_core.runtime.poller import Poller  # noqa: E402
 from bridge_core.wire.channel import DeviceChannel  # noqa: E402
+from bridge_core.wire.planner import ReadRequest, plan_reads  # noqa: E402
+from bridge_core.wire.registers import RegisterMap  # noqa: E402
 from bridge_core.wire.serial_timing import silence_s  # noqa: E402
 from bridge_core.wire.transport import ModbusLink, SerialSettings  # noqa: E402
 from motec_bridge.device import MotecDevice  # noqa: E402
 from stepper_bridge.device import StepperDevice  # noqa: E402
 from stepper_bridge.registers import REPLY_DELAY_S as STEPPER_REPLY_DELAY_S  # noqa: E402
+from stepper_bridge.registers import motor_register  # noqa: E402
 
 RESULTS = ROOT / "bench" / "results" / "rtu_devices.json"
 MOTEC_BAUD = 115200
@@ -135,8 +142,12 @@ def serve(
     tick_s: float,
     ready: Any,
     stop: Any,
+    control: Connection[Any, Any] | None = None,
 ) -> None:
-    """The bridge's own simulator on ``port`` until ``stop`` is set (a process of its own)."""
+    """The bridge's own simulator on ``port`` until ``stop`` is set (a process of its own).
+
+    ``control``: values for the first unit's joint 1 (``set_joint``), each answered with
+    the time it was set (``change_probe.answer_changes``)."""
     sim: Any
     if kind == "stepper":
         from stepper_bridge.sim import make_simulator as make_stepper
@@ -150,7 +161,25 @@ def serve(
     with sim:
         sim.start_serial(port, baudrate=baudrate)
         ready.set()
-        stop.wait()
+        if control is None:
+            stop.wait()
+        else:
+            device = sim.devices[units[0]]
+            answer_changes(control, stop, lambda value: set_joint(device, kind, value))
+
+
+def set_joint(device: Any, kind: str, value: float) -> None:
+    """Joint 1 of a simulated unit at ``value`` (stepper: motor 1's coordinate, user units;
+    MOTEC: the actual position, counts), as the device's own motion would leave it: its
+    motion state too, so the simulator's tick keeps the register where it was set."""
+    with device.lock:
+        if kind == "stepper":
+            device.position[1] = device.offset[1] + value
+            device.set(motor_register(1, "coordinate"), value)
+        else:
+            device.position = value
+            device.set("position_actual", int(value))
+            device.set("position_setpoint", int(value))
 
 
 # The simulators advance their devices' motion every tick (default 10 ms). The devices
@@ -162,16 +191,30 @@ SIM_TICK_S = 0.1
 
 @contextlib.contextmanager
 def line(
-    baudrate: int, kind: str, sim_units: Sequence[int], sim_tick_s: float = SIM_TICK_S
+    baudrate: int,
+    kind: str,
+    sim_units: Sequence[int],
+    sim_tick_s: float = SIM_TICK_S,
+    control: Connection[Any, Any] | None = None,
 ) -> Iterator[LineRelay]:
-    """The relay with the simulator of ``sim_units`` on its device end."""
+    """The relay with the simulator of ``sim_units`` on its device end (``control``: see
+    ``serve``)."""
     mp = multiprocessing.get_context("spawn")
     ready, stop = mp.Event(), mp.Event()
     t35 = silence_s(baudrate)
     with LineRelay(baudrate, device_turnaround_s=t35) as relay:
         proc = mp.Process(
             target=serve,
-            args=(relay.device_path, baudrate, kind, list(sim_units), sim_tick_s, ready, stop),
+            args=(
+                relay.device_path,
+                baudrate,
+                kind,
+                list(sim_units),
+                sim_tick_s,
+                ready,
+                stop,
+                control,
+            ),
         )
         proc.start()
         try:
@@ -192,7 +235,8 @@ def line(
 class NodePoller:
     """One device's poll thread: the nodes' own ``bridge_core.runtime.poller.Poller`` (pacing,
     backoff guard, ``invalidate_config`` before the first poll after (re)connecting),
-    with the poll wrapped to record when each attempt started and each success ended."""
+    with the poll wrapped to record when each attempt started and each success ended.
+    ``observer``, when set, is told of every snapshot and the time its poll returned."""
 
     def __init__(self, name: str, channel: DeviceChannel, device: Device, rate_hz: float) -> None:
         self.name = name
@@ -200,6 +244,7 @@ class NodePoller:
         self.device = device
         self.attempts: list[float] = []  # poll starts (monotonic)
         self.completed: list[float] = []  # successful poll ends
+        self.observer: Callable[[object, float], None] | None = None
         self.poller: Poller[object] = Poller(
             channel,
             self._poll,
@@ -213,7 +258,10 @@ class NodePoller:
     def _poll(self) -> object:
         self.attempts.append(time.monotonic())
         snapshot = self.device.poll()
-        self.completed.append(time.monotonic())
+        done = time.monotonic()
+        self.completed.append(done)
+        if self.observer is not None:
+            self.observer(snapshot, done)
         return snapshot
 
     @property
@@ -233,26 +281,58 @@ class NodePoller:
         return sum(start < t <= end for t in self.completed) / (end - start)
 
 
+def whole_map_plan(
+    register_map: RegisterMap, fast: Sequence[ReadRequest], slow: Sequence[ReadRequest]
+) -> list[ReadRequest]:
+    """The plan before rate groups: every register of both groups planned as one, read
+    every poll; the block holding the fast plan's first registers first (the stepper's
+    running flags, as its status plan was ordered then). For the stepper and MOTEC this is
+    the status plan of the tree before the rate groups (dc8e5b1's parent): the same
+    registers, planned by the same planner."""
+    names = sorted({name for request in (*fast, *slow) for name in request.names})
+    plan = plan_reads(register_map, register_map.select(names))
+    lead = fast[0].names if fast else frozenset()
+    return sorted(plan, key=lambda request: not request.names & lead)
+
+
+def read_whole_map(device: StepperDevice | MotecDevice) -> None:
+    """Bench only: ``device`` reads its whole map every poll ("today's plan", for an A/B
+    against the rate groups in one tree). Its ``PollGroups`` get the merged plan as the fast
+    group and an empty slow group, through their public ``set_plans``: the same requests a
+    poll made before rate groups; nothing in the bridges changes."""
+    groups = device.groups
+    groups.set_plans(whole_map_plan(device.register_map, groups.fast, groups.slow), [])
+
+
 def make_pollers(
-    link: ModbusLink, kind: str, units: Sequence[int], rate_hz: float
+    link: ModbusLink, kind: str, units: Sequence[int], rate_hz: float, whole_map: bool = False
 ) -> list[NodePoller]:
     pollers = []
     for unit in units:
         channel = DeviceChannel(
             link, unit, retries=NODE_RETRIES, reconnect_max_s=NODE_RECONNECT_MAX_S
         )
-        device: Device = StepperDevice(channel) if kind == "stepper" else MotecDevice(channel)
+        device: StepperDevice | MotecDevice = (
+            StepperDevice(channel) if kind == "stepper" else MotecDevice(channel)
+        )
+        if whole_map:
+            read_whole_map(device)
         pollers.append(NodePoller(f"{kind}_{unit}", channel, device, rate_hz))
     return pollers
 
 
 @contextlib.contextmanager
 def polling(
-    relay: LineRelay, kind: str, units: Sequence[int], rate_hz: float, timeout_s: float
+    relay: LineRelay,
+    kind: str,
+    units: Sequence[int],
+    rate_hz: float,
+    timeout_s: float,
+    whole_map: bool = False,
 ) -> Iterator[list[NodePoller]]:
     """Poll threads for ``units`` on one link to the relay's client end, stopped on exit."""
     link = ModbusLink(SerialSettings(relay.client_path, relay.baudrate, timeout_s=timeout_s))
-    pollers = make_pollers(link, kind, units, rate_hz)
+    pollers = make_pollers(link, kind, units, rate_hz, whole_map)
     for p in pollers:
         p.start()
     try:
@@ -333,20 +413,29 @@ def saturated_run(
     nominal_delay_s: float,
     timeout_s: float,
     sim_tick_s: float = SIM_TICK_S,
+    *,
+    whole_map: bool = False,
+    control: Connection[Any, Any] | None = None,
+    during: Callable[[list[NodePoller]], contextlib.AbstractContextManager[object]] | None = None,
 ) -> dict[str, Any]:
     """Every unit polled back to back; the window runs from the first poll completed
-    after the warm-up to the last one before its end, so whole polls are counted."""
+    after the warm-up to the last one before its end, so whole polls are counted.
+
+    ``whole_map``: every unit reads its whole map every poll (``read_whole_map``);
+    ``control``: the simulator's (``serve``); ``during(pollers)``: a context entered for
+    the measured window (e.g. a ``change_probe.ChangeProbe`` changing registers)."""
     with (
-        line(baudrate, kind, units, sim_tick_s) as relay,
-        polling(relay, kind, units, NODE_MAX_POLL_RATE_HZ, timeout_s) as pollers,
+        line(baudrate, kind, units, sim_tick_s, control) as relay,
+        polling(relay, kind, units, NODE_MAX_POLL_RATE_HZ, timeout_s, whole_map) as pollers,
     ):
         if not wait_until(lambda: all(p.completed for p in pollers), START_TIMEOUT_S):
             raise RuntimeError(f"{kind}: not every unit answered")
         time.sleep(warmup_s)
-        relay.clear()
-        t0, cpu0 = time.monotonic(), time.process_time()
-        time.sleep(duration_s)
-        t1, cpu1 = time.monotonic(), time.process_time()
+        with during(pollers) if during is not None else contextlib.nullcontext():
+            relay.clear()
+            t0, cpu0 = time.monotonic(), time.process_time()
+            time.sleep(duration_s)
+            t1, cpu1 = time.monotonic(), time.process_time()
         frames = relay.frames()
     ends = sorted(t for p in pollers for t in p.completed if t0 <= t <= t1)
     start, end = ends[0], ends[-1]
@@ -368,6 +457,8 @@ def saturated_run(
         **wire,
         # The bench process (poll threads, link) only: simulator and relay run elsewhere.
         "client_cpu_ms_per_transaction": (cpu1 - cpu0) * 1e3 / max(1, wire["transactions"]),
+        "client_cpu_ms_per_poll": (cpu1 - cpu0) * 1e3 / max(1, len(ends)),
+        "whole_map": whole_map,
         "relay_latency_us": {k: v * 1e6 for k, v in relay.latency_s.items()},
     }
 
@@ -538,6 +629,12 @@ def main(argv: list[str] | None = None) -> int:
         default=SIM_TICK_S,
         help="simulators' motion tick (their default: 0.01)",
     )
+    parser.add_argument(
+        "--whole-map",
+        action="store_true",
+        help="stepper and bus parts: read the whole map every poll (the plan before rate "
+        "groups; read_whole_map)",
+    )
     parser.add_argument("--json", type=Path, default=RESULTS)
     args = parser.parse_args(argv)
     duration = 2.0 if args.quick else args.duration
@@ -551,9 +648,11 @@ def main(argv: list[str] | None = None) -> int:
         "machine": platform.platform(),
         "duration_s": duration,
         "sim_tick_s": args.sim_tick_s,
+        "whole_map": args.whole_map,
     }
+    plan = "the whole map every poll" if args.whole_map else "rate groups"
     if "stepper" in parts:
-        print("stepper: StepperDevice.poll() back to back, 35 ms reply delay")
+        print(f"stepper: StepperDevice.poll() back to back, 35 ms reply delay, {plan}")
         rows = []
         for baud in (9600, 115200):
             rows.append(
@@ -566,13 +665,17 @@ def main(argv: list[str] | None = None) -> int:
                     STEPPER_REPLY_DELAY_S,
                     STEPPER_TIMEOUT_S,
                     tick,
+                    whole_map=args.whole_map,
                 )
             )
             print_saturated(rows[-1:], header=len(rows) == 1)
         result["stepper"] = rows
         print()
     if "bus" in parts:
-        print(f"MOTEC bus at {MOTEC_BAUD}: every drive's MotecDevice.poll() as fast as possible")
+        print(
+            f"MOTEC bus at {MOTEC_BAUD}: every drive's MotecDevice.poll() as fast as "
+            f"possible, {plan}"
+        )
         rows = []
         for n in (int(x) for x in args.drives.split(",") if x):
             rows.append(
@@ -585,6 +688,7 @@ def main(argv: list[str] | None = None) -> int:
                     0.0,
                     MOTEC_TIMEOUT_S,
                     tick,
+                    whole_map=args.whole_map,
                 )
             )
             print_saturated(rows[-1:], header=len(rows) == 1)

@@ -27,6 +27,7 @@ NODE_PARAMETERS = frozenset(
     {
         "host",
         "port",
+        "max_in_flight",
         "serial_port",
         "baudrate",
         "parity",

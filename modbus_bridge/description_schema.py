@@ -21,6 +21,7 @@ from bridge_core.runtime.parameters import (
     DeviceDefaults,
 )
 from bridge_core.runtime.stream_guard import COMMAND_TIMEOUT_RANGE_S
+from bridge_core.wire.batches import MAX_IN_FLIGHT_RANGE
 from bridge_core.wire.channel import UNIT_ID_MAX
 from bridge_core.wire.registers import (
     MAX_READ_BITS,
@@ -65,6 +66,9 @@ class _Lenient(_Strict):
 class TcpLinkSpec(_Strict):
     host: Text = "127.0.0.1"
     port: int = Field(502, ge=1, le=65535)
+    # Reads of a poll in flight before the first reply; the node parameter of the same
+    # name overrides it (docs/architecture.md, "Pipelined Modbus TCP").
+    max_in_flight: int = Field(1, ge=MAX_IN_FLIGHT_RANGE[0], le=MAX_IN_FLIGHT_RANGE[1])
 
 
 class RtuLinkSpec(_Lenient):

@@ -47,6 +47,7 @@ def defaults_of(device: Device, line: Link | None = None) -> DeviceDefaults:
             port=link.tcp.port,
             timeout_s=link.timeout_s,
             unit_id=spec.unit_id,
+            max_in_flight=link.tcp.max_in_flight,
         )
     assert link.rtu is not None
     return DeviceDefaults(

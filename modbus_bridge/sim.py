@@ -49,6 +49,7 @@ from bridge_core.sim.sim_base import (
     Simulator,
     WriteRecord,
     add_log_arguments,
+    add_network_arguments,
     serve_serial_until_signalled,
     serve_tcp_until_signalled,
 )
@@ -272,6 +273,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--parity", choices=("N", "E", "O"), help="default: the file's, else N")
     parser.add_argument("--stopbits", type=int, choices=(1, 2), help="default: the file's, else 1")
     add_log_arguments(parser)
+    add_network_arguments(parser)
     args = parser.parse_args(argv)
     description = load_for_command(args.device_file)
     if description is None:
@@ -281,6 +283,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     sim = make_simulator(description)
     names = ", ".join(f"{d.name} (unit {d.unit_id})" for d in description.devices)
     if args.serial or args.pty:
+        if args.reply_delay_ms or args.one_request_at_a_time:
+            parser.error(
+                "--reply-delay-ms and --one-request-at-a-time simulate a TCP network; "
+                "they do not apply to --serial / --pty"
+            )
         args.baudrate = args.baudrate or (rtu.baudrate if rtu else 9600)
         args.parity = args.parity or (rtu.parity if rtu else "N")
         args.stopbits = args.stopbits or (rtu.stopbits if rtu else 1)

@@ -13,7 +13,7 @@ from typing import Any
 from bridge_core.runtime.checks import check_whole_number
 from bridge_core.runtime.goals import Motion, Outcome, Verdict
 from bridge_core.runtime.rate_groups import SLOW_POLL_PERIOD_DEFAULT_S, PollGroups
-from bridge_core.runtime.reads import holds, read_blocks, read_named
+from bridge_core.runtime.reads import holds, read_named
 from bridge_core.wire.channel import Priority, RegisterIO
 from bridge_core.wire.codec import Value, encode, int_to_words, words_to_int
 from bridge_core.wire.errors import (
@@ -155,6 +155,7 @@ class R6Device:
         # the axis positions are read after it, each with its own stamp).
         self.groups = PollGroups([], [], period_s=slow_period_s).follow(io)
         self._grouped: list[ReadRequest] | None = None  # the plan the groups were set from
+        self._head: list[ReadRequest] = []  # the fast blocks before the world block
 
     # ------------------------------------------------------------------ polling
     def poll_plan(self, axis_count: int, io_board_count: int) -> list[ReadRequest]:
@@ -214,8 +215,8 @@ class R6Device:
         if self._plan is None or self._plan_counts is None:
             self._plan_counts = self.read_counts()
             self._plan = self.poll_plan(*self._plan_counts)
-        # Three reads, each with its time: the rest (with the slow group when it is due),
-        # the world block, the axis positions.
+        # One batch (pipelined where the channel does), three times: the rest (with the
+        # slow group when it is due), the world block, the axis positions.
         plan = self._plan
         world = [r for r in plan if holds(r, WORLD_STAMP_REGISTER)]
         positions = [r for r in plan if holds(r, STAMP_REGISTER) and r not in world]
@@ -225,19 +226,16 @@ class R6Device:
                 (r for r in plan if r.names <= SLOW_NAMES),
                 key=lambda r: "global_speed" not in r.names,
             )
-            head = [r for r in plan if r not in world and r not in positions and r not in slow]
-            self.groups.set_plans(head, slow)
+            self._head = [
+                r for r in plan if r not in world and r not in positions and r not in slow
+            ]
+            self.groups.set_plans([*self._head, *world, *positions], slow)
             self._grouped = plan
         read = self.groups.read(self.io)
-        values, state_time = dict(read.values), read.read_time
-        world_values, world_time = read_blocks(self.io, world, Priority.POLL, WORLD_STAMP_REGISTER)
-        values.update(world_values)
-        read_time = world_time
-        if positions:
-            position_values, read_time = read_blocks(
-                self.io, positions, Priority.POLL, STAMP_REGISTER
-            )
-            values.update(position_values)
+        values = read.values
+        state_time = read.last_time(self._head)
+        world_time = read.time_of(WORLD_STAMP_REGISTER)
+        read_time = read.time_of(STAMP_REGISTER) if positions else world_time
         axis_count = int(values["axis_count"])
         boards = int(values["io_board_count"])
         if (axis_count, boards) != self._plan_counts:

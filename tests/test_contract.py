@@ -123,7 +123,7 @@ DESCRIBED: tuple[DescribedInfo, ...] = (
         slow_register=INVERTER_MAP["torque_limit"],  # poll: slow in inverter_tcp_f32.yaml
         unit_id=1,
         config="",
-        startup_only=("host", "port", *MODBUS_STARTUP_ONLY),
+        startup_only=("host", "port", "max_in_flight", *MODBUS_STARTUP_ONLY),
         read_services={"read": Call("read", ReadRegisters, {"names": ["motor_speed"]})},
         mistyped=(("device_file", "/nonexistent/device.yaml"),),
         joint_commands=JointCommandRow("modbus_bridge", "shaft"),  # its velocity command
@@ -238,9 +238,17 @@ class Running:
 
 
 @contextmanager
-def running(info: BridgeInfo, client: Client, workdir: Path, **params: Any) -> Iterator[Running]:
-    """Start the simulator, then the node against it; wait until it is connected."""
+def running(
+    info: BridgeInfo,
+    client: Client,
+    workdir: Path,
+    sim_args: tuple[str, ...] = (),
+    **params: Any,
+) -> Iterator[Running]:
+    """Start the simulator (with ``sim_args`` besides its entry's), then the node against
+    it; wait until it is connected."""
     sim = SimProcess(info, workdir)
+    sim.extra_args = sim_args
     sim.start()
     try:
         all_params = {"reconnect_max_s": 1.0, **info.params, **sim.address_params(), **params}
@@ -791,3 +799,70 @@ def test_diagnostics_show_the_wire_budget(shared: Running) -> None:
             "the line's load",
         )
         assert float(line) >= float(values["wire load (%)"])
+
+
+# ---------------------------------------------------------------- pipelined Modbus TCP
+PIPELINED = [info for info in ALL if info.stop is not None]
+FALLBACK_WARN = "pipelining (13 requests in flight) failed"
+
+
+@pytest.mark.parametrize("info", PIPELINED, ids=[info.key for info in PIPELINED])
+def test_pipelining_falls_back_on_a_device_that_answers_one_request_at_a_time(
+    info: BridgeInfo, client: Client, tmp_path: Path
+) -> None:
+    """``max_in_flight`` 13 against a simulator that drops a request arriving while one is
+    unanswered: the node falls back to one at a time, says so once (WARN), counts it in
+    diagnostics, and keeps publishing."""
+    with running(
+        info, client, tmp_path, ("--one-request-at-a-time",), max_in_flight=13, poll_rate_hz=20
+    ) as r:
+        since = time.monotonic()
+
+        def fallen_back() -> dict[str, str] | None:
+            for status in reversed(r.statuses(since)):
+                values = values_of(status)
+                if values.get("pipelining fallbacks") == "1":
+                    return values
+            return None
+
+        values = wait_for(fallen_back, TIMEOUT, "diagnostics counting one pipelining fallback")
+        assert values["max in flight"] == "1 (asked 13)"
+        after = time.monotonic()
+        wait_for(lambda: len(r.joint_states(after)) >= 5, TIMEOUT, "joint_states after it")
+        log = (tmp_path / f"{info.module.replace('.', '_')}.log").read_text()
+        assert log.count(FALLBACK_WARN) == 1, log[-2000:]
+        assert "WARN" in next(line for line in log.splitlines() if FALLBACK_WARN in line)
+
+
+@pytest.mark.parametrize("info", PIPELINED, ids=[info.key for info in PIPELINED])
+def test_a_stop_is_on_the_wire_within_one_transaction_while_a_pipelined_poll_is_in_flight(
+    info: BridgeInfo, client: Client, tmp_path: Path
+) -> None:
+    """A stop called while a pipelined poll is in flight goes in the next free slot: the
+    device sees at most the reads already in flight (two) before it, plus those a slow
+    service call lets through (two more per 100 ms round trip), never the rest of the poll.
+
+    The poll is slow on purpose (100 ms round trips, two in flight: 8-13 reads take
+    0.4-0.7 s), and the stop is called just after a poll's first read reached the device
+    (the position block is the last of a poll), so most of that poll is still ahead."""
+    window = 2
+    assert info.stop is not None
+    with running(
+        info, client, tmp_path, ("--reply-delay-ms", "100"), max_in_flight=window, poll_rate_hz=1000
+    ) as r:
+        position = r.info.position_register
+
+        def poll_began() -> bool:
+            """A poll's first read reached the device (after the second poll, the first
+            pipelined one, ended): most of that poll is ahead."""
+            reads = r.sim.reads()
+            ends = [i for i, x in enumerate(reads) if x.covers(position.table, position.address)]
+            return len(ends) >= 2 and ends[-1] < len(reads) - 1
+
+        wait_for(poll_began, TIMEOUT, "a pipelined poll to begin")
+        called = time.time()
+        r.call(info.stop)
+        stop = [w for w in r.sim.writes() if w.time >= called]
+        assert stop, "the stop wrote nothing"
+        ahead = [x for x in r.sim.reads() if called <= x.time <= stop[0].time]
+        assert len(ahead) <= 2 * window, [(x.table.value, x.address) for x in ahead]

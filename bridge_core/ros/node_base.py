@@ -163,6 +163,7 @@ class BridgeNode(ParameterNode, CommandServices, Generic[SnapshotT]):
             retries=int(values["retries"]),
             reconnect_max_s=float(values["reconnect_max_s"]),
             down_write_timeout_s=stop_timeout_s,
+            max_in_flight=int(values.get("max_in_flight", 1)),
         )
 
     def _create_link_publishers(self) -> None:
@@ -312,6 +313,8 @@ class BridgeNode(ParameterNode, CommandServices, Generic[SnapshotT]):
         warning = self.wire_budget.warning(self._budget_subject)
         if warning is not None:
             self.get_logger().warning(warning)
+        for news in self.channel.pipelining.news():  # a fallback, said once
+            self.get_logger().warning(news)
         return began, snapshot
 
     def _publish(self, polled: tuple[float, SnapshotT]) -> None:

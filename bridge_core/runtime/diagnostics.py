@@ -93,6 +93,10 @@ def link_report(
         ("reconnect backoff (s)", f"{channel.backoff.delay_s:.2f}"),
         ("last error", stats.last_error or "none"),
     ]
+    if not channel.link.is_serial:
+        pipelining = channel.pipelining
+        values.append(("max in flight", f"{pipelining.window} (asked {pipelining.max_in_flight})"))
+        values.append(("pipelining fallbacks", str(pipelining.fallbacks)))
     if connected:
         return Report(Level.OK, "connected", values)
     message = "disconnected"

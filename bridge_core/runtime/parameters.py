@@ -18,6 +18,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+from ..wire.batches import MAX_IN_FLIGHT_RANGE
 from ..wire.channel import UNIT_ID_MAX, UNIT_ID_MIN
 from .rate_groups import SLOW_POLL_PERIOD_DEFAULT_S, SLOW_POLL_PERIOD_RANGE_S
 
@@ -181,6 +182,8 @@ class DeviceDefaults:
     # Short, so that a stop repeated over a dead line is not still waiting out a long
     # timeout when the line comes back (issue 9: a stop within 0.3 s of the line's return).
     stop_timeout_s: float | None = None
+    # TCP: reads of one poll in flight before the first reply (1: one at a time).
+    max_in_flight: int = 1
 
 
 def transport_specs(defaults: DeviceDefaults) -> tuple[ParameterSpec, ...]:
@@ -190,6 +193,14 @@ def transport_specs(defaults: DeviceDefaults) -> tuple[ParameterSpec, ...]:
         specs = (
             ParameterSpec("host", defaults.host, "device IP address or host name"),
             ParameterSpec("port", defaults.port, "Modbus TCP port", 1, 65535),
+            ParameterSpec(
+                "max_in_flight",
+                defaults.max_in_flight,
+                "reads of a poll sent before the first reply (pipelined Modbus TCP, matched "
+                "by transaction id); 1 = one at a time. Falls back to 1 for good, with one "
+                "WARN, if the device mishandles it",
+                *MAX_IN_FLIGHT_RANGE,
+            ),
         )
     else:
         specs = (

@@ -39,7 +39,7 @@ from ..wire.link_state import LinkState
 from ..wire.planner import ReadRequest, plan_reads
 from ..wire.registers import Register, RegisterMap
 from ..wire.requests import Span
-from .reads import read_blocks
+from .reads import PlanRead, read_plan
 
 SLOW_POLL_PERIOD_DEFAULT_S = 1.0
 SLOW_POLL_PERIOD_RANGE_S = (0.1, 3600.0)
@@ -85,6 +85,18 @@ class GroupedRead:
     first_read_time: float  # when the fast group's first request was answered
     slow_read_time: float  # when the slow group was last read (0.0: it is empty)
     slow_refreshed: bool  # the slow group was read in this poll
+    reads: PlanRead | None = None  # each reply's time (``time_of`` a register's block)
+
+    def time_of(self, register_name: str) -> float:
+        """When the reply holding ``register_name`` arrived in this poll."""
+        stamp = self.reads.time_of(register_name) if self.reads is not None else None
+        if stamp is None:
+            raise ValueError(f"no block of this poll holds {register_name!r}")
+        return stamp
+
+    def last_time(self, requests: Sequence[ReadRequest]) -> float:
+        """When the last reply to any of ``requests`` (blocks of the plan) arrived."""
+        return self.reads.last_time(requests) if self.reads is not None else 0.0
 
 
 class PollGroups:
@@ -208,44 +220,44 @@ class PollGroups:
         group; a failure of either raises as ``read_blocks`` does (the link is marked the
         same way, and nothing of this poll is published)."""
         refreshed = False
-        if self.slow_due:
-            with self._lock:
-                writes, edges = self._writes, self._edges
-            slow_values, slow_time = read_blocks(
-                io, self.slow, priority, self._slow_stamp, self._wall_clock
-            )
+        slow_due = self.slow_due
+        with self._lock:
+            writes, edges = self._writes, self._edges
+            slow, fast = (list(self.slow) if slow_due else []), list(self.fast)
+        # One batch (pipelined where the channel does: ``reads.read_plan``), each reply
+        # timed: the slow group first, so the fast stamp is the newest.
+        read = read_plan(io, [*slow, *fast], priority, self._wall_clock)
+        if slow:
             with self._lock:
                 if self._edges == edges:  # else read on a connection that has ended
-                    self._values = slow_values
-                    self._read_time = slow_time
+                    names = set().union(*(r.names for r in slow))
+                    self._values = {k: v for k, v in read.values.items() if k in names}
+                    assert self._slow_stamp is not None
+                    self._read_time = read.time_of(self._slow_stamp) or 0.0
                     refreshed = True
                     if self._writes == writes:  # else read again at the next poll
                         self._due = self._clock() + self._period_s
             self.slow_reads += 1
         # The first block apart: its reply time stamps what a device reads first (the
         # stepper's running flags: ~/state), the stamp register's that of its block.
-        first, rest = self.fast[:1], self.fast[1:]
+        first, rest = fast[:1], fast[1:]
         in_first = stamp_register is not None and any(stamp_register in r.names for r in first)
-        values, first_time = read_blocks(
-            io, first, priority, stamp_register if in_first else None, self._wall_clock
-        )
-        read_time = first_time
-        if rest:
-            more, rest_time = read_blocks(
-                io, rest, priority, None if in_first else stamp_register, self._wall_clock
-            )
-            values.update(more)
-            if not in_first:
-                read_time = rest_time
-        elif stamp_register is not None and not in_first:
+        stamp = read.time_of(stamp_register) if stamp_register is not None else None
+        first_time = stamp if in_first and stamp is not None else read.last_time(first)
+        if stamp_register is None:
+            read_time = read.last_time(fast)
+        elif stamp is None or not (in_first or rest):
             raise ValueError(f"no block of the plan holds {stamp_register!r}")
+        else:
+            read_time = stamp
+        values = read.values
         with self._lock:
             if self.slow and not self._values:
                 # The link went down or came up since the slow read: nothing slow to show.
                 raise PollIncomplete("the link changed while the slow group was read")
             merged = {**self._values, **values}
             slow_time = self._read_time
-        return GroupedRead(merged, read_time, first_time, slow_time, refreshed)
+        return GroupedRead(merged, read_time, first_time, slow_time, refreshed, read)
 
 
 class WatchedChannel(Protocol):

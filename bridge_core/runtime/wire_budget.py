@@ -25,10 +25,10 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Protocol, TypeVar
 
-from ..wire.channel import WireTally
-from ..wire.planner import ReadRequest
-from ..wire.requests import ReadBits, ReadRegisters, Request
+from ..wire.link_stats import WireTally
+from ..wire.requests import Request
 from .rate_groups import PollGroups
+from .reads import as_request
 
 T = TypeVar("T")
 WIRE_FULL = 1.0  # a load above it: the wire cannot carry the rates asked
@@ -72,13 +72,6 @@ class BudgetChannel(Protocol):
     def frame_time_s(self, request: Request) -> float: ...
 
 
-def as_request(read: ReadRequest) -> Request:
-    """The request a planned read goes out as (``reads.read_blocks``)."""
-    if read.table.is_bit:
-        return ReadBits(read.address, read.count, read.table)
-    return ReadRegisters(read.address, read.count, read.table)
-
-
 class WireBudget:
     """A device's budget, from its polls (``around``) and its slow plan.
 
@@ -96,7 +89,7 @@ class WireBudget:
         self._groups = groups
         self._poll_rate_hz = poll_rate_hz
         self._lock = threading.Lock()
-        self._fast: tuple[int, float] | None = None  # transactions, their frames (s)
+        self._fast: tuple[float, float] | None = None  # round trips, their frames (s)
         self._armed = True
         self.generation = 0  # bumped by ``rearm``: a bus owner re-judges its line
 
@@ -195,7 +188,6 @@ __all__ = [
     "Budget",
     "BudgetChannel",
     "WireBudget",
-    "as_request",
     "budget_values",
     "exceeded_text",
     "line_load",

@@ -47,6 +47,7 @@ from pymodbus.transport import serialtransport as _serialtransport
 from ..wire.codec import Value, decode, encode
 from ..wire.registers import DeviceLimits, RegisterMap, Table, ValueType
 from ..wire.serial_port import open_serial
+from .tcp_serving import InOrderHandler
 
 FUNCTION_TABLES: dict[int, Table] = {
     1: Table.COIL,
@@ -489,6 +490,11 @@ class Simulator:
         # Units that miss every broadcast (noise on their stub) and still answer the rest.
         self.deaf_to_broadcast: set[int] = set()
         self.reply_delay_s = max(d.limits.reply_delay_s for d in devices)
+        # TCP (``tcp_serving``): a simulated network round trip (requests in flight
+        # overlap), and a device that drops a request arriving while one is unanswered.
+        self.round_trip_s = 0.0
+        self.one_request_at_a_time = False
+        self.dropped: list[tuple[float, int]] = []  # (time, transaction id) of dropped ones
         self._thread: threading.Thread | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._stop: asyncio.Event | None = None
@@ -508,10 +514,14 @@ class Simulator:
 
     def start_tcp(self, host: str = "127.0.0.1", port: int = 0) -> int:
         """Serve Modbus TCP on ``host:port`` (0 = a free port); returns the port."""
-        self._start(
-            lambda ctx: ModbusTcpServer(ctx, address=(host, port), ignore_missing_devices=True),
-            tcp=True,
-        )
+
+        def make_server(ctx: ModbusServerContext) -> ModbusTcpServer:
+            server = ModbusTcpServer(ctx, address=(host, port), ignore_missing_devices=True)
+            # Requests answered in order, pipelined ones too (pymodbus's handler loses them).
+            server.callback_new_connection = lambda: InOrderHandler(server, self)  # type: ignore[method-assign]
+            return server
+
+        self._start(make_server, tcp=True)
         return self.port
 
     def start_serial(
@@ -705,10 +715,27 @@ def open_logs(args: argparse.Namespace, sim: Simulator) -> list[IO[str]]:
     return [f for f in (write_log, read_log) if f is not None]
 
 
+def add_network_arguments(parser: argparse.ArgumentParser) -> None:
+    """The TCP simulators' network options (``tcp_serving``)."""
+    parser.add_argument(
+        "--reply-delay-ms",
+        type=float,
+        default=0.0,
+        help="simulated network round trip (half each way); pipelined requests overlap",
+    )
+    parser.add_argument(
+        "--one-request-at-a-time",
+        action="store_true",
+        help="drop a request that arrives while one is unanswered (a device that does not "
+        "pipeline)",
+    )
+
+
 def add_tcp_arguments(parser: argparse.ArgumentParser, default_port: int) -> None:
-    """The TCP simulators' options: where to listen, the logs, the port file."""
+    """The TCP simulators' options: where to listen, the logs, the port file, the network."""
     parser.add_argument("--host", default="127.0.0.1")
     parser.add_argument("--port", type=int, default=default_port, help="0 picks a free port")
+    add_network_arguments(parser)
     add_log_arguments(parser)
     parser.add_argument("--port-file", type=Path, help="write the bound port here once listening")
 
@@ -716,6 +743,8 @@ def add_tcp_arguments(parser: argparse.ArgumentParser, default_port: int) -> Non
 def serve_tcp_until_signalled(sim: Simulator, args: argparse.Namespace, name: str) -> None:
     """Attach the logs, listen on ``args.host:args.port`` and serve until SIGINT/SIGTERM."""
     open_logs(args, sim)
+    sim.round_trip_s = max(0.0, float(getattr(args, "reply_delay_ms", 0.0))) / 1000
+    sim.one_request_at_a_time = bool(getattr(args, "one_request_at_a_time", False))
     try:
         port = sim.start_tcp(args.host, args.port)
     except SimulatorStartError as err:

@@ -20,15 +20,15 @@ import heapq
 import itertools
 import threading
 import time
-from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass, field
 from enum import IntEnum
 from typing import Any, Protocol
 
+from .batches import Pipelining, run_batch
 from .errors import DeviceException, FrameError, LinkDown, LinkError, LinkTimeout, NotSent
 from .link_state import LinkState
+from .link_stats import Backoff, LinkStats, WireTally
 from .registers import Table
 from .requests import (
     BROADCAST_UNIT,
@@ -48,9 +48,6 @@ from .requests import (
 
 # First reconnect delay; it doubles per failure up to the node's reconnect_max_s.
 RECONNECT_INITIAL_S = 0.25
-LATENCY_SAMPLES = 512
-# Turnarounds the wire budget takes its median of (a few seconds of polls at most).
-TURNAROUND_SAMPLES = 64
 # Frame times kept per read request (a poll repeats the same few reads; writes vary).
 FRAME_TIME_CACHE = 256
 UNIT_ID_MIN = 0
@@ -112,6 +109,12 @@ class PriorityLock:
                 heapq.heappop(self._waiting)
             self._busy = True
 
+    def waiting_before(self, priority: Priority) -> bool:
+        """Whether a caller of higher priority than ``priority`` waits (a pipelined batch
+        sends no further request then: ``batches``)."""
+        with self._cond:
+            return bool(self._waiting) and self._waiting[0][0] < priority
+
     def release(self) -> None:
         with self._cond:
             self._busy = False
@@ -148,78 +151,6 @@ class Transport(Protocol):
     def frame_time_s(self, request: Request) -> float: ...
 
 
-class Backoff:
-    """Capped exponential delay between reconnect attempts."""
-
-    def __init__(
-        self, initial_s: float, max_s: float, clock: Callable[[], float] = time.monotonic
-    ) -> None:
-        self.initial_s = min(initial_s, max_s)
-        self.max_s = max_s
-        self._clock = clock
-        self.failures = 0
-        self.next_attempt = 0.0
-
-    @property
-    def delay_s(self) -> float:
-        if self.failures == 0:
-            return 0.0
-        return float(min(self.max_s, self.initial_s * 2 ** (self.failures - 1)))
-
-    def failed(self) -> None:
-        self.failures += 1
-        self.next_attempt = self._clock() + self.delay_s
-
-    def succeeded(self) -> None:
-        self.failures = 0
-        self.next_attempt = 0.0
-
-    def ready(self) -> bool:
-        return self._clock() >= self.next_attempt
-
-
-@dataclass
-class LinkStats:
-    """Counters for diagnostics; written under the link lock, read from any thread."""
-
-    transactions: int = 0
-    timeouts: int = 0
-    exceptions: int = 0
-    frame_errors: int = 0
-    reconnects: int = 0
-    connect_failures: int = 0
-    last_error: str = ""
-    last_error_time: float = 0.0
-    latencies_s: deque[float] = field(default_factory=lambda: deque(maxlen=LATENCY_SAMPLES))
-    wire: WireTally = field(default_factory=lambda: WireTally())
-
-
-@dataclass
-class WireTally:
-    """What the device's answered transactions cost the wire (the wire budget's input).
-
-    A transaction is its frames (``Transport.frame_time_s``: bytes at the baud rate and the
-    silence, 0 on TCP) and the device's turnaround: the rest of the time it took, i.e. the
-    reply delay on a serial line, the round trip on TCP. ``polls`` / ``poll_frames_s``
-    count the poll-priority ones: a poll's cost is their difference across it.
-    """
-
-    polls: int = 0
-    poll_frames_s: float = 0.0
-    turnarounds_s: deque[float] = field(default_factory=lambda: deque(maxlen=TURNAROUND_SAMPLES))
-
-    def note(self, frame_s: float, elapsed_s: float, poll: bool) -> None:
-        self.turnarounds_s.append(max(0.0, elapsed_s - frame_s))
-        if poll:
-            self.polls += 1
-            self.poll_frames_s += frame_s
-
-    def turnaround_s(self) -> float | None:
-        """The median turnaround of the recent transactions (None before the first)."""
-        samples = sorted(self.turnarounds_s)
-        return samples[len(samples) // 2] if samples else None
-
-
 class DeviceChannel:
     """One device (unit id) on a link: transactions, health and reconnect policy."""
 
@@ -231,8 +162,11 @@ class DeviceChannel:
         retries: int = 1,
         reconnect_max_s: float = 5.0,
         down_write_timeout_s: float | None = None,
+        max_in_flight: int = 1,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
+        """``max_in_flight``: reads of one batch (``transact_many``) sent before the first
+        reply, on a link that can pipeline (TCP); 1 sends one request at a time."""
         if not UNIT_ID_MIN <= unit_id <= UNIT_ID_MAX:
             raise ValueError(f"unit id {unit_id} outside {UNIT_ID_MIN}..{UNIT_ID_MAX}")
         self.link = link
@@ -250,6 +184,7 @@ class DeviceChannel:
         self._session = threading.local()
         self._write_listeners: list[Callable[[Span], None]] = []
         self._frame_times: dict[Request, float] = {}
+        self.pipelining = Pipelining(max_in_flight)
 
     def add_write_listener(self, listener: Callable[[Span], None]) -> Callable[[], None]:
         """``listener(span)`` for every write put on the wire (landed or not), under the
@@ -366,13 +301,7 @@ class DeviceChannel:
         state = self.link_state
         lock.acquire(priority)  # acquire/release, not a context manager: the poll hot path
         try:
-            session = getattr(self._session, "epoch", None)
-            if session is not None and (
-                session[0] != state.epoch or (session[1] and not state.connected)
-            ):
-                raise NotSent(
-                    f"{self.describe()}: the link was lost while the command waited; not sent"
-                )
+            self.check_session()
             try:
                 if not self.link.is_open:
                     try:
@@ -422,6 +351,41 @@ class DeviceChannel:
             return reply
         finally:
             lock.release()
+
+    def check_session(self) -> None:
+        """Under the link lock: ``NotSent`` if this thread's session (``command_session``)
+        began on a connection that has been lost since."""
+        session = getattr(self._session, "epoch", None)
+        state = self.link_state
+        if session is not None and (
+            session[0] != state.epoch or (session[1] and not state.connected)
+        ):
+            raise NotSent(
+                f"{self.describe()}: the link was lost while the command waited; not sent"
+            )
+
+    @property
+    def pipelines(self) -> bool:
+        """Whether ``transact_many`` would keep several reads in flight now (a TCP link,
+        ``max_in_flight`` > 1, no fallback)."""
+        return self.pipelining.window > 1 and bool(getattr(self.link, "can_pipeline", False))
+
+    def transact_many(
+        self,
+        next_request: Callable[[], Request | None],
+        on_reply: Callable[[int, Reply | DeviceException], None],
+        priority: Priority = Priority.POLL,
+    ) -> None:
+        """Reads one after another, pipelined up to ``max_in_flight`` where the link can.
+
+        ``next_request()`` gives the next read (None: no more); ``on_reply(index, outcome)``
+        gets each answer (the values, or the ``DeviceException`` the device answered) with
+        the index of its request in the order they were given, as they arrive, under the
+        link lock (it must not transact). One at a time (``max_in_flight`` 1, a serial
+        link, after a fallback) it is exactly ``transact`` for each; a link error raises
+        as ``transact`` does. How a batch keeps stops first and falls back: ``batches``.
+        """
+        run_batch(self, next_request, on_reply, priority)
 
     def frame_time_s(self, request: Request) -> float:
         """The link's ``frame_time_s``, kept for reads (a poll sends the same ones again)."""

@@ -34,6 +34,7 @@ told apart by exception type (never by the message text):
 from __future__ import annotations
 
 import logging
+import socket
 import threading
 from contextlib import suppress
 from dataclasses import dataclass
@@ -44,7 +45,8 @@ from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOEx
 
 from . import requests as rq
 from .channel import PriorityLock
-from .errors import DeviceException, FrameError, LinkDown, LinkTimeout
+from .errors import DeviceException, FrameError, LinkDown, LinkError, LinkTimeout
+from .pipeline import TcpPipeline
 from .registers import Table
 from .requests import BROADCAST_UNIT, Reply, Request
 from .serial_timing import (
@@ -202,6 +204,16 @@ class CheckedTcpClient(ModbusTcpClient):
         self._request_header = b""
         self._reply_header = b""
 
+    def connect(self) -> bool:
+        """Connect, with Nagle off: a pipelined request must leave at once, not wait for
+        the previous one's acknowledgement (``pipeline``). One request at a time sends the
+        same bytes either way."""
+        fresh = self.socket is None  # pymodbus calls connect() before every request
+        ok = bool(super().connect())  # type: ignore[no-untyped-call]  # untyped in 3.16
+        if ok and fresh and self.socket is not None:
+            self.socket.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        return ok
+
     def send(self, request: bytes, addr: tuple[Any, ...] | None = None) -> int:
         self._request_header = bytes(request[:MBAP_HEADER_LEN])
         self._reply_header = b""
@@ -239,10 +251,12 @@ class ModbusLink:
         self.is_serial = isinstance(settings, SerialSettings)
         # retries=0: retrying is DeviceChannel's decision (reads only, never writes).
         self._client: ModbusTcpClient | ModbusSerialClient
+        self._pipeline: TcpPipeline | None = None
         if isinstance(settings, TcpSettings):
             self._client = CheckedTcpClient(
                 settings.host, port=settings.port, timeout=settings.timeout_s, retries=0
             )
+            self._pipeline = TcpPipeline(self._client, settings.timeout_s)
         else:
             self._client = TimedSerialClient(
                 settings.port,
@@ -281,6 +295,8 @@ class ModbusLink:
 
     def close(self) -> None:
         self._open = False
+        if self._pipeline is not None:
+            self._pipeline.reset()
         with suppress(OSError):
             self._client.close()  # type: ignore[no-untyped-call]  # untyped in pymodbus 3.16
 
@@ -327,6 +343,40 @@ class ModbusLink:
             registers: list[int] = response.registers  # pymodbus decodes them to ints
             return registers
         return None
+
+    @property
+    def can_pipeline(self) -> bool:
+        """Whether reads may be pipelined (TCP; a serial line carries one frame at a time)."""
+        return self._pipeline is not None
+
+    def send_pipelined(self, unit_id: int, request: Request) -> int:
+        """Send a read without waiting for replies to those in flight (``pipeline``); its
+        tag (the transaction id) names its reply in ``receive_pipelined``."""
+        pipeline = self._pipeline
+        if pipeline is None:
+            raise ValueError(f"{self.describe()} does not pipeline")
+        if not self._open:
+            raise LinkDown(f"{self.describe()} is not open")
+        try:
+            return pipeline.send(unit_id, request)
+        except LinkError:
+            self.close()  # replies in flight must not be taken for later answers
+            raise
+
+    def receive_pipelined(self) -> tuple[int, Reply | DeviceException]:
+        """The next reply of those in flight: its tag and the values (or the device's
+        exception). A ``LinkError`` closes the connection and forgets the rest."""
+        pipeline = self._pipeline
+        if pipeline is None:
+            raise ValueError(f"{self.describe()} does not pipeline")
+        try:
+            tag, _flight, outcome = pipeline.receive()
+        except LinkError as err:
+            self.close()
+            if isinstance(err, LinkDown):
+                raise LinkDown(f"connection to {self.describe()} lost: {err}") from err
+            raise
+        return tag, outcome
 
     def _send(self, unit_id: int, request: Request):  # type: ignore[no-untyped-def]
         c = self._client

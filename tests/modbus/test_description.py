@@ -196,7 +196,7 @@ BAD = [
         "    tcp: {prot: 1}\n",
         "device.link.tcp.prot",
         5,
-        "unknown key: did you mean `port`? (allowed: host, port)",
+        "unknown key: did you mean `port`? (allowed: host, port, max_in_flight)",
     ),
     (
         "    tcp: {host: 127.0.0.1, port: 1502}\n",
@@ -774,3 +774,17 @@ def test_bad_bus_files(tmp_path: Path, old: str, new: str, key: str, line: int, 
     assert any(t.startswith(expected) and words in t for t in caught.value.lines()), (
         caught.value.lines()
     )
+
+
+def test_max_in_flight_per_device(tmp_path: Path) -> None:
+    """``link: tcp: {max_in_flight: N}`` is the default of the node's ``max_in_flight``
+    (1 when absent); outside 1..16 the file is refused with the line."""
+    from modbus_bridge.interface import defaults_of
+
+    tcp = "    tcp: {host: 127.0.0.1, port: 1502}\n"
+    assert defaults_of(load(write(tmp_path, GOOD)).device).max_in_flight == 1
+    pipelined = GOOD.replace(tcp, "    tcp: {host: 127.0.0.1, port: 1502, max_in_flight: 13}\n")
+    assert defaults_of(load(write(tmp_path, pipelined)).device).max_in_flight == 13
+    too_many = GOOD.replace(tcp, "    tcp: {host: 127.0.0.1, port: 1502, max_in_flight: 17}\n")
+    with pytest.raises(DescriptionError, match=r"device\.link\.tcp\.max_in_flight"):
+        load(write(tmp_path, too_many))

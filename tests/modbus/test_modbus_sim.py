@@ -432,3 +432,19 @@ def test_a_bad_file_is_one_line_and_exit_2(tmp_path: Path) -> None:
     assert result.returncode == 2
     (line,) = result.stderr.splitlines()
     assert line.startswith(f"error: {bad}:14: registers[6].address: ")
+
+
+@pytest.mark.parametrize("flag", [["--reply-delay-ms", "5"], ["--one-request-at-a-time"]])
+def test_the_tcp_network_options_are_refused_on_a_serial_line(
+    flag: list[str], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A TCP-only simulator option on an RTU serve says so instead of being ignored."""
+    from modbus_bridge.sim import main
+
+    with pytest.raises(SystemExit) as raised:
+        main(["--device-file", str(MULTIDROP), "--pty", str(tmp_path / "pty"), *flag])
+    assert raised.value.code == 2
+    err = capsys.readouterr().err
+    assert "do not apply to --serial / --pty" in err
+    assert "Traceback" not in err
+    assert not (tmp_path / "pty").exists()

@@ -19,6 +19,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from std_srvs.srv import Trigger
+
 from bridge_core.sim.sim_base import ReadRecord, WriteRecord, read_read_log, read_write_log
 from bridge_core.wire.ports import free_port
 from bridge_core.wire.registers import Register
@@ -100,6 +102,7 @@ class BridgeInfo:
     slow_register: Register | None = None
     slow_write: Call | None = None
     joint_commands: JointCommandRow | None = None  # None: the bridge has no such topic
+    stop: Call | None = None  # a stop service (TCP bridges: the pipelining contract)
 
     @property
     def nodes(self) -> tuple[str, ...]:
@@ -124,9 +127,11 @@ BRIDGES: tuple[BridgeInfo, ...] = (
         slow_register=R6_MAP["global_speed"],
         unit_id=1,
         config="r6.yaml",
+        stop=Call("stop", Trigger, {}),
         startup_only=(
             "host",
             "port",
+            "max_in_flight",
             "unit_id",
             "timeout_s",
             "joint_prefix",
@@ -163,9 +168,11 @@ BRIDGES: tuple[BridgeInfo, ...] = (
         slow_register=XARM_MAP["controller_ao_0"],
         unit_id=1,
         config="xarm.yaml",
+        stop=Call("stop", Trigger, {}),
         startup_only=(
             "host",
             "port",
+            "max_in_flight",
             "unit_id",
             "timeout_s",
             "joint_prefix",
@@ -257,7 +264,16 @@ BRIDGES: tuple[BridgeInfo, ...] = (
         slow_register=XARM_DESCRIBED["controller_ao_0"],  # poll: slow in xarm.yaml
         unit_id=1,
         config="modbus.yaml",
-        startup_only=("host", "port", "unit_id", "timeout_s", "joint_prefix", "device_file"),
+        stop=Call("stop", Trigger, {}),
+        startup_only=(
+            "host",
+            "port",
+            "max_in_flight",
+            "unit_id",
+            "timeout_s",
+            "joint_prefix",
+            "device_file",
+        ),
         read_services={"read": Call("read", ReadRegisters, {"names": ["joint_angle_1"]})},
         # Without a readable device_file nothing else is read: the file's is the one typo.
         mistyped=(("device_file", "/nonexistent/device.yaml"),),

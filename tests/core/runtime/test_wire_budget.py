@@ -17,7 +17,8 @@ from bridge_core.runtime.wire_budget import (
     line_load,
     line_text,
 )
-from bridge_core.wire.channel import Priority, WireTally
+from bridge_core.wire.channel import Priority
+from bridge_core.wire.link_stats import WireTally
 from bridge_core.wire.planner import plan_reads
 from bridge_core.wire.registers import Register, RegisterMap, Table, ValueType
 from bridge_core.wire.requests import ReadRegisters, Request

@@ -16,8 +16,9 @@ import pytest
 from pymodbus.exceptions import ModbusIOException
 
 from bridge_core.sim.sim_base import SimulatedDevice, Simulator
-from bridge_core.wire.channel import Backoff, DeviceChannel, Priority, PriorityLock
+from bridge_core.wire.channel import DeviceChannel, Priority, PriorityLock
 from bridge_core.wire.errors import DeviceException, FrameError, LinkDown, LinkTimeout
+from bridge_core.wire.link_stats import Backoff
 from bridge_core.wire.ports import free_port
 from bridge_core.wire.registers import (
     Access,
