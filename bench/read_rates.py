@@ -98,7 +98,6 @@ from bench.pipelining import (  # noqa: E402
 from bench.rtu_devices import (  # noqa: E402
     MOTEC_BAUD,
     MOTEC_TIMEOUT_S,
-    STEPPER_REPLY_DELAY_S,
     STEPPER_TIMEOUT_S,
     NodePoller,
     saturated_run,
@@ -115,6 +114,7 @@ from bridge_core.wire.transport import SerialSettings  # noqa: E402
 from motec_bridge import device as motec_device  # noqa: E402
 from motec_bridge.registers import MOTEC_MAP  # noqa: E402
 from stepper_bridge import device as stepper_device  # noqa: E402
+from stepper_bridge.registers import REPLY_DELAY_S as STEPPER_REPLY_DELAY_S  # noqa: E402
 from stepper_bridge.registers import STEPPER_MAP  # noqa: E402
 
 RESULTS = ROOT / "bench" / "results" / "read_rates.json"
