@@ -11,7 +11,7 @@ client published the step's first message. The simulator logs its writes with
 ``time.time()`` in its own process on this machine, so both clocks are the same.
 
 Cases (each bridge and its simulator in processes of their own, the test suite's set-ups:
-tests/test_joint_commands.py):
+tests/support/joint_rigs.py, as tests/test_joint_commands.py uses them):
 
 - ``stepper`` motor_1 velocity (m/s -> jog rpm), 9600 baud, 35 ms replies, the node's
   ``command_rate_hz`` (5);
@@ -39,7 +39,7 @@ import tempfile
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -49,10 +49,6 @@ os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ.setdefault("ROS_DOMAIN_ID", "107")
 
 COMMAND_RATE_HZ = 100.0  # the controller manager's usual update rate
-COMMAND_TIMEOUT_S = 0.5  # every bridge's default deadman
-STEPPER_BAUD = 9600
-STEPPER_REPLY_DELAY_MS = 35
-AXES = ROOT / "tests" / "support" / "joint_axes.yaml"
 
 
 @dataclass(frozen=True)
@@ -67,118 +63,43 @@ class Joint:
     stop: float | None  # published after the run (velocity: 0); None: nothing
 
 
-@dataclass
-class Rig:
-    sim: Any
-    commands: str
-    label: str
-
-
 def percentile(values: Sequence[float], q: float) -> float:
     ordered = sorted(values)
     index = min(len(ordered) - 1, max(0, round(q * (len(ordered) - 1))))
     return ordered[index]
 
 
-@contextmanager
-def stepper_rig(client: Any, work: Path) -> Iterator[Rig]:
-    from msg_defs.msg import StepperState
-    from tests.support.bridges import BRIDGES, SimProcess
-    from tests.support.ros import start_bridge
-
-    entry = next(b for b in BRIDGES if b.key == "stepper")
-    sim = SimProcess(entry, work / "sim")
-    sim.baudrate = STEPPER_BAUD
-    sim.extra_args = ("--reply-delay-ms", str(STEPPER_REPLY_DELAY_MS), "--travel", "1000")
-    sim.start()
-    params = {
-        **sim.address_params(),
-        "timeout_s": 1.0,
-        "command_timeout_s": COMMAND_TIMEOUT_S,
-    }
-    try:
-        with start_bridge(
-            client, work, "stepper_bridge.node", "stepper_bridge", StepperState, params
-        ) as (bridge, _proc):
-            bridge.wait_connected(True)
-            client.wait_message(bridge.joint_states)
-            yield Rig(sim, f"{bridge.ns}/stepper_bridge/joint_commands", "stepper 9600/35 ms")
-    finally:
-        sim.stop()
+LABELS = {
+    "stepper": "stepper 9600/35 ms",
+    "motec": "MOTEC x3 115200",
+    "modbus": "modbus_bridge TCP",
+}
 
 
 @contextmanager
-def motec_rig(client: Any, work: Path) -> Iterator[Rig]:
+def motec_velocity_rig(client: Any, work: Path) -> Iterator[Any]:
+    """The MOTEC rig with drive 2 in network mode, velocity control, enabled."""
     from std_srvs.srv import SetBool
 
-    from msg_defs.msg import MotecState
     from msg_defs.srv import SetControlMode
-    from tests.support.bridges import BRIDGES, SimProcess
-    from tests.support.ros import start_bridge
+    from tests.support.joint_rigs import motec_rig
 
-    entry = replace(next(b for b in BRIDGES if b.key == "motec"), sim_args=("--unit-ids", "1,2,3"))
-    sim = SimProcess(entry, work / "sim")
-    sim.start()
-    params = {
-        **sim.address_params(),
-        "unit_ids": [1, 2, 3],
-        "timeout_s": 0.2,
-        "command_timeout_s": COMMAND_TIMEOUT_S,
-    }
-    try:
-        with start_bridge(client, work, "motec_bridge.node", "motec_1", MotecState, params) as (
-            bridge,
-            _proc,
-        ):
-            bridge.wait_connected(True)
-            client.wait_message(bridge.joint_states, lambda m: "drive_2" in m.name)
-            mode = client.call(
-                SetControlMode, f"{bridge.ns}/motec_2/set_control_mode", mode_request(1)
-            )
-            assert mode.success, mode.message
-            enable = SetBool.Request()
-            enable.data = True
-            reply = client.call(SetBool, f"{bridge.ns}/motec_2/enable", enable)
-            assert reply.success, reply.message
-            yield Rig(sim, f"{bridge.ns}/motec_bridge/joint_commands", "MOTEC x3 115200")
-    finally:
-        sim.stop()
+    with motec_rig(client, work) as rig:
+        mode = SetControlMode.Request()
+        mode.mode = 1
+        reply = client.call(SetControlMode, f"{rig.bridge.ns}/motec_2/set_control_mode", mode)
+        assert reply.success, reply.message
+        enable = SetBool.Request()
+        enable.data = True
+        reply = client.call(SetBool, f"{rig.bridge.ns}/motec_2/enable", enable)
+        assert reply.success, reply.message
+        yield rig
 
 
-def mode_request(mode: int) -> Any:
-    from msg_defs.srv import SetControlMode
+def rigs() -> dict[str, Callable[[Any, Path], Any]]:
+    from tests.support.joint_rigs import axes_rig, stepper_rig
 
-    request = SetControlMode.Request()
-    request.mode = mode
-    return request
-
-
-@contextmanager
-def axes_rig(client: Any, work: Path) -> Iterator[Rig]:
-    from msg_defs.msg import DeviceValues
-    from tests.support.bridges import BRIDGES, SimProcess
-    from tests.support.ros import start_bridge
-
-    entry = replace(
-        next(b for b in BRIDGES if b.key == "modbus"), sim_args=("--device-file", str(AXES))
-    )
-    sim = SimProcess(entry, work / "sim")
-    sim.start()
-    params = {
-        **sim.address_params(),
-        "device_file": str(AXES),
-        "timeout_s": 0.5,
-        "command_timeout_s": COMMAND_TIMEOUT_S,
-    }
-    try:
-        with start_bridge(
-            client, work, "modbus_bridge.node", "modbus_bridge", DeviceValues, params
-        ) as (bridge, _proc):
-            bridge.wait_connected(True)
-            client.wait_message(bridge.joint_states)
-            yield Rig(sim, f"{bridge.ns}/modbus_bridge/joint_commands", "modbus_bridge TCP")
-    finally:
-        sim.stop()
+    return {"stepper": stepper_rig, "motec": motec_velocity_rig, "modbus": axes_rig}
 
 
 def holding(unit: int, address: int) -> Callable[[Any], bool]:
@@ -190,26 +111,17 @@ def stepper_write(r: Any) -> bool:
     return bool(r.unit_id == 1)
 
 
-CASES: dict[str, tuple[Callable[[Any, Path], Any], tuple[Joint, ...]]] = {
-    "stepper": (
-        stepper_rig,
-        (Joint("motor_1", "velocity", (0.001, 0.002, 0.003, 0.004), stepper_write, 0.0),),
-    ),
-    "motec": (
-        motec_rig,
-        (Joint("drive_2", "velocity", (1.0, 2.0, 3.0, 4.0), holding(2, 0xAE), 0.0),),
-    ),
+CASES: dict[str, tuple[Joint, ...]] = {
+    "stepper": (Joint("motor_1", "velocity", (0.001, 0.002, 0.003, 0.004), stepper_write, 0.0),),
+    "motec": (Joint("drive_2", "velocity", (1.0, 2.0, 3.0, 4.0), holding(2, 0xAE), 0.0),),
     "modbus": (
-        axes_rig,
-        (
-            Joint("spindle", "velocity", (1.0, 2.0, 3.0, 4.0), holding(1, 102), 0.0),
-            Joint("lift", "position", (0.001, 0.002, 0.003, 0.004), holding(1, 100), None),
-        ),
+        Joint("spindle", "velocity", (1.0, 2.0, 3.0, 4.0), holding(1, 102), 0.0),
+        Joint("lift", "position", (0.001, 0.002, 0.003, 0.004), holding(1, 100), None),
     ),
 }
 
 
-def measure(client: Any, rig: Rig, joint: Joint, steps: int, step_s: float) -> list[float]:
+def measure(client: Any, rig: Any, joint: Joint, steps: int, step_s: float) -> list[float]:
     """Publish ``steps`` steps at 100 Hz; the latency of each step's first write (s)."""
     from sensor_msgs.msg import JointState
 
@@ -266,11 +178,10 @@ def main() -> None:
     rows = []
     with ros_client("joint_command_latency") as client, tempfile.TemporaryDirectory() as tmp:
         for key in cases:
-            make, joints = CASES[key]
-            with make(client, Path(tmp) / key) as rig:
-                for joint in joints:
+            with rigs()[key](client, Path(tmp) / key) as rig:
+                for joint in CASES[key]:
                     samples = measure(client, rig, joint, args.steps, args.step_s)
-                    rows.append((rig.label, joint, samples))
+                    rows.append((LABELS[key], joint, samples))
     print(
         f"~/joint_commands -> register write, {COMMAND_RATE_HZ:.0f} Hz commands, "
         f"{args.steps} steps of {args.step_s} s"

@@ -76,7 +76,7 @@ class JointStreams:
                 else:
                     guard = StreamGuard(
                         [joint.name],
-                        _velocity_sender(device, joint.name, command.velocity),
+                        _sender(device, joint.name, command.velocity),
                         _velocity_stopper(device, command.velocity),
                         timeout_s=timeout_s,
                         stop_when_idle=False,
@@ -88,7 +88,7 @@ class JointStreams:
                 assert joint.position is not None  # the loader refuses it otherwise
                 guard = StreamGuard(
                     [joint.name],
-                    _position_sender(device, joint.name, command.position),
+                    _sender(device, joint.name, command.position),
                     _holder(device, joint.position, command.position),
                     timeout_s=timeout_s,
                     stop_when_idle=False,
@@ -157,9 +157,11 @@ def register_value(device: DescribedDevice, source: JointSource, si: float) -> f
     return value
 
 
-def _velocity_sender(
+def _sender(
     device: DescribedDevice, name: str, source: JointSource
 ) -> Callable[[str, float, float | None], None]:
+    """A stream's writer (velocity or position): the keepalive rule, then the register."""
+
     def send(_key: str, value: float, _previous: float | None) -> None:
         device.check_keepalive(name)
         device.write(source.register, value)
@@ -172,16 +174,6 @@ def _velocity_stopper(device: DescribedDevice, source: JointSource) -> Callable[
         device.write(source.register, 0.0)
 
     return stop
-
-
-def _position_sender(
-    device: DescribedDevice, name: str, source: JointSource
-) -> Callable[[str, float, float | None], None]:
-    def send(_key: str, value: float, _previous: float | None) -> None:
-        device.check_keepalive(name)
-        device.write(source.register, value)
-
-    return send
 
 
 def _holder(

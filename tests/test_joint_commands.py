@@ -16,8 +16,6 @@ import math
 import threading
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
-from dataclasses import dataclass, replace
-from pathlib import Path
 from typing import Any
 
 import pytest
@@ -36,19 +34,24 @@ from bridge_core.wire.registers import Table
 from bridge_core.wire.transport import SerialSettings
 from modbus_bridge.description import load as load_description
 from motec_bridge.registers import MOTEC_MAP
-from msg_defs.msg import DeviceValues, MotecState, StepperState
 from msg_defs.srv import SetControlMode
 from stepper_bridge.interface import JOG_WRITE_RATE_HZ
 from stepper_bridge.node import reply_timeout_floor_s
 from stepper_bridge.registers import motor_coil
 
-from .support.bridges import BRIDGES, BridgeInfo, SimProcess
+from .support.joint_rigs import (
+    AXES,
+    COMMAND_TIMEOUT_S,
+    STEPPER_BAUD,
+    Rig,
+    axes_rig,
+    motec_rig,
+    stepper_rig,
+)
 from .support.ros import (
     WAIT_S,
-    Bridge,
     Client,
     ros_client,
-    start_bridge,
     status_node,
     values_of,
     wait_for,
@@ -66,19 +69,13 @@ from .support.topic_system import (
 
 pytestmark = pytest.mark.ros
 
-ROOT = Path(__file__).resolve().parent.parent
-AXES = ROOT / "tests" / "support" / "joint_axes.yaml"
 AXES_MAP = load_description(AXES).device.register_map
-COMMAND_TIMEOUT_S = 0.5  # every bridge's default deadman
 SCHEDULING_SLACK_S = 0.5  # a process that waits for the CPU beside two burners
 HOLD_S = 6.0  # the client keeps commanding the last waypoint this long (as a controller)
 
-# The stepper as the issue asks: 9600 baud, replies no sooner than 35 ms, 3 polls a second.
-STEPPER_BAUD = 9600
-STEPPER_REPLY_DELAY_MS = 35
-STEPPER_TIMEOUT_S = 1.0  # far above the 0.15 s floor: a loaded machine never looks dead
-# One transaction on that line, the longest a stop may wait behind (README stepper
-# decision 18): the reply timeout floor, 0.15 s at 9600 baud.
+# The stepper as the issue asks (tests/support/joint_rigs.py): 9600 baud, replies no sooner
+# than 35 ms, 3 polls a second. One transaction on that line, the longest a stop may wait
+# behind (README stepper decision 18): the reply timeout floor, 0.15 s at 9600 baud.
 STEPPER_TRANSACTION_S = reply_timeout_floor_s(SerialSettings("", STEPPER_BAUD))
 # Followed within 4 mm at 1.5 mm/s: the motor runs a target only once it stands (decision
 # 22), and a step costs ~0.25 s of the line beside the polls, so it lags by a step or two.
@@ -109,107 +106,25 @@ def client() -> Iterator[Client]:
         yield c
 
 
-def info(key: str) -> BridgeInfo:
-    return next(entry for entry in BRIDGES if entry.key == key)
-
-
-@dataclass
-class Rig:
-    """A simulator process, a bridge process, and the names of its command topic."""
-
-    sim: SimProcess
-    bridge: Bridge
-    proc: Any
-    commands: str  # the ~/joint_commands topic
-    owner: str  # the node that owns it (its diagnostics count the refusals)
-
-    def writes(self, since: int = 0) -> list[WriteRecord]:
-        return self.sim.writes()[since:]
-
-
 @pytest.fixture(scope="module")
 def stepper(client: Client, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
-    work = tmp_path_factory.mktemp("jc_stepper")
-    sim = SimProcess(info("stepper"), work / "sim")
-    sim.baudrate = STEPPER_BAUD
-    sim.extra_args = ("--reply-delay-ms", str(STEPPER_REPLY_DELAY_MS), "--travel", "1000")
-    sim.start()
-    params = {
-        **sim.address_params(),
-        "timeout_s": STEPPER_TIMEOUT_S,
-        "reconnect_max_s": 1.0,
-        "command_timeout_s": COMMAND_TIMEOUT_S,
-    }
-    try:
-        with start_bridge(
-            client, work, "stepper_bridge.node", "stepper_bridge", StepperState, params
-        ) as (bridge, proc):
-            bridge.wait_connected(True)
-            client.wait_message(bridge.joint_states)
-            commands = f"{bridge.ns}/stepper_bridge/joint_commands"
-            yield Rig(sim, bridge, proc, commands, "stepper_bridge")
-    finally:
-        sim.stop()
+    with stepper_rig(client, tmp_path_factory.mktemp("jc_stepper")) as rig:
+        yield rig
 
 
 @pytest.fixture(scope="module")
 def motec(client: Client, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
-    work = tmp_path_factory.mktemp("jc_motec")
-    entry = replace(info("motec"), sim_args=("--unit-ids", "1,2,3"))
-    sim = SimProcess(entry, work / "sim")
-    sim.start()
-    params = {
-        **sim.address_params(),
-        "unit_ids": [1, 2, 3],
-        "timeout_s": 0.2,
-        "reconnect_max_s": 1.0,
-        "command_timeout_s": COMMAND_TIMEOUT_S,
-    }
-    try:
-        with start_bridge(client, work, "motec_bridge.node", "motec_1", MotecState, params) as (
-            bridge,
-            proc,
-        ):
-            bridge.wait_connected(True)
-            for unit in (1, 2, 3):
-                client.wait_message(bridge.joint_states, names(f"drive_{unit}"))
-            commands = f"{bridge.ns}/motec_bridge/joint_commands"
-            yield Rig(sim, bridge, proc, commands, "motec_1")
-    finally:
-        sim.stop()
+    with motec_rig(client, tmp_path_factory.mktemp("jc_motec")) as rig:
+        yield rig
 
 
 @pytest.fixture(scope="module")
 def axes(client: Client, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
-    work = tmp_path_factory.mktemp("jc_axes")
-    entry = replace(info("modbus"), sim_args=("--device-file", str(AXES)))
-    sim = SimProcess(entry, work / "sim")
-    sim.start()
-    params = {
-        **sim.address_params(),
-        "device_file": str(AXES),
-        "timeout_s": 0.5,
-        "reconnect_max_s": 1.0,
-        "command_timeout_s": COMMAND_TIMEOUT_S,
-    }
-    try:
-        with start_bridge(
-            client, work, "modbus_bridge.node", "modbus_bridge", DeviceValues, params
-        ) as (bridge, proc):
-            bridge.wait_connected(True)
-            client.wait_message(bridge.joint_states)
-            commands = f"{bridge.ns}/modbus_bridge/joint_commands"
-            yield Rig(sim, bridge, proc, commands, "modbus_bridge")
-    finally:
-        sim.stop()
+    with axes_rig(client, tmp_path_factory.mktemp("jc_axes")) as rig:
+        yield rig
 
 
 # ---------------------------------------------------------------- helpers
-def names(joint: str) -> Callable[[Any], bool]:
-    """A joint_states message that names ``joint``."""
-    return lambda msg: joint in msg.name
-
-
 def stamp_s(msg: Any) -> float:
     return float(msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9)
 
@@ -553,7 +468,7 @@ def test_motec_velocity_stops_when_the_client_stops(client: Client, motec: Rig) 
         lambda r: r.unit_id == 3 and r.address == address and r.values == (0,),
         "drive 3's 0xAE = 0",
     )
-    # One transaction at 115200 baud is a few ms; the reply timeout bounds it.
+    # One transaction at 115200 baud is a few ms; 0.2 s bounds it on a loaded machine.
     assert_deadman_timing(stop, last, 0.2)
 
 
