@@ -338,7 +338,13 @@ class SimProcess:
                 cwd=ROOT,
                 stdout=out,
                 stderr=subprocess.STDOUT,
-                start_new_session=True,  # its socat dies with it on SIGKILL
+                # A process group of its own, so its socat dies with it on SIGKILL
+                # (killpg), but not a session of its own: with the kernel's autogroup
+                # scheduling (on by default) a session is a CPU group, and a simulator
+                # alone in one was left runnable but unscheduled for up to 2 s beside
+                # two CPU burners (perf sched: max delay 1539 ms); its replies then came
+                # after the bridge's timeout.
+                process_group=0,
             )
         self.starts += 1
         proc = self.proc
