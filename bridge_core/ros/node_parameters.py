@@ -93,7 +93,7 @@ class ParameterNode(LifecycleNode):
         change_state = self._service_change_state
         change_state.callback = self._refuse_unavailable_transitions(change_state.callback)
         self._specs: dict[str, ParameterSpec] = {}
-        self._appliers: dict[str, list[Callable[[Any], None]]] = {}
+        self._appliers: dict[str, Callable[[Any], None]] = {}
         self._writers: dict[str, Callable[[Any], str | None]] = {}
         self.add_pre_set_parameters_callback(self._coerce_parameters)
         self.add_on_set_parameters_callback(self._check_parameters)
@@ -148,12 +148,10 @@ class ParameterNode(LifecycleNode):
         return values
 
     def on_parameter(self, name: str, apply: Callable[[Any], None]) -> None:
-        """Apply a live parameter's new value (after it passed its spec's checks); several
-        appliers of one parameter run in the order they were added (``command_timeout_s``
-        sets the deadman of a jog guard and of a position guard)."""
+        """Apply a live parameter's new value (after it passed its spec's checks)."""
         if not self._specs[name].live:
             raise ValueError(f"parameter {name} is start-up only")
-        self._appliers.setdefault(name, []).append(apply)
+        self._appliers[name] = apply
 
     def on_parameter_write(self, name: str, write: Callable[[Any], str | None]) -> None:
         """A live parameter applied by writing to the device: ``write(value)`` runs while
@@ -189,10 +187,9 @@ class ParameterNode(LifecycleNode):
 
     def _apply_parameters(self, parameters: list[Parameter]) -> None:
         for parameter in parameters:
-            appliers = self._appliers.get(parameter.name, [])
-            for apply in appliers:
+            apply = self._appliers.get(parameter.name)
+            if apply is not None:
                 apply(parameter.value)
-            if appliers:
                 self.get_logger().info(f"parameter {parameter.name} set to {parameter.value!r}")
 
 

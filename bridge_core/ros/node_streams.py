@@ -40,7 +40,6 @@ class StreamHost:
         self.inbox_group = MutuallyExclusiveCallbackGroup()
         self.guards: list[StreamGuard[Any]] = []
         self.refusals = 0  # stream commands refused (diagnostics)
-        self._wakers: dict[int, Callable[[], None]] = {}  # id(guard) -> its writer's trigger
 
     def topic(
         self,
@@ -59,57 +58,30 @@ class StreamHost:
         Arrival and writing are apart. A message is only recorded (``guard.offer``: newest
         value per stream, the deadman counts from its arrival) in a callback group of its
         own with a depth-1 subscription, so a flood costs no bus time and never waits
-        behind a write. The writer (``stream``) applies what the guard says is ``ready``.
-        """
-        self.stream(
-            guard,
-            what,
-            convert=convert,
-            timeout_parameter=timeout_parameter,
-            rate_parameter=rate_parameter,
-        )
-        for key, topic in topics.items():
-            self.node.create_subscription(
-                msg_type,
-                topic,
-                self._callback(guard, key, value_of),
-                STREAM_DEPTH,
-                callback_group=self.inbox_group,
-            )
-
-    def stream(
-        self,
-        guard: StreamGuard[T],
-        what: Callable[[T, float], str],
-        *,
-        convert: Callable[[T, float], float] = lambda _key, value: value,
-        timeout_parameter: str = "command_timeout_s",
-        rate_parameter: str = "command_rate_hz",
-        stop_what: Callable[[T], str] | None = None,
-    ) -> None:
-        """The writer and deadman of one guard, fed by ``offer`` (its topics, or
-        ``~/joint_commands``: ``bridge_core.ros.joint_commands``).
-
-        The writer runs in the command group, woken by an arrival that may be applied at
-        once and by the deadman timer: it applies what the guard says is ``ready`` (a 0
-        at once, other values at most ``rate_parameter`` times a second per stream)
-        through the command guard (a refused value stops what the stream had started).
-        The timer also stops streams that fell silent. Both parameters are live;
-        ``stop_all()`` stops every stream. ``convert`` checks a value and turns it into
-        the guard's units (inside the command guard: a bad value is a refusal, not an
-        exception in a callback). ``stop_what(key)`` names the stream's stop in logs
-        (default ``what(key, 0.0)``: a 0 is the stop of a jog or velocity stream).
+        behind a write. The writer runs in the command group, woken by each arrival and by
+        the deadman timer: it applies what the guard says is ``ready`` (a 0 at once, other
+        values at most ``rate_parameter`` times a second per stream) through the command
+        guard (a refused value stops what the stream had started). The timer also stops
+        streams that fell silent. Both parameters are live; ``close()`` stops every stream.
+        ``convert`` checks a value and turns it into the guard's units (inside the command
+        guard: a bad value is a refusal, not an exception in a callback).
         """
         node = self.node
-        stopping: Callable[[T], str] = stop_what or (lambda key: what(key, 0.0))
         self.guards.append(guard)
         guard.permit = self._permit
 
         def write_ready() -> None:
-            self._write_ready(guard, convert, what, stopping)
+            self._write_ready(guard, convert, what)
 
         writer = node.create_guard_condition(write_ready, callback_group=node.command_group)
-        self._wakers[id(guard)] = writer.trigger
+        for key, topic in topics.items():
+            node.create_subscription(
+                msg_type,
+                topic,
+                self._callback(guard, key, value_of, writer.trigger),
+                STREAM_DEPTH,
+                callback_group=self.inbox_group,
+            )
 
         def period() -> float:
             return min(
@@ -118,7 +90,7 @@ class StreamHost:
 
         def tick() -> None:
             write_ready()  # values held back by the rate limit
-            self._deadman(guard, stopping)
+            self._deadman(guard, what)
 
         timer = node.create_timer(period(), tick, callback_group=node.command_group)
 
@@ -132,16 +104,7 @@ class StreamHost:
 
         node.on_parameter(timeout_parameter, set_timeout)
         node.on_parameter(rate_parameter, set_rate)
-        set_timeout(node.param(timeout_parameter))
         set_rate(node.param(rate_parameter))
-
-    def offer(self, guard: StreamGuard[T], key: T, value: float) -> None:
-        """A command arrived for ``guard``'s stream ``key``: recorded at once (any thread);
-        the writer is woken when it may be applied now, else the deadman timer's pass
-        applies it (a flood wakes the writer at most command_rate_hz times a second, not
-        per message)."""
-        if guard.offer(key, value):
-            self._wakers[id(guard)]()
 
     def _permit(self) -> str | None:
         """Asked by a stream guard, under its lock, before every non-zero write."""
@@ -152,10 +115,16 @@ class StreamHost:
         return None
 
     def _callback(
-        self, guard: StreamGuard[T], key: T, value_of: Callable[[Any], float]
+        self,
+        guard: StreamGuard[T],
+        key: T,
+        value_of: Callable[[Any], float],
+        wake_writer: Callable[[], None],
     ) -> Callable[[Any], None]:
         def arrived(msg: Any) -> None:
-            self.offer(guard, key, value_of(msg))
+            if guard.offer(key, value_of(msg)):
+                wake_writer()  # else the deadman timer's pass applies it (a flood wakes
+                # the writer at most command_rate_hz times a second, not per message)
 
         return arrived
 
@@ -164,7 +133,6 @@ class StreamHost:
         guard: StreamGuard[T],
         convert: Callable[[T, float], float],
         what: Callable[[T, float], str],
-        stopping: Callable[[T], str],
     ) -> None:
         for key in guard.ready():
             value = guard.take(key)
@@ -174,10 +142,10 @@ class StreamHost:
                 what(key, value), functools.partial(_apply, guard, key, value, convert)
             )
             if not ok:
-                self._refused(guard, key, message, stopping)
+                self._refused(guard, key, message, what)
 
     def _refused(
-        self, guard: StreamGuard[T], key: T, message: str, stopping: Callable[[T], str]
+        self, guard: StreamGuard[T], key: T, message: str, what: Callable[[T, float], str]
     ) -> None:
         self.refusals += 1
         self.node.get_logger().warn(message, throttle_duration_sec=2.0)
@@ -186,17 +154,17 @@ class StreamHost:
             # A refused value must not leave the motor running at the previous one. A stop
             # already pending is the deadman's: it retries at its own period, not per message.
             self.node.run_command(
-                f"{stopping(key)} (stop after a refused command)",
+                f"{what(key, 0.0)} (stop after a refused command)",
                 lambda: guard.stop(key),
                 stop=True,
                 own_motion=True,
             )
 
-    def _deadman(self, guard: StreamGuard[T], stopping: Callable[[T], str]) -> None:
+    def _deadman(self, guard: StreamGuard[T], what: Callable[[T, float], str]) -> None:
         for key in guard.due():
             was_moving = guard[key].may_move
             ok, message, _ = self.node.run_command(
-                f"{stopping(key)} (deadman)",
+                f"{what(key, 0.0)} (deadman)",
                 functools.partial(guard.expire, key),
                 stop=True,
                 own_motion=True,
@@ -205,7 +173,7 @@ class StreamHost:
                 continue
             if ok:
                 self.node.get_logger().info(
-                    f"{stopping(key)}: no command for {guard.timeout_s} s, stopped"
+                    f"{what(key, 0.0)}: no command for {guard.timeout_s} s, stopped"
                 )
             else:
                 self.node.get_logger().warn(message, throttle_duration_sec=2.0)
