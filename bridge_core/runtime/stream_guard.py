@@ -11,7 +11,9 @@ MOTEC ``~/cmd_velocity``. Each stream key (a motor number, a drive) has the same
 - 0 stops (once: further 0s write nothing until something moves again; see
   ``stop_when_idle`` for a 0 to a stream that commanded nothing);
 - after a stop by a service or an e-stop the stream is *locked*: non-zero commands are
-  refused until a 0 arrives or the stream was silent for ``timeout_s``;
+  refused until a 0 arrives or the stream was silent for ``timeout_s`` (a command that
+  arrives after that much silence is applied at once, whether or not the deadman's pass
+  already unlocked the stream: the rule never depends on a timer's turn);
 - a write that failed on the link leaves a *stop pending*: the motor may be running, so
   the deadman keeps sending the stop until one is acknowledged;
 - the deadman stops any stream that was silent for ``timeout_s``, counted from the
@@ -72,6 +74,9 @@ class StreamState:
     value: float | None = None  # last non-zero value written (None: unknown / not moving)
     active: bool = False  # a non-zero command is in force (or may be: see stop_pending)
     locked: bool = False  # stopped by a service: refuse motion until 0 or silence
+    # The offered value arrived after timeout_s of silence and no lock came since: it
+    # unlocks the stream (the silence rule, applied on arrival, not at the deadman's pass).
+    fresh: bool = False
     stop_pending: bool = False  # a stop is on the wire or was lost: until one is acknowledged
     stop_sent: bool = False  # a stop was acknowledged since the last motion
     last_seen: float | None = None  # clock() of the last command received
@@ -164,6 +169,9 @@ class StreamGuard(Generic[Key]):
         stream = self[key]
         now = self._clock()
         with self._inbox_lock:
+            silent = stream.last_seen is None or now - stream.last_seen > self.timeout_s
+            # Values that coalesce keep the first one's silence: one new press of a joystick.
+            stream.fresh = silent or (stream.offered is not None and stream.fresh)
             stream.offered = value
             stream.last_seen = now
             repeat = stream.active and not stream.stop_pending and stream.value == value
@@ -193,12 +201,15 @@ class StreamGuard(Generic[Key]):
     def command(self, key: Key, value: float, *, refuse_reason: str = "") -> bool:
         """Apply the newest command of a stream; True if anything was written."""
         stream = self[key]
+        fresh, stream.fresh = stream.fresh, False
         if self._is_stop(value):
             stream.locked = False
             if not stream.may_move and (stream.stop_sent or not self.stop_when_idle):
                 return False
             self.stop(key)
             return True
+        if stream.locked and fresh:
+            stream.locked = False  # it came after timeout_s of silence (see ``offer``)
         if stream.locked:
             unlock = (
                 "send 0 (or nothing for the command timeout)"
@@ -266,6 +277,8 @@ class StreamGuard(Generic[Key]):
         stream.value, stream.active, stream.stop_sent = None, False, False
         stream.stop_pending = False
         stream.locked = locked
+        if locked:
+            stream.fresh = False  # a value that arrived before the stop cannot undo it
         for follower in self._followers:
             if key in follower.streams:
                 follower.taken_over(key, locked=locked)
@@ -276,7 +289,8 @@ class StreamGuard(Generic[Key]):
         (a stop coil, a stop of other registers): motion commands are refused until 0 or
         silence, and what the stream commanded is kept (it may still be moving: a 0, the
         deadman or the stop after a refused command still sends its own stop)."""
-        self[key].locked = True
+        stream = self[key]
+        stream.locked, stream.fresh = True, False
         for follower in self._followers:
             if key in follower.streams:
                 follower.hold(key)
@@ -288,7 +302,7 @@ class StreamGuard(Generic[Key]):
         poll when the link is back, and by the deadman meanwhile), as after a lost
         deadman stop. Never ``taken_over``: that would forget a motor still running."""
         stream = self[key]
-        stream.locked = True
+        stream.locked, stream.fresh = True, False
         if stream.may_move:
             stream.stop_pending = True
         for follower in self._followers:
@@ -360,7 +374,7 @@ class StreamGuard(Generic[Key]):
             for stream in self.streams.values():
                 if not self._is_stop(stream.offered):
                     stream.offered = None
-                stream.locked = True
+                stream.locked, stream.fresh = True, False
 
     @_locked
     def stop_all(self) -> list[tuple[Key, BridgeError]]:

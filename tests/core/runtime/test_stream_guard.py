@@ -218,6 +218,39 @@ def test_after_stop_follows_the_acknowledged_stops() -> None:
     assert guard.stop_all() == [] and after[-1] == [2]
 
 
+def test_a_command_after_silence_is_applied_without_waiting_for_the_deadman_pass() -> None:
+    """ "Locked until a 0 or timeout_s of silence" is decided on arrival: a command that
+    comes after that much silence is applied even if no deadman pass ran since the stop
+    (a test's command right after a stop service was refused when its deadman timer ran
+    late beside CPU load); a joystick still held, or a value that arrived before the
+    stop, stays refused."""
+    guard, motors, clock = make()
+    guard.hold(1)  # a stop service of the device: the stream never commanded anything
+    assert guard.offer(1, 40.0)
+    assert guard.take(1) == 40.0
+    assert guard.command(1, 40.0)
+    # Held across a stop: values keep coming, none after timeout_s of silence.
+    guard.hold(1)
+    clock.now += 0.1
+    guard.offer(1, 45.0)
+    with pytest.raises(CommandRejected, match="stopped"):
+        guard.command(1, guard.take(1) or 0.0)
+    # A value that arrived after silence but before the stop cannot undo the stop.
+    clock.now += 1.0
+    guard.offer(1, 50.0)
+    value = guard.take(1)
+    guard.taken_over(1, locked=True)
+    with pytest.raises(CommandRejected, match="stopped"):
+        guard.command(1, value or 0.0)
+    clock.now += 1.0
+    guard.offer(2, 5.0)
+    guard.stop_all()  # the halt drops it and locks the stream
+    clock.now += 1.0
+    guard.offer(2, 6.0)  # a new press after the halt and after silence
+    assert guard.command(2, guard.take(2) or 0.0)
+    assert motors.log[-1] == ("send", 2, 6.0, None)
+
+
 def test_stop_all_drops_offered_values_and_locks_every_stream() -> None:
     """A value offered before a halt (deactivate, exit, read_only) is never written after
     it, and a joystick still held afterwards cannot restart the motor: as after a stop
