@@ -98,6 +98,14 @@ class ParameterNode(LifecycleNode):
         self.add_pre_set_parameters_callback(self._coerce_parameters)
         self.add_on_set_parameters_callback(self._check_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
+        # Parts with threads or nodes of their own (an ``Inbox``): ended, newest first,
+        # before this node is destroyed.
+        self.before_destroy: list[Callable[[], None]] = []
+
+    def destroy_node(self) -> None:
+        while self.before_destroy:
+            self.before_destroy.pop()()
+        super().destroy_node()
 
     def _refuse_unavailable_transitions(
         self, change_state: Callable[[Any, Any], Any]

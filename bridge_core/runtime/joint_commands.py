@@ -16,10 +16,13 @@ command topics already use), and ``plan`` checks one message against them:
 - every value finite and, converted by the joint's own conversion (the one its
   ``joint_states`` uses), inside the joint's limits;
 - a position target no farther than ``joint_command_max_jump`` (rad or m; 0: no check)
-  from the joint's previous target while its position stream runs, else from its newest
-  published position: a jump is not a trajectory (the stock interface publishes its
-  initial command values, 0 unless given, until a controller claims them: without this
-  rule the joints would be driven there; docs/ros2_control.md, decision 3);
+  from the joint's newest published position when its position stream does not run: a
+  jump is not a trajectory (the stock interface publishes its initial command values, 0
+  unless given, until a controller claims them: without this rule the joints would be
+  driven there; docs/ros2_control.md, decision 3); while it runs, from its previous
+  target, by ``joint_command_max_jump`` per command period (1 / ``command_rate_hz``, the
+  stream's write interval) since that target came, at least one: a controller cycle that
+  comes late does not end the trajectory;
 - a joint is driven by one kind at a time: a velocity while its position stream may still
   move it (or the reverse) is refused; a 0 velocity is always taken.
 
@@ -34,6 +37,7 @@ from __future__ import annotations
 
 import math
 import threading
+import time
 from collections import Counter
 from collections.abc import Callable, Hashable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -53,8 +57,9 @@ MAX_JUMP_SPEC = ParameterSpec(
     "joint_command_max_jump",
     MAX_JUMP_DEFAULT,
     "joint_commands: a position target farther than this (rad or m) from the joint's "
-    "previous target (from its newest published position when its position stream is "
-    "not running) is refused, the whole message; 0: no check",
+    "newest published position when its position stream is not running, or from its "
+    "previous target by more than this per command period since that one came, is "
+    "refused, the whole message; 0: no check",
     0.0,
     MAX_JUMP_LIMIT,
     live=True,
@@ -139,9 +144,10 @@ class CommandJoint:
     # joint_command_max_jump (0: no check).
     here: Callable[[], float | None] = lambda: None
     max_jump: Callable[[], float] = lambda: 0.0
-    # The last position target (SI) a message gave it (``apply``): the reference of the
-    # next one while its position stream runs.
-    last_target: list[float] = field(default_factory=list)
+    # The last position target a message gave it (``apply``): (SI value, clock() when it
+    # came), the reference of the next one while its position stream runs.
+    last_target: list[tuple[float, float]] = field(default_factory=list)
+    clock: Callable[[], float] = time.monotonic
 
     def stream(self, kind: str) -> CommandStream | None:
         return self.position if kind == POSITION else self.velocity
@@ -277,7 +283,11 @@ def _check_jump(joint: CommandJoint, target: float) -> None:
         return
     stream = joint.position
     if stream is not None and stream.may_move and joint.last_target:
-        reference, what = joint.last_target[-1], "its previous target"
+        reference, came = joint.last_target[-1]
+        what = "its previous target"
+        period = stream.guard.min_interval_s
+        if period > 0:  # max_jump per command period since the previous target, at least 1
+            limit *= max(1.0, (joint.clock() - came) / period)
     else:
         here = joint.here()
         if here is None or not math.isfinite(here):
@@ -290,7 +300,7 @@ def _check_jump(joint: CommandJoint, target: float) -> None:
         raise Refused(
             JUMP,
             f"joint_commands: {joint.name} target {target:g} is {abs(target - reference):g} "
-            f"from {what} ({reference:g}), more than joint_command_max_jump {limit:g}: a jump "
+            f"from {what} ({reference:g}), more than joint_command_max_jump allows ({limit:g}): a jump "
             "is not a trajectory (docs/ros2_control.md)",
         )
 
@@ -303,7 +313,7 @@ def apply(planned: Sequence[Planned]) -> None:
     """Offer each value to its guard (newest wins there; nothing is written here)."""
     for item in planned:
         if item.kind == POSITION:
-            item.joint.last_target[:] = [item.si]
+            item.joint.last_target[:] = [(item.si, item.joint.clock())]
         item.joint.offer(item.stream.guard, item.stream.key, item.value)
 
 

@@ -32,6 +32,10 @@ MOTEC_UNITS = (1, 2, 3)
 # simulator's late replies cost the link (reconnects, refused commands, the deadman) in
 # the middle of a trajectory. The lifeguard stays off (its floor grows with the timeout).
 MOTEC_TIMEOUT_S = 1.0
+# The ramps run drives at up to 1.5 rad/s, and beside two burners the test client's first
+# cycle can come 0.3 s late: its first target is judged from where the drive stands
+# (docs/ros2_control.md, decision 3), so the default 0.1 rad would refuse the trajectory.
+MOTEC_MAX_JUMP = 0.5
 
 
 @dataclass
@@ -123,7 +127,11 @@ def motec_rig(client: Client, work: Path) -> Iterator[Rig]:
         "motec_bridge.node",
         "motec_1",
         MotecState,
-        {"unit_ids": list(MOTEC_UNITS), "timeout_s": MOTEC_TIMEOUT_S},
+        {
+            "unit_ids": list(MOTEC_UNITS),
+            "timeout_s": MOTEC_TIMEOUT_S,
+            "joint_command_max_jump": MOTEC_MAX_JUMP,
+        },
         "motec_bridge",
         every_drive_polled,
     ) as rig:

@@ -175,6 +175,38 @@ def test_a_running_stream_is_judged_from_its_previous_target() -> None:
     assert "from where it is (-1)" in error.text
 
 
+def test_a_late_cycle_of_a_running_stream_does_not_end_the_trajectory() -> None:
+    """While the stream runs, max_jump is allowed per command period (the stream's write
+    interval) since the previous target came: a controller cycle that comes 0.15 s late
+    at 1 rad/s is taken (before, every later target was refused for good); a jump within
+    one period is still refused."""
+    now = [0.0]
+    node = Node(here={"a": 0.0}, max_jump=0.1)
+    velocity, position = guard(), guard(zero_stops=False)
+    position.min_interval_s = 0.1  # command_rate_hz 10
+    joint = CommandJoint(
+        "a",
+        CommandStream(position, "a", convert),
+        CommandStream(velocity, "a", convert),
+        node.gate,
+        node.offer,
+        lambda: node.here["a"],
+        lambda: node.max_jump,
+        clock=lambda: now[0],
+    )
+    made = {"a": joint}
+    apply(plan(made, ["a"], [0.01], []))
+    position.command("a", position.take("a") or 0.0)  # running
+    now[0] += 0.01
+    error = refused(jc.JUMP, node, ["a"], [0.2], [], made=made)  # 0.19 in 10 ms
+    assert "allows (0.1)" in error.text, error.text
+    now[0] += 0.15  # the cycle came 0.15 s late: 0.16 s since the previous target
+    apply(plan(made, ["a"], [0.17], []))  # 0.16 from it, 0.16 allowed
+    assert node.offered[-1] == ("a", 17.0)
+    now[0] += 0.01
+    apply(plan(made, ["a"], [0.18], []))  # the trajectory goes on
+
+
 def test_no_target_before_a_position_was_published() -> None:
     refused(jc.JUMP, Node(here={"a": None}), ["a"], [0.0], [])
     refused(jc.JUMP, Node(here={"a": math.nan}), ["a"], [0.0], [])
