@@ -23,7 +23,12 @@ every message), then silence: the stop delay is the simulator's time of the dead
 minus the last message's send time. Prints a table; asserts nothing. Only loopback and
 ptys; discovery on localhost.
 
+``--topic joint_commands`` floods ``~/joint_commands`` instead (issue 25: ``JointState``
+with the joint's name and a velocity in SI units; the MOTEC bus owner's topic for drive 2,
+the stepper's for motor 1): the same phases, the same stop.
+
     .venv/bin/python bench/stream_flood.py [--device motec|stepper] [--seconds 5] [--rate 1000]
+        [--topic stream|joint_commands]
 """
 
 from __future__ import annotations
@@ -67,6 +72,11 @@ class Target:
     constant: float
     varying: Callable[[int], float]  # never 0
     is_stop: Callable[[Any], bool]  # a write-log record that is the stream's stop
+    # --topic joint_commands: the node that owns the topic, the joint, the values (SI).
+    jc_node: str = ""
+    jc_joint: str = ""
+    jc_constant: float = 0.0
+    jc_varying: Callable[[int], float] = lambda _n: 0.0
 
 
 TARGETS = {
@@ -87,6 +97,10 @@ TARGETS = {
         constant=2 * math.pi,
         varying=lambda n: 1.0 + (n % 50) / 10,
         is_stop=lambda r: r.address == 0xAE and r.values == (0,),
+        jc_node="motec_bridge",
+        jc_joint="drive_2",
+        jc_constant=2 * math.pi,
+        jc_varying=lambda n: 1.0 + (n % 50) / 10,
     ),
     "stepper": Target(
         module="stepper_bridge.node",
@@ -102,6 +116,10 @@ TARGETS = {
         constant=60.0,
         varying=lambda n: 100.0 + n % 50,
         is_stop=lambda r: r.table.value == "coil" and r.address == 4,  # 00005: motor 1 stop
+        jc_node="stepper_bridge",
+        jc_joint="motor_1",
+        jc_constant=0.003,  # m/s (tests/test_joint_commands.py's speeds)
+        jc_varying=lambda n: 0.001 + (n % 50) * 1e-5,
     ),
 }
 
@@ -123,6 +141,7 @@ def main() -> None:
     parser.add_argument("--device", choices=sorted(TARGETS), default="motec")
     parser.add_argument("--seconds", type=float, default=5.0, help="length of each phase")
     parser.add_argument("--rate", type=float, default=1000.0, help="flood messages/s")
+    parser.add_argument("--topic", choices=("stream", "joint_commands"), default="stream")
     args = parser.parse_args()
     target = TARGETS[args.device]
 
@@ -166,8 +185,13 @@ def main() -> None:
     finally:
         client.close()
 
+    flooded = (
+        f"{target.jc_node}/joint_commands ({target.jc_joint})"
+        if args.topic == "joint_commands"
+        else f"{target.node}/{target.topic}"
+    )
     print(
-        f"{target.module}, {target.baudrate} baud, flood on {target.node}/{target.topic} "
+        f"{target.module}, {target.baudrate} baud, flood on {flooded} "
         f"({args.seconds:.0f} s per phase, target {args.rate:.0f} msg/s)"
     )
     print(f"{'phase':10s} {'msg/s':>6s} " + " ".join(f"{f'{j} Hz':>12s}" for j in target.joints))
@@ -217,7 +241,26 @@ def run(
                 setattr(request, key, value)
             reply = client.call(srv, f"{ns}/{target.node}/{service}", request)
             assert reply.success, reply.message
-        publisher = client.node.create_publisher(Float64, f"{ns}/{target.node}/{target.topic}", 10)
+        if args.topic == "joint_commands":
+            from sensor_msgs.msg import JointState
+
+            publisher = client.node.create_publisher(
+                JointState, f"{ns}/{target.jc_node}/joint_commands", 10
+            )
+
+            def message(value: float) -> Any:
+                return JointState(name=[target.jc_joint], velocity=[value])
+
+            constant, varying = target.jc_constant, target.jc_varying
+        else:
+            publisher = client.node.create_publisher(
+                Float64, f"{ns}/{target.node}/{target.topic}", 10
+            )
+
+            def message(value: float) -> Any:
+                return Float64(data=value)
+
+            constant, varying = target.constant, target.varying
         wait_subscribed(publisher)
 
         def phase(name: str, value: Callable[[int], float] | None) -> float:
@@ -229,7 +272,7 @@ def run(
                 if value is None:
                     time.sleep(0.05)
                     continue
-                publisher.publish(Float64(data=value(sent)))
+                publisher.publish(message(value(sent)))
                 last = time.time()
                 sent += 1
                 time.sleep(max(0.0, started + sent / args.rate - time.monotonic()))
@@ -239,9 +282,9 @@ def run(
             return last
 
         phase("idle", None)
-        phase("constant", lambda _n: target.constant)
+        phase("constant", lambda _n: constant)
         before = len(writes())
-        last_sent = phase("varying", target.varying)
+        last_sent = phase("varying", varying)
 
         def stop_record() -> Any:
             return next((r for r in writes()[before:] if target.is_stop(r)), None)

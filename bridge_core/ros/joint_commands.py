@@ -2,8 +2,8 @@
 
 Part of the ROS side (imports rclpy). The checks are ``bridge_core.runtime.joint_commands``
 (plain Python); here is the subscription: a message is checked whole on arrival, on the
-node's ``Inbox`` (a hidden node and thread of its own: a flood of 1000 msg/s neither waits
-behind a write nor starves the polls), then its values are offered
+node's ``Inbox`` (a thread of its own, not the executor: a flood of 1000 msg/s neither
+waits behind a write nor starves the polls), then its values are offered
 to the joints' stream guards, whose writers and deadman (``node_streams.StreamHost``) do the
 rest. A refused message writes nothing, counts in the diagnostics by kind
 (``joint_commands refused``) and, the first time of its kind, is one WARN line.
@@ -30,7 +30,6 @@ from ..runtime.joint_commands import (
     message_fields,
     plan,
 )
-from .inbox import Inbox
 from .node_parameters import ParameterNode
 
 # A few messages may wait for the callback: partial messages from two senders (each naming
@@ -40,8 +39,7 @@ JOINT_COMMANDS_DEPTH = 5
 
 
 class JointCommandTopic:
-    """The ``~/joint_commands`` subscription of ``node`` for ``joints``, on an ``Inbox``
-    that ``before_destroy`` of the node ends (a ``ParameterNode``)."""
+    """The ``~/joint_commands`` subscription of ``node`` for ``joints``, on its inbox."""
 
     def __init__(self, node: ParameterNode, joints: Iterable[CommandJoint]) -> None:
         self.node = node
@@ -49,9 +47,7 @@ class JointCommandTopic:
         self.counts = RefusalCounts()
         self.accepted = 0  # messages offered to the guards
         self._bug_said = False
-        self.inbox = Inbox(node)
-        node.before_destroy.append(self.inbox.close)
-        self.topic = self.inbox.subscribe(JointState, TOPIC, self._arrived, JOINT_COMMANDS_DEPTH)
+        node.inbox.subscribe(JointState, TOPIC, self._arrived, JOINT_COMMANDS_DEPTH)
 
     def _arrived(self, msg: Any) -> None:
         try:

@@ -41,6 +41,7 @@ from ..runtime.parameters import (
 )
 from ..wire.errors import ConfigurationError
 from ..wire.transport import SerialSettings, TcpSettings
+from .inbox import Inbox
 
 _KINDS: dict[type, int] = {
     bool: ParameterType.PARAMETER_BOOL,
@@ -98,9 +99,11 @@ class ParameterNode(LifecycleNode):
         self.add_pre_set_parameters_callback(self._coerce_parameters)
         self.add_on_set_parameters_callback(self._check_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
-        # Parts with threads or nodes of their own (an ``Inbox``): ended, newest first,
-        # before this node is destroyed.
+        # Parts with threads of their own: ended, newest first, before the node is destroyed.
         self.before_destroy: list[Callable[[], None]] = []
+        # Command topics that may flood, taken on a thread of their own (inbox.py).
+        self.inbox = Inbox(self)
+        self.before_destroy.append(self.inbox.close)
 
     def destroy_node(self) -> None:
         while self.before_destroy:

@@ -13,8 +13,6 @@ import functools
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, TypeVar
 
-from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
-
 from ..runtime.stream_guard import StreamGuard
 from ..wire.errors import DeviceException
 
@@ -36,8 +34,6 @@ class StreamHost:
 
     def __init__(self, node: BridgeNode[Any]) -> None:
         self.node = node
-        # Command stream arrivals: recorded at once, never behind a write (``topic``).
-        self.inbox_group = MutuallyExclusiveCallbackGroup()
         self.guards: list[StreamGuard[Any]] = []
         self.refusals = 0  # stream commands refused (diagnostics)
         self._wakers: dict[int, Callable[[], None]] = {}  # id(guard) -> its writer's trigger
@@ -57,9 +53,10 @@ class StreamHost:
         """Command topics of one guard (jog, cmd_velocity) with their deadman.
 
         Arrival and writing are apart. A message is only recorded (``guard.offer``: newest
-        value per stream, the deadman counts from its arrival) in a callback group of its
-        own with a depth-1 subscription, so a flood costs no bus time and never waits
-        behind a write. The writer (``stream``) applies what the guard says is ``ready``.
+        value per stream, the deadman counts from its arrival) on the node's inbox thread
+        (``inbox.py``) with a depth-1 subscription, so a flood costs no bus time, never
+        waits behind a write and never runs the executor's loop. The writer (``stream``)
+        applies what the guard says is ``ready``.
         """
         self.stream(
             guard,
@@ -69,12 +66,8 @@ class StreamHost:
             rate_parameter=rate_parameter,
         )
         for key, topic in topics.items():
-            self.node.create_subscription(
-                msg_type,
-                topic,
-                self._callback(guard, key, value_of),
-                STREAM_DEPTH,
-                callback_group=self.inbox_group,
+            self.node.inbox.subscribe(
+                msg_type, topic, self._callback(guard, key, value_of), STREAM_DEPTH
             )
 
     def stream(

@@ -300,8 +300,8 @@ def _check_jump(joint: CommandJoint, target: float) -> None:
         raise Refused(
             JUMP,
             f"joint_commands: {joint.name} target {target:g} is {abs(target - reference):g} "
-            f"from {what} ({reference:g}), more than joint_command_max_jump allows ({limit:g}): a jump "
-            "is not a trajectory (docs/ros2_control.md)",
+            f"from {what} ({reference:g}), more than joint_command_max_jump allows "
+            f"({limit:g}): a jump is not a trajectory (docs/ros2_control.md)",
         )
 
 
