@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import threading
 from collections.abc import Iterator
 from typing import Any
@@ -53,6 +54,10 @@ def ros() -> Iterator[tuple[Context, CountingExecutor, Node, Node]]:
         try_shutdown(context=context)
 
 
+def received(got: list[Any], count: int) -> bool:
+    return len(got) >= count
+
+
 def test_a_flood_reaches_the_callback_without_the_executors_loop(ros: Any) -> None:
     """Every message of a paced flood reaches the callback, on the inbox's thread, while
     the executor's loop (its wait set of every entity of every node) runs far less than
@@ -69,8 +74,7 @@ def test_a_flood_reaches_the_callback_without_the_executors_loop(ros: Any) -> No
     for i in range(MESSAGES):
         publisher.publish(Float64(data=float(i)))
         if i % 5 == 4:
-            count = i + 1
-            wait_for(lambda: len(got) >= count, 20.0, f"message {i}")  # paced: nothing lost
+            wait_for(functools.partial(received, got, i + 1), 20.0, f"message {i}")  # paced
     assert [value for value, _ in got] == [float(i) for i in range(MESSAGES)]
     assert {thread for _, thread in got} == {"owner inbox"}
     assert executor.passes - passes < MESSAGES / 10, executor.passes - passes
