@@ -133,7 +133,13 @@ def stream_writes(write_log: Path, unit_id: int) -> list[Any]:
     return [r for r in read_write_log(write_log) if r.unit_id == unit_id]
 
 
-Row = tuple[str, dict[str, float], float, int]  # phase, polls/s per joint, writes/s, msg/s
+Row = tuple[str, dict[str, float], float, int, float]  # phase, polls/s, writes/s, msg/s, CPU %
+
+
+def cpu_seconds(pid: int) -> float:
+    """User + system CPU time of a process so far (Linux /proc)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def main() -> None:
@@ -195,9 +201,12 @@ def main() -> None:
         f"({args.seconds:.0f} s per phase, target {args.rate:.0f} msg/s)"
     )
     print(f"{'phase':10s} {'msg/s':>6s} " + " ".join(f"{f'{j} Hz':>12s}" for j in target.joints))
-    for name, rates, writes_per_s, sent_per_s in rows:
+    for name, rates, writes_per_s, sent_per_s, cpu in rows:
         line = " ".join(f"{rates[j]:12.2f}" for j in target.joints)
-        print(f"{name:10s} {sent_per_s:6d} {line}   stream writes/s: {writes_per_s:.1f}")
+        print(
+            f"{name:10s} {sent_per_s:6d} {line}   stream writes/s: {writes_per_s:.1f}"
+            f"   bridge CPU: {cpu:.0f} % of a core"
+        )
     print(
         f"stop after the last message: {delay:.3f} s (command_timeout_s {COMMAND_TIMEOUT_S}); "
         f"writes after the last message: {after_last} (the stop included)"
@@ -231,7 +240,7 @@ def run(
     def writes() -> list[Any]:
         return stream_writes(write_log, target.unit_id)
 
-    with node_process(target.module, params, write_log.parent, ["-r", f"__ns:={ns}"]):
+    with node_process(target.module, params, write_log.parent, ["-r", f"__ns:={ns}"]) as bridge:
         wait_for(lambda: all(polls[j] for j in target.joints), 60, "every device polled")
         for service, type_name, fields in target.setup:
             module_name, class_name = type_name.rsplit(".", 1)
@@ -266,6 +275,7 @@ def run(
         def phase(name: str, value: Callable[[int], float] | None) -> float:
             """Publish for --seconds (value None: nothing); returns the last send time."""
             start_polls, start_writes = dict(polls), len(writes())
+            start_cpu = cpu_seconds(bridge.pid)
             started = time.monotonic()
             sent, last = 0, 0.0
             while time.monotonic() < started + args.seconds:
@@ -278,7 +288,9 @@ def run(
                 time.sleep(max(0.0, started + sent / args.rate - time.monotonic()))
             span = time.monotonic() - started
             rates = {j: (polls[j] - start_polls[j]) / span for j in target.joints}
-            rows.append((name, rates, (len(writes()) - start_writes) / span, int(sent / span)))
+            cpu = 100 * (cpu_seconds(bridge.pid) - start_cpu) / span
+            written = (len(writes()) - start_writes) / span
+            rows.append((name, rates, written, int(sent / span), cpu))
             return last
 
         phase("idle", None)

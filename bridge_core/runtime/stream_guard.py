@@ -81,7 +81,7 @@ class StreamState:
     stop_sent: bool = False  # a stop was acknowledged since the last motion
     last_seen: float | None = None  # clock() of the last command received
     offered: float | None = None  # the newest command received and not yet applied
-    last_send: float = -math.inf  # clock() of the last non-zero value written
+    last_send: float = -math.inf  # clock() of the last non-zero value written or repeated
     last_stop_try: float = -math.inf  # clock() when the last stop attempt ended
 
     @property
@@ -223,6 +223,10 @@ class StreamGuard(Generic[Key]):
         if refusal:
             raise CommandRejected(refusal)
         if stream.active and not stream.stop_pending and stream.value == value:
+            # Handled: the rate limit counts it. ``offer`` cannot see a repeat in another
+            # unit than the guard's (a topic's rad/s, the guard's rpm), so without this a
+            # constant flood woke the writer, and the executor, once per message.
+            stream.last_send = self._clock()
             return False
         previous = stream.value if stream.active else None
         stream.last_send = self._clock()  # an attempt counts: a dead link is not flooded
