@@ -367,6 +367,13 @@ class StreamGuard(Generic[Key]):
             return False
         return self.stop(key)
 
+    def idle(self) -> bool:
+        """Nothing for the writer or the deadman: no value offered, no stream that may
+        move (a stop pending counts). A stream that is only locked is idle: a command
+        after timeout_s of silence unlocks it on arrival (``offer``)."""
+        with self._inbox_lock:
+            return all(s.offered is None and not s.may_move for s in self.streams.values())
+
     def moving(self) -> list[Key]:
         return [key for key, stream in self.streams.items() if stream.may_move]
 

@@ -300,3 +300,22 @@ def test_permit_is_asked_under_the_lock_before_every_non_zero_write() -> None:
         guard.command(1, 20.0)
     assert guard.command(1, 0.0)  # stops are never refused
     assert motors.log == [("send", 1, 10.0, None), ("stop", 1, None, None)]
+
+
+def test_idle_means_nothing_for_the_writer_or_the_deadman() -> None:
+    """The node's deadman timer sleeps while its guard is idle: a value offered, a stream
+    that may move or a stop pending keeps it awake; a stream only locked does not."""
+    guard, motors, _ = make()
+    assert guard.idle()
+    guard.offer(1, 10.0)
+    assert not guard.idle()  # offered, not yet applied
+    guard.command(1, guard.take(1) or 0.0)
+    assert not guard.idle()  # moving
+    motors.fail = 1
+    with pytest.raises(LinkTimeout):
+        guard.stop(1)
+    assert not guard.idle()  # the stop is pending
+    guard.stop(1)
+    assert guard.idle()
+    guard.hold(2)
+    assert guard.idle()  # locked only: a command after silence unlocks it on arrival
