@@ -63,6 +63,7 @@ from .support.topic_system import (
     ramp,
     ramp_duration,
     ramp_end,
+    sent_distance,
     trapezoid,
     trapezoid_distance,
 )
@@ -313,8 +314,12 @@ def test_stepper_velocity_trapezoid_ends_where_its_distance_says(
     wall0 = s.run(lambda t: {"motor_3": profile(t)}, 4.0 + 1.0)
     s.close()
     end = settled_position(client, stepper, "motor_3", wall0 + 5.0 + 1.0)
-    expected = start + trapezoid_distance(0.003, 1.0, 2.0)
-    print(f"stepper motor_3: trapezoid ended {end - expected:+.5f} m from its distance")
+    expected = start + sent_distance(s.sent, "motor_3")
+    ideal = start + trapezoid_distance(0.003, 1.0, 2.0)
+    print(
+        f"stepper motor_3: trapezoid ended {end - expected:+.5f} m from the distance sent "
+        f"({end - ideal:+.5f} m from the ideal profile's)"
+    )
     assert abs(end - expected) <= STEPPER_DISTANCE_TOLERANCE_M, (end, expected)
     # At most command_rate_hz speed writes a second over the run (and the stop coil).
     speeds = [r for r in stepper.writes(before) if r.function_code == 6]
@@ -448,8 +453,12 @@ def test_motec_bus_drives_three_joints_through_one_topic(client: Client, motec: 
         end = settled_position(client, motec, joint, walls["p"] + duration + HOLD_S)
         assert abs(end - ramp_end(waypoints[joint])) <= MOTEC_COUNT_RAD, (joint, end)
     end = settled_position(client, motec, "drive_3", walls["v"] + 5.0 + 1.0)
-    expected = start["drive_3"] + trapezoid_distance(3.0, 1.0, 2.0)
-    print(f"MOTEC drive_3: trapezoid ended {end - expected:+.4f} rad from its distance")
+    expected = start["drive_3"] + sent_distance(velocity.sent, "drive_3")
+    ideal = start["drive_3"] + trapezoid_distance(3.0, 1.0, 2.0)
+    print(
+        f"MOTEC drive_3: trapezoid ended {end - expected:+.4f} rad from the distance sent "
+        f"({end - ideal:+.4f} rad from the ideal profile's)"
+    )
     assert abs(end - expected) <= MOTEC_DISTANCE_TOLERANCE_RAD, (end, expected)
 
 
@@ -569,8 +578,12 @@ def test_modbus_position_and_velocity_joints(client: Client, axes: Rig) -> None:
     end = settled_position(client, axes, "lift", walls["p"] + duration + HOLD_S)
     assert abs(end - ramp_end(waypoints)) <= AXES_STEP_M * 1.01, end
     end = settled_position(client, axes, "spindle", walls["v"] + 6.0 + 1.0)
-    expected = start["spindle"] + trapezoid_distance(2.0, 1.0, 3.0)
-    print(f"modbus spindle: trapezoid ended {end - expected:+.4f} rad from its distance")
+    expected = start["spindle"] + sent_distance(spindle.sent, "spindle")
+    ideal = start["spindle"] + trapezoid_distance(2.0, 1.0, 3.0)
+    print(
+        f"modbus spindle: trapezoid ended {end - expected:+.4f} rad from the distance sent "
+        f"({end - ideal:+.4f} rad from the ideal profile's)"
+    )
     assert abs(end - expected) <= AXES_DISTANCE_TOLERANCE_RAD, (end, expected)
 
 
