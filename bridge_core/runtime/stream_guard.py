@@ -81,7 +81,12 @@ class StreamState:
     stop_sent: bool = False  # a stop was acknowledged since the last motion
     last_seen: float | None = None  # clock() of the last command received
     offered: float | None = None  # the newest command received and not yet applied
-    last_send: float = -math.inf  # clock() of the last non-zero value written or repeated
+    # The newest value taken for the writer, in the units offered (a topic's rad/s where
+    # the guard holds rpm): what ``offer`` compares with to see a repeat. Comparing with
+    # ``value`` (the guard's units) saw none, so a constant flood woke the writer, and
+    # the executor, once per message.
+    taken: float | None = None
+    last_send: float = -math.inf  # clock() of the last non-zero value written
     last_stop_try: float = -math.inf  # clock() when the last stop attempt ended
 
     @property
@@ -174,7 +179,12 @@ class StreamGuard(Generic[Key]):
             stream.fresh = silent or (stream.offered is not None and stream.fresh)
             stream.offered = value
             stream.last_seen = now
-            repeat = stream.active and not stream.stop_pending and stream.value == value
+            repeat = (
+                stream.active
+                and not stream.stop_pending
+                and stream.value is not None
+                and value in (stream.value, stream.taken)
+            )
             return self._may_write(stream, now) and not repeat
 
     def ready(self) -> list[Key]:
@@ -195,6 +205,8 @@ class StreamGuard(Generic[Key]):
         stream = self[key]
         with self._inbox_lock:
             value, stream.offered = stream.offered, None
+            if value is not None:
+                stream.taken = value
         return value
 
     @_locked
@@ -223,10 +235,6 @@ class StreamGuard(Generic[Key]):
         if refusal:
             raise CommandRejected(refusal)
         if stream.active and not stream.stop_pending and stream.value == value:
-            # Handled: the rate limit counts it. ``offer`` cannot see a repeat in another
-            # unit than the guard's (a topic's rad/s, the guard's rpm), so without this a
-            # constant flood woke the writer, and the executor, once per message.
-            stream.last_send = self._clock()
             return False
         previous = stream.value if stream.active else None
         stream.last_send = self._clock()  # an attempt counts: a dead link is not flooded

@@ -187,21 +187,25 @@ def test_offers_coalesce_and_wake_the_writer_only_when_a_write_may_go() -> None:
     assert motors.log == [("send", 1, 50.0, None)]
 
 
-def test_a_repeat_in_another_unit_counts_for_the_rate_limit() -> None:
-    """A topic offers rad/s, the guard holds rpm: ``offer`` cannot see the repeat, so the
-    command that finds it counts it for the rate limit. Before, a constant 1000 msg/s
-    flood woke the writer (and the executor) once per message: the bridge at 100 % of a
-    core (bench/stream_flood.py, phase "constant")."""
+def test_a_repeat_in_another_unit_wakes_no_writer() -> None:
+    """A topic offers rad/s, the guard holds rpm: a repeat is judged against the value last
+    taken, in the units offered. Before, a constant 1000 msg/s flood woke the writer (and
+    the executor) once per message: the bridge at 100 % of a core (bench/stream_flood.py,
+    phase "constant"). A new value after a run of repeats goes at once (the rate limit
+    counts writes only)."""
     guard, motors, clock = make()
     guard.min_interval_s = 0.1
     assert guard.offer(1, 5.0) and guard.command(1, (guard.take(1) or 0.0) * 10)
     clock.now = 0.2
-    assert guard.offer(1, 5.0)  # looks new to offer (5 != 50)
-    assert not guard.command(1, (guard.take(1) or 0.0) * 10)  # the repeat: nothing written
-    assert not guard.offer(1, 5.0)  # handled just now: the next waits for the interval
-    clock.now = 0.31
-    assert guard.offer(1, 6.0)
-    assert motors.log == [("send", 1, 50.0, None)]
+    assert not guard.offer(1, 5.0)  # the repeat: nothing to wake
+    assert not guard.command(1, (guard.take(1) or 0.0) * 10)  # the periodic pass: nothing
+    assert not guard.offer(1, 5.0)
+    assert guard.offer(1, 6.0)  # new, and 0.2 s since the last write: at once
+    assert guard.command(1, (guard.take(1) or 0.0) * 10)
+    guard.forget_values()  # a reconnect: the device may hold another speed
+    clock.now = 0.35
+    assert guard.offer(1, 6.0)  # no repeat: sent whole again
+    assert motors.log == [("send", 1, 50.0, None), ("send", 1, 60.0, 50.0)]
 
 
 def test_after_stop_follows_the_acknowledged_stops() -> None:
