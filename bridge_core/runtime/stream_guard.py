@@ -76,6 +76,15 @@ class StreamState:
         """The deadman's cue: moving under this stream, or possibly so."""
         return self.active or self.stop_pending
 
+    def silent(self, now: float, timeout_s: float) -> bool:
+        """No command for ``timeout_s`` (or none ever): the deadman's and the lock's rule."""
+        return self.last_seen is None or now - self.last_seen > timeout_s
+
+    def set_locked(self) -> None:
+        """Refuse motion until a 0 or silence; a value that arrived before the lock cannot
+        undo it (``fresh`` is void)."""
+        self.locked, self.fresh = True, False
+
 
 def _locked(method: Callable[..., Result]) -> Callable[..., Result]:
     @functools.wraps(method)
@@ -139,7 +148,7 @@ class StreamGuard(Generic[Key]):
         stream = self[key]
         now = self._clock()
         with self._inbox_lock:
-            silent = stream.last_seen is None or now - stream.last_seen > self.timeout_s
+            silent = stream.silent(now, self.timeout_s)
             # Values that coalesce keep the first one's silence: one new press of a joystick.
             stream.fresh = silent or (stream.offered is not None and stream.fresh)
             stream.offered = value
@@ -238,9 +247,10 @@ class StreamGuard(Generic[Key]):
         stream = self[key]
         stream.value, stream.active, stream.stop_sent = None, False, False
         stream.stop_pending = False
-        stream.locked = locked
         if locked:
-            stream.fresh = False  # a value that arrived before the stop cannot undo it
+            stream.set_locked()
+        else:
+            stream.locked = False
 
     @_locked
     def hold(self, key: Key) -> None:
@@ -248,8 +258,7 @@ class StreamGuard(Generic[Key]):
         (a stop coil, a stop of other registers): motion commands are refused until 0 or
         silence, and what the stream commanded is kept (it may still be moving: a 0, the
         deadman or the stop after a refused command still sends its own stop)."""
-        stream = self[key]
-        stream.locked, stream.fresh = True, False
+        self[key].set_locked()
 
     @_locked
     def stop_failed(self, key: Key) -> None:
@@ -258,7 +267,7 @@ class StreamGuard(Generic[Key]):
         poll when the link is back, and by the deadman meanwhile), as after a lost
         deadman stop. Never ``taken_over``: that would forget a motor still running."""
         stream = self[key]
-        stream.locked, stream.fresh = True, False
+        stream.set_locked()
         if stream.may_move:
             stream.stop_pending = True
 
@@ -286,7 +295,7 @@ class StreamGuard(Generic[Key]):
             if stream.stop_pending:
                 if now - stream.last_stop_try >= STOP_RETRY_GAP_S:
                     due.append(key)
-            elif stream.last_seen is None or now - stream.last_seen > self.timeout_s:
+            elif stream.silent(now, self.timeout_s):
                 due.append(key)
         return due
 
@@ -303,7 +312,7 @@ class StreamGuard(Generic[Key]):
         True if a stop was sent (and acknowledged).
         """
         stream = self[key]
-        if stream.last_seen is None or self._clock() - stream.last_seen > self.timeout_s:
+        if stream.silent(self._clock(), self.timeout_s):
             stream.locked = False
         if not stream.may_move:
             return False
@@ -320,7 +329,7 @@ class StreamGuard(Generic[Key]):
             for stream in self.streams.values():
                 if stream.offered != 0:
                     stream.offered = None
-                stream.locked, stream.fresh = True, False
+                stream.set_locked()
 
     @_locked
     def stop_all(self) -> list[tuple[Key, BridgeError]]:
