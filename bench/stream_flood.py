@@ -23,7 +23,12 @@ every message), then silence: the stop delay is the simulator's time of the dead
 minus the last message's send time. Prints a table; asserts nothing. Only loopback and
 ptys; discovery on localhost.
 
+``--topic joint_commands`` floods ``~/joint_commands`` instead (issue 25: ``JointState``
+with the joint's name and a velocity in SI units; the MOTEC bus owner's topic for drive 2,
+the stepper's for motor 1): the same phases, the same stop.
+
     .venv/bin/python bench/stream_flood.py [--device motec|stepper] [--seconds 5] [--rate 1000]
+        [--topic stream|joint_commands]
 """
 
 from __future__ import annotations
@@ -67,6 +72,11 @@ class Target:
     constant: float
     varying: Callable[[int], float]  # never 0
     is_stop: Callable[[Any], bool]  # a write-log record that is the stream's stop
+    # --topic joint_commands: the node that owns the topic, the joint, the values (SI).
+    jc_node: str = ""
+    jc_joint: str = ""
+    jc_constant: float = 0.0
+    jc_varying: Callable[[int], float] = lambda _n: 0.0
 
 
 TARGETS = {
@@ -87,6 +97,10 @@ TARGETS = {
         constant=2 * math.pi,
         varying=lambda n: 1.0 + (n % 50) / 10,
         is_stop=lambda r: r.address == 0xAE and r.values == (0,),
+        jc_node="motec_bridge",
+        jc_joint="drive_2",
+        jc_constant=2 * math.pi,
+        jc_varying=lambda n: 1.0 + (n % 50) / 10,
     ),
     "stepper": Target(
         module="stepper_bridge.node",
@@ -102,6 +116,10 @@ TARGETS = {
         constant=60.0,
         varying=lambda n: 100.0 + n % 50,
         is_stop=lambda r: r.table.value == "coil" and r.address == 4,  # 00005: motor 1 stop
+        jc_node="stepper_bridge",
+        jc_joint="motor_1",
+        jc_constant=0.003,  # m/s (tests/test_joint_commands.py's speeds)
+        jc_varying=lambda n: 0.001 + (n % 50) * 1e-5,
     ),
 }
 
@@ -115,7 +133,13 @@ def stream_writes(write_log: Path, unit_id: int) -> list[Any]:
     return [r for r in read_write_log(write_log) if r.unit_id == unit_id]
 
 
-Row = tuple[str, dict[str, float], float, int]  # phase, polls/s per joint, writes/s, msg/s
+Row = tuple[str, dict[str, float], float, int, float]  # phase, polls/s, writes/s, msg/s, CPU %
+
+
+def cpu_seconds(pid: int) -> float:
+    """User + system CPU time of a process so far (Linux /proc)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def main() -> None:
@@ -123,6 +147,7 @@ def main() -> None:
     parser.add_argument("--device", choices=sorted(TARGETS), default="motec")
     parser.add_argument("--seconds", type=float, default=5.0, help="length of each phase")
     parser.add_argument("--rate", type=float, default=1000.0, help="flood messages/s")
+    parser.add_argument("--topic", choices=("stream", "joint_commands"), default="stream")
     args = parser.parse_args()
     target = TARGETS[args.device]
 
@@ -166,14 +191,22 @@ def main() -> None:
     finally:
         client.close()
 
+    flooded = (
+        f"{target.jc_node}/joint_commands ({target.jc_joint})"
+        if args.topic == "joint_commands"
+        else f"{target.node}/{target.topic}"
+    )
     print(
-        f"{target.module}, {target.baudrate} baud, flood on {target.node}/{target.topic} "
+        f"{target.module}, {target.baudrate} baud, flood on {flooded} "
         f"({args.seconds:.0f} s per phase, target {args.rate:.0f} msg/s)"
     )
     print(f"{'phase':10s} {'msg/s':>6s} " + " ".join(f"{f'{j} Hz':>12s}" for j in target.joints))
-    for name, rates, writes_per_s, sent_per_s in rows:
+    for name, rates, writes_per_s, sent_per_s, cpu in rows:
         line = " ".join(f"{rates[j]:12.2f}" for j in target.joints)
-        print(f"{name:10s} {sent_per_s:6d} {line}   stream writes/s: {writes_per_s:.1f}")
+        print(
+            f"{name:10s} {sent_per_s:6d} {line}   stream writes/s: {writes_per_s:.1f}"
+            f"   bridge CPU: {cpu:.0f} % of a core"
+        )
     print(
         f"stop after the last message: {delay:.3f} s (command_timeout_s {COMMAND_TIMEOUT_S}); "
         f"writes after the last message: {after_last} (the stop included)"
@@ -207,7 +240,7 @@ def run(
     def writes() -> list[Any]:
         return stream_writes(write_log, target.unit_id)
 
-    with node_process(target.module, params, write_log.parent, ["-r", f"__ns:={ns}"]):
+    with node_process(target.module, params, write_log.parent, ["-r", f"__ns:={ns}"]) as bridge:
         wait_for(lambda: all(polls[j] for j in target.joints), 60, "every device polled")
         for service, type_name, fields in target.setup:
             module_name, class_name = type_name.rsplit(".", 1)
@@ -217,31 +250,53 @@ def run(
                 setattr(request, key, value)
             reply = client.call(srv, f"{ns}/{target.node}/{service}", request)
             assert reply.success, reply.message
-        publisher = client.node.create_publisher(Float64, f"{ns}/{target.node}/{target.topic}", 10)
+        if args.topic == "joint_commands":
+            from sensor_msgs.msg import JointState
+
+            publisher = client.node.create_publisher(
+                JointState, f"{ns}/{target.jc_node}/joint_commands", 10
+            )
+
+            def message(value: float) -> Any:
+                return JointState(name=[target.jc_joint], velocity=[value])
+
+            constant, varying = target.jc_constant, target.jc_varying
+        else:
+            publisher = client.node.create_publisher(
+                Float64, f"{ns}/{target.node}/{target.topic}", 10
+            )
+
+            def message(value: float) -> Any:
+                return Float64(data=value)
+
+            constant, varying = target.constant, target.varying
         wait_subscribed(publisher)
 
         def phase(name: str, value: Callable[[int], float] | None) -> float:
             """Publish for --seconds (value None: nothing); returns the last send time."""
             start_polls, start_writes = dict(polls), len(writes())
+            start_cpu = cpu_seconds(bridge.pid)
             started = time.monotonic()
             sent, last = 0, 0.0
             while time.monotonic() < started + args.seconds:
                 if value is None:
                     time.sleep(0.05)
                     continue
-                publisher.publish(Float64(data=value(sent)))
+                publisher.publish(message(value(sent)))
                 last = time.time()
                 sent += 1
                 time.sleep(max(0.0, started + sent / args.rate - time.monotonic()))
             span = time.monotonic() - started
             rates = {j: (polls[j] - start_polls[j]) / span for j in target.joints}
-            rows.append((name, rates, (len(writes()) - start_writes) / span, int(sent / span)))
+            cpu = 100 * (cpu_seconds(bridge.pid) - start_cpu) / span
+            written = (len(writes()) - start_writes) / span
+            rows.append((name, rates, written, int(sent / span), cpu))
             return last
 
         phase("idle", None)
-        phase("constant", lambda _n: target.constant)
+        phase("constant", lambda _n: constant)
         before = len(writes())
-        last_sent = phase("varying", target.varying)
+        last_sent = phase("varying", varying)
 
         def stop_record() -> Any:
             return next((r for r in writes()[before:] if target.is_stop(r)), None)

@@ -18,7 +18,7 @@ from .description_schema import DEFAULT_MOTION_GROUP, DeviceFileSpec, WriteSpec
 from .description_yaml import Checker, Loc
 
 # Names the node gives its own services and topics: a command may not take them.
-RESERVED_NAMES = frozenset({"read", "write", "state", "connected"})
+RESERVED_NAMES = frozenset({"read", "write", "state", "connected", "joint_commands"})
 # The parameters the node declares itself (rclpy, bridge_core.ros.node_base, ``device_file``): a
 # command topic's generated parameters (<name>_timeout_s, <name>_rate_hz) may not be one
 # (a topic ``poll`` would declare ``poll_rate_hz``). tests/modbus/test_modbus_ros.py checks
@@ -44,6 +44,10 @@ NODE_PARAMETERS = frozenset(
         "read_only",
         "autostart",
         "device_file",
+        # ~/joint_commands' deadman and rate (declared when a joint has a command)
+        "command_timeout_s",
+        "command_rate_hz",
+        "joint_command_max_jump",
         "use_sim_time",  # rclpy's own
         "start_type_description_service",
     }

@@ -10,9 +10,10 @@ from dataclasses import dataclass
 from typing import Literal
 
 from bridge_core.runtime.units import DEG, MM, RPM_TO_RAD_S
+from bridge_core.wire.codec import CodecError, to_raw
 from bridge_core.wire.registers import Register, RegisterMap, ValueType
 
-from .description_commands import writable
+from .description_commands import allowed_values, writable
 from .description_schema import DeviceFileSpec, JointSimSpec, JointSpec, JointValueSpec
 from .description_yaml import Checker, Loc
 
@@ -74,12 +75,23 @@ class JointMotion:
 
 
 @dataclass(frozen=True)
+class JointCommand:
+    """What ``~/joint_commands`` writes for a joint: a writable register per kind it
+    takes, each with the factor from its engineering value to SI (a command in SI is
+    written as value / ``to_si``, the joint_states conversion backwards)."""
+
+    position: JointSource | None
+    velocity: JointSource | None
+
+
+@dataclass(frozen=True)
 class Joint:
     name: str
     position: JointSource | None  # None: a velocity-only joint (NaN in joint_states)
     velocity: JointSource | None
     effort: JointSource | None
     motion: JointMotion | None = None
+    command: JointCommand | None = None
 
 
 def _joint_source(
@@ -89,7 +101,11 @@ def _joint_source(
     spec: JointValueSpec,
     check: Checker,
     at: Loc,
+    *,
+    command: bool = False,
 ) -> JointSource | None:
+    """A joint's register for ``what`` and its factor to SI; ``command``: a register
+    ``~/joint_commands`` writes (writable), else one ``joint_states`` reads (readable)."""
     if spec.register_name not in register_map:
         check.add((*at, what, "register"), f"no register named {spec.register_name!r}")
         return None
@@ -97,10 +113,12 @@ def _joint_source(
         check.add((*at, what, "factor"), "0 would make every value 0 (allowed: non-zero)")
         return None
     register = register_map[spec.register_name]
-    if not register.access.readable or register.value_type in (ValueType.BOOL, ValueType.STRING):
+    usable = register.access.writable if command else register.access.readable
+    if not usable or register.value_type in (ValueType.BOOL, ValueType.STRING):
+        needs = "writable number (access W or RW" if command else "readable number (access R or RW"
         check.add(
             (*at, what, "register"),
-            f"{spec.register_name} is not a readable number (access R or RW, a numeric type)",
+            f"{spec.register_name} is not a {needs}, a numeric type)",
         )
         return None
     wanted = SI_UNITS[(joint.kind, what)]
@@ -155,9 +173,63 @@ def build_joints(
         motion = None
         if joint.sim is not None:
             motion = _joint_motion(register_map, joint, joint.sim, check, (*at, "sim"))
+        command = None
+        if joint.command is not None:
+            command = _joint_command(
+                register_map, joint, allowed_values(spec), check, (*at, "command")
+            )
         if not check.problems:
-            joints.append(Joint(joint.name, position, velocity, effort, motion))
+            joints.append(Joint(joint.name, position, velocity, effort, motion, command))
     return tuple(joints)
+
+
+def _joint_command(
+    register_map: RegisterMap,
+    joint: JointSpec,
+    allowed: dict[str, tuple[float, ...]],
+    check: Checker,
+    at: Loc,
+) -> JointCommand | None:
+    """A joint's ``command``: its registers writable numbers in the joint's SI kind; a
+    position command needs the joint's position register (its stop holds the joint where
+    that register reads), a velocity command a register that takes 0 (its stop)."""
+    spec = joint.command
+    assert spec is not None
+    if spec.position is None and spec.velocity is None:
+        check.add(at, "give position, velocity or both (the registers joint_commands writes)")
+        return None
+    position = velocity = None
+    if spec.position is not None:
+        if joint.position is None:
+            check.add(
+                (*at, "position"),
+                "a position command needs the joint's position register (its stop holds the "
+                "joint where it stands)",
+            )
+            return None
+        position = _joint_source(
+            register_map, joint, "position", spec.position, check, at, command=True
+        )
+    if spec.velocity is not None:
+        velocity = _joint_source(
+            register_map, joint, "velocity", spec.velocity, check, at, command=True
+        )
+        if velocity is not None:
+            register = register_map[velocity.register]
+            try:
+                to_raw(register, 0.0)
+            except CodecError as err:
+                check.add((*at, "velocity", "register"), f"its stop, 0, cannot be written: {err}")
+                return None
+            if register.name in allowed and 0.0 not in allowed[register.name]:
+                check.add(
+                    (*at, "velocity", "register"),
+                    f"its stop, 0, is not one of {register.name}'s values",
+                )
+                return None
+    if check.problems:
+        return None
+    return JointCommand(position, velocity)
 
 
 def _joint_motion(

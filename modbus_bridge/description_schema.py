@@ -165,6 +165,14 @@ class JointSimSpec(_Lenient):
     run_values: list[Finite] | None = Field(None, min_length=1)
 
 
+class JointCommandSpec(_Lenient):
+    """What ``~/joint_commands`` writes for the joint: a target position register, a
+    velocity register, or both (a message gives one kind at a time)."""
+
+    position: JointValueSpec | None = None
+    velocity: JointValueSpec | None = None
+
+
 class JointSpec(_Lenient):
     name: Name
     kind: Literal["revolute", "prismatic"] = "revolute"
@@ -172,6 +180,7 @@ class JointSpec(_Lenient):
     velocity: JointValueSpec | None = None
     effort: JointValueSpec | None = None
     sim: JointSimSpec | None = None
+    command: JointCommandSpec | None = None
 
 
 class WriteSpec(_Lenient):

@@ -112,6 +112,9 @@ class DescribedDevice:
         # The stream guard of each command topic (the node attaches them): a stop service
         # locks every stream.
         self.guards: dict[str, StreamGuard[str]] = {}
+        # ~/joint_commands' own streams (modbus_bridge/joint_commands.py): guard, key and
+        # the register each writes; locked by a stop service like the topics'.
+        self.joint_guards: list[tuple[StreamGuard[str], str, str]] = []
         joints = device.joints
         # JointState: each array is empty or has one entry per name. A field some joint
         # has is published for all, NaN for a joint without it (a velocity-only drive's
@@ -225,6 +228,15 @@ class DescribedDevice:
             raise CommandRejected(f"no command topic named {topic_name!r}")
         self.guards[topic_name] = guard
 
+    def attach_joint_stream(self, guard: StreamGuard[str], key: str, register: str) -> None:
+        """A ``~/joint_commands`` stream writing ``register`` (locked by stops as well)."""
+        self.joint_guards.append((guard, key, register))
+
+    def _streams(self) -> list[tuple[StreamGuard[str], str, str]]:
+        """Every command stream: (guard, key, the register it writes)."""
+        topics = [(g, n, self.topics[n].register_name) for n, g in self.guards.items()]
+        return topics + self.joint_guards
+
     def _as_stop(self, registers: Collection[str], action: Callable[[], str]) -> str:
         """Run a stop service's writes with every command stream's lock held (no stream
         write between the stop and the lock). Done: every stream is locked (a joystick
@@ -233,20 +245,21 @@ class DescribedDevice:
         commanded (``hold``: their own stop is still sent by a 0, the deadman or a refused
         value). Lost on the link: every stream is locked and, if it may move, its own stop
         stays pending (``stop_failed``)."""
+        streams = self._streams()
         with ExitStack() as held:
-            for guard in self.guards.values():
+            for guard, _, _ in streams:
                 held.enter_context(guard.lock)
             try:
                 done = action()
             except LinkError:
-                for name, guard in self.guards.items():
-                    guard.stop_failed(name)
+                for guard, key, _ in streams:
+                    guard.stop_failed(key)
                 raise
-            for name, guard in self.guards.items():
-                if self.topics[name].register_name in registers:
-                    guard.taken_over(name, locked=True)
+            for guard, key, register in streams:
+                if register in registers:
+                    guard.taken_over(key, locked=True)
                 else:
-                    guard.hold(name)
+                    guard.hold(key)
             return done
 
     def trigger(self, name: str) -> str:

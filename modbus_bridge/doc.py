@@ -170,6 +170,28 @@ def _command_rows(device: Device) -> list[list[str]]:
                 _cell(topic.description),
             ]
         )
+    commanded = [
+        f"{joint.name}: "
+        + ", ".join(
+            f"{kind} `{source.register}` = SI / {source.to_si:.12g}"
+            for kind, source in (
+                ("position", joint.command.position),
+                ("velocity", joint.command.velocity),
+            )
+            if source is not None
+        )
+        for joint in device.joints
+        if joint.command is not None
+    ]
+    if commanded:
+        rows.append(
+            [
+                "`~/joint_commands`",
+                "JointState topic",
+                "; ".join(commanded),
+                "ros2_control's topic interface (docs/ros2_control.md)",
+            ]
+        )
     return rows
 
 

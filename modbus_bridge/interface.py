@@ -10,6 +10,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from bridge_core.runtime.interface import NodeInterface, Service, Topic, bridge_node, bus_node
+from bridge_core.runtime.joint_commands import MAX_JUMP_SPEC
 from bridge_core.runtime.parameters import DeviceDefaults, ParameterSpec
 from bridge_core.runtime.stream_guard import COMMAND_TIMEOUT_RANGE_S
 
@@ -83,10 +84,48 @@ def stream_parameters(topic: TopicSpec) -> tuple[ParameterSpec, ParameterSpec]:
     )
 
 
+# ~/joint_commands' streams of their own (a joint's velocity without a command topic on
+# its register, every position): the deadman and rate of the stepper's and MOTEC's.
+JOINT_COMMAND_TIMEOUT_S = 0.5
+JOINT_COMMAND_RATE_HZ = 10.0
+JOINT_COMMAND_PARAMETERS = (
+    ParameterSpec(
+        "command_timeout_s",
+        JOINT_COMMAND_TIMEOUT_S,
+        "joint_commands deadman: stop a joint after this silence (a velocity: 0; a "
+        "position: hold where it is)",
+        *COMMAND_TIMEOUT_RANGE_S,
+        live=True,
+    ),
+    ParameterSpec(
+        "command_rate_hz",
+        JOINT_COMMAND_RATE_HZ,
+        "joint_commands: most values written per second per joint (a 0 velocity at once)",
+        *COMMAND_RATE_RANGE_HZ,
+        live=True,
+    ),
+    MAX_JUMP_SPEC,
+)
+
 TOPICS = (
     Topic("~/state", "msg_defs/msg/DeviceValues", True, "every poll: the readable registers"),
     Topic("~/{topic}", "std_msgs/msg/Float64", False, "a command topic of the file"),
 )
+JOINT_COMMAND_TOPICS = (
+    Topic(
+        "~/joint_commands",
+        "sensor_msgs/msg/JointState",
+        False,
+        "position or velocity (SI) of the joints with a command, by joint_states' names",
+    ),
+)
+
+
+def commanded(device: Device) -> bool:
+    """Whether a joint of the file has a ``command`` (the node has ``~/joint_commands``)."""
+    return any(joint.command is not None for joint in device.joints)
+
+
 SERVICES = (
     Service("~/read", "msg_defs/srv/ReadRegisters", "registers by name"),
     Service("~/write", "msg_defs/srv/WriteRegister", "a register by name"),
@@ -115,9 +154,12 @@ def device_node(device: Device, line: bool) -> NodeInterface:
         device.name if line else NODE_NAME,
         f"{device.spec.device.title or device.name}, described by a file",
         defaults_of(device),
-        [spec for topic in device.commands.topics for spec in stream_parameters(topic)],
+        [
+            *(spec for topic in device.commands.topics for spec in stream_parameters(topic)),
+            *(JOINT_COMMAND_PARAMETERS if commanded(device) else ()),
+        ],
         owns_link=not line,
-        topics=TOPICS,
+        topics=(*TOPICS, *(JOINT_COMMAND_TOPICS if commanded(device) else ())),
         services=SERVICES,
         expansion=expansion(device),
     )

@@ -24,11 +24,13 @@ from rclpy.lifecycle import LifecycleState, TransitionCallbackReturn
 from std_msgs.msg import Float64
 from std_srvs.srv import SetBool
 
+from bridge_core.ros.joint_commands import JointCommandTopic
 from bridge_core.ros.node_base import BridgeNode
 from bridge_core.ros.node_parameters import DeviceDefaults, ParameterNode
 from bridge_core.ros.process import spin_node
 from bridge_core.runtime.checks import listed
 from bridge_core.runtime.diagnostics import Level, Report
+from bridge_core.runtime.joint_commands import MAX_JUMP_SPEC
 from bridge_core.runtime.keepalive import FEED_WAKE_S, Keepalive
 from bridge_core.runtime.parameters import ParameterSpec
 from bridge_core.runtime.rate_groups import PollGroups
@@ -47,7 +49,15 @@ from .description import (
     load,
 )
 from .device import KEEPALIVE_FEEDS_PER_PERIOD, DescribedDevice, DeviceSnapshot
-from .interface import DEVICE_FILE_SPEC, NODE_NAME, defaults_of, stream_parameters
+from .interface import (
+    DEVICE_FILE_SPEC,
+    JOINT_COMMAND_PARAMETERS,
+    NODE_NAME,
+    commanded,
+    defaults_of,
+    stream_parameters,
+)
+from .joint_commands import JointStreams
 
 
 def _number(value: Value) -> float:
@@ -308,6 +318,11 @@ class ModbusBridgeNode(BridgeNode[DeviceSnapshot]):
                 stop=_stops_when(coil.stop_on),
             )
 
+    def _published_position(self, index: int) -> float | None:
+        """Joint ``index``'s position in the newest joint_states (SI), None before it."""
+        s = self.last_snapshot
+        return None if s is None or not s.positions else s.positions[index]
+
     def _write_value(self, request: Any) -> Value:
         name = str(request.name)
         if name not in self.described.register_map:
@@ -344,6 +359,39 @@ class ModbusBridgeNode(BridgeNode[DeviceSnapshot]):
                 timeout_parameter=timeout_name,
                 rate_parameter=rate_name,
             )
+        if commanded(self.described):
+            self._create_joint_commands()
+
+    def _create_joint_commands(self) -> None:
+        """``~/joint_commands`` (modbus_bridge/joint_commands.py): a joint's velocity goes
+        through the stream of the command topic on its register, when there is one."""
+        values = self.declare_specs(JOINT_COMMAND_PARAMETERS)
+        self.max_jump = float(values[MAX_JUMP_SPEC.name])
+        self.on_parameter(MAX_JUMP_SPEC.name, lambda value: setattr(self, "max_jump", value))
+        topic_guards = {
+            topic.register_name: (self.device.guards[topic.name], topic.name, topic.scale)
+            for topic in self.described.commands.topics
+        }
+        self.joint_streams = JointStreams(
+            self.device, topic_guards, float(values["command_timeout_s"])
+        )
+        for stream in self.joint_streams.own():
+            self.streams.stream(
+                stream.guard,
+                _describe_stream(stream.key),
+                stop_what=lambda key: f"{key} joint_commands stream",
+            )
+        self.joint_commands = JointCommandTopic(
+            self,
+            self.joint_streams.command_joints(
+                self.joint_prefix,
+                self.command_gate(),
+                self.streams.offer,
+                self._published_position,
+                lambda: self.max_jump,
+            ),
+        )
+        self.joint_command_refusals = self.joint_commands.counts
 
 
 def _bind(action: Any, name: str) -> Any:

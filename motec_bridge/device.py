@@ -511,6 +511,15 @@ class MotecDevice(ConfiguredDevice[MotecConfig]):
         self._write("target_distance", counts)
         self._write("start", START_MOVE)
 
+    def retarget(self, counts: int) -> None:
+        """A newer absolute target for the move this bridge's position stream started
+        (``joint_commands``): motion mode absolute, the target (0x26-0x27), 0x29 = 1 again;
+        the drive turns towards it from where it is (README MOTEC decision 21)."""
+        encode(MOTEC_MAP["target_distance"], counts)  # range check before any write
+        self._write("motion_mode", MOTION_ABSOLUTE)
+        self._write("target_distance", counts)
+        self._write("start", START_MOVE)
+
     def stop(self) -> str:
         """Stop in the present mode: velocity -> 0xAE = 0 (ramps down, §4.2); position ->
         0x29 = 0 (the move / stop register), verified (``stop_move``); any other mode ->

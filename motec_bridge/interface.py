@@ -5,6 +5,7 @@ tests/test_interface.py checks the topics, services and actions against running 
 from __future__ import annotations
 
 from bridge_core.runtime.interface import Action, Service, Topic, bridge_node, bus_node
+from bridge_core.runtime.joint_commands import MAX_JUMP_SPEC
 from bridge_core.runtime.parameters import DeviceDefaults, ParameterSpec
 from bridge_core.runtime.stream_guard import COMMAND_TIMEOUT_RANGE_S
 from bridge_core.wire.serial_timing import longest_hold_s
@@ -38,6 +39,9 @@ STOP_TIMEOUT_S = 0.05
 # ~/move_to without a timeout_s: limited to the move's time at its speed limit x this
 # (plus the ramps' allowance, decision 17); 0 (set explicitly) = no default limit.
 MOVE_TIME_MARGIN_MAX = 100.0
+# position_max_velocity's bound (rad/s): a parameter range, not the drive's; the drive's
+# limit is max_speed_rpm, checked when the value is written.
+POSITION_MAX_VELOCITY_LIMIT = 1e6
 
 MOTEC_DEFAULTS = DeviceDefaults(
     "MOTEC β servo drive",
@@ -67,15 +71,25 @@ DRIVE_PARAMETERS = (
     ParameterSpec(
         "command_timeout_s",
         0.5,
-        "cmd_velocity deadman: 0 rpm after this silence",
+        "cmd_velocity and joint_commands deadman: stop the drive after this silence",
         *COMMAND_TIMEOUT_RANGE_S,
         live=True,
     ),
     ParameterSpec(
         "command_rate_hz",
         VELOCITY_WRITE_RATE_HZ,
-        "cmd_velocity: most speed changes written per second (a 0 at once)",
+        "cmd_velocity and joint_commands: most values written per second (a 0 at once)",
         *VELOCITY_RATE_RANGE_HZ,
+        live=True,
+    ),
+    MAX_JUMP_SPEC,
+    ParameterSpec(
+        "position_max_velocity",
+        0.0,
+        "joint_commands position targets: the speed limit (rad/s of the joint) written to "
+        "0xAE with a stream's first target; 0 keeps the drive's own 0xAE",
+        0.0,
+        POSITION_MAX_VELOCITY_LIMIT,
         live=True,
     ),
     ParameterSpec(
@@ -173,6 +187,14 @@ DRIVE_SERVICES = (
     Service("~/write_parameter", "msg_defs/srv/WriteParameter"),
 )
 DRIVE_ACTIONS = (Action("~/move_to", "msg_defs/action/MoveTo"),)
+BUS_TOPICS = (
+    Topic(
+        "~/joint_commands",
+        "sensor_msgs/msg/JointState",
+        False,
+        "position (rad) or velocity (rad/s) per drive, by joint_states' names",
+    ),
+)
 BUS_SERVICES = (
     Service("~/disable_all", "std_srvs/srv/Trigger", "broadcast 0x28 = 0"),
     Service("~/start_all", "std_srvs/srv/Trigger", "broadcast 0x29 = 1"),
@@ -188,6 +210,7 @@ NODES = (
         "the drives' serial bus: opens it, one drive node per unit id",
         MOTEC_DEFAULTS,
         BUS_PARAMETERS,
+        topics=BUS_TOPICS,
         services=BUS_SERVICES,
     ),
     bridge_node(

@@ -38,10 +38,12 @@ from rclpy.node import Node
 from std_msgs.msg import Float64
 from std_srvs.srv import SetBool, Trigger
 
+from bridge_core.ros.joint_commands import JointCommandTopic
 from bridge_core.ros.node_base import BridgeNode, copy_fields
 from bridge_core.ros.process import BusNode, spin_nodes
 from bridge_core.runtime.checks import board_zero_index
 from bridge_core.runtime.diagnostics import Level, Report
+from bridge_core.runtime.joint_commands import MAX_JUMP_SPEC, CommandJoint
 from bridge_core.runtime.rate_groups import PollGroups
 from bridge_core.wire.channel import DeviceChannel
 from bridge_core.wire.errors import CommandRejected, ConfigurationError, DeviceException, LinkError
@@ -70,6 +72,7 @@ from .device import (
     start_all,
 )
 from .interface import BUS_PARAMETERS, MOTEC_DEFAULTS, drive_parameters
+from .joint_commands import DriveTarget, command_joint
 from .registers import (
     BROADCAST_UNIT,
     INTERFACE_RS232,
@@ -161,6 +164,23 @@ class MotecDriveNode(BridgeNode[MotecSnapshot]):
             lambda msg: float(msg.data),
             convert=lambda _key, rad_s: self.device.check_velocity(self.scale.to_rpm(rad_s)),
         )
+        # The bus owner's ~/joint_commands (motec_bridge/joint_commands.py): velocities
+        # into the stream above, position targets into one of their own.
+        self.max_jump = float(values[MAX_JUMP_SPEC.name])
+        self.on_parameter(MAX_JUMP_SPEC.name, lambda value: setattr(self, "max_jump", value))
+        self.position_max_velocity = float(values["position_max_velocity"])
+        self.on_parameter(
+            "position_max_velocity",
+            lambda value: setattr(self, "position_max_velocity", float(value)),
+        )
+        self.target = DriveTarget(
+            self.device, lambda: self.scale.to_rpm(self.position_max_velocity)
+        )
+        self.streams.stream(
+            self.target.guard,
+            lambda _key, counts: f"position target {counts:g} counts",
+            stop_what=lambda _key: "position stream",
+        )
         self.configured = False  # lifecycle: set by on_configure (autostart does it at once)
         self.on_parameter_write("lifeguard_ms", self._set_lifeguard)
         self.keepalive = self.start_keepalive("lifeguard", self._next_feed, self._feed_lifeguard)
@@ -208,6 +228,24 @@ class MotecDriveNode(BridgeNode[MotecSnapshot]):
             m.coil_outputs = list(s.coil_outputs)
             m.discrete_inputs = list(s.discrete_inputs)
         self.state_pub.publish(m)
+
+    def command_joint(self) -> CommandJoint:
+        """This drive's joint of the bus owner's ``~/joint_commands``."""
+        return command_joint(
+            self.joint_names[0],
+            self.device,
+            self.target,
+            self.scale,
+            self.command_gate(),
+            self.streams.offer,
+            self._published_position,
+            lambda: self.max_jump,
+        )
+
+    def _published_position(self) -> float | None:
+        """The drive's position in the newest joint_states (rad), None before the first."""
+        s = self.last_snapshot
+        return None if s is None else self.scale.position(s.position_actual)
 
     def lifeguard_time_ms(self) -> int:
         """The watchdog time the bridge feeds: its parameter, or the drive's own setting."""
@@ -486,6 +524,16 @@ class MotecBusNode(BusNode):
         self.create_service(Trigger, "~/disable_all", self._disable_all)
         self.create_service(Trigger, "~/start_all", self._start_all)
 
+    def command_drives(self) -> None:
+        """``~/joint_commands``: one topic for every drive of the bus, each name handed to
+        its drive node's streams; each drive's diagnostics count the topic's refusals."""
+        topic = JointCommandTopic(
+            self, [drive.command_joint() for drive in self.drive_nodes.values()]
+        )
+        for drive in self.drive_nodes.values():
+            drive.joint_command_refusals = topic.counts
+        self.joint_commands = topic
+
     def _broadcast_written(self, span: Span) -> None:
         for unit in self.drive_nodes:
             self._drive_written(unit, span)
@@ -549,6 +597,7 @@ def build_nodes(nodes: list[Node]) -> None:
         drive = MotecDriveNode(unit, bus.link, drives_on_bus=len(bus.unit_ids))
         bus.drive_nodes[unit] = drive
         nodes.append(drive)
+    bus.command_drives()
 
 
 def main(args: Sequence[str] | None = None) -> int:

@@ -5,6 +5,7 @@ tests/test_interface.py checks the topics, services and actions against running 
 from __future__ import annotations
 
 from bridge_core.runtime.interface import Action, Service, Topic, bridge_node, bus_node
+from bridge_core.runtime.joint_commands import MAX_JUMP_SPEC
 from bridge_core.runtime.parameters import DeviceDefaults, ParameterSpec
 from bridge_core.runtime.stream_guard import COMMAND_TIMEOUT_RANGE_S
 
@@ -64,17 +65,18 @@ PARAMETERS = (
     ParameterSpec(
         "command_timeout_s",
         DEFAULT_JOG_TIMEOUT_S,
-        "jog deadman: stop a jogging motor after this silence",
+        "jog and joint_commands deadman: stop a motor after this silence",
         *COMMAND_TIMEOUT_RANGE_S,
         live=True,
     ),
     ParameterSpec(
         "command_rate_hz",
         JOG_WRITE_RATE_HZ,
-        "jog: most speed changes written per second per motor (a 0 at once)",
+        "jog and joint_commands: most values written per second per motor (a 0 at once)",
         *JOG_RATE_RANGE_HZ,
         live=True,
     ),
+    MAX_JUMP_SPEC,
     ParameterSpec(
         "goal_tolerance",
         GOAL_TOLERANCE_UNITS,
@@ -110,6 +112,12 @@ PARAMETERS = (
 TOPICS = (
     Topic("~/state", "msg_defs/msg/StepperState", True, "every poll"),
     Topic("~/motor_{motor}/jog", "std_msgs/msg/Float64", False, "motor rpm; 0 stops"),
+    Topic(
+        "~/joint_commands",
+        "sensor_msgs/msg/JointState",
+        False,
+        "position (m / rad) or velocity (m/s / rad/s) per motor, by joint_states' names",
+    ),
 )
 SERVICES = (
     Service("~/motor_{motor}/{motor_action}", "std_srvs/srv/Trigger", "the motor's coil"),

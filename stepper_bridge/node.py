@@ -37,10 +37,12 @@ from typing import Any
 from std_msgs.msg import Float64
 from std_srvs.srv import SetBool
 
+from bridge_core.ros.joint_commands import JointCommandTopic
 from bridge_core.ros.node_base import BridgeNode, copy_fields
 from bridge_core.ros.process import spin_node
 from bridge_core.runtime.checks import board_zero_index, listed
 from bridge_core.runtime.diagnostics import Level, Report
+from bridge_core.runtime.joint_commands import MAX_JUMP_SPEC
 from bridge_core.runtime.parameters import padded
 from bridge_core.runtime.rate_groups import PollGroups
 from bridge_core.wire.errors import CommandRejected, ConfigurationError
@@ -75,6 +77,7 @@ from .device import (
     StepperSnapshot,
 )
 from .interface import PARAMETERS, STEPPER_DEFAULTS
+from .joint_commands import MotorTargets, command_joints
 from .registers import (
     INTERPOLATION_PAIRS,
     LONGEST_REPLY_BYTES,
@@ -201,8 +204,41 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
             lambda msg: float(msg.data),
             convert=self.device.check_jog,
         )
+        # ~/joint_commands (stepper_bridge/joint_commands.py): velocities into the jog
+        # streams above, position targets into a stream of their own.
+        self.max_jump = float(values[MAX_JUMP_SPEC.name])
+        self.on_parameter(MAX_JUMP_SPEC.name, lambda value: setattr(self, "max_jump", value))
+        self.targets = MotorTargets(self.device)
+        self.streams.stream(
+            self.targets.guard,
+            lambda n, units: f"motor {n} position target {units:g} units",
+            convert=self.targets.observe,
+            stop_what=lambda n: f"motor {n} position stream",
+        )
+        self.joint_commands = JointCommandTopic(
+            self,
+            command_joints(
+                self.joint_names,
+                self.device,
+                self.targets,
+                self.scales,
+                self.command_gate(),
+                self.streams.offer,
+                self._published_position,
+                lambda: self.max_jump,
+            ),
+        )
+        self.joint_command_refusals = self.joint_commands.counts
 
     # ------------------------------------------------------------ units
+    def _published_position(self, motor: int) -> float | None:
+        """The motor's position in the newest joint_states (SI), None before the first."""
+        s = self.last_snapshot
+        if s is None:
+            return None
+        k = motor - 1
+        return self.scales[k].to_si(s.coordinates[k], s.config.motors[k].lead)
+
     def to_units(self, motor: int, si: float) -> float:
         """SI (m or rad) -> controller units for ``motor``."""
         return self.scales[motor - 1].to_units(float(si), self._lead(motor))

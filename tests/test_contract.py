@@ -16,6 +16,7 @@ from __future__ import annotations
 import importlib
 import itertools
 import json
+import math
 import re
 import statistics
 import subprocess
@@ -32,6 +33,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.srv import GetParameters, ListParameters, SetParameters
 from rclpy.node import NodeNameNonExistentError
 from rclpy.parameter import Parameter, parameter_value_to_python
+from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 
 from bridge_core.wire.codec import encode
@@ -39,7 +41,7 @@ from modbus_bridge.description import load as load_description
 from msg_defs.msg import DeviceValues
 from msg_defs.srv import ReadRegisters, SetValue
 
-from .support.bridges import BRIDGES, BridgeInfo, Call, SimProcess
+from .support.bridges import BRIDGES, BridgeInfo, Call, JointCommandRow, SimProcess
 from .support.ros import (
     LATCHED,
     ROOT,
@@ -52,6 +54,7 @@ from .support.ros import (
     status_node,
     values_of,
     wait_for,
+    wait_subscribed,
 )
 
 pytestmark = pytest.mark.ros
@@ -123,6 +126,7 @@ DESCRIBED: tuple[DescribedInfo, ...] = (
         startup_only=("host", "port", "max_in_flight", *MODBUS_STARTUP_ONLY),
         read_services={"read": Call("read", ReadRegisters, {"names": ["motor_speed"]})},
         mistyped=(("device_file", "/nonexistent/device.yaml"),),
+        joint_commands=JointCommandRow("modbus_bridge", "shaft"),  # its velocity command
     ),
 )
 ALL: tuple[BridgeInfo, ...] = (*BRIDGES, *DESCRIBED)
@@ -292,6 +296,42 @@ def test_refused_value_writes_nothing(shared: Running) -> None:
     reply = r.call(r.info.good)
     assert reply.success, reply.message
     assert r.writes()[before:] == [r.good_write()]
+
+
+# ---------------------------------------------------------------- 1b. joint_commands
+def test_a_refused_joint_command_writes_nothing(shared: Running) -> None:
+    """``~/joint_commands`` (issue 25, docs/ros2_control.md): a message naming a joint the
+    node does not have beside one it has, and one with a NaN, are refused whole: counted
+    by kind in the diagnostics, nothing written (the next, good call's write is the only
+    new record)."""
+    r = shared
+    row = r.info.joint_commands
+    if row is None:
+        pytest.skip(f"{r.info.key} has no ~/joint_commands")
+    publisher = r.client.node.create_publisher(
+        JointState, f"{r.bridge.ns}/{row.node}/joint_commands", 10
+    )
+    try:
+        wait_subscribed(publisher, TIMEOUT)
+        since = time.monotonic()
+        before = len(r.writes())
+        unknown = JointState(name=[row.joint, "no_such_joint"], velocity=[0.1, 0.1])
+        publisher.publish(unknown)
+        publisher.publish(JointState(name=[row.joint], velocity=[math.nan]))
+
+        def counted() -> bool:
+            for status in r.statuses(since):
+                text = values_of(status).get("joint_commands refused", "")
+                if "unknown joint: " in text and "not finite: " in text:
+                    return True
+            return False
+
+        wait_for(counted, TIMEOUT, "both refusals in the diagnostics")
+        reply = r.call(r.info.good)
+        assert reply.success, reply.message
+        assert r.writes()[before:] == [r.good_write()]
+    finally:
+        r.client.node.destroy_publisher(publisher)
 
 
 # ---------------------------------------------------------------- 2. read_only at start-up

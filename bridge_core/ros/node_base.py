@@ -40,6 +40,7 @@ from std_msgs.msg import Bool
 
 from ..runtime.checks import bounded_text
 from ..runtime.diagnostics import Report
+from ..runtime.joint_commands import Gate, RefusalCounts, gate_of
 from ..runtime.keepalive import Keepalive
 from ..runtime.motion_ledger import MotionLedger
 from ..runtime.parameters import bridge_specs
@@ -98,6 +99,9 @@ class BridgeNode(ParameterNode, CommandServices, Generic[SnapshotT]):
         # timeout on a dead link (a stop is attempted on the wire at once).
         self.stop_group = MutuallyExclusiveCallbackGroup()
         self.streams = StreamHost(self)  # command topics with a deadman (streams.topic)
+        # ~/joint_commands refusals by kind (diagnostics), of this node's topic or of the
+        # topic of the bus owner that commands its joints (MOTEC).
+        self.joint_command_refusals: RefusalCounts | None = None
         # Motions services started (fire-and-forget): stopped by a halt like the streams'.
         self.service_motions = MotionLedger()
         self._command_mutex = threading.RLock()  # one command (not stop) at a time
@@ -197,6 +201,16 @@ class BridgeNode(ParameterNode, CommandServices, Generic[SnapshotT]):
     # ------------------------------------------------------------ for subclasses
     def param(self, name: str) -> Any:
         return self.get_parameter(name).value
+
+    def command_gate(self) -> Gate:
+        """``~/joint_commands``' view of this node's command guard: whether it is active,
+        under ``read_only``, connected (``bridge_core.runtime.joint_commands.gate_of``)."""
+        return gate_of(
+            lambda: self.active,
+            lambda: self.read_only,
+            lambda: self.channel.connected,
+            self.get_name(),
+        )
 
     def start_keepalive(
         self, what: str, next_feed: Callable[[], float | None], feed: Callable[[], None]

@@ -16,6 +16,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 
 from ..runtime.diagnostics import Level, link_report
+from ..runtime.joint_commands import DIAGNOSTICS_KEY
 from ..runtime.rate_groups import PollGroups
 from ..runtime.wire_budget import budget_values
 
@@ -67,6 +68,8 @@ class DiagnosticsPublisher:
             values.append(("line load, all devices (%)", node.line_load()))
         if node.streams.guards:
             values.append(("stream commands refused", str(node.streams.refusals)))
+        if node.joint_command_refusals is not None:
+            values.append((DIAGNOSTICS_KEY, node.joint_command_refusals.text()))
         if node.actions.servers:
             values.append(("action goals running", "; ".join(node.actions.running) or "none"))
         if node.channel.connected and poller.last_error:

@@ -41,6 +41,7 @@ from ..runtime.parameters import (
 )
 from ..wire.errors import ConfigurationError
 from ..wire.transport import SerialSettings, TcpSettings
+from .inbox import Inbox
 
 _KINDS: dict[type, int] = {
     bool: ParameterType.PARAMETER_BOOL,
@@ -93,11 +94,21 @@ class ParameterNode(LifecycleNode):
         change_state = self._service_change_state
         change_state.callback = self._refuse_unavailable_transitions(change_state.callback)
         self._specs: dict[str, ParameterSpec] = {}
-        self._appliers: dict[str, Callable[[Any], None]] = {}
+        self._appliers: dict[str, list[Callable[[Any], None]]] = {}
         self._writers: dict[str, Callable[[Any], str | None]] = {}
         self.add_pre_set_parameters_callback(self._coerce_parameters)
         self.add_on_set_parameters_callback(self._check_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
+        # Parts with threads of their own: ended, newest first, before the node is destroyed.
+        self.before_destroy: list[Callable[[], None]] = []
+        # Command topics that may flood, taken on a thread of their own (inbox.py).
+        self.inbox = Inbox(self)
+        self.before_destroy.append(self.inbox.close)
+
+    def destroy_node(self) -> None:
+        while self.before_destroy:
+            self.before_destroy.pop()()
+        super().destroy_node()
 
     def _refuse_unavailable_transitions(
         self, change_state: Callable[[Any, Any], Any]
@@ -148,10 +159,12 @@ class ParameterNode(LifecycleNode):
         return values
 
     def on_parameter(self, name: str, apply: Callable[[Any], None]) -> None:
-        """Apply a live parameter's new value (after it passed its spec's checks)."""
+        """Apply a live parameter's new value (after it passed its spec's checks); several
+        appliers of one parameter run in the order they were added (``command_timeout_s``
+        sets the deadman of a jog guard and of a position guard)."""
         if not self._specs[name].live:
             raise ValueError(f"parameter {name} is start-up only")
-        self._appliers[name] = apply
+        self._appliers.setdefault(name, []).append(apply)
 
     def on_parameter_write(self, name: str, write: Callable[[Any], str | None]) -> None:
         """A live parameter applied by writing to the device: ``write(value)`` runs while
@@ -187,9 +200,10 @@ class ParameterNode(LifecycleNode):
 
     def _apply_parameters(self, parameters: list[Parameter]) -> None:
         for parameter in parameters:
-            apply = self._appliers.get(parameter.name)
-            if apply is not None:
+            appliers = self._appliers.get(parameter.name, [])
+            for apply in appliers:
                 apply(parameter.value)
+            if appliers:
                 self.get_logger().info(f"parameter {parameter.name} set to {parameter.value!r}")
 
 

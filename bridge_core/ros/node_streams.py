@@ -2,18 +2,20 @@
 
 Part of the node base (imports rclpy). ``StreamHost`` puts the ``bridge_core.runtime.stream_guard``
 guards of one node behind its command topics, like ``node_actions.ActionHost`` does for
-action goals: arrivals are recorded in a callback group of their own, values are written
-through the node's command guard (``BridgeNode.run_command``), and a timer stops streams
-that fell silent. The node's halts stop every stream through ``stop_all``.
+action goals: arrivals are recorded on the node's inbox thread (``inbox.py``), values are
+written through the node's command guard (``BridgeNode.run_command``), and a timer stops
+streams that fell silent (it runs only while a guard has something to watch). The node's
+halts stop every stream through ``stop_all``.
 """
 
 from __future__ import annotations
 
 import functools
+import threading
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, TypeVar
 
-from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.timer import Timer
 
 from ..runtime.stream_guard import StreamGuard
 from ..wire.errors import DeviceException
@@ -36,10 +38,15 @@ class StreamHost:
 
     def __init__(self, node: BridgeNode[Any]) -> None:
         self.node = node
-        # Command stream arrivals: recorded at once, never behind a write (``topic``).
-        self.inbox_group = MutuallyExclusiveCallbackGroup()
         self.guards: list[StreamGuard[Any]] = []
         self.refusals = 0  # stream commands refused (diagnostics)
+        self._wakers: dict[int, Callable[[], None]] = {}  # id(guard) -> its writer's trigger
+        # id(guard) -> its deadman timer, cancelled while the guard is idle (nothing offered,
+        # nothing that may move): ~40 executor passes a second per guard saved, which on a
+        # MOTEC bus of three drives (two guards each) were most of the idle bridge's CPU.
+        # An arrival resets it; the lock orders "idle, so cancel" against "offered, so reset".
+        self._timers: dict[int, Timer] = {}
+        self._sleep_lock = threading.Lock()
 
     def topic(
         self,
@@ -56,32 +63,56 @@ class StreamHost:
         """Command topics of one guard (jog, cmd_velocity) with their deadman.
 
         Arrival and writing are apart. A message is only recorded (``guard.offer``: newest
-        value per stream, the deadman counts from its arrival) in a callback group of its
-        own with a depth-1 subscription, so a flood costs no bus time and never waits
-        behind a write. The writer runs in the command group, woken by each arrival and by
-        the deadman timer: it applies what the guard says is ``ready`` (a 0 at once, other
-        values at most ``rate_parameter`` times a second per stream) through the command
-        guard (a refused value stops what the stream had started). The timer also stops
-        streams that fell silent. Both parameters are live; ``close()`` stops every stream.
-        ``convert`` checks a value and turns it into the guard's units (inside the command
-        guard: a bad value is a refusal, not an exception in a callback).
+        value per stream, the deadman counts from its arrival) on the node's inbox thread
+        (``inbox.py``) with a depth-1 subscription, so a flood costs no bus time, never
+        waits behind a write and never runs the executor's loop. The writer (``stream``)
+        applies what the guard says is ``ready``.
+        """
+        self.stream(
+            guard,
+            what,
+            convert=convert,
+            timeout_parameter=timeout_parameter,
+            rate_parameter=rate_parameter,
+        )
+        for key, topic in topics.items():
+            self.node.inbox.subscribe(
+                msg_type, topic, self._callback(guard, key, value_of), STREAM_DEPTH
+            )
+
+    def stream(
+        self,
+        guard: StreamGuard[T],
+        what: Callable[[T, float], str],
+        *,
+        convert: Callable[[T, float], float] = lambda _key, value: value,
+        timeout_parameter: str = "command_timeout_s",
+        rate_parameter: str = "command_rate_hz",
+        stop_what: Callable[[T], str] | None = None,
+    ) -> None:
+        """The writer and deadman of one guard, fed by ``offer`` (its topics, or
+        ``~/joint_commands``: ``bridge_core.ros.joint_commands``).
+
+        The writer runs in the command group, woken by an arrival that may be applied at
+        once and by the deadman timer: it applies what the guard says is ``ready`` (a 0
+        at once, other values at most ``rate_parameter`` times a second per stream)
+        through the command guard (a refused value stops what the stream had started).
+        The timer also stops streams that fell silent. Both parameters are live;
+        ``stop_all()`` stops every stream. ``convert`` checks a value and turns it into
+        the guard's units (inside the command guard: a bad value is a refusal, not an
+        exception in a callback). ``stop_what(key)`` names the stream's stop in logs
+        (default ``what(key, 0.0)``: a 0 is the stop of a jog or velocity stream).
         """
         node = self.node
+        stopping: Callable[[T], str] = stop_what or (lambda key: what(key, 0.0))
         self.guards.append(guard)
         guard.permit = self._permit
 
         def write_ready() -> None:
-            self._write_ready(guard, convert, what)
+            self._write_ready(guard, convert, what, stopping)
 
         writer = node.create_guard_condition(write_ready, callback_group=node.command_group)
-        for key, topic in topics.items():
-            node.create_subscription(
-                msg_type,
-                topic,
-                self._callback(guard, key, value_of, writer.trigger),
-                STREAM_DEPTH,
-                callback_group=self.inbox_group,
-            )
+        self._wakers[id(guard)] = writer.trigger
 
         def period() -> float:
             return min(
@@ -90,9 +121,13 @@ class StreamHost:
 
         def tick() -> None:
             write_ready()  # values held back by the rate limit
-            self._deadman(guard, what)
+            self._deadman(guard, stopping)
+            with self._sleep_lock:
+                if guard.idle():
+                    timer.cancel()  # nothing to watch: ``offer`` wakes it
 
         timer = node.create_timer(period(), tick, callback_group=node.command_group)
+        self._timers[id(guard)] = timer
 
         def set_timeout(value: float) -> None:
             guard.timeout_s = float(value)
@@ -104,7 +139,22 @@ class StreamHost:
 
         node.on_parameter(timeout_parameter, set_timeout)
         node.on_parameter(rate_parameter, set_rate)
+        set_timeout(node.param(timeout_parameter))
         set_rate(node.param(rate_parameter))
+
+    def offer(self, guard: StreamGuard[T], key: T, value: float) -> None:
+        """A command arrived for ``guard``'s stream ``key``: recorded at once (any thread);
+        the writer is woken when it may be applied now, else the deadman timer's pass
+        applies it (a flood wakes the writer at most command_rate_hz times a second, not
+        per message)."""
+        with self._sleep_lock:
+            wake = guard.offer(key, value)
+            timer = self._timers[id(guard)]
+            if timer.is_canceled():
+                timer.reset()
+                wake = True  # the executor may wait without the timer: it takes it anew
+        if wake:
+            self._wakers[id(guard)]()
 
     def _permit(self) -> str | None:
         """Asked by a stream guard, under its lock, before every non-zero write."""
@@ -115,16 +165,10 @@ class StreamHost:
         return None
 
     def _callback(
-        self,
-        guard: StreamGuard[T],
-        key: T,
-        value_of: Callable[[Any], float],
-        wake_writer: Callable[[], None],
+        self, guard: StreamGuard[T], key: T, value_of: Callable[[Any], float]
     ) -> Callable[[Any], None]:
         def arrived(msg: Any) -> None:
-            if guard.offer(key, value_of(msg)):
-                wake_writer()  # else the deadman timer's pass applies it (a flood wakes
-                # the writer at most command_rate_hz times a second, not per message)
+            self.offer(guard, key, value_of(msg))
 
         return arrived
 
@@ -133,6 +177,7 @@ class StreamHost:
         guard: StreamGuard[T],
         convert: Callable[[T, float], float],
         what: Callable[[T, float], str],
+        stopping: Callable[[T], str],
     ) -> None:
         for key in guard.ready():
             value = guard.take(key)
@@ -142,10 +187,10 @@ class StreamHost:
                 what(key, value), functools.partial(_apply, guard, key, value, convert)
             )
             if not ok:
-                self._refused(guard, key, message, what)
+                self._refused(guard, key, message, stopping)
 
     def _refused(
-        self, guard: StreamGuard[T], key: T, message: str, what: Callable[[T, float], str]
+        self, guard: StreamGuard[T], key: T, message: str, stopping: Callable[[T], str]
     ) -> None:
         self.refusals += 1
         self.node.get_logger().warn(message, throttle_duration_sec=2.0)
@@ -154,17 +199,17 @@ class StreamHost:
             # A refused value must not leave the motor running at the previous one. A stop
             # already pending is the deadman's: it retries at its own period, not per message.
             self.node.run_command(
-                f"{what(key, 0.0)} (stop after a refused command)",
+                f"{stopping(key)} (stop after a refused command)",
                 lambda: guard.stop(key),
                 stop=True,
                 own_motion=True,
             )
 
-    def _deadman(self, guard: StreamGuard[T], what: Callable[[T, float], str]) -> None:
+    def _deadman(self, guard: StreamGuard[T], stopping: Callable[[T], str]) -> None:
         for key in guard.due():
             was_moving = guard[key].may_move
             ok, message, _ = self.node.run_command(
-                f"{what(key, 0.0)} (deadman)",
+                f"{stopping(key)} (deadman)",
                 functools.partial(guard.expire, key),
                 stop=True,
                 own_motion=True,
@@ -173,7 +218,7 @@ class StreamHost:
                 continue
             if ok:
                 self.node.get_logger().info(
-                    f"{what(key, 0.0)}: no command for {guard.timeout_s} s, stopped"
+                    f"{stopping(key)}: no command for {guard.timeout_s} s, stopped"
                 )
             else:
                 self.node.get_logger().warn(message, throttle_duration_sec=2.0)

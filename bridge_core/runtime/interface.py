@@ -157,15 +157,18 @@ def bus_node(
     parameters: Iterable[ParameterSpec] = (),
     *,
     unit_ids: bool = True,
+    topics: Iterable[Topic] = (),
     services: Iterable[Service] = (),
 ) -> NodeInterface:
-    """A ``BusNode``: the line's parameters, then the bus's own."""
+    """A ``BusNode``: the line's parameters, then the bus's own (the MOTEC bus owner's
+    ``~/joint_commands``)."""
     return NodeInterface(
         package,
         executable,
         node,
         text,
         (*bus_specs(defaults, unit_ids=unit_ids), *parameters),
+        declared_topics=tuple(topics),
         declared_services=tuple(services),
     )
 

@@ -24,6 +24,13 @@ MOTEC ``~/cmd_velocity``. Each stream key (a motor number, a drive) has the same
 - ``permit()`` (set by the node) is asked under the guard's lock before every non-zero
   write: a write already queued when the node stopped accepting commands is refused.
 
+A position stream (``joint_commands``, issue 25) is a guard with ``zero_stops=False``: every
+value is a target, 0 included; only the deadman, a halt or a stop service stops it, and only
+silence unlocks it. It ``follow``s the joint's velocity guard: one lock for both, and every
+takeover of the velocity stream (a stop service, an e-stop, a mode change) is the position
+stream's too. A ``send`` that cannot go yet (the device still runs the stream's previous
+target) raises ``Deferred``: nothing was written and the value waits for the next pass.
+
 The guard knows no device: ``send(key, value, previous)`` writes a non-zero speed (the
 previous one commanded, or ``None`` when unknown, e.g. after a lost write or a
 reconnect), ``stop(key)`` writes the stop. Both raise ``LinkError`` when the link fails.
@@ -54,6 +61,12 @@ COMMAND_TIMEOUT_RANGE_S = (0.05, 60.0)
 Result = TypeVar("Result")
 
 
+class Deferred(Exception):
+    """Raised by a guard's ``send`` that wrote nothing because the device is still busy
+    with the stream's own previous value: the value is offered again (unless a newer one
+    came) and tried at the next pass of the writer, never counted as a refusal."""
+
+
 @dataclass
 class StreamState:
     """What the guard knows of one stream."""
@@ -68,6 +81,11 @@ class StreamState:
     stop_sent: bool = False  # a stop was acknowledged since the last motion
     last_seen: float | None = None  # clock() of the last command received
     offered: float | None = None  # the newest command received and not yet applied
+    # The newest value taken for the writer, in the units offered (a topic's rad/s where
+    # the guard holds rpm): what ``offer`` compares with to see a repeat. Comparing with
+    # ``value`` (the guard's units) saw none, so a constant flood woke the writer, and
+    # the executor, once per message.
+    taken: float | None = None
     last_send: float = -math.inf  # clock() of the last non-zero value written
     last_stop_try: float = -math.inf  # clock() when the last stop attempt ended
 
@@ -108,6 +126,7 @@ class StreamGuard(Generic[Key]):
         clock: Callable[[], float] = time.monotonic,
         after_stop: Callable[[list[Key]], None] | None = None,
         permit: Callable[[], str | None] | None = None,
+        zero_stops: bool = True,
     ) -> None:
         # after_stop(keys): called (under the lock) once the stops of ``stop`` or
         # ``stop_all`` were acknowledged, with the keys stopped (``stop_all``: after every
@@ -118,6 +137,11 @@ class StreamGuard(Generic[Key]):
         # stop (the stepper: the motor may run from a service); False: a 0 only ends the
         # stream's own motion (MOTEC: 0xAE is also a position move's speed limit).
         self.stop_when_idle = stop_when_idle
+        # zero_stops: a 0 command is the stream's stop (jog, velocity); False: a 0 is a
+        # value like any other (a position target).
+        self.zero_stops = zero_stops
+        # Guards that mirror this one's takeovers (``follow``: a joint's position stream).
+        self._followers: list[StreamGuard[Key]] = []
         self._send = send
         self._stop = stop
         # permit(): None while non-zero values may be written, else the reason they may
@@ -132,6 +156,17 @@ class StreamGuard(Generic[Key]):
         # Arrivals take only this lock, never ``lock`` (held through a write on the wire):
         # a command arriving while another is written is recorded at once.
         self._inbox_lock = threading.Lock()
+
+    def follow(self, leader: StreamGuard[Key]) -> None:
+        """Share ``leader``'s lock and mirror its ``taken_over`` / ``hold`` /
+        ``stop_failed`` for the same key, where this guard has it (call before the guards
+        are used): a stop service or a mode change that takes the leader's stream over
+        takes this one's too, and no write of one interleaves with a stop of the other."""
+        self.lock = leader.lock
+        leader._followers.append(self)
+
+    def _is_stop(self, value: float | None) -> bool:
+        return self.zero_stops and value == 0
 
     def __getitem__(self, key: Key) -> StreamState:
         try:
@@ -153,7 +188,12 @@ class StreamGuard(Generic[Key]):
             stream.fresh = silent or (stream.offered is not None and stream.fresh)
             stream.offered = value
             stream.last_seen = now
-            repeat = stream.active and not stream.stop_pending and stream.value == value
+            repeat = (
+                stream.active
+                and not stream.stop_pending
+                and stream.value is not None
+                and value in (stream.value, stream.taken)
+            )
             return self._may_write(stream, now) and not repeat
 
     def ready(self) -> list[Key]:
@@ -167,13 +207,15 @@ class StreamGuard(Generic[Key]):
         """The rate rule for the stream's offered value (call under ``_inbox_lock``)."""
         if stream.offered is None:
             return False
-        return stream.offered == 0 or now - stream.last_send >= self.min_interval_s
+        return self._is_stop(stream.offered) or now - stream.last_send >= self.min_interval_s
 
     def take(self, key: Key) -> float | None:
         """The stream's newest offered value (None if there is none), now no longer offered."""
         stream = self[key]
         with self._inbox_lock:
             value, stream.offered = stream.offered, None
+            if value is not None:
+                stream.taken = value
         return value
 
     @_locked
@@ -181,7 +223,7 @@ class StreamGuard(Generic[Key]):
         """Apply the newest command of a stream; True if anything was written."""
         stream = self[key]
         fresh, stream.fresh = stream.fresh, False
-        if value == 0:
+        if self._is_stop(value):
             stream.locked = False
             if not stream.may_move and (stream.stop_sent or not self.stop_when_idle):
                 return False
@@ -190,10 +232,13 @@ class StreamGuard(Generic[Key]):
         if stream.locked and fresh:
             stream.locked = False  # it came after timeout_s of silence (see ``offer``)
         if stream.locked:
+            unlock = (
+                "send 0 (or nothing for the command timeout)"
+                if self.zero_stops
+                else "send nothing for the command timeout"
+            )
             raise CommandRejected(
-                refuse_reason
-                or "the motion was stopped: send 0 (or nothing for the command timeout) "
-                "before commanding it again"
+                refuse_reason or f"the motion was stopped: {unlock} before commanding it again"
             )
         refusal = self.permit() if self.permit is not None else None
         if refusal:
@@ -204,6 +249,11 @@ class StreamGuard(Generic[Key]):
         stream.last_send = self._clock()  # an attempt counts: a dead link is not flooded
         try:
             self._send(key, value, previous)
+        except Deferred:
+            with self._inbox_lock:
+                if stream.offered is None:
+                    stream.offered = value  # the newest still: tried at the next pass
+            return False
         except LinkError:
             # The write may or may not have landed: the motor may be turning.
             stream.value, stream.active, stream.stop_pending = None, True, True
@@ -251,6 +301,9 @@ class StreamGuard(Generic[Key]):
             stream.set_locked()
         else:
             stream.locked = False
+        for follower in self._followers:
+            if key in follower.streams:
+                follower.taken_over(key, locked=locked)
 
     @_locked
     def hold(self, key: Key) -> None:
@@ -259,6 +312,9 @@ class StreamGuard(Generic[Key]):
         silence, and what the stream commanded is kept (it may still be moving: a 0, the
         deadman or the stop after a refused command still sends its own stop)."""
         self[key].set_locked()
+        for follower in self._followers:
+            if key in follower.streams:
+                follower.hold(key)
 
     @_locked
     def stop_failed(self, key: Key) -> None:
@@ -270,6 +326,9 @@ class StreamGuard(Generic[Key]):
         stream.set_locked()
         if stream.may_move:
             stream.stop_pending = True
+        for follower in self._followers:
+            if key in follower.streams:
+                follower.stop_failed(key)
 
     @_locked
     def forget_values(self) -> None:
@@ -309,14 +368,28 @@ class StreamGuard(Generic[Key]):
         silent ("until a 0 or silence"). A stop only pending (commands still coming) is sent
         again and the lock kept, so a joystick still held cannot restart the motor.
 
+        A silent stream's value still offered (held back by the rate limit, or ``Deferred``)
+        is dropped: it is older than ``timeout_s`` and must not restart the motor after the
+        deadman's stop. An offered stop is kept.
+
         True if a stop was sent (and acknowledged).
         """
         stream = self[key]
         if stream.silent(self._clock(), self.timeout_s):
             stream.locked = False
+            with self._inbox_lock:
+                if not self._is_stop(stream.offered):
+                    stream.offered = None
         if not stream.may_move:
             return False
         return self.stop(key)
+
+    def idle(self) -> bool:
+        """Nothing for the writer or the deadman: no value offered, no stream that may
+        move (a stop pending counts). A stream that is only locked is idle: a command
+        after timeout_s of silence unlocks it on arrival (``offer``)."""
+        with self._inbox_lock:
+            return all(s.offered is None and not s.may_move for s in self.streams.values())
 
     def moving(self) -> list[Key]:
         return [key for key, stream in self.streams.items() if stream.may_move]
@@ -327,7 +400,7 @@ class StreamGuard(Generic[Key]):
         non-zero value dropped; an offered 0 is kept (it is a stop someone asked for)."""
         with self._inbox_lock:
             for stream in self.streams.values():
-                if stream.offered != 0:
+                if not self._is_stop(stream.offered):
                     stream.offered = None
                 stream.set_locked()
 
@@ -354,4 +427,4 @@ class StreamGuard(Generic[Key]):
         return failures
 
 
-__all__ = ["StreamGuard", "StreamState"]
+__all__ = ["Deferred", "StreamGuard", "StreamState"]

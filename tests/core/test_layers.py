@@ -36,7 +36,16 @@ ROS_PACKAGES = (
     "rosbag2_py",
     "mcap_ros2",
 )
-ROS_FREE_BRIDGE_MODULES = ("registers", "device", "sim", "description", "doc", "interface")
+# joint_commands: a bridge's part of ~/joint_commands (its streams and conversions, issue 25).
+ROS_FREE_BRIDGE_MODULES = (
+    "registers",
+    "device",
+    "sim",
+    "description",
+    "doc",
+    "interface",
+    "joint_commands",
+)
 
 
 @dataclass(frozen=True)

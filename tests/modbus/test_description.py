@@ -568,7 +568,7 @@ BAD += [
         "{name: connected, writes",
         "commands.triggers[0].name",
         16,
-        "'connected' is the node's own (reserved: connected, read, state, write)",
+        "'connected' is the node's own (reserved: connected, joint_commands, read, state, write)",
     ),
     (
         "velocity: {register: speed, factor: 0.1}",

@@ -65,6 +65,15 @@ class Call:
 
 
 @dataclass(frozen=True)
+class JointCommandRow:
+    """A bridge's ``~/joint_commands`` (issue 25): the node that owns the topic, and a
+    joint of it (as named in ``joint_states``)."""
+
+    node: str
+    joint: str
+
+
+@dataclass(frozen=True)
 class BridgeInfo:
     """What the contract suite needs to know about one bridge."""
 
@@ -92,6 +101,7 @@ class BridgeInfo:
     # it or switches what it shows (None: ``good``).
     slow_register: Register | None = None
     slow_write: Call | None = None
+    joint_commands: JointCommandRow | None = None  # None: the bridge has no such topic
     stop: Call | None = None  # a stop service (TCP bridges: the pipelining contract)
 
     @property
@@ -204,6 +214,7 @@ BRIDGES: tuple[BridgeInfo, ...] = (
         ),
         mistyped=(("baudrate", "fast"), ("poll_rate_hz", "fast"), ("unit_id", "0")),
         actions=14,  # move_by and home per motor, home_all, return_to_zero, line, arc
+        joint_commands=JointCommandRow("stepper_bridge", "motor_1"),
     ),
     BridgeInfo(
         key="motec",
@@ -235,6 +246,7 @@ BRIDGES: tuple[BridgeInfo, ...] = (
         read_services={"read_parameter": Call("read_parameter", ReadParameter, {"index": 0x6D})},
         mistyped=(("baudrate", "fast"), ("poll_rate_hz", "fast"), ("unit_id", "300")),
         actions=1,  # ~/move_to
+        joint_commands=JointCommandRow("motec_bridge", "drive_1"),  # the bus owner's
     ),
     BridgeInfo(
         key="modbus",
@@ -375,4 +387,4 @@ class SimProcess:
         return read_read_log(self.read_log)
 
 
-__all__ = ["BRIDGES", "BridgeInfo", "Call", "SimProcess"]
+__all__ = ["BRIDGES", "BridgeInfo", "Call", "JointCommandRow", "SimProcess"]

@@ -187,6 +187,27 @@ def test_offers_coalesce_and_wake_the_writer_only_when_a_write_may_go() -> None:
     assert motors.log == [("send", 1, 50.0, None)]
 
 
+def test_a_repeat_in_another_unit_wakes_no_writer() -> None:
+    """A topic offers rad/s, the guard holds rpm: a repeat is judged against the value last
+    taken, in the units offered. Before, a constant 1000 msg/s flood woke the writer (and
+    the executor) once per message: the bridge at 100 % of a core (bench/stream_flood.py,
+    phase "constant"). A new value after a run of repeats goes at once (the rate limit
+    counts writes only)."""
+    guard, motors, clock = make()
+    guard.min_interval_s = 0.1
+    assert guard.offer(1, 5.0) and guard.command(1, (guard.take(1) or 0.0) * 10)
+    clock.now = 0.2
+    assert not guard.offer(1, 5.0)  # the repeat: nothing to wake
+    assert not guard.command(1, (guard.take(1) or 0.0) * 10)  # the periodic pass: nothing
+    assert not guard.offer(1, 5.0)
+    assert guard.offer(1, 6.0)  # new, and 0.2 s since the last write: at once
+    assert guard.command(1, (guard.take(1) or 0.0) * 10)
+    guard.forget_values()  # a reconnect: the device may hold another speed
+    clock.now = 0.35
+    assert guard.offer(1, 6.0)  # no repeat: sent whole again
+    assert motors.log == [("send", 1, 50.0, None), ("send", 1, 60.0, 50.0)]
+
+
 def test_after_stop_follows_the_acknowledged_stops() -> None:
     """after_stop (the stepper's speed restore) runs after the stops it follows: once per
     stop(), once after all of stop_all()'s stops, never for a stop that failed."""
@@ -283,3 +304,22 @@ def test_permit_is_asked_under_the_lock_before_every_non_zero_write() -> None:
         guard.command(1, 20.0)
     assert guard.command(1, 0.0)  # stops are never refused
     assert motors.log == [("send", 1, 10.0, None), ("stop", 1, None, None)]
+
+
+def test_idle_means_nothing_for_the_writer_or_the_deadman() -> None:
+    """The node's deadman timer sleeps while its guard is idle: a value offered, a stream
+    that may move or a stop pending keeps it awake; a stream only locked does not."""
+    guard, motors, _ = make()
+    assert guard.idle()
+    guard.offer(1, 10.0)
+    assert not guard.idle()  # offered, not yet applied
+    guard.command(1, guard.take(1) or 0.0)
+    assert not guard.idle()  # moving
+    motors.fail = 1
+    with pytest.raises(LinkTimeout):
+        guard.stop(1)
+    assert not guard.idle()  # the stop is pending
+    guard.stop(1)
+    assert guard.idle()
+    guard.hold(2)
+    assert guard.idle()  # locked only: a command after silence unlocks it on arrival
