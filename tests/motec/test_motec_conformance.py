@@ -11,6 +11,8 @@ and refusals that never reach the wire.
 from __future__ import annotations
 
 import math
+import threading
+import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from typing import Any
@@ -19,6 +21,7 @@ import pytest
 from pymodbus.framer import FramerRTU
 
 from bridge_core.runtime.goals import Outcome
+from bridge_core.runtime.keepalive import Keepalive
 from bridge_core.wire.channel import DeviceChannel, Priority
 from bridge_core.wire.errors import CommandRejected, DeviceException, LinkTimeout, NotSent
 from bridge_core.wire.registers import Table, ValueType, WordOrder
@@ -564,6 +567,37 @@ def test_lifeguard_feeds_count_from_the_request_and_go_on_while_down() -> None:
     with pytest.raises(NotSent):
         d.feed_lifeguard(300)
     assert d.next_feed(300) == pytest.approx(100.3)
+
+
+def test_the_first_lifeguard_feed_goes_at_once_with_the_clock_near_zero() -> None:
+    """A host booted a moment ago (a fresh VM, a CI runner): the monotonic clock is near 0.
+    A drive never written is due its first feed now, not a feed period after boot (a
+    "last write at 0" would leave the drive unfed for 20 s here, past its lifeguard)."""
+    started = time.monotonic()
+
+    def clock() -> float:
+        return time.monotonic() - started  # 0.0 at the start of the test
+
+    io = FakeIO()
+    d = MotecDevice(io, clock=clock)
+    lifeguard_ms = 60_000  # a feed period of 20 s
+    assert d.next_feed(lifeguard_ms) <= clock()
+    fed = threading.Event()
+    errors: list[Exception] = []
+
+    def feed() -> None:
+        d.feed_lifeguard(lifeguard_ms)
+        fed.set()
+
+    keepalive = Keepalive(
+        "test-near-zero", lambda: d.next_feed(lifeguard_ms), feed, errors.append, clock=clock
+    )
+    keepalive.start()
+    try:
+        assert fed.wait(5.0), "the first feed did not go at once"
+    finally:
+        keepalive.close()
+    assert io.writes[0] == ("06", 0x112, lifeguard_ms) and not errors
 
 
 def test_lifeguard_feed_only_when_nothing_else_was_written() -> None:

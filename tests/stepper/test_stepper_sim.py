@@ -294,7 +294,9 @@ def test_homing_limits_and_zero(rig: Rig) -> None:
     # Home switch (input 4) at physical 0: coordinate 0 there.
     assert s.coordinates[1] == 0.0 and s.inputs[3] and fake.position[2] == 0.0
     d.motor_action(2, "reverse")  # the negative limit is on: it does not move
-    time.sleep(0.1)
+    # The simulator's next tick ends the motion on the limit (a run that ignored the
+    # limit would never end); nothing moved on the way.
+    wait_until(lambda: fake.motion[2] is None)
     assert idle(rig) and fake.position[2] == 0.0
     d.move_by(2, 7.5)
     wait_until(lambda: idle(rig))

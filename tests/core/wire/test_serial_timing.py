@@ -8,9 +8,12 @@ none is a wall-clock bound on the client.
 
 from __future__ import annotations
 
+import fcntl
 import os
 import pty
 import select
+import struct
+import termios
 import threading
 import time
 import tty
@@ -441,6 +444,16 @@ class ScriptedDevice:
             if action != "silent":
                 os.write(self._master, reply)
 
+    def wait_buffered(self, size: int, timeout_s: float = 5.0) -> None:
+        """Until the port side's input queue holds ``size`` bytes (FIONREAD on the pty)."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            queued = struct.unpack("i", fcntl.ioctl(self._slave, termios.FIONREAD, b"\0" * 4))[0]
+            if queued >= size:
+                return
+            assert time.monotonic() < deadline, f"{queued} of {size} bytes buffered"
+            time.sleep(0.005)
+
     def __enter__(self) -> ScriptedDevice:
         self._thread.start()
         return self
@@ -476,7 +489,9 @@ def test_a_late_reply_is_not_taken_for_the_next_one() -> None:
         try:
             with pytest.raises(LinkTimeout):
                 ch.read_registers(0, 2)  # its reply [10, 11] comes after the timeout
-            time.sleep(0.6)  # the late reply is in by then; the next request drains it
+            # Wait until the late reply is in the port's input buffer: the next request
+            # must drain it rather than take it for its own reply.
+            device.wait_buffered(len(frame(regs.ReadHoldingRegistersResponse(registers=[10, 11]))))
             assert ch.read_registers(0, 2) == [20, 21]
         finally:
             link.close()
