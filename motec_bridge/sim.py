@@ -87,6 +87,11 @@ POWER_UP_OPERATION_MODE = 1  # anything but network: the user must select networ
 # §4.3 writes "0—无故障" and "1—有故障" beside "故障代码 0x00C8高位": during a fault 0xC8 reads 1
 # (decision 7); the detail 0xC9 has no listed value and stays 0.
 LIFEGUARD_FAULT_CODE = FAULT_PRESENT << 16
+# A tick this late means the simulator's process was not scheduled (a loaded test
+# machine): a write that reached the line meanwhile may still wait, unread, in the port's
+# buffer, where a real drive would have taken it as it came. The lifeguard is judged at
+# the next tick, after what arrived was read (a drive that was really not fed trips then).
+STALLED_TICK_S = 0.1
 OUTPUT_MASK = (1 << OUTPUTS) - 1
 I32_MIN, I32_MAX = -(1 << 31), (1 << 31) - 1
 _WRITABLE_HOLDING = {
@@ -307,7 +312,8 @@ class MotecSimDrive(SimulatedDevice):
             if self.save_pending:
                 self.save_pending = False
                 self.set("save_to_flash", 0)
-            self._check_lifeguard()
+            if dt <= STALLED_TICK_S:
+                self._check_lifeguard()
             self._advance(dt)
             self._update_registers()
 

@@ -130,6 +130,26 @@ def test_motion_needs_network_mode() -> None:
     assert drive.value("speed_actual") == 0 and drive.value("position_actual") == 0
 
 
+def test_a_stalled_simulator_reads_what_arrived_before_it_judges_the_lifeguard() -> None:
+    """The simulator's process was not scheduled for 1.2 s (a loaded test machine) while a
+    feed waited in its port's buffer: the late tick does not trip the drive; the next one,
+    after the feed was read, finds it fed. Without the feed the next tick trips it."""
+    for fed in (True, False):
+        now = [0.0]
+        drive = MotecSimDrive(1, clock=lambda now=now: now[0])  # type: ignore[misc]
+        ready(drive, CONTROL_MODE_VELOCITY)
+        write(drive, "lifeguard_time", 1000)
+        write(drive, "lifeguard_mode", LIFEGUARD_ACTIVE)
+        now[0] += 1.2
+        drive.tick(1.2)  # the tick after the stall
+        assert drive.fault == 0
+        if fed:
+            write(drive, "lifeguard_time", 1000)  # the feed, read after the stall
+        now[0] += DT
+        drive.tick(DT)
+        assert (drive.fault == 0) is fed, drive.fault
+
+
 def test_lifeguard_expiry_latches_a_fault_and_releases() -> None:
     now = [0.0]
     drive = MotecSimDrive(1, clock=lambda: now[0])
