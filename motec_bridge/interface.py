@@ -46,7 +46,7 @@ POSITION_MAX_VELOCITY_LIMIT = 1e6
 MOTEC_DEFAULTS = DeviceDefaults(
     "MOTEC β servo drive",
     "rtu",
-    poll_rate_hz=10.0,  # per drive; a poll is 4 reads (~15-25 ms at 115200 baud)
+    poll_rate_hz=10.0,  # per drive; a poll is 2 reads (the slow group's 2 more now and then)
     baudrate=DEFAULT_BAUDRATE,
     timeout_s=0.1,  # a reply is a few ms at 115200: a dead drive costs little bus time
     # A stop or lifeguard feed sent while the drive is marked down: one try this long (a

@@ -32,7 +32,7 @@ GOAL_TOLERANCE_UNITS = 0.01
 STEPPER_DEFAULTS = DeviceDefaults(
     "stepper controller",
     "rtu",
-    poll_rate_hz=3.0,  # a poll takes ~0.29 s at 9600 baud (README)
+    poll_rate_hz=3.0,  # a poll takes ~0.22 s of wire at 9600 baud (stepper decision 21)
     baudrate=DEFAULT_BAUDRATE,
     # No baud rate makes a reply come sooner than 35 ms; the floor at the configured baud
     # rate is checked at start (check_reply_timeout).
@@ -91,7 +91,7 @@ PARAMETERS = (
         PAIR_READING_UNSET,
         "which motors interpolation pairs 2 and 3 drive: the manual's type rows "
         "(2 = motors 1+3, 3 = 2+3) or point rows (2 = 2+3, 3 = 1+3); unset "
-        "refuses pairs 2 and 3 until the hardware check in docs/stepper.md",
+        "refuses pairs 2 and 3 until the hardware check in docs/decisions/stepper.md",
         choices=PAIR_READING_CHOICES,
     ),
     ParameterSpec(
