@@ -38,6 +38,9 @@ class ParameterSpec:
     # The description when it depends on run-time values (MOTEC ``lifeguard_ms``: the
     # floor of its bus): ``described(**facts)`` calls it with the node's facts.
     text_of: Callable[..., str] | None = field(default=None, compare=False, repr=False)
+    # The description ``described`` replaced: the reference pages (bridge_doc) hold for
+    # every bus, so they name this one.
+    static_description: str = field(default="", compare=False, repr=False)
     kind: type = field(init=False)
 
     def __post_init__(self) -> None:
@@ -68,7 +71,14 @@ class ParameterSpec:
         ``text_of``; else itself)."""
         if self.text_of is None:
             return self
-        return dataclasses.replace(self, description=self.text_of(**facts))
+        return dataclasses.replace(
+            self, description=self.text_of(**facts), static_description=self.static_text
+        )
+
+    @property
+    def static_text(self) -> str:
+        """The description before any run-time facts (``described``) filled it in."""
+        return self.static_description or self.description
 
     @property
     def type_name(self) -> str:
