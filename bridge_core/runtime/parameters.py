@@ -194,6 +194,9 @@ class DeviceDefaults:
     stop_timeout_s: float | None = None
     # TCP: reads of one poll in flight before the first reply (1: one at a time).
     max_in_flight: int = 1
+    # A PoseStamped topic the node publishes (R6, xArm: "~/tcp_pose"), stamped with
+    # ``frame_id`` like ``~/state``: only ``frame_id``'s description names it.
+    pose_topic: str = ""
 
 
 def transport_specs(defaults: DeviceDefaults) -> tuple[ParameterSpec, ...]:
@@ -279,6 +282,14 @@ def unit_id_spec(defaults: DeviceDefaults) -> ParameterSpec:
     )
 
 
+def frame_id_text(defaults: DeviceDefaults) -> str:
+    """``frame_id``'s description: the headers the node stamps with it (``BridgeNode.stamped``;
+    ``joint_states`` gets a stamp only)."""
+    if defaults.pose_topic:
+        return f"header frame_id of {defaults.pose_topic} and ~/state (joint_states: none)"
+    return "header frame_id of ~/state (joint_states: none)"
+
+
 def node_specs(defaults: DeviceDefaults) -> tuple[ParameterSpec, ...]:
     """The parameters of every bridge node (besides where its device is)."""
     return (
@@ -299,7 +310,7 @@ def node_specs(defaults: DeviceDefaults) -> tuple[ParameterSpec, ...]:
             live=True,
         ),
         ParameterSpec("joint_prefix", "", "prefix of every joint name"),
-        ParameterSpec("frame_id", "base_link", "frame of published poses and states"),
+        ParameterSpec("frame_id", "base_link", frame_id_text(defaults)),
         ParameterSpec(
             "read_only", False, "refuse every command that writes to the device", live=True
         ),
