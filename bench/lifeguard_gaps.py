@@ -5,7 +5,7 @@ Issue 9 measured, before feeds had their own thread and went first on the line: 
 drives, drive 3 unplugged, ``lifeguard_ms`` 500 and ``timeout_s`` 0.5: drives 1 and 2
 faulted within 1.8 s; at 100 ms / 0.1 s the lifeguard tripped in 2 of 3 runs with every
 drive alive. The bridge now refuses a lifeguard time below
-``motec_bridge.device.lifeguard_min_ms`` (README "Lifeguard"); this bench runs it at
+``motec_bridge.device.lifeguard_min_ms`` (docs/bridges/motec.md, "Lifeguard"); this bench runs it at
 exactly that floor, the hardest setting it accepts.
 
 Setup: the MOTEC simulator (three drives at 115200 baud) in this process on a socat pty

@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """How far apart the R6 world block (``~/tcp_pose``) and the axis positions
-(``joint_states``) are read in one poll (README R6 decision 26).
+(``joint_states``) are read in one poll (R6 decision 26, docs/decisions/r6.md).
 
 Polls the R6 device layer against its simulator over real TCP; the simulator logs the
 wall time it handled each read request. Per poll it prints the time between the world

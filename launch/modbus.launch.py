@@ -53,7 +53,7 @@ def generate_launch_description() -> LaunchDescription:
             DeclareLaunchArgument(
                 "device_file",
                 default_value=str(DEVICE_FILE),
-                description="the device description (YAML; README modbus_bridge)",
+                description="the device description (YAML; docs/bridges/modbus.md)",
             ),
             *(
                 DeclareLaunchArgument(

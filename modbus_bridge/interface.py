@@ -28,6 +28,18 @@ DEVICES = Path(__file__).resolve().parent.parent / "config" / "devices"  # in a 
 DEFAULT_DEVICE_FILE = DEVICES / "xarm.yaml"  # launch/modbus.launch.py's default
 DEFAULT_LINE_FILE = DEVICES / "rtu_multidrop.yaml"
 
+# bridge_doc prints this above the nodes on docs/bridges/modbus.md: what they depend on.
+DOC_NOTE = (
+    "A `modbus_bridge` node is what its description file makes it: its name on a line, its "
+    "command topics and services (and their `<topic>_timeout_s`, `<topic>_rate_hz`), "
+    "`~/joint_commands` if a joint has a command, and its link parameters' defaults. "
+    "Listed here are the nodes of the default configuration (`default_nodes()`): "
+    f"`modbus_bridge` on config/devices/{DEFAULT_DEVICE_FILE.name} "
+    "(launch/modbus.launch.py's default) and `modbus_bus` on "
+    f"config/devices/{DEFAULT_LINE_FILE.name} (the multi-drop example), with a node per "
+    "device of that file. `modbus_doc FILE` prints a file's registers and commands."
+)
+
 DEVICE_FILE_SPEC = ParameterSpec("device_file", "", "device description YAML (required)")
 LINE_FILE_SPEC = ParameterSpec("device_file", "", "description of the line's devices (required)")
 

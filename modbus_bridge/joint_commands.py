@@ -1,7 +1,7 @@
 """A described device's ``~/joint_commands`` (issue 25, docs/ros2_control.md). No ROS here.
 
 A joint with a ``command`` block in its description takes position targets, velocities, or
-both (README modbus_bridge decision 18):
+both (modbus_bridge decision 18, docs/decisions/modbus.md):
 
 - a value in SI (rad, m, rad/s, m/s) is written as value / ``to_si`` of its command
   register (the unit factor, ``factor`` and ``per_revolution``, as ``joint_states`` reads

@@ -2,9 +2,11 @@
 
 Every command checks all of its inputs (and, where the drive's mode matters, the mode
 read fresh from the drive) before its first write, so a refused command writes nothing.
-Units are the drive's: encoder counts and rpm; ``DriveScale`` converts to SI.
+Units are the drive's: encoder counts and rpm; ``DriveScale`` converts to SI. "MOTEC
+decision N" is reading N of docs/decisions/motec.md.
 
-Polling: 4 reads per drive (0x24-0x2D, 0xAA-0xAF, 0xC5-0xC9, 0x109; see registers.py on
+Polling: 2 reads per drive every poll (0xAA-0xAF, 0xC5-0xC9), and the slow group's 2
+(0x24-0x2D, 0x109) every ``slow_poll_period_s`` (MOTEC decision 20; see registers.py on
 reading through unnamed parameters). The configuration (analog max speed 0x6D, lifeguard
 0x112 / 0x114) is read whole when the link comes up, then one request per poll every
 ``config_refresh_s``, and the cache follows the bridge's own writes.
@@ -97,7 +99,7 @@ VELOCITY_STREAM = 0  # the key of the drive's one cmd_velocity stream
 SPEED_LIMIT_RPM = 32767  # 0xAE is a signed 16-bit register
 LIFEGUARD_MIN_MS = 50  # below this a feed every third of it would crowd the bus
 FEEDS_PER_PERIOD = 3  # the bridge writes at least 3 times per lifeguard time
-# A servo at rest dithers by a count or two and shows an rpm or two in 0xAF (README MOTEC
+# A servo at rest dithers by a count or two and shows an rpm or two in 0xAF (MOTEC
 # decision 17): |0xAF| within this band counts as standing still.
 STANDSTILL_SPEED_RPM = 3
 # ~/move_to's default time limit: the move's time at its speed limit times this margin,
@@ -112,7 +114,7 @@ STOP_CHECK_PERIOD_S = 0.1
 CONFIG_NAMES = ("analog_max_speed", "lifeguard_time", "lifeguard_mode")
 MODE_NAMES = ("operation_mode", "control_mode", "target_distance", "enable", "start")
 
-# Rate groups (README MOTEC decision 20). Fast, every poll: 0xAA-0xAF (joint_states, the
+# Rate groups (MOTEC decision 20). Fast, every poll: 0xAA-0xAF (joint_states, the
 # moves' verdicts) and 0xC5-0xC9 (the fault code: a move ends FAULT at once; the inputs
 # share the request). Slow: 0x24-0x2D (the modes, enable, start: host-written; a drive
 # that drops enable on a lifeguard trip also raises its fault code, which is fast; every
@@ -183,7 +185,7 @@ class MotecConfig:
     def lifeguard_armed(self) -> bool:
         """Taken as armed unless 0x112 reads 0: §3.4 arms it with a non-zero time and mode
         9999, and gives no other mode's meaning, so a drive with a time and any mode may
-        be watching (README MOTEC decision 9)."""
+        be watching (MOTEC decision 9)."""
         return self.lifeguard_time_ms != LIFEGUARD_OFF_MS
 
 
@@ -268,7 +270,7 @@ def read_modes(io: RegisterIO) -> Modes:
 
 @dataclass(frozen=True)
 class DriveScale:
-    """Drive units <-> SI for one joint (README "MOTEC units").
+    """Drive units <-> SI for one joint (docs/bridges/motec.md, ``joint_states``).
 
     ``counts_per_rev``: encoder counts per motor revolution; ``gear_ratio``: motor
     revolutions per joint revolution. rad = counts / (counts_per_rev x gear) x 2 pi;
@@ -347,7 +349,7 @@ class MotecDevice(ConfiguredDevice[MotecConfig]):
         super().__init__(io, MOTEC_MAP, CONFIG_PLAN, config_refresh_s, clock, groups=groups)
         self._io_tables: dict[str, Any] = {}  # read with the slow group (read_io_tables)
         # cmd_velocity: one stream (this drive). A 0 ends only the stream's own motion:
-        # 0xAE is also a position move's speed limit (README "MOTEC decisions").
+        # 0xAE is also a position move's speed limit (MOTEC decision 5).
         self.stream: StreamGuard[int] = StreamGuard(
             (VELOCITY_STREAM,),
             self._velocity_send,
@@ -394,7 +396,7 @@ class MotecDevice(ConfiguredDevice[MotecConfig]):
         read = self.poll_status(STAMP_REGISTER)
         v = read.values
         if self.read_io_tables and (read.slow_refreshed or not self._io_tables):
-            # 3 more reads (README "MOTEC decisions" 12), with the slow group: copies of
+            # 3 more reads (MOTEC decision 12), with the slow group: copies of
             # 0xC5 / 0xC6, which every poll reads. Empty until all three got through.
             self._io_tables = {}
             self._io_tables = {
@@ -514,7 +516,7 @@ class MotecDevice(ConfiguredDevice[MotecConfig]):
     def retarget(self, counts: int) -> None:
         """A newer absolute target for the move this bridge's position stream started
         (``joint_commands``): motion mode absolute, the target (0x26-0x27), 0x29 = 1 again;
-        the drive turns towards it from where it is (README MOTEC decision 21)."""
+        the drive turns towards it from where it is (MOTEC decision 21)."""
         encode(MOTEC_MAP["target_distance"], counts)  # range check before any write
         self._write("motion_mode", MOTION_ABSOLUTE)
         self._write("target_distance", counts)
@@ -678,7 +680,7 @@ class MotecDevice(ConfiguredDevice[MotecConfig]):
         """Rewrite 0x112 if nothing was written to the drive for a feed period. Also while
         the drive is marked down (the caller sends it like a stop: one try, the short
         stop timeout), so a line that comes back within the lifeguard time finds the
-        drive fed before it trips (README "Lifeguard")."""
+        drive fed before it trips (docs/bridges/motec.md, "Lifeguard")."""
         if time_ms <= 0:
             return False
         if self._clock() < self.next_feed(time_ms):
@@ -709,7 +711,7 @@ def lifeguard_feed_period_s(time_ms: int) -> float:
 
 
 def lifeguard_min_ms(drives: int, hold_s: float) -> int:
-    """The shortest lifeguard time the bridge can keep fed on a bus (README "Lifeguard").
+    """The shortest lifeguard time the bridge can keep fed on a bus (docs/bridges/motec.md).
 
     A feed falls due ``time / FEEDS_PER_PERIOD`` after the request of the drive's last
     write (counted from the request, not the reply: the drive's watchdog may restart as
@@ -954,14 +956,14 @@ def _check_lifeguard_ms(time_ms: int) -> None:
 
 
 class MoveToMotion(Motion[MotecSnapshot]):
-    """``~/move_to``: one point-to-point move followed through the polls (README
-    "Actions"). Over when the drive stands (``MotecSnapshot.stands``: |0xAF| within the
-    standstill band, 0xAC within ``tolerance_counts`` of 0xAA) on two polls in a row: at
-    the target within ``tolerance_counts`` it is REACHED, elsewhere STOPPED (a stop
-    service, a disable, the drive); a fault code ends it at once. Its stop is
-    ``~/stop``'s, verified. ``time_limit_margin`` > 0 (and no goal ``timeout_s``): the
-    goal is stopped and TIMED_OUT after the move's time at its speed limit times the
-    margin plus ``MOVE_TIME_ALLOWANCE_S`` (decision 17)."""
+    """``~/move_to``: one point-to-point move followed through the polls (docs/actions.md). Over
+    when the drive stands (``MotecSnapshot.stands``: |0xAF| within the standstill band, 0xAC
+    within ``tolerance_counts`` of 0xAA) on two polls in a row: at the target within
+    ``tolerance_counts`` it is REACHED, elsewhere STOPPED (a stop service, a disable, the
+    drive); a fault code ends it at once. Its stop is ``~/stop``'s, verified.
+    ``time_limit_margin`` > 0 (and no goal ``timeout_s``): the goal is stopped and TIMED_OUT
+    after the move's time at its speed limit times the margin plus ``MOVE_TIME_ALLOWANCE_S``
+    (decision 17)."""
 
     axes: frozenset[Hashable] = frozenset({"drive"})
     confirm_reached = True  # "stands" on two polls, REACHED too

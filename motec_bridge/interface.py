@@ -46,7 +46,7 @@ POSITION_MAX_VELOCITY_LIMIT = 1e6
 MOTEC_DEFAULTS = DeviceDefaults(
     "MOTEC β servo drive",
     "rtu",
-    poll_rate_hz=10.0,  # per drive; a poll is 4 reads (~15-25 ms at 115200 baud)
+    poll_rate_hz=10.0,  # per drive; a poll is 2 reads (the slow group's 2 more now and then)
     baudrate=DEFAULT_BAUDRATE,
     timeout_s=0.1,  # a reply is a few ms at 115200: a dead drive costs little bus time
     # A stop or lifeguard feed sent while the drive is marked down: one try this long (a
@@ -95,7 +95,10 @@ DRIVE_PARAMETERS = (
     ParameterSpec(
         "lifeguard_ms",
         0,
-        "drive watchdog 0x112/0x114 (its floor depends on the bus: lifeguard_text)",
+        "drive watchdog 0x112/0x114 (ms), armed on connect and fed by the bridge; if not 0, "
+        "at least 1.5 x (0.1 s + drives x the line's longest transaction): `ros2 param "
+        "describe` gives this bus's figure. 0 at start: leave the drive's own setting; set "
+        "to 0 at run time: disarm",
         0,
         65535,
         live=True,
@@ -176,17 +179,59 @@ DRIVE_TOPICS = (
     Topic("~/cmd_velocity", "std_msgs/msg/Float64", False, "rad/s of the joint; 0 stops"),
 )
 DRIVE_SERVICES = (
-    Service("~/enable", "std_srvs/srv/SetBool"),
-    Service("~/set_control_mode", "msg_defs/srv/SetControlMode"),
-    Service("~/move", "msg_defs/srv/PositionMove"),
-    Service("~/stop", "std_srvs/srv/Trigger"),
-    Service("~/save_to_flash", "std_srvs/srv/Trigger"),
-    Service("~/set_output", "msg_defs/srv/SetOutput"),
-    Service("~/set_analog_max_speed", "msg_defs/srv/SetValue"),
-    Service("~/read_parameter", "msg_defs/srv/ReadParameter"),
-    Service("~/write_parameter", "msg_defs/srv/WriteParameter"),
+    Service(
+        "~/enable",
+        "std_srvs/srv/SetBool",
+        "enable (true) or release (false) the motor (0x28); a release is sent as a stop",
+    ),
+    Service(
+        "~/set_control_mode",
+        "msg_defs/srv/SetControlMode",
+        "network mode, then 1 velocity or 2 position control; refused while the motor turns",
+    ),
+    Service(
+        "~/move",
+        "msg_defs/srv/PositionMove",
+        "point-to-point move by / to a joint angle (rad); refused unless position control, enabled",
+    ),
+    Service(
+        "~/stop",
+        "std_srvs/srv/Trigger",
+        "velocity: 0xAE = 0; position: 0x29 = 0, released if it runs on; other modes: release",
+    ),
+    Service(
+        "~/save_to_flash",
+        "std_srvs/srv/Trigger",
+        "save the drive's parameters to flash (0x35 = 1): they survive a restart",
+    ),
+    Service(
+        "~/set_output",
+        "msg_defs/srv/SetOutput",
+        "switch one output (board 0, index 1-3) on or off",
+    ),
+    Service(
+        "~/set_analog_max_speed",
+        "msg_defs/srv/SetValue",
+        "max speed of analog mode (0x6D), taken as rpm, 0-65535",
+    ),
+    Service(
+        "~/read_parameter",
+        "msg_defs/srv/ReadParameter",
+        "read Pr.N (register N): a named 32-bit one whole, any other as one word",
+    ),
+    Service(
+        "~/write_parameter",
+        "msg_defs/srv/WriteParameter",
+        "write Pr.N within the manual's range; read-only and service-owned ones are refused",
+    ),
 )
-DRIVE_ACTIONS = (Action("~/move_to", "msg_defs/action/MoveTo"),)
+DRIVE_ACTIONS = (
+    Action(
+        "~/move_to",
+        "msg_defs/action/MoveTo",
+        "~/move as a goal; REACHED when the drive stands within goal_tolerance_counts of target",
+    ),
+)
 BUS_TOPICS = (
     Topic(
         "~/joint_commands",

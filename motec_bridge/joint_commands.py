@@ -13,7 +13,7 @@ One joint per drive (``drive_<id>``, as in ``joint_states``):
   written from ``position_max_velocity`` when it is > 0, else the drive's own 0xAE, which
   must then be > 0); each newer target writes the motion mode (absolute), the target
   (0x26-0x27) and 0x29 = 1 again, and the drive turns towards it from where it is
-  (README MOTEC decision 21). Its stop is ``~/move_to``'s: 0x29 = 0, verified.
+  (MOTEC decision 21, docs/decisions/motec.md). Its stop is ``~/move_to``'s: 0x29 = 0, verified.
 
 The position stream follows the velocity guard (one lock; ``~/stop``, a disable or a mode
 change takes both over) and has the drive's ``command_timeout_s`` deadman and

@@ -1,4 +1,4 @@
-"""ROS 2 nodes for MOTEC β servo drives on one RS-485 bus (README "motec_bridge").
+"""ROS 2 nodes for MOTEC β servo drives on one RS-485 bus (docs/bridges/motec.md).
 
 One process, one serial port, one node per drive. ``main`` starts:
 
@@ -7,7 +7,7 @@ One process, one serial port, one node per drive. ``main`` starts:
   ``unit_ids`` and ``interface`` (rs485 / rs232: at most 31 / 8 drives, §1.1), opens the
   one ``ModbusLink`` every drive shares, and offers ``~/disable_all`` (one broadcast write,
   unit 0: 0x28 = 0 on every drive, unanswered) and ``~/start_all`` (every drive's modes
-  read, then a broadcast 0x29 = 1: a synchronised start, README decision 15).
+  read, then a broadcast 0x29 = 1: a synchronised start, MOTEC decision 15).
 - ``motec_<id>`` per unit id: a ``BridgeNode`` given the shared link and its unit id as
   Python values, with its own ``DeviceChannel`` (so its own backoff: a dead drive is
   retried on its own schedule, the others keep their poll slots), poll thread, topics,
@@ -123,7 +123,7 @@ class MotecDriveNode(BridgeNode[MotecSnapshot]):
             drive_node_name(unit_id), MOTEC_DEFAULTS, link=link, unit_id=unit_id, **kwargs
         )
         self.unit_id = unit_id
-        # The shortest lifeguard time this bus can keep fed (README "Lifeguard").
+        # The shortest lifeguard time this bus can keep fed (docs/bridges/motec.md, "Lifeguard").
         hold_s = link.settings.longest_hold_s()
         self.lifeguard_floor_ms = lifeguard_min_ms(drives_on_bus, hold_s)
         self.lifeguard_bound = lifeguard_bound_text(drives_on_bus, hold_s)
@@ -435,7 +435,7 @@ class MotecDriveNode(BridgeNode[MotecSnapshot]):
     def _next_feed(self) -> float | None:
         # Fed while the drive is marked down too, once it was up (armed by on_link_up):
         # a line that comes back within the lifeguard time must find the drive fed
-        # before it trips (README "Lifeguard").
+        # before it trips (docs/bridges/motec.md, "Lifeguard").
         if self.read_only or not self.configured or self.channel.generation == 0:
             return None
         time_ms = self.lifeguard_time_ms()

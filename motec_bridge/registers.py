@@ -9,8 +9,8 @@ lifeguard (0x112, 0x114), §3.5 save to flash (0x35), §4.1 position mode steps 
 velocity mode steps 1-5, §4.3 fault code (0xC8), §5 touch panels (Pr.N numbering).
 
 The manual has NO register table: every register below comes from a worked example, and
-the manual is silent on most ranges. Readings taken (also in the README's MOTEC
-decisions):
+the manual is silent on most ranges. Readings taken (also in docs/decisions/motec.md,
+"MOTEC decision N"):
 
 - Address = parameter number: §3.4 calls 0x112 / 0x114 "Pr.274" / "Pr.276" and §5.2
   calls 0x28 "Pr.40", 0x26-0x27 "Pr.38 和 Pr.39", 0xAE "174" (a touch panel adds 1).
@@ -79,10 +79,10 @@ decisions):
   "done" / "moving" flag addresses (§4.3 names such flags without addresses), no reply
   delay and no value for current control: the bridge does not invent them (``moving`` in
   ``~/state`` is derived from speed and setpoint); a fault is cleared by a restart, the
-  only recovery the manual describes (§3.4, §3.5; README decision 16: the simulator keeps
+  only recovery the manual describes (§3.4, §3.5; MOTEC decision 16: the simulator keeps
   it latched until ``power_cycle``).
 - Fault word halves, IO tables, parameters by number, RS-232 / RS-485, broadcast start:
-  README MOTEC decisions 7 and 12-15.
+  MOTEC decisions 7 and 12-15.
 """
 
 from __future__ import annotations
@@ -375,7 +375,7 @@ def output_coil(output: int, output1_coil: int = OUTPUT1_COIL_DEFAULT) -> int:
 
 # ``~/read_parameter`` / ``~/write_parameter`` (§3.1, §3.2, §5.2: Pr.N is address N). Only
 # the parameters the manual names are known (it has no parameter list: no gains, no
-# accelerations, README decision 13); a 32-bit one is addressed by its first (high) word.
+# accelerations, MOTEC decision 13); a 32-bit one is addressed by its first (high) word.
 # Writable through the service: the named writable parameters that start no motion and
 # are not kept by the bridge itself; the others have their own guarded service.
 PARAMETER_OWN_SERVICE = {

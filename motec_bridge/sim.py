@@ -1,7 +1,8 @@
 """Simulator of MOTEC β drives on one RS-485 bus, on the shared simulator base.
 
 Behaviour (the manual where it says something, the simulator's own choice where it is
-silent; the choices are listed in the README's MOTEC section):
+silent; the choices are MOTEC decisions of docs/decisions/motec.md, and the simulator's
+summary is in docs/bridges/motec.md):
 
 - one serial server, several drives (unit ids 1-31); a unit id nobody owns gets no
   reply, a broadcast write (unit 0) is applied by every drive that is plugged in and

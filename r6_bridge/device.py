@@ -1,7 +1,7 @@
 """R6 device model: polls into typed snapshots, commands into checked writes.
 
 No ROS here. Every command validates all of its inputs before the first write, so a
-refused command writes nothing.
+refused command writes nothing. "R6 decision N" is reading N of docs/decisions/r6.md.
 """
 
 from __future__ import annotations
@@ -61,10 +61,10 @@ POINT_FRAME_MAX_REGISTERS = min(POINT_FRAME_MAX_BYTES // 2, MAX_WRITE_REGISTERS)
 POINT_FRAME_HEADER_REGISTERS = 2  # 30005 point count, 30006 clear flag
 # joint_states is stamped with the read time of the block holding the axis positions,
 # ~/tcp_pose with that of the world block (read just before it), ~/state with the time the
-# blocks before those two were read (README R6 decision 26).
+# blocks before those two were read (R6 decision 26).
 STAMP_REGISTER = "axis_position_1"
 WORLD_STAMP_REGISTER = "world_x"
-# The slow group (README R6 decision 28): read every slow_poll_period_s, and at the next
+# The slow group (R6 decision 28): read every slow_poll_period_s, and at the next
 # poll after a write to it. The axis count is configuration (§3.1.7; a count that shrinks
 # is also caught at once by the refused read of an axis no longer in use); the global
 # speed is a setting (§3.2.2) that ~/set_global_speed reads back itself. Everything else
@@ -72,7 +72,7 @@ WORLD_STAMP_REGISTER = "world_x"
 # request with such a row; the IO board outputs stay fast: a running program switches them.
 SLOW_NAMES = frozenset({"axis_count", "global_speed"})
 MODE_AUTO = 2  # 2185: "2 自动" (decision 2)
-# The commands that set the program running (README R6 decision 23): checked first.
+# The commands that set the program running (R6 decision 23): checked first.
 PROGRAM_COMMANDS = ("start", "single_cycle", "clear_alarm_and_continue", "clear_alarm_and_next")
 CLEAR_COMMANDS = ("clear_alarm_and_continue", "clear_alarm_and_next")
 # The rows those checks read fresh, at command priority.
@@ -120,7 +120,7 @@ class R6Snapshot:
     world_read_time: float = 0.0
     state_read_time: float = 0.0
     slow_read_time: float = 0.0  # when the slow group (SLOW_NAMES) was read
-    # Only with ``m_boards`` / ``eu_board`` (README R6 decision 21): empty / None otherwise.
+    # Only with ``m_boards`` / ``eu_board`` (R6 decision 21): empty / None otherwise.
     m_board_inputs: tuple[int, ...] = ()
     m_board_outputs: tuple[int, ...] = ()
     eu_board_input: int | None = None
@@ -353,7 +353,7 @@ class R6Device:
 
     def read_data_source_length(self, source_id: int) -> int:
         """§4 rows 30000-30001: select the data source to view, read its buffer length
-        (README R6 decision 20: points), and check the selection held."""
+        (R6 decision 20: points), and check the selection held."""
         check_whole_number("data source id", source_id, 0, 0xFFFF)
         address = R6_MAP["data_source_view_id"].address
         self.io.write_register(address, source_id)
@@ -392,7 +392,7 @@ class R6Device:
     def check_program_command(self, name: str, *, skip_failed_step: bool = False) -> Readiness:
         """Refuse a command that sets the program running unless the controller, read just
         now, is in auto mode and homed, and (start, single cycle) has no alarm or (the
-        clear-alarm commands) has one to clear (README R6 decision 23). 20005 skips the
+        clear-alarm commands) has one to clear (R6 decision 23). 20005 skips the
         instruction that raised the alarm: only with ``skip_failed_step``."""
         if name not in PROGRAM_COMMANDS:
             raise CommandRejected(f"{name} does not start the program")
@@ -438,12 +438,12 @@ class R6Device:
     ) -> None:
         """Boards 0-3: §3.3.3, board, point and state in one FC 10 write to 20056-20058.
         Boards 4-8 (IO board 4, M boards 5-7, EU board 8): §5's FC 05 coil 32·board + point,
-        the numbering that is unambiguous (README R6 decisions 3, 19, 21)."""
+        the numbering that is unambiguous (R6 decisions 3, 19, 21)."""
         if point not in OUTPUT_POINTS:
             raise CommandRejected(f"output point {point} outside 0-31")
         if board in OUTPUT_BOARDS_ACCEPTED:
             # A board the controller does not report in use has no outputs to switch: the
-            # write would be acknowledged with no effect (README R6 decision 24).
+            # write would be acknowledged with no effect (R6 decision 24).
             _check_board_in_use(board, self._boards(boards_in_use))
             words = [board, point, 1 if on else 0]
             self.io.write_registers(R6_MAP["output_board"].address, words)
@@ -476,7 +476,7 @@ class R6Device:
         self, board: int, bits: int, mask: int, boards_in_use: int | None = None
     ) -> str:
         """§3.3.1: outputs of one IO board (FC 10, 2 registers, high word first); only the
-        outputs in ``mask`` change (README R6 decision 24).
+        outputs in ``mask`` change (R6 decision 24).
 
         The manual has no mask write, so a partial mask is a read-modify-write at command
         priority, the read just before the write: not atomic against the robot program,
@@ -516,7 +516,7 @@ class R6Device:
 
         The id must be one the controller lists (§3.1.3): the host acknowledges a write to
         an unknown id and changes nothing. The counter is read back (§3.1.4) and the
-        reply says what it holds (README R6 decision 24)."""
+        reply says what it holds (R6 decision 24)."""
         check_whole_number("counter id", counter_id, 0, U32_MAX)
         check_whole_number("counter value", value, 0, U32_MAX)
         ids = self.read_counter_ids()
@@ -549,7 +549,7 @@ class R6Device:
         self.io.write_registers(R6_MAP["counter_modify_id"].address, words)
 
     def write_parameter(self, index: int, value: int) -> str:
-        """One parameter, read back after the write (README R6 decision 24): the host
+        """One parameter, read back after the write (R6 decision 24): the host
         acknowledges writes it does not apply (a parameter locked by the program or the
         mode), which would otherwise report done."""
         self.write_parameters(index, [value])
@@ -584,7 +584,7 @@ class R6Device:
 
         A frame that fails after others went out leaves the source half filled: it is
         cleared (``PointUpload.abandon``), and the error says so, or, if the clear fails
-        too, how many points of this upload the source holds (README R6 decision 25)."""
+        too, how many points of this upload the source holds (R6 decision 25)."""
         upload = PointUpload(self, data_source_id, values_per_point, axis_mask, values)
         while upload.sent < upload.total:
             try:
@@ -630,7 +630,7 @@ class PointUpload:
             raise CommandRejected(f"values_per_point must be one of {POINT_VALUES_PER_POINT}")
         check_whole_number("axis mask", axis_mask, 0, POINT_AXIS_MASK_MAX)
         # §4 30004: bits 0-5 = axes 1-6 of a point; a point of 4 values has no axes 5-6
-        # and a mask of 0 marks no value valid (README R6 decision 25).
+        # and a mask of 0 marks no value valid (R6 decision 25).
         if axis_mask == 0:
             raise CommandRejected("axis mask 0 marks no axis of a point valid")
         if axis_mask >> values_per_point:
@@ -677,7 +677,7 @@ class PointUpload:
     def abandon(self) -> str:
         """An upload that will not finish: clear the source it half filled (the set-up
         again, then a frame of 0 points with the clear flag), so the controller never
-        runs a path cut short (README R6 decision 25)."""
+        runs a path cut short (R6 decision 25)."""
         io = self.device.io
         io.write_registers(R6_MAP["point_source_id"].address, self.setup)
         io.write_registers(R6_MAP["point_count"].address, [0, 1])
@@ -701,7 +701,7 @@ class RunCycleMotion(Motion[R6Snapshot]):
     global speed above 0. An alarm (2396) ends it as FAULT. A single cycle is REACHED
     only when ``moving`` rose and fell and the last cycle time (2401) changed from the
     value read before the start: ``moving`` alone is a motion flag, not the program's
-    state (README R6 decision 23). Otherwise its end is STOPPED, and so is a continuous
+    state (R6 decision 23). Otherwise its end is STOPPED, and so is a continuous
     run's (it runs until stopped). Ends this goal causes (cancel, timeout, link loss,
     the node's halts) send pause (20001), which keeps the program's step. Both kinds take
     the node's ``goal_timeout_s`` when the goal gives ``timeout_s`` 0, a continuous run

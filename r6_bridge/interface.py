@@ -9,7 +9,7 @@ from bridge_core.runtime.parameters import DeviceDefaults, ParameterSpec
 
 from .registers import COMMANDS, MAX_AXES
 
-R6_DEFAULTS = DeviceDefaults("Huacheng R6", "tcp", poll_rate_hz=50.0)
+R6_DEFAULTS = DeviceDefaults("Huacheng R6", "tcp", poll_rate_hz=50.0, pose_topic="~/tcp_pose")
 # World axes past X-W (§3.1.9 rows 2344-2347), read every poll; published when configured.
 EXTRA_WORLD_AXES = ("m7", "m8")
 
@@ -29,12 +29,12 @@ PARAMETERS = (
     ParameterSpec(
         "m_boards",
         False,
-        "the controller offers M board values: poll and switch them (decision 21)",
+        "the controller offers M board values: poll and switch them (R6 decision 21)",
     ),
     ParameterSpec(
         "eu_board",
         False,
-        "an EU board is fitted: poll and switch its IO (decision 21)",
+        "an EU board is fitted: poll and switch its IO (R6 decision 21)",
     ),
     ParameterSpec(
         "extra_world_axes",
@@ -53,22 +53,78 @@ TOPICS = (
     Topic("~/tcp_pose", "geometry_msgs/msg/PoseStamped", True, "the tool pose (world X-W)"),
 )
 SERVICES = (
-    Service("~/{command}", "std_srvs/srv/Trigger", "a controller command (coil write)"),
-    Service("~/clear_alarm_and_next", "msg_defs/srv/ClearAlarmAndNext"),
-    Service("~/set_global_speed", "msg_defs/srv/SetValue"),
-    Service("~/set_output", "msg_defs/srv/SetOutput"),
-    Service("~/set_board_outputs", "msg_defs/srv/SetOutputBoard"),
-    Service("~/set_counter", "msg_defs/srv/SetCounter"),
-    Service("~/list_counters", "msg_defs/srv/ListCounters"),
-    Service("~/read_counter", "msg_defs/srv/ReadCounter"),
-    Service("~/read_parameter", "msg_defs/srv/ReadParameter"),
-    Service("~/write_parameter", "msg_defs/srv/WriteParameter"),
-    Service("~/read_data_source", "msg_defs/srv/ReadDataSource"),
-    Service("~/upload_points", "msg_defs/srv/UploadPoints"),
+    Service(
+        "~/{command}",
+        "std_srvs/srv/Trigger",
+        "a controller command: 1 to its register 20000-20006; starts and clears check mode, "
+        "homing, alarm",
+    ),
+    Service(
+        "~/clear_alarm_and_next",
+        "msg_defs/srv/ClearAlarmAndNext",
+        "clear the alarm and skip the step that raised it (20005); only with skip_failed_step true",
+    ),
+    Service(
+        "~/set_global_speed",
+        "msg_defs/srv/SetValue",
+        "the global speed, value in percent 0-100 (0.1 % steps)",
+    ),
+    Service(
+        "~/set_output",
+        "msg_defs/srv/SetOutput",
+        "switch one output (index 0-31) of an IO board in use (0-4), an M board (5-7) or the EU "
+        "board (8)",
+    ),
+    Service(
+        "~/set_board_outputs",
+        "msg_defs/srv/SetOutputBoard",
+        "set the outputs in mask of one IO board (0-4) at once; a partial mask reads the "
+        "board first",
+    ),
+    Service(
+        "~/set_counter",
+        "msg_defs/srv/SetCounter",
+        "set a listed counter's current value; success when it reads back as written",
+    ),
+    Service("~/list_counters", "msg_defs/srv/ListCounters", "the ids of the controller's counters"),
+    Service(
+        "~/read_counter",
+        "msg_defs/srv/ReadCounter",
+        "a counter's target and current value (selecting it is a write: refused if read_only)",
+    ),
+    Service(
+        "~/read_parameter",
+        "msg_defs/srv/ReadParameter",
+        "one int32 entry of the parameter table (index 0-999, not 915)",
+    ),
+    Service(
+        "~/write_parameter",
+        "msg_defs/srv/WriteParameter",
+        "write one parameter (index 0-964, not 915); success when it reads back as written",
+    ),
+    Service(
+        "~/read_data_source",
+        "msg_defs/srv/ReadDataSource",
+        "how many points a data source holds (selecting it is a write: refused if read_only)",
+    ),
+    Service(
+        "~/upload_points",
+        "msg_defs/srv/UploadPoints",
+        "replace a data source's points with raw values, in one call; answers frames_sent",
+    ),
 )
 ACTIONS = (
-    Action("~/upload_points", "msg_defs/action/PointUpload"),
-    Action("~/run_cycle", "msg_defs/action/RunCycle"),
+    Action(
+        "~/upload_points",
+        "msg_defs/action/PointUpload",
+        "the same upload frame by frame, with progress; an upload that does not finish "
+        "clears the source",
+    ),
+    Action(
+        "~/run_cycle",
+        "msg_defs/action/RunCycle",
+        "run the program: one cycle (REACHED when it ran and ended) or until stopped",
+    ),
 )
 
 NODES = (

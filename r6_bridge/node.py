@@ -1,4 +1,4 @@
-"""ROS 2 node for the Huacheng R6 controller (README "r6_bridge")."""
+"""ROS 2 node for the Huacheng R6 controller (docs/bridges/r6.md)."""
 
 from __future__ import annotations
 
@@ -275,7 +275,7 @@ class R6BridgeNode(BridgeNode[R6Snapshot]):
             ),
             fill=lambda response, frames: setattr(response, "frames_sent", frames),
         )
-        # The same as actions (README "Actions"): progress, cancel, a result when done.
+        # The same as actions (docs/actions.md): progress, cancel, a result when done.
         self.actions.steps(
             PointUpload,
             "~/upload_points",

@@ -5,12 +5,12 @@ Section names below: §2 data format, §3.x examples, §4 the FC 03/04/06/10 add
 §5 the FC 01/05 coil table.
 
 The readings taken where the manual contradicts itself, or says nothing, are recorded once,
-with the manual's words, in README.md "R6 decisions where the manual contradicts itself";
-comments here cite them by number. What this map encodes: 32/64-bit values high word first
-(decision 1), the mode names (2), output boards 0-3 only (3), global speed as one 16-bit
-register (4), the parameter table read to 22299 but written only to 22229 (5), the decimal
-column over the hex column (10), the rows the host does not offer left out (11), torque as a
-fraction of rated (13), world U, V, W in degrees (14), point data raw (15).
+with the manual's words, in docs/decisions/r6.md; comments here cite them by number. What
+this map encodes: 32/64-bit values high word first (decision 1), the mode names (2), output
+boards 0-3 only (3), global speed as one 16-bit register (4), the parameter table read to
+22299 but written only to 22229 (5), the decimal column over the hex column (10), the rows
+the host does not offer left out (11), torque as a fraction of rated (13), world U, V, W in
+degrees (14), point data raw (15).
 """
 
 from __future__ import annotations
@@ -44,7 +44,7 @@ PARAMETER_BASE = 20300
 TORQUE_RATED_RAW = 2580  # §3.1.13: 2580 = one times rated torque
 POSITION_SCALE = 1000  # §3.1.8 / §3.1.9: value x 1000 as int32
 GLOBAL_SPEED_SCALE = 10  # §3.2.2: 0-1000 = 0.0-100.0 %
-OUTPUT_BOARDS_ACCEPTED = range(0, 4)  # README R6 decision 3
+OUTPUT_BOARDS_ACCEPTED = range(0, 4)  # R6 decision 3
 OUTPUT_POINTS = range(0, 32)
 POINT_VALUES_PER_POINT = (4, 6)  # §4 30003: "6 个数据为一点 还是 4 个"
 POINT_AXIS_MASK_MAX = 0x3F  # §4 30004: bits 0-5 = axes 1-6

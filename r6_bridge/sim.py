@@ -1,7 +1,7 @@
 """Simulator of the R6 controller's Modbus TCP slave, on the shared simulator base.
 
-Behaviour (from the manual; the readings taken where it is unclear are README "R6
-decisions" 6, 11 and 14-17, quoted again where they are coded):
+Behaviour (from the manual; the readings taken where it is unclear are R6 decisions 6, 11
+and 16-19 of docs/decisions/r6.md, quoted again where they are coded):
 - serves exactly the §4/§5 map; undefined, reserved and "not offered" rows answer 0x02;
 - FC 04 reads the same rows as FC 03 (§4's title: "功能码 0x03、0x04、0x06、0x10 地址表定义");
 - 32-bit blocks must be read whole (from their first register, in pairs);
@@ -267,7 +267,7 @@ class R6SimDevice(SimulatedDevice):
             self._publish_buffer_length()
 
     def _publish_buffer_length(self) -> None:
-        """30001 for the source selected at 30000: its stored points (README R6 decision 20:
+        """30001 for the source selected at 30000: its stored points (R6 decision 20:
         the manual names no unit; 30005 counts points)."""
         source = int(self.get("data_source_view_id"))
         self.set(
@@ -282,7 +282,7 @@ class R6SimDevice(SimulatedDevice):
             # An alarm blocks both until it is cleared. 20003 "启动按键" runs cycle after
             # cycle; 20002 "进入单循环" runs to the end of the current cycle, then stops
             # (decision 16). Either resumes at the step the program is at.
-            # Only in auto mode and homed (README R6 decision 23: the bridge's reading; a
+            # Only in auto mode and homed (R6 decision 23: the bridge's reading; a
             # controller that ignores the start is what the bridge must notice).
             if alarm == 0 and int(self.get("mode")) == AUTO_MODE and int(self.get("homed")):
                 self.running = True
@@ -327,7 +327,7 @@ class R6SimDevice(SimulatedDevice):
         elapsed_ms = int(self._time_in_cycle_ms)
         if elapsed_ms == int(self.get("last_cycle_time")):
             # Never the last cycle's time to the millisecond: the bridge reads an unchanged
-            # 2401 as a cycle that did not finish (README R6 decision 23, the safe side), and
+            # 2401 as a cycle that did not finish (R6 decision 23, the safe side), and
             # this simulator's cycles, the same path at the same speed, often tie.
             elapsed_ms += 1
         self.set("last_cycle_time", elapsed_ms)

@@ -4,9 +4,12 @@ No ROS here. Every command validates all of its inputs before its first write, s
 refused command writes nothing. Values are in the manual's units: the user's length unit
 for lead, run distance and coordinates (the device stores them x100), rpm, Hz, degrees.
 
-Polling. A poll reads the four status blocks (running flags 40168-40172 first, then
-coordinates 40108-40117, inputs 40124-40136, outputs 40148-40159: four requests, the
-undefined rows between them cannot be read through). The configuration (motor parameters,
+"Stepper decision N" is reading N of docs/decisions/stepper.md.
+
+Polling. A poll reads three status blocks (running flags 40168-40172 first, then
+coordinates 40108-40117 and inputs 40124-40136: three requests, the undefined rows
+between them cannot be read through); the outputs 40148-40159 are the slow group, read
+every ``slow_poll_period_s`` (stepper decision 21). The configuration (motor parameters,
 limit inputs, homing order, system mode) changes rarely; it is read whole when the link comes
 up, then refreshed one request per poll every ``config_refresh_s``, and the cache is
 updated from every write the bridge makes.
@@ -96,8 +99,8 @@ DEFAULT_UNITS_PER_METER = 1000.0
 _STOP_COILS = frozenset({"emergency_stop", "arc_stop", "line_stop"})
 JOINT_TYPES = ("prismatic", "revolute")
 # interpolation_pair_reading: which of the manual's two readings of pair types 2 and 3 the
-# controller follows (README stepper decision 19). Unset until the hardware check in
-# docs/stepper.md settles it: pairs 2 and 3 are refused meanwhile.
+# controller follows (stepper decision 19). Unset until the hardware check in
+# docs/decisions/stepper.md settles it: pairs 2 and 3 are refused meanwhile.
 PAIR_READING_UNSET = "unset"
 PAIR_READINGS: dict[str, dict[int, tuple[int, int]]] = {
     "type_rows": INTERPOLATION_PAIRS,
@@ -154,7 +157,7 @@ class StepperConfig:
     homing_order: tuple[int, ...]
     system_mode: int
     interpolation: InterpolationConfig
-    device_id: int  # 40212: read only (README: the bridge never writes the link settings)
+    device_id: int  # 40212: read only (stepper decision 13: never written)
     baud_rate: int  # 40213-40214
 
 
@@ -202,7 +205,7 @@ class StepperSnapshot:
 
 
 def _fast_names() -> list[str]:
-    """Every poll (README stepper decision 21): what moves by itself and what the motions
+    """Every poll (stepper decision 21): what moves by itself and what the motions
     judge: the running flags (a motion ends, a limit or the home switch stops a motor),
     the coordinates (joint_states), the inputs (the limit and home switches)."""
     names = [motor_register(m, "coordinate") for m in range(1, MOTORS + 1)]
@@ -264,7 +267,7 @@ CONFIG_PLAN: list[ReadRequest] = plan_reads(STEPPER_MAP, STEPPER_MAP.select(_con
 
 @dataclass(frozen=True)
 class JointScale:
-    """Device units <-> SI for one motor (README "joint positions").
+    """Device units <-> SI for one motor (docs/bridges/stepper.md, ``joint_states``).
 
     prismatic: metres = units / ``units_per_meter`` (1000 when the user's unit is mm);
     revolute: radians = units / ``units_per_revolution`` x 2 pi, the user units per JOINT
@@ -333,8 +336,8 @@ def pair_axes(pair: int, reading: str) -> tuple[int, int]:
             f"interpolation pair {pair} refused: the manual names motors "
             f"{by_type[0]}+{by_type[1]} for it in its type rows (40182/40202) and "
             f"{by_points[0]}+{by_points[1]} in its point rows; run the hardware check in "
-            "docs/stepper.md, then set interpolation_pair_reading to type_rows or point_rows "
-            "(pair 1 needs neither)"
+            "docs/decisions/stepper.md, then set interpolation_pair_reading to type_rows or "
+            "point_rows (pair 1 needs neither)"
         )
     return PAIR_READINGS[reading][pair]
 
@@ -397,7 +400,7 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
         self._next_poll = 0
         self.interpolation_run: InterpolationRun | None = None
         # A line / arc that moved a motor outside its configured pair, once per run: the
-        # node stops it (README stepper decision 19). Set by a poll, taken by the node.
+        # node stops it (stepper decision 19). Set by a poll, taken by the node.
         self._wrong_pair: str | None = None
         self._wrong_pair_run: InterpolationRun | None = None
         self.estops = 0  # e-stops this bridge sent (acknowledged)
@@ -508,7 +511,7 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
 
     def _coil(self, name: str) -> None:
         # Stops go in the line's next free slot, before other controllers' commands and
-        # polls (README stepper decision 18).
+        # polls (stepper decision 18).
         priority = Priority.STOP if name in _STOP_COILS else Priority.COMMAND
         self.io.write_coil(STEPPER_MAP[name].address, True, priority)
 
@@ -1078,7 +1081,7 @@ def _collinear(p: tuple[float, float], q: tuple[float, float], r: tuple[float, f
 
 # ---------------------------------------------------------------- action goals
 class StepperMotion(Motion[StepperSnapshot]):
-    """A stepper motion followed through the polls (README "Actions").
+    """A stepper motion followed through the polls (docs/actions.md).
 
     Over when the running flags of its motors (40168+) are off for ``idle_polls_to_end``
     polls in a row; then REACHED if every motor of one of ``targets`` (controller units;
@@ -1241,7 +1244,7 @@ class CoilMotion(StepperMotion):
 
 class HomeMotion(CoilMotion):
     """Homing one motor (its home coil) or all in the homing order (00046), judged by the
-    home input (README stepper decision 20).
+    home input (stepper decision 20).
 
     Over when its motors stand (running flags off, two idle polls for home_all); REACHED
     when each homed motor's home input (40083+) is on, the message giving the coordinate
@@ -1340,7 +1343,7 @@ class InterpolationMotion(StepperMotion):
     before the start: a motor outside the configured pair that moves away from its
     coordinate (the controller follows the other reading) ends the goal at once, HALTED
     (the interpolation stops are sent), naming the motors that moved; every other ending
-    says which motors moved (README stepper decision 19).
+    says which motors moved (stepper decision 19).
     """
 
     def __init__(
@@ -1401,7 +1404,7 @@ def _wrong_pair_text(
     return (
         f"a motor outside the pair moved ({where} units): interpolation_pair_reading "
         f"{reading} names motors {expected} for pair {run.pair}, the controller follows the "
-        "other reading (docs/stepper.md hardware check)"
+        "other reading (docs/decisions/stepper.md hardware check)"
     )
 
 

@@ -32,7 +32,7 @@ GOAL_TOLERANCE_UNITS = 0.01
 STEPPER_DEFAULTS = DeviceDefaults(
     "stepper controller",
     "rtu",
-    poll_rate_hz=3.0,  # a poll takes ~0.29 s at 9600 baud (README)
+    poll_rate_hz=3.0,  # a poll takes ~0.22 s of wire at 9600 baud (stepper decision 21)
     baudrate=DEFAULT_BAUDRATE,
     # No baud rate makes a reply come sooner than 35 ms; the floor at the configured baud
     # rate is checked at start (check_reply_timeout).
@@ -91,7 +91,7 @@ PARAMETERS = (
         PAIR_READING_UNSET,
         "which motors interpolation pairs 2 and 3 drive: the manual's type rows "
         "(2 = motors 1+3, 3 = 2+3) or point rows (2 = 2+3, 3 = 1+3); unset "
-        "refuses pairs 2 and 3 until the hardware check in docs/stepper.md",
+        "refuses pairs 2 and 3 until the hardware check in docs/decisions/stepper.md",
         choices=PAIR_READING_CHOICES,
     ),
     ParameterSpec(
@@ -121,30 +121,114 @@ TOPICS = (
 )
 SERVICES = (
     Service("~/motor_{motor}/{motor_action}", "std_srvs/srv/Trigger", "the motor's coil"),
-    Service("~/motor_{motor}/move_by", "msg_defs/srv/MoveBy"),
-    Service("~/motor_{motor}/configure", "msg_defs/srv/ConfigureMotor"),
-    Service("~/motor_{motor}/set_speed", "msg_defs/srv/SetInteger"),
-    Service("~/motor_{motor}/set_direction", "msg_defs/srv/SetInteger"),
-    Service("~/motor_{motor}/set_run_distance", "msg_defs/srv/SetValue"),
-    Service("~/motor_{motor}/set_round_trips", "msg_defs/srv/SetInteger"),
-    Service("~/motor_{motor}/set_limit_inputs", "msg_defs/srv/SetLimitInputs"),
+    Service(
+        "~/motor_{motor}/move_by",
+        "msg_defs/srv/MoveBy",
+        "single run by a signed distance (m / rad): direction, run distance, single-run coil",
+    ),
+    Service(
+        "~/motor_{motor}/configure",
+        "msg_defs/srv/ConfigureMotor",
+        "write the motor's step angle, microstep, start / accel Hz, speed and lead",
+    ),
+    Service(
+        "~/motor_{motor}/set_speed",
+        "msg_defs/srv/SetInteger",
+        "the motor's speed in rpm (0-65535): single run, forward / reverse, homing",
+    ),
+    Service(
+        "~/motor_{motor}/set_direction",
+        "msg_defs/srv/SetInteger",
+        "single-run direction: 0 positive, 1 negative",
+    ),
+    Service(
+        "~/motor_{motor}/set_run_distance",
+        "msg_defs/srv/SetValue",
+        "single-run distance in m / rad, a magnitude (the sign is set_direction's)",
+    ),
+    Service(
+        "~/motor_{motor}/set_round_trips",
+        "msg_defs/srv/SetInteger",
+        "the motor's round trips in system mode 1 (0-65535, 0 = endless)",
+    ),
+    Service(
+        "~/motor_{motor}/set_limit_inputs",
+        "msg_defs/srv/SetLimitInputs",
+        "which inputs (1-13, 0 = none) are the motor's positive limit, negative limit and home",
+    ),
     Service("~/{system_command}", "std_srvs/srv/Trigger", "an all-motor or system coil"),
-    Service("~/{destructive_command}", "msg_defs/srv/ConfirmedCommand"),
-    Service("~/set_output", "msg_defs/srv/SetOutput"),
-    Service("~/set_all_outputs", "std_srvs/srv/SetBool"),
-    Service("~/set_homing_order", "msg_defs/srv/SetHomingOrder"),
-    Service("~/set_system_mode", "msg_defs/srv/SetInteger"),
-    Service("~/line_move", "msg_defs/srv/LineMove"),
-    Service("~/arc_move", "msg_defs/srv/ArcMove"),
-    Service("~/stop_interpolation", "std_srvs/srv/Trigger"),
+    Service(
+        "~/{destructive_command}",
+        "msg_defs/srv/ConfirmedCommand",
+        "restore factory settings or clear all parameters; only with confirm = the service's name",
+    ),
+    Service(
+        "~/set_output",
+        "msg_defs/srv/SetOutput",
+        "switch one output (board 0, index 1-12) on or off",
+    ),
+    Service(
+        "~/set_all_outputs",
+        "std_srvs/srv/SetBool",
+        "switch every output on (true) or off (false)",
+    ),
+    Service(
+        "~/set_homing_order",
+        "msg_defs/srv/SetHomingOrder",
+        "the motors ~/home_all homes, in order (up to 5 distinct; the other slots 0)",
+    ),
+    Service(
+        "~/set_system_mode",
+        "msg_defs/srv/SetInteger",
+        "the controller's system mode: 0 normal, 1-5 input-driven modes",
+    ),
+    Service(
+        "~/line_move",
+        "msg_defs/srv/LineMove",
+        "line interpolation of a motor pair to absolute points (m / rad); refused while one runs",
+    ),
+    Service(
+        "~/arc_move",
+        "msg_defs/srv/ArcMove",
+        "arc interpolation of a motor pair through absolute points; refused while one runs",
+    ),
+    Service(
+        "~/stop_interpolation",
+        "std_srvs/srv/Trigger",
+        "stop a line or arc (both interpolation stop coils)",
+    ),
 )
 ACTIONS = (
-    Action("~/motor_{motor}/move_by", "msg_defs/action/StepperMoveBy"),
-    Action("~/motor_{motor}/home", "msg_defs/action/StepperRun"),
-    Action("~/home_all", "msg_defs/action/StepperRun"),
-    Action("~/return_to_zero", "msg_defs/action/StepperRun"),
-    Action("~/line_move", "msg_defs/action/LineMotion"),
-    Action("~/arc_move", "msg_defs/action/ArcMotion"),
+    Action(
+        "~/motor_{motor}/move_by",
+        "msg_defs/action/StepperMoveBy",
+        "single run as a goal; REACHED when the motor stands within goal_tolerance of target",
+    ),
+    Action(
+        "~/motor_{motor}/home",
+        "msg_defs/action/StepperRun",
+        "home the motor; REACHED when it stands with its home input on",
+    ),
+    Action(
+        "~/home_all",
+        "msg_defs/action/StepperRun",
+        "home the motors of the homing order; REACHED when each stands with its home input on",
+    ),
+    Action(
+        "~/return_to_zero",
+        "msg_defs/action/StepperRun",
+        "every motor back to coordinate 0; REACHED when all stand within goal_tolerance of 0",
+    ),
+    Action(
+        "~/line_move",
+        "msg_defs/action/LineMotion",
+        "line interpolation as a goal; REACHED when both motors of the pair stand at end",
+    ),
+    Action(
+        "~/arc_move",
+        "msg_defs/action/ArcMotion",
+        "arc interpolation as a goal; REACHED when both motors of the pair stand at end",
+    ),
 )
 EXPANSION = {
     "motor": tuple(range(1, MOTORS + 1)),

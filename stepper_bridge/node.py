@@ -1,4 +1,5 @@
-"""ROS 2 node for the 5-axis stepper controller (README "stepper_bridge").
+"""ROS 2 node for the 5-axis stepper controller (docs/bridges/stepper.md; "stepper decision
+N" is reading N of docs/decisions/stepper.md).
 
 Units: ``joint_states`` and every positional command (``move_by``, ``line_move``,
 ``arc_move``) are SI per motor: a prismatic motor's coordinate (user units) / its
@@ -16,13 +17,13 @@ shutdown) the configured speed is written back after the stop (a failure is logg
 shown in diagnostics, and retried).
 
 Interpolation pairs: types 2 and 3 are refused until ``interpolation_pair_reading`` says
-which of the manual's two readings the controller follows (README stepper decisions 11,
+which of the manual's two readings the controller follows (stepper decisions 11,
 19); a line / arc goal that moves a motor outside the configured pair is stopped; a second
 line / arc is refused while one this bridge started runs (decision 14).
 
 Standalone setters per motor: ``set_speed`` (rpm, like ``configure`` and the jog),
 ``set_direction`` (0/1), ``set_run_distance`` (m / rad, like ``move_by``) and
-``set_round_trips`` (mode 1; README decision 16). The device id and baud rate are shown in
+``set_round_trips`` (mode 1; stepper decision 16). The device id and baud rate are shown in
 diagnostics and never written (decision 13).
 """
 
@@ -121,12 +122,12 @@ INTERPOLATION_FIELDS = (
 # ~/clear_all_parameters: the manual's clear-all ("清零所有参数") reaches the link settings.
 CLEAR_ALL_WARNING = (
     "the link may be lost: clear-all may reset the device id (40212) and baud rate "
-    "(40213) to 1 and 9600 (README stepper decision 15)"
+    "(40213) to 1 and 9600 (stepper decision 15)"
 )
 
 
 # §3: "485 接口通信时每帧数据响应时间不能低于 35ms": the controller answers no sooner than
-# 35 ms after a request (README stepper decision 7). The reply timeout counts from the
+# 35 ms after a request (stepper decision 7). The reply timeout counts from the
 # request's last byte, so it must cover those 35 ms and the longest reply (a 49-register
 # read, 103 bytes: 107 ms at 9600 baud, 215 ms at 4800), plus a margin, rounded up to
 # 10 ms: 0.15 s at 9600 baud 8N1, 0.26 s at 4800, 0.10 s at 19200, 0.07 s at 38400
@@ -153,7 +154,7 @@ def check_reply_timeout(settings: object) -> None:
             f"timeout_s {settings.timeout_s:g} is below {floor:.2f} s, the least a reply can "
             f"take at {settings.baudrate} baud: the controller answers no sooner than "
             f"{REPLY_DELAY_S * 1000:.0f} ms after a request and the longest reply is "
-            f"{LONGEST_REPLY_BYTES} bytes (README stepper decision 7)"
+            f"{LONGEST_REPLY_BYTES} bytes (stepper decision 7)"
         )
 
 
@@ -502,7 +503,7 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
 
     # ------------------------------------------------------------ actions
     def _create_actions(self) -> None:
-        """The timed motions as actions (README "Actions"), beside their services."""
+        """The timed motions as actions (docs/actions.md), beside their services."""
         d = self.device
         every_motor = tuple(range(1, MOTORS + 1))
         for n in every_motor:

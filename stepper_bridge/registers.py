@@ -4,7 +4,7 @@ Source: the controller's Modbus manual (seed 002, docs/manuals.md). Section
 names below: §2 protocol addresses, §3 default link settings, §4 function codes, §5(1)
 holding registers, §5(2) coils, §5(3) special modes, §6 example frames.
 
-Readings taken (also in README "stepper decisions"):
+Readings taken (also in docs/decisions/stepper.md, "stepper decision N"):
 
 - Addresses: holding register 4000N is protocol address N-1, coil 0000N is address N-1
   (§2: "40001 对应协议寻址地址为 0x0000 ... 线圈寄存器地址 00003 对应协议地址也是 0x0002").
@@ -126,7 +126,7 @@ SYSTEM_COILS: dict[str, int] = {
 OUTPUT_COIL_FIRST = 49  # 00049-00072: output n on = 49 + 2(n-1), off = 50 + 2(n-1)
 
 # Interpolation pairs: type -> (first motor, second motor), 0 = none. The manual reads the
-# type two ways (README stepper decision 11):
+# type two ways (stepper decision 11):
 # - the type rows 40182 and 40202: "设定1表示电机1、2实现插补;设定2表示电机1,3实现插补;
 #   设定3表示2,3电机插补" (1 = motors 1+2, 2 = 1+3, 3 = 2+3);
 # - every point row (40184-40199, 40203-40210): first coordinate "若为类型 1、3,则为 1 号
@@ -134,7 +134,7 @@ OUTPUT_COIL_FIRST = 49  # 00049-00072: output n on = 49 + 2(n-1), off = 50 + 2(n
 #   则为3号电机" (1 = 1+2, 2 = 2+3, 3 = 1+3).
 # Descriptions follow the type rows: they define the register written, say it identically
 # twice, and name the pairs in order. Types 2 and 3 are refused until the node's
-# interpolation_pair_reading names the reading a hardware check showed (README stepper
+# interpolation_pair_reading names the reading a hardware check showed (stepper
 # decision 19, stepper_bridge.device.pair_axes).
 INTERPOLATION_PAIRS: dict[int, tuple[int, int]] = {1: (1, 2), 2: (1, 3), 3: (2, 3)}
 # The point rows' reading, kept to tell which motors the two readings disagree on.
@@ -169,7 +169,7 @@ LINE_REGISTERS = (
 )
 INTERPOLATION_REGISTERS = ARC_REGISTERS + LINE_REGISTERS
 # Link settings (40212-40214): read into diagnostics, never written by the bridge (a write
-# would move the controller off the id / baud rate the bridge talks to; README decision).
+# would move the controller off the id / baud rate the bridge talks to; stepper decision 13).
 LINK_REGISTERS = ("device_id", "baud_rate")
 
 

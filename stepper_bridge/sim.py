@@ -1,6 +1,7 @@
 """Simulator of the 5-axis stepper controller's Modbus RTU slave, on the shared base.
 
-Behaviour (from the manual, plus what a test needs to see):
+Behaviour (from the manual, plus what a test needs to see; "stepper decision N" is reading
+N of docs/decisions/stepper.md):
 
 - serves the §5 map: FC 03/05/06/10 only (others: exception 0x01), at most 49 registers
   per read or write and undefined rows (40051-40080, 40096-40107, ...) answer 0x02, as
@@ -14,7 +15,7 @@ Behaviour (from the manual, plus what a test needs to see):
   coil, the e-stop or the limit input in that direction; a single run covers the run
   distance in the direction register's sense; home runs in reverse until the motor's
   home input is on, then its coordinate is 0 (unless ``zero_at_home`` is False: a
-  controller that leaves it, README stepper decision 20); "return to zero" runs each motor back to
+  controller that leaves it, stepper decision 20); "return to zero" runs each motor back to
   coordinate 0; "home all" homes the motors of 40177-40181 one after the other. Speed 0
   (or lead 0) does not run ("若速度为0则不运行");
 - switches: each motor's home and negative limit switch is at physical 0, its positive
@@ -27,17 +28,17 @@ Behaviour (from the manual, plus what a test needs to see):
   off;
 - line and arc interpolation: the pair's motors (by the type rows, 40182 / 40202; a test
   sets ``pair_reading`` to "point_rows" to play a controller that follows the point rows,
-  README stepper decision 19) first run to the start point each at its own speed, then
+  stepper decision 19) first run to the start point each at its own speed, then
   follow the line / arc at the interpolation speed (rpm x the first motor's lead); the stop
   coils end it;
 - while a line or arc interpolation runs (approach included), a write to 40182-40211 or
   to a start coil (00100 / 00102) answers 0x03 and changes nothing (§5(1) 40201 / 40211
-  "插补过程运行中不可调节"; README stepper decision 14); the stop coils and the e-stop work;
+  "插补过程运行中不可调节"; stepper decision 14); the stop coils and the e-stop work;
 - factory reset restores the simulator's defaults; clear-all ("数据清零: 清零所有参数")
   zeroes every parameter and sets the device id and baud rate to the manual's factory
   values, id 1 and 9600 ("出厂时默认设备 ID 为 1;通信波特率为 9600"; 0 is in neither
   register's range): from then on the simulator answers unit 1 only, so a request to
-  another unit gets no reply, not even that clear-all coil's (README stepper decision
+  another unit gets no reply, not even that clear-all coil's (stepper decision
   15). A device id written by FC 06 / 10 also takes effect at once. The baud rate is
   stored but the simulator keeps serving at its start baud (a pty has none); save counts.
 
@@ -93,7 +94,7 @@ FACTORY: dict[str, float] = {
     "lead": 5.0,
     "run_distance": 10.0,
 }
-# What clear-all leaves in the link settings (README stepper decision 15): the manual's
+# What clear-all leaves in the link settings (stepper decision 15): the manual's
 # factory values, the only ones a zeroed controller can have (0 is out of both ranges).
 CLEARED_DEVICE_ID = 1  # "出厂时默认设备 ID 为 1"
 CLEARED_BAUD_RATE = DEFAULT_BAUDRATE  # "通信波特率为 9600"
@@ -139,7 +140,7 @@ _BRIDGE_ONLY_MINIMUMS = ("_step_angle", "_microstep", "_lead")
 class StepperSimDevice(SimulatedDevice):
     def __init__(self, unit_id: int = 1, travel: float = TRAVEL) -> None:
         # Writes are stored word by word (the manual's own §6(3) FC 10 example cuts two
-        # 32-bit values: README stepper decision 2); reads must still take whole values.
+        # 32-bit values: stepper decision 2); reads must still take whole values.
         super().__init__(STEPPER_MAP, unit_id, whole_value_writes=False)
         self.travel = travel
         self.position = {m: START_POSITION for m in range(1, MOTORS + 1)}
@@ -153,7 +154,7 @@ class StepperSimDevice(SimulatedDevice):
         # 2+3) or "point_rows" (2+3, 1+3).
         self.pair_reading = "type_rows"
         # Whether homing sets the coordinate to 0 at the home switch (the manual does not
-        # say; README stepper decision 20): False plays a controller that leaves it.
+        # say; stepper decision 20): False plays a controller that leaves it.
         self.zero_at_home = True
         # Told (old id, new id) when the device id changes, so the server answers the new
         # unit only (make_simulator re-keys its units).

@@ -1,4 +1,4 @@
-"""The behaviour every bridge promises (README "Behaviour every bridge has"), checked once
+"""The behaviour every bridge promises (docs/behaviour.md), checked once
 for all four bridges.
 
 Each test runs against the table in ``tests/support/bridges.py``: the simulator in its

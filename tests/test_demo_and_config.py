@@ -1,4 +1,5 @@
-"""The README's demo runs and shows live state; the example YAML configures the node."""
+"""The demo of the README's quick start runs and shows live state (docs/ros2-cli.md, "The
+demo"); the example YAML configures the node."""
 
 from __future__ import annotations
 

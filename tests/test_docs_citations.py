@@ -2,8 +2,8 @@
 
 No tracked file names a design note, a manual's or a note's path outside the repository
 (manuals are cited by their label in docs/manuals.md; design background is in
-docs/architecture.md), and every link of a ``docs/*.md`` page to another file of the
-repository, and to a heading of a page, resolves.
+docs/architecture.md), and every link of README.md and of a page under ``docs/`` to another
+file of the repository, and to a heading of a page, resolves.
 """
 
 from __future__ import annotations
@@ -101,9 +101,14 @@ def anchors(page: Path) -> set[str]:
     return found
 
 
+def doc_pages() -> list[Path]:
+    """README.md and every page under docs/ (bridges/, decisions/ included)."""
+    return [ROOT / "README.md", *sorted(DOCS.rglob("*.md"))]
+
+
 def doc_links() -> list[tuple[Path, str]]:
     links = []
-    for page in sorted(DOCS.glob("*.md")):
+    for page in doc_pages():
         for target in LINK.findall(page.read_text(encoding="utf-8")):
             if re.match(r"[a-z][a-z0-9+.-]*:", target):  # http:, https:, mailto:
                 continue

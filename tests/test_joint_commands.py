@@ -76,7 +76,8 @@ HOLD_S = 6.0  # the client keeps commanding the last waypoint this long (as a co
 
 # The stepper as the issue asks (tests/support/joint_rigs.py): 9600 baud, replies no sooner
 # than 35 ms, 3 polls a second. One transaction on that line, the longest a stop may wait
-# behind (README stepper decision 18): the reply timeout floor, 0.15 s at 9600 baud.
+# behind (stepper decision 18, docs/decisions/stepper.md): the reply timeout floor, 0.15 s
+# at 9600 baud.
 STEPPER_TRANSACTION_S = reply_timeout_floor_s(SerialSettings("", STEPPER_BAUD))
 # Followed within 4 mm at 1.5 mm/s: the motor runs a target only once it stands (decision
 # 22), and a step costs ~0.25 s of the line beside the polls, so it lags by a step or two.

@@ -1,5 +1,5 @@
-"""The README's ros2 command lines, and the action examples of docs/*.md, run as typed
-against the demo (issues 11, 22).
+"""The ros2 command lines of docs/ros2-cli.md and docs/actions.md, and the action examples of
+every page under docs/, run as typed against the demo (issues 11, 22, 26).
 
 There is no ``ros2`` command here (PyPI wheels), so each line is done the way the CLI does
 it: its YAML read with ``yaml.safe_load`` (what ``ros2 service call`` / ``topic pub`` use)
@@ -19,6 +19,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -31,22 +32,26 @@ from .support.ros import ROOT, WAIT_S, Client, ros_client, wait_for, wait_subscr
 
 pytestmark = pytest.mark.ros
 
-SECTION = "## From the ros2 command line"
-ACTIONS_SECTION = "## Actions (motions that take time)"
+# Each block of lines: the page, and the heading of the section whose ```bash block it is.
+CLI_PAGE = ROOT / "docs" / "ros2-cli.md"
+ACTIONS_PAGE = ROOT / "docs" / "actions.md"
+SECTION = "## Against the demo"
+ACTIONS_SECTION = "## Against the demo"
 DEMO_S = 300  # the demo's --duration: far beyond the test, which stops it itself
 DEMO_START_S = 180.0  # four simulators and bridges on a loaded machine
 
 
-# A README goal's longest run against the demo (the stepper's home at 9600 baud).
+# A docs goal's longest run against the demo (the stepper's home at 9600 baud).
 ACTION_END_S = 90.0
-# A docs action example: its code span, and the mark of one that cannot run against the
-# demo, right after it.
-DOCS_SEND_GOAL = re.compile(r"`(ros2 action send_goal\b[^`]*)`(\s*\(real device only\b)?")
+# A docs action example: its code span (the command with its arguments: a span that only
+# names the command is prose), and the mark of one that cannot run against the demo, right
+# after it.
+DOCS_SEND_GOAL = re.compile(r"`(ros2 action send_goal\s[^`]*)`(\s*\(real device only\b)?")
 
 
-def readme_commands(heading: str = SECTION) -> list[list[str]]:
-    """The lines of the section's bash block, split as the shell splits them."""
-    text = (ROOT / "README.md").read_text()
+def doc_commands(page: Path = CLI_PAGE, heading: str = SECTION) -> list[list[str]]:
+    """The lines of the bash block of the page's section, split as the shell splits them."""
+    text = page.read_text()
     section = text.split(heading, 1)[1].split("\n## ", 1)[0]
     block = section.split("```bash\n", 1)[1].split("```", 1)[0]
     return [shlex.split(line) for line in block.splitlines() if line.strip()]
@@ -83,7 +88,7 @@ def demo(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Client]:
     )
     try:
         # The demo's first report comes after its start services (the drives enabled, the
-        # R6 started...): the README's lines are typed at a demo that is up.
+        # R6 started...): the docs' lines are typed at a demo that is up.
         wait_for(
             lambda: b"--- t =" in out.read_bytes() or proc.poll() is not None,
             DEMO_START_S,
@@ -103,9 +108,9 @@ def demo(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Client]:
         log.close()
 
 
-def test_every_readme_command_line_works_as_typed(demo: Client) -> None:
+def test_every_cli_command_line_works_as_typed(demo: Client) -> None:
     client = demo
-    commands = readme_commands()
+    commands = doc_commands()
     assert len(commands) >= 6, commands
     for words in commands:
         assert words[0] == "ros2", words
@@ -190,10 +195,10 @@ def run_goal_to_its_end(client: Client, words: list[str]) -> None:
         goal.close()
 
 
-def test_every_readme_action_line_works_as_typed(demo: Client) -> None:
-    """The "Actions" block, as a user types it against the demo: each goal is accepted,
+def test_every_actions_page_line_works_as_typed(demo: Client) -> None:
+    """docs/actions.md's block, as a user types it against the demo: each goal is accepted,
     sends feedback and runs to its end, REACHED."""
-    commands = readme_commands(ACTIONS_SECTION)
+    commands = doc_commands(ACTIONS_PAGE, ACTIONS_SECTION)
     assert len(commands) >= 3, commands
     for words in commands:
         assert "--feedback" in words, " ".join(words)
@@ -201,34 +206,34 @@ def test_every_readme_action_line_works_as_typed(demo: Client) -> None:
 
 
 def docs_action_lines() -> list[tuple[str, list[str], bool]]:
-    """Every ``ros2 action send_goal`` code span of docs/*.md (one wrapped over lines is
-    joined, as the shell would take it pasted on one line): (file, words, marked "real
-    device only")."""
+    """Every ``ros2 action send_goal`` code span of the pages under docs/ (one wrapped over
+    lines is joined, as the shell would take it pasted on one line): (page, words, marked
+    "real device only")."""
     found = []
-    for path in sorted((ROOT / "docs").glob("*.md")):
+    for path in sorted((ROOT / "docs").rglob("*.md")):
         for match in DOCS_SEND_GOAL.finditer(path.read_text()):
             words = shlex.split(" ".join(match.group(1).split()))
-            found.append((path.name, words, match.group(2) is not None))
+            found.append((str(path.relative_to(ROOT)), words, match.group(2) is not None))
     return found
 
 
 def test_every_docs_action_line_works_as_typed_or_is_marked(demo: Client) -> None:
-    """docs/*.md's send_goal examples against the same demo: each runs to its end,
-    REACHED, unless it is marked "(real device only: why)" right after it (a check that
-    needs the pendant, the wiring or settings the demo does not start with). A line the
-    README's block holds too (but for ``--feedback``) ran there already."""
+    """The docs' send_goal examples against the same demo: each runs to its end, REACHED,
+    unless it is marked "(real device only: why)" right after it (a check that needs the
+    pendant, the wiring or settings the demo does not start with). A line docs/actions.md's
+    block holds too (but for ``--feedback``) ran there already."""
     lines = docs_action_lines()
     marked = [words for _file, words, real_only in lines if real_only]
     runnable = [(file, words) for file, words, real_only in lines if not real_only]
     assert len(marked) >= 3 and len(runnable) >= 3, lines
-    in_readme = {_without_feedback(words) for words in readme_commands(ACTIONS_SECTION)}
+    in_block = {_without_feedback(words) for words in doc_commands(ACTIONS_PAGE, ACTIONS_SECTION)}
     for file, words in runnable:
-        if _without_feedback(words) in in_readme:
+        if _without_feedback(words) in in_block:
             continue
         try:
             run_goal_to_its_end(demo, words)
         except AssertionError as err:
-            raise AssertionError(f"docs/{file}: {err}") from err
+            raise AssertionError(f"{file}: {err}") from err
 
 
 def _without_feedback(words: list[str]) -> tuple[str, ...]:

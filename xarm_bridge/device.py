@@ -3,7 +3,8 @@
 Every command validates all of its inputs before its first write, so a refused command
 writes nothing; writes to channels the manual does not call valid never reach the wire.
 The arm's joint count (5, 6 or 7) and the user coils it reads (a range of C256-511, or
-none) are fixed when the device is made: they shape the poll and the snapshot.
+none) are fixed when the device is made: they shape the poll and the snapshot. "xArm
+decision N" is reading N of docs/decisions/xarm.md.
 """
 
 from __future__ import annotations
@@ -113,7 +114,7 @@ class XArmSnapshot:
     Per-joint tuples hold the arm's joints only (``joint_count`` of them, J1 first)."""
 
     read_time: float  # wall clock when the joint angles (read last) were requested
-    slow_read_time: float  # wall clock when the slow group (README xArm decision 18) was read
+    slow_read_time: float  # wall clock when the slow group (xArm decision 18) was read
     mode: int
     state: int
     error_code: int
@@ -235,7 +236,7 @@ class XArmDevice:
         self.joint_count = joint_count
         self.user_coils = check_user_coils(user_coils)
         self.plan = poll_plan(joint_count, user_coils)
-        # The slow group (README xArm decision 18): the analog outputs (H3-4) and the user
+        # The slow group (xArm decision 18): the analog outputs (H3-4) and the user
         # coils (C256-511) change only by writes, which refresh them at the next poll. The
         # digital outputs stay fast: an offline task the arm runs may switch them.
         slow_names = {*_AO, *_user_coil_names(user_coils)}
@@ -349,7 +350,7 @@ class XArmDevice:
     def halt(self, kind: str) -> str:
         """``stop`` / ``pause`` through the coil the manual names for it (C145 "停止运动控制",
         C144 "暂停运动控制", FC 05 = 1), done only when the state read back shows it
-        (README xArm decision 6). Not shown within HALT_CONFIRM_S: H33 = 4 / 3 (the xArm
+        (xArm decision 6). Not shown within HALT_CONFIRM_S: H33 = 4 / 3 (the xArm
         SDK's set_state, the value the manual's FC 0x17 example writes) and read back
         again; still not shown: ``NotConfirmed`` with what was written and seen."""
         coil, state = (
@@ -399,7 +400,7 @@ class XArmDevice:
         other output is touched. Returns what was written (e.g. "DO 2-3 on off, DO 9 on").
 
         Coils, not the FC 0x16 mask write of H0: the manual defines coil addressing
-        exactly, the bit order of the DO word only by "每1位表示1路IO" (README xArm
+        exactly, the bit order of the DO word only by "每1位表示1路IO" (xArm
         decision 9)."""
         changes = _changes(
             "digital output",
@@ -430,7 +431,7 @@ class XArmDevice:
     def set_joint_enable(self, joint: int, enable: bool) -> None:
         """Enable or disable joint ``joint`` (1..joint_count, coil 134 + joint, FC 05), or
         with 0 every joint of the arm (C135.., one FC 0F). The brake coils C128-134 are
-        never written (README xArm decision 12)."""
+        never written (xArm decision 12)."""
         check_index("joint", joint, range(0, self.joint_count + 1))
         if joint == 0:
             self.io.write_coils(ENABLE_FIRST, [bool(enable)] * self.joint_count)
@@ -439,7 +440,7 @@ class XArmDevice:
 
     def change_digital_outputs(self, changes: Mapping[int, bool]) -> None:
         """Several controller DOs in one FC 0x16 mask write to H0, the others kept; bit n
-        of H0 is DO n (README xArm decision 9). Device layer only: ROS writes coils."""
+        of H0 is DO n (xArm decision 9). Device layer only: ROS writes coils."""
         if not changes:
             raise CommandRejected("no output changes given")
         and_mask, or_mask = 0xFFFF, 0
@@ -490,7 +491,7 @@ class XArmDevice:
 
     def _set_safety_mode(self, name: str, coil: int, on: bool, confirm: str) -> str:
         """C142 / C143 "(0关闭, 1开启)". Switching a safety mode off runs only when
-        ``confirm`` repeats the service's name (README xArm decision 17), like the
+        ``confirm`` repeats the service's name (xArm decision 17), like the
         stepper's destructive coils; the coil is read back and the reply says what it
         holds."""
         if not on and confirm != name:
@@ -558,7 +559,7 @@ def _signed(word: int) -> int:
 
 
 def _check_channel(what: str, index: int, valid: range) -> None:
-    """Only the channels the manual calls valid (README "xArm decisions")."""
+    """Only the channels the manual calls valid (xArm decision 3)."""
     try:
         check_index(what, index, valid)
     except CommandRejected as err:

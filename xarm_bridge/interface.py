@@ -9,7 +9,7 @@ from bridge_core.runtime.parameters import DeviceDefaults, ParameterSpec
 
 from .registers import JOINT_COUNTS, JOINTS, USER_COILS
 
-XARM_DEFAULTS = DeviceDefaults("UFactory xArm", "tcp", poll_rate_hz=50.0)
+XARM_DEFAULTS = DeviceDefaults("UFactory xArm", "tcp", poll_rate_hz=50.0, pose_topic="~/tcp_pose")
 
 PARAMETERS = (
     ParameterSpec(
@@ -41,20 +41,76 @@ TOPICS = (
     Topic("~/tcp_pose", "geometry_msgs/msg/PoseStamped", True, "the tool pose"),
 )
 SERVICES = (
-    Service("~/pause", "std_srvs/srv/Trigger"),
-    Service("~/stop", "std_srvs/srv/Trigger"),
-    Service("~/resume", "std_srvs/srv/Trigger"),
-    Service("~/set_mode", "msg_defs/srv/SetInteger"),
-    Service("~/set_state", "msg_defs/srv/SetInteger"),
-    Service("~/set_digital_output", "msg_defs/srv/SetOutput"),
-    Service("~/set_digital_outputs", "msg_defs/srv/SetOutputs"),
-    Service("~/set_user_coils", "msg_defs/srv/SetOutputs"),
-    Service("~/set_joint_enable", "msg_defs/srv/SetJointEnable"),
-    Service("~/set_tool_digital_output", "msg_defs/srv/SetOutput"),
-    Service("~/set_analog_output", "msg_defs/srv/SetChannelValue"),
-    Service("~/set_reduced_mode", "msg_defs/srv/SetSafetyMode"),
-    Service("~/set_fence_mode", "msg_defs/srv/SetSafetyMode"),
-    Service("~/run_offline_task", "msg_defs/srv/RunOfflineTask"),
+    Service(
+        "~/pause",
+        "std_srvs/srv/Trigger",
+        "pause motion (C144, else H33 = 3); success only when the state read back shows it",
+    ),
+    Service(
+        "~/stop",
+        "std_srvs/srv/Trigger",
+        "stop motion (C145, else H33 = 4); success only when the state read back shows it",
+    ),
+    Service(
+        "~/resume",
+        "std_srvs/srv/Trigger",
+        "resume motion (H33 = 0); the reply gives the mode and state read back",
+    ),
+    Service(
+        "~/set_mode",
+        "msg_defs/srv/SetInteger",
+        "the arm's mode 0-13 (H32); in force after ~/set_state 0",
+    ),
+    Service(
+        "~/set_state",
+        "msg_defs/srv/SetInteger",
+        "the arm's state: 0 start, 3 pause, 4 stop (H33); answers the mode and state read back",
+    ),
+    Service(
+        "~/set_digital_output",
+        "msg_defs/srv/SetOutput",
+        "switch one controller digital output (board 0, index 0-15)",
+    ),
+    Service(
+        "~/set_digital_outputs",
+        "msg_defs/srv/SetOutputs",
+        "switch several controller digital outputs 0-15; nothing written unless all pass",
+    ),
+    Service(
+        "~/set_user_coils",
+        "msg_defs/srv/SetOutputs",
+        "switch user coils (addresses) in the configured range; refused when none configured",
+    ),
+    Service(
+        "~/set_joint_enable",
+        "msg_defs/srv/SetJointEnable",
+        "enable or disable one joint's motor, or all with joint 0; a disable is sent as a stop",
+    ),
+    Service(
+        "~/set_tool_digital_output",
+        "msg_defs/srv/SetOutput",
+        "switch one tool digital output (board 0, index 0-1)",
+    ),
+    Service(
+        "~/set_analog_output",
+        "msg_defs/srv/SetChannelValue",
+        "controller analog output channel 0-1, value 0-10 V",
+    ),
+    Service(
+        "~/set_reduced_mode",
+        "msg_defs/srv/SetSafetyMode",
+        "reduced mode on or off (C142), read back; off only with confirm = the service's name",
+    ),
+    Service(
+        "~/set_fence_mode",
+        "msg_defs/srv/SetSafetyMode",
+        "fence mode on or off (C143), read back; off only with confirm = the service's name",
+    ),
+    Service(
+        "~/run_offline_task",
+        "msg_defs/srv/RunOfflineTask",
+        "start offline (Blockly) projects by number, 1-16 of them",
+    ),
 )
 
 NODES = (

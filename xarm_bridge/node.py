@@ -1,4 +1,4 @@
-"""ROS 2 node for the UFactory xArm controller (README "xarm_bridge")."""
+"""ROS 2 node for the UFactory xArm controller (docs/bridges/xarm.md)."""
 
 from __future__ import annotations
 
@@ -41,7 +41,7 @@ T = TypeVar("T")
 
 # The pose's roll/pitch/yaw and the rotation vector rx/ry/rz are two readings of one
 # orientation, each rounded to 0.1 deg per value: they agree within ~0.2 deg. More than
-# this says the Euler convention of ~/tcp_pose (README) is not the controller's.
+# this says the Euler convention of ~/tcp_pose (docs/bridges/r6.md) is not the controller's.
 ORIENTATION_MISMATCH_DEG = 1.0
 
 

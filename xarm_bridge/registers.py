@@ -3,7 +3,7 @@
 Source: "UF_ModbusTCP_Manual" (seed 001, docs/manuals.md), its appendix
 tables: coils (C), discrete inputs (D), holding registers (H), input registers (I).
 
-Readings taken (also in README "xArm decisions"):
+Readings taken (also in docs/decisions/xarm.md, "xArm decision N"):
 
 - All values are 16-bit big-endian; scaled values (x10, x1000) are signed 16-bit
   (docs/manuals.md, "Word order and framing, per device"); the 32-bit counter I34-35 is
@@ -17,10 +17,10 @@ Readings taken (also in README "xArm decisions"):
 - Arm mode H32 / state H33 values are not in the Modbus manual; the xArm SDK's are used
   (mode 0-13 as the C146-159 motion-mode coils; set_state 0 = start, 3 = pause, 4 = stop).
 - IO state is read bit by bit (FC 01/02), which the manual defines unambiguously, rather
-  than from the DI/DO words. Their bit order (bit n of H0 = DO n, H1 = DO 16-31) is README
-  xArm decision 9; only the device layer's FC 0x16 mask write relies on it.
+  than from the DI/DO words. Their bit order (bit n of H0 = DO n, H1 = DO 16-31) is xArm
+  decision 9; only the device layer's FC 0x16 mask write relies on it.
 - Arms with fewer than 7 joints (xArm 5, xArm 6, Lite 6): ``joint_count`` of the node
-  (README xArm decision 11); the map keeps all seven rows of every per-joint table.
+  (xArm decision 11); the map keeps all seven rows of every per-joint table.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Action servers of the bridge nodes: motions that take time (README "Actions").
+"""Action servers of the bridge nodes: motions that take time (docs/actions.md).
 
 Part of the node base (imports rclpy). ``ActionHost`` puts ``bridge_core.runtime.goals`` behind
 ``rclpy.action.ActionServer``s with the rules every bridge action follows:

@@ -15,16 +15,21 @@ ROOT = Path(__file__).resolve().parents[2]  # the checkout (or site-packages) ho
 PROJECT_NAME = "modbus-ros-bridges"
 
 
-def entry_specs(group: str, root: Path = ROOT) -> list[str]:
-    """The ``module:attr`` of every entry of ``group``."""
+def entry_table(group: str, root: Path = ROOT) -> dict[str, str]:
+    """Each entry of ``group`` by name (``r6``, ...): its ``module:attr``, in declared order."""
     pyproject = root / "pyproject.toml"
     if pyproject.is_file():
         with pyproject.open("rb") as f:
             project = tomllib.load(f).get("project", {})
         if project.get("name") == PROJECT_NAME:
             table = project.get("entry-points", {}).get(group, {})
-            return [str(spec) for spec in table.values()]
+            return {str(name): str(spec) for name, spec in table.items()}
     found: dict[str, str] = {}
     for entry in entry_points(group=group):
         found.setdefault(entry.name, entry.value)
-    return list(found.values())
+    return found
+
+
+def entry_specs(group: str, root: Path = ROOT) -> list[str]:
+    """The ``module:attr`` of every entry of ``group``."""
+    return list(entry_table(group, root).values())

@@ -1,4 +1,4 @@
-"""Motion goals: the plain-Python half of the bridges' actions (README "Actions").
+"""Motion goals: the plain-Python half of the bridges' actions (docs/actions.md).
 
 An action goal starts a motion on the device and follows it through the polls until the
 device shows it ended, or until something ends it first: its client cancels it, a newer

@@ -38,6 +38,9 @@ class ParameterSpec:
     # The description when it depends on run-time values (MOTEC ``lifeguard_ms``: the
     # floor of its bus): ``described(**facts)`` calls it with the node's facts.
     text_of: Callable[..., str] | None = field(default=None, compare=False, repr=False)
+    # The description ``described`` replaced: the reference pages (bridge_doc) hold for
+    # every bus, so they name this one.
+    static_description: str = field(default="", compare=False, repr=False)
     kind: type = field(init=False)
 
     def __post_init__(self) -> None:
@@ -68,7 +71,14 @@ class ParameterSpec:
         ``text_of``; else itself)."""
         if self.text_of is None:
             return self
-        return dataclasses.replace(self, description=self.text_of(**facts))
+        return dataclasses.replace(
+            self, description=self.text_of(**facts), static_description=self.static_text
+        )
+
+    @property
+    def static_text(self) -> str:
+        """The description before any run-time facts (``described``) filled it in."""
+        return self.static_description or self.description
 
     @property
     def type_name(self) -> str:
@@ -184,6 +194,9 @@ class DeviceDefaults:
     stop_timeout_s: float | None = None
     # TCP: reads of one poll in flight before the first reply (1: one at a time).
     max_in_flight: int = 1
+    # A PoseStamped topic the node publishes (R6, xArm: "~/tcp_pose"), stamped with
+    # ``frame_id`` like ``~/state``: only ``frame_id``'s description names it.
+    pose_topic: str = ""
 
 
 def transport_specs(defaults: DeviceDefaults) -> tuple[ParameterSpec, ...]:
@@ -269,6 +282,14 @@ def unit_id_spec(defaults: DeviceDefaults) -> ParameterSpec:
     )
 
 
+def frame_id_text(defaults: DeviceDefaults) -> str:
+    """``frame_id``'s description: the headers the node stamps with it (``BridgeNode.stamped``;
+    ``joint_states`` gets a stamp only)."""
+    if defaults.pose_topic:
+        return f"header frame_id of {defaults.pose_topic} and ~/state (joint_states: none)"
+    return "header frame_id of ~/state (joint_states: none)"
+
+
 def node_specs(defaults: DeviceDefaults) -> tuple[ParameterSpec, ...]:
     """The parameters of every bridge node (besides where its device is)."""
     return (
@@ -289,7 +310,7 @@ def node_specs(defaults: DeviceDefaults) -> tuple[ParameterSpec, ...]:
             live=True,
         ),
         ParameterSpec("joint_prefix", "", "prefix of every joint name"),
-        ParameterSpec("frame_id", "base_link", "frame of published poses and states"),
+        ParameterSpec("frame_id", "base_link", frame_id_text(defaults)),
         ParameterSpec(
             "read_only", False, "refuse every command that writes to the device", live=True
         ),

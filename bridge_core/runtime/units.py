@@ -13,7 +13,7 @@ def euler_xyz_deg_to_quaternion(u: float, v: float, w: float) -> tuple[float, fl
     """U, V, W (deg) as rotations about fixed X, Y, Z in that order: R = Rz(W) Ry(V) Rx(U).
 
     Both R6 (U, V, W) and xArm (roll, pitch, yaw) give orientation this way; it is the usual
-    fixed-axis roll-pitch-yaw reading (REP 103's), written down in the README.
+    fixed-axis roll-pitch-yaw reading (REP 103's), written down in docs/bridges/r6.md.
     """
     hr, hp, hy = u * DEG / 2.0, v * DEG / 2.0, w * DEG / 2.0
     cr, sr, cp, sp, cy, sy = (

@@ -123,6 +123,7 @@ DESCRIBED = {field.name for field in dataclasses.fields(DeviceDefaults) if field
     "transport",
     "timeout_min_s",
     "stop_timeout_s",
+    "pose_topic",
 }
 
 

@@ -98,9 +98,9 @@ def test_examples_load(example: Path) -> None:
     assert load(example).devices
 
 
-# What config/devices/xarm.yaml leaves out of xarm_bridge's map (its header, README
-# modbus_bridge decision 2): the user coils C256-511, tool AO H7-10 ("当前仅0路有效"), the
-# offline-task rows H48-63 (xarm_bridge's ~/run_offline_task).
+# What config/devices/xarm.yaml leaves out of xarm_bridge's map (its header, modbus_bridge
+# decision 2 of docs/decisions/modbus.md): the user coils C256-511, tool AO H7-10
+# ("当前仅0路有效"), the offline-task rows H48-63 (xarm_bridge's ~/run_offline_task).
 XARM_LEFT_OUT = {
     **{f"user_coil_{i}": (Table.COIL, 256 + i) for i in range(256)},
     **{f"tool_ao_{i}": (Table.HOLDING, 7 + i) for i in range(4)},

@@ -1,4 +1,4 @@
-"""MOTEC ``~/move_to`` action (README "Actions"): an ``rclpy.action.ActionClient`` in this
+"""MOTEC ``~/move_to`` action (docs/actions.md): an ``rclpy.action.ActionClient`` in this
 process, the bridge in its own, the simulated drives on a socat pty pair."""
 
 from __future__ import annotations

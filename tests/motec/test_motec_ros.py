@@ -68,7 +68,7 @@ COMMAND_TIMEOUT_S = 1.5
 
 
 def lifeguard_floor_ms(drives: int, timeout_s: float = TIMEOUT_S) -> int:
-    """The shortest lifeguard time the bridge accepts on the tests' bus (README "Lifeguard")."""
+    """The shortest lifeguard time the bridge accepts on the tests' bus (docs/bridges/motec.md)."""
     return lifeguard_min_ms(drives, SerialSettings("", BAUD, timeout_s=timeout_s).longest_hold_s())
 
 
@@ -460,7 +460,7 @@ def test_lifeguard_fault_after_the_bridge_dies(bus, client: Client, tmp_path: Pa
         assert values_of(status)["link state"] == "connected"
         b.ok(1, SetBool, "enable", data=False)  # releasing does not clear it (§3.4)
         assert sim.drive(1).fault == LIFEGUARD_FAULT_CODE
-        sim.power_cycle(1)  # a restart does (README "Lifeguard")
+        sim.power_cycle(1)  # a restart does (docs/bridges/motec.md, "Lifeguard")
         t = time.monotonic()
         b.wait_state(1, lambda m: m.fault_code == 0, since=t)
         b.wait_diagnostic(1, level(0), since=t)

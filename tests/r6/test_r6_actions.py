@@ -1,4 +1,4 @@
-"""R6 actions (README "Actions"): ``~/run_cycle`` and ``~/upload_points`` as goals from an
+"""R6 actions (docs/actions.md): ``~/run_cycle`` and ``~/upload_points`` as goals from an
 ``rclpy.action.ActionClient`` in this process, the bridge in its own, the simulator
 serving TCP on a thread here (its write log and program are the test's to read)."""
 

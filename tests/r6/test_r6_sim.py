@@ -389,9 +389,10 @@ def axis_1(snap: R6Snapshot) -> float:
 
 
 def test_two_cycles_of_the_same_program_never_tie_in_the_last_cycle_time() -> None:
-    """The bridge reads an unchanged 2401 as a cycle that did not finish (README R6
-    decision 23); cycles of one program at one speed tie, to the millisecond, whenever
-    the ticks fall alike (here always: a fixed tick), so the simulator never repeats it."""
+    """The bridge reads an unchanged 2401 as a cycle that did not finish (R6 decision 23,
+    docs/decisions/r6.md); cycles of one program at one speed tie, to the millisecond,
+    whenever the ticks fall alike (here always: a fixed tick), so the simulator never
+    repeats it."""
     sim = R6SimDevice()
     sim.program = timed_program(0.05, 0.0)
     sim.set("global_speed", 100.0)

@@ -1,4 +1,4 @@
-"""Stepper actions (README "Actions"): move_by, home, home_all, return_to_zero, line_move
+"""Stepper actions (docs/actions.md): move_by, home, home_all, return_to_zero, line_move
 and arc_move as goals from an ``rclpy.action.ActionClient`` in this process, the bridge in
 its own, the simulator on a socat pty pair."""
 

@@ -5,7 +5,7 @@ pair: each step names the request frame the bridge must send (CRC included) and 
 reply to answer with. CRCs come from pymodbus's RTU framer (never typed by hand), and the
 manual's own CRCs are checked against it. Also here: the register map against the
 manual's tables, and the decisions on the example/table contradictions
-(README "Stepper decisions" 2-4).
+(Stepper decisions 2-4, docs/decisions/stepper.md).
 """
 
 from __future__ import annotations

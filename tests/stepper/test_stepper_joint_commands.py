@@ -1,6 +1,7 @@
-"""The stepper's ``~/joint_commands`` device side (stepper_bridge/joint_commands.py, README
-stepper decision 22) against the simulator over a real socat pty pair (no ROS): position
-targets as single runs sent when the motor stands, and the SI conversions."""
+"""The stepper's ``~/joint_commands`` device side (stepper_bridge/joint_commands.py,
+stepper decision 22 of docs/decisions/stepper.md) against the simulator over a real socat
+pty pair (no ROS): position targets as single runs sent when the motor stands, and the SI
+conversions."""
 
 from __future__ import annotations
 

@@ -477,8 +477,8 @@ def test_a_second_interpolation_is_refused_while_one_runs(rig: Rig) -> None:
 
 
 def test_the_simulator_refuses_interpolation_writes_while_one_runs(rig: Rig) -> None:
-    """README stepper decision 14: while one runs, 40182-40211 and the start coils answer
-    ILLEGAL DATA VALUE and change nothing; the stop coils still work."""
+    """Stepper decision 14 (docs/decisions/stepper.md): while one runs, 40182-40211 and the
+    start coils answer ILLEGAL DATA VALUE and change nothing; the stop coils still work."""
     d, fake = rig.device, rig.fake
     d.line_move(1, (0.0, 0.0), (40.0, 40.0), 1)
     blind = StepperDevice(rig.channel)  # a second master: it knows of no running move
@@ -501,8 +501,9 @@ def test_the_simulator_refuses_interpolation_writes_while_one_runs(rig: Rig) -> 
 
 
 def test_clear_all_resets_device_id_and_baud_rate() -> None:
-    """README stepper decision 15: clear-all ("清零所有参数") leaves id 1 and 9600 baud (the
-    factory values; 0 is in neither range): a controller at unit 5 answers unit 1 after it."""
+    """Stepper decision 15 (docs/decisions/stepper.md): clear-all ("清零所有参数") leaves id 1
+    and 9600 baud (the factory values; 0 is in neither range): a controller at unit 5
+    answers unit 1 after it."""
     sim = make_simulator(unit_id=5, reply_delay_s=0.0)
     fake = sim.device
     assert isinstance(fake, StepperSimDevice)
@@ -787,7 +788,7 @@ def test_pairs_2_and_3_are_refused_until_the_reading_is_set() -> None:
     for pair in (2, 3):
         with pytest.raises(CommandRejected, match="interpolation_pair_reading") as refused:
             pair_axes(pair, "unset")
-        assert "\n" not in str(refused.value) and "docs/stepper.md" in str(refused.value)
+        assert "\n" not in str(refused.value) and "docs/decisions/stepper.md" in str(refused.value)
     with pytest.raises(CommandRejected, match="pair 4"):
         pair_axes(4, "type_rows")
 

@@ -96,7 +96,7 @@ class BridgeInfo:
     bus_startup_only: tuple[str, ...] = ()
     read_services: Mapping[str, Call] = field(default_factory=dict)  # no writes: allowed
     mistyped: tuple[tuple[str, str], ...] = ()  # refused start-up values
-    actions: int = 0  # action servers of its nodes (README "Actions")
+    actions: int = 0  # action servers of its nodes (docs/actions.md)
     # A register of the slow group (read every slow_poll_period_s), and a call that writes
     # it or switches what it shows (None: ``good``).
     slow_register: Register | None = None

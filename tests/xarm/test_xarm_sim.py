@@ -287,8 +287,8 @@ def test_several_digital_outputs_one_fc0f_per_run(xarm) -> None:  # type: ignore
 
 
 def test_do_word_bit_n_is_do_n(xarm) -> None:  # type: ignore[no-untyped-def]
-    """README xArm decision 9: bit n of H0 is DO n, on both paths of the simulator (coils
-    written, word read; word mask-written, coils read)."""
+    """xArm decision 9 (docs/decisions/xarm.md): bit n of H0 is DO n, on both paths of the
+    simulator (coils written, word read; word mask-written, coils read)."""
     device, _, _, _ = xarm
     device.set_digital_outputs([2, 9], [True, True])
     assert device.read_named("controller_do_word_0")["controller_do_word_0"] == 0x0204
