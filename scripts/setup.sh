@@ -135,7 +135,10 @@ fi
 if ! stamped "$MSG_HASH" || ! msg_defs_installed \
     || ! "$VPY" -c 'import msg_defs.msg, msg_defs.srv, msg_defs.action' >/dev/null 2>&1; then
     start=$SECONDS
+    # scikit-build-core runs make without -j (it sets a parallel level only for Ninja):
+    # one compiler per core.
     step "building msg_defs into .venv" \
+        env CMAKE_BUILD_PARALLEL_LEVEL="${CMAKE_BUILD_PARALLEL_LEVEL:-$(nproc)}" \
         "${PIP[@]}" install --no-build-isolation --force-reinstall --no-deps ./msg_defs
     log "msg_defs built in $((SECONDS - start)) s"
     step "checking msg_defs" "$VPY" -c '

@@ -40,8 +40,9 @@ if [[ "${LINT:-1}" == 1 ]]; then
     .venv/bin/ruff format --check
 fi
 
+# The 15 slowest tests are printed at the end of every run.
 rc=0
-.venv/bin/python -m pytest "$@" || rc=$?
+.venv/bin/python -m pytest --durations=15 "$@" || rc=$?
 if ((rc == 5)); then
     echo "test: pytest collected no tests; treating that as a failure" >&2
     exit 1
