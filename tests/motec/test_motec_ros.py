@@ -594,6 +594,31 @@ def written_after(drive: MotecSimDrive, t: float) -> bool:
     return drive.last_command > t
 
 
+def around_the_blackout(
+    drive: MotecSimDrive, line: LineRelay, dark_from: float, dark_until: float
+) -> str:
+    """What a failure needs to tell the bridge from the rig: the drive's accepted writes
+    (from 1 s before the blackout to 1.5 s after) and every frame on the line (from 0.1 s
+    before to 1 s after), in seconds
+    from the line's return (a request on the wire that the drive did not take is the
+    rig's; no request at all is the bridge's)."""
+    wall_to_mono = time.monotonic() - time.time()  # write records are on time.time()
+    writes = [
+        f"{r.time + wall_to_mono - dark_until:+.3f}"
+        for r in drive.write_log
+        if dark_from - 1.0 <= r.time + wall_to_mono <= dark_until + 1.5
+    ]
+    frames = [
+        f"{f.direction[:3]}{f.size}@{f.start - dark_until:+.3f}"
+        for f in line.frames()
+        if dark_from - 0.1 <= f.start <= dark_until + 1.0
+    ]
+    return (
+        f"dark {dark_from - dark_until:+.3f}..0; drive writes at {' '.join(writes)}; "
+        f"frames {' '.join(frames)}"
+    )
+
+
 def config_motec_yaml(tmp_path: Path, port: str) -> list[str]:
     """config/motec.yaml as shipped (1000 ms lifeguard, timeout_s 0.1, three drives), on
     ``port``: the ``--params-file`` arguments."""
@@ -644,7 +669,8 @@ def test_line_blackouts_never_trip_a_drive_that_answers_again_in_time(
                         if silent_s <= lifeguard_s - feed_period_s:
                             assert drive.lifeguard_trips == trips[unit], (
                                 f"drive {unit} tripped after a {blackout_ms} ms blackout, "
-                                f"its line back {silent_s:.3f} s after its last write"
+                                f"its line back {silent_s:.3f} s after its last write; "
+                                + around_the_blackout(drive, line, dark_from, dark_until)
                             )
                         if drive.lifeguard_trips != trips[unit]:  # beyond the claim
                             simulator.power_cycle(unit)
