@@ -599,9 +599,8 @@ def around_the_blackout(
 ) -> str:
     """What a failure needs to tell the bridge from the rig: the drive's accepted writes
     (from 1 s before the blackout to 1.5 s after) and every frame on the line (from 0.1 s
-    before to 1 s after), in seconds
-    from the line's return (a request on the wire that the drive did not take is the
-    rig's; no request at all is the bridge's)."""
+    before to 1 s after), in seconds from the line's return (a request on the wire that
+    the drive did not take is the rig's; no request at all is the bridge's)."""
     wall_to_mono = time.monotonic() - time.time()  # write records are on time.time()
     writes = [
         f"{r.time + wall_to_mono - dark_until:+.3f}"
