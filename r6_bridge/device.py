@@ -699,13 +699,14 @@ class RunCycleMotion(Motion[R6Snapshot]):
     (2470). Checked twice: against the last poll when the goal comes (rejected), and
     against rows read just before the command (REFUSED): auto mode, homed, no alarm, a
     global speed above 0. An alarm (2396) ends it as FAULT. A single cycle is REACHED
-    only when ``moving`` rose and fell and the last cycle time (2401) changed from the
-    value read before the start: ``moving`` alone is a motion flag, not the program's
-    state (R6 decision 23). Otherwise its end is STOPPED, and so is a continuous
-    run's (it runs until stopped). Ends this goal causes (cancel, timeout, link loss,
-    the node's halts) send pause (20001), which keeps the program's step. Both kinds take
-    the node's ``goal_timeout_s`` when the goal gives ``timeout_s`` 0, a continuous run
-    too: a goal whose client vanished must not keep the robot cycling (decision 27)."""
+    only when ``moving`` rose and fell (or no poll saw it: a cycle between two polls) and
+    the last cycle time (2401) changed from the value read before the start: ``moving``
+    alone is a motion flag, not the program's state (R6 decision 23). Otherwise its end
+    is STOPPED, and so is a continuous run's (it runs until stopped). Ends this goal
+    causes (cancel, timeout, link loss, the node's halts) send pause (20001), which keeps
+    the program's step. Both kinds take the node's ``goal_timeout_s`` when the goal gives
+    ``timeout_s`` 0, a continuous run too: a goal whose client vanished must not keep the
+    robot cycling (decision 27)."""
 
     axes: frozenset[Hashable] = frozenset({PROGRAM})
     confirm_reached = True  # the result's last cycle time is read apart from `moving`
@@ -767,6 +768,15 @@ class RunCycleMotion(Motion[R6Snapshot]):
         last = snapshot.last_cycle_time_ms
         if self.device.stops > self.stops_at_start:
             return Verdict(Outcome.STOPPED, f"{self.what}: stopped by a stop or pause command")
+        changed = self.last_cycle_at_start is not None and last != self.last_cycle_at_start
+        if not self.seen_running and self.single_cycle and changed:
+            # A cycle shorter than a poll (or polls held up on a loaded host) can begin
+            # and end between two polls; only a finished cycle changes 2401 (decision 23).
+            return Verdict(
+                Outcome.REACHED,
+                f"{self.what}: the cycle ended between two polls (last cycle {last} ms, "
+                f"was {self.last_cycle_at_start} ms; no poll saw it moving)",
+            )
         if not self.seen_running:
             return Verdict(
                 Outcome.STOPPED,

@@ -713,6 +713,27 @@ def judge_until_after_start(device: R6Device, motion: RunCycleMotion) -> Verdict
     pytest.fail("no verdict")
 
 
+def test_a_cycle_that_ends_between_two_polls_is_reached(
+    r6: tuple[R6Device, R6SimDevice, DeviceChannel],
+) -> None:
+    """Decision 23: the last cycle time changes only when a cycle finishes, so a cycle
+    that began and ended before any poll saw it moving still ran."""
+    device, sim, _ = r6
+    sim.program = timed_program(0.05)
+    sim.set("global_speed", 100.0)
+    motion = RunCycleMotion(device, device.poll(), single_cycle=True)
+    motion.start()
+    started = time.monotonic()
+    deadline = started + WAIT_S
+    while sim.cycles_completed < 1:  # the whole cycle before the first poll
+        assert time.monotonic() < deadline, "the cycle did not end"
+        time.sleep(0.01)
+    while (verdict := motion.judge(device.poll(), time.monotonic() - started)) is None:
+        assert time.monotonic() < deadline, "no verdict"
+    assert verdict.outcome is Outcome.REACHED, verdict.message
+    assert "no poll saw it moving" in verdict.message
+
+
 def test_a_start_the_controller_ignores_is_not_reached(
     r6: tuple[R6Device, R6SimDevice, DeviceChannel],
 ) -> None:
