@@ -10,6 +10,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 
+from bridge_core.runtime.bridge_doc import table
 from bridge_core.wire.registers import Access, Register, ValueType
 
 from .description import (
@@ -88,12 +89,6 @@ def register_row(register: Register, allowed: Sequence[float] = (), written: str
     ]
 
 
-def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
-    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    lines += ["| " + " | ".join(row) + " |" for row in rows]
-    return lines
-
-
 def _link_line(device: Device) -> list[str]:
     """The device's default link, as its file gives it (none: the line's, or the node's)."""
     if device.link is None:
@@ -140,7 +135,7 @@ def _joint_lines(device: Device, heading: str) -> list[str]:
         "",
         f"{heading}# Joints (joint_states, SI per REP 103)",
         "",
-        *_table(("joint", "position", "velocity", "effort"), rows),
+        *table(("joint", "position", "velocity", "effort"), rows),
     ]
 
 
@@ -221,7 +216,7 @@ def device_markdown(device: Device, heading: str = "##") -> list[str]:
     lines += _link_line(device)
     lines.append(_limits_line(device))
     lines += ["", f"{heading}# Registers", ""]
-    lines += _table(
+    lines += table(
         REGISTER_COLUMNS,
         [
             register_row(
@@ -234,7 +229,7 @@ def device_markdown(device: Device, heading: str = "##") -> list[str]:
     rows = _command_rows(device)
     if rows:
         lines += ["", f"{heading}# Commands", ""]
-        lines += _table(("name", "kind", "writes", "description"), rows)
+        lines += table(("name", "kind", "writes", "description"), rows)
     return lines + _keepalive_lines(device)
 
 
