@@ -165,6 +165,10 @@ class StreamGuard(Generic[Key]):
         self.lock = leader.lock
         leader._followers.append(self)
 
+    def _following(self, key: Key) -> list[StreamGuard[Key]]:
+        """The followers that have a stream ``key`` (a takeover of it is theirs too)."""
+        return [follower for follower in self._followers if key in follower.streams]
+
     def _is_stop(self, value: float | None) -> bool:
         return self.zero_stops and value == 0
 
@@ -301,9 +305,8 @@ class StreamGuard(Generic[Key]):
             stream.set_locked()
         else:
             stream.locked = False
-        for follower in self._followers:
-            if key in follower.streams:
-                follower.taken_over(key, locked=locked)
+        for follower in self._following(key):
+            follower.taken_over(key, locked=locked)
 
     @_locked
     def hold(self, key: Key) -> None:
@@ -312,9 +315,8 @@ class StreamGuard(Generic[Key]):
         silence, and what the stream commanded is kept (it may still be moving: a 0, the
         deadman or the stop after a refused command still sends its own stop)."""
         self[key].set_locked()
-        for follower in self._followers:
-            if key in follower.streams:
-                follower.hold(key)
+        for follower in self._following(key):
+            follower.hold(key)
 
     @_locked
     def stop_failed(self, key: Key) -> None:
@@ -326,9 +328,8 @@ class StreamGuard(Generic[Key]):
         stream.set_locked()
         if stream.may_move:
             stream.stop_pending = True
-        for follower in self._followers:
-            if key in follower.streams:
-                follower.stop_failed(key)
+        for follower in self._following(key):
+            follower.stop_failed(key)
 
     @_locked
     def forget_values(self) -> None:
