@@ -43,6 +43,7 @@ from msg_defs.srv import ReadRegisters, SetValue
 
 from .support.bridges import BRIDGES, BridgeInfo, Call, JointCommandRow, SimProcess
 from .support.ros import (
+    DIAGNOSTIC_PERIOD_S,
     LATCHED,
     ROOT,
     Bridge,
@@ -475,6 +476,30 @@ def test_startup_only_parameters_refused_live_poll_rate_applied(shared: Running)
         assert statistics.median(gaps) >= 0.15, gaps
     finally:
         r.set_params(poll_rate_hz=float(SHARED_POLL_RATE_HZ))
+
+
+def test_diagnostic_period_is_live(shared: Running) -> None:
+    """``diagnostic_period_s`` set to 0.5 s: the node's statuses come ~0.5 s apart (not the
+    suite's 0.1 s); a loaded machine can only make the gaps longer."""
+    r = shared
+    node = r.info.node_name
+
+    def stamps(since: float) -> list[float]:
+        return [
+            stamp_of(array)
+            for array in r.client.received("/diagnostics", since)
+            if any(status_node(s) == node for s in array.status)
+        ]
+
+    try:
+        (result,) = r.set_params(diagnostic_period_s=0.5)
+        assert result.successful, result.reason
+        since = time.monotonic() + 0.6  # after any status of the old period in flight
+        wait_for(lambda: len(stamps(since)) >= 5, TIMEOUT, "5 statuses at 0.5 s")
+        gaps = [b - a for a, b in itertools.pairwise(stamps(since)[:5])]
+        assert statistics.median(gaps) >= 0.4, gaps
+    finally:
+        r.set_params(diagnostic_period_s=DIAGNOSTIC_PERIOD_S)
 
 
 # ---------------------------------------------------------------- 5. mistyped parameters

@@ -131,7 +131,8 @@ class BridgeNode(ParameterNode, CommandServices, Generic[SnapshotT]):
         self.on_parameter("slow_poll_period_s", self._set_slow_poll_period)
         # Start polling once the executor runs, i.e. after the subclass finished __init__.
         self._poll_starter = self.create_timer(0.0, self._start_polling)
-        self.diagnostics = DiagnosticsPublisher(self)
+        self.diagnostics = DiagnosticsPublisher(self, float(values["diagnostic_period_s"]))
+        self.on_parameter("diagnostic_period_s", self.diagnostics.set_period)
         self.create_timer(
             PENDING_STOP_RETRY_S,
             self._retry_pending_stops,

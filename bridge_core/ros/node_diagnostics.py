@@ -1,4 +1,5 @@
-"""``/diagnostics`` of the bridge nodes: one status per node, once a second.
+"""``/diagnostics`` of the bridge nodes: one status per node every ``diagnostic_period_s``
+(1 s by default; live).
 
 Part of the node base (imports rclpy). The status joins the link's report (rate, latency,
 failures: ``diagnostics.link_report``), the node's own counters, and the device's report
@@ -15,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 
-from ..runtime.diagnostics import Level, link_report
+from ..runtime.diagnostics import DIAGNOSTIC_PERIOD_DEFAULT_S, Level, link_report
 from ..runtime.joint_commands import DIAGNOSTICS_KEY
 from ..runtime.rate_groups import PollGroups
 from ..runtime.wire_budget import budget_values
@@ -23,19 +24,26 @@ from ..runtime.wire_budget import budget_values
 if TYPE_CHECKING:
     from .node_base import BridgeNode
 
-DIAGNOSTICS_PERIOD_S = 1.0
 DIAGNOSTICS_DEPTH = 10
+NS_PER_S = 1_000_000_000
 
 
 class DiagnosticsPublisher:
     """Publishes one node's status on ``/diagnostics`` from a timer of its own group."""
 
-    def __init__(self, node: BridgeNode[Any]) -> None:
+    def __init__(
+        self, node: BridgeNode[Any], period_s: float = DIAGNOSTIC_PERIOD_DEFAULT_S
+    ) -> None:
         self.node = node
         self.pub = node.create_publisher(DiagnosticArray, "/diagnostics", DIAGNOSTICS_DEPTH)
         self.timer = node.create_timer(
-            DIAGNOSTICS_PERIOD_S, self.publish, callback_group=MutuallyExclusiveCallbackGroup()
+            period_s, self.publish, callback_group=MutuallyExclusiveCallbackGroup()
         )
+
+    def set_period(self, period_s: float) -> None:
+        """``diagnostic_period_s`` changed: the next status comes one new period from now."""
+        self.timer.timer_period_ns = round(period_s * NS_PER_S)
+        self.timer.reset()
 
     def publish(self) -> None:
         if not self.node.active:
@@ -98,4 +106,4 @@ def slow_group_text(groups: PollGroups, now: float) -> str:
     return f"{requests}, last read {now - read:.1f} s ago" if read else f"{requests}, not read yet"
 
 
-__all__ = ["DIAGNOSTICS_PERIOD_S", "DiagnosticsPublisher", "slow_group_text"]
+__all__ = ["DiagnosticsPublisher", "slow_group_text"]

@@ -110,7 +110,12 @@ class NodeInterface:
 BRIDGE_TOPICS = (
     Topic("joint_states", "sensor_msgs/msg/JointState", True, "joint positions (SI units)"),
     Topic("~/connected", "std_msgs/msg/Bool", True, "link state; transient local, on change"),
-    Topic("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", True, "1 Hz"),
+    Topic(
+        "/diagnostics",
+        "diagnostic_msgs/msg/DiagnosticArray",
+        True,
+        "every diagnostic_period_s (1 s)",
+    ),
 )
 
 

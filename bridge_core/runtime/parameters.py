@@ -20,6 +20,7 @@ from typing import Any
 
 from ..wire.batches import MAX_IN_FLIGHT_RANGE
 from ..wire.channel import UNIT_ID_MAX, UNIT_ID_MIN
+from .diagnostics import DIAGNOSTIC_PERIOD_DEFAULT_S, DIAGNOSTIC_PERIOD_RANGE_S
 from .rate_groups import SLOW_POLL_PERIOD_DEFAULT_S, SLOW_POLL_PERIOD_RANGE_S
 
 ParameterValue = bool | int | float | str | list[bool] | list[int] | list[float] | list[str]
@@ -307,6 +308,13 @@ def node_specs(defaults: DeviceDefaults) -> tuple[ParameterSpec, ...]:
             "seconds between reads of the slow group (registers that do not move by "
             "themselves: configuration, identity); every poll reads the fast group",
             *SLOW_POLL_PERIOD_RANGE_S,
+            live=True,
+        ),
+        ParameterSpec(
+            "diagnostic_period_s",
+            DIAGNOSTIC_PERIOD_DEFAULT_S,
+            "seconds between this node's /diagnostics statuses",
+            *DIAGNOSTIC_PERIOD_RANGE_S,
             live=True,
         ),
         ParameterSpec("joint_prefix", "", "prefix of every joint name"),
