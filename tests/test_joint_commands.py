@@ -482,9 +482,14 @@ def test_motec_velocity_stops_when_the_client_stops(client: Client, motec: Rig) 
     assert_deadman_timing(stop, last, 0.2)
 
 
+POLLS_DURING_FLOOD = 3
+
+
 def test_motec_flood_writes_at_most_the_rate_and_polls_go_on(client: Client, motec: Rig) -> None:
     """~1000 msg/s for drive 3: at most command_rate_hz (20) speed writes a second, and
-    every drive keeps polling (bench/stream_flood.py has the figures)."""
+    every drive keeps polling: at least ``POLLS_DURING_FLOOD`` polls each in the 2 s, where
+    commands that starved the polls would leave one at most. How close to the 10 Hz poll
+    rate it stays is a machine's figure: bench/stream_flood.py prints it."""
     motec_modes(client, motec, {3: SetControlMode.Request.VELOCITY})
     publisher = client.node.create_publisher(JointState, motec.commands, 10)
     wait_subscribed(publisher)
@@ -513,7 +518,9 @@ def test_motec_flood_writes_at_most_the_rate_and_polls_go_on(client: Client, mot
     assert len(speeds) <= 20 * (last - first + 0.2) + 2, len(speeds)
     for unit in (1, 2, 3):
         polled = [s for s, _ in positions_of(client, motec, f"drive_{unit}") if first <= s <= last]
-        assert len(polled) >= 0.5 * 10 * (last - first), (unit, len(polled))
+        assert len(polled) >= POLLS_DURING_FLOOD, (
+            f"drive {unit} polled {len(polled)} times in a {last - first:.1f} s flood"
+        )
     client.node.destroy_publisher(publisher)
 
 
