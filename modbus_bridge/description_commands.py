@@ -39,6 +39,7 @@ NODE_PARAMETERS = frozenset(
         "reconnect_max_s",
         "poll_rate_hz",
         "slow_poll_period_s",
+        "diagnostic_period_s",
         "joint_prefix",
         "frame_id",
         "read_only",
