@@ -923,7 +923,8 @@ def test_drives_that_together_exceed_their_line_are_said_once_by_the_bus_owner(
     show the line's sum."""
     baud = 9600
     with motec_on_pty(UNITS, baud) as (_sim, port):
-        params = bridge_params(port, baudrate=baud, poll_rate_hz=6.0)
+        # 1 s statuses: "three more statuses" below is a window of ~3 s for a second line.
+        params = bridge_params(port, baudrate=baud, poll_rate_hz=6.0, diagnostic_period_s=1.0)
         with motec(client, tmp_path, params) as (b, proc):
             owner = f"{b.ns}/motec_bridge".strip("/").replace("/", ".")
             line = client.wait_log(owner, "the polls of its 3 devices need")

@@ -66,6 +66,9 @@ def test_a_rate_the_line_cannot_carry_is_said_once_with_the_rate_it_carries(
                 "baudrate": BAUD,
                 "poll_rate_hz": ASKED_HZ,
                 "timeout_s": 1.0,
+                # 1 s statuses: "three more statuses" below is a window of ~3 s for a
+                # second WARN to show.
+                "diagnostic_period_s": 1.0,
             }
             with start_bridge(
                 client, tmp_path, "stepper_bridge.node", "stepper_bridge", StepperState, params
