@@ -43,7 +43,6 @@ from msg_defs.srv import ReadRegisters, SetValue
 
 from .support.bridges import BRIDGES, BridgeInfo, Call, JointCommandRow, SimProcess
 from .support.ros import (
-    DIAGNOSTIC_PERIOD_S,
     LATCHED,
     ROOT,
     Bridge,
@@ -61,6 +60,7 @@ from .support.ros import (
 pytestmark = pytest.mark.ros
 
 TIMEOUT = 30.0
+DIAGNOSTIC_DEFAULT_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -479,8 +479,8 @@ def test_startup_only_parameters_refused_live_poll_rate_applied(shared: Running)
 
 
 def test_diagnostic_period_is_live(shared: Running) -> None:
-    """``diagnostic_period_s`` set to 0.5 s: the node's statuses come ~0.5 s apart (not the
-    suite's 0.1 s); a loaded machine can only make the gaps longer."""
+    """``diagnostic_period_s`` set to 2 s: the node's statuses come ~2 s apart, not the
+    default 1 s (a loaded machine can only make the gaps longer: a lower bound)."""
     r = shared
     node = r.info.node_name
 
@@ -492,14 +492,14 @@ def test_diagnostic_period_is_live(shared: Running) -> None:
         ]
 
     try:
-        (result,) = r.set_params(diagnostic_period_s=0.5)
+        (result,) = r.set_params(diagnostic_period_s=2.0)
         assert result.successful, result.reason
-        since = time.monotonic() + 0.6  # after any status of the old period in flight
-        wait_for(lambda: len(stamps(since)) >= 5, TIMEOUT, "5 statuses at 0.5 s")
-        gaps = [b - a for a, b in itertools.pairwise(stamps(since)[:5])]
-        assert statistics.median(gaps) >= 0.4, gaps
+        since = time.monotonic() + 0.2  # after any status of the old period in flight
+        wait_for(lambda: len(stamps(since)) >= 3, TIMEOUT, "3 statuses at 2 s")
+        gaps = [b - a for a, b in itertools.pairwise(stamps(since)[:3])]
+        assert statistics.mean(gaps) >= 1.5, gaps
     finally:
-        r.set_params(diagnostic_period_s=DIAGNOSTIC_PERIOD_S)
+        r.set_params(diagnostic_period_s=DIAGNOSTIC_DEFAULT_S)
 
 
 # ---------------------------------------------------------------- 5. mistyped parameters

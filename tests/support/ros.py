@@ -35,9 +35,6 @@ LATCHED = QoSProfile(
 # Every wait is bounded by this unless a test says otherwise: long enough for a shared,
 # loaded CI machine (a wait returns as soon as its condition holds).
 WAIT_S = 20.0
-# Every bridge process a test starts publishes /diagnostics this often (default 1 s): a
-# test that waits for a status after an event waits a tenth of a second, not a second.
-DIAGNOSTIC_PERIOD_S = 0.1
 ROSOUT = "/rosout"
 PROBE_S = 2.0  # how long one query waits for its answer before it is asked again
 
@@ -307,10 +304,8 @@ def ros_args(params: dict[str, Any]) -> list[str]:
 def node_process(
     module: str, params: dict[str, Any], log_dir: Path, extra: Sequence[str] = ()
 ) -> Iterator[subprocess.Popen[bytes]]:
-    """Run ``python -m module --ros-args ...`` in its own process; stop it with SIGINT.
-    ``diagnostic_period_s`` is ``DIAGNOSTIC_PERIOD_S`` unless ``params`` sets it."""
+    """Run ``python -m module --ros-args ...`` in its own process; stop it with SIGINT."""
     log = (log_dir / f"{module.replace('.', '_')}.log").open("wb")
-    params = {"diagnostic_period_s": DIAGNOSTIC_PERIOD_S, **params}
     proc = subprocess.Popen(
         [sys.executable, "-m", module, *ros_args(params), *extra],
         cwd=ROOT,
