@@ -124,7 +124,10 @@ def test_joint_states_and_state_in_si(sim, client: Client, tmp_path: Path) -> No
         values = dict(zip(state.names, state.values, strict=True))
         assert values["position"] == pytest.approx(-12.345) and values["run"] == 1.0
         assert list(state.units) == ["deg", "deg/s", "deg/s", "deg", "deg", ""]
-        assert state.header.stamp == js.header.stamp  # one poll, one read time
+        # One poll, one read time: the state of js's poll has js's stamp (the first state
+        # received may be of the poll before, whose joint_states came before the
+        # subscription matched: seen once, 40 ms apart at 50 Hz).
+        client.wait_message(b.state, lambda m: m.header.stamp == js.header.stamp)
         status = b.wait_diagnostic(0, 0.0, port, where=lambda v: "device" in v)
         assert dict((kv.key, kv.value) for kv in status.values)["device"] == "mover"
         # The description's reserved parameter names are every one the node declares
