@@ -36,6 +36,7 @@ from rclpy.parameter import Parameter, parameter_value_to_python
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 
+from bridge_core.runtime.diagnostics import DIAGNOSTIC_PERIOD_DEFAULT_S
 from bridge_core.wire.codec import encode
 from modbus_bridge.description import load as load_description
 from msg_defs.msg import DeviceValues
@@ -60,7 +61,6 @@ from .support.ros import (
 pytestmark = pytest.mark.ros
 
 TIMEOUT = 30.0
-DIAGNOSTIC_DEFAULT_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -499,7 +499,7 @@ def test_diagnostic_period_is_live(shared: Running) -> None:
         gaps = [b - a for a, b in itertools.pairwise(stamps(since)[:3])]
         assert statistics.mean(gaps) >= 1.5, gaps
     finally:
-        r.set_params(diagnostic_period_s=DIAGNOSTIC_DEFAULT_S)
+        r.set_params(diagnostic_period_s=DIAGNOSTIC_PERIOD_DEFAULT_S)
 
 
 # ---------------------------------------------------------------- 5. mistyped parameters

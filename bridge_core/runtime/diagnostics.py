@@ -17,7 +17,7 @@ from ..wire.channel import DeviceChannel
 
 RATE_WINDOW_S = 5.0
 # Seconds between a node's /diagnostics statuses (``diagnostic_period_s``): once a second,
-# as diagnostic_updater's default period; tests shorten it instead of waiting out seconds.
+# as diagnostic_updater's default period.
 DIAGNOSTIC_PERIOD_DEFAULT_S = 1.0
 DIAGNOSTIC_PERIOD_RANGE_S = (0.05, 60.0)
 
