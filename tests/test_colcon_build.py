@@ -38,6 +38,11 @@ PACKAGES = {
     "modbus_bridge",
 }
 BRIDGES = PACKAGES - {"msg_defs", "bridge_core"}
+CPP_TYPESUPPORTS = (
+    "rosidl_typesupport_cpp",
+    "rosidl_typesupport_fastrtps_cpp",
+    "rosidl_typesupport_introspection_cpp",
+)
 
 
 def ament_layout() -> ModuleType:
@@ -60,6 +65,10 @@ def install() -> Path:
     install = build.install
     for package in PACKAGES:  # colcon's own record of each package it installed
         assert (install / package / "share" / "colcon-core" / "packages" / package).is_file()
+    # The whole interface package, though it reuses the venv's C/Python-only build dir.
+    for typesupport in CPP_TYPESUPPORTS:
+        library = install / "msg_defs" / "lib" / f"libmsg_defs__{typesupport}.so"
+        assert library.is_file(), f"{library} missing: msg_defs built without C++"
     return install
 
 
