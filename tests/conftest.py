@@ -9,6 +9,7 @@ import os
 import signal
 import sys
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -19,7 +20,9 @@ if str(ROOT) not in sys.path:
 from bridge_core.wire.ports import free_port  # noqa: E402 (needs the path above)
 
 # Fast DDS accepts domain ids 0-101 (and 215-232) with default ports; 1-100 by pid.
-os.environ.setdefault("ROS_DOMAIN_ID", str(1 + os.getpid() % 100))
+DOMAIN_IDS = 100
+os.environ.setdefault("ROS_DOMAIN_ID", str(1 + os.getpid() % DOMAIN_IDS))
+COLCON_TESTS = "tests/test_colcon_build.py"
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ.pop("ROS_LOCALHOST_ONLY", None)
 # Ctrl-C as a terminal gives it, whatever the runner left: a shell that starts the suite in
@@ -34,9 +37,81 @@ def port() -> int:
     return free_port()
 
 
+def xdist_worker(config: pytest.Config) -> int | None:
+    """This process's index among pytest-xdist's workers (``gw3`` -> 3), None if not one."""
+    workerinput = getattr(config, "workerinput", None)
+    if workerinput is None:
+        return None
+    return int(str(workerinput["workerid"]).removeprefix("gw"))
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """A ROS domain of its own for each xdist worker (they inherit the runner's): the
+    runner's id plus the worker's index, so the workers of one run never share one."""
+    worker = xdist_worker(config)
+    if worker is not None:
+        runner = int(os.environ["ROS_DOMAIN_ID"])
+        os.environ["ROS_DOMAIN_ID"] = str((runner + worker) % DOMAIN_IDS + 1)
+
+
+def shared_fixture(definition: Any) -> bool:
+    """One of our fixtures (not pytest's, such as ``tmp_path_factory``) that outlives a test."""
+    return bool(definition.baseid) and definition.scope != "function"
+
+
+def worker_group(item: pytest.Item) -> str:
+    """The tests one worker runs together (``--dist loadgroup``): those that share a
+    module-scoped fixture (a bridge process, the colcon build) with the same parameters;
+    any other test on its own (its nodeid), so a module of long independent cases spreads
+    out."""
+    fixture_info = getattr(item, "_fixtureinfo", None)
+    if fixture_info is None or not any(
+        shared_fixture(definitions[-1]) for definitions in fixture_info.name2fixturedefs.values()
+    ):
+        return item.nodeid
+    module = item.nodeid.split("::", 1)[0]
+    callspec = getattr(item, "callspec", None)
+    if callspec is None:
+        return module
+    scoped = sorted(
+        f"{name}={callspec.indices[name]}"  # the module-scoped fixtures' parameters only
+        for name, definitions in fixture_info.name2fixturedefs.items()
+        if name in callspec.params and shared_fixture(definitions[-1])
+    )
+    return f"{module}[{','.join(scoped)}]" if scoped else module
+
+
+@pytest.hookimpl(trylast=True)  # after xdist's own, which no longer takes effect
+def pytest_collection_modifyitems(session: pytest.Session, items: list[pytest.Item]) -> None:
+    """Under xdist: each test in its worker group (``--dist loadgroup``), and the colcon
+    tests first, so the worker that takes them starts their build (the longest wait of the
+    run) before anything else while the others go on.
+
+    xdist 3.8 tells its scheduler a test's group by appending ``@group`` to the nodeid it
+    reports, through ``item._nodeid``; pytest 9.2 builds the nodeid from ``item._id``, so
+    that append is lost and every test is scheduled alone (pytest-xdist issue 1386, fix
+    pending in its pull request 1388, which sets the structured id as done here). A
+    pytest or xdist that changes this again fails here at collection, not silently."""
+    if xdist_worker(session.config) is None:
+        return
+    from _pytest.nodeid import NodeId
+
+    for item in items:
+        group = worker_group(item)
+        if group == item.nodeid:
+            continue  # a test alone: xdist's scope for a nodeid without a group
+        item._id = NodeId.parse(f"{item.nodeid}@{group}")
+        if not item.nodeid.endswith(f"@{group}"):
+            raise pytest.UsageError(f"{item.nodeid}: cannot give it its xdist group {group}")
+    items.sort(key=lambda item: not item.nodeid.startswith(COLCON_TESTS))
+
+
 def pytest_collection_finish(session: pytest.Session) -> None:
-    """Start the colcon build now when its tests will run (tests/support/colcon.py)."""
-    if any(item.nodeid.startswith("tests/test_colcon_build.py") for item in session.items):
+    """Start the colcon build now when its tests will run (tests/support/colcon.py); under
+    xdist every worker collects every test, so the worker that runs them starts it."""
+    if xdist_worker(session.config) is not None:
+        return
+    if any(item.nodeid.startswith(COLCON_TESTS) for item in session.items):
         from .support.colcon import colcon_build
 
         colcon_build()

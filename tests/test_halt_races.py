@@ -62,6 +62,7 @@ pytestmark = [pytest.mark.ros, pytest.mark.timeout(CASE_TIMEOUT_S)]
 MOTOR = 2  # the stepper motor the joystick jogs
 JOG = 30.0  # jog speed (rpm) / cmd_velocity (rad/s)
 SPEED_SETPOINT = 0xAE  # MOTEC speed setpoint register
+DIAGNOSTIC_PERIOD_S = 0.1
 
 
 @pytest.fixture
@@ -78,6 +79,9 @@ def stepper_params(port: str) -> dict[str, object]:
         "timeout_s": 1.0,
         "command_timeout_s": 60.0,  # the deadman must not be what stops or unlocks it
         "command_rate_hz": 50.0,
+        # Each repetition waits for two statuses after the resume (a refused value counted):
+        # 0.2 s at this period, 2 s at the default.
+        "diagnostic_period_s": DIAGNOSTIC_PERIOD_S,
     }
 
 

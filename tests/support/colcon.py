@@ -86,6 +86,9 @@ class ColconBuild:
                     # build directory was configured with.
                     "--cmake-args",
                     "-DMSG_DEFS_PYTHON_ONLY=OFF",
+                    # Configure even when colcon's record of its last arguments matches:
+                    # set-up's pip build may have configured the reused directory since.
+                    "--cmake-force-configure",
                 ],
                 cwd=self.workspace,
                 env=venv_env(),

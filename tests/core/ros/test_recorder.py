@@ -23,9 +23,10 @@ from rosbags.rosbag2 import Reader, StoragePlugin
 from std_msgs.msg import Bool
 
 from bridge_core.ros.recorder import Recorder, typestore_for
+from msg_defs.msg import R6State
 from r6_bridge.sim import R6SimDevice, make_simulator
 
-from ...support.ros import ROOT, node_process, wait_for
+from ...support.ros import ROOT, Bridge, node_process, ros_client, wait_for
 
 pytestmark = pytest.mark.ros
 
@@ -50,6 +51,11 @@ def test_bag_of_a_running_bridge(tmp_path: Path, monkeypatch: pytest.MonkeyPatch
         with node_process(
             "r6_bridge.node", {"port": port, "poll_rate_hz": 20.0}, tmp_path, ["-r", f"__ns:={ns}"]
         ):
+            # The bridge publishing before the recorder's 6 s begin (a node that took them
+            # to start, beside other busy processes, left an empty bag).
+            with ros_client("recorder_probe") as client:
+                bridge = Bridge(client, ns, "r6_bridge", R6State)
+                client.wait_message(bridge.joint_states, timeout=60)
             result = subprocess.run(
                 [
                     sys.executable,
