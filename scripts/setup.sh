@@ -140,11 +140,11 @@ if ! stamped "$MSG_HASH" || ! msg_defs_installed \
     # What rclpy needs only (MSG_DEFS_PYTHON_ONLY: the C type supports and the Python
     # bindings, not the C++ ones), with no optimisation flags, as colcon builds by default
     # (CMAKE_BUILD_TYPE empty). Measured on 2 idle cores: 71-80 s, against ~155 s for the
-    # whole package as a Release build. The CMake build
-    # directory stays in $MSG_DEFS_BUILD: a later build compiles only what changed, and the
-    # colcon test (tests/support/colcon.py) builds msg_defs there, adding the C++ type
-    # supports, so no file is compiled twice. scikit-build-core runs make without -j (it
-    # sets a parallel level only for Ninja): one compiler per core.
+    # whole package as a Release build. The CMake build directory stays in
+    # $MSG_DEFS_BUILD: a later build compiles only what changed, and the colcon test
+    # (tests/support/colcon.py) builds msg_defs there, adding the C++ type supports, so no
+    # file is compiled twice. scikit-build-core runs make without -j (it sets a parallel
+    # level only for Ninja): one compiler per core.
     step "building msg_defs into .venv" \
         env CMAKE_BUILD_PARALLEL_LEVEL="${CMAKE_BUILD_PARALLEL_LEVEL:-$(nproc)}" \
         "${PIP[@]}" install --no-build-isolation --force-reinstall --no-deps \

@@ -7,7 +7,8 @@ bindings, so it compiles the C++ type supports only (~80 s on 2 idle cores). The
 starts it at the lowest CPU priority (nice 19) as soon as the colcon tests are collected,
 so it uses the CPU the other tests leave idle (they mostly wait on sockets, ptys and ROS
 discovery) without slowing them; the colcon tests, near the end of the run, wait for it at
-normal priority.
+normal priority. Under xdist the worker that takes the colcon tests runs them first
+(tests/conftest.py): it starts the build and waits for it at once.
 """
 
 from __future__ import annotations
@@ -65,7 +66,7 @@ class ColconBuild:
     def __init__(self) -> None:
         self.workspace = Path(tempfile.mkdtemp(prefix="colcon_ws_"))
         self.output = self.workspace / "colcon.out"
-        self.reused = reuse_msg_defs_build(self.workspace / "build")
+        reuse_msg_defs_build(self.workspace / "build")
         with self.output.open("wb") as out:
             self.process = subprocess.Popen(
                 [

@@ -268,16 +268,16 @@ def test_relay_flags_a_request_inside_the_silence() -> None:
     assert len(inside) == INSIDE_ROUNDS, (
         f"{MAX_ROUNDS} rounds, the request late in all but {inside}"
     )
+
+    def flagged(gap: Gap) -> bool:
+        return silence_violations([gap.before, gap.request], line.silence_s) == [gap]
+
     # Queued behind the reply: flagged, with (next to) no silence.
-    assert (
-        silence_violations([g for gap in inside for g in (gap.before, gap.request)], line.silence_s)
-        == inside
-    )
+    assert all(flagged(gap) for gap in inside), inside
     assert all(gap.silence_s < line.silence_s / 2 for gap in inside)
     # A request that came after the reply is flagged exactly when its silence was short.
     for gap in after:
-        flagged = silence_violations([gap.before, gap.request], line.silence_s) == [gap]
-        assert flagged == (gap.silence_s < line.silence_s - TIMESTAMP_TOLERANCE_S), gap
+        assert flagged(gap) == (gap.silence_s < line.silence_s - TIMESTAMP_TOLERANCE_S), gap
 
 
 def read_exactly(fd: int, size: int, timeout_s: float = 5.0) -> bytes:
