@@ -18,9 +18,9 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import contextlib
 import dataclasses
 import json
+import math
 import shutil
 import signal
 import subprocess
@@ -40,7 +40,7 @@ from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 from pymodbus.transport import serialtransport as _serialtransport
 
 from ..wire.codec import Value, decode, encode
-from ..wire.registers import DeviceLimits, RegisterMap, Table, ValueType
+from ..wire.registers import DeviceLimits, Register, RegisterMap, Table, ValueType
 from ..wire.serial_port import open_serial
 from .rtu_framing import slave_framer
 from .strict_decoding import strict_decoder
@@ -154,6 +154,8 @@ class SimulatedDevice:
         self.whole_value_writes = whole_values if whole_value_writes is None else whole_value_writes
         self.lock = threading.RLock()
         self.words: dict[tuple[Table, int], int] = {}
+        # Per name: the register as ``set`` encodes it, the last value set and its words.
+        self._last_set: dict[str, tuple[Register, Value, tuple[int, ...]]] = {}
         self.readable: set[tuple[Table, int]] = set()
         self.writable: set[tuple[Table, int]] = set()
         for reg in register_map:
@@ -189,10 +191,28 @@ class SimulatedDevice:
             return decode(reg, [self.words[(reg.table, a)] for a in reg.addresses()])
 
     def set(self, name: str, value: Value) -> None:
-        """Set a value as the device itself would (no write-range check, no log)."""
-        reg = self.map[name]
-        unchecked = dataclasses.replace(reg, minimum=None, maximum=None)
-        self.set_words(reg.table, reg.address, encode(unchecked, value))
+        """Set a value as the device itself would (no write-range check, no log).
+
+        A tick sets dozens of values 100 times a second, most of them unchanged: the words
+        of the last value set under ``name`` are kept, and a value whose words the table
+        holds already is not stored again (a store of the same words changes nothing, the
+        R6 simulator's coil and row mirror included)."""
+        last = self._last_set.get(name)
+        if last is not None and _same_value(last[1], value):
+            reg, _, words = last
+        else:
+            reg = last[0] if last is not None else self._unchecked(name)
+            words = tuple(encode(reg, value))
+            self._last_set[name] = (reg, value, words)
+        with self.lock:
+            table, address = reg.table, reg.address
+            if all(self.words[(table, address + i)] == w for i, w in enumerate(words)):
+                return
+            self.set_words(table, address, words)
+
+    def _unchecked(self, name: str) -> Register:
+        """The register without its write range: the device's own values are not writes."""
+        return dataclasses.replace(self.map[name], minimum=None, maximum=None)
 
     def set_words(self, table: Table, address: int, values: Sequence[int]) -> None:
         with self.lock:
@@ -358,6 +378,14 @@ class SimulatorStartError(RuntimeError):
     """The server could not listen (port in use, serial port missing): a one-line exit."""
 
 
+def _same_value(a: Value, b: Value) -> bool:
+    """Whether ``a`` and ``b`` encode to the same words: same type and equal, and for
+    floats the same sign too (-0.0 == 0.0; a NaN is never equal, so it is encoded anew)."""
+    if type(a) is not type(b) or a != b:
+        return False
+    return not isinstance(a, float) or math.copysign(1.0, a) == math.copysign(1.0, b)  # type: ignore[arg-type]
+
+
 class Simulator:
     """A pymodbus server for one or more simulated units, run on a background thread."""
 
@@ -465,8 +493,9 @@ class Simulator:
         last = time.monotonic()
         try:
             while not self._stop.is_set():
-                with contextlib.suppress(TimeoutError):
-                    await asyncio.wait_for(self._stop.wait(), self.tick_s)
+                # A plain sleep (a stop is seen within a tick): asyncio.wait_for on the
+                # stop event made a task and a timeout every tick, ~5 % of a core.
+                await asyncio.sleep(self.tick_s)
                 now = time.monotonic()
                 for device in self.devices.values():
                     self._tick(device, now - last)

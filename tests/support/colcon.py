@@ -7,8 +7,8 @@ bindings, so it compiles the C++ type supports only (~50 s on 2 idle cores, as a
 build). The session starts it at the lowest CPU priority (nice 19) as soon as the colcon
 tests are collected, so it uses the CPU the other tests leave idle (they mostly wait on
 sockets, ptys and ROS discovery) without slowing them; the colcon tests, near the end of
-the run, wait for it at normal priority. Under xdist the worker that takes the colcon tests runs them first
-(tests/conftest.py): it starts the build and waits for it at once.
+the run, wait for it at normal priority. Under xdist the worker that takes the colcon
+tests runs them first (tests/conftest.py): it starts the build and waits for it at once.
 """
 
 from __future__ import annotations
