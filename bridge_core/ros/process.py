@@ -8,16 +8,21 @@ error nothing handled) stops every motion before the link closes and the context
 
 from __future__ import annotations
 
+import contextlib
+import os
+import re
 import signal
 import sys
+import tempfile
 import threading
 import traceback
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
 import rclpy
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.lifecycle import LifecycleNode
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
@@ -180,10 +185,15 @@ def spin_nodes(
     half-way still has the earlier ones closed). A configuration error (bad parameter
     type or range) is one line on stderr and exit code 2, never a traceback.
     """
-    rclpy.init(
-        args=list(args) if args is not None else None,
-        signal_handler_options=SignalHandlerOptions.NO,
-    )
+    try:
+        with _rcl_log_held():
+            rclpy.init(
+                args=list(args) if args is not None else None,
+                signal_handler_options=SignalHandlerOptions.NO,
+            )
+    except (_rclpy.UnknownROSArgsError, _rclpy.RCLError) as err:
+        print(f"error: {command_line_error(err)}", file=sys.stderr)
+        return EXIT_CONFIGURATION_ERROR
     interrupt_on_signals()
     sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
     nodes: list[Node] = []
@@ -225,6 +235,39 @@ def spin_nodes(
     return code
 
 
+# The places in rcl's C sources an rcl error names (", at /project/src/rcl/arguments.c:352").
+_RCL_SOURCE_PLACE = re.compile(r", at /\S+:\d+")
+
+
+@contextlib.contextmanager
+def _rcl_log_held() -> Iterator[None]:
+    """Hold what rcl writes to stderr (file descriptor 2) inside the block; written out
+    after it, unless the block raised: a refused command line is then one line (ours), not
+    rcl's "Failed to parse global arguments" as well."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as held:
+        os.dup2(held.fileno(), 2)
+        try:
+            yield
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+        held.seek(0)
+        text = held.read()
+    if text:
+        sys.stderr.buffer.write(text)
+        sys.stderr.flush()
+
+
+def command_line_error(err: Exception) -> str:
+    """What rclpy.init refused on the command line, on one line: an unknown ROS argument,
+    a remap or parameter rule rcl cannot parse, a params file it cannot open or parse."""
+    if isinstance(err, _rclpy.UnknownROSArgsError):
+        return f"unknown ROS arguments: {err}"
+    return " ".join(_RCL_SOURCE_PLACE.sub("", str(err)).split())
+
+
 def spin_node(make_node: Callable[[], Node], args: Sequence[str] | None = None) -> int:
     """``spin_nodes`` for a process of one node."""
     return spin_nodes(lambda nodes: nodes.append(make_node()), args)
@@ -235,6 +278,7 @@ __all__ = [
     "EXIT_FATAL_ERROR",
     "GIL_SWITCH_INTERVAL_S",
     "BusNode",
+    "command_line_error",
     "interrupt_on_signals",
     "spin_node",
     "spin_nodes",
