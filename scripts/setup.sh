@@ -108,9 +108,16 @@ fi
 # --- Virtual environment and the project ---------------------------------------------------
 VPY="$VENV/bin/python"
 PIP=("$VPY" -m pip --disable-pip-version-check)
+# uv installs the packages (pip took 45-60 s for the ~200 wheels on the 2-core machine,
+# downloading them again each time; uv 7 s with an empty cache, ~2 s with its cache). uv
+# reads its own settings (uv.toml, UV_* variables), not pip's configuration.
+UV_VERSION=0.13.8
+UV=("$VENV/bin/uv" pip)
 if [[ ! -x "$VPY" ]]; then
     step "creating .venv with $("$PY" --version 2>&1)" "$PY" -m venv "$VENV"
-    step "upgrading pip" "${PIP[@]}" install --upgrade pip
+fi
+if ! "$VENV/bin/uv" --version 2>/dev/null | grep -qxF "uv $UV_VERSION"; then
+    step "installing uv $UV_VERSION into .venv" "${PIP[@]}" install "uv==$UV_VERSION"
 fi
 
 if ! stamped "$ENV_HASH"; then
@@ -126,7 +133,7 @@ with open("msg_defs/pyproject.toml", "rb") as f:
     print("\n".join(tomllib.load(f)["build-system"]["requires"]))')
     ((${#BUILD_REQS[@]})) || die "no build requirements found in msg_defs/pyproject.toml"
     step "installing modbus-ros-bridges[ros,dev] (editable) and msg_defs build requirements" \
-        "${PIP[@]}" install -e ".[ros,dev]" "${BUILD_REQS[@]}"
+        "${UV[@]}" install --python "$VPY" -e ".[ros,dev]" "${BUILD_REQS[@]}"
     step "marking the bridges in the ament index (ros2 run)" "$VPY" scripts/ament_index.py
     { grep '^msg_defs ' "$STAMP" || true; echo "$ENV_HASH"; } >"$STAMP.new"
     mv "$STAMP.new" "$STAMP"
@@ -135,24 +142,60 @@ fi
 # --- msg_defs ----------------------------------------------------------------------------
 # Rebuilt when its sources changed, or when it no longer imports (e.g. the env step above
 # replaced the ROS wheels it was built against).
+#
+# What rclpy needs only (MSG_DEFS_PYTHON_ONLY: the C type supports and the Python
+# bindings, not the C++ ones), with no optimisation flags, as colcon builds by default
+# (CMAKE_BUILD_TYPE empty), as a unity build (CMAKE_UNITY_BUILD: the generated sources of a
+# target compiled a few at a time, their shared headers read once). Measured on 2 idle
+# cores: 113 CPU-s and 76 s, 88 CPU-s and 64-79 s as a unity build (the wall time is
+# rosidl's code generators, Python run one after the other), ~155 s for the whole package
+# as a Release build. The CMake build directory stays in $MSG_DEFS_BUILD: a later build
+# compiles only what changed, and the colcon test (tests/support/colcon.py) builds
+# msg_defs there, adding the C++ type supports, so no file is compiled twice.
+# scikit-build-core runs make without -j (it sets a parallel level only for Ninja): one
+# compiler per core.
+#
+# The wheel is kept in $MSG_DEFS_CACHE under a hash of everything it is built from (the
+# msg_defs sources, the build options, the Python and the venv's packages: the ROS wheels
+# and numpy whose headers the bindings compile against), so a fresh clone on a machine that
+# built the same msg_defs before installs it in a second instead of ~70 s (as pip keeps
+# the wheels it builds from source distributions). MSG_DEFS_CACHE= (empty) builds anyway.
+MSG_DEFS_OPTIONS=(-C cmake.build-type= -C cmake.define.MSG_DEFS_PYTHON_ONLY=ON
+    -C cmake.define.CMAKE_UNITY_BUILD=ON)
+MSG_DEFS_CACHE="${MSG_DEFS_CACHE-${XDG_CACHE_HOME:-$HOME/.cache}/modbus-ros-bridges/msg_defs}"
 if ! stamped "$MSG_HASH" || ! msg_defs_installed \
     || ! "$VPY" -c 'import msg_defs.msg, msg_defs.srv, msg_defs.action' >/dev/null 2>&1; then
-    # What rclpy needs only (MSG_DEFS_PYTHON_ONLY: the C type supports and the Python
-    # bindings, not the C++ ones), with no optimisation flags, as colcon builds by default
-    # (CMAKE_BUILD_TYPE empty), as a unity build (CMAKE_UNITY_BUILD: the generated sources
-    # of a target compiled a few at a time, their shared headers read once). Measured on 2
-    # idle cores: 113 CPU-s and 76 s, 88 CPU-s and 64 s as a unity build (most of what
-    # is left is rosidl's code generators, Python), ~155 s for the whole package as a
-    # Release build. The CMake build directory stays in $MSG_DEFS_BUILD: a later build
-    # compiles only what changed, and the colcon test (tests/support/colcon.py) builds
-    # msg_defs there, adding the C++ type supports, so no file is compiled twice.
-    # scikit-build-core runs make without -j (it sets a parallel level only for Ninja):
-    # one compiler per core.
-    step "building msg_defs into .venv" \
-        env CMAKE_BUILD_PARALLEL_LEVEL="${CMAKE_BUILD_PARALLEL_LEVEL:-$(nproc)}" \
-        "${PIP[@]}" install --no-build-isolation --force-reinstall --no-deps \
-        -C build-dir="$MSG_DEFS_BUILD" -C cmake.build-type= \
-        -C cmake.define.MSG_DEFS_PYTHON_ONLY=ON -C cmake.define.CMAKE_UNITY_BUILD=ON ./msg_defs
+    wheel_key="$({
+        hash_files msg_defs
+        echo "${MSG_DEFS_OPTIONS[*]}"
+        "$VPY" -c 'import sys, sysconfig; print(sys.version, sysconfig.get_platform())'
+        "${UV[@]}" freeze --python "$VPY" | grep -v -i -e '^msg[-_]defs' -e '^-e '
+    } | sha256sum | cut -c1-32)"
+    cached=""
+    if [[ -n "$MSG_DEFS_CACHE" ]]; then
+        cached="$(compgen -G "$MSG_DEFS_CACHE/$wheel_key/msg_defs-*.whl" | head -n 1 || true)"
+    fi
+    if [[ -n "$cached" ]]; then
+        step "installing msg_defs built before (${cached/#$HOME/\~})" \
+            "${UV[@]}" install --python "$VPY" --reinstall --no-deps "$cached"
+    else
+        wheels="$VENV/build/msg_defs-wheel"
+        rm -rf "$wheels"
+        step "building msg_defs" \
+            env CMAKE_BUILD_PARALLEL_LEVEL="${CMAKE_BUILD_PARALLEL_LEVEL:-$(nproc)}" \
+            "${PIP[@]}" wheel --no-build-isolation --no-deps -w "$wheels" \
+            -C build-dir="$MSG_DEFS_BUILD" "${MSG_DEFS_OPTIONS[@]}" ./msg_defs
+        built="$(compgen -G "$wheels/msg_defs-*.whl" | head -n 1)"
+        step "installing msg_defs into .venv" \
+            "${UV[@]}" install --python "$VPY" --reinstall --no-deps "$built"
+        if [[ -n "$MSG_DEFS_CACHE" ]]; then
+            # Into place whole or not at all (two set-ups may run at once on one machine).
+            mkdir -p "$MSG_DEFS_CACHE"
+            tmp="$(mktemp -d "$MSG_DEFS_CACHE/.new.XXXXXX")"
+            cp "$built" "$tmp/" && mv -T "$tmp" "$MSG_DEFS_CACHE/$wheel_key" 2>/dev/null \
+                || rm -rf "$tmp"
+        fi
+    fi
     step "checking msg_defs" "$VPY" -c '
 import msg_defs.msg, msg_defs.srv
 from rclpy.serialization import deserialize_message, serialize_message

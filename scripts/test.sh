@@ -13,6 +13,12 @@ bash scripts/setup.sh
 # Keep ROS discovery on this machine (tests start nodes of their own).
 export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
 
+# The packages and tests compiled to bytecode once, into their __pycache__ (ignored by
+# git): where Python is told not to write it (PYTHONDONTWRITEBYTECODE, as on the CI
+# machine), each of the suite's ~500 processes would compile them again (~0.1 CPU-s each).
+.venv/bin/python -m compileall -q -j 0 bridge_core r6_bridge xarm_bridge stepper_bridge \
+    motec_bridge modbus_bridge tests bench >/dev/null
+
 if [[ "${LINT:-1}" == 1 ]]; then
     pkgs=()
     for p in bridge_core r6_bridge xarm_bridge stepper_bridge motec_bridge modbus_bridge; do

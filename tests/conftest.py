@@ -83,15 +83,16 @@ def worker_group(item: pytest.Item) -> str:
 
 @pytest.hookimpl(trylast=True)  # after xdist's own, which no longer takes effect
 def pytest_collection_modifyitems(session: pytest.Session, items: list[pytest.Item]) -> None:
-    """Under xdist: each test in its worker group (``--dist loadgroup``), and the colcon
-    tests first, so the worker that takes them starts their build (the longest wait of the
-    run) before anything else while the others go on.
+    """The colcon tests last (their build runs in the background from the start: the
+    longer it has, the less they wait). Under xdist, each test in its worker group
+    (``--dist loadgroup``).
 
     xdist 3.8 tells its scheduler a test's group by appending ``@group`` to the nodeid it
     reports, through ``item._nodeid``; pytest 9.2 builds the nodeid from ``item._id``, so
     that append is lost and every test is scheduled alone (pytest-xdist issue 1386, fix
     pending in its pull request 1388, which sets the structured id as done here). A
     pytest or xdist that changes this again fails here at collection, not silently."""
+    items.sort(key=lambda item: item.nodeid.startswith(COLCON_TESTS))
     if xdist_worker(session.config) is None:
         return
     from _pytest.nodeid import NodeId
@@ -103,18 +104,37 @@ def pytest_collection_modifyitems(session: pytest.Session, items: list[pytest.It
         item._id = NodeId.parse(f"{item.nodeid}@{group}")
         if not item.nodeid.endswith(f"@{group}"):
             raise pytest.UsageError(f"{item.nodeid}: cannot give it its xdist group {group}")
-    items.sort(key=lambda item: not item.nodeid.startswith(COLCON_TESTS))
 
 
 def pytest_collection_finish(session: pytest.Session) -> None:
-    """Start the colcon build now when its tests will run (tests/support/colcon.py); under
-    xdist every worker collects every test, so the worker that runs them starts it."""
-    if xdist_worker(session.config) is not None:
+    """Without xdist: start the colcon build now when its tests will run
+    (tests/support/colcon.py). Under xdist the controller starts it (below)."""
+    if getattr(session.config, "workerinput", None) is not None:
         return
     if any(item.nodeid.startswith(COLCON_TESTS) for item in session.items):
         from .support.colcon import colcon_build
 
         colcon_build()
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_configure_node(node: Any) -> None:
+    """xdist controller, for each worker it starts: where the session's colcon build goes
+    (its workspace is made now, the build started once a worker has collected its tests)."""
+    from .support.colcon import WORKSPACE_INPUT, session_build
+
+    node.workerinput[WORKSPACE_INPUT] = str(session_build().workspace)
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_node_collection_finished(node: Any, ids: list[str]) -> None:
+    """xdist controller: start the colcon build as soon as a worker has collected the
+    colcon tests (they run last, on whichever worker; it waits for the build's end)."""
+    from .support.colcon import session_build
+
+    build = session_build()
+    if build.process is None and any(nodeid.startswith(COLCON_TESTS) for nodeid in ids):
+        build.start()
 
 
 def pytest_sessionfinish(session: pytest.Session) -> None:

@@ -57,9 +57,9 @@ def ament_layout() -> ModuleType:
 
 
 @pytest.fixture(scope="module")
-def install() -> Path:
+def install(pytestconfig: pytest.Config) -> Path:
     """The session's colcon build (started at collection, at low priority), finished."""
-    build = colcon_build()
+    build = colcon_build(getattr(pytestconfig, "workerinput", None))
     code, output = build.wait()
     assert code == 0, output[-4000:]
     install = build.install

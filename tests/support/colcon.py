@@ -2,13 +2,18 @@
 
 Building ``msg_defs`` (C and C++ type support of 6 messages, 28 services and 7 actions)
 takes minutes of compiler time. The build reuses the venv's msg_defs build directory
-(``reuse_msg_defs_build``), where set-up compiled the C type supports and the Python
-bindings, so it compiles the C++ type supports only (~50 s on 2 idle cores, as a unity
-build). The session starts it at the lowest CPU priority (nice 19) as soon as the colcon
-tests are collected, so it uses the CPU the other tests leave idle (they mostly wait on
-sockets, ptys and ROS discovery) without slowing them; the colcon tests, near the end of
-the run, wait for it at normal priority. Under xdist the worker that takes the colcon
-tests runs them first (tests/conftest.py): it starts the build and waits for it at once.
+(``reuse_msg_defs_build``) when set-up left one, where it compiled the C type supports and
+the Python bindings, so it compiles the C++ type supports only (~50 s on 2 idle cores, as
+a unity build); when set-up installed a wheel it had built before (scripts/setup.sh), the
+build is the whole package (~160 CPU-s). It runs in the background at the lowest CPU
+priority (nice 19) from the start of the session, so it uses the CPU the other tests leave
+idle (they mostly wait on sockets, ptys and ROS discovery) without slowing them; the colcon
+tests, run last, wait for it at normal priority.
+
+Under pytest-xdist the controller process starts it once the workers have collected the
+colcon tests (tests/conftest.py) and tells the workers its workspace; the worker that runs
+the tests waits for the exit code the build leaves in that workspace (``colcon.rc``).
+Without xdist the test process starts it when its collection is done.
 """
 
 from __future__ import annotations
@@ -20,6 +25,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 from .ros import ROOT
@@ -61,46 +67,69 @@ def reuse_msg_defs_build(build_base: Path) -> bool:
 
 
 class ColconBuild:
-    """``colcon build`` of this checkout into a temporary workspace, in the background."""
+    """``colcon build`` of this checkout into a workspace, in the background: ``start()``
+    starts it; a process that did not start it (an xdist worker, the controller's build)
+    waits for it all the same."""
 
-    def __init__(self) -> None:
-        self.workspace = Path(tempfile.mkdtemp(prefix="colcon_ws_"))
-        self.output = self.workspace / "colcon.out"
+    def __init__(self, workspace: Path) -> None:
+        self.workspace = workspace
+        self.process: subprocess.Popen[bytes] | None = None
+
+    @classmethod
+    def new(cls) -> ColconBuild:
+        """A build in a new temporary workspace, not started yet."""
+        return cls(Path(tempfile.mkdtemp(prefix="colcon_ws_")))
+
+    def start(self) -> None:
         reuse_msg_defs_build(self.workspace / "build")
+        colcon = [
+            str(Path(sys.prefix) / "bin" / "colcon"),
+            "--log-base",
+            str(self.workspace / "log"),
+            "build",
+            "--base-paths",
+            str(ROOT),
+            "--build-base",
+            str(self.workspace / "build"),
+            "--install-base",
+            str(self.workspace / "install"),
+            # The whole package, C++ type supports included, whatever the reused build
+            # directory was configured with.
+            "--cmake-args",
+            "-DMSG_DEFS_PYTHON_ONLY=OFF",
+            # As set-up builds msg_defs (scripts/setup.sh): the C++ type supports'
+            # generated sources a few per compiler run (~70 CPU-s instead of ~130 on 2
+            # cores). The install is the same files.
+            "-DCMAKE_UNITY_BUILD=ON",
+            # Configure even when colcon's record of its last arguments matches: set-up's
+            # pip build may have configured the reused directory since.
+            "--cmake-force-configure",
+        ]
+        # The exit code is written when colcon ends (renamed into place: whole or absent).
+        script = '"$@"; echo $? >"$RC.new" && mv "$RC.new" "$RC"'
         with self.output.open("wb") as out:
             self.process = subprocess.Popen(
-                [
-                    "nice",
-                    "-n",
-                    "19",
-                    str(Path(sys.prefix) / "bin" / "colcon"),
-                    "--log-base",
-                    str(self.workspace / "log"),
-                    "build",
-                    "--base-paths",
-                    str(ROOT),
-                    "--build-base",
-                    str(self.workspace / "build"),
-                    "--install-base",
-                    str(self.workspace / "install"),
-                    # The whole package, C++ type supports included, whatever the reused
-                    # build directory was configured with.
-                    "--cmake-args",
-                    "-DMSG_DEFS_PYTHON_ONLY=OFF",
-                    # As set-up built the reused directory (scripts/setup.sh): the C++
-                    # type supports' generated sources a few per compiler run (~70
-                    # CPU-s instead of ~130 on 2 cores). The install is the same files.
-                    "-DCMAKE_UNITY_BUILD=ON",
-                    # Configure even when colcon's record of its last arguments matches:
-                    # set-up's pip build may have configured the reused directory since.
-                    "--cmake-force-configure",
-                ],
+                ["nice", "-n", "19", "sh", "-c", script, "colcon", *colcon],
                 cwd=self.workspace,
-                env=venv_env(),
+                env={**venv_env(), "RC": str(self.rc_file)},
                 stdout=out,
                 stderr=subprocess.STDOUT,
                 start_new_session=True,  # its own process group: reniced and killed whole
             )
+        self.group_file.write_text(str(self.process.pid))
+
+    @property
+    def output(self) -> Path:
+        return self.workspace / "colcon.out"
+
+    @property
+    def group_file(self) -> Path:
+        """The build's process group id: written when it starts."""
+        return self.workspace / "colcon.pgid"
+
+    @property
+    def rc_file(self) -> Path:
+        return self.workspace / "colcon.rc"
 
     @property
     def install(self) -> Path:
@@ -108,18 +137,24 @@ class ColconBuild:
 
     def wait(self, timeout_s: float = BUILD_TIMEOUT_S) -> tuple[int, str]:
         """Back to normal priority (a test waits now), then the exit code and output."""
+        if not self.group_file.is_file():
+            raise AssertionError(f"no colcon build was started in {self.workspace}")
         # Not allowed to raise it (not root), or already done: it goes on as it is.
         with contextlib.suppress(PermissionError, ProcessLookupError):
-            os.setpriority(os.PRIO_PGRP, self.process.pid, 0)
-        try:
-            code = self.process.wait(timeout_s)
-        except subprocess.TimeoutExpired:
-            self.stop()
-            raise
+            os.setpriority(os.PRIO_PGRP, int(self.group_file.read_text()), 0)
+        deadline = time.monotonic() + timeout_s
+        while not self.rc_file.is_file():
+            if self.process is not None and self.process.poll() is not None:
+                break  # ended without writing its code (killed)
+            if time.monotonic() > deadline:
+                self.stop()
+                raise TimeoutError(f"colcon build still running after {timeout_s} s")
+            time.sleep(0.5)
+        code = int(self.rc_file.read_text()) if self.rc_file.is_file() else -1
         return code, self.output.read_text(errors="replace")
 
     def stop(self) -> None:
-        if self.process.poll() is None:
+        if self.process is not None and self.process.poll() is None:
             with contextlib.suppress(ProcessLookupError):
                 os.killpg(self.process.pid, signal.SIGKILL)
             self.process.wait(30)
@@ -130,14 +165,28 @@ class ColconBuild:
 
 
 _build: ColconBuild | None = None
+# The key of the workspace in an xdist worker's ``workerinput`` (tests/conftest.py).
+WORKSPACE_INPUT = "colcon_workspace"
 
 
-def colcon_build() -> ColconBuild:
-    """The session's build, started now if the session did not start it."""
+def session_build() -> ColconBuild:
+    """This process's build (the test process's, or the xdist controller's), made (not
+    started) on first use."""
     global _build
     if _build is None:
-        _build = ColconBuild()
+        _build = ColconBuild.new()
     return _build
+
+
+def colcon_build(workerinput: dict[str, object] | None = None) -> ColconBuild:
+    """The session's build: the controller's under xdist (its workspace in the worker's
+    ``workerinput``), else this process's own, started now if it was not."""
+    if workerinput is not None:
+        return ColconBuild(Path(str(workerinput[WORKSPACE_INPUT])))
+    build = session_build()
+    if build.process is None:
+        build.start()
+    return build
 
 
 def remove_colcon_build() -> None:
