@@ -113,6 +113,10 @@ PIP=("$VPY" -m pip --disable-pip-version-check)
 # reads its own settings (uv.toml, UV_* variables), not pip's configuration.
 UV_VERSION=0.13.8
 UV=("$VENV/bin/uv" pip)
+# --compile-bytecode: uv leaves the .pyc files out unless asked (pip writes them), and on a
+# machine that tells Python not to write them (PYTHONDONTWRITEBYTECODE) every process would
+# then compile rclpy, numpy and the message packages from source again.
+UV_INSTALL=(install --compile-bytecode --python "$VPY")
 if [[ ! -x "$VPY" ]]; then
     step "creating .venv with $("$PY" --version 2>&1)" "$PY" -m venv "$VENV"
 fi
@@ -133,7 +137,7 @@ with open("msg_defs/pyproject.toml", "rb") as f:
     print("\n".join(tomllib.load(f)["build-system"]["requires"]))')
     ((${#BUILD_REQS[@]})) || die "no build requirements found in msg_defs/pyproject.toml"
     step "installing modbus-ros-bridges[ros,dev] (editable) and msg_defs build requirements" \
-        "${UV[@]}" install --python "$VPY" -e ".[ros,dev]" "${BUILD_REQS[@]}"
+        "${UV[@]}" "${UV_INSTALL[@]}" -e ".[ros,dev]" "${BUILD_REQS[@]}"
     step "marking the bridges in the ament index (ros2 run)" "$VPY" scripts/ament_index.py
     { grep '^msg_defs ' "$STAMP" || true; echo "$ENV_HASH"; } >"$STAMP.new"
     mv "$STAMP.new" "$STAMP"
@@ -177,7 +181,7 @@ if ! stamped "$MSG_HASH" || ! msg_defs_installed \
     fi
     if [[ -n "$cached" ]]; then
         step "installing msg_defs built before (${cached/#$HOME/\~})" \
-            "${UV[@]}" install --python "$VPY" --reinstall --no-deps "$cached"
+            "${UV[@]}" "${UV_INSTALL[@]}" --reinstall --no-deps "$cached"
     else
         wheels="$VENV/build/msg_defs-wheel"
         rm -rf "$wheels"
@@ -187,7 +191,7 @@ if ! stamped "$MSG_HASH" || ! msg_defs_installed \
             -C build-dir="$MSG_DEFS_BUILD" "${MSG_DEFS_OPTIONS[@]}" ./msg_defs
         built="$(compgen -G "$wheels/msg_defs-*.whl" | head -n 1)"
         step "installing msg_defs into .venv" \
-            "${UV[@]}" install --python "$VPY" --reinstall --no-deps "$built"
+            "${UV[@]}" "${UV_INSTALL[@]}" --reinstall --no-deps "$built"
         if [[ -n "$MSG_DEFS_CACHE" ]]; then
             # Into place whole or not at all (two set-ups may run at once on one machine).
             mkdir -p "$MSG_DEFS_CACHE"

@@ -1,5 +1,7 @@
 """The ros2 command lines of docs/ros2-cli.md and docs/actions.md, and the action examples of
-every page under docs/, run as typed against the demo (issues 11, 22, 26).
+every page under docs/, run as typed against the demo (issues 11, 22, 26); then the demo's
+console (every device connected and moving) and its Ctrl-C, so the suite starts the whole
+demo once.
 
 There is no ``ros2`` command here (PyPI wheels), so each line is done the way the CLI does
 it: its YAML read with ``yaml.safe_load`` (what ``ros2 service call`` / ``topic pub`` use)
@@ -10,6 +12,7 @@ YAML reads that key as the boolean true).
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import os
 import re
@@ -19,6 +22,8 @@ import subprocess
 import sys
 import time
 from collections.abc import Iterator
+from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -75,8 +80,21 @@ def filled(instance: Any, text: str) -> Any:
     return instance
 
 
+@dataclass
+class DemoRun:
+    """The module's demo process and the file its console goes to."""
+
+    process: subprocess.Popen[bytes]
+    out: Path
+
+    def text(self) -> str:
+        return self.out.read_text(errors="replace")
+
+
 @pytest.fixture(scope="module")
-def demo(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Client]:
+def demo_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[DemoRun]:
+    """The demo, started once for the module: the docs' lines run against it, its console
+    is checked, and the module's last test ends it with a Ctrl-C (else it is ended here)."""
     out = tmp_path_factory.mktemp("demo") / "demo.out"
     log = out.open("wb")
     proc = subprocess.Popen(
@@ -85,6 +103,7 @@ def demo(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Client]:
         env=dict(os.environ),
         stdout=log,
         stderr=subprocess.STDOUT,
+        start_new_session=True,  # its own group: a failed test kills its children too
     )
     try:
         # The demo's first report comes after its start services (the drives enabled, the
@@ -95,17 +114,27 @@ def demo(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Client]:
             "the demo's first report",
         )
         assert proc.poll() is None, f"the demo ended at start; see {out}"
-        with ros_client("readme_cli_client") as client:
-            yield client
-        assert proc.poll() is None, "the demo ended during the test"
+        yield DemoRun(proc, out)
     finally:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(60)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(10)
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+            try:
+                proc.wait(60)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait(10)
+        with contextlib.suppress(ProcessLookupError):  # the simulators and nodes it left
+            os.killpg(proc.pid, signal.SIGKILL)
         log.close()
+
+
+@pytest.fixture(scope="module")
+def demo(demo_run: DemoRun) -> Iterator[Client]:
+    with ros_client("readme_cli_client") as client:
+        yield client
+    assert demo_run.process.poll() is None or demo_run.process.returncode == 0, (
+        "the demo ended during the test"
+    )
 
 
 def test_every_cli_command_line_works_as_typed(demo: Client) -> None:
@@ -247,3 +276,47 @@ def test_a_yaml_key_named_on_is_not_a_field_name() -> None:
     with pytest.raises(AssertionError, match="True"):
         filled(SetOutput.Request(), "{board: 0, index: 3, on: true}")
     assert filled(SetOutput.Request(), "{board: 0, index: 3, state: true}").state is True
+
+
+def test_demo_shows_moving_r6(demo_run: DemoRun) -> None:
+    """The demo's console (docs/ros2-cli.md, "The demo"): every device connected with OK
+    diagnostics, its start services done, and each device's joints moving from one report
+    to the next."""
+
+    def reports(prefix: str) -> list[str]:
+        return [line for line in demo_run.text().splitlines() if line.startswith(prefix)]
+
+    prefixes = {
+        "R6": "   joints (deg): joint_1",
+        "xArm": "   joints (deg): joint1",
+        "stepper": "   joints (deg): motor_1",
+        "MOTEC": "   joints (deg): drive_1",
+    }
+
+    def moved(prefix: str) -> bool:
+        return len(set(reports(prefix))) >= 2
+
+    for device, prefix in prefixes.items():
+        wait_for(partial(moved, prefix), WAIT_S * 3, f"two different {device} reports")
+    out = demo_run.text()
+    assert "start: done" in out
+    blocks = reports(prefixes["R6"])
+    assert abs(float(blocks[-1].split()[3]) - float(blocks[0].split()[3])) > 1.0, out
+    assert "[R6] connected  diagnostics OK" in out
+    assert "[xArm] connected  diagnostics OK" in out
+    assert "run_offline_task [1, 2, 3, 4, 5, 6]: done" in out
+    assert "[Stepper] connected  diagnostics OK" in out
+    for unit in (1, 2, 3):
+        assert f"[MOTEC motec_{unit}] connected  diagnostics OK" in out
+        assert f"/motec/motec_{unit}/move: move by {100.0 * unit} rad: done" in out
+
+
+def test_demo_ends_cleanly_on_ctrl_c(demo_run: DemoRun) -> None:
+    """Ctrl-C while the demo runs (this module's last test): exit 0, no traceback, the last
+    line says it stopped."""
+    demo_run.process.send_signal(signal.SIGINT)
+    code = demo_run.process.wait(60)
+    text = demo_run.text()
+    assert code == 0, text
+    assert "Traceback" not in text and "Exception" not in text, text
+    assert text.strip().splitlines()[-1] == "bridge_demo: stopped", text

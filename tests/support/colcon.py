@@ -114,7 +114,10 @@ class ColconBuild:
                 env={**venv_env(), "RC": str(self.rc_file)},
                 stdout=out,
                 stderr=subprocess.STDOUT,
-                start_new_session=True,  # its own process group: reniced and killed whole
+                # Its own process group (reniced and killed whole), in the tests' session:
+                # with the kernel's autogroup scheduling a session of its own would be a
+                # CPU group of its own, given as much CPU as the tests whatever its nice.
+                process_group=0,
             )
         self.group_file.write_text(str(self.process.pid))
 
