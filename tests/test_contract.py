@@ -407,7 +407,7 @@ def test_read_only_at_startup_refuses_every_write(
             assert not reply.success, (name, reply.message)
             assert "read_only" in reply.message, (name, reply.message)
         for name, action_type in actions:  # goals are rejected under the same guard
-            goal = client.send_goal(action_type, name, action_type.Goal(), TIMEOUT)
+            goal = client.send_goal(action_type, name, action_type.Goal(), TIMEOUT, refused=True)
             assert not goal.accepted, name
             goal.close()
         assert len(actions) == info.actions, actions

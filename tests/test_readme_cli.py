@@ -33,7 +33,15 @@ from rcl_interfaces.srv import SetParameters
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
-from .support.ros import ROOT, WAIT_S, Client, ros_client, wait_for, wait_subscribed
+from .support.ros import (
+    ROOT,
+    WAIT_S,
+    Client,
+    interrupt,
+    ros_client,
+    wait_for,
+    wait_subscribed,
+)
 
 pytestmark = pytest.mark.ros
 
@@ -116,13 +124,7 @@ def demo_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[DemoRun]:
         assert proc.poll() is None, f"the demo ended at start; see {out}"
         yield DemoRun(proc, out)
     finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-            try:
-                proc.wait(60)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(10)
+        interrupt(proc, 60)
         with contextlib.suppress(ProcessLookupError):  # the simulators and nodes it left
             os.killpg(proc.pid, signal.SIGKILL)
         log.close()

@@ -180,15 +180,40 @@ class Client:
                 self.node.destroy_client(client)
         raise AssertionError(f"no reply from {name}")
 
-    def send_goal(self, action_type: Any, name: str, goal: Any, timeout: float = WAIT_S) -> Goal:
+    def send_goal(
+        self,
+        action_type: Any,
+        name: str,
+        goal: Any,
+        timeout: float = WAIT_S,
+        *,
+        refused: bool = False,
+    ) -> Goal:
         """One goal from a fresh ``rclpy.action.ActionClient`` (what ``ros2 action
-        send_goal --feedback`` does); waits for the server's accept or reject."""
+        send_goal --feedback`` does); waits for the server's accept or reject.
+
+        ``refused``: a goal the server must reject, sent again while no response comes
+        (the goal service's reply writer may not be matched with our reader yet, which
+        ``answered_by_server`` cannot see: it asks the result service). A second one is
+        rejected as well, or accepted and the test fails on it."""
         action_client = ActionClient(self.node, action_type, name)
         wait_for(action_client.server_is_ready, timeout, f"action server {name}")
         answered_by_server(action_client, action_type, timeout)
         sent = Goal(self, action_client)
-        future = action_client.send_goal_async(goal, feedback_callback=sent.on_feedback)
-        wait_for(future.done, timeout, f"the goal response of {name}")
+        deadline = time.monotonic() + timeout
+        while True:
+            future = action_client.send_goal_async(goal, feedback_callback=sent.on_feedback)
+            wait_s = deadline - time.monotonic()
+            if refused:
+                wait_s = min(PROBE_S, wait_s)
+            with contextlib.suppress(AssertionError):
+                wait_for(future.done, max(0.1, wait_s), "")
+            if future.done():
+                break
+            if time.monotonic() >= deadline:
+                raise AssertionError(
+                    f"timed out after {timeout} s waiting for the goal response of {name}"
+                )
         sent.handle = future.result()
         return sent
 
@@ -316,14 +341,19 @@ def node_process(
     try:
         yield proc
     finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-            try:
-                proc.wait(10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(5)
+        interrupt(proc, 10)
         log.close()
+
+
+def interrupt(proc: subprocess.Popen[bytes], timeout_s: float) -> None:
+    """Ctrl-C (SIGINT) to a process still running; killed if it is not gone in time."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(timeout_s)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(5)
 
 
 def refused_at_start(module: str, args: Sequence[str], timeout: float = 60.0) -> str:
