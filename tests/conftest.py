@@ -61,13 +61,11 @@ def shared_fixture(definition: Any) -> bool:
 
 def worker_group(item: pytest.Item) -> str:
     """The tests one worker runs together (``--dist loadgroup``): those that share a
-    module-scoped fixture (a bridge process, the demo) with the same parameters; any other
-    test on its own (its nodeid), so a module of long independent cases spreads out."""
+    module-scoped fixture (a bridge process, the demo, the colcon build) with the same
+    parameters; any other test on its own (its nodeid), so a module of long independent
+    cases spreads out. xdist hands out the larger groups first: the colcon tests' worker
+    soon waits for their build, at normal priority (tests/support/colcon.py)."""
     fixture_info = getattr(item, "_fixtureinfo", None)
-    if item.nodeid.startswith(COLCON_TESTS):
-        # Each alone: xdist hands out its larger groups first and the tests alone in their
-        # order, so these (last in it) come last, when their build has had the longest.
-        return item.nodeid
     if fixture_info is None or not any(
         shared_fixture(definitions[-1]) for definitions in fixture_info.name2fixturedefs.values()
     ):
@@ -86,9 +84,9 @@ def worker_group(item: pytest.Item) -> str:
 
 @pytest.hookimpl(trylast=True)  # after xdist's own, which no longer takes effect
 def pytest_collection_modifyitems(session: pytest.Session, items: list[pytest.Item]) -> None:
-    """The colcon tests last (their build runs in the background from the start: the
-    longer it has, the less they wait). Under xdist, each test in its worker group
-    (``--dist loadgroup``).
+    """The colcon tests last in the collection (in one process their build runs in the
+    background meanwhile). Under xdist, each test in its worker group (``--dist
+    loadgroup``): xdist hands out the colcon tests' group early, whatever its place.
 
     xdist 3.8 tells its scheduler a test's group by appending ``@group`` to the nodeid it
     reports, through ``item._nodeid``; pytest 9.2 builds the nodeid from ``item._id``, so
@@ -132,7 +130,7 @@ def pytest_configure_node(node: Any) -> None:
 @pytest.hookimpl(optionalhook=True)
 def pytest_xdist_node_collection_finished(node: Any, ids: list[str]) -> None:
     """xdist controller: start the colcon build as soon as a worker has collected the
-    colcon tests (they run last, on whichever worker; it waits for the build's end)."""
+    colcon tests (the worker that takes them waits for the build's end)."""
     from .support.colcon import session_build
 
     build = session_build()

@@ -5,10 +5,11 @@ takes minutes of compiler time. The build reuses the venv's msg_defs build direc
 (``reuse_msg_defs_build``) when set-up left one, where it compiled the C type supports and
 the Python bindings, so it compiles the C++ type supports only (~50 s on 2 idle cores, as
 a unity build); when set-up installed a wheel it had built before (scripts/setup.sh), the
-build is the whole package (~160 CPU-s). It runs in the background at the lowest CPU
-priority (nice 19) from the start of the session, so it uses the CPU the other tests leave
-idle (they mostly wait on sockets, ptys and ROS discovery) without slowing them; the colcon
-tests, run last, wait for it at normal priority.
+build is the whole package (~160 CPU-s). It starts at the lowest CPU priority (nice 19)
+when the tests are collected; the colcon tests wait for it at normal priority. Under
+xdist their worker takes them early (xdist hands out larger groups first). Left in the
+background for the whole run (the tests scheduled last), it cost two idle runs a
+real-time margin each (a MOTEC setpoint 0.54 s late, a goal response that never came).
 
 Under pytest-xdist the controller process starts it once the workers have collected the
 colcon tests (tests/conftest.py) and tells the workers its workspace; the worker that runs
