@@ -110,7 +110,7 @@ def pytest_collection_modifyitems(session: pytest.Session, items: list[pytest.It
 def pytest_collection_finish(session: pytest.Session) -> None:
     """Without xdist: start the colcon build now when its tests will run
     (tests/support/colcon.py). Under xdist the controller starts it (below)."""
-    if getattr(session.config, "workerinput", None) is not None:
+    if xdist_worker(session.config) is not None:
         return
     if any(item.nodeid.startswith(COLCON_TESTS) for item in session.items):
         from .support.colcon import colcon_build
