@@ -355,6 +355,8 @@ def test_a_simulator_that_cannot_listen_says_so_in_one_line(
 
 # ---------------------------------------------------------------- R6 behaviour (issue 10)
 WAIT_S = 30.0
+# Between two polls of wait_for_poll: a bridge's 50 Hz, short beside the programs' steps.
+POLL_PAUSE_S = 0.02
 
 
 def wait_for_poll(
@@ -363,8 +365,9 @@ def wait_for_poll(
     what: str,
     never: Callable[[R6Snapshot], bool] | None = None,
 ) -> R6Snapshot:
-    """Poll over the socket until ``predicate`` holds (each poll is the pacing); no poll on
-    the way may satisfy ``never`` (e.g. an axis moving the wrong way first)."""
+    """Poll over the socket every ``POLL_PAUSE_S`` until ``predicate`` holds (as a bridge
+    would; back to back, the simulator and this loop took a whole core); no poll on the
+    way may satisfy ``never`` (e.g. an axis moving the wrong way first)."""
     deadline = time.monotonic() + WAIT_S
     while True:
         snap = device.poll()
@@ -374,6 +377,7 @@ def wait_for_poll(
             pytest.fail(f"while waiting for {what}: {snap}")
         if time.monotonic() > deadline:
             pytest.fail(f"timed out waiting for {what}; last poll: {snap}")
+        time.sleep(POLL_PAUSE_S)
 
 
 def timed_program(*seconds: float) -> tuple[tuple[float, ...], ...]:
