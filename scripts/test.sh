@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # Set up the environment (scripts/setup.sh, a quick no-op when nothing changed), then run
-# pytest from the repo root; arguments are passed to pytest. ruff and mypy check the
-# Python packages, tests/ and bench/ first (ruff only for launch/, ros/ and scripts/), and
-# ruff format --check the whole tree (LINT=0 skips them).
+# pytest from the repo root; arguments are passed to pytest. Beside it, ruff and mypy check
+# the Python packages, tests/ and bench/ (ruff only for launch/, ros/ and scripts/), and
+# ruff format --check the whole tree (LINT=0 skips them); a lint failure fails the run.
 set -euo pipefail
 
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -19,8 +19,10 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
 .venv/bin/python -m compileall -q -j 0 bridge_core r6_bridge xarm_bridge stepper_bridge \
     motec_bridge modbus_bridge tests bench >/dev/null
 
-if [[ "${LINT:-1}" == 1 ]]; then
-    pkgs=()
+# Lint runs beside pytest (the suite leaves a core partly idle while it waits on sockets
+# and discovery; lint before it added ~15 s); its output is printed after pytest's.
+lint() {
+    local pkgs=() extra=() p
     for p in bridge_core r6_bridge xarm_bridge stepper_bridge motec_bridge modbus_bridge; do
         [[ -d "$p" ]] && pkgs+=("$p")
     done
@@ -30,7 +32,6 @@ if [[ "${LINT:-1}" == 1 ]]; then
         echo "test: mypy ${pkgs[*]}"
         .venv/bin/mypy "${pkgs[@]}"
     fi
-    extra=()
     for p in tests bench; do
         [[ -d "$p" ]] && extra+=("$p")
     done
@@ -44,6 +45,13 @@ if [[ "${LINT:-1}" == 1 ]]; then
     .venv/bin/ruff check launch ros scripts
     echo "test: ruff format --check"
     .venv/bin/ruff format --check
+}
+lint_pid=
+if [[ "${LINT:-1}" == 1 ]]; then
+    lint_out="$(mktemp)"
+    trap 'rm -f "$lint_out"' EXIT
+    (set -e; lint) >"$lint_out" 2>&1 &
+    lint_pid=$!
 fi
 
 # The 15 slowest tests are printed at the end of every run. The tests run in
@@ -55,6 +63,15 @@ rc=0
 .venv/bin/python -m pytest --durations=15 -n "${TEST_WORKERS:-3}" --dist loadgroup "$@" || rc=$?
 if ((rc == 5)); then
     echo "test: pytest collected no tests; treating that as a failure" >&2
-    exit 1
+    rc=1
+fi
+if [[ -n "$lint_pid" ]]; then
+    lint_rc=0
+    wait "$lint_pid" || lint_rc=$?
+    cat "$lint_out"
+    if ((lint_rc != 0)); then
+        echo "test: lint failed (exit $lint_rc)" >&2
+        ((rc != 0)) || rc=$lint_rc
+    fi
 fi
 exit "$rc"
