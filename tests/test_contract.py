@@ -50,7 +50,6 @@ from .support.ros import (
     Client,
     node_process,
     refused_at_start,
-    refused_in_process,
     ros_client,
     start_bridge,
     status_node,
@@ -504,26 +503,19 @@ def test_diagnostic_period_is_live(shared: Running) -> None:
 
 
 # ---------------------------------------------------------------- 5. mistyped parameters
-# The first refused value of each bridge in a process of its own (the whole exit-2 path of
-# ``python -m``); the others through the same ``main`` in the test's process, where they
-# cost no process start (the issue's "in-process where a subprocess proves nothing more").
 MISTYPED = [
-    pytest.param(info, name, value, index == 0, id=f"{info.key}-{name}")
+    pytest.param(info, name, value, id=f"{info.key}-{name}")
     for info in ALL
-    for index, (name, value) in enumerate(info.mistyped)
+    for name, value in info.mistyped
 ]
 
 
-@pytest.mark.parametrize(("info", "name", "value", "as_process"), MISTYPED)
+@pytest.mark.parametrize(("info", "name", "value"), MISTYPED)
 def test_mistyped_startup_parameter_exits_2(
-    info: BridgeInfo, name: str, value: str, as_process: bool, capfd: pytest.CaptureFixture[str]
+    info: BridgeInfo, name: str, value: str, tmp_path: Path
 ) -> None:
     """A value of the wrong type: exit code 2 and one line naming it, no traceback."""
-    args = ["--ros-args", "-p", f"{name}:={value}"]
-    if as_process:
-        line = refused_at_start(info.module, args, TIMEOUT * 2)
-    else:
-        line = refused_in_process(info.module, args, capfd)
+    line = refused_at_start(info.module, ["--ros-args", "-p", f"{name}:={value}"], TIMEOUT * 2)
     assert name in line and value in line, line
 
 

@@ -7,7 +7,6 @@ ros2 CLI here). Every wait is on a condition with a timeout; nothing sleeps blin
 from __future__ import annotations
 
 import contextlib
-import importlib
 import os
 import signal
 import subprocess
@@ -19,7 +18,6 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-import pytest
 import rclpy
 from rcl_interfaces.msg import Log
 from rclpy.action.client import ActionClient, ClientGoalHandle
@@ -372,28 +370,6 @@ def refused_at_start(module: str, args: Sequence[str], timeout: float = 60.0) ->
     lines = [line for line in result.stderr.splitlines() if line.strip()]
     assert result.returncode == 2 and len(lines) == 1, output
     assert "Traceback" not in output, output
-    return lines[0]
-
-
-def refused_in_process(module: str, args: Sequence[str], capfd: pytest.CaptureFixture[str]) -> str:
-    """``refused_at_start`` in this process: the module's ``main(args)`` (``spin_node``)
-    must return exit code 2 having written exactly one non-blank line, no traceback. The
-    refusal comes before any node spins, so nothing of it outlives the call; the signal
-    handlers and GIL switch interval ``spin_nodes`` sets are put back."""
-    main = importlib.import_module(module).main
-    handlers = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
-    interval = sys.getswitchinterval()
-    capfd.readouterr()
-    try:
-        code = main(list(args))
-    finally:
-        for sig, handler in handlers.items():
-            signal.signal(sig, handler)
-        sys.setswitchinterval(interval)
-    out, err = capfd.readouterr()
-    lines = [line for line in (out + err).splitlines() if line.strip()]
-    assert code == 2 and len(lines) == 1, (code, out + err)
-    assert "Traceback" not in out + err, out + err
     return lines[0]
 
 
