@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # Set up the environment (scripts/setup.sh, a quick no-op when nothing changed), then run
-# pytest from the repo root; arguments are passed to pytest. Beside it, ruff and mypy check
-# the Python packages, tests/ and bench/ (ruff only for launch/, ros/ and scripts/), and
-# ruff format --check the whole tree (LINT=0 skips them); a lint failure fails the run.
+# pytest from the repo root; arguments are passed to pytest. ruff and mypy check the
+# Python packages, tests/ and bench/ first (ruff only for launch/, ros/ and scripts/), and
+# ruff format --check the whole tree (LINT=0 skips them).
 set -euo pipefail
 
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -19,10 +19,8 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
 .venv/bin/python -m compileall -q -j 0 bridge_core r6_bridge xarm_bridge stepper_bridge \
     motec_bridge modbus_bridge tests bench >/dev/null
 
-# Lint runs beside pytest (the suite leaves a core partly idle while it waits on sockets
-# and discovery; lint before it added ~15 s); its output is printed after pytest's.
-lint() {
-    local pkgs=() extra=() p
+if [[ "${LINT:-1}" == 1 ]]; then
+    pkgs=()
     for p in bridge_core r6_bridge xarm_bridge stepper_bridge motec_bridge modbus_bridge; do
         [[ -d "$p" ]] && pkgs+=("$p")
     done
@@ -32,6 +30,7 @@ lint() {
         echo "test: mypy ${pkgs[*]}"
         .venv/bin/mypy "${pkgs[@]}"
     fi
+    extra=()
     for p in tests bench; do
         [[ -d "$p" ]] && extra+=("$p")
     done
@@ -45,13 +44,6 @@ lint() {
     .venv/bin/ruff check launch ros scripts
     echo "test: ruff format --check"
     .venv/bin/ruff format --check
-}
-lint_pid=
-if [[ "${LINT:-1}" == 1 ]]; then
-    lint_out="$(mktemp)"
-    trap 'rm -f "$lint_out"' EXIT
-    (set -e; lint) >"$lint_out" 2>&1 &
-    lint_pid=$!
 fi
 
 # The 15 slowest tests are printed at the end of every run. The tests run in
@@ -63,15 +55,6 @@ rc=0
 .venv/bin/python -m pytest --durations=15 -n "${TEST_WORKERS:-3}" --dist loadgroup "$@" || rc=$?
 if ((rc == 5)); then
     echo "test: pytest collected no tests; treating that as a failure" >&2
-    rc=1
-fi
-if [[ -n "$lint_pid" ]]; then
-    lint_rc=0
-    wait "$lint_pid" || lint_rc=$?
-    cat "$lint_out"
-    if ((lint_rc != 0)); then
-        echo "test: lint failed (exit $lint_rc)" >&2
-        ((rc != 0)) || rc=$lint_rc
-    fi
+    exit 1
 fi
 exit "$rc"
