@@ -42,7 +42,6 @@ import math
 import os
 import platform
 import random
-import signal
 import statistics
 import subprocess
 import sys
@@ -371,13 +370,9 @@ class Processes:
         return proc
 
     def stop(self, proc: subprocess.Popen[bytes], timeout: float = 10.0) -> None:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-            try:
-                proc.wait(timeout)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(5)
+        from tests.support.ros import interrupt  # imports rclpy: only where it runs
+
+        interrupt(proc, timeout)
         if proc in self.children:
             self.children.remove(proc)
 
