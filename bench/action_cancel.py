@@ -102,7 +102,8 @@ def main() -> None:
                 sent.wait_feedback(lambda f: abs(f.velocity) > 0.1, timeout=WAIT_S)
                 mark = len(drive.write_log)
                 cancel_at = time.time()
-                future = sent.handle.cancel_goal_async()
+                with client.between_spins():  # rclpy's race: tests/support/ros.py
+                    future = sent.handle.cancel_goal_async()
                 _status, result = sent.result(WAIT_S)
                 result_at = time.time()
                 wait_for(future.done, WAIT_S, "the cancel response")

@@ -77,13 +77,19 @@ class Client:
         self.messages: dict[str, list[tuple[float, Any]]] = {}
         self.spin_errors: list[Exception] = []
         self._lock = threading.Lock()
+        # Held by the spin thread for each spin_once; see ``between_spins``.
+        self._spin_lock = threading.Lock()
+        self._spin_allowed = threading.Event()
+        self._spin_allowed.set()
         self._thread = threading.Thread(target=self._spin, daemon=True)
         self._thread.start()
 
     def _spin(self) -> None:
         while self.context.ok():
+            self._spin_allowed.wait()
             try:
-                self.executor.spin_once(timeout_sec=0.05)
+                with self._spin_lock:
+                    self.executor.spin_once(timeout_sec=0.05)
             except Exception as err:
                 if not self.context.ok():
                     return  # shutting down
@@ -92,6 +98,21 @@ class Client:
                 # client must go on spinning, or it hears nothing for the rest of its life.
                 self.spin_errors.append(err)
                 print(f"test client {self.node.get_name()}: {err!r}", file=sys.stderr)
+
+    @contextmanager
+    def between_spins(self) -> Iterator[None]:
+        """Send an action request here, while the spin thread waits. rclpy's
+        ``ActionClient`` registers a request's future only after the request is on the wire
+        (``send_goal_async``, ``_get_result_async``, ``cancel_goal_async``): a response that
+        the spin thread takes before that is dropped ("Ignoring unexpected goal response")
+        and the future never completes. A loaded machine made that race likely: a goal
+        response never came, in 60 s, on an idle run of the suite."""
+        self._spin_allowed.clear()  # the spin thread stops at its next turn, not before
+        try:
+            with self._spin_lock:
+                yield
+        finally:
+            self._spin_allowed.set()
 
     def subscribe(
         self, msg_type: Any, topic: str, qos: QoSProfile | int = 10, raw: bool = False
@@ -198,11 +219,12 @@ class Client:
         rejected as well, or accepted and the test fails on it."""
         action_client = ActionClient(self.node, action_type, name)
         wait_for(action_client.server_is_ready, timeout, f"action server {name}")
-        answered_by_server(action_client, action_type, timeout)
+        answered_by_server(self, action_client, action_type, timeout)
         sent = Goal(self, action_client)
         deadline = time.monotonic() + timeout
         while True:
-            future = action_client.send_goal_async(goal, feedback_callback=sent.on_feedback)
+            with self.between_spins():
+                future = action_client.send_goal_async(goal, feedback_callback=sent.on_feedback)
             wait_s = deadline - time.monotonic()
             if refused:
                 wait_s = min(PROBE_S, wait_s)
@@ -224,7 +246,9 @@ class Client:
         self._thread.join(5)
 
 
-def answered_by_server(action_client: ActionClient, action_type: Any, timeout: float) -> None:
+def answered_by_server(
+    client: Client, action_client: ActionClient, action_type: Any, timeout: float
+) -> None:
     """Ask the server, through this client, for the result of a goal nobody sent (a query:
     it answers STATUS_UNKNOWN), until an answer comes back. "Server ready" means our
     requests reach it; on a loaded machine its replies may not reach us yet (discovery
@@ -235,7 +259,8 @@ def answered_by_server(action_client: ActionClient, action_type: Any, timeout: f
         goal_id = UUID(uuid=list(os.urandom(16)))
         response = action_type.Impl.SendGoalService.Response()
         handle = ClientGoalHandle(action_client, goal_id, response)
-        future = action_client._get_result_async(handle)
+        with client.between_spins():
+            future = action_client._get_result_async(handle)
         with contextlib.suppress(AssertionError):
             wait_for(future.done, min(PROBE_S, max(0.1, deadline - time.monotonic())), "")
         if future.done():
@@ -270,13 +295,15 @@ class Goal:
         return wait_for(find, timeout, "a matching feedback message")
 
     def cancel(self, timeout: float = WAIT_S) -> Any:
-        future = self.handle.cancel_goal_async()
+        with self.client.between_spins():
+            future = self.handle.cancel_goal_async()
         wait_for(future.done, timeout, "the cancel response")
         return future.result()
 
     def _result_future(self) -> Any:
         if self._future is None:
-            self._future = self.handle.get_result_async()
+            with self.client.between_spins():
+                self._future = self.handle.get_result_async()
         return self._future
 
     def result(self, timeout: float = WAIT_S) -> tuple[int, Any]:
