@@ -8,21 +8,15 @@ error nothing handled) stops every motion before the link closes and the context
 
 from __future__ import annotations
 
-import contextlib
-import os
-import re
 import signal
 import sys
-import tempfile
 import threading
 import traceback
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
-import rclpy
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
-from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.lifecycle import LifecycleNode
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
@@ -33,6 +27,7 @@ from ..runtime.wire_budget import WIRE_FULL, Budget, line_load, line_text
 from ..wire.channel import Priority
 from ..wire.errors import ConfigurationError
 from ..wire.transport import ModbusLink
+from .command_line import EXIT_CONFIGURATION_ERROR, command_line_error, init_from_command_line
 from .node_base import BridgeNode
 from .node_parameters import DeviceDefaults, ParameterNode, link_settings, one_line
 
@@ -42,7 +37,6 @@ from .node_parameters import DeviceDefaults, ParameterNode, link_settings, one_l
 # on one MOTEC drive: polls of every drive 10.3 -> 6.0-7.2 Hz at 5 ms, 9.4-9.8 Hz at
 # 0.5 ms.
 GIL_SWITCH_INTERVAL_S = 0.0005
-EXIT_CONFIGURATION_ERROR = 2
 EXIT_FATAL_ERROR = 1  # a bug or an error nothing handled: motion stopped, then exit
 LINE_CHECK_PERIOD_S = 1.0  # how often a bus owner looks at its devices' wire budgets
 
@@ -185,14 +179,9 @@ def spin_nodes(
     half-way still has the earlier ones closed). A configuration error (bad parameter
     type or range) is one line on stderr and exit code 2, never a traceback.
     """
-    try:
-        with _rcl_log_held():
-            rclpy.init(
-                args=list(args) if args is not None else None,
-                signal_handler_options=SignalHandlerOptions.NO,
-            )
-    except (_rclpy.UnknownROSArgsError, _rclpy.RCLError) as err:
-        print(f"error: {command_line_error(err)}", file=sys.stderr)
+    refused = init_from_command_line(args, signal_handler_options=SignalHandlerOptions.NO)
+    if refused is not None:
+        print(f"error: {refused}", file=sys.stderr)
         return EXIT_CONFIGURATION_ERROR
     interrupt_on_signals()
     sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
@@ -235,39 +224,6 @@ def spin_nodes(
     return code
 
 
-# The places in rcl's C sources an rcl error names (", at /project/src/rcl/arguments.c:352").
-_RCL_SOURCE_PLACE = re.compile(r", at /\S+:\d+")
-
-
-@contextlib.contextmanager
-def _rcl_log_held() -> Iterator[None]:
-    """Hold what rcl writes to stderr (file descriptor 2) inside the block; written out
-    after it, unless the block raised: a refused command line is then one line (ours), not
-    rcl's "Failed to parse global arguments" as well."""
-    sys.stderr.flush()
-    saved = os.dup(2)
-    with tempfile.TemporaryFile() as held:
-        os.dup2(held.fileno(), 2)
-        try:
-            yield
-        finally:
-            os.dup2(saved, 2)
-            os.close(saved)
-        held.seek(0)
-        text = held.read()
-    if text:
-        sys.stderr.buffer.write(text)
-        sys.stderr.flush()
-
-
-def command_line_error(err: Exception) -> str:
-    """What rclpy.init refused on the command line, on one line: an unknown ROS argument,
-    a remap or parameter rule rcl cannot parse, a params file it cannot open or parse."""
-    if isinstance(err, _rclpy.UnknownROSArgsError):
-        return f"unknown ROS arguments: {err}"
-    return " ".join(_RCL_SOURCE_PLACE.sub("", str(err)).split())
-
-
 def spin_node(make_node: Callable[[], Node], args: Sequence[str] | None = None) -> int:
     """``spin_nodes`` for a process of one node."""
     return spin_nodes(lambda nodes: nodes.append(make_node()), args)
@@ -279,6 +235,7 @@ __all__ = [
     "GIL_SWITCH_INTERVAL_S",
     "BusNode",
     "command_line_error",
+    "init_from_command_line",
     "interrupt_on_signals",
     "spin_node",
     "spin_nodes",

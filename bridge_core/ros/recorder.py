@@ -22,7 +22,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -40,6 +39,8 @@ from rosbags.interfaces import (
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
+
+from .command_line import EXIT_CONFIGURATION_ERROR, init_from_command_line
 
 
 def message_class(type_name: str) -> Any:
@@ -279,7 +280,10 @@ def main(argv: Sequence[str] | None = None) -> None:
     args, ros_args = parser.parse_known_args(argv)
     if args.output.exists():
         parser.error(f"{args.output} exists; rosbag2 writes a new directory")
-    rclpy.init(args=ros_args)
+    refused = init_from_command_line(ros_args)
+    if refused is not None:
+        print(f"error: {refused}", file=sys.stderr)
+        sys.exit(EXIT_CONFIGURATION_ERROR)
     storage = StoragePlugin.MCAP if args.storage == "mcap" else StoragePlugin.SQLITE3
     recorder = Recorder(args.output, args.topics, storage)
     executor = SingleThreadedExecutor()

@@ -26,7 +26,7 @@ from bridge_core.ros.recorder import Recorder, typestore_for
 from msg_defs.msg import R6State
 from r6_bridge.sim import R6SimDevice, make_simulator
 
-from ...support.ros import ROOT, Bridge, node_process, ros_client, wait_for
+from ...support.ros import ROOT, Bridge, node_process, refused_at_start, ros_client, wait_for
 
 pytestmark = pytest.mark.ros
 
@@ -271,3 +271,22 @@ def _record_a_late_latched_publisher(run: int, bag: Path, context: Context, exec
     # change once written: the volatile-only one stays first).
     durabilities = sorted(profile.durability.name for profile in offered[-1])
     assert durabilities == ["TRANSIENT_LOCAL", "VOLATILE"], f"run {run}: {offered}"
+
+
+@pytest.mark.parametrize(
+    ("ros_args", "named"),
+    [
+        (["--ros-args", "--no-such-flag"], "--no-such-flag"),
+        (["--ros-args", "-r", "no_separator"], "no_separator"),
+    ],
+    ids=["unknown-flag", "bad-remap"],
+)
+def test_a_command_line_rcl_refuses_is_one_line_and_exit_2(
+    tmp_path: Path, ros_args: list[str], named: str
+) -> None:
+    """What rcl cannot parse is said on one line (exit 2), as the bridges say it, and no
+    bag is started."""
+    bag = tmp_path / "bag"
+    line = refused_at_start("bridge_core.ros.recorder", ["-o", str(bag), "/x", *ros_args])
+    assert line.startswith("error: ") and named in line, line
+    assert not bag.exists()
