@@ -117,11 +117,28 @@ UV=("$VENV/bin/uv" pip)
 # machine that tells Python not to write them (PYTHONDONTWRITEBYTECODE) every process would
 # then compile rclpy, numpy and the message packages from source again.
 UV_INSTALL=(install --compile-bytecode --python "$VPY")
+# The venv starts without pip (ensurepip took 4-5 s of a fresh clone's set-up): the
+# interpreter's own pip installs uv into it when it can install into another environment
+# (pip >= 22.3, --python: ~2 s), else the venv gets pip first, as before. pip itself comes
+# only when msg_defs is built (below).
+BASE_PIP_OK=0
+"$PY" -c 'import sys
+from importlib.metadata import version
+sys.exit(tuple(int(p) for p in version("pip").split(".")[:2]) < (22, 3))' >/dev/null 2>&1 \
+    && BASE_PIP_OK=1
 if [[ ! -x "$VPY" ]]; then
-    step "creating .venv with $("$PY" --version 2>&1)" "$PY" -m venv "$VENV"
+    venv_args=()
+    if ((BASE_PIP_OK)); then venv_args=(--without-pip); fi
+    step "creating .venv with $("$PY" --version 2>&1)" "$PY" -m venv "${venv_args[@]}" "$VENV"
 fi
 if ! "$VENV/bin/uv" --version 2>/dev/null | grep -qxF "uv $UV_VERSION"; then
-    step "installing uv $UV_VERSION into .venv" "${PIP[@]}" install "uv==$UV_VERSION"
+    if ((BASE_PIP_OK)); then
+        step "installing uv $UV_VERSION into .venv" "$PY" -m pip --disable-pip-version-check \
+            --python "$VPY" install "uv==$UV_VERSION"
+    else
+        "$VPY" -m pip --version >/dev/null 2>&1 || step "installing pip into .venv" "$VPY" -m ensurepip
+        step "installing uv $UV_VERSION into .venv" "${PIP[@]}" install "uv==$UV_VERSION"
+    fi
 fi
 
 if ! stamped "$ENV_HASH"; then
@@ -173,7 +190,8 @@ if ! stamped "$MSG_HASH" || ! msg_defs_installed \
         hash_files msg_defs
         echo "${MSG_DEFS_OPTIONS[*]}"
         "$VPY" -c 'import sys, sysconfig; print(sys.version, sysconfig.get_platform())'
-        "${UV[@]}" freeze --python "$VPY" | grep -v -i -e '^msg[-_]defs' -e '^-e '
+        # (not pip: it is added only for a build, below, and builds the same wheel)
+        "${UV[@]}" freeze --python "$VPY" | grep -v -i -e '^msg[-_]defs' -e '^-e ' -e '^pip=='
     } | sha256sum | cut -c1-32)"
     cached=""
     if [[ -n "$MSG_DEFS_CACHE" ]]; then
@@ -183,6 +201,8 @@ if ! stamped "$MSG_HASH" || ! msg_defs_installed \
         step "installing msg_defs built before (${cached/#$HOME/\~})" \
             "${UV[@]}" "${UV_INSTALL[@]}" --reinstall --no-deps "$cached"
     else
+        "$VPY" -m pip --version >/dev/null 2>&1 \
+            || step "installing pip into .venv" "$VENV/bin/uv" pip install --python "$VPY" pip
         wheels="$VENV/build/msg_defs-wheel"
         rm -rf "$wheels"
         step "building msg_defs" \

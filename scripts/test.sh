@@ -20,6 +20,11 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
     motec_bridge modbus_bridge tests bench >/dev/null
 
 if [[ "${LINT:-1}" == 1 ]]; then
+    # mypy's cache is kept per machine, not per checkout: mypy checks each cached module
+    # against the hash of its source (a file of another path or time but the same text is
+    # taken as is), so a fresh clone checks only what differs from the last run here:
+    # ~1 s instead of ~11 s on 2 cores. MYPY_CACHE_DIR chooses another place.
+    export MYPY_CACHE_DIR="${MYPY_CACHE_DIR:-${XDG_CACHE_HOME:-$HOME/.cache}/modbus-ros-bridges/mypy}"
     pkgs=()
     for p in bridge_core r6_bridge xarm_bridge stepper_bridge motec_bridge modbus_bridge; do
         [[ -d "$p" ]] && pkgs+=("$p")
