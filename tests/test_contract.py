@@ -19,7 +19,6 @@ import json
 import math
 import re
 import statistics
-import subprocess
 import time
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
@@ -42,6 +41,7 @@ from modbus_bridge.description import load as load_description
 from msg_defs.msg import DeviceValues
 from msg_defs.srv import ReadRegisters, SetValue
 
+from .support import forkserver
 from .support.bridges import BRIDGES, BridgeInfo, Call, JointCommandRow, SimProcess
 from .support.ros import (
     LATCHED,
@@ -168,7 +168,7 @@ class Running:
     info: BridgeInfo
     sim: SimProcess
     bridge: Bridge
-    proc: subprocess.Popen[bytes]
+    proc: forkserver.Process
     client: Client
 
     def path(self, node: str | None = None) -> str:

@@ -10,7 +10,6 @@ state, asked through the ROS graph) and keeps running although its device is abs
 
 from __future__ import annotations
 
-import subprocess
 from collections.abc import Iterator
 from contextlib import ExitStack
 from pathlib import Path
@@ -19,6 +18,7 @@ from typing import Any
 import pytest
 from lifecycle_msgs.srv import GetState
 
+from .support import forkserver
 from .support.launch_run import MissingArgument, evaluate, started
 from .support.ros import ROOT, Client, ros_client, unique_namespace, wait_for
 
@@ -94,7 +94,7 @@ def test_each_node_of_a_launch_file_accepts_its_parameters(
 
 
 def check_started(
-    client: Client, what: str, namespace: str, log: Path, proc: subprocess.Popen[bytes]
+    client: Client, what: str, namespace: str, log: Path, proc: forkserver.Process
 ) -> None:
     """Active (its log says so, and the lifecycle state of every node of the process in
     ``namespace``), never exited."""

@@ -13,7 +13,6 @@ import contextlib
 import os
 import signal
 import subprocess
-import sys
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -40,6 +39,7 @@ from r6_bridge.registers import R6_MAP
 from stepper_bridge.registers import STEPPER_MAP
 from xarm_bridge.registers import XARM_MAP
 
+from . import forkserver
 from .ros import ROOT, wait_for
 
 RTU_BAUD = 115200
@@ -297,7 +297,7 @@ class SimProcess:
         self.output = workdir / "sim.out"
         self.port = free_port() if info.transport == "tcp" else 0
         self.pty = workdir / "bus"
-        self.proc: subprocess.Popen[bytes] | None = None
+        self.proc: forkserver.Process | None = None
         self.starts = 0
         self.baudrate = RTU_BAUD
         self.extra_args: tuple[str, ...] = ()  # after the entry's own sim_args
@@ -320,10 +320,7 @@ class SimProcess:
             where = ["--port", str(self.port)]
         else:
             where = ["--pty", str(self.pty), "--baudrate", str(self.baudrate)]
-        command = [
-            sys.executable,
-            "-m",
-            self.info.sim_module,
+        arguments = [
             *where,
             *self.info.sim_args,
             *self.extra_args,
@@ -333,9 +330,9 @@ class SimProcess:
             str(self.read_log),
         ]
         with self.output.open("ab") as out:
-            self.proc = subprocess.Popen(
-                command,
-                cwd=ROOT,
+            self.proc = forkserver.python_module(
+                self.info.sim_module,
+                arguments,
                 stdout=out,
                 stderr=subprocess.STDOUT,
                 # A process group of its own, so its socat dies with it on SIGKILL
@@ -344,7 +341,7 @@ class SimProcess:
                 # alone in one was left runnable but unscheduled for up to 2 s beside
                 # two CPU burners (perf sched: max delay 1539 ms); its replies then came
                 # after the bridge's timeout.
-                process_group=0,
+                process_group=True,
             )
         self.starts += 1
         proc = self.proc

@@ -6,7 +6,6 @@ files before it, the namespace a remap."""
 from __future__ import annotations
 
 import importlib.util
-import os
 import subprocess
 import sys
 import tomllib
@@ -18,7 +17,8 @@ from typing import Any
 
 import yaml  # type: ignore[import-untyped]
 
-from .ros import ROOT
+from . import forkserver
+from .ros import ROOT, interrupt
 
 STANDIN = Path(__file__).resolve().parent / "launch_standin"
 
@@ -131,7 +131,7 @@ def node_module(executable: str) -> str:
 
 
 @contextmanager
-def started(node: LaunchedNode, namespace: str, work: Path) -> Iterator[subprocess.Popen[bytes]]:
+def started(node: LaunchedNode, namespace: str, work: Path) -> Iterator[forkserver.Process]:
     """The node's process as ``ros2 launch`` starts it, under ``namespace`` (which replaces
     the launch file's), output in ``work/<executable>.log``."""
     args: list[str] = ["--ros-args"]
@@ -146,21 +146,11 @@ def started(node: LaunchedNode, namespace: str, work: Path) -> Iterator[subproce
     if node.name:
         args += ["-r", f"__node:={node.name}"]
     log = (work / f"{node.executable}.log").open("wb")
-    proc = subprocess.Popen(
-        [sys.executable, "-m", node_module(node.executable), *args],
-        cwd=ROOT,
-        env=dict(os.environ),
-        stdout=log,
-        stderr=subprocess.STDOUT,
+    proc = forkserver.python_module(
+        node_module(node.executable), args, stdout=log, stderr=subprocess.STDOUT
     )
     try:
         yield proc
     finally:
-        if proc.poll() is None:
-            proc.send_signal(2)
-            try:
-                proc.wait(10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(5)
+        interrupt(proc, 10)
         log.close()

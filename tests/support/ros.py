@@ -28,6 +28,8 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.utilities import try_shutdown
 from unique_identifier_msgs.msg import UUID
 
+from tests.support import forkserver
+
 ROOT = Path(__file__).resolve().parents[2]
 LATCHED = QoSProfile(
     depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL
@@ -355,15 +357,11 @@ def ros_args(params: dict[str, Any]) -> list[str]:
 @contextmanager
 def node_process(
     module: str, params: dict[str, Any], log_dir: Path, extra: Sequence[str] = ()
-) -> Iterator[subprocess.Popen[bytes]]:
+) -> Iterator[forkserver.Process]:
     """Run ``python -m module --ros-args ...`` in its own process; stop it with SIGINT."""
     log = (log_dir / f"{module.replace('.', '_')}.log").open("wb")
-    proc = subprocess.Popen(
-        [sys.executable, "-m", module, *ros_args(params), *extra],
-        cwd=ROOT,
-        env=dict(os.environ),
-        stdout=log,
-        stderr=subprocess.STDOUT,
+    proc = forkserver.python_module(
+        module, [*ros_args(params), *extra], stdout=log, stderr=subprocess.STDOUT
     )
     try:
         yield proc
@@ -372,7 +370,7 @@ def node_process(
         log.close()
 
 
-def interrupt(proc: subprocess.Popen[bytes], timeout_s: float) -> None:
+def interrupt(proc: forkserver.Process, timeout_s: float) -> None:
     """Ctrl-C (SIGINT) to a process still running; killed if it is not gone in time."""
     if proc.poll() is None:
         proc.send_signal(signal.SIGINT)
@@ -386,13 +384,7 @@ def interrupt(proc: subprocess.Popen[bytes], timeout_s: float) -> None:
 def refused_at_start(module: str, args: Sequence[str], timeout: float = 60.0) -> str:
     """Run ``python -m module args`` that must refuse to start: exit code 2 and exactly one
     non-blank line on stderr, no traceback. Returns that line for the caller's checks."""
-    result = subprocess.run(
-        [sys.executable, "-m", module, *args],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-    )
+    result = forkserver.run_module(module, args, timeout)
     output = result.stdout + result.stderr
     lines = [line for line in result.stderr.splitlines() if line.strip()]
     assert result.returncode == 2 and len(lines) == 1, output
@@ -527,7 +519,7 @@ def start_bridge(
     node_name: str,
     state_type: Any,
     params: dict[str, Any],
-) -> Iterator[tuple[Bridge, subprocess.Popen[bytes]]]:
+) -> Iterator[tuple[Bridge, forkserver.Process]]:
     """A bridge node in its own process under a fresh namespace; asserts it did not die."""
     namespace = unique_namespace(f"{node_name}_test")
     bridge = Bridge(client, namespace, node_name, state_type)

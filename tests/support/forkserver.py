@@ -1,0 +1,315 @@
+"""Bridge and simulator processes forked from a server that has imported them already.
+
+A test that starts a bridge node runs ``python -m r6_bridge.node --ros-args ...`` in a
+process of its own, as a user does. Most of such a process's start is the import of
+rclpy, numpy, the message packages, pymodbus and the register maps: ~0.75 CPU-s each, and
+the suite starts some 400 of them. This module's server (one per test process, started on
+first use) imports those modules once, then forks a child per request; the child sets its
+argv, environment, working directory and standard streams, drops the module it is asked to
+run from ``sys.modules`` and runs it with ``runpy`` as ``python -m`` does. Everything after
+the import is the real program in a process of its own: its own rclpy context, DDS
+participant, sockets, signals and exit code.
+
+What the fork changes, and why that is safe here:
+
+- Threads: at fork the server has its main thread (in ``select``), OpenBLAS's thread pool
+  (numpy's; OpenBLAS re-creates it after a fork) and LTTng-UST's two listener threads
+  (rcl's tracing; with no session daemon they only wait). rclpy is imported, not
+  initialised: DDS, rcl's logging and the executor start in the child.
+- The child's exit is the interpreter's own (atexit, non-daemon threads joined, streams
+  flushed); an uncaught KeyboardInterrupt ends it by SIGINT as ``python -m`` does.
+- The test side gets a ``ForkedProcess`` with ``Popen``'s ``pid``, ``poll``, ``wait``,
+  ``send_signal``, ``terminate``, ``kill`` and ``returncode``; the server, the child's
+  parent, sends the exit status. A child whose test process is gone is SIGKILLed.
+
+``BRIDGE_TESTS_FORKSERVER=0`` starts every process with ``subprocess.Popen`` instead (an
+A/B of the two, or a suspicion about the fork). The entry points a user types (the console
+scripts, the demo, ``bridge_record``) keep their own tests with plain processes.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import importlib
+import json
+import os
+import runpy
+import select
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parents[2]
+# The modules the server imports before it forks: every bridge's node and simulator (which
+# bring rclpy, the message packages, numpy, pymodbus and the register maps with them).
+PRELOAD = tuple(
+    f"{package}.{module}"
+    for package in ("r6_bridge", "xarm_bridge", "stepper_bridge", "motec_bridge", "modbus_bridge")
+    for module in ("node", "sim")
+)
+SERVER_START_S = 60.0  # a loaded machine: the imports take ~1.5 CPU-s
+REQUEST_MAX = 1 << 20  # bytes of one request (argv and environment as JSON)
+STREAMS = 3  # stdin, stdout, stderr: the descriptors a request passes
+ENABLED = os.environ.get("BRIDGE_TESTS_FORKSERVER", "1") != "0"
+
+
+class ForkedProcess:
+    """A child of the fork server, with the part of ``subprocess.Popen`` the tests use."""
+
+    def __init__(self, args: list[str], pid: int, status: socket.socket) -> None:
+        self.args = args
+        self.pid = pid
+        self.returncode: int | None = None
+        self._status = status  # the server writes the exit code here, then closes it
+        self._lock = threading.Lock()
+
+    def _read_status(self, timeout: float | None) -> bool:
+        with self._lock:
+            if self.returncode is not None:
+                return True
+            ready, _, _ = select.select([self._status], [], [], timeout)
+            if not ready:
+                return False
+            data = b""
+            while not data.endswith(b"\n"):
+                chunk = self._status.recv(64)
+                if not chunk:
+                    raise RuntimeError(f"the fork server lost child {self.pid} ({self.args})")
+                data += chunk
+            self.returncode = int(data)
+            self._status.close()
+            return True
+
+    def poll(self) -> int | None:
+        self._read_status(0)
+        return self.returncode
+
+    def wait(self, timeout: float | None = None) -> int:
+        if not self._read_status(timeout):
+            raise subprocess.TimeoutExpired(self.args, timeout or 0.0)
+        assert self.returncode is not None
+        return self.returncode
+
+    def send_signal(self, sig: int) -> None:
+        if self.poll() is None:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(self.pid, sig)
+
+    def terminate(self) -> None:
+        self.send_signal(signal.SIGTERM)
+
+    def kill(self) -> None:
+        self.send_signal(signal.SIGKILL)
+
+
+class _Server:
+    """This test process's fork server: a child process and the socket it listens on."""
+
+    def __init__(self) -> None:
+        self.dir = tempfile.TemporaryDirectory(prefix="forkserver-")
+        self.path = str(Path(self.dir.name) / "socket")
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "tests.support.forkserver", self.path],
+            cwd=ROOT,
+            stdin=subprocess.PIPE,  # its lifeline: the server ends when this process does
+            stdout=subprocess.PIPE,
+        )
+        assert self.proc.stdout is not None
+        ready, _, _ = select.select([self.proc.stdout], [], [], SERVER_START_S)
+        line = self.proc.stdout.readline() if ready else b""
+        if line.strip() != b"ready":
+            self.proc.kill()
+            raise RuntimeError(f"the fork server did not start: {line!r}")
+
+    def spawn(
+        self,
+        module: str,
+        args: Sequence[str],
+        env: Mapping[str, str],
+        cwd: Path,
+        streams: Sequence[int],
+        process_group: bool,
+    ) -> ForkedProcess:
+        request = {
+            "module": module,
+            "args": list(args),
+            "env": dict(env),
+            "cwd": str(cwd),
+            "process_group": process_group,
+        }
+        conn = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        conn.connect(self.path)
+        socket.send_fds(conn, [json.dumps(request).encode()], list(streams))
+        reply = b""
+        while not reply.endswith(b"\n"):
+            chunk = conn.recv(64)
+            if not chunk:
+                raise RuntimeError(f"the fork server refused {module}")
+            reply += chunk
+        return ForkedProcess([sys.executable, "-m", module, *args], int(reply), conn)
+
+
+Process = ForkedProcess | subprocess.Popen[bytes]
+_server: _Server | None = None
+_server_lock = threading.Lock()
+
+
+def _the_server() -> _Server:
+    global _server
+    with _server_lock:
+        if _server is None or _server.proc.poll() is not None:
+            _server = _Server()
+        return _server
+
+
+def python_module(
+    module: str,
+    args: Sequence[str],
+    *,
+    stdout: int | Any = None,
+    stderr: int | Any = None,
+    env: Mapping[str, str] | None = None,
+    cwd: Path = ROOT,
+    process_group: bool = False,
+) -> Process:
+    """``python -m module args``: forked from the server, or ``Popen`` when it is off.
+
+    ``stdout`` and ``stderr``: a file object, a descriptor, ``subprocess.STDOUT`` (stderr
+    only) or None (this process's own). ``process_group``: a process group of its own.
+    """
+    if not ENABLED or module not in PRELOAD:
+        return subprocess.Popen(
+            [sys.executable, "-m", module, *args],
+            cwd=cwd,
+            env=dict(env if env is not None else os.environ),
+            stdout=stdout,
+            stderr=stderr,
+            process_group=0 if process_group else None,
+        )
+
+    def descriptor(stream: int | Any, default: int) -> int:
+        if stream is None:
+            return default
+        return stream if isinstance(stream, int) else int(stream.fileno())
+
+    with open(os.devnull, "rb") as null:
+        out = descriptor(stdout, 1)
+        err = out if stderr == subprocess.STDOUT else descriptor(stderr, 2)
+        return _the_server().spawn(
+            module,
+            args,
+            env if env is not None else os.environ,
+            cwd,
+            (null.fileno(), out, err),
+            process_group,
+        )
+
+
+def run_module(
+    module: str, args: Sequence[str], timeout: float
+) -> subprocess.CompletedProcess[str]:
+    """``subprocess.run([python, -m, module, *args], capture_output=True, text=True)``."""
+    with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
+        proc = python_module(module, args, stdout=out, stderr=err)
+        try:
+            code = proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(5)
+            raise
+        out.seek(0)
+        err.seek(0)
+        return subprocess.CompletedProcess(
+            proc.args, code, out.read().decode(errors="replace"), err.read().decode()
+        )
+
+
+# --- the server ---------------------------------------------------------------------------
+
+
+def _serve(path: str) -> dict[str, Any] | None:
+    """Accept requests and fork; in a child, return its request (None: the server ends)."""
+    for name in PRELOAD:
+        importlib.import_module(name)
+    listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    listener.bind(path)
+    listener.listen(64)
+    wake_r, wake_w = os.pipe()
+    os.set_blocking(wake_w, False)
+    signal.set_wakeup_fd(wake_w)
+    signal.signal(signal.SIGCHLD, lambda *_: None)
+    children: dict[int, socket.socket] = {}  # pid: the connection its status goes to
+    sys.stdout.write("ready\n")
+    sys.stdout.flush()
+    lifeline = sys.stdin.fileno()
+    while True:
+        watched = [listener, wake_r, lifeline, *children.values()]
+        ready, _, _ = select.select(watched, [], [])
+        if lifeline in ready and not os.read(lifeline, 4096):
+            for pid in children:  # the test process is gone: so are its children
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(pid, signal.SIGKILL)
+            return None
+        if wake_r in ready:
+            os.read(wake_r, 4096)
+        for pid, conn in list(children.items()):
+            done, status = os.waitpid(pid, os.WNOHANG)
+            if done:
+                with contextlib.suppress(OSError):
+                    conn.sendall(b"%d\n" % os.waitstatus_to_exitcode(status))
+                conn.close()
+                del children[pid]
+            elif conn in ready:  # the test closed its end before the child ended
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(pid, signal.SIGKILL)
+        if listener not in ready:
+            continue
+        conn, _ = listener.accept()
+        message, fds, _, _ = socket.recv_fds(conn, REQUEST_MAX, STREAMS)
+        request = json.loads(message)
+        sys.stdout.flush()
+        sys.stderr.flush()
+        pid = os.fork()
+        if pid == 0:
+            signal.set_wakeup_fd(-1)
+            signal.signal(signal.SIGCHLD, signal.SIG_DFL)
+            for stream, fd in enumerate(fds):
+                os.dup2(fd, stream)
+            for fd in (*fds, wake_r, wake_w):
+                os.close(fd)
+            listener.close()
+            conn.close()
+            for other in children.values():
+                other.close()
+            return dict(request)
+        for fd in fds:
+            os.close(fd)
+        conn.sendall(b"%d\n" % pid)
+        children[pid] = conn
+
+
+def _run(request: dict[str, Any]) -> None:
+    """In the child: become ``python -m module args`` and run it."""
+    if request["process_group"]:
+        os.setpgid(0, 0)
+    os.chdir(request["cwd"])
+    os.environ.clear()
+    os.environ.update(request["env"])
+    module = request["module"]
+    sys.argv = [module, *request["args"]]
+    # Run afresh as __main__, as python -m does (runpy warns about a module already
+    # imported, and its import-time state must be this process's own).
+    sys.modules.pop(module, None)
+    runpy.run_module(module, run_name="__main__", alter_sys=True)
+
+
+if __name__ == "__main__":
+    _request = _serve(sys.argv[1])
+    if _request is not None:
+        _run(_request)
