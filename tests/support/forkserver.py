@@ -22,13 +22,15 @@ What the fork changes, and why that is safe here:
   ``send_signal``, ``terminate``, ``kill`` and ``returncode``; the server, the child's
   parent, sends the exit status. A child whose test process is gone is SIGKILLed.
 
+Any module can be run so (``PRELOAD`` is what the server imports beforehand).
 ``BRIDGE_TESTS_FORKSERVER=0`` starts every process with ``subprocess.Popen`` instead (an
-A/B of the two, or a suspicion about the fork). The entry points a user types (the console
-scripts, the demo, ``bridge_record``) keep their own tests with plain processes.
+A/B of the two, or a suspicion about the fork); tests/test_support_forkserver.py compares
+the two. The demo, ``bridge_record`` and the colcon install are still started as typed.
 """
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import importlib
 import json
@@ -126,6 +128,18 @@ class _Server:
         if line.strip() != b"ready":
             self.proc.kill()
             raise RuntimeError(f"the fork server did not start: {line!r}")
+        atexit.register(self.close)
+
+    def close(self) -> None:
+        """End the server (its children are SIGKILLed) and reap it."""
+        assert self.proc.stdin is not None
+        with contextlib.suppress(OSError):
+            self.proc.stdin.close()
+        try:
+            self.proc.wait(10)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait(5)
 
     def spawn(
         self,
@@ -183,7 +197,7 @@ def python_module(
     ``stdout`` and ``stderr``: a file object, a descriptor, ``subprocess.STDOUT`` (stderr
     only) or None (this process's own). ``process_group``: a process group of its own.
     """
-    if not ENABLED or module not in PRELOAD:
+    if not ENABLED:
         return subprocess.Popen(
             [sys.executable, "-m", module, *args],
             cwd=cwd,
@@ -212,11 +226,16 @@ def python_module(
 
 
 def run_module(
-    module: str, args: Sequence[str], timeout: float
+    module: str,
+    args: Sequence[str],
+    timeout: float,
+    *,
+    env: Mapping[str, str] | None = None,
+    cwd: Path = ROOT,
 ) -> subprocess.CompletedProcess[str]:
     """``subprocess.run([python, -m, module, *args], capture_output=True, text=True)``."""
     with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
-        proc = python_module(module, args, stdout=out, stderr=err)
+        proc = python_module(module, args, stdout=out, stderr=err, env=env, cwd=cwd)
         try:
             code = proc.wait(timeout)
         except subprocess.TimeoutExpired:
@@ -288,6 +307,11 @@ def _serve(path: str) -> dict[str, Any] | None:
             for other in children.values():
                 other.close()
             return dict(request)
+        if request["process_group"]:
+            # Here as well as in the child, so the group exists when the pid is sent
+            # whichever runs first (Popen's is made before its exec).
+            with contextlib.suppress(OSError):
+                os.setpgid(pid, pid)
         for fd in fds:
             os.close(fd)
         conn.sendall(b"%d\n" % pid)
