@@ -45,6 +45,7 @@ pytestmark = pytest.mark.ros
 
 ROOT = Path(__file__).resolve().parents[2]
 VFD = ROOT / "config" / "devices" / "vfd_rtu.yaml"
+SIM_IN_TEST_TIMEOUT_S = 1.0
 VFD_MAP = load(VFD).device.register_map
 BAUD = 19200  # the file's, with its parity E
 WAIT_S = 30.0
@@ -98,6 +99,10 @@ def running_forward(
             "serial_port": port,
             "poll_rate_hz": 20.0,
             "reconnect_max_s": 1.0,
+            # The simulator answers from this test process, beside the client's spin thread
+            # and other busy processes: at the example's 0.2 s its late replies cost the
+            # link on loaded runs of the suite ("no reply within 0.2 s" at set_frequency).
+            "timeout_s": SIM_IN_TEST_TIMEOUT_S,
         }
         b = Bridge(client, unique_namespace("vfd_exit"), "modbus_bridge", DeviceValues)
         with node_process(module, params, tmp_path, ["-r", f"__ns:={b.ns}"]) as proc:
