@@ -93,7 +93,10 @@ STEPPER_DISTANCE_TOLERANCE_M = 0.003
 # MOTEC: 115200 baud, 10 Hz polls per drive, 20 speed / target writes a second.
 MOTEC_COUNT_RAD = 2 * math.pi / 10000  # one count of the default 10000 counts per turn
 MOTEC_TOLERANCE_RAD = 0.3  # 1 rad/s ramps, the drive turns to each new target at once
-MOTEC_DISTANCE_TOLERANCE_RAD = 0.6  # of 9 rad: whole rpm, 20 Hz, ramps of the drive
+# Of 9 rad: whole rpm, 20 Hz, ramps of the drive, and writes late beside other busy
+# processes (each holds the speed before it longer: 0.604 rad on an idle whole-suite run,
+# where 0.6 was the bound). A wrong scale or a missing stop is off by rads.
+MOTEC_DISTANCE_TOLERANCE_RAD = 0.9
 
 # modbus_bridge: 20 Hz polls over TCP, targets written at 10 Hz (command_rate_hz), the
 # lift's simulator follows at 20 mm/s: a 10 mm/s ramp lags by ~2 mm (measured 2.2 mm on an

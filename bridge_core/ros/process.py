@@ -8,6 +8,7 @@ error nothing handled) stops every motion before the link closes and the context
 
 from __future__ import annotations
 
+import contextlib
 import signal
 import sys
 import threading
@@ -133,20 +134,32 @@ def _spin_until_interrupted(executor: MultiThreadedExecutor) -> None:
     there, it waited in rcl's wait (not interrupted by signals) for the executor's next
     event, up to a timer period later (0.16 s measured idle, longer on a loaded machine),
     and the exit's stops waited with it. A wait in ``Thread.join`` is interrupted: the
-    handler's KeyboardInterrupt is raised at once. What ends the spin on its own (an
-    error no callback handled, an external shutdown) is raised here as it was.
+    handler's KeyboardInterrupt is raised at once. The spin thread is then woken and
+    joined before anything else: shutting the executor down while it is still in rcl's
+    wait destroys what the wait holds (the process aborted: "terminate called without an
+    active exception"). What ends the spin on its own (an error no callback handled, an
+    external shutdown) is raised here as it was.
     """
+    stopping = threading.Event()
     failure: list[BaseException] = []
 
     def spin() -> None:
         try:
-            executor.spin()
+            while not stopping.is_set() and executor.context.ok():
+                executor.spin_once()
         except BaseException as err:  # handed to the main thread, which decides
             failure.append(err)
 
     spinner = threading.Thread(target=spin, name="executor", daemon=True)
     spinner.start()
-    spinner.join()
+    try:
+        spinner.join()
+    finally:
+        stopping.set()
+        executor.wake()
+        while spinner.is_alive():
+            with contextlib.suppress(KeyboardInterrupt):  # a second signal: already leaving
+                spinner.join()
     if failure:
         raise failure[0]
 
