@@ -3,10 +3,11 @@
 A test that starts a bridge node runs ``python -m r6_bridge.node --ros-args ...`` in a
 process of its own, as a user does. Most of such a process's start is the import of
 rclpy, numpy, the message packages, pymodbus and the register maps: ~0.75 CPU-s each, and
-the suite starts some 400 of them. This module's server (one per test process, started on
-first use) imports those modules once, then forks a child per request; the child sets its
-argv, environment, working directory and standard streams, drops the module it is asked to
-run from ``sys.modules`` and runs it with ``runpy`` as ``python -m`` does. Everything after
+the suite starts some 400 of them. This module's servers (one per test process for the
+nodes, one for the simulators, started on first use) import those modules once, then fork
+a child per request; the child sets its argv, environment, working directory and standard
+streams, drops the module it is asked to run from ``sys.modules`` and runs it with
+``runpy`` as ``python -m`` does. Everything after
 the import is the real program in a process of its own: its own rclpy context, DDS
 participant, sockets, signals and exit code.
 
@@ -22,7 +23,7 @@ What the fork changes, and why that is safe here:
   ``send_signal``, ``terminate``, ``kill`` and ``returncode``; the server, the child's
   parent, sends the exit status. A child whose test process is gone is SIGKILLed.
 
-Any module can be run so (``PRELOAD`` is what the server imports beforehand).
+Any module can be run so (``PRELOAD`` is what each server imports beforehand).
 ``BRIDGE_TESTS_FORKSERVER=0`` starts every process with ``subprocess.Popen`` instead (an
 A/B of the two, or a suspicion about the fork); tests/test_support_forkserver.py compares
 the two. The demo, ``bridge_record`` and the colcon install are still started as typed.
@@ -48,13 +49,22 @@ from pathlib import Path
 from typing import Any
 
 ROOT = Path(__file__).resolve().parents[2]
-# The modules the server imports before it forks: every bridge's node and simulator (which
-# bring rclpy, the message packages, numpy, pymodbus and the register maps with them).
-PRELOAD = tuple(
-    f"{package}.{module}"
-    for package in ("r6_bridge", "xarm_bridge", "stepper_bridge", "motec_bridge", "modbus_bridge")
-    for module in ("node", "sim")
-)
+# What each server imports before it forks: the bridges' nodes (they bring rclpy, the
+# message packages, numpy, pymodbus and the register maps), and apart from them the
+# simulators, which do not use ROS: a simulator forked with rclpy loaded paid for it at its
+# exit (Fast DDS's factory destructor sleeps 0.1 s; a stop took 0.2 s instead of 0.06 s).
+BRIDGE_PACKAGES = ("r6_bridge", "xarm_bridge", "stepper_bridge", "motec_bridge", "modbus_bridge")
+PRELOAD = {
+    "node": tuple(f"{package}.node" for package in BRIDGE_PACKAGES),
+    "sim": tuple(f"{package}.sim" for package in BRIDGE_PACKAGES),
+}
+
+
+def preload_kind(module: str) -> str:
+    """Which server forks ``module``: the simulators' or the nodes' (any other module)."""
+    return "sim" if module in PRELOAD["sim"] else "node"
+
+
 SERVER_START_S = 60.0  # a loaded machine: the imports take ~1.5 CPU-s
 REQUEST_MAX = 1 << 20  # bytes of one request (argv and environment as JSON)
 STREAMS = 3  # stdin, stdout, stderr: the descriptors a request passes
@@ -111,13 +121,14 @@ class ForkedProcess:
 
 
 class _Server:
-    """This test process's fork server: a child process and the socket it listens on."""
+    """One of this test process's fork servers (``kind``: a key of ``PRELOAD``): a child
+    process and the socket it listens on."""
 
-    def __init__(self) -> None:
+    def __init__(self, kind: str) -> None:
         self.dir = tempfile.TemporaryDirectory(prefix="forkserver-")
         self.path = str(Path(self.dir.name) / "socket")
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "tests.support.forkserver", self.path],
+            [sys.executable, "-m", "tests.support.forkserver", self.path, kind],
             cwd=ROOT,
             stdin=subprocess.PIPE,  # its lifeline: the server ends when this process does
             stdout=subprocess.PIPE,
@@ -170,16 +181,16 @@ class _Server:
 
 
 Process = ForkedProcess | subprocess.Popen[bytes]
-_server: _Server | None = None
+_servers: dict[str, _Server] = {}
 _server_lock = threading.Lock()
 
 
-def _the_server() -> _Server:
-    global _server
+def _the_server(kind: str) -> _Server:
     with _server_lock:
-        if _server is None or _server.proc.poll() is not None:
-            _server = _Server()
-        return _server
+        server = _servers.get(kind)
+        if server is None or server.proc.poll() is not None:
+            server = _servers[kind] = _Server(kind)
+        return server
 
 
 def python_module(
@@ -215,7 +226,7 @@ def python_module(
     with open(os.devnull, "rb") as null:
         out = descriptor(stdout, 1)
         err = out if stderr == subprocess.STDOUT else descriptor(stderr, 2)
-        return _the_server().spawn(
+        return _the_server(preload_kind(module)).spawn(
             module,
             args,
             env if env is not None else os.environ,
@@ -252,9 +263,9 @@ def run_module(
 # --- the server ---------------------------------------------------------------------------
 
 
-def _serve(path: str) -> dict[str, Any] | None:
+def _serve(path: str, kind: str) -> dict[str, Any] | None:
     """Accept requests and fork; in a child, return its request (None: the server ends)."""
-    for name in PRELOAD:
+    for name in PRELOAD[kind]:
         importlib.import_module(name)
     listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
     listener.bind(path)
@@ -334,6 +345,6 @@ def _run(request: dict[str, Any]) -> None:
 
 
 if __name__ == "__main__":
-    _request = _serve(sys.argv[1])
+    _request = _serve(sys.argv[1], sys.argv[2])
     if _request is not None:
         _run(_request)
