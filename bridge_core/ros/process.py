@@ -118,9 +118,18 @@ def interrupt_on_signals() -> None:
     Used instead of rclpy's handlers (rclpy.init with SignalHandlerOptions.NO), which shut
     the context down at once while the poll and publisher threads still publish; this way
     the nodes stop their motion and threads first and the context goes last.
+
+    Only the first signal interrupts: the exit's stops run in ``finally`` blocks, and a
+    second Ctrl-C (people press it twice) raised there would cut them short, before the
+    closers started or while they were being joined. Later signals are ignored; SIGKILL
+    remains for a process that does not end.
     """
+    interrupted = threading.Event()
 
     def interrupt(_signum: int, _frame: Any) -> None:
+        if interrupted.is_set():
+            return  # already leaving: the stops must not be cut short
+        interrupted.set()
         raise KeyboardInterrupt
 
     signal.signal(signal.SIGINT, interrupt)

@@ -1,16 +1,21 @@
-"""bridge_core/ros/process.py: a command line rcl refuses is one line and exit code 2.
+"""bridge_core/ros/process.py: a command line rcl refuses is one line and exit code 2;
+only the first signal interrupts.
 
 rclpy.init raises before any node exists, so ``spin_node`` runs here in the test's own
 process (the exit-2 path of a whole bridge process is tests/test_contract.py's)."""
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
 from rclpy.node import Node
 
 from bridge_core.ros.process import EXIT_CONFIGURATION_ERROR, spin_node
+
+ROOT = Path(__file__).resolve().parents[3]
 
 
 def never_built() -> Node:
@@ -42,3 +47,33 @@ def test_a_refused_command_line_is_one_line_and_exit_2(
     assert len(lines) == 1 and lines[0].startswith("error: "), lines
     assert named in lines[0] and "Traceback" not in lines[0], lines
     assert ", at /" not in lines[0], lines  # rcl's source places are dropped
+
+
+# In a process of its own: the handlers are the process's.
+SIGNALS_TWICE = """
+import os, signal, time
+from bridge_core.ros.process import interrupt_on_signals
+interrupt_on_signals()
+raised = []
+for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGINT):
+    try:
+        os.kill(os.getpid(), sig)
+        time.sleep(0.01)  # the handler runs here at the latest
+    except KeyboardInterrupt:
+        raised.append(sig.name)
+print(raised)
+"""
+
+
+def test_only_the_first_signal_interrupts() -> None:
+    """A second Ctrl-C (or a SIGTERM after it) while the bridge is already stopping raises
+    nothing: raised in the exit's ``finally``, it would cut the stops short."""
+    result = subprocess.run(
+        [sys.executable, "-c", SIGNALS_TWICE],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == "['SIGINT']", result.stdout
