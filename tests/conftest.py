@@ -61,11 +61,15 @@ def shared_fixture(definition: Any) -> bool:
 
 def worker_group(item: pytest.Item) -> str:
     """The tests one worker runs together (``--dist loadgroup``): those that share a
-    module-scoped fixture (a bridge process, the demo, the colcon build) with the same
-    parameters; any other test on its own (its nodeid), so a module of long independent
-    cases spreads out. xdist hands out the larger groups first: the colcon tests' worker
-    soon waits for their build, at normal priority (tests/support/colcon.py)."""
+    module-scoped fixture (a bridge process, the demo) with the same parameters; any other
+    test on its own (its nodeid), so a module of long independent cases spreads out. The
+    colcon tests each alone, so they come last (below), their build at nice 19 meanwhile
+    (tests/support/colcon.py)."""
     fixture_info = getattr(item, "_fixtureinfo", None)
+    if item.nodeid.startswith(COLCON_TESTS):
+        # Each alone: xdist hands out its larger groups first and the tests alone in their
+        # order, so these (last in it) come last, when their build has had the longest.
+        return item.nodeid
     if fixture_info is None or not any(
         shared_fixture(definitions[-1]) for definitions in fixture_info.name2fixturedefs.values()
     ):

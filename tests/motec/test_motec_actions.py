@@ -4,6 +4,7 @@ process, the bridge in its own, the simulated drives on a socat pty pair."""
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -201,8 +202,9 @@ def test_move_to_ended_by_a_fault_by_read_only_and_by_a_lost_link(
         assert "stop failed" in result.outcome.message
         assert not move_to(b, 2, 1.0).accepted  # the link is down: rejected
         client.wait_log("motec_2", "move_to goal rejected: not connected")
+        plugged = time.monotonic()
         sim.plug(2)
-        b.wait_connected(2, True)
+        b.wait_connected(2, True, since=plugged)  # not the connected=True of the start
         reply = b.call(2, Trigger, "stop")
         assert reply.success, reply.message
         wait_for(lambda: sim.drive(2).value("speed_actual") == 0, 20.0, "drive 2 stopped")

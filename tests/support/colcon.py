@@ -6,10 +6,9 @@ takes minutes of compiler time. The build reuses the venv's msg_defs build direc
 the Python bindings, so it compiles the C++ type supports only (~50 s on 2 idle cores, as
 a unity build); when set-up installed a wheel it had built before (scripts/setup.sh), the
 build is the whole package (~160 CPU-s). It starts at the lowest CPU priority (nice 19)
-when the tests are collected; the colcon tests wait for it at normal priority. Under
-xdist their worker takes them early (xdist hands out larger groups first). Left in the
-background for the whole run (the tests scheduled last), it cost two idle runs a
-real-time margin each (a MOTEC setpoint 0.54 s late, a goal response that never came).
+when the tests are collected; the colcon tests, scheduled last (each alone in xdist's
+schedule, tests/conftest.py), wait for it at normal priority. Scheduled early, their
+worker waited ~135 s for it with 4 workers.
 
 Under pytest-xdist the controller process starts it once the workers have collected the
 colcon tests (tests/conftest.py) and tells the workers its workspace; the worker that runs
