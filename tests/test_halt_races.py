@@ -228,6 +228,11 @@ def wait_refusal_after(bridge: Bridge, since: float) -> None:
     wait_for(lambda: refusals(bridge, since) > counted, WAIT_S, "a refused stream value")
 
 
+def wait_stop_written(case: Case, since: int, what: str) -> None:
+    """Until the write log holds a stop after its first ``since`` records."""
+    wait_for(lambda: any(case.is_stop(r) for r in case.writes()[since:]), WAIT_S, what)
+
+
 def written_after_first_stop(case: Case, log: list[WriteRecord], what: str) -> list[WriteRecord]:
     """What ``log`` (the writes from the halt on) holds after its first stop that is neither
     the stop's allowed follow-up nor another stop (a command on the wire when the halt came
@@ -244,9 +249,13 @@ def repeat(case: Case, node: Node, bridge: Bridge, joystick: Joystick, path: str
         before = len(case.writes())
         halt_and_resume(node, path)
         # Active (writable) again with the joystick still held: the stream is locked.
-        # Wait until the node refused a value published after the resume; if no refusal
-        # comes, what was written says why.
+        # Wait for the halt's stop on the wire (a stall that cost the link is retried once
+        # it is back: seen beside two CPU burners, the stop's reply missed 1 s and a
+        # value refused while reconnecting was taken for the lock's refusal), then until
+        # the node refused a value published after it; if either never comes, what was
+        # written says why.
         try:
+            wait_stop_written(case, before, f"repetition {rep}: the {path}'s stop on the wire")
             wait_refusal_after(bridge, time.monotonic())
         finally:
             whole = case.writes()
