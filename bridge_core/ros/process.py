@@ -9,7 +9,9 @@ error nothing handled) stops every motion before the link closes and the context
 from __future__ import annotations
 
 import contextlib
+import select
 import signal
+import socket
 import sys
 import threading
 import traceback
@@ -142,8 +144,8 @@ def _spin_until_interrupted(executor: MultiThreadedExecutor) -> None:
     A signal's handler runs in the main thread, between two Python instructions: spinning
     there, it waited in rcl's wait (not interrupted by signals) for the executor's next
     event, up to a timer period later (0.16 s measured idle, longer on a loaded machine),
-    and the exit's stops waited with it. A wait in ``Thread.join`` is interrupted: the
-    handler's KeyboardInterrupt is raised at once. The spin thread is then woken and
+    and the exit's stops waited with it. The main thread waits instead in
+    ``_wait_until_ended``, which a signal ends at once. The spin thread is then woken and
     joined before anything else: shutting the executor down while it is still in rcl's
     wait destroys what the wait holds (the process aborted: "terminate called without an
     active exception"). What ends the spin on its own (an error no callback handled, an
@@ -151,6 +153,7 @@ def _spin_until_interrupted(executor: MultiThreadedExecutor) -> None:
     """
     stopping = threading.Event()
     failure: list[BaseException] = []
+    ended = _ThreadEnd()
 
     def spin() -> None:
         try:
@@ -158,11 +161,14 @@ def _spin_until_interrupted(executor: MultiThreadedExecutor) -> None:
                 executor.spin_once()
         except BaseException as err:  # handed to the main thread, which decides
             failure.append(err)
+        finally:
+            ended.tell()
 
     spinner = threading.Thread(target=spin, name="executor", daemon=True)
-    spinner.start()
     try:
-        spinner.join()
+        with ended:
+            spinner.start()
+            ended.wait(spinner)
     finally:
         stopping.set()
         executor.wake()
@@ -171,6 +177,51 @@ def _spin_until_interrupted(executor: MultiThreadedExecutor) -> None:
                 spinner.join()
     if failure:
         raise failure[0]
+
+
+class _ThreadEnd:
+    """What the main thread waits on: a thread's end, or a signal taken by any thread.
+
+    A signal sent to the process may be taken by any of its threads (on a loaded machine,
+    one that runs while the main thread waits for a CPU). Its C handler then runs on that
+    thread, and the Python handler only at the main thread's next instruction, which a
+    wait in ``Thread.join`` never reaches: a bridge beside two CPU burners ignored a
+    SIGINT until the test's SIGTERM 20 s later. The signal wakeup fd is written whichever
+    thread takes the signal; the main thread waits on it (and on the thread's word that it
+    ended), so the handler runs at once. Off the main thread (no wakeup fd there), a join.
+    """
+
+    def __init__(self) -> None:
+        self._reader, self._writer = socket.socketpair()
+        for end in (self._reader, self._writer):
+            end.setblocking(False)
+        self._previous: int | None = None
+
+    def __enter__(self) -> _ThreadEnd:
+        if threading.current_thread() is threading.main_thread():
+            self._previous = signal.set_wakeup_fd(self._writer.fileno(), warn_on_full_buffer=False)
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        if self._previous is not None:
+            signal.set_wakeup_fd(self._previous)
+        self._reader.close()
+        self._writer.close()
+
+    def tell(self) -> None:
+        """From the thread, as it ends."""
+        with contextlib.suppress(OSError):  # full (a wake is pending) or closed (gone)
+            self._writer.send(b"\0")
+
+    def wait(self, thread: threading.Thread) -> None:
+        """Until ``thread`` ends or a signal's handler raises (here, at once)."""
+        if self._previous is None:
+            thread.join()
+            return
+        while thread.is_alive():
+            select.select([self._reader], [], [])
+            with contextlib.suppress(BlockingIOError):
+                self._reader.recv(4096)
 
 
 def _close_all(nodes: Sequence[Node]) -> None:

@@ -1,5 +1,5 @@
 """bridge_core/ros/process.py: a command line rcl refuses is one line and exit code 2;
-only the first signal interrupts.
+only the first signal interrupts, and at once whichever thread takes it.
 
 rclpy.init raises before any node exists, so ``spin_node`` runs here in the test's own
 process (the exit-2 path of a whole bridge process is tests/test_contract.py's)."""
@@ -77,3 +77,60 @@ def test_only_the_first_signal_interrupts() -> None:
     )
     assert result.returncode == 0, result.stderr
     assert result.stdout.strip() == "['SIGINT']", result.stdout
+
+
+# The signal goes to the executor's thread, not the main one (the kernel may hand a
+# process's signal to any thread): the main thread must still raise at once.
+SIGNAL_TO_THE_SPIN_THREAD = """
+import os, signal, threading, time
+import rclpy
+from rclpy.executors import MultiThreadedExecutor
+from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
+from bridge_core.ros.process import _spin_until_interrupted, interrupt_on_signals
+
+rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+interrupt_on_signals()
+executor = MultiThreadedExecutor()
+# A timer, as a bridge's poll has: the woken spin thread ends at its next callback.
+node = Node("signal_probe")
+node.create_timer(0.05, lambda: None)
+executor.add_node(node)
+
+
+def send() -> None:
+    spinner = None
+    while spinner is None:
+        time.sleep(0.01)
+        spinner = next((t for t in threading.enumerate() if t.name == "executor"), None)
+    signal.pthread_kill(spinner.ident, signal.SIGINT)
+    time.sleep(NOT_RAISED_S)
+    print("not raised", flush=True)
+    os._exit(3)
+
+
+threading.Thread(target=send, daemon=True).start()
+try:
+    _spin_until_interrupted(executor)
+except KeyboardInterrupt:
+    print("raised", flush=True)
+executor.shutdown()
+node.destroy_node()
+rclpy.try_shutdown()
+"""
+NOT_RAISED_S = 10.0  # how long the script waits for the main thread before it says no
+
+
+def test_a_signal_taken_by_another_thread_still_interrupts_at_once() -> None:
+    """SIGINT handled by the spin thread: the main thread, waiting for the executor to end,
+    still raises KeyboardInterrupt (it waited in Thread.join until the next signal)."""
+    script = SIGNAL_TO_THE_SPIN_THREAD.replace("NOT_RAISED_S", repr(NOT_RAISED_S))
+    result = subprocess.run(
+        [sys.executable, "-c", script],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=60 + NOT_RAISED_S,
+    )
+    assert result.stdout.strip() == "raised", (result.returncode, result.stdout, result.stderr)
+    assert result.returncode == 0, result.stderr
