@@ -23,6 +23,7 @@ from r6_bridge.sim import R6SimDevice, make_simulator
 from stepper_bridge.registers import motor_coil
 
 from .support.ros import Client, ros_client, start_bridge
+from .support.serial_pair import PTY_REPLY_TIMEOUT_S
 from .support.sims import stepper_on_pty
 
 pytestmark = pytest.mark.ros
@@ -49,7 +50,7 @@ def test_a_goal_without_timeout_ends_at_the_nodes_goal_timeout(
             "serial_port": port,
             "baudrate": BAUD,
             "poll_rate_hz": 20.0,
-            "timeout_s": 1.0,
+            "timeout_s": PTY_REPLY_TIMEOUT_S,  # a stalled pty must not end the goal
             "goal_timeout_s": GOAL_TIMEOUT_S,
         }
         with start_bridge(

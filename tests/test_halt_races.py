@@ -49,6 +49,7 @@ from .support.ros import (
     wait_for,
     wait_subscribed,
 )
+from .support.serial_pair import PTY_REPLY_TIMEOUT_S
 from .support.sims import motec_on_pty, stepper_on_pty
 
 BAUD = 115200
@@ -76,7 +77,7 @@ def stepper_params(port: str) -> dict[str, object]:
         "serial_port": port,
         "baudrate": BAUD,
         "poll_rate_hz": 20.0,
-        "timeout_s": 1.0,
+        "timeout_s": PTY_REPLY_TIMEOUT_S,  # a stalled pty must not cost the link
         "command_timeout_s": 60.0,  # the deadman must not be what stops or unlocks it
         "command_rate_hz": 50.0,
         # Each repetition waits for two statuses after the resume (a refused value counted):

@@ -23,7 +23,7 @@ from stepper_bridge.registers import STEPPER_MAP, motor_coil, motor_register
 from stepper_bridge.sim import FACTORY, StepperSimDevice, make_simulator
 
 from ..support.ros import wait_for
-from ..support.serial_pair import socat_pair
+from ..support.serial_pair import PTY_REPLY_TIMEOUT_S, socat_pair
 
 BAUD = 115200
 TRAVEL = 1000.0  # far beyond the targets: no limit switch stops a motor here
@@ -61,7 +61,7 @@ def rig() -> Iterator[Rig]:
     assert isinstance(fake, StepperSimDevice)
     with socat_pair() as (bridge_end, device_end, _):
         sim.start_serial(device_end, BAUD)
-        link = ModbusLink(SerialSettings(bridge_end, BAUD, timeout_s=0.5))
+        link = ModbusLink(SerialSettings(bridge_end, BAUD, timeout_s=PTY_REPLY_TIMEOUT_S))
         device = StepperDevice(DeviceChannel(link, 1, retries=0))
         device.read_config()
         try:

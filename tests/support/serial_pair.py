@@ -10,6 +10,13 @@ from pathlib import Path
 
 from bridge_core.sim.sim_base import PtyPair, Simulator
 
+# A pty's bytes wait for the kernel's flip-buffer worker: beside the suite and two CPU
+# burners on the 2-core test machine, bench/stall_probe.py saw a byte echoed through a
+# socat pair (and through one pty alone) take up to 2.07 s, all ptys at once, while
+# loopback TCP took at most 54 ms (burners alone, or with the colcon build: 12 ms). A test
+# whose subject is not the reply timeout gives a pty link this one, past such a stall.
+PTY_REPLY_TIMEOUT_S = 5.0
+
 
 @contextmanager
 def socat_pair() -> Iterator[tuple[str, str, subprocess.Popen[bytes]]]:
