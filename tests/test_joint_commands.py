@@ -12,7 +12,9 @@ line + ``SCHEDULING_SLACK_S`` (a loaded machine), and no sooner than 0.9 x the t
 
 from __future__ import annotations
 
+import itertools
 import math
+import statistics
 import threading
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
@@ -173,21 +175,51 @@ def settled_position(client: Client, rig: Rig, joint: str, after: float) -> floa
 # 0.45 s behind on an idle run of the whole suite), which is not a following error.
 FOLLOW_LAG_S = SCHEDULING_SLACK_S
 FOLLOW_LAG_STEP_S = 0.01
+# A pty stalls now and then beside the suite and two CPU burners (up to 2.07 s,
+# tests/support/serial_pair.py): no read and no target gets through meanwhile, so the joint
+# stands where the last target put it, and its joint_states have a gap of that length. A
+# gap this much longer than the joint's usual one (and at least STALL_GAP_MIN_S) is such a
+# stall: the samples after it may lag by the gap too. A bridge that stops writing targets
+# while its polls go on leaves no gap and gets no allowance.
+STALL_GAP_FACTOR = 2.5
+STALL_GAP_MIN_S = 0.5
+
+
+def stalls(stamps: Sequence[float]) -> list[tuple[float, float]]:
+    """(end, length) of each gap in ``stamps`` that is a stall of the line (above)."""
+    gaps = [(later, later - earlier) for earlier, later in itertools.pairwise(stamps)]
+    if not gaps:
+        return []
+    usual = statistics.median(length for _end, length in gaps)
+    return [g for g in gaps if g[1] > max(STALL_GAP_MIN_S, STALL_GAP_FACTOR * usual)]
+
+
+def lag_allowed(stamp: float, stalled: Sequence[tuple[float, float]]) -> float:
+    """FOLLOW_LAG_S, plus the length of a stall that ended within its own length and
+    FOLLOW_LAG_S before ``stamp``."""
+    recent = [length for end, length in stalled if end <= stamp <= end + length + FOLLOW_LAG_S]
+    return FOLLOW_LAG_S + max(recent, default=0.0)
 
 
 def following_errors(
     client: Client, rig: Rig, joint: str, path: Callable[[float], float], wall0: float, end: float
 ) -> list[float]:
     """How far each joint_states position stamped while ``path`` ran is from the path at
-    its stamp or up to ``FOLLOW_LAG_S`` before (t counted from the client's first cycle,
+    its stamp or up to ``lag_allowed`` before (t counted from the client's first cycle,
     wall clock): a joint on its path late by a moment has no error, one off it (a wrong
     scale or sign, a target not written) has."""
-    lags = [step * FOLLOW_LAG_STEP_S for step in range(round(FOLLOW_LAG_S / FOLLOW_LAG_STEP_S) + 1)]
-    return [
-        min(abs(position - path(max(0.0, stamp - wall0 - lag))) for lag in lags)
-        for stamp, position in positions_of(client, rig, joint)
-        if wall0 <= stamp <= wall0 + end
-    ]
+    samples = positions_of(client, rig, joint)
+    stalled = stalls([stamp for stamp, _position in samples])
+    if stalled:
+        print(f"{joint}: the line stalled (end, seconds): {stalled}")
+    errors = []
+    for stamp, position in samples:
+        if not wall0 <= stamp <= wall0 + end:
+            continue
+        steps = round(lag_allowed(stamp, stalled) / FOLLOW_LAG_STEP_S)
+        lags = [step * FOLLOW_LAG_STEP_S for step in range(steps + 1)]
+        errors.append(min(abs(position - path(max(0.0, stamp - wall0 - lag))) for lag in lags))
+    return errors
 
 
 def run_together(*runs: Callable[[], object]) -> None:
@@ -281,6 +313,19 @@ def assert_deadman_timing(stop: float, last_sent: float, transaction_s: float) -
     bound = COMMAND_TIMEOUT_S + DEADMAN_PERIOD_MAX_S + transaction_s + SCHEDULING_SLACK_S
     print(f"deadman: the stop came {waited:.3f} s after the last command (bound {bound:.3f})")
     assert COMMAND_TIMEOUT_S * 0.9 <= waited <= bound, (waited, bound)
+
+
+def test_a_gap_in_the_stamps_is_a_stall_only_well_past_the_usual_one() -> None:
+    """Known vectors of the stall allowance: 10 Hz stamps with a 2 s hole; 3 Hz stamps
+    with one poll late (not a stall)."""
+    ten_hz = [i * 0.1 for i in range(20)] + [3.9 + i * 0.1 for i in range(10)]
+    stalled = stalls(ten_hz)
+    assert [(round(end, 6), round(length, 6)) for end, length in stalled] == [(3.9, 2.0)]
+    assert lag_allowed(3.8, stalled) == FOLLOW_LAG_S  # before the stall ended
+    assert lag_allowed(3.9 + 1.0, stalled) == FOLLOW_LAG_S + stalled[0][1]
+    assert lag_allowed(3.9 + 2.0 + FOLLOW_LAG_S + 0.01, stalled) == FOLLOW_LAG_S
+    three_hz = [i / 3 for i in range(10)] + [10 / 3 + 0.3 + i / 3 for i in range(5)]
+    assert stalls(three_hz) == []
 
 
 def report(what: str, errors: Sequence[float]) -> None:
@@ -477,7 +522,11 @@ def test_motec_bus_drives_three_joints_through_one_topic(client: Client, motec: 
         f"MOTEC drive_3: trapezoid ended {end - expected:+.4f} rad from the distance sent "
         f"({end - ideal:+.4f} rad from the ideal profile's)"
     )
-    assert abs(end - expected) <= MOTEC_DISTANCE_TOLERANCE_RAD, (end, expected)
+    # A stall of the line holds the drive's speed as long (up to the profile's 3 rad/s).
+    stamps = [t for t, _ in positions_of(client, motec, "drive_3") if t >= walls["v"]]
+    stalled = stalls(stamps)
+    allowed = MOTEC_DISTANCE_TOLERANCE_RAD + 3.0 * sum(length for _end, length in stalled)
+    assert abs(end - expected) <= allowed, (end, expected, stalled)
 
 
 def test_motec_velocity_stops_when_the_client_stops(client: Client, motec: Rig) -> None:
