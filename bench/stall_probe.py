@@ -114,6 +114,14 @@ def echo_loop(probe: Probe, stop: threading.Event, stall_s: float, send, receive
         time.sleep(ECHO_PERIOD_S)
 
 
+def fd_echo(probe: Probe, stop: threading.Event, stall_s: float, fd: int) -> threading.Thread:
+    """The echo probe's thread on a pty end."""
+    return threading.Thread(
+        target=echo_loop,
+        args=(probe, stop, stall_s, lambda b: os.write(fd, b), lambda n: os.read(fd, n)),
+    )
+
+
 def run_writes(probe: Probe, stop: threading.Event, stall_s: float, path: Path) -> None:
     block = os.urandom(WRITE_BYTES)
     fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
@@ -183,26 +191,8 @@ def main() -> None:
             probes = [Probe("sleep"), Probe("pty"), Probe("rawpty"), Probe("tcp"), Probe("write")]
             threads = [
                 threading.Thread(target=run_sleep, args=(probes[0], stop, stall_s)),
-                threading.Thread(
-                    target=echo_loop,
-                    args=(
-                        probes[1],
-                        stop,
-                        stall_s,
-                        lambda b: os.write(link_fd, b),
-                        lambda n: os.read(link_fd, n),
-                    ),
-                ),
-                threading.Thread(
-                    target=echo_loop,
-                    args=(
-                        probes[2],
-                        stop,
-                        stall_s,
-                        lambda b: os.write(master_fd, b),
-                        lambda n: os.read(master_fd, n),
-                    ),
-                ),
+                fd_echo(probes[1], stop, stall_s, link_fd),
+                fd_echo(probes[2], stop, stall_s, master_fd),
                 threading.Thread(
                     target=echo_loop, args=(probes[3], stop, stall_s, sock.sendall, sock.recv)
                 ),
