@@ -168,7 +168,7 @@ def _spin_until_interrupted(executor: MultiThreadedExecutor) -> None:
     try:
         with ended:
             spinner.start()
-            ended.wait(spinner)
+            ended.wait()
     finally:
         stopping.set()
         executor.wake()
@@ -188,7 +188,8 @@ class _ThreadEnd:
     wait in ``Thread.join`` never reaches: a bridge beside two CPU burners ignored a
     SIGINT until the test's SIGTERM 20 s later. The signal wakeup fd is written whichever
     thread takes the signal; the main thread waits on it (and on the thread's word that it
-    ended), so the handler runs at once. Off the main thread (no wakeup fd there), a join.
+    ended), so the handler runs at once. Off the main thread (no wakeup fd there), only the
+    thread's word.
     """
 
     def __init__(self) -> None:
@@ -196,6 +197,9 @@ class _ThreadEnd:
         for end in (self._reader, self._writer):
             end.setblocking(False)
         self._previous: int | None = None
+        # Set by the thread as it ends: what the wait looks at (not ``is_alive()``, still
+        # true between the thread's word and its end: a wait that looked then slept on).
+        self._ended = threading.Event()
 
     def __enter__(self) -> _ThreadEnd:
         if threading.current_thread() is threading.main_thread():
@@ -210,15 +214,16 @@ class _ThreadEnd:
 
     def tell(self) -> None:
         """From the thread, as it ends."""
+        self._ended.set()
         with contextlib.suppress(OSError):  # full (a wake is pending) or closed (gone)
             self._writer.send(b"\0")
 
-    def wait(self, thread: threading.Thread) -> None:
-        """Until ``thread`` ends or a signal's handler raises (here, at once)."""
+    def wait(self) -> None:
+        """Until the thread said it ended or a signal's handler raises (here, at once)."""
         if self._previous is None:
-            thread.join()
+            self._ended.wait()
             return
-        while thread.is_alive():
+        while not self._ended.is_set():
             select.select([self._reader], [], [])
             with contextlib.suppress(BlockingIOError):
                 self._reader.recv(4096)

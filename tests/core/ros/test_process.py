@@ -8,12 +8,13 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import threading
 from pathlib import Path
 
 import pytest
 from rclpy.node import Node
 
-from bridge_core.ros.process import EXIT_CONFIGURATION_ERROR, spin_node
+from bridge_core.ros.process import EXIT_CONFIGURATION_ERROR, _ThreadEnd, spin_node
 
 ROOT = Path(__file__).resolve().parents[3]
 
@@ -119,6 +120,8 @@ node.destroy_node()
 rclpy.try_shutdown()
 """
 NOT_RAISED_S = 10.0  # how long the script waits for the main thread before it says no
+WAIT_S = 30.0
+LATE_WORD_S = 3.0  # when a wait that missed the thread's word is woken
 
 
 def test_a_signal_taken_by_another_thread_still_interrupts_at_once() -> None:
@@ -134,3 +137,32 @@ def test_a_signal_taken_by_another_thread_still_interrupts_at_once() -> None:
     )
     assert result.stdout.strip() == "raised", (result.returncode, result.stdout, result.stderr)
     assert result.returncode == 0, result.stderr
+
+
+def test_the_wait_ends_at_the_threads_word_while_it_still_runs() -> None:
+    """The spin thread says it ended a moment before it has: the main thread's wait ends
+    at its word (a wait that looked at ``is_alive()`` then went back to sleep for good:
+    a fatal error's exit hung beside two CPU burners)."""
+    ended = _ThreadEnd()
+    release = threading.Event()
+
+    def work() -> None:
+        ended.tell()
+        release.wait(WAIT_S)
+
+    def later() -> None:  # bounds a wait that missed the word: wakes it with the thread gone
+        release.set()
+        worker.join()
+        ended.tell()
+
+    worker = threading.Thread(target=work)
+    timer = threading.Timer(LATE_WORD_S, later)
+    with ended:
+        worker.start()
+        timer.start()
+        ended.wait()
+        assert worker.is_alive(), "the wait ended only once the thread had"
+    release.set()
+    timer.cancel()
+    worker.join()
+    timer.join()
