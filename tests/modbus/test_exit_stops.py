@@ -108,9 +108,10 @@ def running_forward(
         with node_process(module, params, tmp_path, ["-r", f"__ns:={b.ns}"]) as proc:
             b.wait_connected(True, timeout=WAIT_S)
             wait_for(lambda: device.writes_to(WATCHDOG), WAIT_S, "the keepalive armed")
-            reply = b.call(SetValue, "set_frequency", value=10.0)
+            # Preconditions: asked again if a stalled pty cost the link just before.
+            reply = b.call_sent(SetValue, "set_frequency", value=10.0)
             assert reply.success, reply.message
-            reply = b.call(Trigger, "run_forward")
+            reply = b.call_sent(Trigger, "run_forward")
             assert reply.success, reply.message
             assert device.get("control_word") == 1
             yield b, proc, simulator, device

@@ -37,6 +37,7 @@ LATCHED = QoSProfile(
 # Every wait is bounded by this unless a test says otherwise: long enough for a shared,
 # loaded CI machine (a wait returns as soon as its condition holds).
 WAIT_S = 20.0
+LINK_RETRY_S = 0.2  # call_sent: how soon a call the link kept from going out is asked again
 ROSOUT = "/rosout"
 PROBE_S = 2.0  # how long one query waits for its answer before it is asked again
 
@@ -430,6 +431,21 @@ class Bridge:
         for key, value in fields.items():
             setattr(request, key, value)
         return self.client.call(srv_type, self.service(name), request)
+
+    def call_sent(self, srv_type: Any, name: str, **fields: Any) -> Any:
+        """``call``, asked again while the node says the link kept it from going out at
+        all ("not connected", "nothing was sent"): for a test's preconditions, where a pty
+        stalled past the reply timeout (tests/support/serial_pair.py) cost the link a
+        moment before. A command that went out is never sent twice."""
+        deadline = time.monotonic() + WAIT_S
+        while True:
+            reply = self.call(srv_type, name, **fields)
+            unsent = "refused: not connected to" in reply.message or reply.message.endswith(
+                "; nothing was sent"
+            )
+            if reply.success or not unsent or time.monotonic() > deadline:
+                return reply
+            time.sleep(LINK_RETRY_S)
 
     def send_goal(self, action_type: Any, name: str, **fields: Any) -> Goal:
         """A goal to the node's action ``name`` with ``fields`` set (``Client.send_goal``)."""
