@@ -13,6 +13,7 @@ change); the others start their own.
 
 from __future__ import annotations
 
+import functools
 import importlib
 import itertools
 import json
@@ -53,6 +54,7 @@ from .support.ros import (
     ros_client,
     start_bridge,
     status_node,
+    until_sent,
     values_of,
     wait_for,
     wait_subscribed,
@@ -178,18 +180,6 @@ class Running:
         return self.client.call(
             call.srv_type, f"{self.path(node)}/{call.service}", call.request(), TIMEOUT
         )
-
-    def call_while_reconnecting(self, call: Call) -> Any:
-        """``call``, again while it is refused for a link being reconnected (a pty stalled
-        past the reply timeout on a loaded machine costs the link for a moment)."""
-        deadline = time.monotonic() + TIMEOUT
-        while True:
-            reply = self.call(call)
-            if reply.success or "not connected" not in reply.message:
-                return reply
-            if time.monotonic() > deadline:
-                return reply
-            time.sleep(0.1)
 
     def set_params(self, node: str | None = None, **values: Any) -> list[Any]:
         """SetParameters, one parameter per entry; the results in order."""
@@ -424,7 +414,7 @@ def test_read_only_at_startup_refuses_every_write(
             goal.close()
         assert len(actions) == info.actions, actions
         for call in info.read_services.values():  # reads still reach the device
-            reply = r.call_while_reconnecting(call)
+            reply = until_sent(functools.partial(r.call, call), TIMEOUT)  # a stalled pty
             assert reply.success, (call.service, reply.message)
         for node in info.nodes:
             assert r.get_params(["read_only"], node) == [True]

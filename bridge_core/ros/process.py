@@ -145,7 +145,7 @@ def _spin_until_interrupted(executor: MultiThreadedExecutor) -> None:
     there, it waited in rcl's wait (not interrupted by signals) for the executor's next
     event, up to a timer period later (0.16 s measured idle, longer on a loaded machine),
     and the exit's stops waited with it. The main thread waits instead in
-    ``_wait_until_ended``, which a signal ends at once. The spin thread is then woken and
+    ``_ThreadEnd.wait``, which a signal ends at once. The spin thread is then woken and
     joined before anything else: shutting the executor down while it is still in rcl's
     wait destroys what the wait holds (the process aborted: "terminate called without an
     active exception"). What ends the spin on its own (an error no callback handled, an

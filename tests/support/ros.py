@@ -37,7 +37,7 @@ LATCHED = QoSProfile(
 # Every wait is bounded by this unless a test says otherwise: long enough for a shared,
 # loaded CI machine (a wait returns as soon as its condition holds).
 WAIT_S = 20.0
-LINK_RETRY_S = 0.2  # call_sent: how soon a call the link kept from going out is asked again
+LINK_RETRY_S = 0.2  # until_sent: how soon a call the link kept from going out is asked again
 ROSOUT = "/rosout"
 PROBE_S = 2.0  # how long one query waits for its answer before it is asked again
 
@@ -403,6 +403,23 @@ def values_of(status: Any) -> dict[str, str]:
     return {kv.key: kv.value for kv in status.values}
 
 
+def until_sent(call: Callable[[], Any], timeout: float = WAIT_S) -> Any:
+    """``call()``'s reply, asked again while the node says the link kept it from going out
+    at all ("refused: not connected to", "; nothing was sent"): for a test's
+    preconditions and reads, where a pty stalled past the reply timeout
+    (tests/support/serial_pair.py) cost the link a moment before. A command that went out
+    is never sent twice."""
+    deadline = time.monotonic() + timeout
+    while True:
+        reply = call()
+        unsent = "refused: not connected to" in reply.message or reply.message.endswith(
+            "; nothing was sent"
+        )
+        if reply.success or not unsent or time.monotonic() > deadline:
+            return reply
+        time.sleep(LINK_RETRY_S)
+
+
 class Bridge:
     """Names of one running bridge node's topics and services."""
 
@@ -433,19 +450,8 @@ class Bridge:
         return self.client.call(srv_type, self.service(name), request)
 
     def call_sent(self, srv_type: Any, name: str, **fields: Any) -> Any:
-        """``call``, asked again while the node says the link kept it from going out at
-        all ("not connected", "nothing was sent"): for a test's preconditions, where a pty
-        stalled past the reply timeout (tests/support/serial_pair.py) cost the link a
-        moment before. A command that went out is never sent twice."""
-        deadline = time.monotonic() + WAIT_S
-        while True:
-            reply = self.call(srv_type, name, **fields)
-            unsent = "refused: not connected to" in reply.message or reply.message.endswith(
-                "; nothing was sent"
-            )
-            if reply.success or not unsent or time.monotonic() > deadline:
-                return reply
-            time.sleep(LINK_RETRY_S)
+        """``call``, asked again while the link keeps it from going out (``until_sent``)."""
+        return until_sent(lambda: self.call(srv_type, name, **fields))
 
     def send_goal(self, action_type: Any, name: str, **fields: Any) -> Goal:
         """A goal to the node's action ``name`` with ``fields`` set (``Client.send_goal``)."""
