@@ -86,10 +86,12 @@ def test_a_child_whose_test_let_go_of_it_is_killed(tmp_path: Path) -> None:
     proc._status.close()
 
     def gone() -> bool:
+        # Reaped between the open and the read, the read fails with ESRCH
+        # (ProcessLookupError), not FileNotFoundError: both mean gone.
         try:
             with open(f"/proc/{proc.pid}/stat") as stat:
                 return stat.read().split(") ", 1)[1].startswith("Z")  # reaped soon
-        except FileNotFoundError:
+        except (FileNotFoundError, ProcessLookupError):
             return True
 
     wait_for(gone, TIMEOUT_S, f"child {proc.pid} to be killed")
