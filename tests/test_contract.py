@@ -888,9 +888,15 @@ def test_a_stop_is_on_the_wire_within_one_transaction_while_a_pipelined_poll_is_
             ends = [i for i, x in enumerate(reads) if x.covers(position.table, position.address)]
             return len(ends) >= 2 and ends[-1] < len(reads) - 1
 
-        wait_for(poll_began, TIMEOUT, "a pipelined poll to begin")
-        called = time.time()
-        r.call(info.stop)
+        stop_call = info.stop
+        service = f"{r.path()}/{stop_call.service}"
+        # Matched before the clock starts: a fresh client's discovery (tens of ms, more on
+        # a loaded machine) would let further reads through that are not the bridge's.
+        with client.service_client(stop_call.srv_type, service, TIMEOUT) as stop_client:
+            wait_for(poll_began, TIMEOUT, "a pipelined poll to begin")
+            called = time.time()
+            reply = stop_client.call_async(stop_call.request())
+            wait_for(reply.done, TIMEOUT, f"reply from {service}")
         stop = [w for w in r.sim.writes() if w.time >= called]
         assert stop, "the stop wrote nothing"
         ahead = [x for x in r.sim.reads() if called <= x.time <= stop[0].time]

@@ -204,6 +204,17 @@ class Client:
                 self.node.destroy_client(client)
         raise AssertionError(f"no reply from {name}")
 
+    @contextlib.contextmanager
+    def service_client(self, srv_type: Any, name: str, timeout: float = WAIT_S) -> Iterator[Any]:
+        """A client already matched with its service: for a test that times a call from
+        its request on, not from the discovery a fresh client waits for (``call``)."""
+        client = self.node.create_client(srv_type, name)
+        try:
+            wait_for(client.service_is_ready, timeout, f"service {name}")
+            yield client
+        finally:
+            self.node.destroy_client(client)
+
     def send_goal(
         self,
         action_type: Any,
