@@ -137,12 +137,14 @@ def flood(
     publisher: Any, value: Callable[[int], float], seconds: float
 ) -> tuple[int, float, float]:
     """Publish ``value(n)`` every FLOOD_PERIOD_S for ``seconds`` (the sleep only paces the
-    flood); returns the count and the wall-clock times of the first and last send."""
+    flood); returns the count and the wall-clock times of the first and last send (each
+    taken just before its publish: the bridge may have the message before this thread
+    runs again, so only that stamp bounds the arrival from below)."""
     sent, first, last = 0, time.time(), 0.0
     started = time.monotonic()
     while time.monotonic() < started + seconds:
-        publisher.publish(Float64(data=value(sent)))
         last = time.time()
+        publisher.publish(Float64(data=value(sent)))
         sent += 1
         time.sleep(max(0.0, started + sent * FLOOD_PERIOD_S - time.monotonic()))
     return sent, first, last

@@ -147,8 +147,8 @@ def test_topics_jog_and_deadman(sim, client: Client, tmp_path: Path) -> None:  #
         first = client.wait_message(b.joint_states, since=jogging).position[0]
         deadline = time.monotonic() + 1.0
         while time.monotonic() < deadline:
+            last_sent = time.time()  # before: the bridge may have it before this thread runs
             jog.publish(Float64(data=600.0))
-            last_sent = time.time()
             time.sleep(0.05)
         # > 20 mm at 50 mm/s
         client.wait_message(b.joint_states, lambda m: m.position[0] > first + 0.02, since=jogging)

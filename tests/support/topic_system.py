@@ -33,11 +33,14 @@ COMMAND_DEPTH = 1  # rclcpp::QoS(1) of the interface's publisher
 
 @dataclass
 class Sent:
-    """One published command: monotonic and wall-clock time, the values by joint."""
+    """One published command: monotonic and wall-clock time just after the publish, the
+    values by joint, and the wall-clock time just before it (the subscriber may have the
+    message before this thread runs again: a lower bound from the arrival uses that one)."""
 
     monotonic: float
     wall: float
     values: dict[str, float]
+    wall_before: float
 
 
 @dataclass
@@ -101,8 +104,9 @@ class TopicSystem:
             msg.position = values
         else:
             msg.velocity = values
+        wall_before = time.time()
         self.publisher.publish(msg)
-        self.sent.append(Sent(time.monotonic(), time.time(), dict(self.command)))
+        self.sent.append(Sent(time.monotonic(), time.time(), dict(self.command), wall_before))
         return True
 
     def wait_state(self, timeout: float = 20.0) -> None:
