@@ -54,7 +54,7 @@ from ..support.ros import (
     wait_stream_refusals,
     wait_subscribed,
 )
-from ..support.serial_pair import served_on_pty
+from ..support.serial_pair import PTY_REPLY_TIMEOUT_S, served_on_pty
 from ..support.sims import motec_on_pty
 
 pytestmark = pytest.mark.ros
@@ -242,7 +242,9 @@ def test_three_drives_topics_services_and_deadman(bus, client: Client, tmp_path:
     sim.drive(2).set_position(2500)  # a quarter turn at 10000 counts/rev
     sim.drive(3).set_input(8, True)
     sim.drive(3).set_analog(1234)
-    with motec(client, tmp_path, bridge_params(port, joint_prefix="m_")) as (b, proc):
+    # Its subject is not the reply timeout: a pty stall must not cost a call the link.
+    params = bridge_params(port, joint_prefix="m_", timeout_s=PTY_REPLY_TIMEOUT_S)
+    with motec(client, tmp_path, params) as (b, proc):
         for unit in UNITS:
             b.wait_connected(unit, True)
             b.wait_joint(unit)
@@ -262,10 +264,12 @@ def test_three_drives_topics_services_and_deadman(bus, client: Client, tmp_path:
         # Drive 1: the manual's position-mode sequence, then more services.
         b.ok(1, SetControlMode, "set_control_mode", mode=SetControlMode.Request.POSITION)
         b.ok(1, SetBool, "enable", data=True)
-        assert b.ok(1, PositionMove, "move", position=math.pi, relative=True).counts == 5000
+        # Two turns out, so that the way back at 95 rpm cruises ~1.2 s: polls and the
+        # simulator's ticks see its speed through a stall of the loaded machine.
+        assert b.ok(1, PositionMove, "move", position=4 * math.pi, relative=True).counts == 20000
         t = time.monotonic()
-        b.wait_joint(1, lambda m: m.position[0] == pytest.approx(math.pi), since=t)
-        b.wait_state(1, lambda m: m.position_actual == 5000 and not m.moving, since=t)
+        b.wait_joint(1, lambda m: m.position[0] == pytest.approx(4 * math.pi), since=t)
+        b.wait_state(1, lambda m: m.position_actual == 20000 and not m.moving, since=t)
         b.ok(1, PositionMove, "move", position=0.0, relative=False, max_velocity=10.0)
         t = time.monotonic()
         b.wait_state(1, lambda m: m.speed_actual_rpm == -95, since=t)  # 10 rad/s = 95 rpm
@@ -308,7 +312,7 @@ def test_three_drives_topics_services_and_deadman(bus, client: Client, tmp_path:
         (6, H, 0x25, (2,)),  # position control
         (6, H, 0x28, (1,)),  # enable
         (6, H, 0x2D, (0,)),  # relative
-        (16, H, 0x26, (0, 5000)),  # pi rad = half a turn
+        (16, H, 0x26, (0, 20000)),  # 4 pi rad = two turns
         (6, H, 0x29, (1,)),  # start
         (6, H, 0xAE, (95,)),  # max_velocity 10 rad/s
         (6, H, 0x2D, (1,)),  # absolute
