@@ -58,6 +58,7 @@ from .support.ros import (
     values_of,
     wait_for,
     wait_subscribed,
+    wall_minus_monotonic,
 )
 
 pytestmark = pytest.mark.ros
@@ -630,11 +631,11 @@ def test_simulator_killed_and_restarted(info: BridgeInfo, client: Client, tmp_pa
         )
         # Named with the node's full name: two bridges of a kind in a domain differ.
         assert {s.name.split(": ", 1)[0] for s in r.statuses(down)} == {f"{b.ns}/{info.node_name}"}
-        wall_minus_monotonic = time.time() - time.monotonic()
+        wall_offset = wall_minus_monotonic()
         went_down = min(
             t for t, msg in list(client.messages[b.connected]) if t >= killed and not msg.data
         )
-        went_down_wall = went_down + wall_minus_monotonic
+        went_down_wall = went_down + wall_offset
         for topic in (b.joint_states, b.state):
             fresh = [m for m in client.received(topic, killed) if stamp_of(m) >= went_down_wall]
             assert fresh == [], f"{topic}: stamps after the node reported the link down"

@@ -53,6 +53,7 @@ from ..support.ros import (
     wait_for,
     wait_stream_refusals,
     wait_subscribed,
+    wall_minus_monotonic,
 )
 from ..support.serial_pair import PTY_REPLY_TIMEOUT_S, served_on_pty
 from ..support.sims import motec_on_pty
@@ -601,7 +602,7 @@ def written_after(drive: MotecSimDrive, t: float) -> bool:
 def last_write_before(drive: MotecSimDrive, t: float) -> float:
     """When ``drive`` last accepted a write before ``t`` (``time.monotonic()``; its write
     records are on ``time.time()``)."""
-    wall_to_mono = time.monotonic() - time.time()
+    wall_to_mono = -wall_minus_monotonic()
     return max(r.time + wall_to_mono for r in list(drive.write_log) if r.time + wall_to_mono < t)
 
 
@@ -612,7 +613,7 @@ def around_the_blackout(
     (from 1 s before the blackout to 1.5 s after) and every frame on the line (from 0.1 s
     before to 1 s after), in seconds from the line's return (a request on the wire that
     the drive did not take is the rig's; no request at all is the bridge's)."""
-    wall_to_mono = time.monotonic() - time.time()  # write records are on time.time()
+    wall_to_mono = -wall_minus_monotonic()  # write records are on time.time()
     writes = [
         f"{r.time + wall_to_mono - dark_until:+.3f}"
         for r in drive.write_log
