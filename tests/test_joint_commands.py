@@ -411,7 +411,15 @@ def test_stepper_velocity_stops_when_the_client_stops(client: Client, stepper: R
         "motor 4's stop coil",
     )
     assert_deadman_timing(stop, last, STEPPER_TRANSACTION_S)
-    time.sleep(COMMAND_TIMEOUT_S * 2)
+    # A window the bridge itself went through: its polls went on for twice the deadman's
+    # timeout after the stop (stamps and write records are both on the wall clock).
+    wait_for(
+        lambda: any(
+            t >= stop + COMMAND_TIMEOUT_S * 2 for t, _ in positions_of(client, stepper, "motor_4")
+        ),
+        WAIT_S,
+        "motor 4 polled for twice the deadman's timeout after the stop",
+    )
     after = [r for r in stepper.writes(before) if r.time > stop]
     assert all(r.table is not Table.COIL for r in after), after  # no run coil after it
 
