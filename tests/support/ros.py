@@ -200,6 +200,17 @@ class Client:
 
         return wait_for(find, timeout, f"a log line of {logger} containing {text!r}")
 
+    @contextlib.contextmanager
+    def service_client(self, srv_type: Any, name: str, timeout: float = WAIT_S) -> Iterator[Any]:
+        """A client already matched with its service (``call`` uses one per try): for a
+        test that times a call from its request on, not from a fresh client's discovery."""
+        client = self.node.create_client(srv_type, name)
+        try:
+            wait_for(client.service_is_ready, timeout, f"service {name}")
+            yield client
+        finally:
+            self.node.destroy_client(client)
+
     def call(self, srv_type: Any, name: str, request: Any, timeout: float = WAIT_S) -> Any:
         """One service call from a fresh client.
 
@@ -210,9 +221,7 @@ class Client:
         """
         attempts = 2 if srv_type.__name__ in QUERY_SERVICES else 1
         for attempt in range(attempts):
-            client = self.node.create_client(srv_type, name)
-            try:
-                wait_for(client.service_is_ready, timeout, f"service {name}")
+            with self.service_client(srv_type, name, timeout) as client:
                 future = client.call_async(request)
                 if attempt + 1 < attempts:
                     with contextlib.suppress(AssertionError):
@@ -222,20 +231,7 @@ class Client:
                     continue
                 wait_for(future.done, timeout, f"reply from {name}")
                 return future.result()
-            finally:
-                self.node.destroy_client(client)
         raise AssertionError(f"no reply from {name}")
-
-    @contextlib.contextmanager
-    def service_client(self, srv_type: Any, name: str, timeout: float = WAIT_S) -> Iterator[Any]:
-        """A client already matched with its service: for a test that times a call from
-        its request on, not from the discovery a fresh client waits for (``call``)."""
-        client = self.node.create_client(srv_type, name)
-        try:
-            wait_for(client.service_is_ready, timeout, f"service {name}")
-            yield client
-        finally:
-            self.node.destroy_client(client)
 
     def send_goal(
         self,
