@@ -42,6 +42,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from bridge_core.sim.personality import add_ignore_argument
 from bridge_core.sim.sim_base import (
     ILLEGAL_ADDRESS,
     ILLEGAL_VALUE,
@@ -273,7 +274,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--parity", choices=("N", "E", "O"), help="default: the file's, else N")
     parser.add_argument("--stopbits", type=int, choices=(1, 2), help="default: the file's, else 1")
     add_log_arguments(parser)
-    add_network_arguments(parser)
+    add_network_arguments(parser, delay_default_ms=None)
+    add_ignore_argument(parser, DescribedSimDevice.IGNORABLE)
     args = parser.parse_args(argv)
     description = load_for_command(args.device_file)
     if description is None:
@@ -283,9 +285,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     sim = make_simulator(description)
     names = ", ".join(f"{d.name} (unit {d.unit_id})" for d in description.devices)
     if args.serial or args.pty:
-        if args.reply_delay_ms or args.one_request_at_a_time:
+        if args.one_request_at_a_time or args.nagle:
             parser.error(
-                "--reply-delay-ms and --one-request-at-a-time simulate a TCP network; "
+                "--one-request-at-a-time and --nagle simulate a TCP network; "
                 "they do not apply to --serial / --pty"
             )
         args.baudrate = args.baudrate or (rtu.baudrate if rtu else 9600)

@@ -50,6 +50,7 @@ import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 
+from bridge_core.sim.personality import add_delay_argument, add_ignore_argument
 from bridge_core.sim.sim_base import (
     ILLEGAL_ADDRESS,
     ILLEGAL_VALUE,
@@ -472,7 +473,10 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument(
         "--unit-ids", type=_unit_list, default=[1], help="drives on the bus, e.g. 1,2,3"
     )
-    parser.add_argument("--reply-delay-ms", type=float, default=0.0)
+    add_delay_argument(
+        parser, 0.0, "delay before every reply, after the request's last byte (manual: none)"
+    )
+    add_ignore_argument(parser, MotecSimDrive.IGNORABLE)
     parser.add_argument("--counts-per-rev", type=int, default=DEFAULT_COUNTS_PER_REV)
     parser.add_argument("--accel-rpm-s", type=float, default=DEFAULT_ACCEL_RPM_S)
     parser.add_argument(
@@ -485,13 +489,11 @@ def main(argv: Sequence[str] | None = None) -> None:
         "--fault", type=_fault, action="append", default=[], help="latch a fault: UNIT:CODE"
     )
     args = parser.parse_args(argv)
-    if args.reply_delay_ms < 0:
-        parser.error("--reply-delay-ms must be >= 0")
     if args.counts_per_rev <= 0 or args.accel_rpm_s <= 0 or args.move_speed_rpm <= 0:
         parser.error("--counts-per-rev, --accel-rpm-s and --move-speed-rpm must be > 0")
     sim = make_simulator(
         args.unit_ids,
-        reply_delay_s=args.reply_delay_ms / 1000.0,
+        reply_delay_s=args.reply_delay_ms.low_s,
         counts_per_rev=args.counts_per_rev,
         accel_rpm_s=args.accel_rpm_s,
         move_speed_rpm=args.move_speed_rpm,
@@ -506,7 +508,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         args,
         lambda where: (
             f"motec_sim listening on {where} (units {ids}, {args.baudrate} "
-            f"baud, reply delay {args.reply_delay_ms:g} ms)"
+            f"baud, reply delay {args.reply_delay_ms.text})"
         ),
     )
 

@@ -52,6 +52,7 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
+from bridge_core.sim.personality import add_delay_argument, add_ignore_argument
 from bridge_core.sim.sim_base import (
     ILLEGAL_VALUE,
     SimulatedDevice,
@@ -540,17 +541,16 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description="5-axis stepper controller Modbus RTU simulator")
     add_serial_arguments(parser, DEFAULT_BAUDRATE, "/tmp/stepper")
     parser.add_argument("--unit-id", type=int, default=1)
-    parser.add_argument(
-        "--reply-delay-ms",
-        type=float,
-        default=REPLY_DELAY_S * 1000,
-        help="delay before every reply (manual: at least 35 ms on RS-485)",
+    add_delay_argument(
+        parser,
+        REPLY_DELAY_S * 1000,
+        "delay before every reply, after the request's last byte (manual: at least 35 ms "
+        "on RS-485)",
     )
+    add_ignore_argument(parser, StepperSimDevice.IGNORABLE)
     parser.add_argument("--travel", type=float, default=TRAVEL, help="positive limit, units")
     args = parser.parse_args(argv)
-    if args.reply_delay_ms < 0:
-        parser.error("--reply-delay-ms must be >= 0")
-    sim = make_simulator(args.unit_id, args.reply_delay_ms / 1000.0, args.travel)
+    sim = make_simulator(args.unit_id, args.reply_delay_ms.low_s, args.travel)
     device = sim.device
     assert isinstance(device, StepperSimDevice)
     serve_serial_until_signalled(
@@ -558,7 +558,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         args,
         lambda where: (
             f"stepper_sim listening on {where} (unit {args.unit_id}, "
-            f"{args.baudrate} baud, reply delay {args.reply_delay_ms:g} ms)"
+            f"{args.baudrate} baud, reply delay {args.reply_delay_ms.text})"
         ),
     )
 

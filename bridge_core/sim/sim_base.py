@@ -21,6 +21,7 @@ import asyncio
 import dataclasses
 import json
 import math
+import random
 import shutil
 import signal
 import subprocess
@@ -28,10 +29,10 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, ClassVar
 
 from pymodbus.constants import ExcCodes
 from pymodbus.datastore import ModbusServerContext
@@ -42,6 +43,11 @@ from pymodbus.transport import serialtransport as _serialtransport
 from ..wire.codec import Value, decode, encode
 from ..wire.registers import DeviceLimits, Register, RegisterMap, Table, ValueType
 from ..wire.serial_port import open_serial
+from .personality import (
+    DelayRange,
+    add_delay_argument,
+    chosen_ignore,
+)
 from .rtu_framing import slave_framer
 from .strict_decoding import strict_decoder
 from .tcp_serving import InOrderHandler
@@ -92,7 +98,8 @@ def _read_lines(path: Path) -> list[str]:
 
 @dataclass(frozen=True)
 class WriteRecord(_JsonRecord):
-    """One accepted write, as the device saw it."""
+    """One accepted write, as the device saw it (``ignored``: acknowledged and changed
+    nothing, a device playing ``--ignore``)."""
 
     time: float
     unit_id: int
@@ -100,6 +107,7 @@ class WriteRecord(_JsonRecord):
     table: Table
     address: int
     values: tuple[int, ...]
+    ignored: bool = False
 
 
 def read_write_log(path: Path) -> list[WriteRecord]:
@@ -134,6 +142,10 @@ WriteHook = Callable[[WriteRecord], None]
 
 class SimulatedDevice:
     """Memory and behaviour of one unit id, driven by a register map."""
+
+    # The motion writes this device can be told to ignore (``--ignore``): name -> what
+    # it is; ``write_names`` says which of them a write is.
+    IGNORABLE: ClassVar[Mapping[str, str]] = {}
 
     def __init__(
         self,
@@ -183,6 +195,16 @@ class SimulatedDevice:
         self.read_log_file: IO[str] | None = None
         # Fault injection: address ranges that answer with a given exception code.
         self.forced_exceptions: list[tuple[Table, range, int]] = []
+        # Personality: the motion writes (names of ``IGNORABLE``) acknowledged and ignored.
+        self.ignore: frozenset[str] = frozenset()
+
+    def write_names(self, record: WriteRecord) -> frozenset[str]:
+        """Which of ``IGNORABLE`` this write is (device simulators override)."""
+        return frozenset()
+
+    def ignores(self, record: WriteRecord) -> bool:
+        """Whether this device, playing ``--ignore``, leaves this write without effect."""
+        return bool(self.ignore) and bool(self.write_names(record) & self.ignore)
 
     # ------------------------------------------------------------ values by name
     def get(self, name: str) -> Value:
@@ -290,14 +312,20 @@ class SimulatedDevice:
                 code = guard(record)
                 if code is not None:
                     return code
+            if self.ignores(record):
+                self._log_write(dataclasses.replace(record, ignored=True))
+                return None
             self.set_words(table, address, record.values)
-            self.write_log.append(record)
-            if self.log_file is not None:
-                self.log_file.write(record.to_json() + "\n")
-                self.log_file.flush()
+            self._log_write(record)
             for hook in self.write_hooks:
                 hook(record)
         return None
+
+    def _log_write(self, record: WriteRecord) -> None:
+        self.write_log.append(record)
+        if self.log_file is not None:
+            self.log_file.write(record.to_json() + "\n")
+            self.log_file.flush()
 
     def writes_to(self, address: int, table: Table = Table.HOLDING) -> list[WriteRecord]:
         with self.lock:
@@ -318,6 +346,10 @@ class _MapContext(ModbusServerContext):
         self.old_simulator = True
         self.simdevices = []
         self._sim = simulator
+        # FC 05 / 06 reply with the request's value (an echo): pymodbus builds the echo
+        # by reading the address back after the write, which a device that changed the
+        # value at once (a command register it clears, an ignored write) would not give.
+        self._echo: dict[tuple[int, int, int], list[int]] = {}
 
     def device_ids(self) -> list[int]:
         """The units a broadcast reaches (pymodbus asks only then)."""
@@ -344,7 +376,8 @@ class _MapContext(ModbusServerContext):
         if func_code in ECHO_FUNCTIONS:
             # pymodbus reads back what FC 05/06 just wrote to build the echo reply; the
             # register may be write-only, so this is not a Modbus read.
-            words = device.get_words(FUNCTION_TABLES[func_code], address, count)
+            echoed = self._echo.pop((device_id, func_code, address), None)
+            words = echoed or device.get_words(FUNCTION_TABLES[func_code], address, count)
             return [bool(w) for w in words] if func_code == 5 else words
         await self._sim.delay()
         if func_code not in device.limits.function_codes:
@@ -370,7 +403,10 @@ class _MapContext(ModbusServerContext):
         await self._sim.delay()
         if func_code not in device.limits.function_codes:
             return ExcCodes.ILLEGAL_FUNCTION
-        result = device.write(func_code, address, [int(v) for v in values])
+        written = [int(v) for v in values]
+        result = device.write(func_code, address, written)
+        if result is None and func_code in ECHO_FUNCTIONS:
+            self._echo[(device_id, func_code, address)] = written
         return None if result is None else ExcCodes(result)
 
 
@@ -399,11 +435,20 @@ class Simulator:
         self.withheld_writes: list[WriteRecord] = []
         # Units that miss every broadcast (noise on their stub) and still answer the rest.
         self.deaf_to_broadcast: set[int] = set()
+        # Each reply waits a delay drawn in [reply_delay_s, reply_delay_max_s] (None:
+        # exactly reply_delay_s); ``set_reply_delay`` sets both.
         self.reply_delay_s = max(d.limits.reply_delay_s for d in devices)
-        # TCP (``tcp_serving``): a simulated network round trip (requests in flight
-        # overlap), and a device that drops a request arriving while one is unanswered.
+        self.reply_delay_max_s: float | None = None
+        # TCP (``tcp_serving``): a simulated network round trip drawn in [round_trip_s,
+        # round_trip_max_s] (requests in flight overlap, order kept), a device that drops a
+        # request arriving while one is unanswered, and one that leaves Nagle on.
         self.round_trip_s = 0.0
+        self.round_trip_max_s: float | None = None
         self.one_request_at_a_time = False
+        self.nagle = False
+        # Per accepted TCP connection, in order: TCP_NODELAY as the socket holds it.
+        self.connections_nodelay: list[bool] = []
+        self._random = random.Random()
         self.dropped: list[tuple[float, int]] = []  # (time, transaction id) of dropped ones
         self._thread: threading.Thread | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -418,9 +463,44 @@ class Simulator:
         """The only (or first) unit, for single-device simulators."""
         return next(iter(self.devices.values()))
 
+    def set_reply_delay(self, low_s: float, high_s: float | None = None) -> None:
+        """Each reply waits a delay drawn in [low_s, high_s] (RTU: the device's; TCP: the
+        round trip, ``tcp_serving``): the ``--reply-delay-ms MIN[:MAX]`` personality."""
+        self.reply_delay_s, self.reply_delay_max_s = low_s, high_s
+
+    def set_round_trip(self, low_s: float, high_s: float | None = None) -> None:
+        self.round_trip_s, self.round_trip_max_s = low_s, high_s
+
+    def _draw(self, low: float, high: float | None) -> float:
+        if high is None or high <= low:
+            return max(0.0, low)
+        return self._random.uniform(max(0.0, low), high)
+
+    def reply_delay(self) -> float:
+        """The delay of the next reply (drawn anew each time)."""
+        return self._draw(self.reply_delay_s, self.reply_delay_max_s)
+
+    def round_trip(self) -> float:
+        """The next request's round trip (drawn anew each time)."""
+        return self._draw(self.round_trip_s, self.round_trip_max_s)
+
+    def ignore(self, names: Iterable[str]) -> None:
+        """Every unit acknowledges the named motion writes and changes nothing
+        (``--ignore``); an unknown name is a ValueError naming the known ones."""
+        chosen = frozenset(names)
+        for device in self.devices.values():
+            unknown = chosen - set(device.IGNORABLE)
+            if unknown:
+                raise ValueError(
+                    f"unknown motion write {', '.join(sorted(unknown))}; "
+                    f"names: {', '.join(sorted(device.IGNORABLE))}"
+                )
+            device.ignore = chosen
+
     async def delay(self) -> None:
-        if self.reply_delay_s > 0:
-            await asyncio.sleep(self.reply_delay_s)
+        delay = self.reply_delay()
+        if delay > 0:
+            await asyncio.sleep(delay)
 
     def start_tcp(self, host: str = "127.0.0.1", port: int = 0) -> int:
         """Serve Modbus TCP on ``host:port`` (0 = a free port); returns the port."""
@@ -630,13 +710,15 @@ def open_logs(args: argparse.Namespace, sim: Simulator) -> list[IO[str]]:
     return [f for f in (write_log, read_log) if f is not None]
 
 
-def add_network_arguments(parser: argparse.ArgumentParser) -> None:
-    """The TCP simulators' network options (``tcp_serving``)."""
-    parser.add_argument(
-        "--reply-delay-ms",
-        type=float,
-        default=0.0,
-        help="simulated network round trip (half each way); pipelined requests overlap",
+def add_network_arguments(
+    parser: argparse.ArgumentParser, delay_default_ms: float | None = 0.0
+) -> None:
+    """The TCP simulators' network options (``tcp_serving``, ``personality``)."""
+    add_delay_argument(
+        parser,
+        delay_default_ms,
+        "simulated network round trip (half each way); pipelined requests overlap, their "
+        "order is kept",
     )
     parser.add_argument(
         "--one-request-at-a-time",
@@ -644,6 +726,26 @@ def add_network_arguments(parser: argparse.ArgumentParser) -> None:
         help="drop a request that arrives while one is unanswered (a device that does not "
         "pipeline)",
     )
+    parser.add_argument(
+        "--nagle", action="store_true", help="leave Nagle's algorithm on for the replies"
+    )
+
+
+def apply_ignore(sim: Simulator, args: argparse.Namespace) -> None:
+    """``--ignore`` of a simulator's command line, on every unit (names checked by argparse)."""
+    names = chosen_ignore(args)
+    if names:
+        sim.ignore(names)
+
+
+def personality_text(sim: Simulator, args: argparse.Namespace) -> str:
+    """What the banner says of the personality switches in force ('' when none)."""
+    parts = []
+    if getattr(args, "ignore", None):
+        parts.append(f"ignores {','.join(sorted(args.ignore))}")
+    if getattr(args, "nagle", False):
+        parts.append("Nagle on")
+    return f" ({'; '.join(parts)})" if parts else ""
 
 
 def add_tcp_arguments(parser: argparse.ArgumentParser, default_port: int) -> None:
@@ -658,15 +760,21 @@ def add_tcp_arguments(parser: argparse.ArgumentParser, default_port: int) -> Non
 def serve_tcp_until_signalled(sim: Simulator, args: argparse.Namespace, name: str) -> None:
     """Attach the logs, listen on ``args.host:args.port`` and serve until SIGINT/SIGTERM."""
     open_logs(args, sim)
-    sim.round_trip_s = max(0.0, float(getattr(args, "reply_delay_ms", 0.0))) / 1000
+    delay: DelayRange | None = getattr(args, "reply_delay_ms", None)
+    if delay is not None:
+        sim.set_round_trip(delay.low_s, delay.high_s)
     sim.one_request_at_a_time = bool(getattr(args, "one_request_at_a_time", False))
+    sim.nagle = bool(getattr(args, "nagle", False))
+    apply_ignore(sim, args)
     try:
         port = sim.start_tcp(args.host, args.port)
     except SimulatorStartError as err:
         raise SystemExit(
             f"{name}: cannot listen on {args.host}:{args.port}: {err.__cause__}"
         ) from None
-    serve_until_signalled(sim, f"{name} listening on {args.host}:{port}", args.port_file)
+    serve_until_signalled(
+        sim, f"{name} listening on {args.host}:{port}{personality_text(sim, args)}", args.port_file
+    )
 
 
 def add_serial_arguments(
@@ -695,6 +803,10 @@ def serve_serial_until_signalled(
     ``--read-log``) are attached first, and the pty pair and logs are closed after.
     """
     logs = open_logs(args, sim)
+    delay: DelayRange | None = getattr(args, "reply_delay_ms", None)
+    if delay is not None:
+        sim.set_reply_delay(delay.low_s, delay.high_s)
+    apply_ignore(sim, args)
     pair = PtyPair(args.pty) if args.pty else None
     try:
         port = str(pair.device_end) if pair else args.serial
@@ -702,7 +814,8 @@ def serve_serial_until_signalled(
             sim.start_serial(port, args.baudrate, args.parity, args.stopbits)
         except SimulatorStartError as err:
             raise SystemExit(f"cannot serve on {port}: {err.__cause__}") from None
-        serve_until_signalled(sim, banner(str(args.pty) if pair else args.serial))
+        where = str(args.pty) if pair else args.serial
+        serve_until_signalled(sim, banner(where) + personality_text(sim, args))
     finally:
         sim.stop()
         if pair is not None:

@@ -8,10 +8,11 @@ arrival order, as a device that reads its socket in order does.
 
 Two switches of ``sim_base.Simulator`` shape it, both live:
 
-- ``round_trip_s`` (``--reply-delay-ms``): a simulated network round trip, half on the
-  way in, half on the way out. Each direction is a FIFO whose items are released at their
-  arrival time plus the half: requests in flight overlap (it does not serialize them), and
-  the order is kept.
+- ``round_trip_s`` (``--reply-delay-ms MIN[:MAX]``): a simulated network round trip, half
+  on the way in, half on the way out, drawn per request in the range. Each direction is a
+  FIFO whose items are released at their arrival time plus the half: requests in flight
+  overlap (it does not serialize them), and the order is kept.
+- ``nagle`` (``--nagle``): the device leaves Nagle's algorithm on.
 - ``one_request_at_a_time`` (``--one-request-at-a-time``): a device that does not
   pipeline: a request arriving while one is unanswered is dropped (and logged in
   ``Simulator.dropped``), so a pipelining client times out and falls back.
@@ -21,6 +22,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import socket
 import time
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
@@ -81,7 +83,7 @@ class InOrderHandler(ServerRequestHandler):
         self._outbound: _Delayed | None = None
 
     def _half_trip(self) -> float:
-        return max(0.0, self._sim.round_trip_s) / 2
+        return self._sim.round_trip() / 2
 
     def _start(self) -> None:
         if self._requests is None:
@@ -89,6 +91,18 @@ class InOrderHandler(ServerRequestHandler):
             self._tasks.append(asyncio.get_running_loop().create_task(self._answer_in_order()))
             self._inbound = _Delayed(self._arrived, self._half_trip)
             self._outbound = _Delayed(self._put_on_wire, self._half_trip)
+
+    def callback_connected(self) -> None:
+        """``--nagle``: asyncio turns Nagle's algorithm off on every TCP socket
+        (TCP_NODELAY); a device that leaves it on holds a small reply while an earlier
+        segment of its own is not acknowledged yet."""
+        super().callback_connected()
+        sock = None if self.transport is None else self.transport.get_extra_info("socket")
+        if sock is not None:
+            if self._sim.nagle:
+                sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 0)
+            nodelay = sock.getsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY)
+            self._sim.connections_nodelay.append(bool(nodelay))
 
     def callback_data(self, data: bytes, addr: tuple[Any, ...] | None = None) -> int:
         """Every whole frame of ``data``, on its way to the device; the bytes used."""

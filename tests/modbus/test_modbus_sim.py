@@ -434,7 +434,7 @@ def test_a_bad_file_is_one_line_and_exit_2(tmp_path: Path) -> None:
     assert line.startswith(f"error: {bad}:14: registers[6].address: ")
 
 
-@pytest.mark.parametrize("flag", [["--reply-delay-ms", "5"], ["--one-request-at-a-time"]])
+@pytest.mark.parametrize("flag", [["--nagle"], ["--one-request-at-a-time"]])
 def test_the_tcp_network_options_are_refused_on_a_serial_line(
     flag: list[str], tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
