@@ -62,7 +62,8 @@ class Priority(IntEnum):
     it is one short write to a live device, so a stop waits a few ms for it at most.
     A stop goes in the next free slot, before other devices' commands and polls: on a
     shared line it waits for the one transaction in progress (a probe of a device that is
-    down waits only ``down_write_timeout_s``) and any feeds.
+    down included: it waits the link's timeout, so that a late device is found again) and
+    any feeds.
     """
 
     KEEPALIVE = 0
@@ -172,11 +173,13 @@ class DeviceChannel:
         self.link = link
         self.unit_id = unit_id
         self.retries = retries
-        # Reply timeout of every request to a device marked down (stops, and the probes
-        # that look for it again): a stop repeated while the line is dead must not be the
-        # one still waiting out a long timeout when the line comes back, and a probe of an
-        # absent device on a shared line holds it no longer than that while another
-        # device's stop waits (None: the link's timeout).
+        # Reply timeout of a write (a stop, a watchdog feed) or a stop-priority request to
+        # a device marked down: a stop repeated while the line is dead must not be the one
+        # still waiting out a long timeout when the line comes back (None: the link's
+        # timeout). A read that looks for the device again waits the link's timeout: a
+        # device answering later than this short wait would never be found. On a shared
+        # line a stop may so wait for one probe of an absent device, once per reconnect
+        # period of that device (docs/behaviour.md, "Link loss and stale data").
         self.down_write_timeout_s = down_write_timeout_s
         self.backoff = Backoff(RECONNECT_INITIAL_S, reconnect_max_s, clock)
         self.stats = LinkStats()
@@ -315,7 +318,11 @@ class DeviceChannel:
                     if span is not None:
                         for listener in tuple(self._write_listeners):
                             listener(span)
-                if not state.connected and self.down_write_timeout_s:
+                if (
+                    not state.connected
+                    and self.down_write_timeout_s
+                    and self._short(request, priority)
+                ):
                     reply = self.link.execute(self.unit_id, request, self.down_write_timeout_s)
                 else:
                     reply = self.link.execute(self.unit_id, request)
@@ -351,6 +358,15 @@ class DeviceChannel:
             return reply
         finally:
             lock.release()
+
+    @staticmethod
+    def _short(request: Request, priority: Priority) -> bool:
+        """Whether a request to a device marked down waits only ``down_write_timeout_s``:
+        writes (a stop, a feed) and anything at stop priority or above do; a read that
+        looks for the device again (a probe, the start-up configuration read) waits the
+        link's timeout, or a device that answers later than the short wait is never
+        found (stepper at 35-300 ms with ``timeout_s`` 0.5)."""
+        return request.is_write or priority <= Priority.STOP
 
     def check_session(self) -> None:
         """Under the link lock: ``NotSent`` if this thread's session (``command_session``)

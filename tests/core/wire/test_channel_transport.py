@@ -349,10 +349,11 @@ def test_rtu_unit_nobody_serves_times_out_and_the_served_one_answers() -> None:
 
 
 def test_a_write_to_a_device_marked_down_waits_its_short_timeout() -> None:
-    """Issue 9: a stop sent while the device is marked down has its own short reply
-    timeout (down_write_timeout_s); issue 20: so has a probe of a device that is down (on
-    a shared line it would hold every other device's stop for the link's timeout).
-    Reads and writes to a live device keep the link's."""
+    """A stop sent while the device is marked down has its own short reply timeout
+    (down_write_timeout_s). A probe of a device that is down (a read) waits the link's
+    timeout, or a device that answers later than the short wait is never found again
+    (docs/behaviour.md, "Link loss and stale data"). Reads and writes to a live device
+    keep the link's."""
     sim_device = SimulatedDevice(TEST_MAP, 3)
     sim = Simulator([sim_device])
     with socat_pair() as (bridge_end, device_end, _):
@@ -369,11 +370,46 @@ def test_a_write_to_a_device_marked_down_waits_its_short_timeout() -> None:
             with pytest.raises(LinkTimeout, match=r"within 0\.25 s"):
                 channel.write_register(1, 7)  # marked down: the short one
             channel.backoff.succeeded()
-            with pytest.raises(LinkTimeout, match=r"within 0\.25 s"):
-                channel.read_registers(0, 1)  # a probe: the short one too
+            with pytest.raises(LinkTimeout, match=r"within 0\.8 s"):
+                channel.read_registers(0, 1)  # a probe: the link's timeout
             sim.withhold_replies = False
             channel.write_register(1, 8)  # a stop that gets through: up again
             assert channel.connected and sim_device.get("word_1") == 8
+            link.close()
+        finally:
+            sim.stop()
+
+
+@pytest.mark.parametrize("at_start", [True, False], ids=["at_start", "after_outage"])
+def test_a_device_answering_late_within_the_timeout_is_found(at_start: bool) -> None:
+    """A device that answers later than the stop's short wait but within the link's
+    timeout is connected at start and found again after an outage (issue 39, hole 1):
+    stepper at 35-300 ms with timeout_s 0.5, stop_timeout_s 0.15. Stops keep the short
+    wait."""
+    sim_device = SimulatedDevice(TEST_MAP, 3)
+    sim = Simulator([sim_device])
+    with socat_pair() as (bridge_end, device_end, _):
+        sim.start_serial(device_end, baudrate=115200)
+        try:
+            link = ModbusLink(SerialSettings(bridge_end, 115200, timeout_s=1.0))
+            channel = DeviceChannel(link, 3, retries=0, down_write_timeout_s=0.15)
+            if not at_start:
+                channel.read_registers(0, 1)
+                sim.withhold_replies = True
+                with pytest.raises(LinkTimeout):
+                    channel.read_registers(0, 1)
+                sim.withhold_replies = False
+                channel.backoff.succeeded()
+            assert not channel.connected
+            sim.set_reply_delay(0.3, 0.4)
+            assert channel.read_registers(0, 1) == [0]  # the probe waits past 0.15 s
+            assert channel.connected
+            # A stop to the device marked down keeps the short wait.
+            sim.withhold_replies = True
+            with pytest.raises(LinkTimeout):
+                channel.read_registers(0, 1)
+            with pytest.raises(LinkTimeout, match=r"within 0\.15 s"):
+                channel.write_register(1, 7)
             link.close()
         finally:
             sim.stop()
