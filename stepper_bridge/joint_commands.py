@@ -12,9 +12,9 @@ Joints ``motor_1 .. motor_5`` (the names of ``joint_states``, with ``joint_prefi
   (0.01 unit). The controller has only relative single runs (40009+, coil "single run"), so
   a target is sent when the motor stands: its running flag (40168+) and coordinate
   (40108+) are read at command priority (``observe``, before the jogs' lock is taken:
-  a stop service waits only for the writes), then the difference is written as the run
-  distance (and the direction register when it changes) and the single-run coil starts
-  it, at the motor's configured speed (40006+). While the motor still runs the stream's
+  a stop service waits only for the writes), then the difference is written as the
+  direction and the run distance (both every time, as ``move_by``) and the single-run
+  coil starts it, at the motor's configured speed (40006+). While the motor still runs the stream's
   previous target, a newer one waits (``Deferred``: nothing written, the newest tried at
   the next pass); a motor running anything else (a jog, a service, a goal) refuses it. A
   target within one step of the coordinate writes nothing.
@@ -110,14 +110,10 @@ class MotorTargets:
         distance = on_step(target - coordinate)
         if abs(distance) < STEP_UNITS:
             return  # there already
-        direction = 0 if distance > 0 else 1
-        config = self.device.config.motors[motor - 1]
-        self.device.check_move_by(motor, distance)
-        if config.direction != direction:
-            self.device.set_direction(motor, direction)
-        if config.run_distance != abs(distance):
-            self.device.set_run_distance(motor, abs(distance))
-        self.device.motor_action(motor, "run_once")
+        # Direction and run distance are written every time, as move_by does: the values
+        # the bridge read may have been changed at the controller (its touch panel) since,
+        # and a cached direction would send the motor the wrong way (issue 39 hole 8).
+        self.device.move_by(motor, distance)
 
     def _observed(self, motor: int) -> tuple[bool, float | None]:
         """Read now (a send without ``observe`` first: tests, or a caller of the guard)."""

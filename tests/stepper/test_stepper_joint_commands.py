@@ -79,8 +79,9 @@ def test_a_target_is_a_single_run_from_where_the_motor_stands(rig: Rig) -> None:
     before = len(rig.writes())
     assert rig.targets.guard.command(1, 12.34)
     rig.wait_standing_at(1, 12.34)
-    # The direction (positive) is the cached one: run distance, then the single-run coil.
+    # Direction and run distance every time (as move_by), then the single-run coil.
     assert rig.writes()[before:] == [
+        (6, H, register(1, "direction")),
         (16, H, register(1, "run_distance")),
         (5, C, motor_coil(1, "run_once")),
     ]
@@ -95,6 +96,26 @@ def test_a_target_behind_writes_the_direction_first(rig: Rig) -> None:
         (16, H, register(2, "run_distance")),
         (5, C, motor_coil(2, "run_once")),
     ]
+
+
+@pytest.mark.parametrize(
+    ("direction", "distance", "target"),
+    # The cache holds direction 0 and run distance 10 (the simulator's factory values).
+    [(1, 12.34, 12.34), (0, 7.0, 10.0), (1, 7.0, 10.0)],
+)
+def test_a_change_at_the_touch_panel_never_sends_a_target_the_wrong_way(
+    rig: Rig, direction: int, distance: float, target: float
+) -> None:
+    """Issue 39 hole 8: the direction and run distance the bridge read (its cache, kept up
+    to config_refresh_s) may have been changed at the controller since; a target writes
+    both every time, so the single run goes where the target is and ends on it."""
+    motor = 3
+    rig.fake.set(motor_register(motor, "direction"), direction)
+    rig.fake.set(motor_register(motor, "run_distance"), distance)
+    assert rig.targets.guard.command(motor, target)
+    rig.wait_standing_at(motor, target)
+    assert rig.fake.get(motor_register(motor, "direction")) == (0 if target > 0 else 1)
+    assert rig.fake.get(motor_register(motor, "run_distance")) == pytest.approx(abs(target))
 
 
 def test_a_newer_target_waits_while_the_motor_runs_the_previous(rig: Rig) -> None:
