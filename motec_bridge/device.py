@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Hashable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Hashable, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -55,7 +55,7 @@ from bridge_core.runtime.reads import read_blocks
 from bridge_core.runtime.stream_guard import StreamGuard
 from bridge_core.wire.channel import Priority, RegisterIO
 from bridge_core.wire.codec import Value, encode
-from bridge_core.wire.errors import CommandRejected, LinkError, NotSent
+from bridge_core.wire.errors import CommandRejected, LinkError, NotConfirmed, NotSent
 from bridge_core.wire.planner import ReadRequest, plan_reads
 from bridge_core.wire.registers import Register, Table
 
@@ -110,6 +110,10 @@ MOVE_TIME_ALLOWANCE_S = 2.0
 # of the default 10 Hz apart (decision 18); unverified, the drive is released.
 STOP_CHECK_READS = 2
 STOP_CHECK_PERIOD_S = 0.1
+# A stop that took (|0xAF| falling) must bring the drive into the standstill band within
+# this (the manual gives no deceleration; decision 22); otherwise the drive is released.
+STOP_SETTLE_S = 2.0
+STOP_SETTLE_READS = round(STOP_SETTLE_S / STOP_CHECK_PERIOD_S)
 
 CONFIG_NAMES = ("analog_max_speed", "lifeguard_time", "lifeguard_mode")
 MODE_NAMES = ("operation_mode", "control_mode", "target_distance", "enable", "start")
@@ -137,9 +141,9 @@ SLOW_PLAN: list[ReadRequest] = plan_reads(MOTEC_MAP, MOTEC_MAP.select(SLOW_NAMES
 CONFIG_PLAN: list[ReadRequest] = plan_reads(MOTEC_MAP, MOTEC_MAP.select(CONFIG_NAMES))
 MODE_PLAN: list[ReadRequest] = plan_reads(MOTEC_MAP, MOTEC_MAP.select(MODE_NAMES))
 OUTPUT_WORD_PLAN: list[ReadRequest] = plan_reads(MOTEC_MAP, MOTEC_MAP.select(("output_word",)))
-# A position stop's check: 0xAA-0xAF in one read (setpoint and actual speed).
+# A stop's check: 0xAA-0xAF in one read (the actual position and speed; decision 22).
 MOTION_PLAN: list[ReadRequest] = plan_reads(
-    MOTEC_MAP, MOTEC_MAP.select(("position_setpoint", "speed_actual"))
+    MOTEC_MAP, MOTEC_MAP.select(("position_setpoint", "position_actual", "speed_actual"))
 )
 # After a broadcast: what each drive shows (0x28, 0x29, 0xAA, 0xAF).
 BROADCAST_CHECK_NAMES = ("enable", "start", "position_setpoint", "speed_actual")
@@ -448,25 +452,44 @@ class MotecDevice(ConfiguredDevice[MotecConfig]):
     def set_control_mode(self, mode: int) -> None:
         """Network mode (0x24 = 0), then the control mode (0x25), as §4.1 / §4.2 do.
 
-        Velocity: the speed setpoint is zeroed between the two, so that switching an
-        enabled drive to velocity control never starts the motor with a stale speed.
+        Refused while the motor turns (|0xAF| above the standstill band), read fresh at
+        command priority: the last poll may be older than a move started since. Velocity:
+        the speed setpoint is zeroed between the two, so that switching an enabled drive
+        to velocity control never starts the motor with a stale speed. Read back after:
+        ``NotConfirmed`` (what was written and read) unless 0x24 / 0x25 (and 0xAE) show it.
         """
         check_choice("control mode", mode, (CONTROL_MODE_VELOCITY, CONTROL_MODE_POSITION))
+        speed = int(read_blocks(self.io, MOTION_PLAN, Priority.COMMAND)[0]["speed_actual"])
+        if abs(speed) > STANDSTILL_SPEED_RPM:
+            raise CommandRejected(f"the motor turns at {speed} rpm: ~/stop it before changing mode")
         self.stream.taken_over(VELOCITY_STREAM, locked=False)
         self._write("operation_mode", OPERATION_MODE_NETWORK)
         if mode == CONTROL_MODE_VELOCITY:
             self._write("speed_setpoint", 0)
         self._write("control_mode", mode)
+        modes = self.read_modes()
+        wrote = f"0x24 = {OPERATION_MODE_NETWORK}, 0x25 = {mode}"
+        read = f"0x24 = {modes.operation_mode}, 0x25 = {modes.control_mode}"
+        ok = modes.network and modes.control_mode == mode
+        if mode == CONTROL_MODE_VELOCITY:
+            held = int(self.read_named("speed_setpoint")["speed_setpoint"])
+            wrote += ", 0xAE = 0"
+            read += f", 0xAE = {held}"
+            ok = ok and held == 0
+        if not ok:
+            raise NotConfirmed(f"sent, not confirmed: wrote {wrote}, read {read}")
 
     def enable(self, on: bool) -> None:
-        """0x28 = 1 / 0 (§4.1 step 4). Enabling in velocity control first zeroes 0xAE:
-        §4.2 step 4 says enabling starts the motor at the set speed, and a bridge's enable
-        must not start motion by itself."""
+        """0x28 = 1 / 0 (§4.1 step 4), read back: ``NotConfirmed`` unless 0x28 shows it.
+        Enabling in velocity control first zeroes 0xAE: §4.2 step 4 says enabling starts
+        the motor at the set speed, and a bridge's enable must not start motion by
+        itself."""
         if not on:
             with self.stream.lock:
                 try:
                     self._write("enable", ENABLE_OFF)
-                except LinkError:
+                    self._enable_reads(ENABLE_OFF)
+                except (LinkError, NotConfirmed):
                     self.stream.stop_failed(VELOCITY_STREAM)  # its own stop stays pending
                     raise
                 self.stream.taken_over(VELOCITY_STREAM, locked=False)
@@ -476,6 +499,12 @@ class MotecDevice(ConfiguredDevice[MotecConfig]):
             self._write("speed_setpoint", 0)
             self.stream.taken_over(VELOCITY_STREAM, locked=False)
         self._write("enable", ENABLE_ON)
+        self._enable_reads(ENABLE_ON)
+
+    def _enable_reads(self, value: int) -> None:
+        read = int(self.read_modes().enabled)
+        if read != value:
+            raise NotConfirmed(f"sent, not confirmed: wrote 0x28 = {value}, read 0x28 = {read}")
 
     def check_move(self, counts: int, speed_rpm: float) -> int:
         """A move's distance / target and speed limit checked (no I/O); the limit in rpm."""
@@ -523,34 +552,57 @@ class MotecDevice(ConfiguredDevice[MotecConfig]):
         self._write("start", START_MOVE)
 
     def stop(self) -> str:
-        """Stop in the present mode: velocity -> 0xAE = 0 (ramps down, §4.2); position ->
-        0x29 = 0 (the move / stop register), verified (``stop_move``); any other mode ->
-        release (0x28 = 0), the only stop the manual gives for every mode. Returns what
-        was done."""
+        """Stop in the present mode, each verified until the drive stands (|0xAF| within
+        the standstill band, decision 22): velocity -> 0xAE = 0 (ramps down, §4.2);
+        position -> 0x29 = 0 (the move / stop register, ``stop_move``); any other mode ->
+        release (0x28 = 0), the only stop the manual gives for every mode. A stop that
+        does not take is followed by a release (``release_checked``). Returns what was
+        done and seen; ``NotConfirmed`` when the drive is not seen standing."""
         with self.stream.lock:  # no cmd_velocity write between the stop and the lock
             try:
                 modes = self.read_modes()
                 if modes.network and modes.control_mode == CONTROL_MODE_VELOCITY:
-                    self._write("speed_setpoint", 0)
-                    done = "speed setpoint 0"
+                    done = self.velocity_stop_checked()
                 elif modes.network and modes.control_mode == CONTROL_MODE_POSITION:
                     done = self.stop_move()
                 else:
-                    self._write("enable", ENABLE_OFF)
-                    done = f"drive released ({modes.describe()}: no Modbus stop for that mode)"
-            except LinkError:
+                    done = release_checked(
+                        self.io,
+                        self._write,
+                        self._sleep,
+                        f"{modes.describe()}: no Modbus stop for that mode",
+                    )
+            except (LinkError, NotConfirmed):
                 self.stream.stop_failed(VELOCITY_STREAM)  # cmd_velocity's stop stays pending
                 raise
             self.stream.taken_over(VELOCITY_STREAM, locked=True)
             return done
 
+    def velocity_stop_checked(self) -> str:
+        """0xAE = 0, then ``watch_stop`` (0xAE read back in the same reads): the motor
+        ramps down by the drive's own acceleration (§4.2); released if it does not."""
+        self._write("speed_setpoint", 0)
+        try:
+            held = int(self.read_named("speed_setpoint")["speed_setpoint"])
+            watch = watch_stop(self.io, self._sleep)
+            if watch.stands and held == 0:
+                return f"speed setpoint 0 (0xAE reads 0; {watch.text()})"
+            seen = f"0xAE reads {held}, {watch.text()}"
+        except LinkError as err:
+            seen = f"its effect could not be read: {err}"
+        return release_checked(
+            self.io, self._write, self._sleep, f"0xAE = 0 did not stop the motor ({seen})"
+        )
+
     def stop_move(self) -> str:
         """0x29 = 0 at once (a goal's stop: it started a position move, so no mode read
         first; on a bad line that read could fail and keep the stop off the wire), then
         verified: "运动/停止寄存器" 0 = stop is our reading (decision 5), and a drive that
-        takes 0x29 as a start trigger only would run on. Within ``STOP_CHECK_READS`` reads
-        of 0xAA-0xAF the setpoint must stop advancing or the speed fall; otherwise the
-        drive is released (0x28 = 0), and the text says so (decision 18)."""
+        takes 0x29 as a start trigger only would run on. The drive must stand (|0xAF|
+        within the band, decision 22) or show its speed falling within
+        ``STOP_CHECK_READS`` reads and stand within ``STOP_SETTLE_S``; otherwise it is
+        released (0x28 = 0), and the text says so (decision 18). ``NotConfirmed`` when it
+        is still not seen standing."""
         return verified_position_stop(self.io, self._write, self._sleep)
 
     def save_to_flash(self) -> None:
@@ -740,43 +792,98 @@ def lifeguard_bound_text(drives: int, hold_s: float) -> str:
     )
 
 
+@dataclass
+class StopWatch:
+    """What a stop's check read: 0xAC and 0xAF, in order (decision 22)."""
+
+    positions: list[int]
+    speeds: list[int]
+
+    @property
+    def stands(self) -> bool:
+        return bool(self.speeds) and abs(self.speeds[-1]) <= STANDSTILL_SPEED_RPM
+
+    def text(self) -> str:
+        if not self.speeds:
+            return "nothing read"
+        reads = f" over {len(self.speeds)} reads" if len(self.speeds) > 2 else ""
+        return (
+            f"0xAC {self.positions[0]} -> {self.positions[-1]}, 0xAF {self.speeds[0]} -> "
+            f"{self.speeds[-1]} rpm{reads}"
+        )
+
+
+def watch_stop(io: RegisterIO, sleep: Callable[[float], None] = time.sleep) -> StopWatch:
+    """0xAA-0xAF now and every ``STOP_CHECK_PERIOD_S`` until the drive stands (|0xAF|
+    within the standstill band, decision 22: an unchanged 0xAA proves nothing). Gives up
+    when ``STOP_CHECK_READS`` reads in a row did not show |0xAF| falling by more than the
+    band (the stop did not take), or after ``STOP_SETTLE_S`` (a ramp too long)."""
+    watch = StopWatch([], [])
+    since_fall = 0
+    for n in range(STOP_SETTLE_READS + 1):
+        if n:
+            sleep(STOP_CHECK_PERIOD_S)
+        v = read_blocks(io, MOTION_PLAN, Priority.COMMAND)[0]
+        speed = int(v["speed_actual"])
+        if watch.speeds:
+            falls = abs(speed) < abs(watch.speeds[-1]) - STANDSTILL_SPEED_RPM
+            since_fall = 0 if falls else since_fall + 1
+        watch.positions.append(int(v["position_actual"]))
+        watch.speeds.append(speed)
+        if watch.stands or since_fall >= STOP_CHECK_READS:
+            break
+    return watch
+
+
 def verified_position_stop(
     io: RegisterIO,
     write: Callable[[str, Value], None],
     sleep: Callable[[float], None] = time.sleep,
 ) -> str:
-    """0x29 = 0, then up to ``STOP_CHECK_READS`` reads of 0xAA-0xAF ``STOP_CHECK_PERIOD_S``
-    apart: stopped when the setpoint 0xAA stops advancing or |0xAF| falls (below the band,
-    or by more than it). Otherwise 0x28 = 0 (release, the stop the manual gives for every
-    mode) and 0x28 read back. Returns what was done and seen (decision 18)."""
+    """0x29 = 0, then ``watch_stop``: stopped only when |0xAF| is within the standstill
+    band (decision 22; a falling speed keeps the check reading, up to ``STOP_SETTLE_S``).
+    Otherwise 0x28 = 0 (release, the stop the manual gives for every mode), 0x28 read back
+    and the drive watched again (``release_checked``). Returns what was done and seen when
+    the drive stands; ``NotConfirmed`` (what was written and read) when it does not
+    (decision 18)."""
     write("start", STOP_MOVE)
     try:
-        first = read_blocks(io, MOTION_PLAN, Priority.COMMAND)[0]
-        setpoint0, speed0 = int(first["position_setpoint"]), int(first["speed_actual"])
-        setpoint, speed = setpoint0, speed0
-        for _ in range(STOP_CHECK_READS):
-            sleep(STOP_CHECK_PERIOD_S)
-            v = read_blocks(io, MOTION_PLAN, Priority.COMMAND)[0]
-            setpoint1, speed1 = int(v["position_setpoint"]), int(v["speed_actual"])
-            if (
-                setpoint1 == setpoint
-                or abs(speed1) <= STANDSTILL_SPEED_RPM
-                or abs(speed1) < abs(speed0) - STANDSTILL_SPEED_RPM
-            ):
-                return (
-                    f"move stopped (0x29 = 0; 0xAA {setpoint} -> {setpoint1}, 0xAF {speed0} "
-                    f"-> {speed1} rpm)"
-                )
-            setpoint, speed = setpoint1, speed1
-        seen = f"0xAA {setpoint0} -> {setpoint}, 0xAF {speed0} -> {speed} rpm"
+        watch = watch_stop(io, sleep)
+        if watch.stands:
+            return f"move stopped (0x29 = 0; {watch.text()})"
+        seen = watch.text()
     except LinkError as err:
         seen = f"its effect could not be read: {err}"
+    return release_checked(io, write, sleep, f"0x29 = 0 did not stop the move ({seen})")
+
+
+def release_checked(
+    io: RegisterIO,
+    write: Callable[[str, Value], None],
+    sleep: Callable[[float], None],
+    why: str,
+) -> str:
+    """0x28 = 0 after a stop that did not take (``why``), then 0x28 read back and the
+    drive watched until it stands (``watch_stop``); ``NotConfirmed`` unless it reads 0x28
+    = 0 and stands."""
     write("enable", ENABLE_OFF)
     try:
-        after = f"reads {int(read_blocks(io, MODE_PLAN, Priority.COMMAND)[0]['enable'])}"
+        enable = int(read_blocks(io, MODE_PLAN, Priority.COMMAND)[0]["enable"])
+        watch = watch_stop(io, sleep)
     except LinkError as err:
-        after = f"not read back: {err}"
-    return f"0x29 = 0 did not stop the move ({seen}): drive released (0x28 = 0, {after})"
+        raise NotConfirmed(
+            f"{why}: sent, not confirmed: wrote 0x28 = 0 (release), not read back: {err}"
+        ) from None
+    if enable != ENABLE_OFF:
+        raise NotConfirmed(
+            f"{why}: sent, not confirmed: wrote 0x28 = 0 (release), read 0x28 = {enable} "
+            f"({watch.text()})"
+        )
+    if not watch.stands:
+        raise NotConfirmed(
+            f"{why}: drive released (0x28 = 0, reads 0), not confirmed standing: {watch.text()}"
+        )
+    return f"{why}: drive released (0x28 = 0, reads 0; {watch.text()})"
 
 
 def _drive_line(unit: int, v: Mapping[str, Value]) -> str:
@@ -849,13 +956,13 @@ def _start_checked(drives: Mapping[int, RegisterIO], read_only: Iterable[int]) -
 
 
 def _stop_the_started(
-    drives: Mapping[int, RegisterIO], missed: Sequence[int], sleep: Callable[[float], None]
+    drives: Mapping[int, RegisterIO], to_stop: Iterable[int], sleep: Callable[[float], None]
 ) -> list[str]:
-    """A start not every drive took: the drives that did take it stopped, a line each."""
+    """A start not every drive took: the drives that took it, and those whose state is
+    unknown (they may be running), stopped (``verified_position_stop``), a line each."""
     stops: list[str] = []
-    for unit, io in drives.items():
-        if unit in missed:
-            continue
+    for unit in to_stop:
+        io = drives[unit]
 
         def write(name: str, value: Value, io: RegisterIO = io) -> None:
             r = MOTEC_MAP[name]
@@ -863,6 +970,8 @@ def _stop_the_started(
 
         try:
             stops.append(f"drive {unit}: {verified_position_stop(io, write, sleep)}")
+        except NotConfirmed as err:
+            stops.append(f"drive {unit}: stop not confirmed: {err}")
         except LinkError as err:
             stops.append(f"drive {unit}: stop failed: {err}")
     return stops
@@ -884,35 +993,44 @@ def start_all(
     since the check or |0xAF| is above the standstill band (0x29 may read 1 from an
     earlier move: it proves nothing). One that did not leaves a start that is not
     synchronised, so the drives that did are stopped (``verified_position_stop``) and the
-    answer is False (decision 15); a zero-length move counts as not started.
+    answer is False (decision 15); a zero-length move counts as not started. A drive whose
+    read-back is lost is neither: its state is unknown, it may be running, so it is
+    stopped too and the answer is False.
     """
     before = _start_checked(drives, read_only)
     reg = MOTEC_MAP["start"]
     broadcast.write_register(reg.address, encode(reg, START_MOVE)[0])
-    seen: dict[int, Mapping[str, Value] | None] = {}
+    seen: dict[int, Mapping[str, Value]] = {}
+    unknown: dict[int, str] = {}
     for unit, io in drives.items():
         try:
             seen[unit] = read_blocks(io, BROADCAST_CHECK_PLAN, Priority.COMMAND)[0]
-        except LinkError:
-            seen[unit] = None
+        except LinkError as err:
+            unknown[unit] = str(err)
     missed = [
         u
         for u, v in seen.items()
-        if v is None
-        or (
-            int(v["position_setpoint"]) == before[u]
-            and abs(int(v["speed_actual"])) <= STANDSTILL_SPEED_RPM
-        )
+        if int(v["position_setpoint"]) == before[u]
+        and abs(int(v["speed_actual"])) <= STANDSTILL_SPEED_RPM
     ]
     lines = [
-        f"drive {u}: did not answer" if v is None else _drive_line(u, v) for u, v in seen.items()
+        f"drive {u}: not read back ({unknown[u]}): its state is unknown"
+        if u in unknown
+        else _drive_line(u, seen[u])
+        for u in drives
     ]
-    if not missed:
+    if not missed and not unknown:
         return True, "; ".join(lines)
-    stops = _stop_the_started(drives, missed, sleep)
+    to_stop = [u for u in drives if u not in missed]
+    stops = _stop_the_started(drives, to_stop, sleep)
+    what = []
+    if missed:
+        what.append(f"drives {missed} did not take the start")
+    if unknown:
+        what.append(f"drives {sorted(unknown)} were not read back (they may be running)")
     return False, (
-        f"drives {missed} did not take the start ({'; '.join(lines)}); the others were "
-        f"stopped: {'; '.join(stops) or 'none had started'}"
+        f"{' and '.join(what)} ({'; '.join(lines)}); stopped the others: "
+        f"{'; '.join(stops) or 'none had started'}"
     )
 
 

@@ -390,12 +390,7 @@ class MotecDriveNode(BridgeNode[MotecSnapshot]):
         )
 
     def _set_control_mode(self, r: Any) -> None:
-        s = self.last_snapshot
-        if s is not None and s.turning:
-            raise CommandRejected(
-                f"the motor turns at {s.speed_actual_rpm} rpm: ~/stop it before changing mode"
-            )
-        self.device.set_control_mode(int(r.mode))
+        self.device.set_control_mode(int(r.mode))  # refused while turning, read fresh
 
     def _move(self, r: Any) -> int:
         counts = self.scale.to_counts(float(r.position))

@@ -38,8 +38,13 @@ summary is in docs/bridges/motec.md):
 - 0x35 = 1 counts a save to flash, is echoed ``00 01`` and reads 0 from the next tick
   (§3.5: the drive clears it when done); ``start_is_trigger`` makes 0x29 = 0 leave a
   move running (the other reading of 0x29); ``deaf_to_broadcast`` units miss broadcasts;
+- ``setpoint_holds_target`` makes 0xAA read a move's target while it runs (the other
+  reading of "位置设定值", MOTEC decision 22), not the position it tracks;
 - replies after ``reply_delay_s`` (0 by default: the manual states none); the whole bus
-  can withhold its replies (``withhold_replies``).
+  can withhold its replies (``withhold_replies``);
+- personalities (docs/tools.md): ``--reply-delay-ms MIN[:MAX]`` and ``--ignore NAME,...``
+  with the names of ``MotecSimDrive.IGNORABLE`` (a drive that acknowledges those writes
+  and does nothing).
 """
 
 from __future__ import annotations
@@ -47,8 +52,9 @@ from __future__ import annotations
 import argparse
 import math
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
+from typing import ClassVar
 
 from bridge_core.sim.personality import add_delay_argument, add_ignore_argument
 from bridge_core.sim.sim_base import (
@@ -123,6 +129,22 @@ class Move:
 class MotecSimDrive(SimulatedDevice):
     """One MOTEC β drive: registers, motion, IO, lifeguard and faults."""
 
+    # ``--ignore`` (docs/tools.md "Device personalities"): the motion writes a drive can be
+    # told to acknowledge and not obey; ``write_names`` says which a write is.
+    IGNORABLE: ClassVar[Mapping[str, str]] = {
+        "enable": "0x28 = 1 (~/enable true)",
+        "disable": "0x28 = 0 (~/enable false, a release, disable_all's broadcast)",
+        "start": "0x29 = 1 (a position move's start: ~/move, ~/move_to, joint_commands "
+        "targets, start_all's broadcast)",
+        "stop": "0x29 = 0 (a position move's stop: ~/stop, a goal's end, the position "
+        "stream's stop)",
+        "speed": "0xAE != 0 (velocity setpoint, a move's speed limit)",
+        "speed_zero": "0xAE = 0 (the velocity stop: ~/stop in velocity control, a 0 "
+        "command, the deadman)",
+        "target": "0x26-0x27 and 0x2D (a move's distance or target, relative or absolute)",
+        "control_mode": "0x24 and 0x25 (network mode, velocity or position control)",
+    }
+
     def __init__(
         self,
         unit_id: int = 1,
@@ -161,6 +183,9 @@ class MotecSimDrive(SimulatedDevice):
         # True: 0x29 = 0 does not stop a move (a drive that takes 0x29 as a start trigger
         # only, the other reading of "运动/停止寄存器", decision 18)
         self.start_is_trigger = False
+        # True: 0xAA reads a running move's target, not the position it tracks (the other
+        # reading of "当前电机的位置设定值", decision 22)
+        self.setpoint_holds_target = False
         self.lifeguard_trips = 0
         self.last_command = clock()
         self.write_guards.append(self._guard)
@@ -230,6 +255,29 @@ class MotecSimDrive(SimulatedDevice):
         return value
 
     # ------------------------------------------------------------ Modbus behaviour
+    def write_names(self, record: WriteRecord) -> frozenset[str]:
+        """Which of ``IGNORABLE`` a write is (a register it covers whole, by its value)."""
+        if record.table is not Table.HOLDING:
+            return frozenset()
+        end = record.address + len(record.values)
+        names: set[str] = set()
+        for reg in MOTEC_MAP.in_table(Table.HOLDING):
+            if not (reg.address >= record.address and reg.end <= end):
+                continue
+            offset = reg.address - record.address
+            value = decode(reg, list(record.values[offset : offset + reg.end - reg.address]))
+            if reg.name == "enable":
+                names.add("enable" if value else "disable")
+            elif reg.name == "start":
+                names.add("start" if value else "stop")
+            elif reg.name == "speed_setpoint":
+                names.add("speed" if value else "speed_zero")
+            elif reg.name in ("target_distance", "motion_mode"):
+                names.add("target")
+            elif reg.name in ("operation_mode", "control_mode"):
+                names.add("control_mode")
+        return frozenset(names)
+
     def _guard(self, record: WriteRecord) -> int | None:
         end = record.address + len(record.values)
         if record.table is Table.COIL:
@@ -371,7 +419,10 @@ class MotecSimDrive(SimulatedDevice):
     def _update_registers(self) -> None:
         position = max(I32_MIN, min(I32_MAX, round(self.position)))
         self.set("position_actual", position)
-        self.set("position_setpoint", position)  # perfect tracking
+        setpoint = position  # perfect tracking
+        if self.setpoint_holds_target and self.move is not None and self.move.target is not None:
+            setpoint = max(I32_MIN, min(I32_MAX, round(self.move.target)))
+        self.set("position_setpoint", setpoint)
         self.set("speed_actual", max(-I16_MAX, min(I16_MAX, round(self.speed))))
         self.set("fault_code", self.fault)
         self.set("input_word", self.forced_inputs)

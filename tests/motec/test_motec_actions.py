@@ -239,5 +239,5 @@ def test_move_to_default_time_limit_and_a_stop_that_does_not_take(
         status, result = goal.result()
         assert result.outcome.code == MotionOutcome.CANCELLED, result.outcome.message
         assert "0x29 = 0 did not stop the move" in result.outcome.message, result.outcome.message
-        assert "drive released (0x28 = 0, reads 0)" in result.outcome.message
+        assert "drive released (0x28 = 0, reads 0; " in result.outcome.message
         assert not drive.enabled and drive.value("speed_actual") == 0

@@ -23,7 +23,13 @@ from pymodbus.framer import FramerRTU
 from bridge_core.runtime.goals import Outcome
 from bridge_core.runtime.keepalive import Keepalive
 from bridge_core.wire.channel import DeviceChannel, Priority
-from bridge_core.wire.errors import CommandRejected, DeviceException, LinkTimeout, NotSent
+from bridge_core.wire.errors import (
+    CommandRejected,
+    DeviceException,
+    LinkTimeout,
+    NotConfirmed,
+    NotSent,
+)
 from bridge_core.wire.registers import Table, ValueType, WordOrder
 from bridge_core.wire.transport import ModbusLink, SerialSettings
 from motec_bridge.device import (
@@ -110,9 +116,12 @@ def modes_read(operation: int, control: int, enabled: int) -> Step:
     return Step(frame("03 00 24 00 06"), frame(f"03 0C {data}"), "read 0x24-0x29")
 
 
-def motion_read(setpoint: int, speed: int) -> Step:
-    """A stop's check: 0xAA-0xAF (setpoint, actual position, speed limit, actual speed)."""
-    words = [setpoint >> 16 & 0xFFFF, setpoint & 0xFFFF, 0, 0, 300, speed & 0xFFFF]
+def motion_read(setpoint: int, speed: int, position: int | None = None) -> Step:
+    """A stop's check: 0xAA-0xAF (setpoint, actual position: the setpoint unless given,
+    speed limit, actual speed)."""
+    actual = setpoint if position is None else position
+    words = [setpoint >> 16 & 0xFFFF, setpoint & 0xFFFF, actual >> 16 & 0xFFFF, actual & 0xFFFF]
+    words += [300, speed & 0xFFFF]
     data = "".join(f"{w:04X}" for w in words)
     return Step(frame("03 00 AA 00 06"), frame(f"03 0C {data}"), "read 0xAA-0xAF")
 
@@ -136,10 +145,13 @@ def test_manual_crc_routine_is_pymodbus_crc_low_byte_first() -> None:
 
 def test_position_mode_sequence_of_section_4_1() -> None:
     steps = [
+        motion_read(0, 0),  # a mode change is refused while the motor turns: read fresh
         echo("06 00 24 00 00", "step 1: network operation mode"),
         echo("06 00 25 00 02", "step 2: position control"),
+        modes_read(0, CONTROL_MODE_POSITION, 0),  # read back
         modes_read(0, CONTROL_MODE_POSITION, 0),
         echo("06 00 28 00 01", "step 4: enable"),
+        modes_read(0, CONTROL_MODE_POSITION, 1),  # read back
         modes_read(0, CONTROL_MODE_POSITION, 1),
         Step(
             frame("03 00 AE 00 01"),
@@ -177,14 +189,17 @@ def test_absolute_move_with_a_speed_limit_and_stop() -> None:
         modes_read(0, CONTROL_MODE_POSITION, 1),
         echo("06 00 29 00 00", "stop: 0x29 is the move / stop register"),
         motion_read(-1000, -300),
-        motion_read(-1200, -120),  # the speed falls: the stop took
+        motion_read(-1200, -120),  # the speed falls: the stop took, read on
+        motion_read(-1210, -2),  # within the standstill band: stopped (decision 22)
     ]
 
     def act(d: MotecDevice) -> str:
         d.move(-5000, relative=False, speed_rpm=300.0)
         return d.stop()
 
-    assert run(steps, act) == "move stopped (0x29 = 0; 0xAA -1000 -> -1200, 0xAF -300 -> -120 rpm)"
+    assert run(steps, act) == (
+        "move stopped (0x29 = 0; 0xAC -1000 -> -1210, 0xAF -300 -> -2 rpm over 3 reads)"
+    )
 
 
 def test_a_position_stop_that_does_not_take_releases_the_drive() -> None:
@@ -197,12 +212,63 @@ def test_a_position_stop_that_does_not_take_releases_the_drive() -> None:
         motion_read(2000, 301),
         echo("06 00 28 00 00", "release: the stop the manual gives for every mode"),
         modes_read(0, CONTROL_MODE_POSITION, 0),
+        motion_read(2000, 0),  # released, and it stands
     ]
     said = run(steps, lambda d: d.stop_move())
     assert said == (
-        "0x29 = 0 did not stop the move (0xAA 1000 -> 2000, 0xAF 300 -> 301 rpm): drive "
-        "released (0x28 = 0, reads 0)"
+        "0x29 = 0 did not stop the move (0xAC 1000 -> 2000, 0xAF 300 -> 301 rpm over 3 "
+        "reads): drive released (0x28 = 0, reads 0; 0xAC 2000 -> 2000, 0xAF 0 -> 0 rpm)"
     )
+
+
+def test_an_unchanged_setpoint_at_full_speed_is_not_a_stop() -> None:
+    """Issue 39 hole 4: a drive whose 0xAA holds the move's target (the other reading of
+    "位置设定值", decision 22) shows an unchanged 0xAA while 0xAF reads full speed: not
+    stopped. The speed does not fall: released, and the release checked."""
+    steps = [
+        echo("06 00 29 00 00", "stop"),
+        motion_read(50_000, 600, position=1000),
+        motion_read(50_000, 600, position=2000),
+        motion_read(50_000, 599, position=3000),
+        echo("06 00 28 00 00", "release"),
+        modes_read(0, CONTROL_MODE_POSITION, 0),
+        motion_read(50_000, 0, position=3100),
+    ]
+    said = run(steps, lambda d: d.stop_move())
+    assert said.startswith("0x29 = 0 did not stop the move (0xAC 1000 -> 3000, 0xAF 600 -> 599")
+    assert said.endswith("drive released (0x28 = 0, reads 0; 0xAC 3100 -> 3100, 0xAF 0 -> 0 rpm)")
+
+
+def test_a_stop_that_ramps_down_slowly_is_read_until_the_drive_stands() -> None:
+    """Hole 4: stopped means |0xAF| within the band; a speed that keeps falling is read on
+    (up to STOP_SETTLE_S), not taken as stopped on its first fall."""
+    speeds = [900, 700, 500, 300, 100, 1]
+    steps = [echo("06 00 29 00 00", "stop")]
+    steps += [motion_read(50_000, v, position=1000 + 10 * k) for k, v in enumerate(speeds)]
+    said = run(steps, lambda d: d.stop_move())
+    assert said == "move stopped (0x29 = 0; 0xAC 1000 -> 1050, 0xAF 900 -> 1 rpm over 6 reads)"
+
+
+def test_a_release_that_is_ignored_is_not_confirmed() -> None:
+    """A drive that ignores 0x29 = 0 and 0x28 = 0: the stop raises ``NotConfirmed`` with
+    what was written and read (never a success)."""
+    steps = [
+        echo("06 00 29 00 00", "stop"),
+        motion_read(1000, 600),
+        motion_read(1500, 600),
+        motion_read(2000, 600),
+        echo("06 00 28 00 00", "release"),
+        modes_read(0, CONTROL_MODE_POSITION, 1),
+        motion_read(2500, 600),
+        motion_read(3000, 600),
+        motion_read(3500, 600),
+    ]
+    with pytest.raises(
+        NotConfirmed,
+        match=r"sent, not confirmed: wrote 0x28 = 0 \(release\), "
+        r"read 0x28 = 1 \(0xAC 2500 -> 3500, 0xAF 600 -> 600 rpm over 3 reads\)",
+    ):
+        run(steps, lambda d: d.stop_move())
 
 
 def test_setpoint_position_speed_and_fault_reads() -> None:
@@ -228,16 +294,21 @@ def test_setpoint_position_speed_and_fault_reads() -> None:
 
 def test_velocity_mode_sequence_of_section_4_2() -> None:
     steps = [
+        motion_read(0, 0),  # not turning (read fresh)
         echo("06 00 24 00 00", "network operation mode"),
         echo("06 00 AE 00 00", "speed setpoint 0 before velocity control (decision)"),
         echo("06 00 25 00 01", "velocity control"),
+        modes_read(0, CONTROL_MODE_VELOCITY, 0),  # read back
+        Step(frame("03 00 AE 00 01"), frame("03 02 00 00"), "0xAE read back"),
         modes_read(0, CONTROL_MODE_VELOCITY, 0),
         echo("06 00 AE 00 00", "speed 0 again: enabling must not start the motor"),
         echo("06 00 28 00 01", "enable"),
+        modes_read(0, CONTROL_MODE_VELOCITY, 1),  # read back
         modes_read(0, CONTROL_MODE_VELOCITY, 1),
         echo("06 00 AE FE D4", "-300 rpm (sign = direction)"),
         echo("06 00 AE 00 00", "deadman: 0 rpm"),
         echo("06 00 28 00 00", "release"),
+        modes_read(0, CONTROL_MODE_VELOCITY, 0),  # read back
     ]
 
     def act(d: MotecDevice) -> None:
@@ -397,6 +468,7 @@ class FakeIO:
     ) -> None:
         self.modes = [operation, control, 0, 0, enabled, 0]
         self.speed_limit = speed_limit  # 0xAE
+        self.speed = 0  # 0xAF
         self.writes: list[tuple[str, int, Any]] = []
         self.priorities: list[Priority] = []
 
@@ -405,6 +477,8 @@ class FakeIO:
     ) -> list[int]:
         if (address, count) == (0xAE, 1):
             return [self.speed_limit & 0xFFFF]
+        if (address, count) == (0xAA, 6):
+            return [0, 0, 0, 0, self.speed_limit & 0xFFFF, self.speed & 0xFFFF]
         assert (address, count) == (0x24, 6)
         return list(self.modes)
 
@@ -416,6 +490,10 @@ class FakeIO:
     ) -> None:
         self.writes.append(("06", address, value))
         self.priorities.append(priority)
+        if 0x24 <= address <= 0x29:
+            self.modes[address - 0x24] = value
+        elif address == 0xAE:
+            self.speed_limit = value
 
     def write_registers(self, address: int, values: Sequence[int]) -> None:
         self.writes.append(("16", address, list(values)))
@@ -472,7 +550,7 @@ def test_stop_locks_the_velocity_stream_until_zero() -> None:
     io = FakeIO(0, CONTROL_MODE_VELOCITY, 1)
     d = MotecDevice(io)
     assert d.velocity(100)
-    assert d.stop() == "speed setpoint 0"
+    assert d.stop().startswith("speed setpoint 0 (0xAE reads 0; ")
     with pytest.raises(CommandRejected, match="stopped"):
         d.velocity(100)
     assert not d.velocity(0)  # unlocks, writes nothing

@@ -1,0 +1,249 @@
+"""MOTEC against drives that do not obey or answer late (issue 39): the simulator's
+personalities (``--ignore`` names, ``setpoint_holds_target``), the holes of the verified
+stop (4), ``start_all`` (6) and ``~/set_control_mode`` (9), driven by the device layer
+over a real pty pair; the contract rows over ROS are further down."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import Any
+
+import pytest
+
+from bridge_core.wire.channel import DeviceChannel, Priority
+from bridge_core.wire.errors import CommandRejected, LinkTimeout, NotConfirmed
+from bridge_core.wire.registers import Table
+from bridge_core.wire.transport import ModbusLink, SerialSettings
+from motec_bridge.device import STANDSTILL_SPEED_RPM, MotecDevice, start_all
+from motec_bridge.registers import CONTROL_MODE_POSITION, CONTROL_MODE_VELOCITY, MOTEC_MAP
+from motec_bridge.sim import MotecSimDrive, MotecSimulator, main, make_simulator
+
+from ..support.serial_pair import served_on_pty
+
+BAUD = 115200
+UNITS = (1, 2, 3)
+WAIT_S = 30.0
+
+
+@dataclass
+class Bus:
+    sim: MotecSimulator
+    devices: dict[int, MotecDevice]
+    channels: dict[int, DeviceChannel]
+    link: ModbusLink
+
+
+@pytest.fixture
+def bus() -> Iterator[Bus]:
+    sim = make_simulator(UNITS)
+    with served_on_pty(sim, BAUD) as bridge_end:
+        # Far above a reply's few ms: the simulator shares this process.
+        link = ModbusLink(SerialSettings(bridge_end, BAUD, timeout_s=0.5))
+        channels = {u: DeviceChannel(link, u, retries=0) for u in UNITS}
+        try:
+            yield Bus(sim, {u: MotecDevice(channels[u]) for u in UNITS}, channels, link)
+        finally:
+            link.close()
+
+
+def wait_until(what: str, condition: Any) -> None:
+    deadline = time.monotonic() + WAIT_S
+    while not condition():
+        assert time.monotonic() < deadline, what
+        time.sleep(0.01)
+
+
+def cruising(d: MotecDevice, drive: MotecSimDrive, counts: int = 10_000_000) -> None:
+    """Position control, enabled, a long move at 600 rpm under way."""
+    d.set_control_mode(CONTROL_MODE_POSITION)
+    d.enable(True)
+    d.move(counts, relative=True, speed_rpm=600)
+    wait_until("the move cruises", lambda: drive.speed >= 600)
+
+
+def ignored(drive: MotecSimDrive, name: str) -> list[tuple[int, tuple[int, ...]]]:
+    """(address, values) of the writes of register ``name`` the drive ignored."""
+    address = MOTEC_MAP[name].address
+    return [(r.address, r.values) for r in drive.write_log if r.ignored and r.address == address]
+
+
+# ---------------------------------------------------------------- the personalities
+
+
+def test_every_motion_write_of_the_bridge_has_an_ignore_name(bus: Bus) -> None:
+    """Item 1: each motion write the device layer sends is one of ``IGNORABLE`` (by its
+    register and value), and an ignored one is acknowledged and changes nothing."""
+    d, drive = bus.devices[1], bus.sim.drive(1)
+    d.set_control_mode(CONTROL_MODE_VELOCITY)
+    d.enable(True)
+    d.velocity(100)
+    d.velocity_stop()
+    d.enable(False)
+    d.set_control_mode(CONTROL_MODE_POSITION)
+    d.enable(True)
+    d.move(1000, relative=True, speed_rpm=300)
+    wait_until("the move ends", lambda: drive.move is None)
+    d.stop()
+    names = [sorted(drive.write_names(r)) for r in drive.write_log if r.table is Table.HOLDING]
+    assert names == [
+        ["control_mode"],  # 0x24 network
+        ["speed_zero"],  # 0xAE = 0 before velocity control
+        ["control_mode"],  # 0x25
+        ["speed_zero"],  # 0xAE = 0 before enabling in velocity control
+        ["enable"],
+        ["speed"],  # 100 rpm
+        ["speed_zero"],  # the stream's stop
+        ["disable"],
+        ["control_mode"],
+        ["control_mode"],
+        ["enable"],
+        ["speed"],  # the move's speed limit
+        ["target"],  # 0x2D
+        ["target"],  # 0x26-0x27
+        ["start"],
+        ["stop"],
+    ]
+    assert set(MotecSimDrive.IGNORABLE) == {n for group in names for n in group}
+    # Ignored: acknowledged (no exception), logged ignored, nothing stored.
+    bus.sim.ignore(["enable", "control_mode"])
+    d.enable(False)
+    with pytest.raises(NotConfirmed, match=r"wrote 0x28 = 1, read 0x28 = 0"):
+        d.enable(True)
+    assert not drive.enabled and ignored(drive, "enable") == [(0x28, (1,))]
+    with pytest.raises(NotConfirmed, match=r"wrote 0x24 = 0, 0x25 = 1, 0xAE = 0, read 0x24 = 0, "):
+        d.set_control_mode(CONTROL_MODE_VELOCITY)
+    assert drive.value("control_mode") == CONTROL_MODE_POSITION
+
+
+def test_an_unknown_ignore_name_is_one_line(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit):
+        main(["--pty", "/tmp/motec-unused", "--ignore", "stop,brake"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert "unknown motion write brake" in err[-1] and "speed_zero" in err[-1], err
+    assert not any("Traceback" in line for line in err)
+
+
+# ---------------------------------------------------------------- hole 4: the verified stop
+
+
+def test_hole4_an_unchanged_setpoint_at_full_speed_is_not_stopped(bus: Bus) -> None:
+    """A drive whose 0xAA holds the move's target (decision 22) and that ignores 0x29 = 0:
+    0xAA does not change while 0xAF reads full speed. The stop is not taken as done: the
+    drive is released, and the release is read back."""
+    d, drive = bus.devices[1], bus.sim.drive(1)
+    drive.setpoint_holds_target = True
+    cruising(d, drive)
+    bus.sim.ignore(["stop"])
+    said = d.stop()
+    assert said.startswith("0x29 = 0 did not stop the move ("), said
+    assert "drive released (0x28 = 0, reads 0; " in said, said
+    assert not drive.enabled and drive.speed == 0
+    assert ignored(drive, "start") == [(0x29, (0,))]
+
+
+def test_hole4_a_stop_and_a_release_both_ignored_are_not_confirmed(bus: Bus) -> None:
+    d, drive = bus.devices[1], bus.sim.drive(1)
+    cruising(d, drive)
+    bus.sim.ignore(["stop", "disable"])
+    with pytest.raises(NotConfirmed, match=r"sent, not confirmed: wrote 0x28 = 0 \(release\), "):
+        d.stop()
+    assert drive.enabled and drive.speed >= 600
+    assert ignored(drive, "start") == [(0x29, (0,))]
+    assert ignored(drive, "enable") == [(0x28, (0,))]
+
+
+def test_hole4_a_velocity_stop_that_is_ignored_releases_the_drive(bus: Bus) -> None:
+    d, drive = bus.devices[1], bus.sim.drive(1)
+    d.set_control_mode(CONTROL_MODE_VELOCITY)
+    d.enable(True)
+    d.velocity(600)
+    wait_until("the motor turns", lambda: drive.speed >= 600)
+    bus.sim.ignore(["speed_zero"])
+    said = d.stop()
+    assert said.startswith("0xAE = 0 did not stop the motor (0xAE reads 600, "), said
+    assert "drive released (0x28 = 0, reads 0; " in said
+    bus.sim.ignore(["speed_zero", "disable"])
+    d.enable(True)
+    d.velocity(0)
+    d.velocity(300)
+    wait_until("the motor turns", lambda: drive.speed >= 300)
+    with pytest.raises(NotConfirmed, match="read 0x28 = 1"):
+        d.stop()
+    assert drive.speed >= 300
+
+
+# ---------------------------------------------------------------- hole 6: start_all
+
+
+class LosesAReadAfterTheBroadcast:
+    """A drive's channel whose first read after the broadcast start gets no reply (noise
+    on its stub, a reply lost): the drive took the start, the bridge cannot see it."""
+
+    def __init__(self, channel: DeviceChannel) -> None:
+        self.channel = channel
+        self.armed = False
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.channel, name)
+
+    def read_registers(self, *args: Any, **kwargs: Any) -> list[int]:
+        if self.armed:
+            self.armed = False
+            raise LinkTimeout("unit 2: no reply (lost by the test)")
+        return self.channel.read_registers(*args, **kwargs)
+
+
+class ArmsOnWrite:
+    def __init__(self, channel: DeviceChannel, lossy: LosesAReadAfterTheBroadcast) -> None:
+        self.channel, self.lossy = channel, lossy
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.channel, name)
+
+    def write_register(
+        self, address: int, value: int, priority: Priority = Priority.COMMAND
+    ) -> None:
+        self.channel.write_register(address, value, priority)
+        self.lossy.armed = True
+
+
+def test_hole6_a_drive_whose_read_back_is_lost_is_stopped(bus: Bus) -> None:
+    """``start_all``: drive 2 took the start but its read-back was lost: its state is
+    unknown, so it is stopped with the others, and the answer is failure."""
+    for u in UNITS:
+        bus.devices[u].set_control_mode(CONTROL_MODE_POSITION)
+        bus.devices[u].enable(True)
+        bus.devices[u].write_parameter(0x26, 10_000_000)
+    lossy = LosesAReadAfterTheBroadcast(bus.channels[2])
+    broadcast = ArmsOnWrite(DeviceChannel(bus.link, 0, retries=0), lossy)
+    drives: dict[int, Any] = {1: bus.channels[1], 2: lossy, 3: bus.channels[3]}
+    ok, seen = start_all(broadcast, drives)  # type: ignore[arg-type]
+    assert not ok, seen
+    assert "drives [2] were not read back (they may be running)" in seen, seen
+    assert "drive 2: not read back (unit 2: no reply (lost by the test))" in seen, seen
+    for u in UNITS:
+        assert f"drive {u}: move stopped (0x29 = 0; " in seen, seen
+    wait_until("every drive stands", lambda: all(bus.sim.drive(u).speed == 0 for u in UNITS))
+    stops = [r for r in bus.sim.drive(2).write_log if (r.address, r.values) == (0x29, (0,))]
+    assert len(stops) == 1
+
+
+# ---------------------------------------------------------------- hole 9: set_control_mode
+
+
+def test_hole9_a_mode_change_is_judged_on_a_fresh_read(bus: Bus) -> None:
+    """The motor started turning after the last poll: the mode change is refused (the
+    speed is read at command priority), and nothing is written."""
+    d, drive = bus.devices[1], bus.sim.drive(1)
+    d.set_control_mode(CONTROL_MODE_POSITION)
+    d.enable(True)
+    assert not d.poll().turning
+    d.move(10_000_000, relative=True, speed_rpm=600)
+    wait_until("the motor turns", lambda: drive.speed > STANDSTILL_SPEED_RPM)
+    before = len(drive.write_log)
+    with pytest.raises(CommandRejected, match=r"the motor turns at \d+ rpm: ~/stop it"):
+        d.set_control_mode(CONTROL_MODE_VELOCITY)
+    assert len(drive.write_log) == before
+    assert drive.value("control_mode") == CONTROL_MODE_POSITION
