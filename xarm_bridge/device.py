@@ -18,8 +18,15 @@ from bridge_core.runtime.rate_groups import SLOW_POLL_PERIOD_DEFAULT_S, PollGrou
 from bridge_core.runtime.reads import read_blocks, read_named
 from bridge_core.wire.channel import Priority, RegisterIO
 from bridge_core.wire.codec import Value, encode
-from bridge_core.wire.errors import CommandRejected, ConfigurationError, LinkError, NotConfirmed
+from bridge_core.wire.errors import (
+    CommandRejected,
+    ConfigurationError,
+    DeviceException,
+    LinkError,
+    NotConfirmed,
+)
 from bridge_core.wire.planner import ReadRequest, plan_reads
+from bridge_core.wire.registers import Table
 
 from .registers import (
     COIL_FENCE_MODE,
@@ -76,34 +83,53 @@ def mode_name(mode: int) -> str:
     return MODE_NAMES.get(mode, f"mode {mode}")
 
 
-# A stop or pause is given this long to show in the state read back (the SDK's own
-# set_state answers at once; a stop that ramps down shows its state when it begins).
-HALT_CONFIRM_S = 0.5
-HALT_READ_PERIOD_S = 0.02  # between two read backs of the state while waiting
+# A stop, pause or start is given this long to show in the state read back (the SDK's
+# own set_state answers at once; a stop that ramps down shows its state when it begins).
+CONFIRM_S = 0.5
+CONFIRM_READ_PERIOD_S = 0.02  # between two read backs of the state while waiting
 STATE_IN_MOTION = 1  # H33 read (the xArm SDK's get_state)
+STATE_READY = 2  # "sleeping": ready, nothing to do (what a start leaves when no task waits)
+ERROR_ADDRESS = XARM_MAP["error_code"].address
+
+# What the state read back must show (xArm decisions 19 and 20), per command kind.
+SHOWN_BY = {
+    "stop": "state 4 (stopped)",
+    "pause": "state 3 (paused) or 4 (stopped)",
+    "start": "state 1 (in motion) or 2 (ready) with no error",
+    "task": "state 1 (in motion) with no error",
+}
 
 
 @dataclass(frozen=True)
-class HaltState:
-    """What a stop / pause reads back: H32, H33 and the coils C144 / C145."""
+class ArmReading:
+    """What a motion command reads back: H32, H33, the error code I32 and the pause /
+    stop coils C144 / C145 (shown, never taken as proof: xArm decision 19)."""
 
     mode: int
     state: int
+    error_code: int
     paused: bool
     stopped: bool
 
     def shows(self, kind: str) -> bool:
-        """A stop shows as C145 = 1 or state 4; a pause as C144 = 1 or state 3, or as any
-        state but in motion (an arm that stands has nothing to pause)."""
+        """Whether H33 (and I32) show ``kind`` done (``SHOWN_BY``). A pause is not shown
+        by state 2: a task waiting on an input stands in state 2 and moves again."""
         if kind == "stop":
-            return self.stopped or self.state == SET_STATE_STOP
-        return self.paused or self.state != STATE_IN_MOTION
+            return self.state == SET_STATE_STOP
+        if kind == "pause":
+            return self.state in (SET_STATE_PAUSE, SET_STATE_STOP)
+        if kind == "start":
+            return self.error_code == 0 and self.state in (STATE_IN_MOTION, STATE_READY)
+        return self.error_code == 0 and self.state == STATE_IN_MOTION
 
     def __str__(self) -> str:
+        error = f"error {self.error_code}"
+        if self.error_code:
+            error += f" ({error_text(self.error_code)})"
         return (
             f"mode {self.mode} ({mode_name(self.mode)}), state {self.state} "
-            f"({state_name(self.state)}), C144 paused {int(self.paused)}, C145 stopped "
-            f"{int(self.stopped)}"
+            f"({state_name(self.state)}), {error}, C144 paused {int(self.paused)}, C145 "
+            f"stopped {int(self.stopped)}"
         )
 
 
@@ -324,7 +350,8 @@ class XArmDevice:
         self.io.write_register(MODE_ADDRESS, mode)
 
     def set_state(self, state: int) -> tuple[int, int]:
-        """Write H33 (0 start, 3 pause, 4 stop) and read H32-33 back (FC 0x17)."""
+        """Write H33 (0 start, 3 pause, 4 stop) and read H32-33 back (FC 0x17), once: what
+        the state machine does with it is for ``command_state`` to confirm."""
         if state not in SETTABLE_STATES:
             raise CommandRejected(
                 f"state {state!r} refused: the controller takes 0 (start), 3 (pause), 4 (stop)"
@@ -332,40 +359,47 @@ class XArmDevice:
         mode_now, state_now = self.io.read_write_registers(MODE_ADDRESS, 2, STATE_ADDRESS, [state])
         return _signed(mode_now), _signed(state_now)
 
-    def read_halt_state(self) -> HaltState:
-        """H32-33 and the pause / stop coils C144-145, at command priority."""
+    def read_arm(self) -> ArmReading:
+        """H32-33, the error code I32 and the coils C144-145, at command priority."""
         mode, state = self.io.read_registers(MODE_ADDRESS, 2, priority=Priority.COMMAND)
+        (error,) = self.io.read_registers(
+            ERROR_ADDRESS, 1, table=Table.INPUT, priority=Priority.COMMAND
+        )
         paused, stopped = self.io.read_bits(COIL_PAUSED, 2, priority=Priority.COMMAND)
-        return HaltState(_signed(mode), _signed(state), bool(paused), bool(stopped))
+        return ArmReading(_signed(mode), _signed(state), error, bool(paused), bool(stopped))
 
-    def _wait_halted(self, kind: str) -> HaltState:
-        """The state read back until it shows ``kind`` or HALT_CONFIRM_S passed."""
-        deadline = time.monotonic() + HALT_CONFIRM_S
+    def _confirm(self, kind: str, wrote: str) -> str:
+        """The state read back until it shows ``kind`` or CONFIRM_S passed: what was
+        written and read when it shows; ``NotConfirmed`` saying both when it does not."""
+        deadline = time.monotonic() + CONFIRM_S
         while True:
-            seen = self.read_halt_state()
-            if seen.shows(kind) or time.monotonic() >= deadline:
-                return seen
-            time.sleep(HALT_READ_PERIOD_S)
+            seen = self.read_arm()
+            if seen.shows(kind):
+                return f"wrote {wrote}; reads {seen}"
+            if time.monotonic() >= deadline:
+                raise NotConfirmed(
+                    f"wrote {wrote}; reads {seen} after {CONFIRM_S:g} s, not {SHOWN_BY[kind]}"
+                )
+            time.sleep(CONFIRM_READ_PERIOD_S)
 
     def halt(self, kind: str) -> str:
-        """``stop`` / ``pause`` through the coil the manual names for it (C145 "停止运动控制",
-        C144 "暂停运动控制", FC 05 = 1), done only when the state read back shows it
-        (xArm decision 6). Not shown within HALT_CONFIRM_S: H33 = 4 / 3 (the xArm
-        SDK's set_state, the value the manual's FC 0x17 example writes) and read back
-        again; still not shown: ``NotConfirmed`` with what was written and seen."""
+        """``stop`` / ``pause``: the coil the manual names (C145 "停止运动控制", C144
+        "暂停运动控制", FC 05 = 1) and at once, without waiting for the arm, H33 = 4 / 3
+        (the xArm SDK's set_state, FC 0x17), so a firmware that ignores the coil stops
+        one round trip later, not after a wait (xArm decision 19). Done only when H33
+        read back shows it (4 stopped; a pause 3, or 4): the coils are not proof, a
+        firmware may keep them as written. A coil the controller refuses (an exception
+        reply) does not hold back H33."""
         coil, state = (
             (COIL_STOPPED, SET_STATE_STOP) if kind == "stop" else (COIL_PAUSED, SET_STATE_PAUSE)
         )
-        self.io.write_coil(coil, True)
-        first = self._wait_halted(kind)
-        if first.shows(kind):
-            return f"C{coil} = 1; {first}"
+        refused = ""
+        try:
+            self.io.write_coil(coil, True)
+        except DeviceException as err:
+            refused = f" (refused: {err})"
         self.set_state(state)
-        second = self._wait_halted(kind)
-        said = f"C{coil} = 1 not obeyed ({first}); H33 = {state} sent: {second}"
-        if second.shows(kind):
-            return said
-        raise NotConfirmed(said)
+        return self._confirm(kind, f"C{coil} = 1{refused} and H33 = {state}")
 
     def pause(self) -> str:
         return self.halt("pause")
@@ -373,8 +407,24 @@ class XArmDevice:
     def stop(self) -> str:
         return self.halt("stop")
 
-    def resume(self) -> tuple[int, int]:
-        return self.set_state(SET_STATE_START)
+    def start(self) -> str:
+        """H33 = 0 (the SDK's set_state 0: resume a paused task, make a stopped arm ready,
+        put a new mode in force), done only when the state read back shows the arm
+        ready or moving with no error (xArm decision 20): an arm in error stays in
+        state 4 and does not move."""
+        self.set_state(SET_STATE_START)
+        return self._confirm("start", f"H33 = {SET_STATE_START}")
+
+    def resume(self) -> str:
+        return self.start()
+
+    def command_state(self, state: int) -> str:
+        """``~/set_state``: 0 as ``start``, 3 and 4 written to H33 alone (as asked) and
+        confirmed as a pause / stop (xArm decisions 19, 20)."""
+        if state == SET_STATE_START:
+            return self.start()
+        self.set_state(state)
+        return self._confirm("stop" if state == SET_STATE_STOP else "pause", f"H33 = {state}")
 
     def set_digital_output(self, index: int, on: bool) -> None:
         """Controller DO 0-15 (FC 05 to coil ``index``)."""
@@ -428,15 +478,30 @@ class XArmDevice:
         )
         return self._write_runs("C", changes)
 
-    def set_joint_enable(self, joint: int, enable: bool) -> None:
+    def set_joint_enable(self, joint: int, enable: bool) -> str:
         """Enable or disable joint ``joint`` (1..joint_count, coil 134 + joint, FC 05), or
         with 0 every joint of the arm (C135.., one FC 0F). The brake coils C128-134 are
-        never written (xArm decision 12)."""
+        never written (xArm decision 12). Done only when the enable coils read back
+        ("关节的使能状态") show it (a disable ends motion: xArm decision 20)."""
         check_index("joint", joint, range(0, self.joint_count + 1))
+        first, count = (
+            (ENABLE_FIRST, self.joint_count)
+            if joint == 0
+            else (
+                ENABLE_FIRST + joint - 1,
+                1,
+            )
+        )
         if joint == 0:
             self.io.write_coils(ENABLE_FIRST, [bool(enable)] * self.joint_count)
         else:
             self.io.write_coil(ENABLE_FIRST + joint - 1, bool(enable))
+        seen = self.io.read_bits(first, count, priority=Priority.COMMAND)
+        wrote = f"wrote C{first}{f'-{first + count - 1}' if count > 1 else ''} = {int(enable)}"
+        reads = " ".join(str(int(bit)) for bit in seen)
+        if any(bool(bit) != bool(enable) for bit in seen):
+            raise NotConfirmed(f"{wrote}, reads {reads}")
+        return f"{wrote}, reads {reads}"
 
     def change_digital_outputs(self, changes: Mapping[int, bool]) -> None:
         """Several controller DOs in one FC 0x16 mask write to H0, the others kept; bit n
@@ -505,13 +570,17 @@ class XArmDevice:
             raise NotConfirmed(f"C{coil}: wrote {int(on)}, reads {int(seen)}")
         return f"C{coil} reads {int(seen)}"
 
-    def run_offline_task(self, projects: Sequence[int]) -> None:
-        """Up to 16 Blockly project numbers with FC 10 at 0x30 (the only way the manual allows)."""
+    def run_offline_task(self, projects: Sequence[int]) -> str:
+        """Up to 16 Blockly project numbers with FC 10 at 0x30 (the only way the manual
+        allows), done only when the state read back shows the arm in motion with no
+        error (xArm decision 20)."""
         if not 1 <= len(projects) <= OFFLINE_TASK_MAX:
             raise CommandRejected(f"give 1-{OFFLINE_TASK_MAX} project numbers, not {len(projects)}")
         for number in projects:
             check_whole_number("project number", number, TASK_NUMBER_MIN, TASK_NUMBER_MAX)
         self.io.write_registers(OFFLINE_TASK_ADDRESS, list(projects))
+        listed = " ".join(str(p) for p in projects)
+        return self._confirm("task", f"projects {listed} at H{OFFLINE_TASK_ADDRESS}")
 
 
 def _changes(

@@ -21,7 +21,7 @@ from bridge_core.runtime.units import (
     quaternion_angle_deg,
     rotation_vector_deg_to_quaternion,
 )
-from bridge_core.wire.errors import ConfigurationError
+from bridge_core.wire.errors import ConfigurationError, NotConfirmed
 from msg_defs.msg import XArmState
 from msg_defs.srv import (
     RunOfflineTask,
@@ -182,14 +182,8 @@ class XArmBridgeNode(BridgeNode[XArmSnapshot]):
     def _create_services(self) -> None:
         d = self.device
 
-        def state_after(result: tuple[int, int]) -> str:
-            mode, state = result
-            return f"; mode {mode} ({mode_name(mode)}), state {state} ({state_name(state)})"
-
-        def fill_state(response: Any, result: tuple[int, int]) -> None:
-            response.message += state_after(result)
-
-        # Stop and pause through C145 / C144, answered from the state read back (decision 6).
+        # Stop and pause: C145 / C144 and H33 at once, answered from H33 read back
+        # (decisions 6, 19).
         for name, halt in (("pause", d.pause), ("stop", d.stop)):
             self.command_service(
                 Trigger,
@@ -200,14 +194,15 @@ class XArmBridgeNode(BridgeNode[XArmSnapshot]):
                 fill=_written,
                 stops_axes=lambda _r: (ARM,),
             )
-        # What sets the arm moving: a halt (deactivate, exit, read_only) stops it (C145).
-        arm_started = (ARM, d.stop)
+        # What sets the arm moving: a halt (deactivate, exit, read_only) stops it (C145
+        # and H33 = 4); a stop the arm does not show is logged "sent, not confirmed".
+        arm_started = (ARM, _halt_stop(d.stop))
         self.command_service(
             Trigger,
             "~/resume",
             _named("resume"),
             _call(d.resume),
-            fill=fill_state,
+            fill=_written,
             starts=lambda _r: arm_started,
         )
         self.command_service(
@@ -223,8 +218,8 @@ class XArmBridgeNode(BridgeNode[XArmSnapshot]):
             SetInteger,
             "~/set_state",
             lambda r: f"set_state {r.value}",
-            lambda r: d.set_state(r.value),
-            fill=fill_state,
+            lambda r: d.command_state(r.value),
+            fill=_written,
             starts=lambda r: arm_started if r.value == SET_STATE_START else None,
         )
         self.command_service(
@@ -255,6 +250,7 @@ class XArmBridgeNode(BridgeNode[XArmSnapshot]):
                 f"{'enable' if r.enable else 'disable'}"
             ),
             lambda r: d.set_joint_enable(r.joint, r.enable),
+            fill=_written,
             stop=lambda r: not r.enable,  # disabling ends motion: tried at once, like a stop
             stops_axes=lambda r: (ARM,) if not r.enable and r.joint == 0 else (),
         )
@@ -290,6 +286,7 @@ class XArmBridgeNode(BridgeNode[XArmSnapshot]):
             "~/run_offline_task",
             lambda r: f"run_offline_task {listed(r.projects, 'projects', bracketed=True)}",
             lambda r: d.run_offline_task([int(p) for p in r.projects]),
+            fill=_written,
             starts=lambda _r: arm_started,
         )
 
@@ -312,6 +309,19 @@ def _pairs(request: Any) -> str:
         for k, index in enumerate(request.indexes)
     ]
     return listed(pairs, "outputs")
+
+
+def _halt_stop(stop: Callable[[], str]) -> Callable[[], str]:
+    """A halt's stop of what the services started: NotConfirmed says "sent, not
+    confirmed" in the halt's log line (and the stop is tried again, ``MotionLedger``)."""
+
+    def halt_stop() -> str:
+        try:
+            return stop()
+        except NotConfirmed as err:
+            raise NotConfirmed(f"sent, not confirmed: {err}") from None
+
+    return halt_stop
 
 
 def _written(response: Any, written: str) -> None:

@@ -19,15 +19,23 @@ Behaviour:
   disabled or braked in motion stops the arm (state 4, the task cancelled);
 - DO coils and the H0/H2 words stay consistent (bit n of the word = output n);
 - error injection (``set_error``) stops the arm until cleared.
+
+Personalities (docs/tools.md, "Device personalities"): ``--ignore NAME,...`` (the motion
+writes of ``IGNORABLE``: acknowledged, nothing stored, no motion) and
+``--coils-as-written`` (``coils_as_written``): C144 / C145 read back what was last
+written to them, ignored writes too, not the arm's state (a firmware that stores the coil
+and leaves the arm as it is).
 """
 
 from __future__ import annotations
 
 import argparse
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from typing import ClassVar
 
 from bridge_core.runtime.units import euler_xyz_deg_to_quaternion, quaternion_to_rotation_vector_deg
+from bridge_core.sim.personality import add_ignore_argument
 from bridge_core.sim.sim_base import (
     ILLEGAL_ADDRESS,
     ILLEGAL_FUNCTION,
@@ -63,6 +71,21 @@ PERIOD_S = 6.0
 
 
 class XArmSimDevice(SimulatedDevice):
+    # The motion writes xarm_bridge sends (xarm_bridge/device.py), for ``--ignore``; a
+    # write may be several of them (C145 = 1 is ``stop_coil`` and ``stop``).
+    IGNORABLE: ClassVar[Mapping[str, str]] = {
+        "stop": "every stop: C145 = 1 and H33 = 4",
+        "stop_coil": "C145, the stop coil (any value)",
+        "stop_state": "H33 = 4 (set_state stop)",
+        "pause": "every pause: C144 = 1 and H33 = 3",
+        "pause_coil": "C144, the pause coil (any value)",
+        "pause_state": "H33 = 3 (set_state pause)",
+        "start": "H33 = 0 (resume, set_state 0)",
+        "mode": "H32 (set_mode)",
+        "enable": "C135-141, the joint enables",
+        "run_offline_task": "FC 10 at 0x30 (an offline task)",
+    }
+
     def __init__(self, unit_id: int = 1, joints: int = JOINTS) -> None:
         if joints not in JOINT_COUNTS:
             raise ValueError(f"joints {joints} outside {JOINT_COUNTS.start}-{JOINTS}")
@@ -75,6 +98,8 @@ class XArmSimDevice(SimulatedDevice):
         self.enabled = [j <= joints for j in range(1, JOINTS + 1)]  # as the coils were
         self.phase = 0.0
         self.tasks_started: list[list[int]] = []
+        # ``--coils-as-written``: C144 / C145 hold what was last written, not the state.
+        self.coils_as_written = False
         self.write_guards.append(self._guard)
         self.write_hooks.append(self._on_write)
         self.set_state(SLEEPING)
@@ -93,8 +118,9 @@ class XArmSimDevice(SimulatedDevice):
         with self.lock:
             self.arm_state = state
             self.set("arm_state", state)
-            self.set("paused", state == PAUSED)
-            self.set("stopped", state == STOPPED)
+            if not self.coils_as_written:
+                self.set("paused", state == PAUSED)
+                self.set("stopped", state == STOPPED)
 
     def set_error(self, code: int) -> None:
         with self.lock:
@@ -123,7 +149,42 @@ class XArmSimDevice(SimulatedDevice):
             self._sync_words("controller_di", "controller_di_word", "tool_di", "tool_di_word")
 
     # ------------------------------------------------------------ Modbus behaviour
+    def write_names(self, record: WriteRecord) -> frozenset[str]:
+        """Which of ``IGNORABLE`` this write is."""
+        names: set[str] = set()
+        for address, value in zip(
+            range(record.address, record.address + len(record.values)), record.values, strict=True
+        ):
+            if record.table is Table.COIL:
+                if address == COIL_STOPPED:
+                    names |= {"stop_coil", "stop"} if value else {"stop_coil"}
+                elif address == COIL_PAUSED:
+                    names |= {"pause_coil", "pause"} if value else {"pause_coil"}
+                elif ENABLE_FIRST <= address < ENABLE_FIRST + JOINTS:
+                    names.add("enable")
+            elif record.table is Table.HOLDING:
+                if address == 32:
+                    names.add("mode")
+                elif address == 33:
+                    names |= _STATE_WRITE_NAMES.get(_signed(value), set())
+                elif address == OFFLINE_TASK_ADDRESS:
+                    names.add("run_offline_task")
+        return frozenset(names)
+
     def _guard(self, record: WriteRecord) -> int | None:
+        code = self._check_write(record)
+        if code is None and self.coils_as_written and self.ignores(record):
+            # Ignored (no motion), and still stored: the coil reads what was written.
+            for address, value in zip(
+                range(record.address, record.address + len(record.values)),
+                record.values,
+                strict=True,
+            ):
+                if record.table is Table.COIL and address in (COIL_PAUSED, COIL_STOPPED):
+                    self.set_words(Table.COIL, address, [value])
+        return code
+
+    def _check_write(self, record: WriteRecord) -> int | None:
         span = range(record.address, record.address + len(record.values))
         if record.table is Table.HOLDING:
             if OFFLINE_TASK_ADDRESS in span or any(48 <= a <= 63 for a in span):
@@ -272,6 +333,13 @@ def _signed(word: int) -> int:
     return word - 0x10000 if word >= 0x8000 else word
 
 
+_STATE_WRITE_NAMES = {
+    STOPPED: {"stop_state", "stop"},
+    PAUSED: {"pause_state", "pause"},
+    0: {"start"},
+}
+
+
 def make_simulator(joints: int = JOINTS) -> Simulator:
     return Simulator([XArmSimDevice(joints=joints)])
 
@@ -287,11 +355,18 @@ def main(argv: Sequence[str] | None = None) -> None:
         default=JOINTS,
         help="joints of the arm (xArm 5, 6 / Lite 6, 7)",
     )
+    add_ignore_argument(parser, XArmSimDevice.IGNORABLE)
+    parser.add_argument(
+        "--coils-as-written",
+        action="store_true",
+        help="C144 / C145 (pause / stop) read back what was last written, not the arm's state",
+    )
     args = parser.parse_args(argv)
     sim = make_simulator(args.joints)
     device = sim.device
     assert isinstance(device, XArmSimDevice)
     device.set_error(args.error)
+    device.coils_as_written = bool(args.coils_as_written)
     serve_tcp_until_signalled(sim, args, "xarm_sim")
 
 

@@ -153,7 +153,7 @@ def test_fc17_as_set_state_reads_mode_and_state_back() -> None:
             (
                 "00 01 00 00 00 0D 01 17 00 20 00 02 00 21 00 01 02 00 03",
                 "00 01 00 00 00 07 01 17 04 00 00 00 03",
-                "set_state 3 (pause's fallback, decision 6): H33 = 3, read H32-33",
+                "set_state 3 (pause, decision 19): H33 = 3, read H32-33",
             )
         ],
         lambda d, _: d.set_state(3),
@@ -161,16 +161,25 @@ def test_fc17_as_set_state_reads_mode_and_state_back() -> None:
     assert result == (0, 3)
 
 
-def test_stop_writes_c145_and_reads_the_state_back() -> None:  # decision 6
+def test_stop_writes_c145_and_h33_at_once_and_reads_the_state_back() -> None:  # decision 19
     said = run(
         [
             ("00 01 00 00 00 06 01 05 00 91 FF 00", "00 01 00 00 00 06 01 05 00 91 FF 00", "C145"),
+            (
+                "00 01 00 00 00 0D 01 17 00 20 00 02 00 21 00 01 02 00 04",
+                "00 01 00 00 00 07 01 17 04 00 00 00 04",
+                "H33 = 4 at once, H32-33 read",
+            ),
             ("00 01 00 00 00 06 01 03 00 20 00 02", "00 01 00 00 00 07 01 03 04 00 00 00 04", "H"),
+            ("00 01 00 00 00 06 01 04 00 20 00 01", "00 01 00 00 00 05 01 04 02 00 00", "I32"),
             ("00 01 00 00 00 06 01 01 00 90 00 02", "00 01 00 00 00 04 01 01 01 02", "C144-145"),
         ],
         lambda d, _: d.stop(),
     )
-    assert said == "C145 = 1; mode 0 (position), state 4 (stopped), C144 paused 0, C145 stopped 1"
+    assert said == (
+        "wrote C145 = 1 and H33 = 4; reads mode 0 (position), state 4 (stopped), error 0, "
+        "C144 paused 0, C145 stopped 1"
+    )
 
 
 def test_fc04_read_input_registers() -> None:

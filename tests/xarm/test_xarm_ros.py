@@ -177,9 +177,11 @@ def test_services_write_what_they_should(sim, client: Client, tmp_path: Path) ->
         log = [(r.function_code, r.table, r.address, r.values) for r in device.write_log]
         assert log == [
             (16, Table.HOLDING, 0x30, (3, 12)),
-            (5, Table.COIL, 144, (1,)),  # decision 6: the coils the manual names
+            (5, Table.COIL, 144, (1,)),  # decision 6: the coils the manual names,
+            (23, Table.HOLDING, 33, (3,)),  # and H33 at once (decision 19)
             (23, Table.HOLDING, 33, (0,)),
             (5, Table.COIL, 145, (1,)),
+            (23, Table.HOLDING, 33, (4,)),
             (23, Table.HOLDING, 33, (0,)),
             (6, Table.HOLDING, 32, (1,)),
             (23, Table.HOLDING, 33, (0,)),

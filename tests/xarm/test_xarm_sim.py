@@ -15,7 +15,6 @@ from bridge_core.runtime.units import (
     quaternion_angle_deg,
     rotation_vector_deg_to_quaternion,
 )
-from bridge_core.sim.sim_base import WriteRecord
 from bridge_core.wire.channel import DeviceChannel
 from bridge_core.wire.errors import (
     CommandRejected,
@@ -104,17 +103,19 @@ def test_state_machine_through_the_device(xarm) -> None:  # type: ignore[no-unty
     assert "state 3 (paused)" in device.pause() and sim.arm_state == PAUSED
     frozen = device.poll().joint_angles_deg
     assert device.poll().joint_angles_deg == frozen and device.poll().paused
-    assert device.resume() == (0, IN_MOTION)
+    assert "mode 0 (position), state 1 (in motion)" in device.resume()
     assert "state 4 (stopped)" in device.stop() and device.poll().stopped
-    assert device.resume() == (0, SLEEPING)
+    assert "mode 0 (position), state 2 (sleeping)" in device.resume()
     sim.set_error(22)
-    device.run_offline_task([1])
+    with pytest.raises(NotConfirmed, match=r"state 4 \(stopped\), error 22 \(collision error\)"):
+        device.run_offline_task([1])  # decision 20: an arm in error does not move
     assert sim.arm_state == STOPPED and error_text(22) == "collision error"
     device.set_mode(4)
-    assert device.resume() == (0, STOPPED)  # an error: the start is refused, mode 0 stays
+    with pytest.raises(NotConfirmed, match=r"wrote H33 = 0; reads mode 0 .*state 4"):
+        device.resume()  # an error: the start is refused, mode 0 stays
     assert device.poll().motion_modes[0]
     sim.set_error(0)
-    assert device.resume() == (4, SLEEPING)
+    assert "mode 4 (joint velocity), state 2 (sleeping)" in device.resume()
     assert device.poll().motion_modes == (False,) * 4 + (True,) + (False,) * 9
 
 
@@ -242,7 +243,7 @@ def test_a_new_mode_takes_effect_after_set_state_0(xarm) -> None:  # type: ignor
     # The manual's FC 0x17 example writes mode 6 and state 4 (stop) at once: no start.
     assert channel.read_write_registers(3, 2, 32, [6, 4]) == [0, 0]
     assert device.poll().mode == 1 and sim.arm_state == STOPPED
-    assert device.resume() == (6, SLEEPING)
+    assert "mode 6 (joint online trajectory), state 2 (sleeping)" in device.resume()
 
 
 @pytest.mark.parametrize("joints", [5, 6])
@@ -336,18 +337,20 @@ def test_enables_and_brakes_follow_their_coils(xarm) -> None:  # type: ignore[no
     s = device.poll()
     assert s.enabled == (True, True, False, True, True, True, True)
     assert s.brakes == (True, True, False, True, True, True, True)  # J3's brake engaged
-    device.run_offline_task([1])
+    with pytest.raises(NotConfirmed, match=r"state 2 \(sleeping\)"):
+        device.run_offline_task([1])
     assert sim.arm_state == SLEEPING  # not ready: the task does not start
-    assert device.resume() == (0, STOPPED)  # nor does set_state 0
+    with pytest.raises(NotConfirmed, match=r"state 4 \(stopped\)"):
+        device.resume()  # nor does set_state 0
     device.set_joint_enable(0, True)  # every joint: one FC 0F
     assert device.poll().brakes == (True,) * 7
-    assert device.resume() == (0, SLEEPING)
+    assert "state 2 (sleeping)" in device.resume()
     device.run_offline_task([2])
     assert sim.arm_state == IN_MOTION
     device.set_joint_enable(2, False)  # a joint disabled in motion stops the arm
     assert sim.arm_state == STOPPED and sim.task_seconds_left == 0
     device.set_joint_enable(2, True)
-    assert device.resume() == (0, SLEEPING)
+    assert "state 2 (sleeping)" in device.resume()
     # A brake coil written (not by the bridge: it never writes C128-134) stays as written
     # and, engaged in motion, stops the arm like a disable.
     device.run_offline_task([3])
@@ -415,45 +418,24 @@ def test_issue_10_refusals_write_nothing(xarm, call, match) -> None:  # type: ig
     assert sim.write_log == [] and channel.stats.transactions == before
 
 
-def test_stop_and_pause_go_through_c145_and_c144_and_are_read_back(xarm) -> None:  # type: ignore[no-untyped-def]
-    """Decision 6: the coils the manual names, the reply from the state read back."""
+def test_stop_and_pause_go_through_c145_and_c144_and_h33_and_are_read_back(xarm) -> None:  # type: ignore[no-untyped-def]
+    """Decisions 6 and 19: the coils the manual names and H33 at once, the reply from
+    the state read back."""
     device, sim, _, _ = xarm
     device.run_offline_task([7])
     said = device.pause()
-    assert writes(sim)[-1] == (5, Table.COIL, COIL_PAUSED, (1,))
-    assert said.startswith("C144 = 1; ") and "C144 paused 1" in said
+    assert writes(sim)[-2:] == [
+        (5, Table.COIL, COIL_PAUSED, (1,)),
+        (23, Table.HOLDING, 33, (3,)),
+    ]
+    assert said.startswith("wrote C144 = 1 and H33 = 3; ") and "state 3 (paused)" in said
     device.resume()
     said = device.stop()
-    assert writes(sim)[-1] == (5, Table.COIL, COIL_STOPPED, (1,))
+    assert writes(sim)[-2:] == [
+        (5, Table.COIL, COIL_STOPPED, (1,)),
+        (23, Table.HOLDING, 33, (4,)),
+    ]
     assert "state 4 (stopped)" in said and sim.arm_state == STOPPED
-
-
-def test_a_stop_coil_the_arm_ignores_falls_back_to_h33_then_says_so(xarm) -> None:  # type: ignore[no-untyped-def]
-    device, sim, _, _ = xarm
-    obeys_h33 = [True]
-
-    def ignore_halts(record: WriteRecord) -> None:
-        if record.table is Table.COIL and record.address in (COIL_PAUSED, COIL_STOPPED):
-            sim.set_state(IN_MOTION)  # acknowledged, not obeyed
-        if (
-            record.table is Table.HOLDING
-            and 33 in range(record.address, record.address + len(record.values))
-            and not obeys_h33[0]
-        ):
-            sim.set_state(IN_MOTION)
-
-    sim.write_hooks.append(ignore_halts)
-    device.run_offline_task([7])
-    said = device.stop()
-    assert "C145 = 1 not obeyed" in said and "H33 = 4 sent" in said
-    assert sim.arm_state == STOPPED
-    device.resume()
-    device.run_offline_task([7])
-    obeys_h33[0] = False
-    with pytest.raises(
-        NotConfirmed, match=r"C145 = 1 not obeyed .*; H33 = 4 sent: .*C145 stopped 0"
-    ):
-        device.stop()
 
 
 def test_safety_modes_switch_off_only_when_confirmed(xarm) -> None:  # type: ignore[no-untyped-def]
