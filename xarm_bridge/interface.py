@@ -44,17 +44,17 @@ SERVICES = (
     Service(
         "~/pause",
         "std_srvs/srv/Trigger",
-        "pause motion (C144, else H33 = 3); success only when the state read back shows it",
+        "pause motion (C144 and H33 = 3 at once); success only when H33 read back shows it",
     ),
     Service(
         "~/stop",
         "std_srvs/srv/Trigger",
-        "stop motion (C145, else H33 = 4); success only when the state read back shows it",
+        "stop motion (C145 and H33 = 4 at once); success only when H33 read back shows it",
     ),
     Service(
         "~/resume",
         "std_srvs/srv/Trigger",
-        "resume motion (H33 = 0); the reply gives the mode and state read back",
+        "resume motion (H33 = 0); success only when the state read back shows the arm ready",
     ),
     Service(
         "~/set_mode",
@@ -64,7 +64,8 @@ SERVICES = (
     Service(
         "~/set_state",
         "msg_defs/srv/SetInteger",
-        "the arm's state: 0 start, 3 pause, 4 stop (H33); answers the mode and state read back",
+        "the arm's state: 0 start, 3 pause, 4 stop (H33); success only when the state read "
+        "back shows it",
     ),
     Service(
         "~/set_digital_output",
@@ -84,7 +85,8 @@ SERVICES = (
     Service(
         "~/set_joint_enable",
         "msg_defs/srv/SetJointEnable",
-        "enable or disable one joint's motor, or all with joint 0; a disable is sent as a stop",
+        "enable or disable one joint's motor, or all with joint 0; a disable is sent as a "
+        "stop; success only when the enable coils read back show it",
     ),
     Service(
         "~/set_tool_digital_output",
@@ -109,7 +111,8 @@ SERVICES = (
     Service(
         "~/run_offline_task",
         "msg_defs/srv/RunOfflineTask",
-        "start offline (Blockly) projects by number, 1-16 of them",
+        "start offline (Blockly) projects by number, 1-16 of them; success only when the "
+        "arm reads in motion",
     ),
 )
 
