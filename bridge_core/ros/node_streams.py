@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 from rclpy.timer import Timer
 
 from ..runtime.stream_guard import StreamGuard
-from ..wire.errors import DeviceException
+from ..wire.errors import DeviceException, NotConfirmed
 
 if TYPE_CHECKING:
     from .node_base import BridgeNode
@@ -249,6 +249,11 @@ class StreamHost:
                 except DeviceException as err:  # answered: not a link fault; polls go on
                     self.node.get_logger().error(
                         f"stream {key}: the device refused its stop: {err}"
+                    )
+                    continue
+                except NotConfirmed as err:  # answered, not shown: the deadman tries again
+                    self.node.get_logger().error(
+                        f"stream {key}: its pending stop went out, not confirmed: {err}"
                     )
                     continue
                 self.node.get_logger().info(f"stream {key}: the pending stop was sent on reconnect")
