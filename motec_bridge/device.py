@@ -99,6 +99,10 @@ VELOCITY_STREAM = 0  # the key of the drive's one cmd_velocity stream
 SPEED_LIMIT_RPM = 32767  # 0xAE is a signed 16-bit register
 LIFEGUARD_MIN_MS = 50  # below this a feed every third of it would crowd the bus
 FEEDS_PER_PERIOD = 3  # the bridge writes at least 3 times per lifeguard time
+# While a drive is marked down, within the lifeguard time since its last write, a feed is
+# tried this often (each try holds the line for the short stop timeout): a line that
+# answers again is found, and the drive fed, within about this (issue 39 hole 11).
+DOWN_FEED_RETRY_S = 0.1
 # A servo at rest dithers by a count or two and shows an rpm or two in 0xAF (MOTEC
 # decision 17): |0xAF| within this band counts as standing still.
 STANDSTILL_SPEED_RPM = 3
@@ -722,20 +726,32 @@ class MotecDevice(ConfiguredDevice[MotecConfig]):
         self._write("lifeguard_time", LIFEGUARD_OFF_MS)
         self._write("lifeguard_mode", LIFEGUARD_MODE_OFF)
 
-    def next_feed(self, time_ms: int) -> float:
-        """When the lifeguard needs its next write (``clock()`` time): a feed period after
-        the request of the last write of any kind, or of the last feed tried (one that
-        failed while the line is down is tried again a feed period later, not sooner)."""
-        return max(self.last_write, self.last_feed_try) + lifeguard_feed_period_s(time_ms)
+    def next_feed(self, time_ms: int, down: bool = False) -> float:
+        """When the lifeguard needs its next write (``clock()`` time).
 
-    def feed_lifeguard(self, time_ms: int) -> bool:
+        Up: a feed period after the request of the last write of any kind (a feed that
+        failed while the line was down does not delay it: once the line answers again the
+        overdue feed goes at once, issue 39 hole 11). Down (``down``): the first try a
+        feed period after the last write, then one every ``DOWN_FEED_RETRY_S`` until the
+        lifeguard time since the last write is over (after it a real drive has tripped
+        unless a try got through), then one per feed period."""
+        period = lifeguard_feed_period_s(time_ms)
+        first = self.last_write + period
+        if not down or self.last_feed_try < first - period:
+            return first
+        trip = self.last_write + time_ms / 1000.0
+        retry = DOWN_FEED_RETRY_S if self.last_feed_try + DOWN_FEED_RETRY_S < trip else period
+        return max(first, self.last_feed_try + min(retry, period))
+
+    def feed_lifeguard(self, time_ms: int, down: bool = False) -> bool:
         """Rewrite 0x112 if nothing was written to the drive for a feed period. Also while
-        the drive is marked down (the caller sends it like a stop: one try, the short
-        stop timeout), so a line that comes back within the lifeguard time finds the
-        drive fed before it trips (docs/bridges/motec.md, "Lifeguard")."""
+        the drive is marked down (``down``: the caller sends it like a stop: one try, the
+        short stop timeout), on ``next_feed``'s schedule, so a line that comes back within
+        the lifeguard time finds the drive fed before it trips (docs/bridges/motec.md,
+        "Lifeguard")."""
         if time_ms <= 0:
             return False
-        if self._clock() < self.next_feed(time_ms):
+        if self._clock() < self.next_feed(time_ms, down):
             return False
         tried, self.last_feed_try = self.last_feed_try, self._clock()
         try:
@@ -774,10 +790,11 @@ def lifeguard_min_ms(drives: int, hold_s: float) -> int:
     The gap between two writes to a live drive stays within the time if
         time / 3 + FEED_WAKE_S + drives x hold_s <= time,
     i.e. time >= 1.5 x (FEED_WAKE_S + drives x hold_s) with 3 feeds per period. While
-    the line is down the feeds go on, one try each feed period with the short stop
-    timeout, so a drive whose line comes back within ``time - time / 3`` of its last
-    write is fed before it trips (bench/motec_blackout.py).
-    """
+    the line is down the feeds go on with the short stop timeout (``next_feed``: every
+    ``DOWN_FEED_RETRY_S`` within the lifeguard time), so a drive whose line answers x
+    after its last write is fed before it trips when x + DOWN_FEED_RETRY_S +
+    FEED_WAKE_S + hold_s < time (docs/bridges/motec.md, "Across line outages";
+    bench/motec_blackout.py)."""
     gap_s = FEED_WAKE_S + drives * hold_s
     bound_ms = gap_s * FEEDS_PER_PERIOD / (FEEDS_PER_PERIOD - 1) * 1000.0
     return max(LIFEGUARD_MIN_MS, math.ceil(round(bound_ms, 6)))  # 90.00000000000001 is 90

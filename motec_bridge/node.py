@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import functools
 import sys
+import time
 from collections.abc import Sequence
 from typing import Any
 
@@ -44,6 +45,7 @@ from bridge_core.ros.process import BusNode, spin_nodes
 from bridge_core.runtime.checks import board_zero_index
 from bridge_core.runtime.diagnostics import Level, Report
 from bridge_core.runtime.joint_commands import MAX_JUMP_SPEC, CommandJoint
+from bridge_core.runtime.keepalive import IDLE_CHECK_S
 from bridge_core.runtime.rate_groups import PollGroups
 from bridge_core.wire.channel import DeviceChannel
 from bridge_core.wire.errors import CommandRejected, ConfigurationError, DeviceException, LinkError
@@ -434,7 +436,13 @@ class MotecDriveNode(BridgeNode[MotecSnapshot]):
         if self.read_only or not self.configured or self.channel.generation == 0:
             return None
         time_ms = self.lifeguard_time_ms()
-        return self.device.next_feed(time_ms) if time_ms else None
+        if not time_ms:
+            return None
+        if self.channel.connected:
+            return self.device.next_feed(time_ms)
+        # Down: looked at again every IDLE_CHECK_S, so that once a probe finds the drive
+        # the overdue feed goes at once, not at the next try of the down schedule.
+        return min(self.device.next_feed(time_ms, down=True), time.monotonic() + IDLE_CHECK_S)
 
     def _feed_lifeguard(self) -> None:
         time_ms = self.lifeguard_time_ms()
@@ -444,8 +452,8 @@ class MotecDriveNode(BridgeNode[MotecSnapshot]):
                     self.device.feed_lifeguard(time_ms)
             else:
                 # As a stop is sent while down: one try, the short stop timeout, no
-                # session (no reconnect to wait for); one per feed period (next_feed).
-                self.device.feed_lifeguard(time_ms)
+                # session (no reconnect to wait for); on next_feed's down schedule.
+                self.device.feed_lifeguard(time_ms, down=True)
         except LinkError as err:  # the poll reports the link; nothing else to do here
             self.get_logger().warn(f"lifeguard feed failed: {err}", throttle_duration_sec=5.0)
 

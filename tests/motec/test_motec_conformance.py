@@ -10,6 +10,7 @@ and refusals that never reach the wire.
 
 from __future__ import annotations
 
+import itertools
 import math
 import threading
 import time
@@ -34,6 +35,7 @@ from bridge_core.wire.registers import Table, ValueType, WordOrder
 from bridge_core.wire.transport import ModbusLink, SerialSettings
 from motec_bridge.device import (
     CONFIG_PLAN,
+    DOWN_FEED_RETRY_S,
     MODE_PLAN,
     MOVE_TIME_ALLOWANCE_S,
     STANDSTILL_SPEED_RPM,
@@ -632,12 +634,14 @@ def test_lifeguard_feeds_count_from_the_request_and_go_on_while_down() -> None:
     io.fail = True
     now[0] = 100.1
     with pytest.raises(LinkTimeout):
-        d.feed_lifeguard(300)  # request at 100.1, timed out at 100.14
-    assert not d.feed_lifeguard(300)  # not again at once
-    assert d.next_feed(300) == pytest.approx(100.2)
+        d.feed_lifeguard(300, down=True)  # request at 100.1, timed out at 100.14
+    assert not d.feed_lifeguard(300, down=True)  # not again at once
+    # Within the lifeguard time since the last write: again after DOWN_FEED_RETRY_S (less
+    # than a feed period here, so the feed period).
+    assert d.next_feed(300, down=True) == pytest.approx(100.2)
     now[0] = 100.2
     io.fail = False
-    assert d.feed_lifeguard(300)
+    assert d.feed_lifeguard(300, down=True)
     assert d.next_feed(300) == pytest.approx(100.3)
     # A feed refused before it went out (the session's link was lost): due again at once.
     now[0] = 100.3
@@ -645,6 +649,44 @@ def test_lifeguard_feeds_count_from_the_request_and_go_on_while_down() -> None:
     with pytest.raises(NotSent):
         d.feed_lifeguard(300)
     assert d.next_feed(300) == pytest.approx(100.3)
+
+
+def test_hole11_a_line_back_late_in_the_lifeguard_time_is_fed_at_once() -> None:
+    """Issue 39 hole 11: lifeguard 1000 ms, last write at 100.0, the line down from just
+    after it. Before, the tries sat on the 1/3 s grid of the last write (100.333,
+    100.667, 101.0), so a line back at 100.8 got its first write at 101.0, when the drive
+    trips. Now the tries come every DOWN_FEED_RETRY_S within the lifeguard time, and
+    once the drive answers (a probe: the node asks with down=False) the overdue feed is
+    due at once. After the lifeguard time they go back to one per feed period."""
+    now = [100.0]
+    io = SlowIO(now, write_s=0.0)
+    d = MotecDevice(io, clock=lambda: now[0])
+    assert d.feed_lifeguard(1000)  # the last write, at 100.0
+    io.fail = True
+    tries: list[float] = []
+
+    def tick_until(end: float) -> None:  # the keepalive, looking every 10 ms
+        while now[0] < end - 1e-9:
+            now[0] = round(now[0] + 0.01, 6)
+            if now[0] >= d.next_feed(1000, down=True):
+                tries.append(now[0])
+                with pytest.raises(LinkTimeout):
+                    d.feed_lifeguard(1000, down=True)
+
+    tick_until(100.8)
+    assert tries[0] == pytest.approx(100.34)  # a feed period after the last write
+    assert all(b - a <= DOWN_FEED_RETRY_S + 0.011 for a, b in itertools.pairwise(tries))
+    io.fail = False  # the line answers again at 100.8
+    while not d.feed_lifeguard(1000, down=True):
+        now[0] = round(now[0] + 0.01, 6)
+    assert now[0] - 100.8 <= DOWN_FEED_RETRY_S + 0.011 and now[0] < 101.0
+    # A probe found the drive before a feed did (the last try failed at 100.75): the node
+    # asks the up schedule, and the overdue feed is due at once (before: 101.083).
+    d.last_write, d.last_feed_try = 100.0, 100.75
+    assert d.next_feed(1000) == pytest.approx(100.0 + 1 / 3)
+    # Past the lifeguard time without a write: one try per feed period.
+    d.last_write, d.last_feed_try = 100.0, 101.05
+    assert d.next_feed(1000, down=True) == pytest.approx(101.05 + 1 / 3)
 
 
 def test_the_first_lifeguard_feed_goes_at_once_with_the_clock_near_zero() -> None:
