@@ -6,6 +6,7 @@ refused command writes nothing. "R6 decision N" is reading N of docs/decisions/r
 
 from __future__ import annotations
 
+import time
 from collections.abc import Hashable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -75,8 +76,28 @@ MODE_AUTO = 2  # 2185: "2 自动" (decision 2)
 # The commands that set the program running (R6 decision 23): checked first.
 PROGRAM_COMMANDS = ("start", "single_cycle", "clear_alarm_and_continue", "clear_alarm_and_next")
 CLEAR_COMMANDS = ("clear_alarm_and_continue", "clear_alarm_and_next")
-# The rows those checks read fresh, at command priority.
-READINESS_ROWS = ("mode", "alarm_code", "homed", "global_speed", "last_cycle_time")
+# The rows those checks read fresh, at command priority (moving and the current cycle time:
+# what a start is confirmed against, and whether a program already runs).
+READINESS_ROWS = (
+    "mode",
+    "alarm_code",
+    "homed",
+    "global_speed",
+    "last_cycle_time",
+    "moving",
+    "current_cycle_time",
+)
+# The commands that set the program running from standstill, confirmed after the write.
+START_COMMANDS = ("start", "single_cycle")
+# R6 decision 29: a stop, pause or stop button is done when the controller, read back,
+# shows the program standing (2470 moving 0 and the current cycle time 2397 not counting
+# over PROGRAM_STILL_S) within HALT_CONFIRM_S of the write's acknowledgement; a start or
+# single cycle when it shows it running (moving 1, 2397 or 2401 changed) within
+# START_CONFIRM_S. Otherwise: "not confirmed", with what was written and read.
+HALT_CONFIRM_S = 1.0
+START_CONFIRM_S = 1.0
+PROGRAM_STILL_S = 0.1  # 2397 unchanged this long (moving 0): the cycle is not counting
+CONFIRM_READ_PERIOD_S = 0.02  # between two read backs while waiting
 
 
 def mode_name(mode: int) -> str:
@@ -92,6 +113,30 @@ class Readiness:
     homed: bool
     global_speed_percent: float
     last_cycle_time_ms: int
+    moving: bool = False
+    current_cycle_time_ms: int = 0
+
+
+@dataclass(frozen=True)
+class ProgramState:
+    """What a stop or start is confirmed from (R6 decision 29): 2470, 2397 and (for a
+    start) 2401, read at ``at`` (time.monotonic(), after the reply)."""
+
+    moving: bool
+    cycle_ms: int
+    last_cycle_ms: int | None
+    at: float
+
+    @property
+    def text(self) -> str:
+        last = (
+            ""
+            if self.last_cycle_ms is None
+            else f", last cycle time (2401) {self.last_cycle_ms} ms"
+        )
+        return (
+            f"moving (2470) {int(self.moving)}, current cycle time (2397) {self.cycle_ms} ms{last}"
+        )
 
 
 @dataclass(frozen=True)
@@ -149,6 +194,8 @@ class R6Device:
         self.m_boards = m_boards
         self.eu_board = eu_board
         self.stops = 0  # stop / pause / stop_button commands acknowledged (RunCycleMotion)
+        # When the controller writes 2401, as a run_cycle goal saw it (decision 23).
+        self.cycle_time_written_at: str | None = None
         self._plan: list[ReadRequest] | None = None
         self._plan_counts: tuple[int, int] | None = None
         # The slow group (SLOW_NAMES) and the fast head of the poll (the world block and
@@ -387,7 +434,84 @@ class R6Device:
             homed=bool(values["homed"]),
             global_speed_percent=float(values["global_speed"]),
             last_cycle_time_ms=int(values["last_cycle_time"]),
+            moving=bool(values["moving"]),
+            current_cycle_time_ms=int(values["current_cycle_time"]),
         )
+
+    def read_program_state(self, *, last_cycle: bool = False) -> ProgramState:
+        """2470 and 2397 (and 2401 with ``last_cycle``), at command priority."""
+        names = ("moving", "current_cycle_time", *(("last_cycle_time",) if last_cycle else ()))
+        values = self.read_named(*names)
+        return ProgramState(
+            moving=bool(values["moving"]),
+            cycle_ms=int(values["current_cycle_time"]),
+            last_cycle_ms=int(values["last_cycle_time"]) if last_cycle else None,
+            at=time.monotonic(),
+        )
+
+    def halt(self, name: str) -> str:
+        """stop (20000), pause (20001) or stop button (20004), done only when the
+        controller shows the program standing within HALT_CONFIRM_S (R6 decision 29):
+        moving (2470) 0 and the current cycle time (2397) not counting over
+        PROGRAM_STILL_S (a step that waits for an input shows moving 0 while its cycle
+        counts). Not shown: ``NotConfirmed`` with what was written and read."""
+        if name not in STOP_COMMANDS:
+            raise CommandRejected(
+                f"{name} is not a stop; stops: {', '.join(sorted(STOP_COMMANDS))}"
+            )
+        self.command(name)
+        wrote = f"wrote {COMMANDS[name]} = 1 ({name}), acknowledged"
+        deadline = time.monotonic() + HALT_CONFIRM_S
+        still: ProgramState | None = None  # the first read of the current standstill
+        while True:
+            try:
+                seen = self.read_program_state()
+            except LinkError as err:
+                raise NotConfirmed(f"sent ({wrote}); the read back failed: {err}") from err
+            if seen.moving:
+                still = None
+            elif still is None or seen.cycle_ms != still.cycle_ms:
+                still = seen
+            elif seen.at - still.at >= PROGRAM_STILL_S:
+                return f"{wrote}; read {seen.text}, not counting: the program stands"
+            if time.monotonic() >= deadline:
+                raise NotConfirmed(
+                    f"sent ({wrote}); read {seen.text} {HALT_CONFIRM_S:g} s after "
+                    "(HALT_CONFIRM_S): the program may still run"
+                )
+            time.sleep(CONFIRM_READ_PERIOD_S)
+
+    def confirm_start(self, name: str, before: Readiness) -> str:
+        """A start or single cycle just acknowledged: done only when the controller shows
+        the program running within START_CONFIRM_S (R6 decision 29): moving (2470) 1, or
+        the current (2397) or last (2401) cycle time changed from ``before`` (read just
+        before the write: a step that waits counts 2397 with moving 0; a cycle shorter
+        than a read back changes 2401). Not shown: ``NotConfirmed``."""
+        wrote = f"wrote {COMMANDS[name]} = 1 ({name}), acknowledged"
+        was = (
+            f"moving (2470) {int(before.moving)}, current cycle time (2397) "
+            f"{before.current_cycle_time_ms} ms, last cycle time (2401) "
+            f"{before.last_cycle_time_ms} ms"
+        )
+        deadline = time.monotonic() + START_CONFIRM_S
+        while True:
+            try:
+                seen = self.read_program_state(last_cycle=True)
+            except LinkError as err:
+                raise NotConfirmed(f"sent ({wrote}); the read back failed: {err}") from err
+            if (
+                seen.moving
+                or seen.cycle_ms != before.current_cycle_time_ms
+                or seen.last_cycle_ms != before.last_cycle_time_ms
+            ):
+                already = " (it was moving before the write)" if before.moving else ""
+                return f"{wrote}; read {seen.text}: the program runs{already}"
+            if time.monotonic() >= deadline:
+                raise NotConfirmed(
+                    f"sent ({wrote}); read {seen.text} {START_CONFIRM_S:g} s after "
+                    f"(START_CONFIRM_S); before the write: {was}: the program did not start"
+                )
+            time.sleep(CONFIRM_READ_PERIOD_S)
 
     def check_program_command(self, name: str, *, skip_failed_step: bool = False) -> Readiness:
         """Refuse a command that sets the program running unless the controller, read just
@@ -421,11 +545,15 @@ class R6Device:
             )
         return ready
 
-    def run_program(self, name: str, *, skip_failed_step: bool = False) -> None:
+    def run_program(self, name: str, *, skip_failed_step: bool = False) -> str:
         """A checked 20002 / 20003 / 20005 / 20006 (``check_program_command``): refused
-        with the reason, nothing written, unless the controller is ready for it."""
-        self.check_program_command(name, skip_failed_step=skip_failed_step)
+        with the reason, nothing written, unless the controller is ready for it. A start
+        or single cycle is then confirmed (``confirm_start``); returns what was read."""
+        ready = self.check_program_command(name, skip_failed_step=skip_failed_step)
         self.command(name)
+        if name in START_COMMANDS:
+            return self.confirm_start(name, ready)
+        return f"wrote {COMMANDS[name]} = 1 ({name})"
 
     def set_global_speed(self, percent: float) -> None:
         """§3.2.2: one register, FC 06, 0-1000 = 0.0-100.0 %."""
@@ -604,6 +732,11 @@ class R6Device:
         return upload.total
 
 
+# When this controller writes 2401 (R6 decision 23): seen by a run_cycle goal, None
+# until one has seen it (every reconnect forgets it: the controller may differ).
+CYCLE_TIME_AT_END = "end"
+CYCLE_TIME_AT_START = "start"
+
 POINT_DATA = "point_data"  # the axis of an upload goal: the point-data rows 30000-30006
 PROGRAM = "program"  # the axis of what runs the controller's program (run_cycle, ~/start)
 
@@ -699,14 +832,19 @@ class RunCycleMotion(Motion[R6Snapshot]):
     (2470). Checked twice: against the last poll when the goal comes (rejected), and
     against rows read just before the command (REFUSED): auto mode, homed, no alarm, a
     global speed above 0. An alarm (2396) ends it as FAULT. A single cycle is REACHED
-    only when ``moving`` rose and fell (or no poll saw it: a cycle between two polls) and
-    the last cycle time (2401) changed from the value read before the start: ``moving``
-    alone is a motion flag, not the program's state (R6 decision 23). Otherwise its end
-    is STOPPED, and so is a continuous run's (it runs until stopped). Ends this goal
-    causes (cancel, timeout, link loss, the node's halts) send pause (20001), which keeps
-    the program's step. Both kinds take the node's ``goal_timeout_s`` when the goal gives
-    ``timeout_s`` 0, a continuous run too: a goal whose client vanished must not keep the
-    robot cycling (decision 27)."""
+    only when the controller showed it running and then standing, and the last cycle
+    time (2401, "上模周期") proves the cycle finished under either reading of when the
+    controller writes it (R6 decision 23): it kept its value read before the start on
+    every poll that saw the cycle running and changed after, to a time no shorter than
+    the cycle was seen to run. A cycle no poll saw running is REACHED only on a controller
+    seen (by an earlier goal) to write 2401 at a cycle's end. A goal sent while the
+    program already ran is never REACHED (the cycle that ends began before it).
+    Otherwise its end is STOPPED, and so is a continuous run's (it runs until stopped).
+    Ends this goal causes (cancel, timeout, link loss, the node's halts) send pause
+    (20001), which keeps the program's step, confirmed like ``~/pause`` (decision 29).
+    Both kinds take the node's ``goal_timeout_s`` when the goal gives ``timeout_s`` 0, a
+    continuous run too: a goal whose client vanished must not keep the robot cycling
+    (decision 27)."""
 
     axes: frozenset[Hashable] = frozenset({PROGRAM})
     confirm_reached = True  # the result's last cycle time is read apart from `moving`
@@ -736,6 +874,12 @@ class RunCycleMotion(Motion[R6Snapshot]):
         self.stops_at_start = device.stops
         self.last_cycle_at_start: int | None = None
         self.cycle_ms: int | None = None  # the current cycle time of the previous poll
+        # The current cycle time of the poll before the goal (a program counting since).
+        self.cycle_ms_before = None if last is None else last.current_cycle_time_ms
+        self.running_before = False  # the program ran when the start was written
+        self.changed_while_running: int | None = None  # 2401 as a running poll read it
+        self.unchanged_while_running = False  # a running poll read 2401 as before
+        self.longest_ms = 0  # the longest current cycle time a running poll read
 
     def start(self) -> None:
         ready = self.device.check_program_command(self.command)
@@ -744,19 +888,30 @@ class RunCycleMotion(Motion[R6Snapshot]):
                 "the global speed is 0 %: the program would not move (set_global_speed)"
             )
         self.last_cycle_at_start = ready.last_cycle_time_ms
+        self.running_before = ready.moving or (
+            self.cycle_ms_before is not None and ready.current_cycle_time_ms > self.cycle_ms_before
+        )
         self.stops_at_start = self.device.stops
         self.device.command(self.command)
 
     def stop(self) -> str:
-        self.device.command("pause")
-        return "pause (20001) sent: the program keeps its step"
+        said = self.device.halt("pause")
+        return f"pause (20001) sent: the program keeps its step ({said})"
 
     def running(self, snapshot: R6Snapshot) -> bool:
         """``moving``, or the current cycle time still counting: a program that waits in a
         step (a dwell, an input) may show ``moving`` 0 while its cycle goes on."""
         previous, self.cycle_ms = self.cycle_ms, snapshot.current_cycle_time_ms
         counting = previous is not None and snapshot.current_cycle_time_ms > previous
-        return snapshot.moving or counting
+        running = snapshot.moving or counting
+        if running:
+            self.longest_ms = max(self.longest_ms, snapshot.current_cycle_time_ms)
+            if snapshot.last_cycle_time_ms != self.last_cycle_at_start:
+                if self.changed_while_running is None:
+                    self.changed_while_running = snapshot.last_cycle_time_ms
+            elif snapshot.current_cycle_time_ms > 0:
+                self.unchanged_while_running = True
+        return running
 
     def fault(self, snapshot: R6Snapshot) -> Verdict | None:
         code = snapshot.alarm_code
@@ -765,43 +920,80 @@ class RunCycleMotion(Motion[R6Snapshot]):
         return Verdict(Outcome.FAULT, f"{self.what}: alarm {code}", code, f"alarm code {code}")
 
     def ended(self, snapshot: R6Snapshot) -> Verdict:
-        last = snapshot.last_cycle_time_ms
+        last, before = snapshot.last_cycle_time_ms, self.last_cycle_at_start
+        unproven = f"{self.what}: could not prove the cycle finished"
         if self.device.stops > self.stops_at_start:
             return Verdict(Outcome.STOPPED, f"{self.what}: stopped by a stop or pause command")
-        changed = self.last_cycle_at_start is not None and last != self.last_cycle_at_start
-        if not self.seen_running and self.single_cycle and changed:
-            # A cycle shorter than a poll (or polls held up on a loaded host) can begin
-            # and end between two polls; only a finished cycle changes 2401 (decision 23).
-            return Verdict(
-                Outcome.REACHED,
-                f"{self.what}: the cycle ended between two polls (last cycle {last} ms, "
-                f"was {self.last_cycle_at_start} ms; no poll saw it moving)",
-            )
-        if not self.seen_running:
+        read = (
+            f"read moving (2470) {int(snapshot.moving)}, current cycle time (2397) "
+            f"{snapshot.current_cycle_time_ms} ms, last cycle time (2401) {last} ms (was "
+            f"{before} ms)"
+        )
+        if not self.seen_running and last == before:
             return Verdict(
                 Outcome.STOPPED,
                 f"{self.what}: the controller acknowledged the start but never showed moving "
-                "(2470): the cycle did not run",
+                f"(2470): the cycle did not run (wrote {COMMANDS[self.command]} = 1 "
+                f"({self.command}); {read})",
             )
         # Paused keeps the cycle's time (20001 resumes at the step), stopped resets it.
         how = (
             f"paused (current cycle time kept at {snapshot.current_cycle_time_ms} ms)"
             if snapshot.current_cycle_time_ms
-            else "stopped (current cycle time back to 0)"
+            else "stopped or finished (current cycle time back to 0)"
         )
         if not self.single_cycle:
             return Verdict(Outcome.STOPPED, f"{self.what}: the program {how}")
-        if self.last_cycle_at_start is not None and last == self.last_cycle_at_start:
+        if self.running_before:
             return Verdict(
                 Outcome.STOPPED,
-                f"{self.what}: moving ended but the last cycle time did not change "
-                f"({last} ms): the cycle did not finish, the program {how} (a stop from "
-                "another client, the pendant or the program)",
+                f"{unproven}: the program was already running when the goal came, so the "
+                f"cycle that ended began before it ({read})",
             )
+        if not self.seen_running:
+            # A cycle shorter than a poll (or polls held up on a loaded host) can begin
+            # and end between two polls. 2401 changed: at this cycle's end, or at its
+            # start (a cycle stopped half-way reads the same); only a controller seen to
+            # write 2401 at a cycle's end proves it finished (decision 23).
+            if self.device.cycle_time_written_at == CYCLE_TIME_AT_END:
+                return Verdict(
+                    Outcome.REACHED,
+                    f"{self.what}: the cycle ended between two polls (last cycle {last} ms, "
+                    f"was {before} ms; no poll saw it moving; this controller writes 2401 "
+                    "at a cycle's end)",
+                )
+            return Verdict(
+                Outcome.STOPPED,
+                f"{unproven}: no poll saw it running and 2401 changed, which a cycle "
+                "stopped half-way does too on a controller that writes 2401 at a cycle's "
+                f"start; not yet seen which this one does ({read})",
+            )
+        if self.changed_while_running is not None:
+            self.device.cycle_time_written_at = CYCLE_TIME_AT_START
+            return Verdict(
+                Outcome.STOPPED,
+                f"{unproven}: 2401 changed while the cycle ran (read "
+                f"{self.changed_while_running} ms, was {before} ms): this controller writes "
+                f"it at a cycle's start, so it cannot show this cycle's end ({read})",
+            )
+        if last == before:
+            return Verdict(
+                Outcome.STOPPED,
+                f"{unproven}: moving ended but the last cycle time did not change "
+                f"({last} ms): the program {how}; a cycle exactly as long as the last one "
+                "reads the same as a stop from another client, the pendant or the program",
+            )
+        if last < self.longest_ms:
+            return Verdict(
+                Outcome.STOPPED,
+                f"{unproven}: 2401 reads {last} ms, shorter than the {self.longest_ms} ms "
+                f"the cycle was seen to run ({read})",
+            )
+        if self.unchanged_while_running:
+            self.device.cycle_time_written_at = CYCLE_TIME_AT_END
         return Verdict(
             Outcome.REACHED,
-            f"{self.what}: the cycle ended (last cycle {last} ms, was "
-            f"{self.last_cycle_at_start} ms)",
+            f"{self.what}: the cycle ended (last cycle {last} ms, was {before} ms)",
         )
 
     def feedback(self, snapshot: R6Snapshot) -> dict[str, Any]:

@@ -7,6 +7,7 @@ from collections.abc import Callable, Sequence
 from typing import Any, TypeVar
 
 from geometry_msgs.msg import PoseStamped
+from std_srvs.srv import Trigger
 
 from bridge_core.ros.node_base import BridgeNode, copy_fields
 from bridge_core.ros.process import spin_node
@@ -88,6 +89,7 @@ class R6BridgeNode(BridgeNode[R6Snapshot]):
     # ------------------------------------------------------------ polling
     def on_link_up(self) -> None:
         self.device.invalidate_plan()
+        self.device.cycle_time_written_at = None  # decision 23: maybe another controller
         try:
             self.firmware_version = self.device.read_version()
         except (DeviceException, FrameError) as err:
@@ -172,8 +174,9 @@ class R6BridgeNode(BridgeNode[R6Snapshot]):
     @property
     def _program_started(self) -> tuple[str, Callable[[], object]]:
         """A program a service set running: a halt pauses it (20001, the goals' end too,
-        decision 23: the step is kept for the operator's next start)."""
-        return PROGRAM, lambda: self.device.command("pause")
+        decision 23: the step is kept for the operator's next start), confirmed as
+        ``~/pause`` is (decision 29: "not confirmed" in the log otherwise)."""
+        return PROGRAM, lambda: self.device.halt("pause")
 
     # One table: a row per service (type, name, log text, device call); splitting it would
     # scatter the node's interface.
@@ -182,13 +185,17 @@ class R6BridgeNode(BridgeNode[R6Snapshot]):
         for name in COMMANDS:
             if name == "clear_alarm_and_next":
                 continue  # its own type: skip_failed_step (below)
-            self.trigger_service(
+            # Done only when the controller shows it (decision 29): the reply says what
+            # was written and read back.
+            self.command_service(
+                Trigger,
                 f"~/{name}",
-                name,
-                _command(d, name),
+                _constant(name),
+                _constant_call(_command(d, name)),
                 stop=name in STOP_COMMANDS,
-                starts=self._program_started if name in PROGRAM_COMMANDS else None,
-                stops_axes=(PROGRAM,) if name in STOP_COMMANDS else (),
+                starts=(lambda _r: self._program_started) if name in PROGRAM_COMMANDS else None,
+                stops_axes=(lambda _r: (PROGRAM,)) if name in STOP_COMMANDS else None,
+                fill=_said,
             )
         self.command_service(
             ClearAlarmAndNext,
@@ -303,13 +310,29 @@ class R6BridgeNode(BridgeNode[R6Snapshot]):
         return action()
 
 
-def _command(device: R6Device, name: str) -> Callable[[], None]:
+def _command(device: R6Device, name: str) -> Callable[[], str]:
     """A command service's action: the ones that set the program running are checked
     first (decision 23: nothing written unless the controller is in auto mode, homed and,
-    for start and single cycle, without an alarm); the stops go out as they are."""
+    for start and single cycle, without an alarm); the stops go out as they are. Starts,
+    single cycles and stops are done only when read back (decision 29)."""
     if name in PROGRAM_COMMANDS:
         return lambda: device.run_program(name)
-    return lambda: device.command(name)
+    if name in STOP_COMMANDS:
+        return lambda: device.halt(name)
+
+    def command() -> str:
+        device.command(name)
+        return f"wrote {COMMANDS[name]} = 1 ({name})"
+
+    return command
+
+
+def _constant(text: str) -> Callable[[Any], str]:
+    return lambda _request: text
+
+
+def _constant_call(action: Callable[[], str]) -> Callable[[Any], str]:
+    return lambda _request: action()
 
 
 def _said(response: Any, text: str) -> None:

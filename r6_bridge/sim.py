@@ -24,8 +24,10 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from typing import ClassVar
 
+from bridge_core.sim.personality import add_ignore_argument
 from bridge_core.sim.sim_base import (
     FUNCTION_TABLES,
     ILLEGAL_ADDRESS,
@@ -41,12 +43,28 @@ from bridge_core.sim.sim_base import (
 from bridge_core.wire.codec import int_to_words, words_to_int
 from bridge_core.wire.registers import Table, WordOrder
 
-from .registers import COIL_BANKS, COMMANDS, MAX_AXES, MAX_COUNTERS, MAX_IO_BOARDS, R6_MAP
+from .registers import (
+    COIL_BANKS,
+    COMMANDS,
+    MAX_AXES,
+    MAX_COUNTERS,
+    MAX_IO_BOARDS,
+    PARAMETER_COUNT,
+    PARAMETER_WRITE_LAST_INDEX,
+    R6_MAP,
+    parameter_address,
+)
 
 HIGH = WordOrder.HIGH_FIRST
 MANUAL_VERSION = "AM8-QC-RXE-7.8.02-bate7_FAKE_TGF_ENCODER"  # §3.1.2 example
 AXIS_SPEED_DEG_S = 30.0  # axis 1 at 100 % global speed; axis a: 10 % less per axis
-OUTPUT_BOARD_TABLE_MAX = 7  # §4 row 20056 maximum
+# R6 decision 3: 20056 takes boards 0-3 (general IO under every reading of §3.3.3 and
+# the table); 4-7 (the table's maximum, 7) name different boards in the two, so refused.
+OUTPUT_BOARDS_ACCEPTED = range(0, 4)
+# R6 decision 5: parameter indexes 965-999 (22230-22299) are read only.
+READ_ONLY_PARAMETER_ROWS = range(
+    parameter_address(PARAMETER_WRITE_LAST_INDEX + 1), parameter_address(PARAMETER_COUNT)
+)
 AUTO_MODE = 2  # 2185: "2 自动"
 DEFAULT_COUNTERS = {0: (10, 0), 1: (10, 5)}  # id: (target, current), §3.1.4 example
 # §3.1.3: "若实际数量少于请求的数量则将剩余的使用 0xFF 填充" (decision 6: every padding byte
@@ -96,7 +114,31 @@ def row_first_coil(row: int) -> int:
     return OUTPUT_COILS.start + POINTS_PER_BOARD * board + (0 if second else 16)
 
 
+# The motion writes this controller can play deaf to (``--ignore``): name -> the write.
+IGNORABLE: dict[str, str] = {
+    "stop": "20000 stop (FC 06)",
+    "pause": "20001 pause (FC 06)",
+    "single_cycle": "20002 single cycle (FC 06)",
+    "start": "20003 start button (FC 06)",
+    "stop_button": "20004 stop button (FC 06)",
+    "clear_alarm": "20005 / 20006 clear the alarm and run on (FC 06)",
+    "speed": "20200 global speed (FC 06)",
+}
+_IGNORABLE_AT: dict[int, str] = {
+    **{COMMANDS[name]: name for name in ("stop", "pause", "single_cycle", "start", "stop_button")},
+    COMMANDS["clear_alarm_and_next"]: "clear_alarm",
+    COMMANDS["clear_alarm_and_continue"]: "clear_alarm",
+    R6_MAP["global_speed"].address: "speed",
+}
+# When 2401 ("上模周期") is written (R6 decision 23 leaves it open; ``--cycle-time-at``):
+# at a cycle's end, the time of the cycle that just ended, or at a cycle's start, the
+# time of the last cycle completed before it.
+CYCLE_TIME_AT = ("end", "start")
+
+
 class R6SimDevice(SimulatedDevice):
+    IGNORABLE: ClassVar[Mapping[str, str]] = IGNORABLE
+
     def __init__(self, axis_count: int = 6, io_board_count: int = 1, unit_id: int = 1) -> None:
         super().__init__(R6_MAP, unit_id)
         self.running = False
@@ -107,6 +149,10 @@ class R6SimDevice(SimulatedDevice):
         self.halted_by_alarm = False  # an alarm stopped the running program
         self.cycles_completed = 0
         self._time_in_cycle_ms = 0.0
+        # When 2401 is written ("end" or "start", CYCLE_TIME_AT); the time of the last
+        # completed cycle, which "start" writes when the next cycle begins.
+        self.cycle_time_at = "end"
+        self._completed_cycle_ms: int | None = None
         self._serving_fc04 = False
         self.counters: dict[int, list[int]] = {k: list(v) for k, v in DEFAULT_COUNTERS.items()}
         self.points: dict[int, list[int]] = {}
@@ -143,6 +189,18 @@ class R6SimDevice(SimulatedDevice):
                 self.halted_by_alarm = True
             elif not code:
                 self.halted_by_alarm = False
+
+    def write_names(self, record: WriteRecord) -> frozenset[str]:
+        if record.table is not Table.HOLDING:
+            return frozenset()
+        return frozenset(_IGNORABLE_AT[a] for a in _span(record) if a in _IGNORABLE_AT)
+
+    def set_cycle_time_at(self, when: str) -> None:
+        """When 2401 is written: "end" (a cycle's end) or "start" (a cycle's start)."""
+        if when not in CYCLE_TIME_AT:
+            raise ValueError(f"cycle time at {when!r}: one of {', '.join(CYCLE_TIME_AT)}")
+        with self.lock:
+            self.cycle_time_at = when
 
     @property
     def axis_count(self) -> int:
@@ -214,11 +272,14 @@ class R6SimDevice(SimulatedDevice):
                 return ILLEGAL_FUNCTION
             if record.address == R6_MAP["global_speed"].address and record.values[0] > 1000:
                 return ILLEGAL_VALUE
+            if any(a in READ_ONLY_PARAMETER_ROWS for a in _span(record)):
+                # R6 decision 5: §3.3.4's writable range ends at 22229 (index 964).
+                return ILLEGAL_ADDRESS
             if record.address == R6_MAP["output_board"].address:
                 board, point, state = ([*list(record.values), 0, 0, 0])[:3]
                 if (
                     len(record.values) != 3
-                    or board > OUTPUT_BOARD_TABLE_MAX
+                    or board not in OUTPUT_BOARDS_ACCEPTED
                     or point > 31
                     or state > 1
                 ):
@@ -325,12 +386,14 @@ class R6SimDevice(SimulatedDevice):
         self.step = 0
         self.cycles_completed += 1
         elapsed_ms = int(self._time_in_cycle_ms)
-        if elapsed_ms == int(self.get("last_cycle_time")):
+        if elapsed_ms == (self._completed_cycle_ms or int(self.get("last_cycle_time"))):
             # Never the last cycle's time to the millisecond: the bridge reads an unchanged
-            # 2401 as a cycle that did not finish (R6 decision 23, the safe side), and
+            # 2401 as a cycle it cannot prove finished (R6 decision 23, the safe side), and
             # this simulator's cycles, the same path at the same speed, often tie.
             elapsed_ms += 1
-        self.set("last_cycle_time", elapsed_ms)
+        self._completed_cycle_ms = elapsed_ms
+        if self.cycle_time_at == "end":
+            self.set("last_cycle_time", elapsed_ms)
         self._time_in_cycle_ms = 0.0
         self.set("current_cycle_time", 0)
         if self.single_cycle:
@@ -382,6 +445,14 @@ class R6SimDevice(SimulatedDevice):
                 self.set(f"axis_speed_{a}", round(deg_s * 60.0 / 360.0))
                 self.set(f"axis_torque_{a}", round(0.2 + 0.1 * math.sin(a), 3) if deg_s else 0.0)
             if moving:
+                if (
+                    self.cycle_time_at == "start"
+                    and self.step == 0
+                    and self._time_in_cycle_ms == 0.0
+                    and self._completed_cycle_ms is not None
+                ):
+                    # A cycle begins: 2401 gets the last completed cycle's time.
+                    self.set("last_cycle_time", self._completed_cycle_ms)
                 self._time_in_cycle_ms += dt * 1000.0
                 self.set("current_cycle_time", int(self._time_in_cycle_ms))
                 if arrived:
@@ -411,6 +482,14 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--running", action="store_true", help="start with the axes moving")
     parser.add_argument("--mode", type=int, default=2, help="1 manual, 2 auto, 3 configuration")
     parser.add_argument("--alarm", type=int, default=0, help="start with this alarm code")
+    parser.add_argument(
+        "--cycle-time-at",
+        choices=CYCLE_TIME_AT,
+        default="end",
+        help="when the last cycle time 2401 is written: at a cycle's end (its own time) or "
+        "at the next cycle's start (the last completed cycle's time)",
+    )
+    add_ignore_argument(parser, R6SimDevice.IGNORABLE)
     args = parser.parse_args(argv)
     sim = make_simulator(args.axes, args.io_boards)
     device = sim.device
@@ -418,6 +497,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     device.set("mode", args.mode)
     device.set_alarm(args.alarm)
     device.running = args.running and not args.alarm
+    device.set_cycle_time_at(args.cycle_time_at)
     serve_tcp_until_signalled(sim, args, "r6_sim")
 
 

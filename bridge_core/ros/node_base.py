@@ -545,6 +545,11 @@ class BridgeNode(ParameterNode, CommandServices, Generic[SnapshotT]):
         for stopped in self.service_motions.stop_all():
             if stopped.error is None:
                 self.get_logger().info(f"{stopped.what}: stopped ({reason})")
+            elif isinstance(stopped.error, NotConfirmed):
+                self.get_logger().error(
+                    f"{stopped.what}: its stop went out, not confirmed ({reason}): "
+                    f"{stopped.error}"
+                )
             else:
                 self.get_logger().error(
                     f"{stopped.what}: its stop failed ({reason}): {stopped.error}; "

@@ -11,7 +11,8 @@ stops").
 - ``stopped(axis)``: a stop of that axis was acknowledged (a stop service, a goal or a
   stream that took the axis over and stopped it): nothing left to stop there;
 - ``stop_all()``: every remembered motion's stop is tried once (each, whatever the others
-  do); an acknowledged one is forgotten, a failed one kept and marked pending;
+  do); an acknowledged one is forgotten, a failed one kept and marked pending (one
+  that went out and was not confirmed, ``NotConfirmed``: kept, not pending);
 - ``retry_pending()``: the pending stops again (the node calls it before the first poll
   after a reconnect, as it does for the streams' pending stops).
 
@@ -25,6 +26,8 @@ from __future__ import annotations
 import threading
 from collections.abc import Callable, Hashable
 from dataclasses import dataclass
+
+from ..wire.errors import NotConfirmed
 
 
 @dataclass(frozen=True, eq=False)
@@ -83,9 +86,12 @@ class MotionLedger:
             try:
                 entry.stop()
             except Exception as err:  # every stop is tried, whatever one of them raises
+                # A stop that went out but was not confirmed (NotConfirmed) is kept for
+                # the next halt, not retried on a timer: the device answered it.
+                pending = not isinstance(err, NotConfirmed)
                 with self._lock:
                     if self._started.get(axis) is entry:
-                        self._started[axis] = Started(entry.what, entry.stop, pending=True)
+                        self._started[axis] = Started(entry.what, entry.stop, pending=pending)
                 results.append(StopResult(axis, entry.what, err))
                 continue
             with self._lock:

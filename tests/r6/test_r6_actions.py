@@ -131,7 +131,7 @@ def test_run_cycle(sim: tuple[R6SimDevice, int], client: Client, tmp_path: Path)
         status, result = goal.result()
         assert status == GoalStatus.STATUS_ABORTED
         assert result.outcome.code == MotionOutcome.STOPPED, result.outcome.message
-        assert "did not finish" in result.outcome.message
+        assert "could not prove the cycle finished" in result.outcome.message
         assert device.cycles_completed == cycles and commands(device, mark) == ["stop"]
 
         # An alarm ends the goal with its code; a goal is then rejected until it is cleared.

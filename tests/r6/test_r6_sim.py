@@ -704,7 +704,7 @@ def test_a_single_cycle_is_reached_only_when_it_ran_and_ended(
     other.command("stop")
     verdict = judge_until_after_start(device, motion)
     assert verdict.outcome is Outcome.STOPPED, verdict.message
-    assert "did not finish" in verdict.message
+    assert "could not prove the cycle finished" in verdict.message
     assert sim.cycles_completed == 1
 
 
@@ -720,16 +720,22 @@ def judge_until_after_start(device: R6Device, motion: RunCycleMotion) -> Verdict
 def test_a_cycle_that_ends_between_two_polls_is_reached(
     r6: tuple[R6Device, R6SimDevice, DeviceChannel],
 ) -> None:
-    """Decision 23: the last cycle time changes only when a cycle finishes, so a cycle
-    that began and ended before any poll saw it moving still ran."""
+    """Decision 23: on a controller seen (by an earlier goal) to write the last cycle time
+    only when a cycle finishes, a cycle that began and ended before any poll saw it
+    moving still ran. Before any goal saw that: not proved (test_r6_personalities)."""
     device, sim, _ = r6
-    sim.program = timed_program(0.05)
     sim.set("global_speed", 100.0)
+    sim.program = timed_program(0.3, 0.0)
+    seen = judge_until(device, RunCycleMotion(device, device.poll(), single_cycle=True))
+    assert seen.outcome is Outcome.REACHED, seen.message
+    assert device.cycle_time_written_at == "end"
+    sim.program = timed_program(0.05)
+    cycles = sim.cycles_completed
     motion = RunCycleMotion(device, device.poll(), single_cycle=True)
     motion.start()
     started = time.monotonic()
     deadline = started + WAIT_S
-    while sim.cycles_completed < 1:  # the whole cycle before the first poll
+    while sim.cycles_completed < cycles + 1:  # the whole cycle before the first poll
         assert time.monotonic() < deadline, "the cycle did not end"
         time.sleep(0.01)
     while (verdict := motion.judge(device.poll(), time.monotonic() - started)) is None:
