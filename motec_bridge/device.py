@@ -114,6 +114,13 @@ MOVE_TIME_ALLOWANCE_S = 2.0
 # of the default 10 Hz apart (decision 18); unverified, the drive is released.
 STOP_CHECK_READS = 2
 STOP_CHECK_PERIOD_S = 0.1
+# A move's start is confirmed when the motor is seen moving within this (read every
+# START_CHECK_PERIOD_S), or 0x26 / 0x29 do not read what was written: "not confirmed".
+# A target within MOVE_SEEN_COUNTS of where the motor is needs no motion to be seen.
+START_CHECK_S = 0.5
+START_CHECK_PERIOD_S = 0.02
+START_CHECK_READS = round(START_CHECK_S / START_CHECK_PERIOD_S)
+MOVE_SEEN_COUNTS = 10
 # A stop that took (|0xAF| falling) must bring the drive into the standstill band within
 # this (the manual gives no deceleration; decision 22); otherwise the drive is released.
 STOP_SETTLE_S = 2.0
@@ -523,7 +530,8 @@ class MotecDevice(ConfiguredDevice[MotecConfig]):
     def move(self, counts: int, *, relative: bool, speed_rpm: float = 0.0) -> None:
         """Point-to-point move (§4.1): [speed limit 0xAE], motion mode 0x2D, distance or
         target 0x26-0x27 (FC 16), start 0x29 = 1. Needs network mode, position control
-        and an enabled drive (read fresh)."""
+        and an enabled drive (read fresh). Read back after (``_confirm_start``): a start
+        not seen is ``NotConfirmed`` (what was written and read), and the move stopped."""
         limit = self.check_move(counts, speed_rpm)
         modes = self.read_modes()
         if not modes.network or modes.control_mode != CONTROL_MODE_POSITION or not modes.enabled:
@@ -542,9 +550,45 @@ class MotecDevice(ConfiguredDevice[MotecConfig]):
                     f"max velocity 0 keeps the drive's speed limit 0xAE, which is {held} rpm: "
                     f"the move could not run; give a max velocity > 0"
                 )
+        position = int(read_blocks(self.io, MOTION_PLAN, Priority.COMMAND)[0]["position_actual"])
         self._write("motion_mode", MOTION_RELATIVE if relative else MOTION_ABSOLUTE)
         self._write("target_distance", counts)
         self._write("start", START_MOVE)
+        try:
+            self._confirm_start(counts, (position + counts) if relative else counts, position)
+        except NotConfirmed as err:
+            # It may run to a target it had before, or start late: stopped, and said.
+            try:
+                stopped = self.stop_move()
+            except (LinkError, NotConfirmed) as stop_err:
+                stopped = f"its stop failed: {stop_err}"
+            raise NotConfirmed(f"{err}; stopped: {stopped}") from None
+
+    def _confirm_start(self, counts: int, target: int, position: int) -> None:
+        """After 0x29 = 1: 0x26-0x27 and 0x29 must read what was written, and the motor
+        must be seen moving (|0xAF| above the standstill band, or 0xAC more than
+        ``MOVE_SEEN_COUNTS`` from where it was) within ``START_CHECK_S``, unless the
+        target is within ``MOVE_SEEN_COUNTS`` of it (nothing to see). 0x29 may read 1
+        from an earlier move, so it alone proves nothing (decision 15)."""
+        v = read_blocks(self.io, MODE_PLAN, Priority.COMMAND)[0]
+        wrote = f"0x26 = {counts}, 0x29 = 1"
+        read = f"0x26 = {int(v['target_distance'])}, 0x29 = {int(v['start'])}"
+        if int(v["target_distance"]) != counts or int(v["start"]) != START_MOVE:
+            raise NotConfirmed(f"sent, not confirmed: wrote {wrote}, read {read}")
+        if abs(target - position) <= MOVE_SEEN_COUNTS:
+            return
+        speed, now = 0, position
+        for n in range(START_CHECK_READS):
+            if n:
+                self._sleep(START_CHECK_PERIOD_S)
+            m = read_blocks(self.io, MOTION_PLAN, Priority.COMMAND)[0]
+            speed, now = int(m["speed_actual"]), int(m["position_actual"])
+            if abs(speed) > STANDSTILL_SPEED_RPM or abs(now - position) > MOVE_SEEN_COUNTS:
+                return
+        raise NotConfirmed(
+            f"sent, not confirmed: wrote {wrote}, read {read} but the motor did not move "
+            f"within {START_CHECK_S:g} s (0xAC {position} -> {now}, 0xAF {speed} rpm)"
+        )
 
     def retarget(self, counts: int) -> None:
         """A newer absolute target for the move this bridge's position stream started

@@ -111,9 +111,9 @@ def echo(pdu: str, meaning: str) -> Step:
     return Step(frame(pdu), frame(pdu), meaning)
 
 
-def modes_read(operation: int, control: int, enabled: int) -> Step:
+def modes_read(operation: int, control: int, enabled: int, target: int = 0, start: int = 0) -> Step:
     """The fresh mode read (0x24-0x29) some commands do first, and its reply."""
-    words = [operation, control, 0, 0, enabled, 0]
+    words = [operation, control, target >> 16 & 0xFFFF, target & 0xFFFF, enabled, start]
     data = "".join(f"{w:04X}" for w in words)
     return Step(frame("03 00 24 00 06"), frame(f"03 0C {data}"), "read 0x24-0x29")
 
@@ -160,6 +160,7 @@ def test_position_mode_sequence_of_section_4_1() -> None:
             frame("03 02 02 58"),
             "no max velocity given: the drive's own speed limit 0xAE is read (600 rpm)",
         ),
+        motion_read(0, 0),  # where the motor is before the move
         echo("06 00 2D 00 00", "step 3: relative"),
         Step(
             frame("10 00 26 00 02 04 12 34 56 78"),
@@ -167,6 +168,8 @@ def test_position_mode_sequence_of_section_4_1() -> None:
             "step 5: distance 0x12345678, high word first (§3.1.2 note)",
         ),
         echo("06 00 29 00 01", "step 6: start"),
+        modes_read(0, CONTROL_MODE_POSITION, 1, 0x12345678, 1),  # read back
+        motion_read(60, 60),  # it moves: the start is confirmed
     ]
 
     def act(d: MotecDevice) -> None:
@@ -181,6 +184,7 @@ def test_absolute_move_with_a_speed_limit_and_stop() -> None:
     steps = [
         modes_read(0, CONTROL_MODE_POSITION, 1),
         echo("06 00 AE 01 2C", "speed limit 300 rpm"),
+        motion_read(0, 0),
         echo("06 00 2D 00 01", "absolute"),
         Step(
             frame("10 00 26 00 02 04 FF FF EC 78"),
@@ -188,6 +192,8 @@ def test_absolute_move_with_a_speed_limit_and_stop() -> None:
             "target -5000",
         ),
         echo("06 00 29 00 01", "start"),
+        modes_read(0, CONTROL_MODE_POSITION, 1, -5000, 1),
+        motion_read(-20, -30),
         modes_read(0, CONTROL_MODE_POSITION, 1),
         echo("06 00 29 00 00", "stop: 0x29 is the move / stop register"),
         motion_read(-1000, -300),
@@ -499,6 +505,8 @@ class FakeIO:
 
     def write_registers(self, address: int, values: Sequence[int]) -> None:
         self.writes.append(("16", address, list(values)))
+        if address == 0x26:
+            self.modes[2:4] = list(values)
 
     def write_coil(self, address: int, on: bool, priority: Priority = Priority.COMMAND) -> None:
         self.writes.append(("05", address, on))

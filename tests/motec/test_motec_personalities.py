@@ -247,3 +247,29 @@ def test_hole9_a_mode_change_is_judged_on_a_fresh_read(bus: Bus) -> None:
         d.set_control_mode(CONTROL_MODE_VELOCITY)
     assert len(drive.write_log) == before
     assert drive.value("control_mode") == CONTROL_MODE_POSITION
+
+
+# ---------------------------------------------------------------- item 6: starts read back
+
+
+def test_a_move_whose_start_or_target_is_ignored_is_not_confirmed_and_stopped(bus: Bus) -> None:
+    """``~/move`` (and so ``~/move_to`` and a position stream's first target): against a
+    drive that ignores 0x29 = 1 the move is "not confirmed" with what was written and
+    read; against one that ignores the target it would run to an older one: not
+    confirmed, and stopped."""
+    d, drive = bus.devices[1], bus.sim.drive(1)
+    d.set_control_mode(CONTROL_MODE_POSITION)
+    d.enable(True)
+    bus.sim.ignore(["start"])
+    with pytest.raises(
+        NotConfirmed, match=r"sent, not confirmed: wrote 0x26 = 20000, 0x29 = 1, read 0x26 = "
+    ):
+        d.move(20_000, relative=True, speed_rpm=600)
+    assert drive.speed == 0 and ignored(drive, "start") == [(0x29, (1,))]
+    bus.sim.ignore([])
+    d.move(5_000_000, relative=False, speed_rpm=600)  # an older target, under way
+    wait_until("the move runs", lambda: drive.speed > STANDSTILL_SPEED_RPM)
+    bus.sim.ignore(["target"])
+    with pytest.raises(NotConfirmed, match=r"wrote 0x26 = 1000, 0x29 = 1, read 0x26 = 5000000"):
+        d.move(1000, relative=False, speed_rpm=600)
+    wait_until("the drive stands", lambda: drive.speed == 0)
