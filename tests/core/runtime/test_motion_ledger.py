@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from bridge_core.runtime.motion_ledger import MotionLedger
-from bridge_core.wire.errors import LinkTimeout
+from bridge_core.wire.errors import LinkTimeout, NotConfirmed
 
 
 def test_a_halt_stops_every_started_motion_once_and_keeps_a_failed_one() -> None:
@@ -57,3 +57,21 @@ def test_a_failed_halt_stop_is_pending_until_a_retry_gets_it_through() -> None:
     down[0] = False
     assert [r.error for r in ledger.retry_pending()] == [None]
     assert sent == [1] and ledger.moving() == {}
+
+
+def test_a_halt_stop_not_confirmed_is_kept_for_the_next_halt_not_retried() -> None:
+    """The device answered the stop and did not show it (NotConfirmed): retrying on a
+    timer would not help; the next halt tries it again."""
+    ledger = MotionLedger()
+    tried: list[int] = []
+
+    def stop() -> None:
+        tried.append(1)
+        raise NotConfirmed("sent, read moving 1")
+
+    ledger.started("program", "start", stop)
+    assert [type(r.error) for r in ledger.stop_all()] == [NotConfirmed]
+    assert not ledger.pending() and ledger.retry_pending() == []
+    assert ledger.moving() == {"program": "start"}
+    ledger.stop_all()
+    assert tried == [1, 1]
