@@ -253,6 +253,12 @@ class BridgeNode(ParameterNode, CommandServices, Generic[SnapshotT]):
                 self.get_logger().error(
                     f"{stopped.what}: the device refused its pending stop: {stopped.error}"
                 )
+            elif isinstance(stopped.error, NotConfirmed):
+                # Answered, and the device does not show it: said loudly, kept for the
+                # next halt, not retried for ever (polls must go on).
+                self.get_logger().error(
+                    f"{stopped.what}: its pending stop went out, not confirmed: {stopped.error}"
+                )
             elif stopped.error is not None:
                 raise stopped.error  # still down: the poller says so, and tries again
             else:
@@ -547,8 +553,7 @@ class BridgeNode(ParameterNode, CommandServices, Generic[SnapshotT]):
                 self.get_logger().info(f"{stopped.what}: stopped ({reason})")
             elif isinstance(stopped.error, NotConfirmed):
                 self.get_logger().error(
-                    f"{stopped.what}: its stop went out, not confirmed ({reason}): "
-                    f"{stopped.error}"
+                    f"{stopped.what}: its stop went out, not confirmed ({reason}): {stopped.error}"
                 )
             else:
                 self.get_logger().error(
@@ -568,6 +573,10 @@ class BridgeNode(ParameterNode, CommandServices, Generic[SnapshotT]):
         for stopped in self.service_motions.retry_pending():
             if stopped.error is None:
                 self.get_logger().info(f"{stopped.what}: the pending stop got through")
+            elif isinstance(stopped.error, NotConfirmed):
+                self.get_logger().error(
+                    f"{stopped.what}: its pending stop went out, not confirmed: {stopped.error}"
+                )
             else:
                 self.get_logger().warn(
                     f"{stopped.what}: its stop still fails: {stopped.error}",

@@ -496,3 +496,36 @@ def test_round_trips_up_to_50_ms(client: Client, tmp_path: Path) -> None:
             assert proc.poll() is None
     finally:
         sim.stop()
+
+
+def test_a_pending_halt_stop_not_confirmed_on_reconnect_is_said_and_polls_go_on(
+    client: Client, tmp_path: Path
+) -> None:
+    """read_only while the controller is gone: the pause fails and waits; the controller
+    back, deaf to pause: the pause goes out, "not confirmed" is logged, and the node
+    polls on (the pending stop's NotConfirmed does not fail the link-up)."""
+    first = make_simulator(axis_count=6)
+    port = first.start_tcp()
+    b = Bridge(client, unique_namespace("r6_deaf_pending"), "r6_bridge", R6State)
+    with node_process("r6_bridge.node", node_params(port), tmp_path, ["-r", f"__ns:={b.ns}"]):
+        b.wait_connected(True, timeout=WAIT_S)
+        assert b.call(Trigger, "start").success
+        gone = time.monotonic()
+        first.stop()
+        b.wait_connected(False, since=gone, timeout=WAIT_S)
+        set_read_only(client, b, True)
+        client.wait_log("r6_bridge", "its stop failed", gone)
+        second = make_simulator(axis_count=6)
+        device = second.device
+        assert isinstance(device, R6SimDevice)
+        device.running = True
+        second.ignore({"pause"})
+        back = time.monotonic()
+        second.start_tcp(port=port)
+        try:
+            client.wait_log("r6_bridge", "its pending stop went out, not confirmed", back)
+            b.wait_connected(True, since=back, timeout=WAIT_S)
+            wait_for(lambda: len(client.received(b.state, back)) >= 5, WAIT_S, "polls")
+            assert ("pause", True) in commands(device)
+        finally:
+            second.stop()
