@@ -734,7 +734,14 @@ class MotecDevice(ConfiguredDevice[MotecConfig]):
         self._write("speed_setpoint", round(rpm))
 
     def _velocity_zero(self, _key: int) -> None:
+        """The stream's stop (a 0 command, the deadman, a halt): 0xAE = 0, read back
+        (``NotConfirmed`` unless it reads 0: the stop stays pending, the deadman tries
+        again). The drive ramps down by its own acceleration (§4.2); ``~/stop`` also
+        waits for it to stand."""
         self._write("speed_setpoint", 0)
+        held = int(self.read_named("speed_setpoint")["speed_setpoint"])
+        if held != 0:
+            raise NotConfirmed(f"sent, not confirmed: wrote 0xAE = 0, read 0xAE = {held}")
 
     @property
     def streaming(self) -> bool:

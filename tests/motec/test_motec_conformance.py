@@ -315,6 +315,7 @@ def test_velocity_mode_sequence_of_section_4_2() -> None:
         modes_read(0, CONTROL_MODE_VELOCITY, 1),
         echo("06 00 AE FE D4", "-300 rpm (sign = direction)"),
         echo("06 00 AE 00 00", "deadman: 0 rpm"),
+        Step(frame("03 00 AE 00 01"), frame("03 02 00 00"), "0xAE read back"),
         echo("06 00 28 00 00", "release"),
         modes_read(0, CONTROL_MODE_VELOCITY, 0),  # read back
     ]

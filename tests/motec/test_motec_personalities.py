@@ -1,16 +1,24 @@
 """MOTEC against drives that do not obey or answer late (issue 39): the simulator's
 personalities (``--ignore`` names, ``setpoint_holds_target``), the holes of the verified
 stop (4), ``start_all`` (6) and ``~/set_control_mode`` (9), driven by the device layer
-over a real pty pair; the contract rows over ROS are further down."""
+over a real pty pair; then the contract rows over ROS (the bridge in its own process):
+against a drive that ignores a motion write, never success or REACHED, the reply says
+what was written and read, and a halt still sends its stop and logs "not confirmed"."""
 
 from __future__ import annotations
 
+import signal
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import pytest
+from lifecycle_msgs.msg import Transition
+from lifecycle_msgs.srv import ChangeState
+from std_msgs.msg import Float64
+from std_srvs.srv import SetBool, Trigger
 
 from bridge_core.wire.channel import DeviceChannel, Priority
 from bridge_core.wire.errors import CommandRejected, LinkTimeout, NotConfirmed
@@ -19,8 +27,13 @@ from bridge_core.wire.transport import ModbusLink, SerialSettings
 from motec_bridge.device import STANDSTILL_SPEED_RPM, MotecDevice, start_all
 from motec_bridge.registers import CONTROL_MODE_POSITION, CONTROL_MODE_VELOCITY, MOTEC_MAP
 from motec_bridge.sim import MotecSimDrive, MotecSimulator, main, make_simulator
+from msg_defs.msg import MotionOutcome
+from msg_defs.srv import PositionMove, SetControlMode
 
+from ..support.ros import Client, ros_client, wait_for, wait_subscribed
 from ..support.serial_pair import served_on_pty
+from ..support.sims import motec_on_pty
+from .test_motec_ros import MotecBridge, bridge_params, motec
 
 BAUD = 115200
 UNITS = (1, 2, 3)
@@ -219,7 +232,7 @@ def test_hole6_a_drive_whose_read_back_is_lost_is_stopped(bus: Bus) -> None:
     lossy = LosesAReadAfterTheBroadcast(bus.channels[2])
     broadcast = ArmsOnWrite(DeviceChannel(bus.link, 0, retries=0), lossy)
     drives: dict[int, Any] = {1: bus.channels[1], 2: lossy, 3: bus.channels[3]}
-    ok, seen = start_all(broadcast, drives)  # type: ignore[arg-type]
+    ok, seen = start_all(broadcast, drives)
     assert not ok, seen
     assert "drives [2] were not read back (they may be running)" in seen, seen
     assert "drive 2: not read back (unit 2: no reply (lost by the test))" in seen, seen
@@ -273,3 +286,194 @@ def test_a_move_whose_start_or_target_is_ignored_is_not_confirmed_and_stopped(bu
     with pytest.raises(NotConfirmed, match=r"wrote 0x26 = 1000, 0x29 = 1, read 0x26 = 5000000"):
         d.move(1000, relative=False, speed_rpm=600)
     wait_until("the drive stands", lambda: drive.speed == 0)
+
+
+# ---------------------------------------------------------------- contract rows over ROS
+
+TURN = 2 * 3.141592653589793  # rad of one motor turn (gear 1)
+SLOW = TURN  # rad/s: 60 rpm
+
+
+@pytest.fixture
+def client() -> Iterator[Client]:
+    with ros_client("motec_personality_client") as c:
+        c.subscribe_log()
+        yield c
+
+
+@pytest.fixture
+def one_drive() -> Iterator[tuple[MotecSimulator, str]]:
+    with motec_on_pty([1], BAUD) as served:
+        yield served
+
+
+def position_ready(b: MotecBridge) -> None:
+    b.wait_connected(1, True)
+    b.ok(1, SetControlMode, "set_control_mode", mode=SetControlMode.Request.POSITION)
+    b.ok(1, SetBool, "enable", data=True)
+
+
+def long_move(b: MotecBridge, drive: MotecSimDrive) -> None:
+    b.ok(1, PositionMove, "move", position=100 * TURN, relative=True, max_velocity=SLOW)
+    wait_for(lambda: drive.speed >= 59, 20.0, "the move cruises")
+
+
+def not_confirmed(reply: Any, *texts: str) -> None:
+    assert not reply.success, reply.message
+    assert "not confirmed" in reply.message, reply.message
+    for text in texts:
+        assert text in reply.message, reply.message
+
+
+def command_velocity(client: Client, b: MotecBridge, rad_s: float) -> None:
+    """One ``~/cmd_velocity`` message (then silence: the deadman's)."""
+    pub = client.node.create_publisher(Float64, f"{b.ns}/motec_1/cmd_velocity", 10)
+    wait_subscribed(pub)
+    pub.publish(Float64(data=rad_s))
+
+
+def drive_transition(client: Client, b: MotecBridge, transition: int) -> bool:
+    request = ChangeState.Request()
+    request.transition.id = transition
+    reply = client.call(ChangeState, f"{b.ns}/motec_1/change_state", request)
+    return bool(reply.success)
+
+
+@pytest.mark.ros
+def test_contract_services_against_ignored_writes(
+    one_drive: tuple[MotecSimulator, str], client: Client, tmp_path: Path
+) -> None:
+    """``~/set_control_mode``, ``~/enable`` (both ways), ``~/move`` and ``~/stop`` (each
+    mode) against a drive that ignores that write: never success; the reply says what was
+    written and what was read back."""
+    sim, port = one_drive
+    drive = sim.drive(1)
+    with motec(client, tmp_path, bridge_params(port, unit_ids=[1])) as (b, _proc):
+        b.wait_connected(1, True)
+        sim.ignore(["control_mode"])
+        not_confirmed(
+            b.call(1, SetControlMode, "set_control_mode", mode=SetControlMode.Request.POSITION),
+            "wrote 0x24 = 0, 0x25 = 2, read 0x24 = 1",
+        )
+        sim.ignore(["enable"])
+        b.ok(1, SetControlMode, "set_control_mode", mode=SetControlMode.Request.POSITION)
+        not_confirmed(b.call(1, SetBool, "enable", data=True), "wrote 0x28 = 1, read 0x28 = 0")
+        sim.ignore(["start"])
+        b.ok(1, SetBool, "enable", data=True)
+        not_confirmed(
+            b.call(1, PositionMove, "move", position=TURN, relative=True, max_velocity=SLOW),
+            "wrote 0x26 = 10000, 0x29 = 1, read 0x26 = 10000, 0x29 = 0",
+        )
+        assert drive.speed == 0
+        sim.ignore(["stop", "disable"])
+        long_move(b, drive)
+        not_confirmed(b.call(1, Trigger, "stop"), "wrote 0x28 = 0 (release), read 0x28 = 1")
+        assert drive.speed >= 59
+        assert ignored(drive, "start")[-1] == (0x29, (0,))
+        not_confirmed(b.call(1, SetBool, "enable", data=False), "wrote 0x28 = 0, read 0x28 = 1")
+        sim.ignore(["disable"])
+        b.ok(1, Trigger, "stop")  # 0x29 = 0 obeyed: the drive stands
+        wait_for(lambda: drive.speed == 0, 20.0, "the drive stands")
+        b.ok(1, SetControlMode, "set_control_mode", mode=SetControlMode.Request.VELOCITY)
+        sim.ignore(["speed_zero", "disable"])
+        command_velocity(client, b, SLOW)
+        wait_for(lambda: drive.speed >= 59, 20.0, "the motor turns")
+        not_confirmed(b.call(1, Trigger, "stop"), "0xAE = 0 did not stop the motor (0xAE reads 60")
+        assert drive.speed >= 59
+
+
+@pytest.mark.ros
+def test_contract_goals_against_ignored_writes(
+    one_drive: tuple[MotecSimulator, str], client: Client, tmp_path: Path
+) -> None:
+    """``~/move_to``: a start the drive ignores is never REACHED (REFUSED, what was written
+    and read); a cancel whose stop and release are ignored ends CANCELLED, its result
+    saying "not confirmed"."""
+    from msg_defs.action import MoveTo
+
+    sim, port = one_drive
+    drive = sim.drive(1)
+
+    def goal(position: float) -> Any:
+        g = MoveTo.Goal()
+        g.position, g.relative, g.max_velocity = float(position), True, SLOW
+        return client.send_goal(MoveTo, f"{b.ns}/motec_1/move_to", g)
+
+    with motec(client, tmp_path, bridge_params(port, unit_ids=[1])) as (b, _proc):
+        position_ready(b)
+        sim.ignore(["start"])
+        _status, result = goal(TURN).result()
+        assert result.outcome.code == MotionOutcome.REFUSED, result.outcome.message
+        assert "not confirmed: wrote 0x26 = " in result.outcome.message, result.outcome.message
+        sim.ignore(["stop", "disable"])
+        running = goal(100 * TURN)
+        running.wait_feedback(lambda f: abs(f.velocity) > 0.5 * SLOW)
+        running.cancel()
+        _status, result = running.result()
+        assert result.outcome.code == MotionOutcome.CANCELLED, result.outcome.message
+        assert "not confirmed" in result.outcome.message, result.outcome.message
+        assert "wrote 0x28 = 0 (release), read 0x28 = 1" in result.outcome.message
+        assert drive.speed >= 59 and ignored(drive, "start")[-1] == (0x29, (0,))
+
+
+@pytest.mark.ros
+def test_contract_deadman_and_halts_against_ignored_stops(
+    one_drive: tuple[MotecSimulator, str], client: Client, tmp_path: Path
+) -> None:
+    """The deadman of ``~/cmd_velocity``, and the halts (deactivate, read_only, exit) of a
+    ``~/move``: against a drive that ignores the stop and the release, each still sends
+    its stop (the write log: ignored) and logs "not confirmed"."""
+    sim, port = one_drive
+    drive = sim.drive(1)
+    logger = None
+    with motec(client, tmp_path, bridge_params(port, unit_ids=[1])) as (b, proc):
+        logger = f"{b.ns[1:]}.motec_1"
+        b.wait_connected(1, True)
+        b.ok(1, SetControlMode, "set_control_mode", mode=SetControlMode.Request.VELOCITY)
+        b.ok(1, SetBool, "enable", data=True)
+        sim.ignore(["speed_zero", "disable"])
+        t = time.monotonic()
+        command_velocity(client, b, SLOW)
+        wait_for(lambda: drive.speed >= 59, 20.0, "the motor turns")
+        client.wait_log(logger, "(deadman): not confirmed", t)  # silence: the deadman
+        assert ignored(drive, "speed_setpoint")[0] == (0xAE, (0,))
+        sim.ignore([])
+        b.ok(1, Trigger, "stop")
+        b.ok(1, SetControlMode, "set_control_mode", mode=SetControlMode.Request.POSITION)
+        b.ok(1, SetBool, "enable", data=True)
+
+        # Deactivate: the move's stop goes out, is ignored, and is said "not confirmed".
+        sim.ignore(["stop", "disable"])
+        long_move(b, drive)
+        before = len(ignored(drive, "start"))
+        t = time.monotonic()
+        assert drive_transition(client, b, Transition.TRANSITION_DEACTIVATE)
+        client.wait_log(logger, "not confirmed", t)
+        assert ignored(drive, "start")[before:] == [(0x29, (0,))]
+        assert drive.speed >= 59
+        sim.ignore([])
+        assert drive_transition(client, b, Transition.TRANSITION_ACTIVATE)
+        b.ok(1, Trigger, "stop")
+
+        # read_only.
+        sim.ignore(["stop", "disable"])
+        long_move(b, drive)
+        before = len(ignored(drive, "start"))
+        t = time.monotonic()
+        assert b.set_param(1, "read_only", True).successful
+        client.wait_log(logger, "not confirmed", t)
+        assert ignored(drive, "start")[before:] == [(0x29, (0,))]
+        sim.ignore([])
+        assert b.set_param(1, "read_only", False).successful
+        b.ok(1, Trigger, "stop")
+
+        # Exit (SIGINT).
+        sim.ignore(["stop", "disable"])
+        long_move(b, drive)
+        before = len(ignored(drive, "start"))
+        proc.send_signal(signal.SIGINT)
+        proc.wait(30)
+        assert ignored(drive, "start")[before:] == [(0x29, (0,))]
+    log = (tmp_path / "motec_bridge_node.log").read_text(errors="replace").splitlines()
+    said = [line for line in log if "not confirmed" in line and "the node is exiting" in line]
+    assert said, "\n".join(log[-30:])
