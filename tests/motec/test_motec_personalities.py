@@ -20,6 +20,7 @@ from lifecycle_msgs.srv import ChangeState
 from std_msgs.msg import Float64
 from std_srvs.srv import SetBool, Trigger
 
+from bench.line_relay import LineRelay
 from bridge_core.wire.channel import DeviceChannel, Priority
 from bridge_core.wire.errors import CommandRejected, LinkTimeout, NotConfirmed
 from bridge_core.wire.registers import Table
@@ -477,3 +478,48 @@ def test_contract_deadman_and_halts_against_ignored_stops(
     log = (tmp_path / "motec_bridge_node.log").read_text(errors="replace").splitlines()
     said = [line for line in log if "not confirmed" in line and "the node is exiting" in line]
     assert said, "\n".join(log[-30:])
+
+
+# ---------------------------------------------------------------- delay rows
+
+# Replies after 50-80 ms, drawn per reply: all later than the short wait a request to a
+# drive marked down used to get (down_write_timeout_s, 50 ms), all within the link's
+# timeout_s 0.1 with the frames at 115200 baud (issue 39 hole 1).
+DELAY_S = (0.05, 0.08)
+
+
+@pytest.mark.ros
+def test_delay_drives_answering_late_connect_poll_reconnect_and_stop_at_once(
+    client: Client, tmp_path: Path
+) -> None:
+    """A drive answering 50-80 ms after each request, on a byte-timed line (the bench's
+    relay): the node connects at start, polls, reconnects after an outage, and a stop
+    goes out at once (at most the read on the line and the stop's own mode read before
+    its write). Before hole 1's fix the probes waited 50 ms and it never connected."""
+    sim = make_simulator([1])
+    sim.set_reply_delay(*DELAY_S)
+    drive = sim.drive(1)
+    with LineRelay(BAUD) as line:
+        sim.start_serial(line.device_path, BAUD)
+        try:
+            params = bridge_params(line.client_path, unit_ids=[1], timeout_s=0.1, poll_rate_hz=10.0)
+            with motec(client, tmp_path, params) as (b, proc):
+                b.wait_connected(1, True)  # at start
+                b.wait_joints(1, 5, time.monotonic())  # polls
+                sim.unplug(1)
+                b.wait_connected(1, False)
+                sim.plug(1)
+                b.wait_connected(1, True)  # reconnected
+                b.wait_joints(1, 3, time.monotonic())
+                position_ready(b)
+                long_move(b, drive)
+                drive.log_reads = True
+                called = time.time()
+                said = b.ok(1, Trigger, "stop").message
+                assert "move stopped" in said, said
+                (stop,) = [r for r in drive.write_log if (r.address, r.values) == (0x29, (0,))]
+                ahead = [r.address for r in drive.read_log if called <= r.time <= stop.time]
+                assert len(ahead) <= 2 and ahead[-1] == 0x24, ahead
+                assert proc.poll() is None
+        finally:
+            sim.stop()
