@@ -52,7 +52,7 @@ from bridge_core.runtime.rate_groups import SLOW_POLL_PERIOD_DEFAULT_S, PollGrou
 from bridge_core.runtime.stream_guard import StreamGuard
 from bridge_core.wire.channel import Priority, RegisterIO
 from bridge_core.wire.codec import Value, decode, encode
-from bridge_core.wire.errors import CommandRejected, DeviceException, LinkError
+from bridge_core.wire.errors import CommandRejected, DeviceException, LinkError, NotConfirmed
 from bridge_core.wire.planner import ReadRequest, plan_reads
 from bridge_core.wire.registers import Register, Table
 from bridge_core.wire.requests import Span
@@ -97,6 +97,16 @@ SPEED_MAX_RPM = U16_MAX
 DEFAULT_UNITS_PER_METER = 1000.0
 # Coils that stop motion: sent at Priority.STOP (with each motor's stop coil).
 _STOP_COILS = frozenset({"emergency_stop", "arc_stop", "line_stop"})
+# Confirmation (issue 39, stepper decision 23): a command that starts, stops or changes
+# motion is done only when the controller's own state, read back, shows it. A stop: the
+# running flags (40168+) of its motors read 0 within STOP_CONFIRM_S (the stop coil is the
+# manual's "急停", an immediate stop); a start: a running flag reads 1, or a coordinate
+# (40108+) moved, within START_CONFIRM_S; a register write: the register reads the value
+# written. Read at command priority every CONFIRM_READ_PERIOD_S (polls get the line
+# between two reads); not shown in time: ``NotConfirmed`` saying what was written and read.
+STOP_CONFIRM_S = 0.5
+START_CONFIRM_S = 0.5
+CONFIRM_READ_PERIOD_S = 0.05
 JOINT_TYPES = ("prismatic", "revolute")
 # interpolation_pair_reading: which of the manual's two readings of pair types 2 and 3 the
 # controller follows (stepper decision 19). Unset until the hardware check in
@@ -107,6 +117,11 @@ PAIR_READINGS: dict[str, dict[int, tuple[int, int]]] = {
     "point_rows": INTERPOLATION_PAIRS_POINT_ROWS,
 }
 PAIR_READING_CHOICES = (PAIR_READING_UNSET, *PAIR_READINGS)
+# Every motor an interpolation pair can name, under either reading: what
+# stop_interpolation stops when the bridge started no line / arc itself.
+INTERPOLATION_MOTORS = tuple(
+    sorted({m for pairs in PAIR_READINGS.values() for pair in pairs.values() for m in pair})
+)
 
 
 # ---------------------------------------------------------------- snapshots
@@ -342,6 +357,26 @@ def pair_axes(pair: int, reading: str) -> tuple[int, int]:
     return PAIR_READINGS[reading][pair]
 
 
+# ---------------------------------------------------------------- what a reply names
+
+
+def coil_label(address: int) -> str:
+    """The manual's number of a coil ("00005" for motor 1's stop, address 4)."""
+    return f"{address + 1:05d}"
+
+
+def register_label(name: str) -> str:
+    """The manual's number of a holding register ("40168" for motor 1's running flag)."""
+    return str(40001 + STEPPER_MAP[name].address)
+
+
+def _motor_coils_text(motors: Sequence[int], action: str) -> str:
+    return ", ".join(
+        f"motor {m} {action.replace('_', ' ')} (coil {coil_label(motor_coil(m, action))} = ON)"
+        for m in motors
+    )
+
+
 # ---------------------------------------------------------------- the device
 
 
@@ -516,32 +551,126 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
         self.io.write_coil(STEPPER_MAP[name].address, True, priority)
 
     # ------------------------------------------------------------------ motor commands
-    def motor_action(self, motor: int, action: str) -> None:
-        """run_once / forward / reverse / home / stop: 0xFF00 to the motor's coil (FC 05)."""
+    def motor_action(self, motor: int, action: str, *, confirm: bool = True) -> str:
+        """run_once / forward / reverse / home / stop: 0xFF00 to the motor's coil (FC 05),
+        then the controller's state read back (stepper decision 23): a stop is done when
+        the motor's running flag reads 0, a start when it reads 1 or the coordinate moved
+        (``NotConfirmed`` otherwise). ``confirm`` False: a start is not read back (an
+        action goal judges it from the polls); a stop always is. Returns what was written
+        and read back."""
         _check_motor(motor)
         if action not in MOTOR_ACTIONS:
             raise CommandRejected(f"unknown motor action {action!r}; known: {MOTOR_ACTIONS}")
+        if action == "stop":
+            return self.stop_motors([motor])
+        before = self._coordinates([motor]) if confirm else {}
         with self.jogs.lock:
-            if action != "stop":
-                # The motion runs at the speed register: a jog's speed is undone first
-                # (the service takes the motor over from any jog).
-                self.restore_speeds([motor], include_jogging=True)
+            # The motion runs at the speed register: a jog's speed is undone first (the
+            # service takes the motor over from any jog).
+            self.restore_speeds([motor], include_jogging=True)
             try:
-                priority = Priority.STOP if action == "stop" else Priority.COMMAND
-                self.io.write_coil(motor_coil(motor, action), True, priority)
-            except LinkError:
-                if action == "stop":
-                    self.jogs.stop_failed(motor)  # a jog it meant to end: its stop pending
-                    raise
+                self.io.write_coil(motor_coil(motor, action), True, Priority.COMMAND)
+            finally:
+                # A service overrides any jog: the next jog command is sent whole, and a 0
+                # jog then stops the motor once (it may be running the service's motion).
                 self.jogs.taken_over(motor, locked=False)
                 self._direction[motor] = 0
-                raise
-            # A service overrides any jog: the next jog command is sent whole, and a 0 jog
-            # then stops the motor once (it may be running the service's motion).
-            self.jogs.taken_over(motor, locked=action == "stop")
-            self._direction[motor] = 0
-            if action == "stop":
-                self._restore_after_stop([motor])
+        wrote = _motor_coils_text([motor], action)
+        if not confirm:
+            return f"wrote {wrote}"
+        return self.confirm_started([motor], wrote, before)
+
+    def _send_motor_stops(self, motors: Sequence[int]) -> LinkError | None:
+        """Each motor's stop coil at stop priority, every one tried; the first failure is
+        returned. A motor whose stop went out is taken over from its jog (locked); one
+        whose stop failed keeps its jog's stop pending."""
+        error: LinkError | None = None
+        with self.jogs.lock:
+            for motor in motors:
+                try:
+                    self.io.write_coil(motor_coil(motor, "stop"), True, Priority.STOP)
+                except LinkError as err:
+                    self.jogs.stop_failed(motor)  # a jog it meant to end: its stop pending
+                    error = error or err
+                    continue
+                self.jogs.taken_over(motor, locked=True)
+                self._direction[motor] = 0
+            if error is None:
+                self._restore_after_stop(list(motors))
+        return error
+
+    def stop_motors(self, motors: Sequence[int]) -> str:
+        """Each motor's stop coil (all sent first), then their running flags read back
+        until 0 (``confirm_stopped``). Raises the first LinkError, or NotConfirmed."""
+        motors = list(dict.fromkeys(motors))
+        for motor in motors:
+            _check_motor(motor)
+        error = self._send_motor_stops(motors)
+        if error is not None:
+            raise error
+        return self.confirm_stopped(motors, _motor_coils_text(motors, "stop"))
+
+    # ------------------------------------------------------------------ read-back
+    def _running_flags(self, motors: Sequence[int]) -> dict[int, bool]:
+        """The running flags (40168+) of ``motors``, read now at command priority."""
+        names = {m: motor_register(m, "running") for m in motors}
+        values = self.read_named(*names.values())
+        return {m: bool(values[name]) for m, name in names.items()}
+
+    def confirm_stopped(self, motors: Sequence[int], wrote: str) -> str:
+        """The running flags of ``motors`` read until every one is 0, for STOP_CONFIRM_S:
+        what was written and read, or ``NotConfirmed`` saying so."""
+        deadline = time.monotonic() + STOP_CONFIRM_S
+        while True:
+            flags = self._running_flags(motors)
+            still = [m for m in motors if flags[m]]
+            if not still:
+                return f"wrote {wrote}; read {_flags_text(motors, 0)}"
+            if time.monotonic() >= deadline:
+                raise NotConfirmed(
+                    f"wrote {wrote}; read {_flags_text(still, 1)} {STOP_CONFIRM_S:g} s after"
+                )
+            time.sleep(CONFIRM_READ_PERIOD_S)
+
+    def confirm_started(self, motors: Sequence[int], wrote: str, before: dict[int, float]) -> str:
+        """A start shown: a running flag of ``motors`` reads 1, or a coordinate left its
+        value ``before`` the start by a step (a short single run may end before the first
+        read), within START_CONFIRM_S; else ``NotConfirmed`` with what was read."""
+        deadline = time.monotonic() + START_CONFIRM_S
+        while True:
+            flags = self._running_flags(motors)
+            on = [m for m in motors if flags[m]]
+            if on:
+                return f"wrote {wrote}; read {_flags_text(on, 1)}"
+            now = self._coordinates(motors)
+            moved = [m for m in motors if _units_differ(now[m], before[m])]
+            if moved:
+                return f"wrote {wrote}; read {_coordinates_text(moved, before, now)}"
+            if time.monotonic() >= deadline:
+                unchanged = ", ".join(
+                    f"motor {m} coordinate ({register_label(motor_register(m, 'coordinate'))}) "
+                    f"{now[m]:g}"
+                    for m in motors
+                )
+                raise NotConfirmed(
+                    f"wrote {wrote}; read {_flags_text(motors, 0)} and {unchanged} unchanged "
+                    f"{START_CONFIRM_S:g} s after"
+                )
+            time.sleep(CONFIRM_READ_PERIOD_S)
+
+    def _read_back(self, values: Sequence[tuple[str, Value]]) -> str:
+        """The registers just written read back: what they hold, or ``NotConfirmed``
+        naming each that does not hold what was written (the cache takes what was read)."""
+        read = self.read_named(*(name for name, _ in values))
+        wrong: list[str] = []
+        for name, value in values:
+            expected = _as_read(STEPPER_MAP[name], value)
+            if read[name] != expected:
+                self._cache.note_written(name, read[name])
+                wrong.append(f"{_register_text(name)} = {expected:g}, read {read[name]:g}")
+        if wrong:
+            raise NotConfirmed(f"wrote {'; wrote '.join(wrong)}")
+        return ", ".join(f"{_register_text(name)} reads {read[name]:g}" for name, _ in values)
 
     def set_motor_parameter(self, motor: int, field: str, value: float) -> None:
         """One basic parameter: FC 06 for a 16-bit one, FC 10 for lead / run distance.
@@ -575,14 +704,19 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
                 f"distance {distance} is below the controller's step of {1 / DISTANCE_SCALE}"
             )
 
-    def move_by(self, motor: int, distance: float) -> None:
-        """Signed single run: direction (FC 06), distance (FC 10), single-run coil (FC 05)."""
+    def move_by(self, motor: int, distance: float, *, confirm: bool = True) -> str:
+        """Signed single run: direction (FC 06), distance (FC 10), both read back (one
+        read: a controller that kept other values would run elsewhere), then the
+        single-run coil (FC 05), its start read back unless ``confirm`` is False."""
         self.check_move_by(motor, distance)
-        direction = 0 if distance >= 0 else 1
-        magnitude = abs(float(distance))
-        self._write_values([(motor_register(motor, "direction"), direction)])
-        self._write_values([(motor_register(motor, "run_distance"), magnitude)])
-        self.motor_action(motor, "run_once")
+        values: list[tuple[str, Value]] = [
+            (motor_register(motor, "direction"), 0 if distance >= 0 else 1),
+            (motor_register(motor, "run_distance"), abs(float(distance))),
+        ]
+        self._write_values(values[:1])
+        self._write_values(values[1:])
+        held = self._read_back(values)
+        return f"{held}; {self.motor_action(motor, 'run_once', confirm=confirm)}"
 
     def configure(
         self,
@@ -621,13 +755,15 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
         self._write_values(first)
         self._write_values(second)
 
-    def set_speed(self, motor: int, rpm: int) -> None:
+    def set_speed(self, motor: int, rpm: int) -> str:
         """Speed register (40006+, rpm, "运行中可以调节": a running motion takes it at once).
 
         During a jog it becomes the configured speed the jog's end writes back."""
         _check_motor(motor)
         _check_integer("speed", rpm)
-        self._write_values([(motor_register(motor, "speed"), int(rpm))])
+        values: list[tuple[str, Value]] = [(motor_register(motor, "speed"), int(rpm))]
+        self._write_values(values)
+        return self._read_back(values)
 
     def set_direction(self, motor: int, direction: int) -> None:
         """Single-run direction (40005+): 0 positive, 1 negative ("0 对应正方向,1 对应反方向")."""
@@ -712,8 +848,15 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
             raise
 
     def _jog_stop_coil(self, motor: int) -> None:
+        self.stream_stop(motor)
+
+    def stream_stop(self, motor: int) -> str:
+        """A stream's stop (a jog's 0, the deadman, a halt; the position stream's too):
+        the motor's stop coil at stop priority, its running flag read back until 0
+        (``NotConfirmed`` otherwise: the stream's stop stays pending and is sent again)."""
         self.io.write_coil(motor_coil(motor, "stop"), True, Priority.STOP)
         self._direction[motor] = 0
+        return self.confirm_stopped([motor], _motor_coils_text([motor], "stop"))
 
     # ------------------------------------------------------------------ jog speed restore
     def _speed_before_jog(self, motor: int) -> int:
@@ -774,10 +917,19 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
         return self.jogs.stop(motor)
 
     # ------------------------------------------------------------------ all-motor commands
-    def system_command(self, name: str) -> None:
+    def system_command(self, name: str, *, confirm: bool = True) -> str:
+        """An all-motor or system coil. The e-stop is done when every running flag reads
+        0; home_all and return_to_zero when a motor runs or moved (unless ``confirm`` is
+        False: an action goal judges them from the polls); ``NotConfirmed`` otherwise.
+        Returns what was written (and read back)."""
         if name not in SYSTEM_COMMANDS:
             raise CommandRejected(f"unknown command {name!r}; known: {SYSTEM_COMMANDS}")
         takes_over = name in ("emergency_stop", "home_all", "return_to_zero")
+        every = list(range(1, MOTORS + 1))
+        starts = confirm and name in ("home_all", "return_to_zero")
+        before = self._coordinates(every) if starts else {}
+        if starts and name == "return_to_zero" and not any(before.values()):
+            starts = False  # every coordinate reads 0 already: nothing to run
         with self.jogs.lock:
             if name == "save_parameters":
                 # Saving a jog's speed would make it the configured one for good.
@@ -809,6 +961,14 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
                 self.estops += 1  # a goal it ended says so (StepperMotion)
                 self.interpolation_run = None  # "完成所有电机急停": the move ended
                 self._restore_after_stop(list(range(1, MOTORS + 1)))
+        wrote = f"{name.replace('_', ' ')} (coil {coil_label(coil(SYSTEM_COILS[name]))} = ON)"
+        if name == "emergency_stop":
+            return self.confirm_stopped(every, wrote)
+        if starts:
+            return self.confirm_started(every, wrote, before)
+        if name == "return_to_zero" and confirm:
+            return f"wrote {wrote}; every coordinate read 0 before it"
+        return f"wrote {wrote}"
 
     def zero_coordinates(self, motors: Sequence[int]) -> dict[int, float]:
         """The "坐标清零" coil (00044; it names no motor: every coordinate), then the
@@ -882,7 +1042,9 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
         start: tuple[float, float],
         end: tuple[float, float],
         speed_rpm: int,
-    ) -> None:
+        *,
+        confirm: bool = True,
+    ) -> str:
         """Line interpolation: 40202-40211 in one FC 10, then the start coil (00102)."""
         self.check_line_move(pair, start, end, speed_rpm)
         at_start = self._coordinates(self.pair_motors(pair))
@@ -898,7 +1060,7 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
                 ("line_speed", int(speed_rpm)),
             ]
         )
-        self._start_interpolation("line", pair, at_start)
+        return self._start_interpolation("line", pair, at_start, confirm)
 
     def arc_move(
         self,
@@ -910,7 +1072,9 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
         via: tuple[float, float],
         counterclockwise: bool,
         speed_rpm: int,
-    ) -> None:
+        *,
+        confirm: bool = True,
+    ) -> str:
         """Arc interpolation: 40182-40201 in one FC 10, then the start coil (00100).
 
         Mode 0 uses start, end and centre; mode 1 start, end and the middle point ``via``.
@@ -935,7 +1099,7 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
                 ("arc_speed", int(speed_rpm)),
             ]
         )
-        self._start_interpolation("arc", pair, at_start)
+        return self._start_interpolation("arc", pair, at_start, confirm)
 
     def _restore_for_interpolation(self, pair: int) -> None:
         """The pair's motors (under either reading) that a jog left at its speed, unless
@@ -943,17 +1107,32 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
         motors = set(INTERPOLATION_PAIRS[pair]) | set(INTERPOLATION_PAIRS_POINT_ROWS[pair])
         self.restore_speeds(sorted(motors))
 
-    def stop_interpolation(self) -> None:
-        """Arc stop (00101) and line stop (00103); both are tried even if one fails."""
+    def stop_interpolation(self) -> str:
+        """Arc stop (00101) and line stop (00103), then the stop coil of each motor the
+        line / arc may move (the bridge's run's, under either reading of its pair; every
+        motor a pair can name when the bridge started none), every one tried even if
+        one fails; then their running flags read back until 0 (issue 39 hole 7: a
+        controller that kept running after the interpolation stops was reported
+        stopped; stepper decision 23). Raises the first LinkError, or NotConfirmed."""
+        run = self.interpolation_run
+        motors = list(run.motors) if run is not None else list(INTERPOLATION_MOTORS)
         error: LinkError | None = None
         for name in ("arc_stop", "line_stop"):
             try:
                 self._coil(name)
             except LinkError as err:
                 error = error or err
+        error = self._send_motor_stops(motors) or error
         if error is not None:
             raise error
-        self.interpolation_run = None
+        wrote = ", ".join(
+            f"{name.replace('_', ' ')} (coil {coil_label(coil(SYSTEM_COILS[name]))} = ON)"
+            for name in ("arc_stop", "line_stop")
+        )
+        said = self.confirm_stopped(motors, f"{wrote}, {_motor_coils_text(motors, 'stop')}")
+        if self.interpolation_run is run:
+            self.interpolation_run = None
+        return said
 
     # ------------------------------------------------------------------ interpolation state
     def pair_axes(self, pair: int) -> tuple[int, int]:
@@ -972,11 +1151,15 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
         values = self.read_named(*names.values())
         return {m: float(values[name]) for m, name in names.items()}
 
-    def _start_interpolation(self, kind: str, pair: int, at_start: dict[int, float]) -> None:
+    def _start_interpolation(
+        self, kind: str, pair: int, at_start: dict[int, float], confirm: bool
+    ) -> str:
         """The start coil; from then on (even when its reply is lost: it may have started)
-        the move counts as running until a later poll shows its motors stopped."""
+        the move counts as running until a later poll shows its motors stopped. With
+        ``confirm`` the start is read back (a motor of the pair runs or moved)."""
+        name = f"{kind}_start"
         try:
-            self._coil(f"{kind}_start")
+            self._coil(name)
         finally:
             self.interpolation_run = InterpolationRun(
                 kind,
@@ -986,6 +1169,10 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
                 self.pair_axes(pair),
                 dict(at_start),
             )
+        wrote = f"{kind} start (coil {coil_label(coil(SYSTEM_COILS[name]))} = ON)"
+        if not confirm:
+            return f"wrote {wrote}"
+        return self.confirm_started(sorted(at_start), wrote, at_start)
 
     def _note_wrong_pair(self, coordinates: Sequence[float]) -> None:
         run = self.interpolation_run
@@ -1023,6 +1210,38 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
                 f"{'+'.join(map(str, run.motors))} is running (manual: 插补过程运行中不可调节): "
                 "wait for it to end or call stop_interpolation"
             )
+
+
+# ---------------------------------------------------------------- read-back texts
+
+
+def _register_text(name: str) -> str:
+    """ "motor 1 speed (40006)" for a motor's register, "line_pair (40202)" otherwise."""
+    reg = STEPPER_MAP[name]
+    what = reg.description if reg.name.startswith("motor") and reg.description else name
+    return f"{what} ({register_label(name)})"
+
+
+def _flags_text(motors: Sequence[int], value: int) -> str:
+    return ", ".join(
+        f"motor {m} running ({register_label(motor_register(m, 'running'))}) = {value}"
+        for m in motors
+    )
+
+
+def _coordinates_text(
+    motors: Sequence[int], before: dict[int, float], now: dict[int, float]
+) -> str:
+    return ", ".join(
+        f"motor {m} coordinate ({register_label(motor_register(m, 'coordinate'))}) "
+        f"{before[m]:g} -> {now[m]:g}"
+        for m in motors
+    )
+
+
+def _units_differ(a: float, b: float) -> bool:
+    """Two coordinates a step (0.01 unit) or more apart."""
+    return round(a * DISTANCE_SCALE) != round(b * DISTANCE_SCALE)
 
 
 # ---------------------------------------------------------------- checks
@@ -1116,6 +1335,8 @@ class StepperMotion(Motion[StepperSnapshot]):
         self.interpolation = interpolation
         self.idle_polls_to_end = idle_polls_to_end
         self.estops_at_start = device.estops
+        # What ``begin`` wrote (and read back), for a verdict that saw no motion.
+        self.wrote = ""
 
     def start(self) -> None:
         self.estops_at_start = self.device.estops
@@ -1126,12 +1347,11 @@ class StepperMotion(Motion[StepperSnapshot]):
         raise NotImplementedError
 
     def stop(self) -> str:
+        """The stop, confirmed by the running flags read back (``NotConfirmed`` when they
+        do not show it): what was written and read."""
         if self.interpolation:
-            self.device.stop_interpolation()
-            return "arc and line stop coils sent"
-        for motor in self.motors:
-            self.device.motor_action(motor, "stop")
-        return f"stop coil of motor {', '.join(map(str, self.motors))} sent"
+            return self.device.stop_interpolation()
+        return self.device.stop_motors(self.motors)
 
     def running(self, snapshot: StepperSnapshot) -> bool:
         return any(snapshot.running[m - 1] for m in self.motors)
@@ -1142,6 +1362,15 @@ class StepperMotion(Motion[StepperSnapshot]):
         verdict = super().judge(snapshot, since_start_s)
         if verdict is not None and self.seen_running and self.idle_polls < self.idle_polls_to_end:
             return None  # home_all: the next motor of the order may not have begun yet
+        if verdict is not None and not self.seen_running and verdict.outcome is not Outcome.REACHED:
+            # The device never showed the motion: say what was sent and what was read.
+            return Verdict(
+                verdict.outcome,
+                f"{verdict.message}; not confirmed: {self.wrote or 'its start was sent'}; "
+                f"read {_flags_text(self.motors, 0)} at every poll since",
+                verdict.fault_code,
+                verdict.fault_text,
+            )
         return verdict
 
     def ended(self, snapshot: StepperSnapshot) -> Verdict:
@@ -1197,7 +1426,7 @@ class MoveByMotion(StepperMotion):
         name = motor_register(self.motor, "coordinate")
         here = float(self.device.read_named(name)[name])
         self.targets = [{self.motor: here + self.distance}]
-        self.device.move_by(self.motor, self.distance)
+        self.wrote = self.device.move_by(self.motor, self.distance, confirm=False)
 
     def feedback(self, snapshot: StepperSnapshot) -> dict[str, object]:
         fields = super().feedback(snapshot)
@@ -1237,9 +1466,9 @@ class CoilMotion(StepperMotion):
 
     def begin(self) -> None:
         if self.command == "home":
-            self.device.motor_action(self.motors[0], "home")
+            self.wrote = self.device.motor_action(self.motors[0], "home", confirm=False)
         else:
-            self.device.system_command(self.command)
+            self.wrote = self.device.system_command(self.command, confirm=False)
 
 
 class HomeMotion(CoilMotion):
@@ -1353,7 +1582,7 @@ class InterpolationMotion(StepperMotion):
         pair: int,
         end: tuple[float, float],
         what: str,
-        begin: Callable[[], None],
+        begin: Callable[[], object],
         *,
         tolerance: float,
     ) -> None:
@@ -1373,7 +1602,7 @@ class InterpolationMotion(StepperMotion):
         self._begin = begin
 
     def begin(self) -> None:
-        self._begin()
+        self.wrote = str(self._begin() or "")
         # The device read every motor's coordinate just before the start coil.
         run = self.device.interpolation_run
         self.run = run if run is not None else InterpolationRun("", (), 0)

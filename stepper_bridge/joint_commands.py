@@ -34,7 +34,6 @@ from collections.abc import Callable, Sequence
 from bridge_core.runtime.checks import check_converted
 from bridge_core.runtime.joint_commands import CommandJoint, CommandStream, Gate, Offer
 from bridge_core.runtime.stream_guard import Deferred, StreamGuard
-from bridge_core.wire.channel import Priority
 from bridge_core.wire.errors import CommandRejected
 
 from .device import SPEED_MAX_RPM, JointScale, StepperDevice
@@ -43,7 +42,6 @@ from .registers import (
     I32_SCALED_MAX,
     I32_SCALED_MIN,
     MOTORS,
-    motor_coil,
     motor_register,
 )
 
@@ -113,7 +111,7 @@ class MotorTargets:
         # Direction and run distance are written every time, as move_by does: the values
         # the bridge read may have been changed at the controller (its touch panel) since,
         # and a cached direction would send the motor the wrong way (issue 39 hole 8).
-        self.device.move_by(motor, distance)
+        self.device.move_by(motor, distance, confirm=False)
 
     def _observed(self, motor: int) -> tuple[bool, float | None]:
         """Read now (a send without ``observe`` first: tests, or a caller of the guard)."""
@@ -121,8 +119,9 @@ class MotorTargets:
         return self._seen.pop(motor)
 
     def _stop(self, motor: int) -> None:
-        """The motor's stop coil, at stop priority (as a jog's stop)."""
-        self.device.io.write_coil(motor_coil(motor, "stop"), True, Priority.STOP)
+        """The motor's stop coil, at stop priority, its running flag read back (as a jog's
+        stop: ``StepperDevice.stream_stop``)."""
+        self.device.stream_stop(motor)
 
 
 def on_step(units: float) -> float:

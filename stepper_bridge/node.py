@@ -36,7 +36,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from std_msgs.msg import Float64
-from std_srvs.srv import SetBool
+from std_srvs.srv import SetBool, Trigger
 
 from bridge_core.ros.joint_commands import JointCommandTopic
 from bridge_core.ros.node_base import BridgeNode, copy_fields
@@ -360,7 +360,7 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
             ns = f"~/motor_{n}"
             motor_started = (("motor", n), _bind(d.motor_action, n, "stop"))
             for action in MOTOR_ACTIONS:
-                self.trigger_service(
+                self._read_back_trigger(
                     f"{ns}/{action}",
                     f"motor {n} {action}",
                     _bind(d.motor_action, n, action),
@@ -374,6 +374,7 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
                 lambda r, n=n: f"motor {n} move_by {r.distance}",  # type: ignore[misc]
                 lambda r, n=n: d.move_by(n, self.to_units(n, r.distance)),  # type: ignore[misc]
                 starts=lambda _r, started=motor_started: started,  # type: ignore[misc]
+                fill=_said,
             )
             self.command_service(
                 ConfigureMotor,
@@ -394,6 +395,7 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
                 f"{ns}/set_speed",
                 lambda r, n=n: f"motor {n} set_speed {r.value} rpm",  # type: ignore[misc]
                 lambda r, n=n: d.set_speed(n, r.value),  # type: ignore[misc]
+                fill=_said,
             )
             self.command_service(
                 SetInteger,
@@ -424,7 +426,7 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
                 ),
             )
         for name in SYSTEM_COMMANDS:
-            self.trigger_service(
+            self._read_back_trigger(
                 f"~/{name}",
                 name,
                 _bind(d.system_command, name),
@@ -471,17 +473,19 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
             LineMove,
             "~/line_move",
             lambda r: _pair_move_text("line_move", r.pair),
-            lambda r: self._prepare_line(r).send(),
+            lambda r: self._prepare_line(r).send(True),
             starts=lambda _r: pair_started,
+            fill=_said,
         )
         self.command_service(
             ArcMove,
             "~/arc_move",
             lambda r: _pair_move_text("arc_move", r.pair),
-            lambda r: self._prepare_arc(r).send(),
+            lambda r: self._prepare_arc(r).send(True),
             starts=lambda _r: pair_started,
+            fill=_said,
         )
-        self.trigger_service(
+        self._read_back_trigger(
             "~/stop_interpolation",
             "stop_interpolation",
             d.stop_interpolation,
@@ -489,17 +493,34 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
             stops_axes=(PAIR,),
         )
 
-    def _stop_every_motor(self) -> None:
+    def _read_back_trigger(
+        self,
+        name: str,
+        what: str,
+        action: Callable[[], object],
+        *,
+        stop: bool = False,
+        starts: tuple[Any, Callable[[], object]] | None = None,
+        stops_axes: Sequence[Any] = (),
+    ) -> None:
+        """A std_srvs/Trigger service whose reply says what was written and read back
+        (the device's text), as ``trigger_service`` otherwise."""
+        self.command_service(
+            Trigger,
+            name,
+            lambda _request: what,
+            lambda _request: action(),
+            stop=stop,
+            starts=None if starts is None else lambda _request: starts,
+            stops_axes=lambda _request: stops_axes,
+            fill=_said,
+        )
+
+    def _stop_every_motor(self) -> str:
         """Each motor's own stop coil (not the e-stop, which also switches every output
-        off): what a halt sends after a service's ``home_all`` / ``return_to_zero``."""
-        errors: list[Exception] = []
-        for motor in range(1, MOTORS + 1):
-            try:
-                self.device.motor_action(motor, "stop")
-            except Exception as err:  # every motor's stop is tried
-                errors.append(err)
-        if errors:
-            raise errors[0]
+        off), every one tried, then the running flags read back: what a halt sends after
+        a service's ``home_all`` / ``return_to_zero``."""
+        return self.device.stop_motors(range(1, MOTORS + 1))
 
     # ------------------------------------------------------------ actions
     def _create_actions(self) -> None:
@@ -582,7 +603,7 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
             pair,
             end,
             _pair_move_text("line_move", pair),
-            lambda: self.device.line_move(pair, start, end, speed),
+            lambda confirm: self.device.line_move(pair, start, end, speed, confirm=confirm),
         )
 
     def _prepare_arc(self, r: Any) -> _PairMove:
@@ -599,7 +620,7 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
             pair,
             end,
             _pair_move_text("arc_move", pair),
-            lambda: self.device.arc_move(*args, counterclockwise, speed),
+            lambda confirm: self.device.arc_move(*args, counterclockwise, speed, confirm=confirm),
         )
 
     def _pair_motion(self, move: _PairMove) -> InterpolationMotion:
@@ -610,7 +631,7 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
             move.pair,
             move.end,
             move.what,
-            move.send,
+            lambda: move.send(False),  # the goal's polls judge its start
             tolerance=self.goal_tolerance,
         )
 
@@ -662,13 +683,14 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
 
 @dataclass(frozen=True)
 class _PairMove:
-    """A checked line / arc: the pair, its end (controller units), its text, and ``send``
-    (the writes and the start coil; the device checks again just before them)."""
+    """A checked line / arc: the pair, its end (controller units), its text, and
+    ``send(confirm)`` (the writes and the start coil, the start read back with
+    ``confirm``; the device checks again just before them)."""
 
     pair: int
     end: tuple[float, float]
     what: str
-    send: Callable[[], None]
+    send: Callable[[bool], str]
 
 
 def _pair_move_text(kind: str, pair: int) -> str:
@@ -677,6 +699,12 @@ def _pair_move_text(kind: str, pair: int) -> str:
 
 def _bind(action: Callable[..., object], *args: Any) -> Callable[[], object]:
     return lambda: action(*args)
+
+
+def _said(response: Any, result: object) -> None:
+    """A confirmed command's reply: what was written and read back."""
+    if result:
+        response.message = f"{response.message}: {result}"
 
 
 def _joint_scales(

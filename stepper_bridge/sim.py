@@ -43,6 +43,12 @@ N of docs/decisions/stepper.md):
   stored but the simulator keeps serving at its start baud (a pty has none); save counts.
 
 The special modes 1-5 (input-driven motion, §5(3)) are stored but not simulated.
+
+Personalities (issue 39, ``bridge_core.sim.personality``): ``--reply-delay-ms MIN[:MAX]``
+and ``--ignore NAME,...`` with the names of ``IGNORABLE`` (per motor: run, forward,
+reverse, home, stop, speed, direction, distance; system: estop, to_zero, home_all,
+line_start, line_stop, arc_start, arc_stop). A motor's stop coil also ends a line / arc
+that moves it (stepper decision 23).
 """
 
 from __future__ import annotations
@@ -106,6 +112,56 @@ _INTERPOLATION_ADDRESSES = range(
 )
 _START_COILS = frozenset(STEPPER_MAP[name].address for name in ("arc_start", "line_start"))
 _COIL_NAMES = {STEPPER_MAP[name].address: name for name in SYSTEM_COILS}
+# Personality (``--ignore``): the motion writes a controller may acknowledge and not obey.
+# Per-motor names cover every motor's coil or register alike.
+IGNORABLE_MOTOR_COILS = {
+    "run": "run_once",
+    "forward": "forward",
+    "reverse": "reverse",
+    "home": "home",
+    "stop": "stop",
+}
+IGNORABLE_MOTOR_REGISTERS = {"speed": "speed", "direction": "direction", "distance": "run_distance"}
+IGNORABLE_SYSTEM_COILS = {
+    "estop": "emergency_stop",
+    "to_zero": "return_to_zero",
+    "home_all": "home_all",
+    "line_start": "line_start",
+    "line_stop": "line_stop",
+    "arc_start": "arc_start",
+    "arc_stop": "arc_stop",
+}
+IGNORABLE: dict[str, str] = {
+    "run": "each motor's single-run coil (00001, 00006, ...)",
+    "forward": "each motor's forward coil (00002, 00007, ...)",
+    "reverse": "each motor's reverse coil (00003, 00008, ...)",
+    "home": "each motor's home coil (00004, 00009, ...)",
+    "stop": "each motor's stop coil (00005, 00010, ...)",
+    "speed": "a write to a motor's speed register (40006, 40016, ...)",
+    "direction": "a write to a motor's direction register (40005, 40015, ...)",
+    "distance": "a write to a motor's run distance (40009-40010, 40019-40020, ...)",
+    "estop": "the system e-stop coil (00042)",
+    "to_zero": "the return-to-zero coil (00045)",
+    "home_all": "the home-all coil (00046)",
+    "line_start": "the line interpolation start coil (00102)",
+    "line_stop": "the line interpolation stop coil (00103)",
+    "arc_start": "the arc interpolation start coil (00100)",
+    "arc_stop": "the arc interpolation stop coil (00101)",
+}
+_IGNORABLE_COILS: dict[int, str] = {
+    **{
+        STEPPER_MAP[motor_register(m, action)].address: name
+        for m in range(1, MOTORS + 1)
+        for name, action in IGNORABLE_MOTOR_COILS.items()
+    },
+    **{STEPPER_MAP[coil].address: name for name, coil in IGNORABLE_SYSTEM_COILS.items()},
+}
+_IGNORABLE_REGISTERS: dict[int, str] = {
+    address: name
+    for m in range(1, MOTORS + 1)
+    for name, field_name in IGNORABLE_MOTOR_REGISTERS.items()
+    for address in STEPPER_MAP[motor_register(m, field_name)].addresses()
+}
 _OUTPUT_COILS = range(OUTPUT_COIL_FIRST - 1, OUTPUT_COIL_FIRST - 1 + 2 * OUTPUTS)
 
 
@@ -139,6 +195,8 @@ _BRIDGE_ONLY_MINIMUMS = ("_step_angle", "_microstep", "_lead")
 
 
 class StepperSimDevice(SimulatedDevice):
+    IGNORABLE = IGNORABLE
+
     def __init__(self, unit_id: int = 1, travel: float = TRAVEL) -> None:
         # Writes are stored word by word (the manual's own §6(3) FC 10 example cuts two
         # 32-bit values: stepper decision 2); reads must still take whole values.
@@ -216,6 +274,17 @@ class StepperSimDevice(SimulatedDevice):
         return rpm / 60.0 * float(self.get(motor_register(motor, "lead")))
 
     # ------------------------------------------------------------ Modbus behaviour
+    def write_names(self, record: WriteRecord) -> frozenset[str]:
+        """Which of ``IGNORABLE`` a write is: a motion coil written ON, or a write that
+        covers a motor's speed, direction or run distance (all of it is then ignored)."""
+        if record.table is Table.COIL:
+            name = _IGNORABLE_COILS.get(record.address)
+            return frozenset({name}) if name is not None and record.values[0] else frozenset()
+        if record.table is not Table.HOLDING:
+            return frozenset()
+        addresses = range(record.address, record.address + len(record.values))
+        return frozenset(_IGNORABLE_REGISTERS[a] for a in addresses if a in _IGNORABLE_REGISTERS)
+
     def _guard(self, record: WriteRecord) -> int | None:
         """Values outside the manual's ranges: ILLEGAL DATA VALUE. (Function codes the
         controller lacks never get here: the server refuses them, ``strict_decoder``.)"""
@@ -278,6 +347,10 @@ class StepperSimDevice(SimulatedDevice):
             self.motion[motor] = None
             if motor in self.homing_queue:
                 self.homing_queue.clear()
+            if self.interpolation is not None and motor in self.interpolation.motors:
+                # "电机 1 急停": the motor stops, and with it the line / arc it was part of
+                # (stepper decision 23).
+                self.interpolation = None
             return
         if self._speed(motor) <= 0:
             return  # speed 0: "若速度为0则不运行"

@@ -235,7 +235,10 @@ class StreamHost:
                 logger.error(f"stopping streams failed: {bug}")
                 continue
             for key, err in failed:
-                logger.error(f"stopping stream {key} failed: {err}")
+                if isinstance(err, NotConfirmed):  # went out, the device does not show it
+                    logger.error(f"stream {key}: its stop went out, not confirmed: {err}")
+                else:
+                    logger.error(f"stopping stream {key} failed: {err}")
             for key in set(moving) - {key for key, _ in failed}:
                 logger.info(f"stream {key}: stopped")
 

@@ -218,7 +218,9 @@ def test_a_line_on_the_wrong_motors_is_stopped_and_homing_needs_no_zero(
         assert outcome.code == MotionOutcome.HALTED and outcome.stop_sent, outcome.message
         assert "motor 2 0 ->" in outcome.message and "type_rows" in outcome.message
         assert device.interpolation is None
-        assert coil_writes(device)[-2:] == [100, 102]  # arc stop 00101, line stop 00103
+        # Arc stop 00101, line stop 00103, then the own stop of motors 1-3 (every motor
+        # either reading of pair 2 names: issue 39 hole 7).
+        assert coil_writes(device)[-5:] == [100, 102, 4, 9, 14]
         device.pair_reading = "type_rows"
         goal = b.send_goal(
             LineMotion, "line_move", pair=2, start=[0.0, 0.0], end=[0.004, 0.002], speed_rpm=600
@@ -235,7 +237,8 @@ def test_a_line_on_the_wrong_motors_is_stopped_and_homing_needs_no_zero(
         client.wait_log(
             "stepper_bridge", "line / arc stopped: a motor outside the pair moved", since=called
         )
-        assert coil_writes(device, mark)[-2:] == [100, 102] and device.interpolation is None
+        assert coil_writes(device, mark)[-5:] == [100, 102, 4, 9, 14]
+        assert device.interpolation is None
         device.zero_at_home = False
         mark = len(writes(device))
         result = outcome_of(b.send_goal(StepperRun, "motor_4/home"), GoalStatus.STATUS_SUCCEEDED)

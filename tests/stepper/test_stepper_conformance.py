@@ -137,7 +137,21 @@ def test_fc10_example_address_would_cut_two_values() -> None:
 def test_fc05_example_frame_is_motor_2_reverse() -> None:
     # Stepper decision 3: coil address 7 = coil 00008 = motor 2 reverse.
     frame = hexbytes(MANUAL_FRAMES["FC 05 coil address 7 on"])
-    run([echo(frame, "motor 2 reverse")], lambda d: d.motor_action(2, "reverse"))
+    steps = [
+        (
+            with_crc("01 03 00 6D 00 02"),
+            with_crc("01 03 04 00 00 00 00"),
+            "motor 2 coordinate (40110-40111) before: 0",
+        ),
+        echo(frame, "motor 2 reverse"),
+        (
+            with_crc("01 03 00 A8 00 01"),
+            with_crc("01 03 02 00 01"),
+            "motor 2 running (40169) read back: 1, the start is confirmed (issue 39)",
+        ),
+    ]
+    said = run(steps, lambda d: d.motor_action(2, "reverse"))
+    assert said == "wrote motor 2 reverse (coil 00008 = ON); read motor 2 running (40169) = 1"
     assert STEPPER_MAP["motor2_reverse"].address == 7
     assert STEPPER_MAP["motor1_run_once"].address == 0
 
@@ -150,9 +164,15 @@ def test_move_by_is_direction_distance_then_single_run() -> None:
             with_crc("01 10 00 12 00 02"),
             "motor 2 distance 1000.00 = 100000 = 0x000186A0, low word first",
         ),
+        (
+            with_crc("01 03 00 0E 00 06"),
+            with_crc("01 03 0C 00 01 00 3C 01 F4 00 00 86 A0 00 01"),
+            "40015-40020 read back (issue 39): direction 1, speed 60, lead 5.00, distance 1000.00",
+        ),
         echo(with_crc("01 05 00 05 FF 00"), "motor 2 single run (coil 00006)"),
     ]
-    run(steps, lambda d: d.move_by(2, -1000.0))
+    said = run(steps, lambda d: d.move_by(2, -1000.0, confirm=False))
+    assert said.startswith("motor 2 direction (40015) reads 1, motor 2 run distance (40019) ")
 
 
 def test_outputs_are_coil_pairs() -> None:
@@ -184,6 +204,11 @@ def test_jog_is_speed_then_direction_coil() -> None:
         echo(with_crc("01 06 00 05 00 78"), "motor 1 speed 120 rpm"),
         echo(with_crc("01 05 00 02 FF 00"), "motor 1 reverse"),
         echo(with_crc("01 05 00 04 FF 00"), "motor 1 stop"),
+        (
+            with_crc("01 03 00 A7 00 01"),
+            with_crc("01 03 02 00 00"),
+            "motor 1 running (40168) read back: 0, the stop is confirmed (issue 39)",
+        ),
         echo(with_crc("01 06 00 05 00 3C"), "motor 1 speed 60 rpm again"),
     ]
 

@@ -387,8 +387,14 @@ def test_services_write_what_they_should(sim, client: Client, tmp_path: Path) ->
         )
         for action in ("run_once", "forward", "reverse", "home", "stop"):
             ok(Trigger, f"motor_4/{action}")
-        for name in ("zero_coordinates", "return_to_zero", "home_all", "save_parameters"):
+        for name in ("zero_coordinates", "return_to_zero"):
             ok(Trigger, name)
+        # No homing order yet (40177-40181 all 0): the coil goes out and homes nothing.
+        # The reply says what was written and read (issue 39): "not confirmed" when every
+        # running flag reads 0, "done" when one still reads 1 from a motion above.
+        reply = b.call(Trigger, "home_all")
+        assert "wrote home all (coil 00046 = ON); read motor " in reply.message, reply.message
+        ok(Trigger, "save_parameters")
         ok(Trigger, "emergency_stop")
         ok(SetOutput, "set_output", board=0, index=4, state=True)
         ok(SetOutput, "set_output", board=0, index=4, state=False)
@@ -451,6 +457,8 @@ def test_services_write_what_they_should(sim, client: Client, tmp_path: Path) ->
             (5, C, 101, (1,)),
             (5, C, 100, (1,)),
             (5, C, 102, (1,)),
+            (5, C, 4, (1,)),  # the pair's own stops (issue 39 hole 7)
+            (5, C, 9, (1,)),
             (
                 16,
                 H,
@@ -460,6 +468,8 @@ def test_services_write_what_they_should(sim, client: Client, tmp_path: Path) ->
             (5, C, 99, (1,)),
             (5, C, 100, (1,)),
             (5, C, 102, (1,)),
+            (5, C, 4, (1,)),
+            (5, C, 9, (1,)),
             (5, C, 72, (1,)),
             (5, C, 96, (1,)),
         ]
