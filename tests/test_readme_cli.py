@@ -227,10 +227,17 @@ def run_goal_to_its_end(client: Client, words: list[str]) -> None:
 
 def test_every_actions_page_line_works_as_typed(demo: Client) -> None:
     """docs/actions.md's block, as a user types it against the demo: each goal is accepted,
-    sends feedback and runs to its end, REACHED."""
+    sends feedback and runs to its end, REACHED; a service call in it (the R6 program
+    stopped before a single cycle, R6 decision 23) succeeds."""
     commands = doc_commands(ACTIONS_PAGE, ACTIONS_SECTION)
     assert len(commands) >= 3, commands
     for words in commands:
+        if words[1:3] == ["service", "call"]:
+            name, type_name, text = words[3:6]
+            srv = interface(type_name)
+            reply = demo.call(srv, name, filled(srv.Request(), text), timeout=WAIT_S * 3)
+            assert reply.success, f"{' '.join(words)}: {reply.message}"
+            continue
         assert "--feedback" in words, " ".join(words)
         run_goal_to_its_end(demo, words)
 
