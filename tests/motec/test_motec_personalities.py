@@ -17,6 +17,7 @@ from typing import Any
 import pytest
 from lifecycle_msgs.msg import Transition
 from lifecycle_msgs.srv import ChangeState
+from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 from std_srvs.srv import SetBool, Trigger
 
@@ -25,7 +26,7 @@ from bridge_core.wire.channel import DeviceChannel, Priority
 from bridge_core.wire.errors import CommandRejected, LinkTimeout, NotConfirmed
 from bridge_core.wire.registers import Table
 from bridge_core.wire.transport import ModbusLink, SerialSettings
-from motec_bridge.device import STANDSTILL_SPEED_RPM, MotecDevice, start_all
+from motec_bridge.device import STANDSTILL_SPEED_RPM, MotecDevice, disable_all, start_all
 from motec_bridge.registers import CONTROL_MODE_POSITION, CONTROL_MODE_VELOCITY, MOTEC_MAP
 from motec_bridge.sim import MotecSimDrive, MotecSimulator, main, make_simulator
 from msg_defs.msg import MotionOutcome
@@ -289,6 +290,28 @@ def test_a_move_whose_start_or_target_is_ignored_is_not_confirmed_and_stopped(bu
     wait_until("the drive stands", lambda: drive.speed == 0)
 
 
+def test_broadcasts_against_drives_that_ignore_them(bus: Bus) -> None:
+    """``start_all`` and ``disable_all`` (no drive answers a broadcast): a drive that
+    ignores 0x29 = 1 did not take the start (failure, the others stopped); one that
+    ignores 0x28 = 0 reads 0x28 = 1 after its own write too (failure, said)."""
+    broadcast = DeviceChannel(bus.link, 0, retries=0)
+    drives = {u: bus.channels[u] for u in UNITS}
+    for u in UNITS:
+        bus.devices[u].set_control_mode(CONTROL_MODE_POSITION)
+        bus.devices[u].enable(True)
+        bus.devices[u].write_parameter(0x26, 10_000_000)
+    bus.sim.drive(2).ignore = frozenset({"start"})
+    ok, seen = start_all(broadcast, drives)
+    assert not ok and "drives [2] did not take the start" in seen, seen
+    assert "drive 1: move stopped" in seen and "drive 3: move stopped" in seen, seen
+    wait_until("every drive stands", lambda: all(bus.sim.drive(u).speed == 0 for u in UNITS))
+    bus.sim.drive(2).ignore = frozenset({"disable"})
+    ok, seen = disable_all(broadcast, drives)
+    assert not ok and "drive 2: 0x28 = 1" in seen and "STILL ENABLED" in seen, seen
+    ignored_2 = [(r.address, r.values) for r in bus.sim.drive(2).write_log if r.ignored]
+    assert ignored_2 == [(0x29, (1,)), (0x28, (0,)), (0x28, (0,))]  # broadcast, broadcast, own
+
+
 # ---------------------------------------------------------------- contract rows over ROS
 
 TURN = 2 * 3.141592653589793  # rad of one motor turn (gear 1)
@@ -478,6 +501,30 @@ def test_contract_deadman_and_halts_against_ignored_stops(
     log = (tmp_path / "motec_bridge_node.log").read_text(errors="replace").splitlines()
     said = [line for line in log if "not confirmed" in line and "the node is exiting" in line]
     assert said, "\n".join(log[-30:])
+
+
+@pytest.mark.ros
+def test_contract_joint_commands_position_target_against_an_ignored_start(
+    one_drive: tuple[MotecSimulator, str], client: Client, tmp_path: Path
+) -> None:
+    """``~/joint_commands``: a position stream's first target against a drive that
+    ignores 0x29 = 1 is refused "not confirmed" (what was written and read, logged by the
+    drive's node), and its move stopped."""
+    sim, port = one_drive
+    drive = sim.drive(1)
+    with motec(client, tmp_path, bridge_params(port, unit_ids=[1])) as (b, _proc):
+        position_ready(b)
+        sim.ignore(["start"])
+        pub = client.node.create_publisher(JointState, f"{b.ns}/motec_bridge/joint_commands", 10)
+        wait_subscribed(pub)
+        t = time.monotonic()
+        msg = JointState()
+        msg.name, msg.position = ["drive_1"], [0.05]
+        pub.publish(msg)
+        client.wait_log(f"{b.ns[1:]}.motec_1", "not confirmed: wrote 0x26 = 80, 0x29 = 1", t)
+        assert ignored(drive, "start") == [(0x29, (1,))]
+        assert drive.speed == 0
+        client.node.destroy_publisher(pub)
 
 
 # ---------------------------------------------------------------- delay rows
