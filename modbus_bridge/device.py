@@ -6,6 +6,11 @@ writable, value a number or bool as the register wants, inside its range, fittin
 type) before its first write, so a refused command writes nothing. Writes use the function
 codes the file lists: FC 05 (else 0F) for one coil, FC 06 (else 10) for one register, FC
 10 for a multi-register value.
+
+Every write is read back (decision 19, docs/decisions/modbus.md): a command reports
+success only when the register, read back at once, holds what was written; otherwise it
+raises ``NotConfirmed`` saying what was written and what was read ("sent, not
+confirmed"), also for a write-only register, which nothing can read back.
 """
 
 from __future__ import annotations
@@ -22,7 +27,7 @@ from bridge_core.runtime.reads import read_named
 from bridge_core.runtime.stream_guard import StreamGuard
 from bridge_core.wire.channel import Priority, RegisterIO
 from bridge_core.wire.codec import Value, decode, encode
-from bridge_core.wire.errors import CommandRejected, LinkError
+from bridge_core.wire.errors import CommandRejected, LinkError, NotConfirmed
 from bridge_core.wire.planner import ReadRequest
 from bridge_core.wire.registers import Register, Table, ValueType
 
@@ -216,11 +221,37 @@ class DescribedDevice:
         else:
             self.io.write_registers(register.address, list(words))
 
-    def write(self, name: str, value: Value) -> str:
-        """One register or coil, checked; returns what was written (``written_text``)."""
-        register, words = self.words_for(name, value)
+    def confirm(self, register: Register, words: Sequence[int], written: str) -> None:
+        """Read ``register`` back now: ``NotConfirmed`` unless it holds ``words``
+        (``written``: what the write said it wrote)."""
+        if not register.access.readable:
+            raise NotConfirmed(
+                f"wrote {written}; {register.name} is write only, nothing reads it back "
+                "(sent, not confirmed)"
+            )
+        seen = read_named(self.io, self.map, [register.name])[register.name]
+        wanted = decode(register, words)
+        if register.value_type is ValueType.BOOL:
+            same = bool(seen) == bool(wanted)
+        else:
+            same = seen == wanted
+        if not same:
+            raise NotConfirmed(
+                f"wrote {written}, read back {register.name} = {_shown(register, seen)} "
+                "(sent, not confirmed)"
+            )
+
+    def _send_confirmed(self, register: Register, words: Sequence[int], value: Value) -> str:
         self._send(register, words)
-        return written_text(register, value, words)
+        written = written_text(register, value, words)
+        self.confirm(register, words, written)
+        return written
+
+    def write(self, name: str, value: Value) -> str:
+        """One register or coil, checked, then read back; returns what was written
+        (``written_text``). ``NotConfirmed``: the read-back does not show it."""
+        register, words = self.words_for(name, value)
+        return self._send_confirmed(register, words, value)
 
     def attach_stream(self, topic_name: str, guard: StreamGuard[str]) -> None:
         """The guard of command topic ``topic_name`` (keyed by the topic's name)."""
@@ -251,7 +282,7 @@ class DescribedDevice:
                 held.enter_context(guard.lock)
             try:
                 done = action()
-            except LinkError:
+            except (LinkError, NotConfirmed):  # the device may still move
                 for guard, key, _ in streams:
                     guard.stop_failed(key)
                 raise
@@ -275,10 +306,19 @@ class DescribedDevice:
         ]
 
         def send() -> str:
+            """Each write read back at once. A start stops at the first not confirmed; a
+            stop sends all of its writes, then says which were not confirmed."""
             done: list[str] = []
+            unconfirmed: list[str] = []
             for (register, words), value in zip(checked, values, strict=True):
-                self._send(register, words)
-                done.append(written_text(register, value, words))  # as ~/write answers
+                try:
+                    done.append(self._send_confirmed(register, words, value))  # as ~/write
+                except NotConfirmed as err:
+                    if not spec.stop:
+                        raise NotConfirmed(_after(done, str(err))) from None
+                    unconfirmed.append(str(err))
+            if unconfirmed:
+                raise NotConfirmed(_after(done, "; ".join(unconfirmed)))
             return ", ".join(done)
 
         if spec.stop:
@@ -323,11 +363,11 @@ class DescribedDevice:
 
     def send_stream(self, topic: TopicSpec, register_value: float) -> None:
         register, words = self.words_for(topic.register_name, register_value)
-        self._send(register, words)
+        self._send_confirmed(register, words, register_value)
 
     def stop_stream(self, topic: TopicSpec) -> None:
         register, words = self.words_for(topic.register_name, topic.stop_value)
-        self._send(register, words)
+        self._send_confirmed(register, words, topic.stop_value)
 
 
 def written_text(register: Register, value: Value, words: Sequence[int]) -> str:
@@ -347,6 +387,19 @@ def written_text(register: Register, value: Value, words: Sequence[int]) -> str:
                 f"({_number(float(value))} rounded to the register's {step}{unit})"
             )
     return f"{register.name} = {value}"
+
+
+def _shown(register: Register, value: Value) -> str:
+    """A value read back, as ``written_text`` shows one."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return str(value)
+    unit = f" {register.unit}" if register.unit else ""
+    return f"{_number(float(value))}{unit}"
+
+
+def _after(done: Sequence[str], problem: str) -> str:
+    """A trigger's not confirmed write, after the writes it confirmed first."""
+    return f"{', '.join(done)} confirmed; {problem}" if done else problem
 
 
 def _number(value: float) -> str:

@@ -29,6 +29,13 @@ As strict as the file says the device is (the simulator base does the rest):
   clock, not its own.
 
 A bus file serves every device on one line, each under its unit id (silent for others).
+
+Personalities (docs/tools.md "Device personalities"): ``--reply-delay-ms MIN[:MAX]``
+(RTU: the device's reply delay, default the file's ``reply_delay_s``; TCP: a network round
+trip) and ``--ignore NAME[,NAME...]``, whose names are the file's motion writes
+(``motion_writes``: its ``starts_motion`` and stop triggers, command topics, stop coils,
+and the registers its joints are moved and commanded by), checked once the file is
+loaded.
 """
 
 from __future__ import annotations
@@ -38,11 +45,10 @@ import math
 import sys
 import time
 from collections import defaultdict
-from collections.abc import Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from bridge_core.sim.personality import add_ignore_argument
 from bridge_core.sim.sim_base import (
     ILLEGAL_ADDRESS,
     ILLEGAL_VALUE,
@@ -54,7 +60,7 @@ from bridge_core.sim.sim_base import (
     serve_serial_until_signalled,
     serve_tcp_until_signalled,
 )
-from bridge_core.wire.codec import decode
+from bridge_core.wire.codec import decode, encode
 from bridge_core.wire.registers import Register, Table, ValueType
 
 from .description import (
@@ -110,12 +116,118 @@ class KeepaliveTrip:
         return self.tripped_at - self.checked_at
 
 
-class DescribedSimDevice(SimulatedDevice):
-    """One described device: its map, limits, ranges and joint motion."""
+# Which of a file's motion writes a write is: name -> (what it is, the test of a write).
+WriteTest = Callable[[WriteRecord], bool]
 
-    def __init__(self, device: Device) -> None:
+
+def _touches(register: Register) -> WriteTest:
+    """Any write that covers a word of ``register``."""
+
+    def test(record: WriteRecord) -> bool:
+        end = record.address + len(record.values)
+        return record.table is register.table and (
+            record.address < register.address + register.count and register.address < end
+        )
+
+    return test
+
+
+def _writes_value(register: Register, value: object) -> WriteTest:
+    """A write that puts ``value`` (as a trigger's write encodes it) in ``register``."""
+    words = tuple(encode(register, value))  # type: ignore[arg-type]
+
+    def test(record: WriteRecord) -> bool:
+        start = register.address - record.address
+        if record.table is not register.table or start < 0:
+            return False
+        return tuple(record.values[start : start + len(words)]) == words
+
+    return test
+
+
+def motion_writes(device: Device) -> dict[str, tuple[str, WriteTest]]:
+    """The motion writes of a described device, by the names ``--ignore`` takes:
+
+    - its motion registers, any write of them: the registers its joints are moved by
+      (``sim`` command and run register) or commanded by (``command``), and those of
+      its stop and ``starts_motion`` triggers' writes;
+    - its triggers that stop motion, start it or write a motion register (a write of one
+      of the trigger's values), its command topics and stop coils (any write of their
+      register)."""
+    register_map = device.register_map
+    commands = device.commands
+    registers: dict[str, str] = {}
+    for joint in device.joints:
+        if joint.motion is not None:
+            registers.setdefault(joint.motion.command, f"joint {joint.name}'s motion command")
+            if joint.motion.run_register is not None:
+                registers.setdefault(
+                    joint.motion.run_register, f"joint {joint.name}'s run register"
+                )
+        if joint.command is not None:
+            for source in (joint.command.position, joint.command.velocity):
+                if source is not None:
+                    registers.setdefault(source.register, f"joint {joint.name}'s command")
+    for trigger in commands.triggers:
+        if trigger.starts_motion or trigger.stop:
+            for write in trigger.writes:
+                registers.setdefault(write.register_name, f"written by trigger {trigger.name}")
+    found: dict[str, tuple[str, WriteTest]] = {}
+
+    def add(name: str, what: str, test: WriteTest) -> None:
+        if name in found:  # a trigger and a register of one name: either write is it
+            said, other = found[name]
+            found[name] = (
+                f"{said}; {what}",
+                lambda record, a=other, b=test: a(record) or b(record),  # type: ignore[misc]
+            )
+        else:
+            found[name] = (what, test)
+
+    for name, what in registers.items():
+        add(name, f"motion register, {what} (any write of it)", _touches(register_map[name]))
+    for trigger in commands.triggers:
+        if not (trigger.starts_motion or trigger.stop) and not any(
+            w.register_name in registers for w in trigger.writes
+        ):
+            continue
+        kind = (
+            "stop trigger"
+            if trigger.stop
+            else "starts_motion trigger"
+            if trigger.starts_motion
+            else "trigger"
+        )
+        written = ", ".join(f"{w.register_name} = {w.value}" for w in trigger.writes)
+        tests = [_writes_value(register_map[w.register_name], w.value) for w in trigger.writes]
+        add(
+            trigger.name,
+            f"{kind} ({written})",
+            lambda record, tests=tests: any(t(record) for t in tests),  # type: ignore[misc]
+        )
+    for topic in commands.topics:
+        register = register_map[topic.register_name]
+        add(topic.name, f"command topic (any write of {register.name})", _touches(register))
+    for coil in commands.coils:
+        if coil.stop_on is not None:
+            register = register_map[coil.register_name]
+            add(coil.name, f"stop coil (any write of {register.name})", _touches(register))
+    return found
+
+
+class DescribedSimDevice(SimulatedDevice):
+    """One described device: its map, limits, ranges and joint motion.
+
+    ``IGNORABLE`` is the instance's own (``motion_writes`` of the file; on a line, the
+    names of every device of the file, so that ``--ignore`` takes any of them), and
+    ``write_names`` says which of its own device's motion writes a write is."""
+
+    def __init__(self, device: Device, ignorable: Mapping[str, str] | None = None) -> None:
         super().__init__(device.register_map, device.unit_id)
         self.device = device
+        self._motion_writes = motion_writes(device)
+        own = {name: what for name, (what, _) in self._motion_writes.items()}
+        self.IGNORABLE = dict(own if ignorable is None else ignorable)  # type: ignore[misc]
         self.max_write_bits = device.spec.device.max_write_bits
         if self.limits.read_undefined_ok:
             defined = set(self.words)
@@ -148,6 +260,9 @@ class DescribedSimDevice(SimulatedDevice):
             self.keepalive_fed_at = time.monotonic()
 
     _keepalive_word: int | None = None
+
+    def write_names(self, record: WriteRecord) -> frozenset[str]:
+        return frozenset(name for name, (_, test) in self._motion_writes.items() if test(record))
 
     def keepalive_period_s(self) -> float | None:
         keepalive = self.keepalive
@@ -251,8 +366,44 @@ class DescribedSimDevice(SimulatedDevice):
             )
 
 
+def file_motion_writes(description: Description) -> dict[str, str]:
+    """Every motion write of a file (``--ignore``'s names): name -> what it is (on a
+    line, prefixed by the devices that have it when not all do)."""
+    per_device = [
+        (device.name, {name: what for name, (what, _) in motion_writes(device).items()})
+        for device in description.devices
+    ]
+    names: dict[str, str] = {}
+    for _, writes in per_device:
+        for name, what in writes.items():
+            names.setdefault(name, what)
+    if len(per_device) > 1:
+        for name in names:
+            owners = [device for device, writes in per_device if name in writes]
+            if len(owners) < len(per_device):
+                names[name] = f"{', '.join(owners)}: {names[name]}"
+    return names
+
+
 def make_simulator(description: Description) -> Simulator:
-    return Simulator([DescribedSimDevice(device) for device in description.devices])
+    ignorable = file_motion_writes(description)
+    return Simulator([DescribedSimDevice(device, ignorable) for device in description.devices])
+
+
+def _names(text: str) -> frozenset[str]:
+    return frozenset(n.strip() for n in text.split(",") if n.strip())
+
+
+def unknown_ignore(path: Path, description: Description, names: frozenset[str]) -> str | None:
+    """The one error line of ``--ignore`` names that are not the file's motion writes
+    (None: all are)."""
+    known = file_motion_writes(description)
+    unknown = sorted(names - set(known))
+    if not unknown and names:
+        return None
+    given = ", ".join(unknown) if unknown else "(no name)"
+    listing = ", ".join(sorted(known)) if known else "none (the file declares no motion)"
+    return f"error: --ignore {given}: not a motion write of {path}; its motion writes: {listing}"
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -275,11 +426,32 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--stopbits", type=int, choices=(1, 2), help="default: the file's, else 1")
     add_log_arguments(parser)
     add_network_arguments(parser, delay_default_ms=None)
-    add_ignore_argument(parser, DescribedSimDevice.IGNORABLE)
+    for action in parser._actions:
+        if action.dest == "reply_delay_ms":  # here it is the device's delay on RTU too
+            action.help = (
+                "each reply's delay, drawn per reply in [MIN, MAX] ms: on --serial / --pty "
+                "the device's (after the request's last byte; default the file's "
+                "reply_delay_s), over TCP a network round trip, half each way (default 0)"
+            )
+    parser.add_argument(
+        "--ignore",
+        type=_names,
+        default=None,
+        metavar="NAME[,NAME...]",
+        help="acknowledge these motion writes of the file as the manual says and change "
+        "nothing (a device that does not obey): its starts_motion and stop triggers, "
+        "command topics, stop coils and its joints' command and run registers (an unknown "
+        "name: the error lists the file's)",
+    )
     args = parser.parse_args(argv)
     description = load_for_command(args.device_file)
     if description is None:
         return EXIT_BAD_DESCRIPTION
+    if args.ignore is not None:
+        problem = unknown_ignore(args.device_file, description, args.ignore)
+        if problem is not None:
+            print(problem, file=sys.stderr)
+            return EXIT_BAD_DESCRIPTION
     link = description.line or description.device.link
     rtu = link.rtu if link is not None else None
     sim = make_simulator(description)

@@ -122,8 +122,10 @@ def test_an_8e1_line_keeps_the_silence_of_11_bit_characters() -> None:
             simulator.stop()
         frames = line.frames()
     assert line.silence_s == pytest.approx(3.5 * bits / 9600)
-    groups = device.groups  # 3 polls, the slow group as often as it was due, the write
-    expected = 3 * len(groups.fast) + groups.slow_reads * len(groups.slow) + 1
+    # 3 polls, the slow group as often as it was due, the write and its read-back
+    # (decision 19)
+    groups = device.groups
+    expected = 3 * len(groups.fast) + groups.slow_reads * len(groups.slow) + 2
     assert sum(f.direction == REQUEST for f in frames) == expected
     for f in frames:
         assert f.due_end - f.start == pytest.approx(f.size * bits / 9600)
