@@ -659,18 +659,18 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
             time.sleep(CONFIRM_READ_PERIOD_S)
 
     def _read_back(self, values: Sequence[tuple[str, Value]]) -> str:
-        """The registers just written read back: what they hold, or ``NotConfirmed``
-        naming each that does not hold what was written (the cache takes what was read)."""
+        """The registers just written read back: "wrote X = 1, Y = 2 (read back)", or
+        ``NotConfirmed`` with every value written and read (the cache takes what was
+        read)."""
         read = self.read_named(*(name for name, _ in values))
-        wrong: list[str] = []
-        for name, value in values:
-            expected = _as_read(STEPPER_MAP[name], value)
-            if read[name] != expected:
-                self._cache.note_written(name, read[name])
-                wrong.append(f"{_register_text(name)} = {expected:g}, read {read[name]:g}")
-        if wrong:
-            raise NotConfirmed(f"wrote {'; wrote '.join(wrong)}")
-        return ", ".join(f"{_register_text(name)} reads {read[name]:g}" for name, _ in values)
+        expected = {name: _as_read(STEPPER_MAP[name], value) for name, value in values}
+        wrote = ", ".join(f"{_register_text(name)} = {v:g}" for name, v in expected.items())
+        if all(read[name] == v for name, v in expected.items()):
+            return f"wrote {wrote} (read back)"
+        for name in expected:
+            self._cache.note_written(name, read[name])
+        seen = ", ".join(f"{_register_text(name)} = {read[name]:g}" for name in expected)
+        raise NotConfirmed(f"wrote {wrote}; read {seen}")
 
     def set_motor_parameter(self, motor: int, field: str, value: float) -> None:
         """One basic parameter: FC 06 for a 16-bit one, FC 10 for lead / run distance.

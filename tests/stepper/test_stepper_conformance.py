@@ -172,7 +172,10 @@ def test_move_by_is_direction_distance_then_single_run() -> None:
         echo(with_crc("01 05 00 05 FF 00"), "motor 2 single run (coil 00006)"),
     ]
     said = run(steps, lambda d: d.move_by(2, -1000.0, confirm=False))
-    assert said.startswith("motor 2 direction (40015) reads 1, motor 2 run distance (40019) ")
+    assert said == (
+        "wrote motor 2 direction (40015) = 1, motor 2 run distance (40019) = 1000 (read back); "
+        "wrote motor 2 run once (coil 00006 = ON)"
+    )
 
 
 def test_outputs_are_coil_pairs() -> None:
