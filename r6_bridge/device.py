@@ -553,13 +553,49 @@ class R6Device:
         self.command(name)
         if name in START_COMMANDS:
             return self.confirm_start(name, ready)
-        return f"wrote {COMMANDS[name]} = 1 ({name})"
+        return self.confirm_cleared(name, ready)
+
+    def confirm_cleared(self, name: str, before: Readiness) -> str:
+        """20005 / 20006 just acknowledged: done only when the alarm code (2396) reads 0
+        within START_CONFIRM_S (R6 decision 29); otherwise ``NotConfirmed``."""
+        wrote = f"wrote {COMMANDS[name]} = 1 ({name}), acknowledged"
+        deadline = time.monotonic() + START_CONFIRM_S
+        while True:
+            try:
+                code = int(self.read_named("alarm_code")["alarm_code"])
+            except LinkError as err:
+                raise NotConfirmed(f"sent ({wrote}); the read back failed: {err}") from err
+            if code == 0:
+                return f"{wrote}; read alarm code (2396) 0 (was {before.alarm_code})"
+            if time.monotonic() >= deadline:
+                raise NotConfirmed(
+                    f"sent ({wrote}); read alarm code (2396) {code} {START_CONFIRM_S:g} s "
+                    "after (START_CONFIRM_S): the alarm was not cleared"
+                )
+            time.sleep(CONFIRM_READ_PERIOD_S)
 
     def set_global_speed(self, percent: float) -> None:
         """§3.2.2: one register, FC 06, 0-1000 = 0.0-100.0 %."""
         reg = R6_MAP["global_speed"]
         (raw,) = encode(reg, float(percent))
         self.io.write_register(reg.address, raw)
+
+    def set_global_speed_read_back(self, percent: float) -> str:
+        """``set_global_speed``, then 20200 read back (R6 decision 29: the speed of a
+        running program changes only if the controller took it); ``NotConfirmed`` with
+        what was written and read when it differs."""
+        reg = R6_MAP["global_speed"]
+        (raw,) = encode(reg, float(percent))
+        self.set_global_speed(percent)
+        try:
+            read = self.io.read_registers(reg.address, 1, priority=Priority.COMMAND)[0]
+        except LinkError as err:
+            raise NotConfirmed(f"sent (wrote 20200 = {raw}); the read back failed: {err}") from err
+        if read != raw:
+            raise NotConfirmed(
+                f"sent (wrote 20200 = {raw}, acknowledged); read 20200 = {read} ({read / 10:g} %)"
+            )
+        return f"wrote 20200 = {raw}; read {read} ({read / 10:g} %)"
 
     def set_output(
         self, board: int, point: int, on: bool, boards_in_use: int | None = None

@@ -205,12 +205,14 @@ class R6BridgeNode(BridgeNode[R6Snapshot]):
                 "clear_alarm_and_next", skip_failed_step=bool(r.skip_failed_step)
             ),
             starts=lambda _r: self._program_started,
+            fill=_said,
         )
         self.command_service(
             SetValue,
             "~/set_global_speed",
             lambda r: f"set_global_speed {r.value} %",
-            lambda r: d.set_global_speed(r.value),
+            lambda r: d.set_global_speed_read_back(r.value),
+            fill=_said,
         )
         self.command_service(
             SetOutput,

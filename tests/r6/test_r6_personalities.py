@@ -42,6 +42,7 @@ from bridge_core.wire.errors import DeviceException, NotConfirmed
 from bridge_core.wire.transport import ModbusLink, TcpSettings
 from msg_defs.action import RunCycle
 from msg_defs.msg import MotionOutcome, R6State
+from msg_defs.srv import ClearAlarmAndNext, SetValue
 from r6_bridge.device import R6Device, RunCycleMotion
 from r6_bridge.registers import COMMANDS, R6_MAP, parameter_address
 from r6_bridge.sim import IGNORABLE, R6SimDevice, make_simulator
@@ -366,6 +367,38 @@ def test_services_against_a_controller_that_ignores_them(
         reply = b.call(Trigger, "start")
         assert reply.success and "the program runs" in reply.message, reply.message
         assert b.call(Trigger, "stop").success
+
+
+def test_speed_and_alarm_clears_against_a_controller_that_ignores_them(
+    simulator: tuple[Simulator, R6SimDevice, int], client: Client, tmp_path: Path
+) -> None:
+    """~/set_global_speed (the running program's speed) and the alarm clears that set it
+    running again: not success when the controller keeps its value, with what was
+    written and read back; success, with the read, when it takes it."""
+    sim, device, port = simulator
+    params = node_params(port)
+    with start_bridge(client, tmp_path, "r6_bridge.node", "r6_bridge", R6State, params) as (
+        b,
+        _proc,
+    ):
+        client.wait_message(b.state, lambda s: s.global_speed_percent == 100.0)
+        sim.ignore({"speed", "clear_alarm"})
+        reply = b.call(SetValue, "set_global_speed", value=25.0)
+        assert not reply.success and "not confirmed" in reply.message, reply.message
+        assert "wrote 20200 = 250" in reply.message and "read 20200 = 1000" in reply.message
+        device.set_alarm(0x325)
+        client.wait_message(b.state, lambda s: s.alarm_code == 0x325)
+        reply = b.call(Trigger, "clear_alarm_and_continue")
+        assert not reply.success and "not confirmed" in reply.message, reply.message
+        assert "wrote 20006 = 1" in reply.message and "alarm code (2396) 805" in reply.message
+        reply = b.call(ClearAlarmAndNext, "clear_alarm_and_next", skip_failed_step=True)
+        assert not reply.success and "wrote 20005 = 1" in reply.message, reply.message
+        assert [r.ignored for r in device.write_log] == [True, True, True]
+        sim.ignore(())
+        reply = b.call(SetValue, "set_global_speed", value=25.0)
+        assert reply.success and "read 250 (25 %)" in reply.message, reply.message
+        reply = b.call(Trigger, "clear_alarm_and_continue")
+        assert reply.success and "alarm code (2396) 0" in reply.message, reply.message
 
 
 def test_run_cycle_against_a_controller_that_ignores_it(
