@@ -51,7 +51,7 @@ from ..support.ros import (
     wait_for,
     wait_subscribed,
 )
-from .test_exit_stops import running_forward
+from .test_exit_stops import SIM_IN_TEST_TIMEOUT_S, WATCHDOG, running_forward, vfd_on_pty
 
 ROOT = Path(__file__).resolve().parents[2]
 INVERTER = ROOT / "config" / "devices" / "inverter_tcp_f32.yaml"
@@ -67,6 +67,9 @@ TIMEOUT_S = 1.0
 # A device on TCP whose round trip is up to this (issue 39: "TCP up to 50 ms").
 TCP_ROUND_TRIP_MAX_S = 0.05
 SIM = (sys.executable, "-m", "modbus_bridge.sim")
+# The RTU row's device: a reply delay drawn in this range (the link's timeout_s is
+# SIM_IN_TEST_TIMEOUT_S, past a pty's stalls: tests/support/serial_pair.py).
+RTU_DELAY_S = (0.05, 0.3)
 # The pty row's device delay: far above what a 0.2 s reply timeout allows.
 PTY_DELAY_MS = 400.0
 
@@ -471,6 +474,7 @@ def test_a_tcp_device_answering_up_to_50_ms_late(client: Client, tmp_path: Path)
         heard = len(simulator.withheld_writes)
         reply = b.call(Trigger, "stop")  # tried at once on a link marked down
         assert not reply.success
+        wait_for(lambda: simulator.withheld_writes[heard:], WAIT_S, "the stop, heard")
         assert [(r.address, r.values) for r in simulator.withheld_writes[heard:]] == [(RUN, (0,))]
         back = time.monotonic()
         simulator.withhold_replies = False
@@ -501,3 +505,49 @@ def test_a_pending_stream_stop_the_device_ignores_does_not_stop_the_polls(
         wait_for(lambda: len(client.received(b.joint_states, back)) >= 10, WAIT_S, "polls again")
         client.wait_log("modbus_bridge", "read back speed_setpoint", back)
         assert sim.get("speed_setpoint") != 0
+
+
+def test_an_rtu_device_answering_50_to_300_ms_late(client: Client, tmp_path: Path) -> None:
+    """The VFD on its pty answering 50-300 ms after each request: the bridge connects at
+    start, polls, its commands are confirmed, it reconnects after an outage, and a stop
+    goes out at once while the link is marked down."""
+    with vfd_on_pty() as (simulator, device, port):
+        simulator.set_reply_delay(*RTU_DELAY_S)
+        params = {
+            "device_file": str(VFD),
+            "serial_port": port,
+            "poll_rate_hz": 10.0,
+            "reconnect_max_s": 0.5,
+            "timeout_s": SIM_IN_TEST_TIMEOUT_S,
+        }
+        b = Bridge(client, unique_namespace("vfd_late"), "modbus_bridge", DeviceValues)
+        with node_process("modbus_bridge.node", params, tmp_path, ["-r", f"__ns:={b.ns}"]):
+            b.wait_connected(True, timeout=WAIT_S)
+            since = time.monotonic()
+            wait_for(lambda: len(client.received(b.state, since)) >= 5, WAIT_S, "polls")
+            wait_for(lambda: device.writes_to(WATCHDOG), WAIT_S, "the keepalive armed")
+            reply = b.call_sent(Trigger, "run_forward")
+            assert reply.success, reply.message
+            reply = b.call_sent(Trigger, "stop")
+            assert reply.success, reply.message
+            cut = time.monotonic()
+            simulator.withhold_replies = True
+            b.wait_connected(False, since=cut, timeout=WAIT_S)
+            heard = len(simulator.withheld_writes)
+            reply = b.call(Trigger, "stop")  # tried at once on a link marked down
+            assert not reply.success
+
+            def stops() -> list[tuple[int, tuple[int, ...]]]:
+                return [
+                    (r.address, r.values)
+                    for r in simulator.withheld_writes[heard:]
+                    if r.address == CONTROL_WORD
+                ]
+
+            # heard by the silent device (a stalled pty may hand it over after the reply)
+            wait_for(stops, WAIT_S, "the stop on the silent line")
+            assert stops() == [(CONTROL_WORD, (5,))]
+            back = time.monotonic()
+            simulator.withhold_replies = False
+            b.wait_connected(True, since=back, timeout=WAIT_S)
+            wait_for(lambda: len(client.received(b.state, back)) >= 5, WAIT_S, "polls again")
