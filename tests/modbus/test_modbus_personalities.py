@@ -9,7 +9,10 @@ and the VFD on RTU 8E1 over a pty (config/devices/vfd_rtu.yaml: ~/run_forward, ~
 its keepalive). For each way motion starts, stops or changes, against a device that
 ignores that write: never success; the reply says what was written and what was read
 back; a halt (exit, deactivate, read_only) still sends its stop (the simulator's write
-log has it, ``ignored``) and the node logs "not confirmed".
+log has it, ``ignored``) and the node logs "not confirmed". Against a device answering
+late (TCP round trips 0-50 ms; the VFD on RTU 50-300 ms): the bridge connects at start,
+polls, reconnects after an outage, and a stop goes out at once, also on a link marked
+down.
 """
 
 from __future__ import annotations
