@@ -11,6 +11,7 @@ delay.
 
 from __future__ import annotations
 
+import re
 import signal
 import time
 from collections.abc import Iterator
@@ -27,6 +28,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
+from bench.line_relay import LineRelay
 from bridge_core.sim.sim_base import Simulator, WriteRecord
 from bridge_core.wire.channel import DeviceChannel
 from bridge_core.wire.errors import NotConfirmed
@@ -57,6 +59,7 @@ from ..support.ros import (
     Client,
     node_process,
     ros_client,
+    start_bridge,
     unique_namespace,
     wait_for,
     wait_subscribed,
@@ -494,3 +497,85 @@ def test_contract_halts_against_an_ignored_stop(
         for line in exiting
     ), log[-3000:]
     assert any("stream 2: its stop went out, not confirmed" in line for line in exiting), log
+
+
+# ---------------------------------------------------------------- delay rows
+
+LINE_BAUD = 9600  # the manual's (§3), on the byte-timed line: a 49-register reply ~107 ms
+# Replies 35-300 ms after each request, drawn per reply: all within timeout_s 0.5 with the
+# frames at 9600 baud (8 bytes out, at most 103 back: 0.3 + 0.11 s), most of them later
+# than the short wait (0.15 s, the reply timeout floor) a request to a controller marked
+# down used to get (issue 39 hole 1).
+DELAY_S = (0.035, 0.3)
+DELAY_TIMEOUT_S = 0.5
+# Every wait on this line is long: a poll is three requests of up to ~0.4 s each, the
+# configuration read whole (several more) comes first after every (re)connect.
+SLOW_WAIT_S = 3 * WAIT_S
+
+
+@pytest.mark.ros
+def test_delay_a_controller_answering_late_connects_polls_reconnects_and_stops_at_once(
+    client: Client, tmp_path: Path
+) -> None:
+    """A controller answering 35-300 ms after each request on a byte-timed line at 9600
+    baud (the bench's relay: a pty hands over a 103-byte reply at once, the wire takes
+    ~107 ms), timeout_s 0.5: the node connects at start, polls, reconnects after an
+    outage, and a stop goes out at once (at most the reads on the line ahead of it).
+    Before hole 1's fix every request while the link was down waited 0.15 s: the node
+    connected only when a whole start-up read happened to answer within it."""
+    sim = make_simulator(1)
+    sim.set_reply_delay(*DELAY_S)
+    fake = sim.device
+    assert isinstance(fake, StepperSimDevice)
+    units = dict(sim.devices)
+    with LineRelay(LINE_BAUD) as line:
+        sim.start_serial(line.device_path, LINE_BAUD)
+        try:
+            params = {
+                "serial_port": line.client_path,
+                "baudrate": LINE_BAUD,
+                "poll_rate_hz": 2.0,
+                "timeout_s": DELAY_TIMEOUT_S,
+                "reconnect_max_s": 1.0,
+                "command_timeout_s": COMMAND_TIMEOUT_S,
+            }
+            with start_bridge(
+                client, tmp_path, "stepper_bridge.node", "stepper_bridge", StepperState, params
+            ) as (b, proc):
+                b.wait_connected(True, timeout=SLOW_WAIT_S)  # at start
+                t = time.monotonic()
+                wait_for(
+                    lambda: len(client.received(b.state, t)) >= 3, SLOW_WAIT_S, "3 polls"
+                )  # polls
+                sim.devices = {}  # the controller goes silent
+                b.wait_connected(False, timeout=SLOW_WAIT_S)
+                sim.devices = units
+                b.wait_connected(True, timeout=SLOW_WAIT_S)  # reconnected
+                t = time.monotonic()
+                wait_for(lambda: len(client.received(b.state, t)) >= 3, SLOW_WAIT_S, "3 polls")
+                ok(b, Trigger, "motor_1/forward")
+                runs(fake, 1)
+                with client.service_client(Trigger, b.service("motor_1/stop")) as stop:
+                    fake.log_reads = True
+                    called = time.time()
+                    future = stop.call_async(Trigger.Request())
+                    wait_for(future.done, SLOW_WAIT_S, "the stop's reply")
+                reply = future.result()
+                assert reply.success, reply.message
+                (coil_write,) = [r for r in fake.write_log if r.table is C and r.time >= called][:1]
+                assert coil_write.address == motor_coil(1, "stop")
+                ahead = [r for r in fake.read_log if called <= r.time <= coil_write.time]
+                # The read on the line when the call came, and one begun before the node
+                # had the request; the polls queued meanwhile go after the stop.
+                assert len(ahead) <= 2, ahead
+                assert proc.poll() is None
+        finally:
+            sim.stop()
+    # No request to the late controller was given less than timeout_s: before hole 1's fix
+    # the start-up reads and the probes after the outage waited 0.15 s ("cannot reach
+    # ...: no reply within 0.15 s; retrying") and a connection came only by chance.
+    log = (tmp_path / "stepper_bridge_node.log").read_text(errors="replace")
+    waits = [float(w) for w in re.findall(r"no reply within ([\d.]+) s", log)]
+    assert all(w >= DELAY_TIMEOUT_S for w in waits), [
+        line for line in log.splitlines() if "no reply within" in line
+    ][:5]
