@@ -6,6 +6,11 @@ for lead, run distance and coordinates (the device stores them x100), rpm, Hz, d
 
 "Stepper decision N" is reading N of docs/decisions/stepper.md.
 
+Confirmation (issue 39, stepper decision 23): the controller acknowledges every write
+whether or not it obeys, so a stop is done when the running flags (40168+) read 0, a start
+when one reads 1 or a coordinate moved, a register write when it reads back; otherwise
+``NotConfirmed`` says what was written and what was read.
+
 Polling. A poll reads three status blocks (running flags 40168-40172 first, then
 coordinates 40108-40117 and inputs 40124-40136: three requests, the undefined rows
 between them cannot be read through); the outputs 40148-40159 are the slow group, read

@@ -195,7 +195,7 @@ SERVICES = (
     Service(
         "~/stop_interpolation",
         "std_srvs/srv/Trigger",
-        "stop a line or arc (both interpolation stop coils)",
+        "stop a line or arc (both interpolation stop coils and its motors' stop coils)",
     ),
 )
 ACTIONS = (

@@ -21,6 +21,10 @@ which of the manual's two readings the controller follows (stepper decisions 11,
 19); a line / arc goal that moves a motor outside the configured pair is stopped; a second
 line / arc is refused while one this bridge started runs (decision 14).
 
+Replies: a command that starts, stops or changes motion succeeds only when the
+controller's state read back shows it, and says what was written and read (stepper
+decision 23); halts and stream stops that are not shown log "not confirmed".
+
 Standalone setters per motor: ``set_speed`` (rpm, like ``configure`` and the jog),
 ``set_direction`` (0/1), ``set_run_distance`` (m / rad, like ``move_by``) and
 ``set_round_trips`` (mode 1; stepper decision 16). The device id and baud rate are shown in
