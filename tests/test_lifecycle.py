@@ -19,7 +19,7 @@ from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
 from bridge_core.wire.registers import Table
-from stepper_bridge.registers import motor_coil
+from stepper_bridge.registers import holding, motor_coil
 from stepper_bridge.sim import StepperSimDevice, make_simulator
 
 from .support.ros import (
@@ -109,7 +109,9 @@ def test_a_managed_stepper_bridge_stops_its_jog_when_deactivated(
             reply = client.call(Trigger, f"{node}/motor_1/stop", Trigger.Request())
             assert reply.success, reply.message
             assert state(client, node) == "inactive"
-            assert [r.address for r in device.read_log[reads:]] == []
+            # The only read: the stop's own read-back of motor 1's running flag (40168,
+            # stepper decision 23), no poll.
+            assert [r.address for r in device.read_log[reads:]] == [holding(40168)]
 
             assert change(client, node, Transition.TRANSITION_CLEANUP)
             assert state(client, node) == "unconfigured"
