@@ -7,7 +7,8 @@ from __future__ import annotations
 import argparse
 import struct
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
+from typing import ClassVar
 
 import pytest
 import serial
@@ -36,7 +37,7 @@ class Obedient(SimulatedDevice):
     """A device whose ``run`` coil and ``speed`` register are motion writes; a write of
     ``run`` starts a counter the behaviour hook keeps (what an ignored write must not do)."""
 
-    IGNORABLE = {"run": "coil 0", "speed": "register 0"}
+    IGNORABLE: ClassVar[Mapping[str, str]] = {"run": "coil 0", "speed": "register 0"}
 
     def __init__(self) -> None:
         super().__init__(MAP, UNIT)
@@ -152,7 +153,7 @@ def test_a_tcp_round_trip_is_drawn_in_its_range(obedient: tuple[Simulator, Obedi
     # Drawn, not fixed: the replies do not all take the same time (a fixed 20 ms would
     # put them all within a few ms of each other; drawn in 20-60 ms they spread).
     draws = [sim.round_trip() for _ in range(200)]
-    assert 0.02 <= min(draws) and max(draws) <= 0.06 and max(draws) - min(draws) > 0.02
+    assert min(draws) >= 0.02 and max(draws) <= 0.06 and max(draws) - min(draws) > 0.02
 
 
 def test_nagle_is_left_on_only_when_asked(obedient: tuple[Simulator, Obedient, int]) -> None:
