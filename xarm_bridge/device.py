@@ -389,16 +389,24 @@ class XArmDevice:
         one round trip later, not after a wait (xArm decision 19). Done only when H33
         read back shows it (4 stopped; a pause 3, or 4): the coils are not proof, a
         firmware may keep them as written. A coil the controller refuses (an exception
-        reply) does not hold back H33."""
+        reply), or whose reply is lost, does not hold back H33."""
         coil, state = (
             (COIL_STOPPED, SET_STATE_STOP) if kind == "stop" else (COIL_PAUSED, SET_STATE_PAUSE)
         )
         refused = ""
+        lost: LinkError | None = None
         try:
             self.io.write_coil(coil, True)
         except DeviceException as err:
             refused = f" (refused: {err})"
-        self.set_state(state)
+        except LinkError as err:  # no reply to the coil: H33 is still tried at once
+            lost, refused = err, f" (no reply: {err})"
+        try:
+            self.set_state(state)
+        except LinkError:
+            if lost is not None:
+                raise lost from None
+            raise
         return self._confirm(kind, f"C{coil} = 1{refused} and H33 = {state}")
 
     def pause(self) -> str:

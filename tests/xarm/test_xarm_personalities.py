@@ -29,7 +29,7 @@ from std_srvs.srv import Trigger
 
 from bridge_core.sim.sim_base import Simulator, WriteRecord
 from bridge_core.wire.channel import DeviceChannel
-from bridge_core.wire.errors import NotConfirmed
+from bridge_core.wire.errors import LinkTimeout, NotConfirmed
 from bridge_core.wire.ports import free_port
 from bridge_core.wire.registers import Table
 from bridge_core.wire.transport import ModbusLink, TcpSettings
@@ -149,6 +149,32 @@ def test_a_refused_stop_coil_does_not_hold_back_h33() -> None:
         said = device.stop()
         assert "C145 = 1 (refused: " in said and "state 4 (stopped)" in said, said
         assert sim.arm_state == STOPPED
+
+
+class _CoilReplyLost:
+    """The arm's channel, but the reply to a coil write is lost after the write landed
+    (a cable glitch on the way back): ``write_coil`` raises ``LinkTimeout``."""
+
+    def __init__(self, io: DeviceChannel) -> None:
+        self._io = io
+
+    def write_coil(self, address: int, value: bool, **kwargs: object) -> None:
+        self._io.write_coil(address, value, **kwargs)  # type: ignore[arg-type]
+        raise LinkTimeout("no reply within 1.0 s")
+
+    def __getattr__(self, name: str) -> object:
+        return getattr(self._io, name)
+
+
+@pytest.mark.parametrize("kind", ["stop", "pause"])
+def test_a_lost_coil_reply_does_not_hold_back_h33(kind: str) -> None:
+    with arm() as (device, sim, simulator):
+        moving(sim)
+        simulator.ignore([f"{kind}_coil"])  # the coil alone would not halt this arm
+        device.io = _CoilReplyLost(device.io)  # type: ignore[assignment,arg-type]
+        said = device.halt(kind)
+        assert "(no reply: " in said and "H33 = " in said, said
+        assert sim.arm_state == (STOPPED if kind == "stop" else PAUSED)
 
 
 # ---------------------------------------------------------------- hole 5 (decision 20)
