@@ -12,6 +12,7 @@ from bridge_core.wire.errors import LinkTimeout
 from bridge_core.wire.registers import Table
 from motec_bridge.device import MotecDevice
 from stepper_bridge.device import StepperDevice
+from stepper_bridge.registers import STEPPER_MAP, motor_register
 
 
 class FlakyIO:
@@ -72,7 +73,10 @@ def test_stepper_failed_jog_start_is_treated_as_running() -> None:
 def test_stepper_repeated_zero_jogs_send_one_stop() -> None:
     io = FlakyIO()
     device = StepperDevice(io)  # type: ignore[arg-type]
+    running = STEPPER_MAP[motor_register(3, "running")].address
+    io.registers[running] = 1  # the controller shows the single run (stepper decision 23)
     device.motor_action(3, "run_once")
+    io.registers[running] = 0  # and the stop that follows
     before = len(io.writes)
     assert device.jog(3, 0)  # the motor may be running the single run: stop once
     assert not device.jog(3, 0) and not device.jog(3, 0)
