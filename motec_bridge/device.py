@@ -593,11 +593,26 @@ class MotecDevice(ConfiguredDevice[MotecConfig]):
     def retarget(self, counts: int) -> None:
         """A newer absolute target for the move this bridge's position stream started
         (``joint_commands``): motion mode absolute, the target (0x26-0x27), 0x29 = 1 again;
-        the drive turns towards it from where it is (MOTEC decision 21)."""
+        the drive turns towards it from where it is (MOTEC decision 21). 0x26-0x27 and
+        0x29 are read back (one read): a drive that did not take the target would run on
+        to the older one, so it is stopped and ``NotConfirmed`` says what was written and
+        read (issue 39)."""
         encode(MOTEC_MAP["target_distance"], counts)  # range check before any write
         self._write("motion_mode", MOTION_ABSOLUTE)
         self._write("target_distance", counts)
         self._write("start", START_MOVE)
+        v = read_blocks(self.io, MODE_PLAN, Priority.COMMAND)[0]
+        if int(v["target_distance"]) == counts and int(v["start"]) == START_MOVE:
+            return
+        said = (
+            f"sent, not confirmed: wrote 0x26 = {counts}, 0x29 = 1, read 0x26 = "
+            f"{int(v['target_distance'])}, 0x29 = {int(v['start'])}"
+        )
+        try:
+            stopped = self.stop_move()
+        except (LinkError, NotConfirmed) as stop_err:
+            stopped = f"its stop failed: {stop_err}"
+        raise NotConfirmed(f"{said}; stopped: {stopped}")
 
     def stop(self) -> str:
         """Stop in the present mode, each verified until the drive stands (|0xAF| within

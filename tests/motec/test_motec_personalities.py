@@ -290,6 +290,23 @@ def test_a_move_whose_start_or_target_is_ignored_is_not_confirmed_and_stopped(bu
     wait_until("the drive stands", lambda: drive.speed == 0)
 
 
+def test_a_retarget_the_drive_ignores_is_not_confirmed_and_stopped(bus: Bus) -> None:
+    """A position stream's newer target (``retarget``, MOTEC decision 21): a drive that
+    does not take it would run on to the older one: not confirmed, and stopped."""
+    d, drive = bus.devices[1], bus.sim.drive(1)
+    d.set_control_mode(CONTROL_MODE_POSITION)
+    d.enable(True)
+    d.move(5_000_000, relative=False, speed_rpm=600)
+    wait_until("the move runs", lambda: drive.speed > STANDSTILL_SPEED_RPM)
+    d.retarget(6_000_000)  # taken: nothing said
+    bus.sim.ignore(["target"])
+    with pytest.raises(
+        NotConfirmed, match=r"wrote 0x26 = 1000, 0x29 = 1, read 0x26 = 6000000, 0x29 = 1; stopped"
+    ):
+        d.retarget(1000)
+    wait_until("the drive stands", lambda: drive.speed == 0)
+
+
 def test_broadcasts_against_drives_that_ignore_them(bus: Bus) -> None:
     """``start_all`` and ``disable_all`` (no drive answers a broadcast): a drive that
     ignores 0x29 = 1 did not take the start (failure, the others stopped); one that
@@ -532,14 +549,18 @@ def test_contract_joint_commands_position_target_against_an_ignored_start(
 # Replies after 50-80 ms, drawn per reply: all later than the short wait a request to a
 # drive marked down used to get (down_write_timeout_s, 50 ms), all within the link's
 # timeout_s 0.1 with the frames at 115200 baud (issue 39 hole 1).
-DELAY_S = (0.05, 0.08)
+# Past the short wait of a stop to a drive marked down (STOP_TIMEOUT_S, 0.05 s), which
+# the probes waited before hole 1's fix; the link's timeout_s (0.25 s here) leaves a loaded
+# host 0.15 s over the longest reply (at 0.1 s with 50-80 ms replies a set_control_mode
+# timed out beside a CI run).
+DELAY_S = (0.06, 0.1)
 
 
 @pytest.mark.ros
 def test_delay_drives_answering_late_connect_poll_reconnect_and_stop_at_once(
     client: Client, tmp_path: Path
 ) -> None:
-    """A drive answering 50-80 ms after each request, on a byte-timed line (the bench's
+    """A drive answering 60-100 ms after each request, on a byte-timed line (the bench's
     relay): the node connects at start, polls, reconnects after an outage, and a stop
     goes out at once (at most the read on the line and the stop's own mode read before
     its write). Before hole 1's fix the probes waited 50 ms and it never connected."""
@@ -549,7 +570,9 @@ def test_delay_drives_answering_late_connect_poll_reconnect_and_stop_at_once(
     with LineRelay(BAUD) as line:
         sim.start_serial(line.device_path, BAUD)
         try:
-            params = bridge_params(line.client_path, unit_ids=[1], timeout_s=0.1, poll_rate_hz=10.0)
+            params = bridge_params(
+                line.client_path, unit_ids=[1], timeout_s=0.25, poll_rate_hz=10.0
+            )
             with motec(client, tmp_path, params) as (b, proc):
                 b.wait_connected(1, True)  # at start
                 b.wait_joints(1, 5, time.monotonic())  # polls
