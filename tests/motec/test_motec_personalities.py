@@ -589,10 +589,15 @@ def test_delay_drives_answering_late_connect_poll_reconnect_and_stop_at_once(
                 assert "move stopped" in said, said
                 (stop,) = [r for r in drive.write_log if (r.address, r.values) == (0x29, (0,))]
                 ahead = [r.address for r in drive.read_log if called <= r.time <= stop.time]
-                # The read in flight at the call, then only the stop's own mode reads
-                # (0x24; one more if a late reply cost the first its try): no poll.
-                assert ahead[-1] == 0x24 and all(a == 0x24 for a in ahead[1:]), ahead
-                assert len(ahead) <= 3, ahead
+                # The stop's own mode reads last (0x24; one more if a late reply cost
+                # the first its try). Before them only what the poll had begun before
+                # the request reached the node (the client's clock runs ahead of the
+                # node's receipt under load): each poll block at most once, never a
+                # second poll cycle ([36, 265, 36] beside two CPU burners).
+                assert ahead and ahead[-1] == 0x24, ahead
+                own = 2 if ahead[-2:] == [0x24, 0x24] else 1
+                polled = ahead[:-own]
+                assert len(polled) == len(set(polled)) <= 2, ahead
                 assert proc.poll() is None
         finally:
             sim.stop()
