@@ -51,8 +51,9 @@ pytestmark = pytest.mark.ros
 
 BAUD = 115200
 EXIT_TIMEOUT_S = 20.0
-# Replies delayed this long: the R6 start is on the wire for a while (readiness read).
-IN_FLIGHT_DELAY_S = 1.0
+# Replies delayed this long until the start's write: the R6 start is on the wire for a
+# while (its readiness reads, about seven of them: ~3 s in all).
+IN_FLIGHT_DELAY_S = 0.4
 # The start's guards pass at once; its readiness read then waits the reply delay: the
 # deactivate is sent this long after the start, inside that window.
 IN_FLIGHT_LEAD_S = 0.3
@@ -264,6 +265,16 @@ def test_a_start_on_the_wire_when_the_node_deactivates_is_stopped(
             request = ChangeState.Request()
             request.transition.id = Transition.TRANSITION_DEACTIVATE
             changed = change.call_async(request)
+            # Once the start's write is on the wire the race is run: what follows (its
+            # read-back, the halt's stop of it) needs no slow device, only time.
+            wait_for(
+                lambda: (
+                    started.done() or COMMANDS["start"] in [r.address for r in device.write_log]
+                ),
+                WAIT_S * 2,
+                "the start's write",
+            )
+            simulator.reply_delay_s = 0.0
             wait_for(lambda: started.done() and changed.done(), WAIT_S * 2, "both replies")
             assert changed.result().success
             reply = started.result()
