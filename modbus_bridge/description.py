@@ -114,6 +114,11 @@ class Device:
     address_texts: dict[str, str] = field(default_factory=dict)
     keepalive: Keepalive | None = None
     slow_names: tuple[str, ...] = ()  # registers polled every slow_poll_period_s
+    # Register name -> its rate group as resolved (its own ``poll``, else the device's;
+    # a joint's register: fast): fast, slow or never.
+    polls: dict[str, str] = field(default_factory=dict)
+    # A watchdog any request resets (keepalive mode any_frame): its time, s (None: none).
+    frame_watchdog_s: float | None = None
 
     def exit_stops(self) -> dict[str, str]:
         """Motion group -> the trigger that stops it (the group's first stop trigger), for
@@ -287,7 +292,7 @@ def _build_device(
         return None
     joints = build_joints(spec, register_map, check)
     check_commands(spec, register_map, check)
-    keepalive = build_keepalive(spec, register_map, check)
+    keepalive, frame_watchdog_s = build_keepalive(spec, register_map, check)
     if spec.device.require_keepalive and spec.keepalive is None:
         check.add(("device", "require_keepalive"), "true, but the file has no keepalive")
     polls = _check_poll_groups(spec, register_map, joints, check)
@@ -316,26 +321,35 @@ def _build_device(
         _address_texts(spec, check),
         keepalive,
         tuple(name for name, group in polls.items() if group == "slow"),
+        polls,
+        frame_watchdog_s,
     )
 
 
 def _check_poll_groups(
     spec: DeviceFileSpec, register_map: RegisterMap, joints: Sequence[Joint], check: Checker
 ) -> dict[str, str]:
-    """Each register's rate group; a joint's registers are fast (joint_states is read
-    every poll), and only a readable register is polled."""
-    polls: dict[str, str] = {r.name: r.poll for r in spec.registers}
+    """Each register's rate group: its own ``poll``, else the device's; a joint's registers
+    are fast (joint_states is read every poll), and only a readable register is polled
+    (a ``poll`` a register gives itself against these is refused)."""
     joint_registers = {
         source.register: joint.name
         for joint in joints
         for source in (joint.position, joint.velocity, joint.effort)
         if source is not None
     }
+    polls: dict[str, str] = {}
     for index, register in enumerate(spec.registers):
+        readable = register.name in register_map and register_map[register.name].access.readable
+        if register.poll is None:
+            fixed = register.name in joint_registers or not readable
+            polls[register.name] = "fast" if fixed else spec.device.poll
+            continue
+        polls[register.name] = register.poll
         where = ("registers", index, "poll")
         if register.poll == "fast" or register.name not in register_map:
             continue
-        if not register_map[register.name].access.readable:
+        if not readable:
             check.add(where, f"{register.poll}: a write-only register is never polled")
         elif register.name in joint_registers:
             joint = joint_registers[register.name]

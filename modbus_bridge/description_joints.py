@@ -10,10 +10,10 @@ from dataclasses import dataclass
 from typing import Literal
 
 from bridge_core.runtime.units import DEG, MM, RPM_TO_RAD_S
-from bridge_core.wire.codec import CodecError, to_raw
+from bridge_core.wire.codec import CodecError, encode, to_raw
 from bridge_core.wire.registers import Register, RegisterMap, ValueType
 
-from .description_commands import allowed_values, writable
+from .description_commands import allowed_values, not_allowed, writable
 from .description_schema import DeviceFileSpec, JointSimSpec, JointSpec, JointValueSpec
 from .description_yaml import Checker, Loc
 
@@ -58,6 +58,27 @@ class JointSource:
     to_si: float
 
 
+# A follower's rules: the values while running / stopped, or the joint's motion times a
+# factor (in the sim command register's unit).
+FOLLOW_RULES = ("running", "velocity", "speed", "command")
+# A joint runs, for a follower's ``running``, while its velocity is above this (SI units/s)
+# or its command counts (its run register holds a run value; no run register: non-zero).
+RUNNING_MIN_SI = 1e-3
+
+
+@dataclass(frozen=True)
+class Follow:
+    """A monitor register the simulator sets from the joint's motion: ``rule`` is
+    ``running`` (``running`` / ``stopped`` values) or ``velocity`` / ``speed`` /
+    ``command`` (times ``factor``, in the sim command register's unit)."""
+
+    register: str
+    rule: Literal["running", "velocity", "speed", "command"]
+    factor: float = 1.0
+    running: float = 1.0
+    stopped: float = 0.0
+
+
 @dataclass(frozen=True)
 class JointMotion:
     """The simulator's rule for a joint: ``command`` (to SI by ``to_si``) is a velocity or
@@ -72,6 +93,7 @@ class JointMotion:
     time_constant_s: float | None = None
     run_register: str | None = None
     run_values: tuple[float, ...] = ()
+    follows: tuple[Follow, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -172,7 +194,9 @@ def build_joints(
             effort = _joint_source(register_map, joint, "effort", joint.effort, check, at)
         motion = None
         if joint.sim is not None:
-            motion = _joint_motion(register_map, joint, joint.sim, check, (*at, "sim"))
+            motion = _joint_motion(
+                register_map, joint, joint.sim, allowed_values(spec), check, (*at, "sim")
+            )
         command = None
         if joint.command is not None:
             command = _joint_command(
@@ -233,7 +257,12 @@ def _joint_command(
 
 
 def _joint_motion(
-    register_map: RegisterMap, joint: JointSpec, sim: JointSimSpec, check: Checker, at: Loc
+    register_map: RegisterMap,
+    joint: JointSpec,
+    sim: JointSimSpec,
+    allowed: dict[str, tuple[float, ...]],
+    check: Checker,
+    at: Loc,
 ) -> JointMotion | None:
     if joint.position is None and sim.mode == "position":
         check.add((*at, "mode"), "a joint without a position register moves by velocity")
@@ -244,11 +273,11 @@ def _joint_motion(
     wanted = SI_UNITS[(joint.kind, sim.mode)]
     unit = UNITS_TO_SI.get(register.unit)
     if unit is None or unit[0] != wanted:
-        allowed = ", ".join(u for u, (si, _) in UNITS_TO_SI.items() if si == wanted)
+        units = ", ".join(u for u, (si, _) in UNITS_TO_SI.items() if si == wanted)
         check.add(
             (*at, "command"),
             f"{sim.command}'s unit {register.unit!r} is not a {joint.kind} {sim.mode} "
-            f"({wanted}; allowed units: {allowed})",
+            f"({wanted}; allowed units: {units})",
         )
         return None
     if sim.speed is not None and sim.mode == "velocity":
@@ -263,8 +292,14 @@ def _joint_motion(
     if (sim.run_register is None) != (sim.run_values is None):
         check.add(at, "give run_register and run_values together")
         return None
-    if sim.run_register is not None and sim.run_register not in register_map:
-        check.add((*at, "run_register"), f"no register named {sim.run_register!r}")
+    if sim.run_register is not None:
+        if sim.run_register not in register_map:
+            check.add((*at, "run_register"), f"no register named {sim.run_register!r}")
+            return None
+        if not _run_values_fit(register_map[sim.run_register], sim, allowed, check, at):
+            return None
+    follows = _follows(register_map, joint, sim, check, at)
+    if follows is None:
         return None
     return JointMotion(
         sim.command,
@@ -274,4 +309,79 @@ def _joint_motion(
         sim.time_constant_s,
         sim.run_register,
         tuple(sim.run_values or ()),
+        follows,
     )
+
+
+def _run_values_fit(
+    register: Register,
+    sim: JointSimSpec,
+    allowed: dict[str, tuple[float, ...]],
+    check: Checker,
+    at: Loc,
+) -> bool:
+    """Each run value is one the run register can hold and is allowed to be written (one
+    of its ``values``): else the joint could never run."""
+    choices = allowed.get(register.name)
+    for k, value in enumerate(sim.run_values or ()):
+        try:
+            raw = to_raw(register, value)
+        except CodecError as err:
+            check.add((*at, "run_values", k), f"{register.name} cannot hold it: {err}")
+            return False
+        if choices is not None and raw not in {to_raw(register, c) for c in choices}:
+            check.add((*at, "run_values", k), not_allowed(register.name, value, choices))
+            return False
+    return True
+
+
+def _follows(
+    register_map: RegisterMap, joint: JointSpec, sim: JointSimSpec, check: Checker, at: Loc
+) -> tuple[Follow, ...] | None:
+    """``sim.follows``: monitor registers (readable numbers the bridge never writes, not
+    moved by the joint already), each with exactly one rule whose values fit it."""
+    driven = {sim.command, sim.run_register}
+    for source in (joint.position, joint.velocity, joint.effort):
+        if source is not None:
+            driven.add(source.register_name)
+    built: list[Follow] = []
+    for name, rule in (sim.follows or {}).items():
+        where: Loc = (*at, "follows", name)
+        if name not in register_map:
+            check.add(where, f"no register named {name!r}")
+            return None
+        register = register_map[name]
+        if name in driven:
+            check.add(where, f"{name} is the joint's own (the simulator moves it already)")
+            return None
+        if register.access.writable or register.value_type in (ValueType.BOOL, ValueType.STRING):
+            check.add(
+                where,
+                f"{name} is not a read-only number (a follower is a monitor the device sets; "
+                "the simulator would overwrite what the bridge writes)",
+            )
+            return None
+        given = [key for key in FOLLOW_RULES if getattr(rule, key) is not None]
+        if rule.stopped is not None and "running" not in given:
+            given.append("running")
+        if len(given) != 1:
+            check.add(
+                where,
+                "give one rule: running (with stopped, default 0), velocity, speed or command",
+            )
+            return None
+        kind = given[0]
+        if kind == "running":
+            running = 1.0 if rule.running is None else rule.running
+            stopped = 0.0 if rule.stopped is None else rule.stopped
+            for key, value in (("running", running), ("stopped", stopped)):
+                try:
+                    encode(register, value)
+                except CodecError as err:
+                    check.add((*where, key), f"{name} cannot hold it: {err}")
+                    return None
+            built.append(Follow(name, "running", running=running, stopped=stopped))
+        else:
+            factor = getattr(rule, kind)
+            built.append(Follow(name, kind, factor=factor))  # type: ignore[arg-type]
+    return tuple(built)

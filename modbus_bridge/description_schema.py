@@ -13,6 +13,7 @@ from typing import Annotated, Any, Literal, get_args, get_origin
 
 import yaml  # type: ignore[import-untyped]
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic_core import PydanticCustomError
 
 from bridge_core.runtime.parameters import (
     BAUDRATE_RANGE,
@@ -41,6 +42,30 @@ TIMEOUT_RANGE_S = (DeviceDefaults.timeout_min_s, TIMEOUT_MAX_S)
 COMMAND_RATE_RANGE_HZ = (0.1, 100.0)
 NAME_PATTERN = r"^[A-Za-z][A-Za-z0-9_]*$"
 PARITY_WORDS = {"none": "N", "even": "E", "odd": "O", "n": "N", "e": "E", "o": "O"}
+# What a file may write for parity, as its refusal says it. Mark and space (pyserial's M
+# and S) are not offered: no Modbus RTU framing uses them (the spec: even, odd or none).
+PARITY_ALLOWED = "N, E or O (or none, even, odd; any case)"
+# The baud rates a file may give: the standard serial rates Modbus devices offer (a rate
+# like 19201 is a typo, and a UART would run it at some nearby rate or refuse it).
+STANDARD_BAUDRATES = (
+    300,
+    600,
+    1200,
+    2400,
+    4800,
+    9600,
+    14400,
+    19200,
+    38400,
+    57600,
+    115200,
+    230400,
+    460800,
+    921600,
+)
+# How often a register is read: fast (every poll), slow (every slow_poll_period_s), never
+# (on request only: ~/read).
+PollGroup = Literal["fast", "slow", "never"]
 # The motion group a trigger belongs to when the file names none.
 DEFAULT_MOTION_GROUP = "motion"
 KEEPALIVE_PERIOD_RANGE_S = (0.01, 3600.0)
@@ -78,12 +103,25 @@ class RtuLinkSpec(_Lenient):
     stopbits: Literal[1, 2] = 1
     frame_gap_s: Finite = Field(0.0, ge=0.0, le=1.0)
 
+    @field_validator("baudrate")
+    @classmethod
+    def _standard_rate(cls, value: int) -> int:
+        if value not in STANDARD_BAUDRATES:
+            rates = ", ".join(str(rate) for rate in STANDARD_BAUDRATES)
+            raise PydanticCustomError(
+                "baudrate", "not a standard baud rate (allowed: {rates})", {"rates": rates}
+            )
+        return value
+
     @field_validator("parity", mode="before")
     @classmethod
     def _parity_word(cls, value: Any) -> Any:
         """``none | even | odd`` (any case) and ``n | e | o`` are the letters N, E, O."""
         if isinstance(value, str):
-            return PARITY_WORDS.get(value.lower(), value)
+            letter = PARITY_WORDS.get(value.lower())
+            if letter is None:
+                raise PydanticCustomError("parity", f"parity is {PARITY_ALLOWED}")
+            return letter
         return value
 
 
@@ -116,8 +154,11 @@ class DeviceSpec(_Lenient):
     poll_rate_hz: Finite = Field(10.0, ge=POLL_RATE_RANGE_HZ[0], le=POLL_RATE_RANGE_HZ[1])
     state: list[Name] | None = None
     # Motion commands (starts_motion triggers, command topic values) are refused until the
-    # keepalive is armed (its first feed written).
+    # keepalive is armed (its first feed written; mode any_frame: the link is up).
     require_keepalive: bool = False
+    # The rate group of every register that does not give its own ``poll`` (a joint's
+    # registers are always fast).
+    poll: PollGroup = "fast"
 
 
 class RegisterSpec(_Lenient):
@@ -137,9 +178,8 @@ class RegisterSpec(_Lenient):
     access: Literal["R", "RW", "W"] = "R"
     range: tuple[Finite, Finite] | None = None
     values: list[Finite] | None = Field(None, min_length=1, description="the allowed writes")
-    # Its rate group: fast (every poll), slow (every slow_poll_period_s), never (read on
-    # request only: ~/read).
-    poll: Literal["fast", "slow", "never"] = "fast"
+    # Its rate group (PollGroup); None: the device's ``poll`` (a joint's register: fast).
+    poll: PollGroup | None = None
     description: str = ""
 
 
@@ -147,6 +187,19 @@ class JointValueSpec(_Lenient):
     register_name: Name = Field(alias="register")
     factor: Finite = Field(1.0, description="extra factor, e.g. 1 / gear ratio")
     per_revolution: Finite | None = Field(None, gt=0.0, description="Hz registers: cycles per rev")
+
+
+class FollowSpec(_Lenient):
+    """A monitor register ``modbus_sim`` sets from a joint's motion, by one rule: a value
+    while running and one while stopped, or the joint's velocity (``velocity``), its
+    magnitude (``speed``) or the command that counts (``command``), each in the sim
+    command register's unit (per second in mode position) times the factor given."""
+
+    running: Finite | None = None
+    stopped: Finite | None = None
+    velocity: Finite | None = None
+    speed: Finite | None = None
+    command: Finite | None = None
 
 
 class JointSimSpec(_Lenient):
@@ -163,6 +216,9 @@ class JointSimSpec(_Lenient):
     # control word: run forward / run reverse); any other value: the target is 0.
     run_register: Name | None = None
     run_values: list[Finite] | None = Field(None, min_length=1)
+    # Registers the simulated device sets from the joint's motion (a drive's status word,
+    # its output current, its frequency reference): register name -> the rule.
+    follows: dict[Name, FollowSpec] | None = None
 
 
 class JointCommandSpec(_Lenient):
@@ -194,8 +250,9 @@ class TriggerSpec(_Lenient):
     stop: bool = False
     # A trigger that starts motion: the bridge sends its group's (first) stop trigger on
     # every way out (Ctrl-C, SIGTERM, deactivate, shutdown, a fatal error) if it ran since
-    # that group's last stop.
-    starts_motion: bool = False
+    # that group's last stop. Every trigger that is not a stop must say true or false
+    # (None: not said, refused at load).
+    starts_motion: bool | None = None
     group: Name = DEFAULT_MOTION_GROUP
     description: str = ""
 
@@ -203,6 +260,9 @@ class TriggerSpec(_Lenient):
 class ValueServiceSpec(_Lenient):
     name: Name
     register_name: Name = Field(alias="register")
+    # Required (false) on a service writing a register one of the file's stops writes: a
+    # service's start is never stopped on the way out (only a trigger's is).
+    starts_motion: bool | None = None
     description: str = ""
 
 
@@ -210,6 +270,7 @@ class CoilServiceSpec(_Lenient):
     name: Name
     register_name: Name = Field(alias="register")
     stop_on: bool | None = None  # the coil value that stops motion (tried at once)
+    starts_motion: bool | None = None  # as a value service's
     description: str = ""
 
 
@@ -224,10 +285,11 @@ class TopicSpec(_Lenient):
 
 
 class KeepaliveSpec(_Lenient):
-    """A device watchdog the bridge feeds (from a thread at the link's top priority)."""
+    """A device watchdog the bridge feeds (from a thread at the link's top priority), or,
+    mode ``any_frame``, one that every request resets (the polls feed it; no register)."""
 
-    register_name: Name = Field(alias="register")
-    mode: Literal["value", "toggle", "counter"] = "value"
+    register_name: Name | None = Field(None, alias="register")
+    mode: Literal["value", "toggle", "counter", "any_frame"] = "value"
     # mode value: what each feed writes (None: the register's value, read when arming)
     value: Finite | None = None
     # The device's watchdog time (it stops when no feed came for this long): given, or

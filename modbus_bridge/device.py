@@ -330,10 +330,36 @@ class DescribedDevice:
     def check_keepalive(self, what: str) -> None:
         """A motion command is refused while a required keepalive is not armed."""
         keepalive = self.keepalive
-        if self.device.spec.device.require_keepalive and (keepalive is None or not keepalive.armed):
+        if not self.device.spec.device.require_keepalive:
+            return
+        if self.device.frame_watchdog_s is not None:  # mode any_frame: the polls feed it
+            if not getattr(self.io, "connected", True):
+                raise CommandRejected(
+                    f"{what}: the link is down, so the device's watchdog is not fed "
+                    "(keepalive mode any_frame; require_keepalive)"
+                )
+            return
+        if keepalive is not None and keepalive.armed:
+            return
+        spec = self.device.keepalive
+        if (
+            keepalive is not None
+            and spec is not None
+            and spec.period_register is not None
+            and not keepalive.stale
+            and keepalive.period_s is None
+        ):
+            # The device's watchdog time reads 0: its watchdog is off, nothing to feed.
+            register = self.map[spec.period_register]
+            unit = f" {register.unit}" if register.unit else ""
             raise CommandRejected(
-                f"{what}: the device's keepalive is not armed yet (require_keepalive)"
+                f"{what}: the device's watchdog is off: {register.name} reads 0; write its "
+                f"watchdog time there first (~/write name: {register.name}, value: a time in"
+                f"{unit or ' its unit'} above 0), then the keepalive arms (require_keepalive)"
             )
+        raise CommandRejected(
+            f"{what}: the device's keepalive is not armed yet (require_keepalive)"
+        )
 
     def stream_allowed(self, topic: TopicSpec, register_value: float) -> None:
         if register_value != 0:

@@ -70,6 +70,7 @@ from .description import (
     Joint,
     load_for_command,
 )
+from .description_joints import RUNNING_MIN_SI, Follow
 
 DEFAULT_TCP_PORT = 5020
 # Largest finite value of each float type (IEEE 754 binary32 / binary64).
@@ -244,6 +245,22 @@ class DescribedSimDevice(SimulatedDevice):
         self.keepalive_trip_log: list[KeepaliveTrip] = []
         if self.keepalive is not None:
             self.write_hooks.append(self._keepalive_write)
+        # keepalive mode any_frame: every request to this unit feeds the watchdog.
+        self.frame_watchdog_s = device.frame_watchdog_s
+
+    def read(self, function_code: int, address: int, count: int) -> list[int] | int:
+        self._frame()
+        return super().read(function_code, address, count)
+
+    def write(self, function_code: int, address: int, values: Sequence[int]) -> int | None:
+        self._frame()
+        return super().write(function_code, address, values)
+
+    def _frame(self) -> None:
+        """A request reached this unit: it feeds a watchdog of mode any_frame."""
+        if self.frame_watchdog_s is not None:
+            with self.lock:
+                self.keepalive_fed_at = time.monotonic()
 
     def _keepalive_write(self, record: WriteRecord) -> None:
         keepalive = self.keepalive
@@ -267,7 +284,7 @@ class DescribedSimDevice(SimulatedDevice):
     def keepalive_period_s(self) -> float | None:
         keepalive = self.keepalive
         if keepalive is None:
-            return None
+            return self.frame_watchdog_s
         if keepalive.period_register is None:
             return keepalive.period_s
         period = float(self.get(keepalive.period_register)) * keepalive.period_to_s
@@ -326,7 +343,7 @@ class DescribedSimDevice(SimulatedDevice):
 
     def tick(self, dt: float) -> None:
         with self.lock:
-            if self.keepalive is not None:
+            if self.keepalive is not None or self.frame_watchdog_s is not None:
                 self._check_keepalive()
             for joint in self.device.joints:
                 if joint.motion is not None:
@@ -336,9 +353,11 @@ class DescribedSimDevice(SimulatedDevice):
         motion = joint.motion
         assert motion is not None
         command = float(self.get(motion.command)) * motion.to_si
+        runs = command != 0.0  # the command counts (no run register: when not 0)
         if motion.run_register is not None:
             run = float(self.get(motion.run_register))
-            if run not in motion.run_values:
+            runs = run in motion.run_values
+            if not runs:
                 command = 0.0
         position = self.positions_si[joint.name]
         if motion.mode == "velocity":
@@ -364,6 +383,26 @@ class DescribedSimDevice(SimulatedDevice):
                 joint.velocity.register,
                 holdable(velocity_register, velocity / joint.velocity.to_si),
             )
+        running = runs or abs(velocity) > RUNNING_MIN_SI
+        for follow in motion.follows:
+            self._follow(follow, running, velocity / motion.to_si, command / motion.to_si)
+
+    def _follow(self, follow: Follow, running: bool, velocity: float, command: float) -> None:
+        """A monitor register set from the joint's motion (``sim.follows``): velocity and
+        command in the sim command register's unit; held within the register's type and
+        range."""
+        if follow.rule == "running":
+            value = follow.running if running else follow.stopped
+        else:
+            moved = {"velocity": velocity, "speed": abs(velocity), "command": command}
+            value = moved[follow.rule] * follow.factor
+        register = self.map[follow.register]
+        value = holdable(register, value)
+        if register.minimum is not None:
+            value = max(value, register.minimum)
+        if register.maximum is not None:
+            value = min(value, register.maximum)
+        self.set(follow.register, value)
 
 
 def file_motion_writes(description: Description) -> dict[str, str]:
@@ -452,6 +491,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         if problem is not None:
             print(problem, file=sys.stderr)
             return EXIT_BAD_DESCRIPTION
+    if args.pty is not None and not args.pty.parent.is_dir():
+        print(f"error: --pty {args.pty}: no directory {args.pty.parent}", file=sys.stderr)
+        return EXIT_BAD_DESCRIPTION
     link = description.line or description.device.link
     rtu = link.rtu if link is not None else None
     sim = make_simulator(description)

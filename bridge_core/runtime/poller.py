@@ -42,6 +42,11 @@ PUBLISH_BACKLOG = 8  # snapshots waiting for the publisher before the oldest is 
 PUBLISH_WAIT_S = 0.1  # how often the idle publisher thread looks at its stop flag
 THREAD_JOIN_S = 5.0
 POLL_RATE_MIN_HZ = 0.01
+# A failure the loop reported already (same type and text) is said again at most this
+# often, one line with its count and without its traceback (printed the first time only).
+REPEAT_REPORT_S = 5.0
+# Failures remembered for that (the oldest forgotten first): a bounded set.
+FAILURES_REMEMBERED = 64
 
 
 class PollOutcome(enum.Enum):
@@ -102,6 +107,8 @@ class Poller(Generic[Snapshot]):
         self.failures = 0
         self.snapshots_dropped = 0
         self.last_error: str | None = None
+        # Each failure reported: (type, text) -> [when it was last said, repeats since].
+        self._failures_said: dict[tuple[str, str], list[float]] = {}
         self._unsubscribe = channel.link_state.add_listener(self._link_changed)
         self._snapshots: queue.Queue[Snapshot] = queue.Queue(maxsize=PUBLISH_BACKLOG)
         self._stop = threading.Event()
@@ -169,7 +176,7 @@ class Poller(Generic[Snapshot]):
         except Exception as err:  # a device fault must never end the loop
             self.failures += 1
             self.last_error = f"poll failed: {err}"
-            self._report(PollOutcome.FAILED, f"{self.last_error}\n{traceback.format_exc()}")
+            self._report_failure(err, self.last_error)
             return PollOutcome.FAILED
         for news in read_splits(self.channel).news():
             self._report(PollOutcome.SPLIT, news)
@@ -180,6 +187,24 @@ class Poller(Generic[Snapshot]):
         self.rate.tick()
         self._hand_off(snapshot)
         return PollOutcome.PUBLISHED
+
+    def _report_failure(self, err: Exception, text: str) -> None:
+        """A FAILED report: the first of its kind with its traceback (what a bug report
+        needs), a repeat as one line at most every ``REPEAT_REPORT_S`` with its count
+        (a poll failing every cycle must not print a traceback ten times a second)."""
+        key = (type(err).__name__, text)
+        now = self._clock()
+        said = self._failures_said.get(key)
+        if said is None:
+            if len(self._failures_said) >= FAILURES_REMEMBERED:
+                self._failures_said.pop(next(iter(self._failures_said)))
+            self._failures_said[key] = [now, 0]
+            self._report(PollOutcome.FAILED, f"{text}\n{traceback.format_exc()}")
+            return
+        said[1] += 1
+        if now - said[0] >= REPEAT_REPORT_S:
+            self._report(PollOutcome.FAILED, f"{text} (again, {int(said[1])} time(s) since)")
+            said[0], said[1] = now, 0
 
     def _link_changed(self, event: LinkEvent, text: str) -> None:
         """The channel's link went down (a poll's, a command's or a stop's failure):
@@ -219,7 +244,7 @@ class Poller(Generic[Snapshot]):
                 self._publish(snapshot)
             except Exception as err:  # a value the message cannot hold must not kill it
                 self.last_error = f"publishing failed: {err}"
-                self._report(PollOutcome.FAILED, f"{self.last_error}\n{traceback.format_exc()}")
+                self._report_failure(err, self.last_error)
             published += 1
 
     # ------------------------------------------------------------ threads

@@ -35,13 +35,17 @@ joints:
   - {name: shaft, position: {register: angle}, velocity: {register: speed}}
 commands:
   triggers:
-    - {name: start, writes: [{register: run, value: true}]}
+    - {name: start, writes: [{register: run, value: true}], starts_motion: true}
     - {name: halt, writes: [{register: run, value: false}], stop: true}
   values:
     - {name: set_mode, register: mode}
 """  # noqa: E501
 
 RTU_LINK = "    tcp: {host: 127.0.0.1, port: 1502}\n"
+# The file's last line (30 once a line is appended after it: a keepalive).
+LAST = "    - {name: set_mode, register: mode}\n"
+# From the mode register's row (line 21) to the end: for cases changing it and the tail.
+MODE_TO_END = BASE[BASE.index("  - {name: mode,") :]
 
 Case = tuple[str, str, str | bytes, int, str]
 
@@ -191,5 +195,84 @@ CASES: list[Case] = [
         "",
         1,
         "link",
+    ),
+    # --- issue 41 (round 3): keepalive, starts_motion, link and poll keys
+    (
+        "keepalive_value_not_allowed",  # item 1: a feed ~/write would refuse
+        LAST,
+        LAST + "keepalive: {register: mode, value: 5, period_s: 1.0}\n",
+        30,
+        "mode takes one of 0, 1, 2, not 5",
+    ),
+    (
+        "keepalive_value_not_whole",  # item 1
+        LAST,
+        LAST + "keepalive: {register: mode, value: 1.5, period_s: 1.0}\n",
+        30,
+        "takes a whole number",
+    ),
+    (
+        "trigger_without_starts_motion",  # item 2
+        "value: true}], starts_motion: true}",
+        "value: true}]}",
+        26,
+        "does not say whether it starts motion",
+    ),
+    (
+        "service_on_a_stop_register",  # item 2: a coil service writing what a stop writes
+        LAST,
+        LAST + "  coils:\n    - {name: set_run, register: run}\n",
+        31,
+        "say starts_motion: false",
+    ),
+    (
+        "keepalive_write_only_without_value",  # item 3
+        MODE_TO_END,
+        MODE_TO_END.replace("access: RW, values", "access: W, values")
+        + "keepalive: {register: mode, period_s: 1.0}\n",
+        30,
+        "write-only",
+    ),
+    (
+        "keepalive_any_frame_polls_too_slow",  # item 4: the polls are the feeds
+        LAST,
+        LAST + "keepalive: {mode: any_frame, period_s: 0.2}\n",
+        30,
+        "poll_rate_hz >= 15",
+    ),
+    (
+        "keepalive_any_frame_with_register",  # item 4
+        LAST,
+        LAST + "keepalive: {mode: any_frame, register: mode, period_s: 1.0}\n",
+        30,
+        "feeds no register",
+    ),
+    (
+        "baudrate_19201",
+        RTU_LINK,
+        "    rtu: {serial_port: /dev/ttyUSB0, baudrate: 19201}\n",
+        5,
+        "19200",
+    ),
+    (
+        "parity_x",
+        RTU_LINK,
+        "    rtu: {serial_port: /dev/ttyUSB0, parity: X}\n",
+        5,
+        "none, even, odd",
+    ),
+    (
+        "run_value_not_allowed",  # item 9: a run value the run register never takes
+        "velocity: {register: speed}}",
+        "velocity: {register: speed}, sim: {command: speed, run_register: mode, run_values: [7]}}",
+        23,
+        "mode takes one of 0, 1, 2, not 7",
+    ),
+    (
+        "device_poll_default_bad",  # item 9: the file's default poll group
+        "  max_read_registers: 60\n",
+        "  max_read_registers: 60\n  poll: sometimes\n",
+        9,
+        "'slow'",
     ),
 ]

@@ -32,11 +32,11 @@ joints:
   - {name: shaft, position: {register: angle}, velocity: {register: speed, factor: 0.1}, sim: {command: speed}}
 commands:
   triggers:
-    - {name: start, writes: [{register: run, value: true}]}
+    - {name: start, writes: [{register: run, value: true}], starts_motion: false}
   values:
-    - {name: set_speed, register: speed}
+    - {name: set_speed, register: speed, starts_motion: false}
   coils:
-    - {name: set_run, register: run, stop_on: false}
+    - {name: set_run, register: run, stop_on: false, starts_motion: false}
   topics:
     - {name: cmd_speed, register: speed, stop_value: 0, timeout_s: 0.5}
 """  # noqa: E501
@@ -217,7 +217,7 @@ BAD = [
         "    rtu: {parity: X}\n",
         "device.link.rtu.parity",
         5,
-        "'N', 'E' or 'O'",
+        "parity is N, E or O (or none, even, odd; any case), not 'X'",
     ),
     (
         "    tcp: {host: 127.0.0.1, port: 1502}\n",
@@ -473,22 +473,22 @@ BAD = [
         "read only",
     ),
     (
-        "{name: set_speed, register: speed}",
-        "{name: set_speed, register: run}",
+        "{name: set_speed, register: speed,",
+        "{name: set_speed, register: run,",
         "commands.values[0].register",
         18,
         "coils go under commands.coils",
     ),
     (
-        "{name: set_speed, register: speed}",
-        "{name: read, register: speed}",
+        "{name: set_speed, register: speed,",
+        "{name: read, register: speed,",
         "commands.values[0].name",
         18,
         "reserved",
     ),
     (
-        "{name: set_speed, register: speed}",
-        "{name: start, register: speed}",
+        "{name: set_speed, register: speed,",
+        "{name: start, register: speed,",
         "commands.values[0].name",
         18,
         "given twice",

@@ -48,12 +48,12 @@ joints:
   - {name: j2, position: {register: position_2}, sim: {command: target, mode: position, speed: 1.0}}
 commands:
   triggers:
-    - {name: go, writes: [{register: run, value: true}, {register: speed_command, value: 45}]}
+    - {name: go, writes: [{register: run, value: true}, {register: speed_command, value: 45}], starts_motion: true}
     - {name: halt, writes: [{register: speed_command, value: 0}], stop: true}
   values:
     - {name: set_target, register: target}
   coils:
-    - {name: set_run, register: run, stop_on: false}
+    - {name: set_run, register: run, stop_on: false, starts_motion: false}
   topics:
     - {name: cmd_speed, register: speed_command, scale: 57.29577951308232, stop_value: 0}
 """  # noqa: E501

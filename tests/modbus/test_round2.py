@@ -228,7 +228,7 @@ def test_a_trigger_says_what_it_wrote(tmp_path: Path) -> None:
     text = VFD.read_text().replace(
         "  values:\n",
         "    - {name: slow_ramp, writes: [{register: accel_time, value: 12.34},"
-        " {register: frequency_setpoint, value: 12.5}]}\n  values:\n",
+        " {register: frequency_setpoint, value: 12.5}], starts_motion: false}\n  values:\n",
         1,
     )
     path = tmp_path / "vfd.yaml"
@@ -261,10 +261,18 @@ def test_a_command_topic_value_is_refused_until_the_keepalive_is_armed(tmp_path:
     """require_keepalive: a non-zero command-topic value is refused, writing nothing, while
     the keepalive is not armed (converted as the node converts a message, then offered to
     the topic's guard); a 0, the stop, is not held back; once armed the value is taken."""
-    text = VFD.read_text().replace(
-        "  values:\n",
-        "  topics:\n    - {name: cmd_frequency, register: frequency_setpoint}\n  values:\n",
-        1,
+    text = (
+        VFD.read_text()
+        .replace(
+            "  values:\n",
+            "  topics:\n    - {name: cmd_frequency, register: frequency_setpoint}\n  values:\n",
+            1,
+        )
+        .replace(
+            "register: frequency_setpoint, description",
+            "register: frequency_setpoint, starts_motion: false, description",
+            1,
+        )
     )
     path = tmp_path / "vfd.yaml"
     path.write_text(text)
@@ -357,8 +365,8 @@ keepalive: {register: lifeguard_time, period_from: lifeguard_time}
             "not a revolute velocity",
         ),
         (
-            "per_revolution: 2, time_constant_s",
-            "per_revolution: 2, mode: position, time_constant_s",
+            "      per_revolution: 2\n      time_constant_s",
+            "      per_revolution: 2\n      mode: position\n      time_constant_s",
             "moves by velocity",
         ),
     ],
