@@ -254,6 +254,9 @@ class ModbusBridgeNode(BridgeNode[DeviceSnapshot]):
             state += ", NOT fed (read_only)" if self.read_only else ", fed by the bridge"
             values.append(("keepalive", state))
             values.append(("keepalive floor on this link", f"{self.keepalive_floor_s:.3f} s"))
+        elif (watchdog_s := self.described.frame_watchdog_s) is not None:
+            # keepalive mode any_frame: every request resets the device's watchdog.
+            values.append(("keepalive", f"any frame, {watchdog_s:g} s, fed by the polls"))
         if moving := self.service_motions.moving():
             values.append(("motion started", ", ".join(sorted(str(g) for g in moving))))
         if self.keepalive_error or self.keepalive_refused:
