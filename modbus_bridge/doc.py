@@ -12,6 +12,7 @@ from collections.abc import Sequence
 
 from bridge_core.runtime.bridge_doc import table
 from bridge_core.wire.registers import Access, Register, ValueType
+from bridge_core.wire.transport import SerialSettings
 
 from .description import (
     EXIT_BAD_DESCRIPTION,
@@ -19,6 +20,7 @@ from .description import (
     Device,
     load_for_command,
 )
+from .description_schema import RtuLinkSpec
 
 ACCESS_TEXT = {Access.READ: "R", Access.READ_WRITE: "RW", Access.WRITE: "W"}  # the file's
 REGISTER_COLUMNS = (
@@ -31,11 +33,17 @@ REGISTER_COLUMNS = (
     "offset",
     "unit",
     "access",
+    "poll",
     "range",
     "values",
     "manual",
     "description",
 )
+
+
+def devices_text(count: int) -> str:
+    """``1 device``, ``2 devices``."""
+    return f"{count} device" + ("" if count == 1 else "s")
 
 
 def _number(value: float) -> str:
@@ -61,9 +69,12 @@ def address_text(register: Register, written: str = "") -> str:
     return f"{decimal} ({hexadecimal})"
 
 
-def register_row(register: Register, allowed: Sequence[float] = (), written: str = "") -> list[str]:
+def register_row(
+    register: Register, allowed: Sequence[float] = (), written: str = "", poll: str = ""
+) -> list[str]:
     """One table row; ``allowed``: the register's ``values`` (the only writes allowed);
-    ``written``: its address as the file wrote it, if not in decimal."""
+    ``written``: its address as the file wrote it, if not in decimal; ``poll``: its rate
+    group (fast, slow, never; none for a write-only register)."""
     kind = register.value_type
     words = register.count
     span = address_text(register, written)
@@ -82,6 +93,7 @@ def register_row(register: Register, allowed: Sequence[float] = (), written: str
         _number(register.offset) if register.offset != 0.0 else "",
         register.unit,
         ACCESS_TEXT[register.access],
+        "" if register.access is Access.WRITE else poll,
         limits,
         ", ".join(_number(value) for value in allowed),
         _cell(register.doc),
@@ -94,23 +106,33 @@ def _link_line(device: Device) -> list[str]:
     if device.link is None:
         return []
     if device.link.tcp is not None:
-        where = f"Modbus TCP {device.link.tcp.host}:{device.link.tcp.port}"
+        tcp = device.link.tcp
+        where = f"Modbus TCP {tcp.host}:{tcp.port}, max_in_flight {tcp.max_in_flight}"
     else:
         assert device.link.rtu is not None
         rtu = device.link.rtu
-        where = f"Modbus RTU {rtu.serial_port} {rtu.baudrate} {rtu.parity}{rtu.stopbits}" + (
+        where = f"Modbus RTU {_line_text(rtu)}" + (
             f", frame gap {rtu.frame_gap_s} s" if rtu.frame_gap_s else ""
         )
     return [f"Link (default): {where}, timeout {device.link.timeout_s} s."]
 
 
+def _line_text(rtu: RtuLinkSpec) -> str:
+    """``/dev/ttyUSB0 19200 8E1``: the port and its format as the bridges' diagnostics say it."""
+    settings = SerialSettings(rtu.serial_port, rtu.baudrate, rtu.parity, rtu.stopbits)
+    return f"{rtu.serial_port} {settings.line_text()}"
+
+
 def _limits_line(device: Device) -> str:
-    """What the device accepts on the wire (its limits) and the poll rate."""
+    """What the device accepts on the wire (its limits) and the poll rate; the bits per
+    read only where the file has coils or discrete inputs."""
     limits = device.register_map.limits
     codes = " ".join(f"{code:02X}" for code in sorted(limits.function_codes))
+    has_bits = any(r.table.is_bit for r in device.register_map)
+    bits = f", {limits.max_read_bits} bits per read" if has_bits else ""
     return (
         f"Function codes {codes}; at most {limits.max_read_registers} registers per read, "
-        f"{limits.max_write_registers} per write, {limits.max_read_bits} bits per read; "
+        f"{limits.max_write_registers} per write{bits}; "
         + (
             "reads may span undefined rows"
             if limits.read_undefined_ok
@@ -220,7 +242,10 @@ def device_markdown(device: Device, heading: str = "##") -> list[str]:
         REGISTER_COLUMNS,
         [
             register_row(
-                r, device.allowed_values.get(r.name, ()), device.address_texts.get(r.name, "")
+                r,
+                device.allowed_values.get(r.name, ()),
+                device.address_texts.get(r.name, ""),
+                device.polls.get(r.name, ""),
             )
             for r in device.register_map
         ],
@@ -238,10 +263,9 @@ def markdown(description: Description) -> str:
     if description.line is not None and description.line.rtu is not None:
         rtu = description.line.rtu
         lines += [
-            f"# {description.path.name}: {len(description.devices)} devices on one RTU line",
+            f"# {description.path.name}: {devices_text(len(description.devices))} on one RTU line",
             "",
-            f"Line: {rtu.serial_port} {rtu.baudrate} {rtu.parity}{rtu.stopbits}, "
-            f"timeout {description.line.timeout_s} s.",
+            f"Line: {_line_text(rtu)}, timeout {description.line.timeout_s} s.",
             "",
         ]
     for device in description.devices:

@@ -49,6 +49,7 @@ from .description import (
     load,
 )
 from .device import KEEPALIVE_FEEDS_PER_PERIOD, DescribedDevice, DeviceSnapshot
+from .doc import devices_text
 from .interface import (
     DEVICE_FILE_SPEC,
     JOINT_COMMAND_PARAMETERS,
@@ -149,7 +150,7 @@ class ModbusBridgeNode(BridgeNode[DeviceSnapshot]):
         path, description = described_by_parameter(node, DEVICE_FILE_SPEC)
         if description.line is not None:
             raise ConfigurationError(
-                f"{path} describes {len(description.devices)} devices on one line: "
+                f"{path} describes {devices_text(len(description.devices))} on one line: "
                 "run modbus_bus for it (modbus_bridge serves a file of one device)"
             )
         self.description = description

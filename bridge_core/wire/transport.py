@@ -138,8 +138,12 @@ class SerialSettings:
     # 3.5 characters Modbus RTU requires (0: t3.5 only).
     frame_gap_s: float = 0.0
 
+    def line_text(self) -> str:
+        """Baud rate and character format as manuals print them: ``19200 8E1``."""
+        return f"{self.baudrate} {self.bytesize}{self.parity}{self.stopbits}"
+
     def describe(self) -> str:
-        return f"{self.port}@{self.baudrate}{self.bytesize}{self.parity}{self.stopbits}"
+        return f"{self.port}@{self.line_text()}"
 
     def longest_hold_s(self) -> float:
         """The longest one transaction can hold this line (``serial_timing.longest_hold_s``)."""

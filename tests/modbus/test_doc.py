@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 
+from bridge_core.wire.transport import SerialSettings
 from modbus_bridge.description import load
 from modbus_bridge.doc import REGISTER_COLUMNS, main, markdown
 
@@ -57,7 +58,7 @@ def test_multidrop_file_has_a_section_per_device(capsys: pytest.CaptureFixture[s
     out = capsys.readouterr().out
     assert out.startswith("# rtu_multidrop.yaml: 2 devices on one RTU line")
     assert "## drive_1" in out and "## drive_2" in out
-    assert "Line: /dev/ttyUSB0 115200 N1" in out
+    assert "Line: /dev/ttyUSB0 115200 8N1" in out
     assert out.count("| `cmd_speed`") == 0 and out.count("| `~/cmd_speed` | Float64 topic") == 2
 
 
@@ -100,3 +101,48 @@ def test_addresses_in_decimal_and_hex_led_by_the_files_notation(tmp_path: Path) 
     assert rows["frequency"][column] == "0x2101-0x2102 (8449-8450)"
     assert rows["status"][column] == "8448 (0x2100)"
     assert rows["fault"][column] == "0o20420 (8464, 0x2110)"
+
+
+def test_poll_groups_in_flight_bits_and_the_line_as_manuals_print_it(tmp_path: Path) -> None:
+    """Issue 41 item 8: each register's rate group, a TCP link's ``max_in_flight``, the
+    bits per read only where the file has bit tables, ``19200 8E1`` (not ``192008E1``)
+    and ``1 device``."""
+    tcp = tmp_path / "tcp.yaml"
+    tcp.write_text(
+        "device: {name: meter, manual: m, poll: slow, link: {tcp: {max_in_flight: 4}}}\n"
+        "registers:\n"
+        "  - {name: power, table: input, address: 0, type: u16, poll: fast, manual: m}\n"
+        "  - {name: energy, table: input, address: 1, type: u16, manual: m}\n"
+        "  - {name: serial, table: input, address: 2, type: u16, poll: never, manual: m}\n"
+        "  - {name: reset, table: holding, address: 9, type: u16, access: W, manual: m}\n"
+    )
+    text = markdown(load(tcp))
+    rows = table_rows(text, "")
+    column = REGISTER_COLUMNS.index("poll")
+    polls = {name: rows[name][column] for name in ("power", "energy", "serial", "reset")}
+    assert polls == {"power": "fast", "energy": "slow", "serial": "never", "reset": ""}
+    assert "Modbus TCP 127.0.0.1:502, max_in_flight 4," in text
+    assert "bits per read" not in text
+    with_coil = tmp_path / "coil.yaml"
+    with_coil.write_text(
+        tcp.read_text() + "  - {name: relay, table: coil, address: 0, type: bool, manual: m}\n"
+    )
+    assert "2000 bits per read" in markdown(load(with_coil))
+
+    line = tmp_path / "line.yaml"
+    line.write_text(
+        "line: {rtu: {serial_port: /dev/ttyUSB1, baudrate: 19200, parity: E}, timeout_s: 0.2}\n"
+        "devices:\n"
+        "  - device: {name: vfd, manual: m, unit_id: 1}\n"
+        "    registers:\n"
+        "      - {name: status, table: holding, address: 0, type: u16, manual: m}\n"
+    )
+    out = markdown(load(line))
+    assert out.startswith("# line.yaml: 1 device on one RTU line")
+    assert "Line: /dev/ttyUSB1 19200 8E1, timeout 0.2 s." in out
+
+
+def test_a_serial_link_is_described_with_a_space_before_its_format() -> None:
+    """The diagnostics' hardware_id and every log line name a serial link this way."""
+    settings = SerialSettings("/dev/ttyUSB0", baudrate=19200, parity="E")
+    assert settings.describe() == "/dev/ttyUSB0@19200 8E1"
