@@ -7,6 +7,7 @@ simulator never sends (out of order, to a transaction not in flight), a raw peer
 from __future__ import annotations
 
 import socket
+import struct
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -277,3 +278,48 @@ def test_an_error_of_the_callers_is_not_a_pipelining_failure() -> None:
             channel.transact_many(lambda: next(requests, None), on_reply)
         assert channel.pipelining.fallbacks == 0
         assert read_plan(channel, PLAN).values == expected()
+
+
+# ---------------------------------------------------------------- delayed ACKs
+
+# struct tcp_info (linux/tcp.h): tcpi_segs_out, every segment sent, pure ACKs included.
+TCPI_SEGS_OUT = struct.Struct("=I")
+TCPI_SEGS_OUT_OFFSET = 136
+TCP_INFO_SIZE = 256
+
+
+def _segments_out(sock: socket.socket) -> int:
+    info = sock.getsockopt(socket.IPPROTO_TCP, socket.TCP_INFO, TCP_INFO_SIZE)
+    return int(TCPI_SEGS_OUT.unpack_from(info, TCPI_SEGS_OUT_OFFSET)[0])
+
+
+@pytest.mark.skipif(not hasattr(socket, "TCP_QUICKACK"), reason="TCP_QUICKACK is Linux's")
+def test_a_pipelined_reply_is_acknowledged_before_receive_returns() -> None:
+    """Issue 41 item 5: pipelined, every request is already out, so nothing carries the
+    ACK of a reply but the ACK itself; Linux delays it (40 ms or more), and a device
+    that leaves Nagle on holds its next reply until then (22.7 polls/s against 1777).
+    Checked without a clock: the client's own segment count (TCP_INFO, pure ACKs
+    included) grows by the request and the ACK of its reply by the time ``receive``
+    returns; a delayed ACK is not sent yet then (it would leave 1)."""
+    device = SimulatedDevice(MAP, 1)
+    sim = Simulator([device])
+    sim.nagle = True
+    port = sim.start_tcp()
+    link = ModbusLink(TcpSettings("127.0.0.1", port, timeout_s=2.0))
+    try:
+        link.open()
+        for _ in range(20):  # past the quick ACKs Linux gives a fresh connection
+            link.execute(1, ReadRegisters(0, 4))
+        sock = link._client.socket  # the real socket the pipeline reads
+        assert sock is not None
+        counts = []
+        for _ in range(20):
+            before = _segments_out(sock)
+            link.send_pipelined(1, ReadRegisters(0, 4))
+            link.receive_pipelined()
+            counts.append(_segments_out(sock) - before)
+    finally:
+        link.close()
+        sim.stop()
+    assert sim.connections_nodelay == [False]  # the device left Nagle on
+    assert all(n >= 2 for n in counts), f"segments per request and reply: {counts}"
