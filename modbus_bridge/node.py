@@ -67,6 +67,14 @@ def _number(value: Value) -> float:
     return float(value)
 
 
+def joint_positions(positions: Sequence[float], joints: int) -> Sequence[float]:
+    """joint_states' ``position``: one per joint always, NaN for a joint without a position
+    register (decision 14): a file of velocity-only joints (a VFD) publishes NaN, as beside
+    a position joint, not an empty array (issue 41 item 6; docs/bridges/modbus.md,
+    "Velocity-only joints"). ``velocity`` and ``effort`` stay empty when no joint has them."""
+    return positions if positions else (math.nan,) * joints
+
+
 def described_by_parameter(node: ParameterNode, spec: ParameterSpec) -> tuple[str, Description]:
     """The ``device_file`` parameter (start-up only) and the description it names, read
     before the link parameters (their defaults come from it)."""
@@ -234,7 +242,10 @@ class ModbusBridgeNode(BridgeNode[DeviceSnapshot]):
     def publish_snapshot(self, snapshot: DeviceSnapshot) -> None:
         if self.joint_names:
             self.publish_joints(
-                snapshot.read_time, snapshot.positions, snapshot.velocities, snapshot.efforts
+                snapshot.read_time,
+                joint_positions(snapshot.positions, len(self.joint_names)),
+                snapshot.velocities,
+                snapshot.efforts,
             )
         message = self.stamped(DeviceValues(), snapshot.read_time)
         message.slow_stamp = self.stamp(snapshot.slow_read_time)

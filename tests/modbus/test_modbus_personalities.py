@@ -17,6 +17,7 @@ down.
 
 from __future__ import annotations
 
+import math
 import signal
 import subprocess
 import sys
@@ -445,6 +446,12 @@ def test_the_vfd_on_rtu_stop_ignored_on_exit_is_tried_and_said_not_confirmed(
 
 def test_the_vfd_run_forward_ignored_is_not_success(client: Client, tmp_path: Path) -> None:
     with running_forward(client, tmp_path) as (b, _, _, device):
+        # Issue 41 item 6: the velocity-only joint's position is NaN (one per name, as
+        # sensor_msgs/JointState wants), not an empty array; a field no joint has is empty.
+        states = client.wait_message(b.joint_states, timeout=WAIT_S)
+        assert len(states.name) == 1 and len(states.velocity) == 1
+        assert len(states.position) == 1 and math.isnan(states.position[0]), states
+        assert list(states.effort) == []
         assert b.call(Trigger, "stop").success
         device.ignore = frozenset({"run_forward"})
         reply = b.call(Trigger, "run_forward")
