@@ -812,6 +812,7 @@ def phase_latency(
     # idle (R6 not running, xArm sleeping), which is how they start.
     sim = importlib.import_module(f"{p.simulator}.sim").make_simulator(*p.sim_args)
     sim.round_trip_s = opts.reply_delay_ms / 1000.0  # --reply-delay-ms, as in the other phases
+    sim.nagle = opts.nagle
     port = sim.start_tcp("127.0.0.1", 0)
     device = sim.device
     rng = random.Random(opts.seed)
@@ -1117,6 +1118,11 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         "--max-in-flight", type=int, default=1, help="the node's max_in_flight (default 1)"
     )
     parser.add_argument(
+        "--nagle",
+        action="store_true",
+        help="the simulator leaves Nagle on for its replies (its --nagle personality)",
+    )
+    parser.add_argument(
         "--json", type=Path, default=None, help="default bench/results/<device>_bench.json"
     )
     # worker mode (internal)
@@ -1128,6 +1134,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     opts = parser.parse_args(argv)
     opts.profile = PROFILES[opts.device]
     opts.sim_extra = ("--reply-delay-ms", str(opts.reply_delay_ms)) if opts.reply_delay_ms else ()
+    if opts.nagle:
+        opts.sim_extra = (*opts.sim_extra, "--nagle")
     if opts.max_in_flight != 1:
         opts.profile = dataclasses.replace(
             opts.profile,

@@ -2,7 +2,7 @@
 """Pipelined Modbus TCP bench: poll rate at simulated round trips, by ``max_in_flight``.
 
     .venv/bin/python bench/pipelining.py [--devices r6,xarm] [--round-trips-ms 0,1,5]
-        [--windows 1,4,13] [--duration 2] [--repeats 3] [--json PATH]
+        [--windows 1,4,13] [--nagle off,on] [--duration 2] [--repeats 3] [--json PATH]
 
 For each device and simulated round trip (the simulator's ``--reply-delay-ms``: half each
 way, requests in flight overlap; docs/architecture.md, "Pipelined Modbus TCP") the
@@ -13,6 +13,10 @@ simulator runs in a process of its own, and this process polls it as fast as it 
 - ``N``: the device layer (``R6Device.poll`` / ``XArmDevice.poll``: the fast group every
   poll, the slow group once a second) through a ``DeviceChannel`` with ``max_in_flight``
   N (1 = one request at a time, as before this work).
+
+``--nagle on`` runs the simulator with its ``--nagle`` personality: a device that leaves
+Nagle's algorithm on for its replies (issue 41 item 5: pipelined, each reply then waited
+for the client's delayed ACK; ``bridge_core.wire.pipeline`` acknowledges at once).
 
 Each figure is the median over ``--repeats`` rounds (every window measured once per
 round, in turn); also printed: the median transaction time one at a time (the round trip
@@ -100,7 +104,9 @@ def device_groups(name: str, port: int) -> tuple[Plan, Plan]:
 
 
 @contextmanager
-def simulator(name: str, round_trip_ms: float) -> Iterator[int]:
+def simulator(name: str, round_trip_ms: float, nagle: bool = False) -> Iterator[int]:
+    """The device's simulator in a process of its own; ``nagle``: its ``--nagle``
+    personality (a device that leaves Nagle's algorithm on for its replies)."""
     with tempfile.TemporaryDirectory() as tmp:
         port_file = Path(tmp) / "port"
         proc = subprocess.Popen(
@@ -114,6 +120,7 @@ def simulator(name: str, round_trip_ms: float) -> Iterator[int]:
                 str(port_file),
                 "--reply-delay-ms",
                 str(round_trip_ms),
+                *(["--nagle"] if nagle else []),
             ],
             cwd=ROOT,
             stdout=subprocess.DEVNULL,
@@ -307,6 +314,9 @@ def main() -> None:
     parser.add_argument("--devices", default=",".join(DEVICES))
     parser.add_argument("--round-trips-ms", default="0,1,5")
     parser.add_argument("--windows", default="1,4,13")
+    parser.add_argument(
+        "--nagle", default="off,on", help="off, on or off,on: the device leaves Nagle on"
+    )
     parser.add_argument("--duration", type=float, default=2.0, help="seconds per measurement")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument(
@@ -319,8 +329,12 @@ def main() -> None:
     windows = [int(w) for w in args.windows.split(",")]
     rows: list[dict[str, Any]] = []
     for name in args.devices.split(","):
-        for rtt in (float(x) for x in args.round_trips_ms.split(",")):
-            with simulator(name, rtt) as port:
+        for nagle, rtt in (
+            (n == "on", float(x))
+            for n in args.nagle.split(",")
+            for x in args.round_trips_ms.split(",")
+        ):
+            with simulator(name, rtt, nagle) as port:
                 runs: dict[str, list[tuple[float, ...]]] = {"bare": []}
                 if args.base_tree is not None:
                     runs["base"] = []
@@ -331,7 +345,7 @@ def main() -> None:
                         runs["base"].append(base_rate(args.base_tree, name, port, args.duration))
                     for w in windows:
                         runs[str(w)].append(device_rate(name, port, w, args.duration))
-            row: dict[str, Any] = {"device": name, "round_trip_ms": rtt}
+            row: dict[str, Any] = {"device": name, "round_trip_ms": rtt, "nagle": nagle}
             for key, samples in runs.items():
                 row[key] = {
                     "polls_per_s": statistics.median(s[0] for s in samples),
@@ -359,7 +373,8 @@ def print_row(row: dict[str, Any], windows: list[int]) -> None:
             f"{r['cpu_us_per_poll']:.0f} us CPU, fallbacks {r['fallbacks']})"
         )
     print(
-        f"{row['device']:5} rtt {row['round_trip_ms']:g} ms "
+        f"{row['device']:5} rtt {row['round_trip_ms']:g} ms"
+        f"{', Nagle on' if row.get('nagle') else ''} "
         f"(measured one at a time {row['1']['transaction_ms']:.2f} ms): " + "; ".join(cells),
         flush=True,
     )

@@ -19,12 +19,12 @@ Replies are acknowledged at once (``TCP_QUICKACK`` after every ``recv``, Linux).
 client that sends requests right after replies looks interactive to Linux, which then
 delays its ACKs (40 ms or more) to carry them on the next data segment. One request at a
 time, the next request carries the ACK. Pipelined, all requests are already out: the
-device's first reply waits for its ACK, and a device that leaves Nagle's algorithm on
-holds every further small reply until then, one delayed-ACK interval per reply (R6 13
+ACK of the device's first reply is delayed, and a device that leaves Nagle's algorithm
+on holds every further small reply until it comes: one delayed-ACK interval per window (R6, 13
 reads per poll at window 13: 22.7 polls/s against 440 one at a time; with the quick ACK
-1777; bench/README.md, "Nagle"). The option is not sticky (the kernel leaves quick-ACK
-mode again when we send), hence once per ``recv``; where the OS has no such option
-(not Linux) the pipeline runs as before.
+1777; bench/README.md, "A device that leaves Nagle on"). The option is not sticky (the
+kernel leaves quick-ACK mode again when we send), hence once per ``recv``; where the OS
+has no such option (not Linux) the pipeline runs as before.
 
 Only reads are pipelined: a write that goes out behind another may or may not happen
 when the connection breaks, and the bridge never retries a write (the channel's rule).
