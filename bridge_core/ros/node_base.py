@@ -66,6 +66,8 @@ PENDING_STOP_RETRY_S = 0.25
 # How long a halt waits for a command that was past its guards (on the wire) to finish.
 HALT_COMMAND_WAIT_S = 30.0
 JOINT_STATES_DEPTH = 10
+# What a poll reports of a link that failed: said as INFO once the process is exiting.
+EXIT_LINK_OUTCOMES = (PollOutcome.LINK_LOST, PollOutcome.UNREACHABLE, PollOutcome.STILL_DOWN)
 
 
 class BridgeNode(ParameterNode, CommandServices, Generic[SnapshotT]):
@@ -109,6 +111,14 @@ class BridgeNode(ParameterNode, CommandServices, Generic[SnapshotT]):
         # activate: a command or stream value that waited for its turn while the halt ran
         # is refused instead of restarting what the halt stopped.
         self._halted = False
+        # The process is leaving (its signal came, or ``close``): a link lost from now on
+        # was most likely closed by the same exit (the cell's simulators get the same
+        # Ctrl-C), not an error; ``_poll_report`` says it as INFO. ``exit_signalled``
+        # (set by ``process``): a signal to exit reached the process and its handler has
+        # not run yet (a simulator may close the link before it does).
+        self.exiting = False
+        self.exit_signalled: Callable[[], bool] = lambda: False
+        self._exit_link_said = False
 
         values = self.declare_specs(bridge_specs(defaults, owns_link=link is None))
         self.joint_prefix = str(values["joint_prefix"])
@@ -400,6 +410,11 @@ class BridgeNode(ParameterNode, CommandServices, Generic[SnapshotT]):
 
     def _poll_report(self, outcome: PollOutcome, text: str) -> None:
         logger = self.get_logger()
+        if outcome in EXIT_LINK_OUTCOMES and (self.exiting or self.exit_signalled()):
+            if not self._exit_link_said:  # once: the polls that follow fail alike
+                self._exit_link_said = True
+                logger.info(f"link to {self.channel.describe()} closed while exiting: {text}")
+            return
         if outcome is PollOutcome.INCOMPLETE:
             logger.info(text)
         elif outcome is PollOutcome.REFUSED:
@@ -585,6 +600,7 @@ class BridgeNode(ParameterNode, CommandServices, Generic[SnapshotT]):
 
     def close(self) -> None:
         """Stop motion, then polling, then close the link if this node opened it."""
+        self.exiting = True
         self._halted = True  # nothing but stops from here on
         try:
             self.stop_motion("the node is exiting")

@@ -42,6 +42,10 @@ from .node_parameters import DeviceDefaults, ParameterNode, link_settings, one_l
 GIL_SWITCH_INTERVAL_S = 0.0005
 EXIT_FATAL_ERROR = 1  # a bug or an error nothing handled: motion stopped, then exit
 LINE_CHECK_PERIOD_S = 1.0  # how often a bus owner looks at its devices' wire budgets
+# How long the exit waits, after every node's stops, for the callbacks still running.
+CALLBACK_EXIT_WAIT_S = 5.0
+EXIT_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+WAKEUP_PEEK_BYTES = 64  # more than the bytes that can wait: one per signal, one per wake
 
 
 class BusNode(ParameterNode):
@@ -114,8 +118,8 @@ class BusNode(ParameterNode):
             self.link.close()
 
 
-def interrupt_on_signals() -> None:
-    """SIGINT/SIGTERM raise KeyboardInterrupt in the main thread.
+def interrupt_on_signals(on_signal: Callable[[], None] | None = None) -> None:
+    """SIGINT/SIGTERM raise KeyboardInterrupt in the main thread (``on_signal`` first).
 
     Used instead of rclpy's handlers (rclpy.init with SignalHandlerOptions.NO), which shut
     the context down at once while the poll and publisher threads still publish; this way
@@ -125,6 +129,9 @@ def interrupt_on_signals() -> None:
     second Ctrl-C (people press it twice) raised there would cut them short, before the
     closers started or while they were being joined. Later signals are ignored; SIGKILL
     remains for a process that does not end.
+
+    ``on_signal`` runs in the handler, before anything else of the exit: the nodes learn
+    at once that the process is leaving (a link lost from then on is not an error).
     """
     interrupted = threading.Event()
 
@@ -132,13 +139,17 @@ def interrupt_on_signals() -> None:
         if interrupted.is_set():
             return  # already leaving: the stops must not be cut short
         interrupted.set()
+        if on_signal is not None:
+            on_signal()
         raise KeyboardInterrupt
 
     signal.signal(signal.SIGINT, interrupt)
     signal.signal(signal.SIGTERM, interrupt)
 
 
-def _spin_until_interrupted(executor: MultiThreadedExecutor) -> None:
+def _spin_until_interrupted(
+    executor: MultiThreadedExecutor, ended: _ThreadEnd | None = None
+) -> None:
     """Spin on a thread of its own while the main thread waits for it to end.
 
     A signal's handler runs in the main thread, between two Python instructions: spinning
@@ -153,7 +164,7 @@ def _spin_until_interrupted(executor: MultiThreadedExecutor) -> None:
     """
     stopping = threading.Event()
     failure: list[BaseException] = []
-    ended = _ThreadEnd()
+    ended = _ThreadEnd() if ended is None else ended
 
     def spin() -> None:
         try:
@@ -200,6 +211,7 @@ class _ThreadEnd:
         # Set by the thread as it ends: what the wait looks at (not ``is_alive()``, still
         # true between the thread's word and its end: a wait that looked then slept on).
         self._ended = threading.Event()
+        self._signal_seen = False  # the wait took a signal's byte off the wakeup fd
 
     def __enter__(self) -> _ThreadEnd:
         if threading.current_thread() is threading.main_thread():
@@ -211,6 +223,19 @@ class _ThreadEnd:
             signal.set_wakeup_fd(self._previous)
         self._reader.close()
         self._writer.close()
+
+    def signalled(self) -> bool:
+        """SIGINT or SIGTERM reached the process, whether or not its Python handler ran:
+        its byte came on the wakeup fd (the C handler ran, on whichever thread), or the
+        kernel holds it for the process, not yet taken by any of its threads. From any
+        thread; a poll that finds its link closed asks it (the cell's simulators get the
+        same Ctrl-C and may close the link before the bridge's handler runs)."""
+        if self._signal_seen:
+            return True
+        with contextlib.suppress(OSError):  # nothing there, or closed
+            if any(self._reader.recv(WAKEUP_PEEK_BYTES, socket.MSG_PEEK)):
+                return True
+        return _exit_signal_pending()
 
     def tell(self) -> None:
         """From the thread, as it ends."""
@@ -226,22 +251,83 @@ class _ThreadEnd:
         while not self._ended.is_set():
             select.select([self._reader], [], [])
             with contextlib.suppress(BlockingIOError):
-                self._reader.recv(4096)
+                # A signal's number, or the thread's word (0).
+                if any(self._reader.recv(4096)):
+                    self._signal_seen = True
 
 
-def _close_all(nodes: Sequence[Node]) -> None:
-    """Close every bridge at once (stops first), then the bus owners, then destroy."""
+def _exit_signal_pending() -> bool:
+    """SIGINT or SIGTERM sent to this process and not yet taken by any of its threads
+    (Linux: ``ShdPnd`` in /proc/self/status; ``signal.sigpending`` shows only blocked
+    signals). Elsewhere: False."""
+    with contextlib.suppress(OSError, ValueError), open("/proc/self/status") as status:
+        for line in status:
+            if line.startswith("ShdPnd:"):
+                mask = int(line.split()[1], 16)
+                return any(mask >> (number - 1) & 1 for number in EXIT_SIGNALS)
+    return False
+
+
+def _mark_exiting(nodes: Sequence[Node]) -> None:
+    for node in nodes:
+        if isinstance(node, BridgeNode):
+            node.exiting = True
+
+
+def _close_all(nodes: Sequence[Node], executor: MultiThreadedExecutor | None = None) -> None:
+    """Close every bridge at once (stops first), let the callbacks still running end, then
+    the bus owners, then destroy."""
     bridges = [node for node in nodes if isinstance(node, BridgeNode)]
     closers = [threading.Thread(target=node.close) for node in bridges]
     for closer in closers:
         closer.start()
     for closer in closers:
         closer.join()
+    if executor is not None:
+        _finish_callbacks(executor)
+        executor.shutdown()
     for node in nodes:
         if isinstance(node, BusNode):
             node.close()
     for node in nodes:
         node.destroy_node()
+
+
+def _finish_callbacks(executor: MultiThreadedExecutor) -> None:
+    """Wait for the callbacks the executor's thread pool still runs (bounded), drop those
+    it has not started, and say what any of them raised, before the nodes are destroyed.
+
+    The spin has ended, but rclpy's ``MultiThreadedExecutor.shutdown`` does not wait for
+    its pool (Jazzy's rclpy 7.1: ``Executor.shutdown`` sets ``_is_shutdown`` and then
+    skips the wait it guards with it) and never collects what its tasks raised. A timer
+    or message callback dispatched just before the exit then ran into ``destroy_node``
+    ("cannot use Destroyable because destruction was requested"), and its task, dropped
+    uncollected, printed "The following exception was never retrieved" at garbage
+    collection: on about half of the cell's Ctrl-C exits (bench/cell_exit.py). The same
+    for the executor's own guard condition, woken to end the spin: its callback must run
+    before ``executor.shutdown()`` destroys it, so the shutdown comes after. Callbacks
+    run after the nodes' ``close`` find them halted (commands refused), and ``close``
+    ended every action goal, so the wait is short; a callback still running after
+    ``CALLBACK_EXIT_WAIT_S`` is named and left (the process exits regardless).
+    """
+    pool = getattr(executor, "_executor", None)  # rclpy's ThreadPoolExecutor, not public
+    if pool is not None:
+        waiter = threading.Thread(
+            target=lambda: pool.shutdown(wait=True, cancel_futures=True), daemon=True
+        )
+        waiter.start()
+        waiter.join(CALLBACK_EXIT_WAIT_S)
+        if waiter.is_alive():
+            print(
+                f"a callback still runs {CALLBACK_EXIT_WAIT_S:g} s into the exit; exiting anyway",
+                file=sys.stderr,
+            )
+    tasks = list(getattr(executor, "_futures", []))  # the dispatched callbacks' tasks
+    for task in tasks:
+        if task.done():
+            error = task.exception()  # collected: what nobody collected printed at exit
+            if error is not None:
+                print(f"a callback failed during the exit: {one_line(error)}", file=sys.stderr)
 
 
 def _watch_lines(nodes: Sequence[Node]) -> None:
@@ -286,9 +372,9 @@ def spin_nodes(
     if refused is not None:
         print(f"error: {refused}", file=sys.stderr)
         return EXIT_CONFIGURATION_ERROR
-    interrupt_on_signals()
-    sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
     nodes: list[Node] = []
+    interrupt_on_signals(lambda: _mark_exiting(nodes))
+    sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
     executor: MultiThreadedExecutor | None = None
     code = 0
     try:
@@ -302,9 +388,12 @@ def spin_nodes(
         # A running action goal holds an executor thread until it ends.
         goal_threads = sum(node.actions.threads for node in nodes if isinstance(node, BridgeNode))
         executor = MultiThreadedExecutor(num_threads=threads(len(nodes)) + goal_threads)
+        ended = _ThreadEnd()
         for node in nodes:
             executor.add_node(node)
-        _spin_until_interrupted(executor)
+            if isinstance(node, BridgeNode):
+                node.exit_signalled = ended.signalled
+        _spin_until_interrupted(executor, ended)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except (ConfigurationError, ParameterException) as err:
@@ -320,9 +409,8 @@ def spin_nodes(
         )
         code = EXIT_FATAL_ERROR
     finally:
-        if executor is not None:
-            executor.shutdown()
-        _close_all(nodes)
+        _mark_exiting(nodes)
+        _close_all(nodes, executor)
         try_shutdown()
     return code
 

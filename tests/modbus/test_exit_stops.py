@@ -7,6 +7,7 @@ exactly its stop trigger's write on the wire (the simulator's write log, the kee
 counter writes aside). A silent line still gets the stop on the wire (the silent simulator
 hears it; the node says it failed for want of a reply); ``kill -9`` leaves the drive to
 its watchdog, which the simulator models and times (it trips within its period).
+A signal's exit prints no ERROR, traceback or uncollected callback error (issue 40).
 """
 
 from __future__ import annotations
@@ -33,6 +34,8 @@ from msg_defs.srv import SetValue, WriteRegister
 from ..support.ros import (
     Bridge,
     Client,
+    exit_complaints,
+    node_log,
     node_process,
     refused_at_start,
     ros_client,
@@ -123,10 +126,13 @@ def test_a_signal_sends_the_stop_of_a_started_motion(
 ) -> None:
     with running_forward(client, tmp_path) as (_, proc, _, device):
         before = len(device.write_log)
+        log = node_log(tmp_path, "modbus_bridge.node")
+        since = log.stat().st_size
         proc.send_signal(signal_number)
         assert proc.wait(EXIT_TIMEOUT_S) == 0
         assert commands(device, before) == [STOP_WRITE]
         assert device.get("control_word") == 5
+        assert exit_complaints(log, since) == []
 
 
 def test_deactivate_sends_the_stop_once(client: Client, tmp_path: Path) -> None:
@@ -137,9 +143,12 @@ def test_deactivate_sends_the_stop_once(client: Client, tmp_path: Path) -> None:
         reply = client.call(ChangeState, f"{b.ns}/modbus_bridge/change_state", request)
         assert reply.success
         assert commands(device, before) == [STOP_WRITE]  # done before the reply
+        log = node_log(tmp_path, "modbus_bridge.node")
+        since = log.stat().st_size
         proc.send_signal(signal.SIGINT)
         assert proc.wait(EXIT_TIMEOUT_S) == 0
         assert commands(device, before) == [STOP_WRITE]  # stopped since: not sent again
+        assert exit_complaints(log, since) == []
 
 
 def test_a_fatal_error_sends_the_stop(client: Client, tmp_path: Path) -> None:

@@ -388,8 +388,9 @@ def ros_args(params: dict[str, Any]) -> list[str]:
 def node_process(
     module: str, params: dict[str, Any], log_dir: Path, extra: Sequence[str] = ()
 ) -> Iterator[forkserver.Process]:
-    """Run ``python -m module --ros-args ...`` in its own process; stop it with SIGINT."""
-    log = (log_dir / f"{module.replace('.', '_')}.log").open("wb")
+    """Run ``python -m module --ros-args ...`` in its own process; stop it with SIGINT.
+    Its output goes to ``node_log(log_dir, module)``."""
+    log = node_log(log_dir, module).open("wb")
     proc = forkserver.python_module(
         module, [*ros_args(params), *extra], stdout=log, stderr=subprocess.STDOUT
     )
@@ -398,6 +399,25 @@ def node_process(
     finally:
         interrupt(proc, 10)
         log.close()
+
+
+def node_log(log_dir: Path, module: str) -> Path:
+    """Where ``node_process`` writes the output (stdout and stderr) of ``module``."""
+    return log_dir / f"{module.replace('.', '_')}.log"
+
+
+# What a clean exit never prints: an ERROR log line, rclpy's word for a callback's error
+# that nobody collected, a traceback.
+EXIT_COMPLAINTS = ("ERROR", "The following exception was never retrieved", "Traceback")
+
+
+def exit_complaints(log: Path, since: int = 0) -> list[str]:
+    """The lines of ``log`` from byte ``since`` on (its size when the exit began) that a
+    clean exit must not print (``EXIT_COMPLAINTS``)."""
+    with log.open("rb") as f:
+        f.seek(since)
+        text = f.read().decode(errors="replace")
+    return [line for line in text.splitlines() if any(c in line for c in EXIT_COMPLAINTS)]
 
 
 def interrupt(proc: forkserver.Process, timeout_s: float) -> None:

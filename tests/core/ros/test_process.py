@@ -166,3 +166,35 @@ def test_the_wait_ends_at_the_threads_word_while_it_still_runs() -> None:
     timer.cancel()
     worker.join()
     timer.join()
+
+
+# A signal the process got and no thread has taken yet (blocked here, as it is for the
+# instant before a thread runs its handler): a poll that finds its link closed by the
+# same Ctrl-C must count the process as exiting (issue 40).
+SIGNAL_PENDING = """
+import os, signal
+from bridge_core.ros.process import _exit_signal_pending
+before = _exit_signal_pending()
+signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+os.kill(os.getpid(), signal.SIGINT)
+print(before, _exit_signal_pending())
+"""
+
+
+def test_a_signal_not_yet_taken_counts_as_exiting() -> None:
+    result = subprocess.run(
+        [sys.executable, "-c", SIGNAL_PENDING], cwd=ROOT, capture_output=True, text=True, timeout=60
+    )
+    assert result.stdout.split() == ["False", "True"], (result.stdout, result.stderr)
+
+
+def test_a_signal_the_wakeup_fd_got_counts_as_exiting() -> None:
+    """The C handler ran (its byte is on the wakeup fd) but the Python one not yet: the
+    byte tells; the thread's own word (0) does not."""
+    ended = _ThreadEnd()
+    assert not ended.signalled()
+    ended.tell()  # the thread's word
+    assert not ended.signalled()
+    ended._writer.send(bytes([2]))  # what the C handler writes for SIGINT
+    assert ended.signalled()
+    ended.__exit__()
