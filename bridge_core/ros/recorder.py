@@ -6,13 +6,17 @@ and re-encoded; each topic's offered QoS (its publishers') goes into the bag's m
 default, rosbag2 version 9) is written with the pure-Python ``rosbags`` library and plays
 back with ``ros2 bag play``. Types not in
 rosbags' Jazzy typestore (our own ``msg_defs``) are registered from their ``.msg`` files.
+The metadata names the ROS distribution recorded with (``ros_distro``), as ``ros2 bag
+record`` does, not the writing library (``DistroWriter``).
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import importlib.metadata
 import os
+import re
 import sys
 import threading
 import time
@@ -41,6 +45,59 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
 from .command_line import EXIT_CONFIGURATION_ERROR, init_from_command_line
+
+# What rosbags (0.11) writes as the bag's ``ros_distro``, in metadata.yaml and in the copy of
+# the metadata inside the storage file; DistroWriter puts the real distribution there.
+ROSBAGS_DISTRO_LINE = re.compile(r"^(\s*ros_distro: )rosbags$", re.MULTILINE)
+# The PyPI wheels' meta-package of rclpy names the distribution: ros-jazzy-rclpy.
+RCLPY_WHEEL = re.compile(r"ros-([a-z]+)-rclpy")
+
+
+def ros_distro() -> str:
+    """The ROS distribution recorded with, as ``ros2 bag record`` writes it: ``ROS_DISTRO``
+    (set by a sourced ROS install), else the distribution of the installed rclpy wheels
+    (``ros-jazzy-rclpy``: "jazzy"), else "" (what rosbag2 writes with no ROS_DISTRO)."""
+    distro = os.environ.get("ROS_DISTRO", "").strip()
+    if distro:
+        return distro
+    for dist in importlib.metadata.distributions():
+        match = RCLPY_WHEEL.fullmatch((dist.metadata["Name"] or "").lower())
+        if match:
+            return match.group(1)
+    return ""
+
+
+class DistroWriter(Writer):
+    """rosbags' ``Writer`` with the bag's ``ros_distro`` the ROS distribution (``ros_distro()``)
+    instead of "rosbags": in metadata.yaml and in the copy the storage keeps (an MCAP file's
+    ``rosbag2`` metadata record, sqlite3's metadata table), which ``ros2 bag info`` reads
+    when given the file alone. rosbags builds that text inside ``close()`` with no hook: the
+    storage's ``close`` gets it corrected, and metadata.yaml is corrected after."""
+
+    def __init__(self, *args: Any, distro: str, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.distro = distro
+
+    def _with_distro(self, metadata: str) -> str:
+        return ROSBAGS_DISTRO_LINE.sub(lambda m: m.group(1) + (self.distro or "''"), metadata)
+
+    def open(self) -> None:
+        super().open()
+        storage = self.storage
+        assert storage is not None
+        close_storage = storage.close
+
+        def close(version: int, metadata: str) -> None:
+            close_storage(version, self._with_distro(metadata))
+
+        setattr(storage, "close", close)  # noqa: B010 (an instance's method, on purpose)
+
+    def close(self) -> None:
+        super().close()
+        text = self.metapath.read_text("utf8")
+        tmp = self.metapath.with_suffix(".yaml.tmp")
+        tmp.write_text(self._with_distro(text), "utf8")
+        tmp.replace(self.metapath)
 
 
 def message_class(type_name: str) -> Any:
@@ -176,7 +233,9 @@ class Recorder(Node):
     ) -> Any:
         with self._lock:
             if self._writer is None:
-                self._writer = Writer(self.output, version=9, storage_plugin=self.storage)
+                self._writer = DistroWriter(
+                    self.output, version=9, storage_plugin=self.storage, distro=ros_distro()
+                )
                 self._writer.open()
             connection = self._writer.add_connection(
                 topic, type_name, typestore=store, offered_qos_profiles=list(offered)

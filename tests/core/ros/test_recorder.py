@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import math
+import os
+import sqlite3
 import subprocess
 import sys
 from collections.abc import Callable
@@ -22,13 +25,16 @@ from rclpy.utilities import try_shutdown
 from rosbags.rosbag2 import Reader, StoragePlugin
 from std_msgs.msg import Bool
 
-from bridge_core.ros.recorder import Recorder, typestore_for
+from bridge_core.ros.recorder import DistroWriter, Recorder, ros_distro, typestore_for
 from msg_defs.msg import R6State
 from r6_bridge.sim import R6SimDevice, make_simulator
 
 from ...support.ros import ROOT, Bridge, node_process, refused_at_start, ros_client, wait_for
 
 pytestmark = pytest.mark.ros
+
+# The bags' ros_distro: a sourced ROS's ROS_DISTRO, else the rclpy wheels' (Jazzy).
+DISTRO = os.environ.get("ROS_DISTRO") or "jazzy"
 
 
 def test_bag_of_a_running_bridge(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -77,6 +83,9 @@ def test_bag_of_a_running_bridge(tmp_path: Path, monkeypatch: pytest.MonkeyPatch
     assert result.returncode == 0, result.stdout + result.stderr
     assert (bag / "metadata.yaml").exists()
     assert list(bag.glob("*.mcap"))
+    # The distribution recorded with, as ros2 bag record writes it, not "rosbags" (issue 40).
+    info = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    assert info["ros_distro"] == DISTRO, info["ros_distro"]
 
     store = typestore_for(["msg_defs/msg/R6State"])
     seen: dict[str, list[object]] = {t: [] for t in topics}
@@ -111,6 +120,9 @@ def test_bag_of_a_running_bridge(tmp_path: Path, monkeypatch: pytest.MonkeyPatch
     qos_of: dict[str, list[dict[str, object]]] = {}
     with mcap_file.open("rb") as stream:
         mcap_reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        # The copy of the metadata in the file (what `ros2 bag info FILE.mcap` reads).
+        (embedded,) = [m for m in mcap_reader.iter_metadata() if m.name == "rosbag2"]
+        assert yaml.safe_load(embedded.metadata["serialized_metadata"])["ros_distro"] == DISTRO
         for _schema, channel, _message, ros_msg in mcap_reader.iter_decoded_messages():
             decoded[channel.topic] = decoded.get(channel.topic, 0) + 1
             assert ros_msg is not None
@@ -290,3 +302,27 @@ def test_a_command_line_rcl_refuses_is_one_line_and_exit_2(
     line = refused_at_start("bridge_core.ros.recorder", ["-o", str(bag), "/x", *ros_args])
     assert line.startswith("error: ") and named in line, line
     assert not bag.exists()
+
+
+def test_the_distro_is_rosdistro_else_the_rclpy_wheels(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("ROS_DISTRO", "rolling")
+    assert ros_distro() == "rolling"
+    monkeypatch.delenv("ROS_DISTRO")
+    assert ros_distro() == "jazzy"  # this venv's ros-jazzy-rclpy
+
+
+def test_a_sqlite3_bag_names_the_distro_in_both_copies(tmp_path: Path) -> None:
+    """metadata.yaml and the metadata table of the .db3 (plain Python: no ROS graph)."""
+    bag = tmp_path / "bag"
+    writer = DistroWriter(bag, version=9, storage_plugin=StoragePlugin.SQLITE3, distro="jazzy")
+    writer.open()
+    store = typestore_for(["std_msgs/msg/Bool"])
+    connection = writer.add_connection("/flag", "std_msgs/msg/Bool", typestore=store)
+    writer.write(connection, 1, store.serialize_cdr(Bool(data=True), "std_msgs/msg/Bool"))
+    writer.close()
+    info = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    assert info["ros_distro"] == "jazzy"
+    (db3,) = bag.glob("*.db3")
+    with contextlib.closing(sqlite3.connect(db3)) as db:
+        (text,) = db.execute("SELECT metadata FROM metadata").fetchone()
+    assert yaml.safe_load(text)["ros_distro"] == "jazzy"
