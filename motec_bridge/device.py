@@ -728,8 +728,7 @@ class MotecDevice(ConfiguredDevice[MotecConfig]):
         return self.stream.command(
             VELOCITY_STREAM,
             self.check_velocity(rpm),
-            refuse_reason="the drive was stopped: send 0 (or nothing for command_timeout_s) "
-            "before commanding a velocity again",
+            refuse_reason="the drive was stopped: send 0 before commanding a velocity again",
         )
 
     def _velocity_send(self, _key: int, rpm: float, previous: float | None) -> None:

@@ -17,7 +17,9 @@ One joint per drive (``drive_<id>``, as in ``joint_states``):
 
 The position stream follows the velocity guard (one lock; ``~/stop``, a disable or a mode
 change takes both over) and has the drive's ``command_timeout_s`` deadman and
-``command_rate_hz``.
+``command_rate_hz``. The joint is judged by its own drive node's state (``gate``) and its
+refusals count in that node's diagnostics (``counts``): a drive deactivated refuses its
+own values, the other drives of the bus apply theirs (issue 40).
 """
 
 from __future__ import annotations
@@ -25,7 +27,13 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 
-from bridge_core.runtime.joint_commands import CommandJoint, CommandStream, Gate, Offer
+from bridge_core.runtime.joint_commands import (
+    CommandJoint,
+    CommandStream,
+    Gate,
+    Offer,
+    RefusalCounts,
+)
 from bridge_core.runtime.stream_guard import StreamGuard
 
 from .device import VELOCITY_STREAM, DriveScale, MotecDevice
@@ -74,9 +82,10 @@ def command_joint(
     offer: Offer,
     here: Callable[[], float | None],
     max_jump: Callable[[], float],
+    counts: RefusalCounts,
 ) -> CommandJoint:
     """The drive's ``CommandJoint`` for the bus owner's topic; ``here``: its newest
-    published position (rad)."""
+    published position (rad); ``counts``: its node's refusals."""
     return CommandJoint(
         name,
         CommandStream(target.guard, VELOCITY_STREAM, lambda rad: _target(device, scale, rad)),
@@ -87,6 +96,7 @@ def command_joint(
         offer,
         here,
         max_jump,
+        counts=counts,
     )
 
 

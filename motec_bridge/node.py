@@ -44,7 +44,7 @@ from bridge_core.ros.node_base import BridgeNode, copy_fields
 from bridge_core.ros.process import BusNode, spin_nodes
 from bridge_core.runtime.checks import board_zero_index
 from bridge_core.runtime.diagnostics import Level, Report
-from bridge_core.runtime.joint_commands import MAX_JUMP_SPEC, CommandJoint
+from bridge_core.runtime.joint_commands import MAX_JUMP_SPEC, CommandJoint, RefusalCounts
 from bridge_core.runtime.keepalive import IDLE_CHECK_S
 from bridge_core.runtime.rate_groups import PollGroups
 from bridge_core.wire.channel import DeviceChannel
@@ -175,6 +175,9 @@ class MotecDriveNode(BridgeNode[MotecSnapshot]):
             "position_max_velocity",
             lambda value: setattr(self, "position_max_velocity", float(value)),
         )
+        # This drive's own refusals of the bus owner's topic (its diagnostics, issue 40).
+        self.joint_refusals = RefusalCounts()
+        self.joint_command_refusals = self.joint_refusals
         self.target = DriveTarget(
             self.device, lambda: self.scale.to_rpm(self.position_max_velocity)
         )
@@ -242,6 +245,7 @@ class MotecDriveNode(BridgeNode[MotecSnapshot]):
             self.streams.offer,
             self._published_position,
             lambda: self.max_jump,
+            self.joint_refusals,
         )
 
     def _published_position(self) -> float | None:
@@ -529,13 +533,12 @@ class MotecBusNode(BusNode):
 
     def command_drives(self) -> None:
         """``~/joint_commands``: one topic for every drive of the bus, each name handed to
-        its drive node's streams; each drive's diagnostics count the topic's refusals."""
-        topic = JointCommandTopic(
+        its drive node's streams, judged by that node's lifecycle and read_only, and
+        counted in that drive's diagnostics (a message refused whole: in the diagnostics
+        of each drive it names)."""
+        self.joint_commands = JointCommandTopic(
             self, [drive.command_joint() for drive in self.drive_nodes.values()]
         )
-        for drive in self.drive_nodes.values():
-            drive.joint_command_refusals = topic.counts
-        self.joint_commands = topic
 
     def _broadcast_written(self, span: Span) -> None:
         for unit in self.drive_nodes:

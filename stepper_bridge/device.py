@@ -823,8 +823,7 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
         return self.jogs.command(
             motor,
             self.check_jog(motor, rpm),
-            refuse_reason=f"motor {motor} was stopped: send a 0 jog (or none for "
-            "command_timeout_s) before jogging it again",
+            refuse_reason=f"motor {motor} was stopped: send a 0 jog before jogging it again",
         )
 
     def _jog_send(self, motor: int, rpm: float, _previous: float | None) -> None:

@@ -79,10 +79,14 @@ class MotorTargets:
         Only a stop can come between these reads and the writes, and a stop locks the
         stream, so a stale reading is never acted on. A repeat of the target in force
         reads nothing (the guard writes nothing for it; should it send after all, it
-        reads then)."""
+        reads then), nor does a target the guard's lock refuses."""
         self._seen.pop(motor, None)
         stream = self.guard[motor]
         if stream.active and not stream.stop_pending and stream.value == target:
+            return target
+        if stream.locked and not stream.settled:
+            # Refused by the guard's lock (issue 40): no reads on the line for it (a
+            # controller holding a target the stop cut short starved the polls).
             return target
         running = self._read(motor, "running")
         coordinate = None if running else self._read(motor, "coordinate")

@@ -762,6 +762,281 @@ def test_the_threshold_default_sends_no_velocity_to_joints_at_zero(
     assert [r for r in stepper.writes(before) if r.table is Table.COIL] == []
 
 
+def test_nan_before_a_controller_claims_is_refused_and_said_once(client: Client, axes: Rig) -> None:
+    """The interface's 1.x releases publish NaN commands every cycle until a controller
+    claims the joints (docs/ros2_control.md, "The interface's releases"): each message is
+    refused (counted as not finite), nothing is written, one WARN at most."""
+    since = time.monotonic()
+    counted = latest_counts(client, axes).get(jc.NOT_FINITE, 0)
+    unclaimed = system(client, axes, ("lift",), "position", nan_until_claimed=True)
+    before = len(axes.writes())
+    unclaimed.run_unclaimed(0.5)
+    unclaimed.close()
+    assert len(unclaimed.sent) >= 10, len(unclaimed.sent)
+    wait_refusals(client, axes, jc.NOT_FINITE, counted + len(unclaimed.sent))
+    assert [r for r in axes.writes(before) if r.address == AXES_MAP["lift_target"].address] == []
+    said = [
+        m.msg
+        for m in client.received("/rosout", since)
+        if "modbus_bridge" in m.name and "not a finite" in m.msg
+    ]
+    assert len(said) <= 1, said
+
+
+# ------------------------------ halts and stop services (issue 40; the halts lock streams)
+HALT_S = 1.5  # the issue's deactivate: ~1.5 s inactive while the controller publishes
+# Watched after an activation or a stop: past the deadman's timeout, where silence would
+# have unlocked the stream (issue 40: the motor restarted 0.003-0.115 s after "active").
+WATCH_S = 2 * COMMAND_TIMEOUT_S
+HOLD_HERE_S = 0.3  # the controller holds where the joint stands (JTC re-activated)
+
+
+def publishing(s: TopicSystem, values: Callable[[], Mapping[str, float]]) -> Callable[[], None]:
+    """Run ``s`` in a thread, each cycle publishing ``values()``, as a controller that
+    never stops; returns the call that ends it."""
+    done = threading.Event()
+    runner = threading.Thread(
+        target=s.run, args=(lambda _t: values(), 600.0), kwargs={"until": done}
+    )
+    runner.start()
+
+    def end() -> None:
+        done.set()
+        runner.join()
+
+    return end
+
+
+def polled_after(client: Client, rig: Rig, joint: str, after: float) -> None:
+    """Until joint_states of ``joint`` stamped after wall-clock ``after`` (the bridge ran
+    its polls, and took the commands, that long)."""
+    wait_for(
+        lambda: any(t >= after for t, _ in positions_of(client, rig, joint)),
+        WAIT_S,
+        f"joint_states of {joint} after {after}",
+    )
+
+
+def velocity_through_a_halt(
+    client: Client,
+    rig: Rig,
+    node: str,
+    joints: Mapping[str, float],
+    moves: Callable[[WriteRecord], bool],
+    halted: str,
+) -> float:
+    """Issue 40 item 1: a velocity system at threshold -1 publishes ``joints``' constant
+    velocities every cycle while ``node`` is deactivated for HALT_S and activated again:
+    nothing sets ``halted`` moving (``moves``) from the activation on, for WATCH_S. The
+    controller's 0 then unlocks it. Returns the wall-clock time of the deactivate."""
+    s = system(client, rig, tuple(joints), "velocity", threshold=EVERY_CYCLE)
+    before = len(rig.writes())
+    end = publishing(s, lambda: joints)
+    try:
+        wait_for(lambda: any(moves(r) for r in rig.writes(before)), WAIT_S, f"{halted} moving")
+        deactivated = time.time()
+        assert change_state(client, node, Transition.TRANSITION_DEACTIVATE)
+        time.sleep(HALT_S)  # the scenario: inactive while the controller publishes
+        activated = time.time()
+        assert change_state(client, node, Transition.TRANSITION_ACTIVATE)
+        polled_after(client, rig, halted, activated + WATCH_S)
+    finally:
+        end()
+    restarted = [r for r in rig.writes(before) if r.time >= activated and moves(r)]
+    assert restarted == [], restarted
+    s.run(lambda _t: dict.fromkeys(joints, 0.0), 0.2)  # a 0 unlocks the streams again
+    s.close()
+    return deactivated
+
+
+def position_after_a_stop(
+    client: Client,
+    rig: Rig,
+    joint: str,
+    distance: float,
+    stop: Callable[[], float],
+    moves: Callable[[WriteRecord], bool],
+    stops: Callable[[WriteRecord], bool],
+    tolerance: float,
+) -> None:
+    """Issue 40 item 2: a position system at threshold -1 ramps ``joint`` by ``distance``
+    in 2 s; ``stop`` (a stop service or a halt; it returns the wall-clock time from which
+    nothing may move the joint) cuts it at 1 s, and the controller runs on and holds the
+    trajectory's end, publishing every cycle: nothing moves the joint. The controller then
+    holds where the joint stands (as a joint_trajectory_controller re-activated, or whose
+    goal its tolerances aborted: docs/ros2_control.md), and a new ramp of 1/4 ``distance``
+    from there moves it. Each cycle samples the trajectory anew, as a controller does.
+    Last, silence: the deadman's stop (``stops``) is waited for (no write of this test
+    comes during the next one)."""
+    s = system(client, rig, (joint,), "position", threshold=EVERY_CYCLE)
+    start = newest_position(client, rig, joint)
+    now: list[Callable[[], float]] = [lambda: start]
+    before = len(rig.writes())
+    end = publishing(s, lambda: {joint: now[0]()})
+    try:
+        time.sleep(HOLD_HERE_S)  # holding where it stands before the goal (unlocks a halt's lock)
+        t0 = time.monotonic()
+        path = ramp(start, [(2.0, start + distance)])
+        now[0] = lambda: path(time.monotonic() - t0)
+        time.sleep(max(0.0, t0 + 1.0 - time.monotonic()))
+        stopped = stop()
+        time.sleep(max(0.0, t0 + 2.0 - time.monotonic()))  # the trajectory runs on
+        here = settled_position(client, rig, joint, max(stopped, time.time()) + WATCH_S)
+        restarted = [r for r in rig.writes(before) if r.time >= stopped and moves(r)]
+        assert restarted == [], restarted
+        assert abs(start + distance - here) > distance / 8, (start, here)  # cut short
+        now[0] = lambda: here  # the controller holds the joint where it stands: unlocked
+        time.sleep(HOLD_HERE_S)
+        goal = here + distance / 4
+        t1 = time.monotonic()
+        again = ramp(here, [(1.0, goal)])
+        now[0] = lambda: again(time.monotonic() - t1)
+        wait_for(
+            lambda: abs(newest_position(client, rig, joint) - goal) <= tolerance,
+            WAIT_S,
+            f"{joint} on the new ramp's end {goal} (stopped at {here})",
+        )
+    finally:
+        end()
+        s.close()
+    quiet = len(rig.writes())
+    wait_for(lambda: any(stops(r) for r in rig.writes(quiet)), WAIT_S, f"{joint}'s deadman")
+    print(f"{joint}: stopped {here - start:+.5f} from the start, then moved to the new end")
+
+
+def trigger(client: Client, service: str) -> float:
+    reply = client.call(Trigger, service, Trigger.Request())
+    assert reply.success, reply.message
+    return time.time()
+
+
+def halt(client: Client, node: str) -> float:
+    """Deactivate ``node``, then activate it: the time of the activation."""
+    assert change_state(client, node, Transition.TRANSITION_DEACTIVATE)
+    activated = time.time()
+    assert change_state(client, node, Transition.TRANSITION_ACTIVATE)
+    return activated
+
+
+def motor_moves(motor: int) -> Callable[[WriteRecord], bool]:
+    """A write that sets the stepper's ``motor`` going: its run, single-run or home coil."""
+    starts = {motor_coil(motor, a) for a in ("forward", "reverse", "run_once", "home")}
+    return lambda r: r.table is Table.COIL and r.address in starts and r.values == (1,)
+
+
+def test_stepper_a_controller_through_a_halt_and_a_stop(client: Client, stepper: Rig) -> None:
+    """Issue 40 items 1 and 2 on the stepper: motor 3's jog does not restart after a
+    deactivate while the controller publishes (it did 0.11 s after "active"); motor 1's
+    position stream stays stopped after ~/motor_1/stop while the trajectory runs on, and
+    moves again once the controller holds where it stands (a new ramp moved 0.000 mm)."""
+    node = f"{stepper.bridge.ns}/stepper_bridge"
+    velocity_through_a_halt(client, stepper, node, {"motor_3": 0.003}, motor_moves(3), "motor_3")
+    position_after_a_stop(
+        client,
+        stepper,
+        "motor_1",
+        0.004,
+        lambda: trigger(client, f"{node}/motor_1/stop"),
+        motor_moves(1),
+        lambda r: r.table is Table.COIL and r.address == motor_coil(1, "stop"),
+        STEPPER_STEP_M * 1.01,
+    )
+
+
+def motec_moves(unit: int) -> Callable[[WriteRecord], bool]:
+    """A write that sets drive ``unit`` going: 0xAE other than 0, or 0x29 = 1."""
+    speed, start = MOTEC_MAP["speed_setpoint"].address, MOTEC_MAP["start"].address
+    return lambda r: (
+        r.unit_id == unit
+        and ((r.address == speed and r.values != (0,)) or (r.address == start and r.values == (1,)))
+    )
+
+
+def test_motec_a_drive_through_a_halt_and_a_stop(client: Client, motec: Rig) -> None:
+    """Issue 40 items 1-3 on the MOTEC bus: drive 3's node deactivated while the controller
+    publishes drives 2 and 3: drive 2 keeps its speed (no stop written: it was stopped by
+    the deadman when every message was refused whole), drive 3 does not restart after the
+    activation, and motec_3 counts the refusals, motec_2 none; drive 1's position stream
+    stays stopped after motec_1's ~/stop and moves again on a hold where it stands."""
+    motec_modes(
+        client,
+        motec,
+        {
+            1: SetControlMode.Request.POSITION,
+            2: SetControlMode.Request.VELOCITY,
+            3: SetControlMode.Request.VELOCITY,
+        },
+    )
+    ns = motec.bridge.ns
+    since = time.monotonic()
+    before = len(motec.writes())
+    deactivated = velocity_through_a_halt(
+        client, motec, f"{ns}/motec_3", {"drive_2": 1.0, "drive_3": 2.0}, motec_moves(3), "drive_3"
+    )
+    speed, start = MOTEC_MAP["speed_setpoint"].address, MOTEC_MAP["start"].address
+    stops_2 = [
+        r
+        for r in motec.writes(before)
+        if r.unit_id == 2 and r.address == speed and r.values == (0,) and r.time >= deactivated
+    ]
+    assert len(stops_2) == 1, stops_2  # only the controller's own 0 at the end
+    counts = {unit: drive_counts(client, f"motec_{unit}", since) for unit in (2, 3)}
+    assert counts[3].get(jc.INACTIVE, 0) > 0 and jc.INACTIVE not in counts[2], counts
+    position_after_a_stop(
+        client,
+        motec,
+        "drive_1",
+        0.6,  # what the stop leaves of it is within joint_command_max_jump (0.5 here)
+        lambda: trigger(client, f"{ns}/motec_1/stop"),
+        motec_moves(1),
+        lambda r: r.unit_id == 1 and r.address == start and r.values == (0,),
+        MOTEC_COUNT_RAD * 2,
+    )
+
+
+def drive_counts(client: Client, node: str, since: float) -> dict[str, int]:
+    """``joint_commands refused`` of ``node`` in a status published after ``since``."""
+
+    def newest() -> dict[str, int] | None:
+        for array in reversed(client.received("/diagnostics", since)):
+            for status in array.status:
+                if status_node(status) == node:
+                    return parse_counts(values_of(status).get(jc.DIAGNOSTICS_KEY, "none"))
+        return None
+
+    found = wait_for(
+        lambda: None if (n := newest()) is None else [n], WAIT_S, f"{node}'s diagnostics"
+    )
+    return dict(found[0])
+
+
+def test_modbus_a_controller_through_a_halt(client: Client, axes: Rig) -> None:
+    """Issue 40 items 1 and 2 on modbus_bridge: the spindle does not restart after a
+    deactivate while the controller publishes; the lift's position stream stays stopped
+    after a halt while its trajectory runs on, and moves again on a hold where it stands."""
+    node = f"{axes.bridge.ns}/modbus_bridge"
+    spindle = AXES_MAP["spindle_setpoint"].address
+    velocity_through_a_halt(
+        client,
+        axes,
+        node,
+        {"spindle": 1.0},
+        lambda r: r.address == spindle and r.values != (0,),
+        "spindle",
+    )
+    lift = AXES_MAP["lift_target"].address
+    position_after_a_stop(
+        client,
+        axes,
+        "lift",
+        0.02,
+        lambda: halt(client, node),
+        lambda r: r.address == lift,
+        lambda r: r.address == lift,
+        AXES_STEP_M * 1.01,
+    )
+
+
 # -------------------------------------------- refusals (last: the halt locks the streams)
 def test_stepper_refusals_write_nothing_and_count(client: Client, stepper: Rig) -> None:
     """Each kind of bad message, twice: nothing written, counted per kind, one WARN per

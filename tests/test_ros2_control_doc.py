@@ -132,3 +132,15 @@ def test_the_controller_manager_runs_the_stock_controllers() -> None:
         "joint_trajectory_controller/JointTrajectoryController"
     )
     assert manager["update_rate"] == 100
+
+
+def test_the_lock_rule_figures_and_lines_are_the_codes() -> None:
+    """Issue 40: the page's unlock tolerance (1 % of joint_command_max_jump, 0.001 when the
+    check is off) and the line it quotes are what the code has."""
+    from bridge_core.ros.node_streams import NOTHING_MOVED
+    from bridge_core.runtime import joint_commands as jc
+
+    text = " ".join(PAGE.read_text(encoding="utf-8").split())
+    assert f"within {jc.UNLOCK_SHARE * 100:g} % of" in text
+    assert f"({jc.unlock_tolerance(0.0):g})" in text
+    assert NOTHING_MOVED in text

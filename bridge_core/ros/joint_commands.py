@@ -9,7 +9,10 @@ rest. A refused message writes nothing, counts in the diagnostics by kind
 (``joint_commands refused``) and, the first time of its kind, is one WARN line.
 
 The node that owns the topic need not own the joints: the MOTEC bus owner has one topic for
-every drive of its bus, and each ``CommandJoint`` offers to its own drive node's guards.
+every drive of its bus, and each ``CommandJoint`` offers to its own drive node's guards, is
+judged by that node's state (a drive's deactivate refuses its own values only) and counts
+its refusals in that node's diagnostics (``CommandJoint.counts``). A message refused whole
+counts for each node whose joints it names (every node's, when it names none of them).
 """
 
 from __future__ import annotations
@@ -29,6 +32,7 @@ from ..runtime.joint_commands import (
     apply,
     message_fields,
     plan,
+    refused_arrival,
 )
 from .node_parameters import ParameterNode
 
@@ -49,15 +53,17 @@ class JointCommandTopic:
         self._bug_said = False
         node.inbox.subscribe(JointState, TOPIC, self._arrived, JOINT_COMMANDS_DEPTH)
 
+    def _counts(self, joint: CommandJoint) -> RefusalCounts:
+        return joint.counts if joint.counts is not None else self.counts
+
     def _arrived(self, msg: Any) -> None:
+        fields = message_fields(msg)
+        named = [self.joints[n] for n in dict.fromkeys(fields[0]) if n in self.joints]
         try:
-            planned = plan(self.joints, *message_fields(msg))
+            planned = plan(self.joints, *fields)
         except Refused as refused:
-            if self.counts.add(refused.kind):
-                self.node.get_logger().warn(
-                    f"{refused.text} (said once per kind; diagnostics '{DIAGNOSTICS_KEY}' "
-                    "counts every refusal)"
-                )
+            refused_arrival(named)
+            self._count(named or list(self.joints.values()), refused)
             return
         except Exception as err:  # a bug must not end the subscription's callbacks
             if not self._bug_said:
@@ -66,8 +72,24 @@ class JointCommandTopic:
                     f"joint_commands failed: {err}\n{traceback.format_exc()}"
                 )
             return
+        for joint, closed in planned.refused:
+            refused_arrival([joint])
+            self._count([joint], closed)
         apply(planned)
         self.accepted += 1
+
+    def _count(self, joints: list[CommandJoint], refused: Refused) -> None:
+        """Count a refusal once in each node's count of ``joints``; said (one WARN) the
+        first time of its kind in any of them."""
+        counts = {id(c): c for c in (self._counts(joint) for joint in joints)} or {
+            id(self.counts): self.counts
+        }
+        first = [c.add(refused.kind) for c in counts.values()]
+        if any(first):
+            self.node.get_logger().warn(
+                f"{refused.text} (said once per kind; diagnostics '{DIAGNOSTICS_KEY}' "
+                "counts every refusal)"
+            )
 
 
 __all__ = ["JOINT_COMMANDS_DEPTH", "JointCommandTopic"]

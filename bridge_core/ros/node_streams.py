@@ -31,6 +31,9 @@ DEADMAN_CHECKS = 20
 DEADMAN_PERIOD_MIN_S = 0.01
 DEADMAN_PERIOD_MAX_S = 0.05
 STREAM_DEPTH = 1  # command streams: only the newest message matters
+# What a 0 that found nothing to stop says while the node is inactive (issue 40: it said
+# "refused", though a stop always goes and nothing needed writing).
+NOTHING_MOVED = "nothing was moving, nothing written (the node is not active)"
 
 
 class StreamHost:
@@ -142,13 +145,14 @@ class StreamHost:
         set_timeout(node.param(timeout_parameter))
         set_rate(node.param(rate_parameter))
 
-    def offer(self, guard: StreamGuard[T], key: T, value: float) -> None:
+    def offer(self, guard: StreamGuard[T], key: T, value: float, near: bool = False) -> None:
         """A command arrived for ``guard``'s stream ``key``: recorded at once (any thread);
         the writer is woken when it may be applied now, else the deadman timer's pass
         applies it (a flood wakes the writer at most command_rate_hz times a second, not
-        per message)."""
+        per message). ``near``: a position target where the joint stands
+        (``StreamGuard.settles``)."""
         with self._sleep_lock:
-            wake = guard.offer(key, value)
+            wake = guard.offer(key, value, near=near)
             timer = self._timers[id(guard)]
             if timer.is_canceled():
                 timer.reset()
@@ -183,11 +187,21 @@ class StreamHost:
             value = guard.take(key)
             if value is None:
                 continue
-            ok, message, _ = self.node.run_command(
-                what(key, value), functools.partial(_apply, guard, key, value, convert)
+            a_stop = guard.zero_stops and value == 0
+            # A 0 is a stop: it always goes (inactive, read_only, link down), as the deadman's.
+            ok, message, wrote = self.node.run_command(
+                what(key, value),
+                functools.partial(_apply, guard, key, value, convert),
+                stop=a_stop,
+                own_motion=a_stop,
             )
             if not ok:
                 self._refused(guard, key, message, stopping)
+            elif a_stop and not wrote and not self.node.active:
+                # Issue 40: not "refused": there was nothing to stop.
+                self.node.get_logger().info(
+                    f"{what(key, value)}: {NOTHING_MOVED}", throttle_duration_sec=2.0
+                )
 
     def _refused(
         self, guard: StreamGuard[T], key: T, message: str, stopping: Callable[[T], str]
@@ -273,6 +287,7 @@ __all__ = [
     "DEADMAN_CHECKS",
     "DEADMAN_PERIOD_MAX_S",
     "DEADMAN_PERIOD_MIN_S",
+    "NOTHING_MOVED",
     "STREAM_DEPTH",
     "StreamHost",
 ]

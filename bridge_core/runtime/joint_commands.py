@@ -11,8 +11,11 @@ command topics already use), and ``plan`` checks one message against them:
 - its shape: ``position`` and ``velocity`` empty or as long as ``name``, no name twice,
   no ``effort``; exactly one of ``position`` and ``velocity`` given (both or neither is
   refused); every name one of the node's joints, and each joint one that takes that kind;
-- the node's state: refused while the node is inactive, under ``read_only`` or while the
-  link is down, unless every value is a velocity 0 (a stop always goes);
+- the state of the node that drives each joint (its ``gate``): a joint whose node is
+  inactive, under ``read_only`` or without its link has its value refused, unless it is
+  a velocity 0 (a stop always goes). When every joint named is refused so, the message is
+  refused whole; else only those joints' values are (counted by their own node, issue 40:
+  a MOTEC drive's deactivate stopped the other drives of its bus) and the others apply;
 - every value finite and, converted by the joint's own conversion (the one its
   ``joint_states`` uses), inside the joint's limits;
 - a position target no farther than ``joint_command_max_jump`` (rad or m; 0: no check)
@@ -26,11 +29,15 @@ command topics already use), and ``plan`` checks one message against them:
 - a joint is driven by one kind at a time: a velocity while its position stream may still
   move it (or the reverse) is refused; a 0 velocity is always taken.
 
-Any failure refuses the whole message (``Refused``: its kind and one line) and nothing is
-offered to any guard; the node counts refusals by kind (``RefusalCounts``) and says the
-first of each kind in one WARN. A message that passes is offered to the guards
-(``apply``): newest value wins, the guard's rate limit, deadman and locks apply from there.
-A message names only the joints it commands; the others keep what they do.
+Any other failure refuses the whole message (``Refused``: its kind and one line) and
+nothing is offered to any guard; each joint's node counts refusals by kind
+(``RefusalCounts``) and says the first of each kind in one WARN. A refused value still
+counts as an arrival for its streams (``refused_arrival``: the guard's lock rule never
+takes refused messages for silence). A message that passes is offered to the guards
+(``apply``): newest value wins, the guard's rate limit, deadman and locks apply from there;
+a position target within ``unlock_tolerance`` of the joint's newest published position is
+offered as ``near`` (``StreamGuard.settles``: what may unlock a stopped stream). A message
+names only the joints it commands; the others keep what they do.
 """
 
 from __future__ import annotations
@@ -53,6 +60,23 @@ TOPIC = "~/joint_commands"
 # trajectory moves between two messages, far less than a drive to 0 from afar.
 MAX_JUMP_DEFAULT = 0.1
 MAX_JUMP_LIMIT = 1e6
+
+
+# How near where a joint stands a target must be to unlock its stopped position stream, as
+# a share of joint_command_max_jump (of its default when the check is off): 1 mm or 1 mrad
+# at the default, what a controller holding the joint where it stands (or a trajectory
+# starting there) publishes, far less than what a trajectory still running towards a
+# target the stop cut short is off by (issue 40; docs/ros2_control.md).
+UNLOCK_SHARE = 0.01
+
+
+def unlock_tolerance(max_jump: float) -> float:
+    """How near where a joint stands a position target must be to unlock its stopped
+    stream (``StreamGuard.settles``): ``UNLOCK_SHARE`` of ``joint_command_max_jump``, or of
+    its default when the check is off (0): a stop is never undone by a target from afar."""
+    return UNLOCK_SHARE * (max_jump if max_jump > 0 else MAX_JUMP_DEFAULT)
+
+
 MAX_JUMP_SPEC = ParameterSpec(
     "joint_command_max_jump",
     MAX_JUMP_DEFAULT,
@@ -124,9 +148,9 @@ class CommandStream:
 
 
 # gate() -> None while the node takes commands, else (kind, reason): INACTIVE, READ_ONLY,
-# LINK_DOWN. offer(guard, key, value): the node's StreamHost.offer (wakes its writer).
+# LINK_DOWN. offer(guard, key, value, near): the node's StreamHost.offer (wakes its writer).
 Gate = Callable[[], tuple[str, str] | None]
-Offer = Callable[[StreamGuard[Any], Hashable, float], None]
+Offer = Callable[[StreamGuard[Any], Hashable, float, bool], None]
 
 
 @dataclass(frozen=True)
@@ -148,6 +172,8 @@ class CommandJoint:
     # came), the reference of the next one while its position stream runs.
     last_target: list[tuple[float, float]] = field(default_factory=list)
     clock: Callable[[], float] = time.monotonic
+    # The refusal count of the node that drives the joint (None: the topic's own).
+    counts: RefusalCounts | None = None
 
     def stream(self, kind: str) -> CommandStream | None:
         return self.position if kind == POSITION else self.velocity
@@ -165,6 +191,16 @@ class Planned:
     value: float  # in the guard's units
     si: float  # as the message gave it
     kind: str
+    near: bool = False  # a position target within unlock_tolerance of where the joint is
+
+
+class Plan(list[Planned]):
+    """``plan``'s values to offer, and ``refused``: the joints whose own node refused
+    their values (its gate), each with its ``Refused``; the rest of the message applies."""
+
+    def __init__(self, planned: Sequence[Planned] = ()) -> None:
+        super().__init__(planned)
+        self.refused: list[tuple[CommandJoint, Refused]] = []
 
 
 def gate_of(
@@ -193,9 +229,9 @@ def plan(
     positions: Sequence[float],
     velocities: Sequence[float],
     efforts: Sequence[float] = (),
-) -> list[Planned]:
+) -> Plan:
     """Check a whole message (see the module's text); raises ``Refused``, else the values
-    to offer, in the message's order."""
+    to offer, in the message's order (and the joints refused by their own node)."""
     names = list(names)
     count = len(names)
     if count == 0:
@@ -237,17 +273,21 @@ def plan(
             NOT_TAKEN, f"joint_commands: {listed(refused, 'joints')} take no {kind} commands"
         )
     floats = [float(v) for v in values]
-    stops = kind == VELOCITY and all(v == 0.0 for v in floats)
-    if not stops:
-        for joint in named:
-            closed = joint.gate()
-            if closed is not None:
-                raise Refused(closed[0], f"joint_commands refused: {closed[1]}")
     bad = [f"{j.name} {v}" for j, v in zip(named, floats, strict=True) if not math.isfinite(v)]
     if bad:
         raise Refused(NOT_FINITE, f"joint_commands: {listed(bad, 'values')} is not a finite {kind}")
-    planned: list[Planned] = []
+    planned = Plan()
+    gated: list[tuple[CommandJoint, float]] = []
     for joint, value in zip(named, floats, strict=True):
+        closed = None if kind == VELOCITY and value == 0.0 else joint.gate()
+        if closed is None:
+            gated.append((joint, value))
+        else:
+            gate_refusal = Refused(closed[0], f"joint_commands refused: {closed[1]}")
+            planned.refused.append((joint, gate_refusal))
+    if not gated:
+        raise planned.refused[0][1]
+    for joint, value in gated:
         stream = joint.stream(kind)
         assert stream is not None
         try:
@@ -271,8 +311,28 @@ def plan(
                 f"joint_commands: {joint.name} still moves under {_other_kind(kind)} "
                 f"commands: {how} before {kind} ones",
             )
-        planned.append(Planned(joint, stream, converted, value, kind))
+        planned.append(Planned(joint, stream, converted, value, kind, _near(joint, value, kind)))
     return planned
+
+
+def _near(joint: CommandJoint, target: float, kind: str) -> bool:
+    """A position target within ``unlock_tolerance`` of the joint's newest published
+    position: it may unlock a stopped stream (``StreamGuard.settles``)."""
+    if kind != POSITION:
+        return False
+    here = joint.here()
+    if here is None or not math.isfinite(here):
+        return False
+    return abs(target - here) <= unlock_tolerance(joint.max_jump())
+
+
+def refused_arrival(joints: Sequence[CommandJoint]) -> None:
+    """Values for ``joints`` arrived and were refused: each of their streams heard them
+    (``StreamGuard.hear``), so a stopped stream never takes them for silence."""
+    for joint in joints:
+        for stream in (joint.position, joint.velocity):
+            if stream is not None:
+                stream.guard.hear(stream.key)
 
 
 def _check_jump(joint: CommandJoint, target: float) -> None:
@@ -314,7 +374,7 @@ def apply(planned: Sequence[Planned]) -> None:
     for item in planned:
         if item.kind == POSITION:
             item.joint.last_target[:] = [(item.si, item.joint.clock())]
-        item.joint.offer(item.stream.guard, item.stream.key, item.value)
+        item.joint.offer(item.stream.guard, item.stream.key, item.value, item.near)
 
 
 class RefusalCounts:
@@ -371,6 +431,7 @@ __all__ = [
     "CommandStream",
     "Gate",
     "Offer",
+    "Plan",
     "Planned",
     "RefusalCounts",
     "Refused",
@@ -378,4 +439,7 @@ __all__ = [
     "gate_of",
     "message_fields",
     "plan",
+    "refused_arrival",
+    "UNLOCK_SHARE",
+    "unlock_tolerance",
 ]

@@ -10,10 +10,17 @@ MOTEC ``~/cmd_velocity``. Each stream key (a motor number, a drive) has the same
   bus can carry); a 0 is ready at once;
 - 0 stops (once: further 0s write nothing until something moves again; see
   ``stop_when_idle`` for a 0 to a stream that commanded nothing);
-- after a stop by a service or an e-stop the stream is *locked*: non-zero commands are
-  refused until a 0 arrives or the stream was silent for ``timeout_s`` (a command that
-  arrives after that much silence is applied at once, whether or not the deadman's pass
-  already unlocked the stream: the rule never depends on a timer's turn);
+- after a halt (``stop_all``), a stop by a service or an e-stop the stream is *locked*;
+  it moves again only on a value that cannot surprise (``settles``), never because it
+  fell silent, nor because messages were refused meanwhile (issue 40): a jog / velocity
+  stream on a 0; a position stream on a target ``near`` where the joint stands (judged by
+  the caller, ``joint_commands``: within its unlock tolerance of the newest published
+  position) that the controller *holds* (it repeats the stream's previous arrival) or
+  that comes after ``timeout_s`` of silence (a new trajectory, not one that ran on
+  through the stop). Arrivals the node refused before the guard count as arrivals
+  (``hear``): a controller that published through a deactivate was never silent. The
+  unlock is decided on arrival and sticks until the writer takes a value (values that
+  coalesce keep it); a lock that comes later voids it;
 - a write that failed on the link leaves a *stop pending*: the motor may be running, so
   the deadman keeps sending the stop until one is acknowledged;
 - the deadman stops any stream that was silent for ``timeout_s``, counted from the
@@ -25,11 +32,12 @@ MOTEC ``~/cmd_velocity``. Each stream key (a motor number, a drive) has the same
   write: a write already queued when the node stopped accepting commands is refused.
 
 A position stream (``joint_commands``, issue 25) is a guard with ``zero_stops=False``: every
-value is a target, 0 included; only the deadman, a halt or a stop service stops it, and only
-silence unlocks it. It ``follow``s the joint's velocity guard: one lock for both, and every
-takeover of the velocity stream (a stop service, an e-stop, a mode change) is the position
-stream's too. A ``send`` that cannot go yet (the device still runs the stream's previous
-target) raises ``Deferred``: nothing was written and the value waits for the next pass.
+value is a target, 0 included; only the deadman, a halt or a stop service stops it, and a
+target held where the joint stands (above) unlocks it. It ``follow``s the joint's velocity
+guard: one lock for both, and every takeover of the velocity stream (a stop service, an
+e-stop, a mode change) is the position stream's too. A ``send`` that cannot go yet (the
+device still runs the stream's previous target) raises ``Deferred``: nothing was written
+and the value waits for the next pass.
 
 The guard knows no device: ``send(key, value, previous)`` writes a non-zero speed (the
 previous one commanded, or ``None`` when unknown, e.g. after a lost write or a
@@ -73,10 +81,12 @@ class StreamState:
 
     value: float | None = None  # last non-zero value written (None: unknown / not moving)
     active: bool = False  # a non-zero command is in force (or may be: see stop_pending)
-    locked: bool = False  # stopped by a service: refuse motion until 0 or silence
-    # The offered value arrived after timeout_s of silence and no lock came since: it
-    # unlocks the stream (the silence rule, applied on arrival, not at the deadman's pass).
-    fresh: bool = False
+    locked: bool = False  # stopped by a halt or a service: refuse motion until it settles
+    # A value that settles the stream (``StreamGuard.settles``) arrived and no lock came
+    # since: the writer's next ``command`` unlocks the stream (decided on arrival).
+    settled: bool = False
+    heard: float | None = None  # clock() of the last arrival, refused ones included
+    arrived: float | None = None  # the value of the last arrival offered (None: refused)
     stop_pending: bool = False  # a stop is on the wire or was lost: until one is acknowledged
     stop_sent: bool = False  # a stop was acknowledged since the last motion
     last_seen: float | None = None  # clock() of the last command received
@@ -99,9 +109,9 @@ class StreamState:
         return self.last_seen is None or now - self.last_seen > timeout_s
 
     def set_locked(self) -> None:
-        """Refuse motion until a 0 or silence; a value that arrived before the lock cannot
-        undo it (``fresh`` is void)."""
-        self.locked, self.fresh = True, False
+        """Refuse motion until a value settles it; a value that arrived before the lock
+        cannot undo it (``settled`` is void)."""
+        self.locked, self.settled = True, False
 
 
 def _locked(method: Callable[..., Result]) -> Callable[..., Result]:
@@ -179,19 +189,42 @@ class StreamGuard(Generic[Key]):
             raise CommandRejected(f"no stream {key!r}") from None
 
     # ------------------------------------------------------------ commands
-    def offer(self, key: Key, value: float) -> bool:
-        """A command arrived: it replaces any value of the stream not yet applied, and the
-        deadman counts from now. True when it may be applied at once (wake the writer);
-        False when it waits for the rate limit or repeats the value in force (the
-        writer's periodic pass takes it)."""
+    def settles(self, stream: StreamState, value: float, near: bool, now: float) -> bool:
+        """The one rule of a locked stream (call under ``_inbox_lock``, before the arrival
+        is recorded): ``value`` cannot surprise. A jog / velocity stream: a 0. A position
+        stream: a target ``near`` where the joint stands that the controller holds (the
+        same as the stream's previous arrival) or that starts anew after ``timeout_s``
+        of silence (arrivals refused before the guard count: ``hear``)."""
+        if self.zero_stops:
+            return value == 0
+        held = stream.arrived is not None and value == stream.arrived
+        quiet = stream.heard is None or now - stream.heard > self.timeout_s
+        return near and (held or quiet)
+
+    def hear(self, key: Key) -> None:
+        """A command for the stream arrived and was refused before the guard (the node
+        inactive, read_only, the link down, a bad message): not silence, and not a value
+        the next one repeats."""
         stream = self[key]
         now = self._clock()
         with self._inbox_lock:
-            silent = stream.silent(now, self.timeout_s)
-            # Values that coalesce keep the first one's silence: one new press of a joystick.
-            stream.fresh = silent or (stream.offered is not None and stream.fresh)
+            stream.heard, stream.arrived = now, None
+
+    def offer(self, key: Key, value: float, *, near: bool = False) -> bool:
+        """A command arrived: it replaces any value of the stream not yet applied, and the
+        deadman counts from now. ``near``: a position target within the unlock tolerance
+        of where the joint stands (``settles``). True when it may be applied at once (wake
+        the writer); False when it waits for the rate limit or repeats the value in force
+        (the writer's periodic pass takes it)."""
+        stream = self[key]
+        now = self._clock()
+        with self._inbox_lock:
+            settles = self.settles(stream, value, near, now)
+            # Values that coalesce keep an unlock that came before them (not yet taken).
+            stream.settled = settles or (stream.offered is not None and stream.settled)
             stream.offered = value
-            stream.last_seen = now
+            stream.last_seen = stream.heard = now
+            stream.arrived = value
             repeat = (
                 stream.active
                 and not stream.stop_pending
@@ -226,20 +259,21 @@ class StreamGuard(Generic[Key]):
     def command(self, key: Key, value: float, *, refuse_reason: str = "") -> bool:
         """Apply the newest command of a stream; True if anything was written."""
         stream = self[key]
-        fresh, stream.fresh = stream.fresh, False
+        settled, stream.settled = stream.settled, False
         if self._is_stop(value):
             stream.locked = False
             if not stream.may_move and (stream.stop_sent or not self.stop_when_idle):
                 return False
             self.stop(key)
             return True
-        if stream.locked and fresh:
-            stream.locked = False  # it came after timeout_s of silence (see ``offer``)
+        if stream.locked and settled:
+            stream.locked = False  # a value that cannot surprise arrived (``settles``)
         if stream.locked:
             unlock = (
-                "send 0 (or nothing for the command timeout)"
+                "send 0"
                 if self.zero_stops
-                else "send nothing for the command timeout"
+                else "hold a target where the joint stands (or send one after "
+                "command_timeout_s of silence)"
             )
             raise CommandRejected(
                 refuse_reason or f"the motion was stopped: {unlock} before commanding it again"
@@ -279,7 +313,7 @@ class StreamGuard(Generic[Key]):
 
     def _stop_one(self, key: Key) -> None:
         # The lock is left as it is: a stop sent again after a stop service failed keeps
-        # the stream locked (a 0 unlocks in ``command``, silence in ``expire``).
+        # the stream locked (only a value that settles it unlocks it, in ``command``).
         stream = self[key]
         # Pending from the first attempt on (not only once it failed): a reconnect that
         # looks for pending stops while this one is on the wire waits for it, then tries.
@@ -296,7 +330,7 @@ class StreamGuard(Generic[Key]):
         """Another command (a service, an e-stop, a mode change) now owns the motion.
 
         The stream forgets what it commanded, so its next command is sent whole; with
-        ``locked`` (a stop) motion commands are refused until 0 or silence.
+        ``locked`` (a stop) motion commands are refused until a value settles it.
         """
         stream = self[key]
         stream.value, stream.active, stream.stop_sent = None, False, False
@@ -311,8 +345,8 @@ class StreamGuard(Generic[Key]):
     @_locked
     def hold(self, key: Key) -> None:
         """Another command stopped the device without writing this stream's own register
-        (a stop coil, a stop of other registers): motion commands are refused until 0 or
-        silence, and what the stream commanded is kept (it may still be moving: a 0, the
+        (a stop coil, a stop of other registers): motion commands are refused until a value
+        settles it, and what the stream commanded is kept (it may still be moving: a 0, the
         deadman or the stop after a refused command still sends its own stop)."""
         self[key].set_locked()
         for follower in self._following(key):
@@ -345,12 +379,12 @@ class StreamGuard(Generic[Key]):
     @_locked
     def due(self) -> list[Key]:
         """Streams the deadman must act on: a stop pending (again once ``STOP_RETRY_GAP_S``
-        passed since the last try ended, until one is acknowledged), or moving (or locked)
-        and silent for timeout_s."""
+        passed since the last try ended, until one is acknowledged), or moving and silent
+        for timeout_s."""
         now = self._clock()
         due: list[Key] = []
         for key, stream in self.streams.items():
-            if not (stream.may_move or stream.locked):
+            if not stream.may_move:
                 continue
             if stream.stop_pending:
                 if now - stream.last_stop_try >= STOP_RETRY_GAP_S:
@@ -365,9 +399,10 @@ class StreamGuard(Generic[Key]):
 
     @_locked
     def expire(self, key: Key) -> bool:
-        """The deadman for one stream ``due``: stop it if it may move; unlock it once it is
-        silent ("until a 0 or silence"). A stop only pending (commands still coming) is sent
-        again and the lock kept, so a joystick still held cannot restart the motor.
+        """The deadman for one stream ``due``: stop it if it may move. A lock is kept:
+        silence never unlocks a stream (issue 40: messages the node refused while inactive
+        looked like silence, and a controller that kept publishing restarted the motor).
+        A stop only pending (commands still coming) is sent again.
 
         A silent stream's value still offered (held back by the rate limit, or ``Deferred``)
         is dropped: it is older than ``timeout_s`` and must not restart the motor after the
@@ -377,7 +412,6 @@ class StreamGuard(Generic[Key]):
         """
         stream = self[key]
         if stream.silent(self._clock(), self.timeout_s):
-            stream.locked = False
             with self._inbox_lock:
                 if not self._is_stop(stream.offered):
                     stream.offered = None
@@ -387,8 +421,8 @@ class StreamGuard(Generic[Key]):
 
     def idle(self) -> bool:
         """Nothing for the writer or the deadman: no value offered, no stream that may
-        move (a stop pending counts). A stream that is only locked is idle: a command
-        after timeout_s of silence unlocks it on arrival (``offer``)."""
+        move (a stop pending counts). A stream that is only locked is idle: only an
+        arrival unlocks it (``offer``)."""
         with self._inbox_lock:
             return all(s.offered is None and not s.may_move for s in self.streams.values())
 
@@ -397,8 +431,8 @@ class StreamGuard(Generic[Key]):
 
     @_locked
     def halt(self) -> None:
-        """Every stream locked (until a 0 or ``timeout_s`` of silence) and every offered
-        non-zero value dropped; an offered 0 is kept (it is a stop someone asked for)."""
+        """Every stream locked (until a value settles it) and every offered non-zero value
+        dropped; an offered 0 is kept (it is a stop someone asked for)."""
         with self._inbox_lock:
             for stream in self.streams.values():
                 if not self._is_stop(stream.offered):
@@ -410,7 +444,7 @@ class StreamGuard(Generic[Key]):
         """Stop every stream that may move; every stop is tried. Returns the failures.
 
         First every offered non-zero value is dropped and every stream locked
-        (``halt``: until a 0 or ``timeout_s`` of silence, as after a service stop): a value
+        (``halt``: until a value settles it, as after a service stop): a value
         offered before the halt is never written after it, and a joystick still held when
         the node comes back cannot restart the motor. ``after_stop`` runs once, after all
         of them (also when none was moving).

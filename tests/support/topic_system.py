@@ -6,14 +6,17 @@ docs/ros2_control.md): ``read()`` takes the newest ``JointState`` of its state t
 |position state - position command| over all its joints and publishes nothing while the sum
 is at most ``trigger_joint_command_threshold``; else one ``JointState`` with every joint's
 name and, per joint, its position or velocity command (depth-1 publisher). Commands and
-states start at 0 (no ``initial_value``). ``run`` plays a trajectory at ``rate_hz`` (100,
-the usual controller manager rate) as a controller would write it into the command
-interfaces.
+states start at 0 (no ``initial_value``), as in the 0.2.x releases; with
+``nan_until_claimed`` the commands start as NaN, as in the 1.x releases (docs/ros2_control.md,
+"The interface's releases"), and the NaN difference publishes them every cycle. ``run``
+plays a trajectory at ``rate_hz`` (100, the usual controller manager rate) as a controller
+would write it into the command interfaces.
 """
 
 from __future__ import annotations
 
 import itertools
+import math
 import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -55,12 +58,13 @@ class TopicSystem:
     state_velocity: dict[str, float] = field(default_factory=dict)
     command: dict[str, float] = field(default_factory=dict)
     sent: list[Sent] = field(default_factory=list)
+    nan_until_claimed: bool = False
 
     def __post_init__(self) -> None:
         for name in self.joints:
             self.state_position.setdefault(name, 0.0)
             self.state_velocity.setdefault(name, 0.0)
-            self.command.setdefault(name, 0.0)
+            self.command.setdefault(name, math.nan if self.nan_until_claimed else 0.0)
         self._latest: Any = None
         self.seen: set[str] = set()  # joints any state message named
         self._lock = threading.Lock()
@@ -127,16 +131,17 @@ class TopicSystem:
         trajectory: Callable[[float], Mapping[str, float]],
         duration_s: float,
         rate_hz: float = CONTROL_RATE_HZ,
+        until: threading.Event | None = None,
     ) -> float:
-        """Cycles of read, command = ``trajectory(t)``, write for ``duration_s``; returns
-        the wall-clock time of the first cycle (t = 0)."""
+        """Cycles of read, command = ``trajectory(t)``, write for ``duration_s`` (or until
+        ``until`` is set); returns the wall-clock time of the first cycle (t = 0)."""
         period = 1.0 / rate_hz
         start = time.monotonic()
         wall = time.time()
         cycle = 0
         while True:
             t = time.monotonic() - start
-            if t > duration_s:
+            if t > duration_s or (until is not None and until.is_set()):
                 return wall
             self.read()
             self.command.update(trajectory(t))

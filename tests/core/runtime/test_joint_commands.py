@@ -40,13 +40,15 @@ class Node:
     offered: list[tuple[Hashable, float]] = field(default_factory=list)
     here: dict[str, float | None] = field(default_factory=dict)
     max_jump: float = 0.5
+    near: list[bool] = field(default_factory=list)
 
     def gate(self) -> tuple[str, str] | None:
         return self.closed
 
-    def offer(self, guard: StreamGuard[Any], key: Hashable, value: float) -> None:
+    def offer(self, guard: StreamGuard[Any], key: Hashable, value: float, near: bool) -> None:
         self.offered.append((key, value))
-        guard.offer(key, value)
+        self.near.append(near)
+        guard.offer(key, value, near=near)
 
 
 def guard(zero_stops: bool = True) -> StreamGuard[str]:
@@ -144,10 +146,68 @@ def test_one_joint_out_of_limits_refuses_the_others_too() -> None:
 def test_a_closed_node_refuses_all_but_stops(kind: str) -> None:
     node = Node(closed=(kind, "the reason"))
     refused(kind, node, ["a"], [0.1], [])
-    refused(kind, node, ["a", "b"], [], [0.0, 0.1])
+    refused(kind, node, ["a", "b"], [], [0.1, 0.1])
     made, velocity, _ = joints(node)
     apply(plan(made, ["a", "b"], [], [0.0, 0.0]))  # a stop always goes
     assert velocity["a"].offered == 0.0 and velocity["b"].offered == 0.0
+    velocity.take("a"), velocity.take("b")
+    mixed = plan(made, ["a", "b"], [], [0.0, 0.1])  # the stop goes, the motion does not
+    assert [(p.joint.name, p.value) for p in mixed] == [("a", 0.0)]
+    assert [(j.name, r.kind) for j, r in mixed.refused] == [("b", kind)]
+
+
+def test_each_joint_is_judged_by_its_own_node() -> None:
+    """Issue 40 (MOTEC): one topic for joints of several nodes; a node that is inactive
+    refuses its own joints' values only, the others apply; refused whole only when every
+    joint named is refused."""
+    open_node, closed_node = Node(), Node(closed=(jc.INACTIVE, "motec_1 is not active"))
+    made, velocity, _ = joints(open_node)
+    made["a"] = CommandJoint(
+        "a", None, CommandStream(velocity, "a", convert), closed_node.gate, closed_node.offer
+    )
+    mixed = plan(made, ["a", "b"], [], [0.5, 0.5])
+    assert [p.joint.name for p in mixed] == ["b"]
+    assert [(j.name, r.kind) for j, r in mixed.refused] == [("a", jc.INACTIVE)]
+    refused(jc.INACTIVE, closed_node, ["a"], [], [0.5], made=made)
+
+
+def test_nan_is_refused_whole_before_any_gate() -> None:
+    """The plugin's 1.x releases publish NaN until a controller claims the joints: refused
+    as not finite, nothing offered (also while the node is inactive)."""
+    refused(jc.NOT_FINITE, Node(), ["a", "b"], [math.nan, math.nan], [])
+    refused(jc.NOT_FINITE, Node(closed=(jc.INACTIVE, "x")), ["a"], [], [math.nan])
+
+
+def test_a_target_where_the_joint_stands_is_offered_near() -> None:
+    """``near``: within 1 % of joint_command_max_jump of the newest published position (of
+    its default 0.1 when the check is off), what may unlock a stopped stream."""
+    node = Node(here={"a": 1.0, "b": 0.0}, max_jump=0.5)
+    made, _, _ = joints(node)
+    apply(plan(made, ["a", "b"], [1.004, 0.006], []))
+    assert node.near == [True, False]
+    node.max_jump = 0.0  # no jump check: the unlock tolerance is the default's
+    made, _, _ = joints(node)
+    apply(plan(made, ["a", "b"], [1.004, 0.0009], []))
+    assert node.near[2:] == [False, True]
+    assert jc.unlock_tolerance(0.0) == pytest.approx(0.001)
+    assert jc.unlock_tolerance(0.3) == pytest.approx(0.003)
+
+
+def test_refused_values_are_arrivals_for_the_lock_rule() -> None:
+    """A stopped position stream does not take refused messages for silence (issue 40:
+    a controller publishing through a deactivate restarted the motor on activation)."""
+    node = Node(here={"a": 1.0}, max_jump=0.5)
+    made, _, position = joints(node)
+    clock = [0.0]
+    position._clock = lambda: clock[0]
+    position.stop_all()  # the halt
+    clock[0] = 1.0
+    jc.refused_arrival([made["a"]])  # refused while inactive
+    apply(plan(made, ["a"], [1.0], []))  # the first after activation: not after silence
+    with pytest.raises(CommandRejected, match="stopped"):
+        position.command("a", position.take("a") or 0.0)
+    apply(plan(made, ["a"], [1.0], []))  # held where the joint stands: unlocks
+    assert position.command("a", position.take("a") or 0.0)
 
 
 def test_a_target_far_from_where_the_joint_is_is_refused() -> None:

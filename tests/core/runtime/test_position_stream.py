@@ -92,18 +92,50 @@ def test_a_halt_drops_an_offered_zero_target() -> None:
     assert target.log[-1] == ("stop", 1, None) and position[1].locked
 
 
-def test_only_silence_unlocks_a_position_stream() -> None:
-    velocity, position, _, _, clock = pair()
-    position.command(1, 2.0)
+def test_a_target_held_where_the_joint_stands_unlocks_a_position_stream() -> None:
+    """Issue 40: a stopped position stream moves again only on a target ``near`` where the
+    joint stands (judged by joint_commands) that the controller holds (a repeat of the
+    previous arrival) or that comes after timeout_s of silence; never on silence alone,
+    never on a trajectory that runs on through the stop, never on a target from afar."""
+    velocity, position, _, target, clock = pair()
+    position.offer(1, 2.0, near=True)
+    position.command(1, position.take(1) or 0.0)
     velocity.taken_over(1, locked=True)  # a stop service of the motor
     assert position[1].locked and not position[1].active
     with pytest.raises(CommandRejected, match="stopped"):
         position.command(1, 0.0)  # 0 is a target: refused, does not unlock
-    position.offer(1, 1.0)
-    clock.now = 0.6
-    assert position.due() == [1]
-    assert not position.expire(1)  # silent: unlocked, nothing to stop
-    assert position.command(1, 1.0)
+    # A trajectory that runs on: every target new, near where the joint stopped.
+    for step in range(5):
+        clock.now += 0.01
+        position.offer(1, 2.01 + step * 0.01, near=True)
+    with pytest.raises(CommandRejected, match="hold a target"):
+        position.command(1, position.take(1) or 0.0)
+    clock.now += 0.6
+    assert position.due() == [] and not position.expire(1)  # silence alone: still locked
+    position.offer(1, 9.0)  # after silence, but from afar
+    clock.now += 0.01
+    position.offer(1, 9.0)  # held, but from afar
+    with pytest.raises(CommandRejected, match="stopped"):
+        position.command(1, position.take(1) or 0.0)
+    clock.now += 0.01
+    position.offer(1, 2.01, near=True)  # a new target where it stands, not yet held
+    with pytest.raises(CommandRejected, match="stopped"):
+        position.command(1, position.take(1) or 0.0)
+    clock.now += 0.01
+    position.offer(1, 2.01, near=True)  # held: the controller holds the joint there
+    assert position.command(1, position.take(1) or 0.0)
+    assert target.log[-1] == ("send", 1, 2.01)
+    velocity.taken_over(1, locked=True)
+    position.hear(1)  # refused before the guard (inactive): an arrival, not silence
+    clock.now += 0.3
+    position.hear(1)
+    clock.now += 0.3
+    position.offer(1, 2.02, near=True)
+    with pytest.raises(CommandRejected, match="stopped"):
+        position.command(1, position.take(1) or 0.0)
+    clock.now += 0.6  # a new trajectory after real silence, starting where it stands
+    position.offer(1, 2.03, near=True)
+    assert position.command(1, position.take(1) or 0.0)
 
 
 def test_the_follower_shares_the_leaders_lock_and_takeovers() -> None:

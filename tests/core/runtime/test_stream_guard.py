@@ -74,18 +74,20 @@ def test_first_zero_of_an_idle_stream_depends_on_the_device() -> None:
     assert stepper_motors.log == [("stop", 2, None, None)] and motec_motors.log == []
 
 
-def test_lock_after_a_service_stop_until_zero_or_silence() -> None:
+def test_lock_after_a_service_stop_until_a_zero_never_silence() -> None:
+    """Issue 40: silence no longer unlocks a stopped stream; only a 0 does."""
     guard, _, clock = make()
     guard.command(1, 50.0)
     guard.taken_over(1, locked=True)
-    with pytest.raises(CommandRejected, match="stopped"):
+    with pytest.raises(CommandRejected, match="send 0"):
         guard.command(1, 60.0)
     guard.offer(1, 60.0)
     clock.now += 0.6
-    assert guard.due() == [1]
-    assert not guard.expire(1)  # locked but not moving: silence only unlocks
-    assert guard.command(1, 60.0)
-    guard.taken_over(1, locked=True)
+    assert guard.due() == []  # locked, not moving: nothing for the deadman
+    clock.now += 5.0
+    guard.offer(1, 60.0)  # after long silence: still refused
+    with pytest.raises(CommandRejected, match="stopped"):
+        guard.command(1, guard.take(1) or 0.0)
     assert guard.command(1, 0.0)  # a 0 unlocks, and stops once (the service may have moved it)
     assert guard.command(1, 70.0)
 
@@ -239,37 +241,37 @@ def test_after_stop_follows_the_acknowledged_stops() -> None:
     assert guard.stop_all() == [] and after[-1] == [2]
 
 
-def test_a_command_after_silence_is_applied_without_waiting_for_the_deadman_pass() -> None:
-    """ "Locked until a 0 or timeout_s of silence" is decided on arrival: a command that
-    comes after that much silence is applied even if no deadman pass ran since the stop
-    (a test's command right after a stop service was refused when its deadman timer ran
-    late beside CPU load); a joystick still held, or a value that arrived before the
-    stop, stays refused."""
+def test_only_a_zero_that_arrived_after_the_stop_unlocks_it() -> None:
+    """The unlock is decided on arrival, never by a timer's turn: a 0 that arrived (and
+    coalesced with a newer value before the writer's pass) unlocks the stream, and the
+    newer value is applied; a 0 that arrived before the stop cannot undo it; a new press
+    after a halt and long silence is refused (issue 40: the jog topics and
+    ~/joint_commands follow one rule)."""
     guard, motors, clock = make()
     guard.hold(1)  # a stop service of the device: the stream never commanded anything
-    assert guard.offer(1, 40.0)
-    assert guard.take(1) == 40.0
-    assert guard.command(1, 40.0)
-    # Held across a stop: values keep coming, none after timeout_s of silence.
-    guard.hold(1)
-    clock.now += 0.1
-    guard.offer(1, 45.0)
+    guard.offer(1, 40.0)
     with pytest.raises(CommandRejected, match="stopped"):
         guard.command(1, guard.take(1) or 0.0)
-    # A value that arrived after silence but before the stop cannot undo the stop.
-    clock.now += 1.0
-    guard.offer(1, 50.0)
-    value = guard.take(1)
+    guard.min_interval_s = 0.1
+    clock.now += 0.2
+    guard.offer(1, 0.0)
+    guard.offer(1, 45.0)  # coalesces with the 0: the unlock stands
+    assert guard.command(1, guard.take(1) or 0.0)
+    assert motors.log[-1] == ("send", 1, 45.0, None)
+    guard.offer(1, 0.0)  # arrived before the stop, not yet taken
     guard.taken_over(1, locked=True)
+    guard.take(1)
+    clock.now += 0.2
+    guard.offer(1, 50.0)
     with pytest.raises(CommandRejected, match="stopped"):
-        guard.command(1, value or 0.0)
-    clock.now += 1.0
+        guard.command(1, guard.take(1) or 0.0)
     guard.offer(2, 5.0)
     guard.stop_all()  # the halt drops it and locks the stream
-    clock.now += 1.0
-    guard.offer(2, 6.0)  # a new press after the halt and after silence
-    assert guard.command(2, guard.take(2) or 0.0)
-    assert motors.log[-1] == ("send", 2, 6.0, None)
+    clock.now += 10.0
+    guard.offer(2, 6.0)  # a new press after the halt and after silence: refused
+    with pytest.raises(CommandRejected, match="send 0"):
+        guard.command(2, guard.take(2) or 0.0)
+    assert all(entry[1] != 2 for entry in motors.log)
 
 
 def test_stop_all_drops_offered_values_and_locks_every_stream() -> None:
@@ -289,9 +291,10 @@ def test_stop_all_drops_offered_values_and_locks_every_stream() -> None:
     assert motors.log == [("send", 1, 10.0, None), ("stop", 1, None, None)]
     guard.command(1, 0.0)  # a 0 unlocks (the motor already stands: nothing written)
     assert guard.command(1, 30.0)
-    clock.now += 1.0  # silence unlocks too (the deadman's expire)
+    clock.now += 1.0  # silence does not (issue 40), the deadman's expire neither
     guard.expire(2)
-    assert guard.command(2, 5.0)
+    with pytest.raises(CommandRejected, match="stopped"):
+        guard.command(2, 5.0)
 
 
 def test_permit_is_asked_under_the_lock_before_every_non_zero_write() -> None:
@@ -322,4 +325,4 @@ def test_idle_means_nothing_for_the_writer_or_the_deadman() -> None:
     guard.stop(1)
     assert guard.idle()
     guard.hold(2)
-    assert guard.idle()  # locked only: a command after silence unlocks it on arrival
+    assert guard.idle()  # locked only: nothing to watch, an arrival (a 0) unlocks it
