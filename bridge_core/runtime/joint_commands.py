@@ -426,6 +426,7 @@ __all__ = [
     "REFUSAL_KINDS",
     "TOPIC",
     "UNKNOWN_JOINT",
+    "UNLOCK_SHARE",
     "VELOCITY",
     "CommandJoint",
     "CommandStream",
@@ -440,6 +441,5 @@ __all__ = [
     "message_fields",
     "plan",
     "refused_arrival",
-    "UNLOCK_SHARE",
     "unlock_tolerance",
 ]
