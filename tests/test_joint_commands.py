@@ -60,6 +60,7 @@ from .support.ros import (
     wait_subscribed,
 )
 from .support.topic_system import (
+    DEFAULT_THRESHOLD,
     EVERY_CYCLE,
     Sent,
     TopicSystem,
@@ -858,6 +859,7 @@ def position_after_a_stop(
     moves: Callable[[WriteRecord], bool],
     stops: Callable[[WriteRecord], bool],
     tolerance: float,
+    threshold: float = EVERY_CYCLE,
 ) -> None:
     """Issue 40 item 2: a position system at threshold -1 ramps ``joint`` by ``distance``
     in 2 s; ``stop`` (a stop service or a halt; it returns the wall-clock time from which
@@ -867,8 +869,10 @@ def position_after_a_stop(
     goal its tolerances aborted: docs/ros2_control.md), and a new ramp of 1/4 ``distance``
     from there moves it. Each cycle samples the trajectory anew, as a controller does.
     Last, silence: the deadman's stop (``stops``) is waited for (no write of this test
-    comes during the next one)."""
-    s = system(client, rig, (joint,), "position", threshold=EVERY_CYCLE)
+    comes during the next one). At the default ``threshold`` the hold where the joint
+    stands publishes nothing: the new ramp comes after silence (held past the timeout)."""
+    s = system(client, rig, (joint,), "position", threshold=threshold)
+    hold_here_s = HOLD_HERE_S if threshold < 0 else 2 * COMMAND_TIMEOUT_S
     start = newest_position(client, rig, joint)
     now: list[Callable[[], float]] = [lambda: start]
     before = len(rig.writes())
@@ -886,7 +890,7 @@ def position_after_a_stop(
         assert restarted == [], restarted
         assert abs(start + distance - here) > distance / 8, (start, here)  # cut short
         now[0] = lambda: here  # the controller holds the joint where it stands: unlocked
-        time.sleep(HOLD_HERE_S)
+        time.sleep(hold_here_s)
         goal = here + distance / 4
         t1 = time.monotonic()
         again = ramp(here, [(1.0, goal)])
@@ -1013,7 +1017,8 @@ def drive_counts(client: Client, node: str, since: float) -> dict[str, int]:
 def test_modbus_a_controller_through_a_halt(client: Client, axes: Rig) -> None:
     """Issue 40 items 1 and 2 on modbus_bridge: the spindle does not restart after a
     deactivate while the controller publishes; the lift's position stream stays stopped
-    after a halt while its trajectory runs on, and moves again on a hold where it stands."""
+    after a halt while its trajectory runs on, and moves again on a hold where it stands
+    (threshold -1) or on a new ramp from there after silence (the default threshold)."""
     node = f"{axes.bridge.ns}/modbus_bridge"
     spindle = AXES_MAP["spindle_setpoint"].address
     velocity_through_a_halt(
@@ -1034,6 +1039,19 @@ def test_modbus_a_controller_through_a_halt(client: Client, axes: Rig) -> None:
         lambda r: r.address == lift,
         lambda r: r.address == lift,
         AXES_STEP_M * 1.01,
+    )
+    # The default threshold (the interface silent while the joint sits on its command):
+    # the new trajectory after silence unlocks it.
+    position_after_a_stop(
+        client,
+        axes,
+        "lift",
+        -0.02,
+        lambda: halt(client, node),
+        lambda r: r.address == lift,
+        lambda r: r.address == lift,
+        AXES_STEP_M * 1.01,
+        threshold=DEFAULT_THRESHOLD,
     )
 
 
