@@ -188,12 +188,14 @@ class StreamHost:
             if value is None:
                 continue
             a_stop = guard.zero_stops and value == 0
-            # A 0 is a stop: it always goes (inactive, read_only, link down), as the deadman's.
+            # A 0 is a stop: it always goes (inactive, link down), as the deadman's; under
+            # read_only only when the stream may move (its own motion: read_only writes
+            # nothing else, not even a stepper's stop coil for an idle stream).
             ok, message, wrote = self.node.run_command(
                 what(key, value),
                 functools.partial(_apply, guard, key, value, convert),
                 stop=a_stop,
-                own_motion=a_stop,
+                own_motion=a_stop and guard[key].may_move,
             )
             if not ok:
                 self._refused(guard, key, message, stopping)

@@ -430,6 +430,10 @@ def test_contract_halts_against_an_ignored_stop(
     def start_all(b: Bridge) -> tuple[Any, Any]:
         ok(b, Trigger, "motor_1/forward")
         jog = jog_publisher(client, b, 2)
+        # The halt and stop before locked the jog: a 0 unlocks it (silence never does,
+        # issue 40); taken before the next message (a depth-1 subscription).
+        jog.publish(Float64(data=0.0))
+        time.sleep(0.3)
         jog.publish(Float64(data=600.0))
         goal = b.send_goal(StepperMoveBy, "motor_3/move_by", distance=200 * MM)
         for motor in (1, 2, 3):
