@@ -173,9 +173,11 @@ def test_the_wait_ends_at_the_threads_word_while_it_still_runs() -> None:
 # same Ctrl-C must count the process as exiting (issue 40).
 SIGNAL_PENDING = """
 import os, signal
+# Blocked before the import: the threads rclpy's import starts inherit the mask (one that
+# did not would take the signal).
+signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
 from bridge_core.ros.process import _exit_signal_pending
 before = _exit_signal_pending()
-signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
 os.kill(os.getpid(), signal.SIGINT)
 print(before, _exit_signal_pending())
 """
