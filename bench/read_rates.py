@@ -477,9 +477,9 @@ def node_point(
     profile = opts.profile
     sim_proc, port = bridge_bench.start_sim_process(procs, profile, opts.sim_extra)
     try:
-        # The node's transactions per poll: its fast group (the slow group's requests,
-        # once a second, count as a fraction of a poll more).
-        fast, _slow = device_groups(name, port)
+        # The node's read plan: its device's rate groups (the node's polls are its
+        # transactions less the slow group's, over the fast group's requests).
+        plan = bridge_bench.device_plan(profile, port)
         argv = bridge_bench.node_argv(profile, port, NODE_RATE_HZ)
         with procs.running(f"read_rates_{name}_{round_trip_ms:g}ms_n{window}", argv) as proc:
             node = bridge_bench.measure_node(
@@ -488,7 +488,7 @@ def node_point(
                 package=profile.package,
                 duration=opts.duration,
                 warmup=opts.warmup,
-                requests_per_cycle=len(fast),
+                plan=plan,
                 sim_pid=sim_proc.pid,
                 subscribe_joint_states=False,
             )
