@@ -65,7 +65,8 @@ from bench.line_relay import (  # noqa: E402
     silence_violations,
     transactions,
 )
-from bridge_core.sim.sim_base import SimulatedDevice, Simulator  # noqa: E402
+from bridge_core.sim.serving import Simulator  # noqa: E402
+from bridge_core.sim.sim_base import SimulatedDevice  # noqa: E402
 from bridge_core.wire.channel import DeviceChannel  # noqa: E402
 from bridge_core.wire.errors import LinkError  # noqa: E402
 from bridge_core.wire.registers import (  # noqa: E402

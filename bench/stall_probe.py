@@ -33,7 +33,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from bridge_core.sim.sim_base import PtyPair  # noqa: E402
+from bridge_core.sim.pty_pair import PtyPair  # noqa: E402
 
 SLEEP_S = 0.010  # the sleeping probe's nap
 ECHO_PERIOD_S = 0.020  # one echoed byte per period on the pty and TCP probes

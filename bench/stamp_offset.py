@@ -29,7 +29,8 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from bridge_core.runtime.poller import Poller, PollOutcome
-from bridge_core.sim.sim_base import SimulatedDevice, Simulator
+from bridge_core.sim.serving import Simulator
+from bridge_core.sim.sim_base import SimulatedDevice
 from bridge_core.wire.channel import DeviceChannel
 from bridge_core.wire.registers import RegisterMap
 from bridge_core.wire.transport import ModbusLink, TcpSettings

@@ -126,7 +126,7 @@ TARGETS = {
 
 def stream_writes(write_log: Path, unit_id: int) -> list[Any]:
     """The simulator's accepted writes to the flooded device, from its JSON-lines log."""
-    from bridge_core.sim.sim_base import read_write_log
+    from bridge_core.sim.logs import read_write_log
 
     if not write_log.exists():
         return []

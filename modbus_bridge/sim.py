@@ -49,17 +49,14 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from bridge_core.sim.sim_base import (
-    ILLEGAL_ADDRESS,
-    ILLEGAL_VALUE,
-    SimulatedDevice,
-    Simulator,
-    WriteRecord,
-    add_log_arguments,
+from bridge_core.sim.command_line import (
     add_network_arguments,
     serve_serial_until_signalled,
     serve_tcp_until_signalled,
 )
+from bridge_core.sim.logs import WriteRecord, add_log_arguments
+from bridge_core.sim.serving import Simulator
+from bridge_core.sim.sim_base import ILLEGAL_ADDRESS, ILLEGAL_VALUE, SimulatedDevice
 from bridge_core.wire.codec import decode, encode
 from bridge_core.wire.registers import Register, Table, ValueType
 

@@ -56,17 +56,11 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import ClassVar
 
+from bridge_core.sim.command_line import add_serial_arguments, serve_serial_until_signalled
+from bridge_core.sim.logs import WriteRecord
 from bridge_core.sim.personality import add_delay_argument, add_ignore_argument
-from bridge_core.sim.sim_base import (
-    ILLEGAL_ADDRESS,
-    ILLEGAL_VALUE,
-    TICK_S,
-    SimulatedDevice,
-    Simulator,
-    WriteRecord,
-    add_serial_arguments,
-    serve_serial_until_signalled,
-)
+from bridge_core.sim.serving import TICK_S, Simulator
+from bridge_core.sim.sim_base import ILLEGAL_ADDRESS, ILLEGAL_VALUE, SimulatedDevice
 from bridge_core.wire.codec import decode
 from bridge_core.wire.registers import Table
 

@@ -27,18 +27,16 @@ import math
 from collections.abc import Mapping, Sequence
 from typing import ClassVar
 
+from bridge_core.sim.command_line import add_tcp_arguments, serve_tcp_until_signalled
+from bridge_core.sim.logs import ReadRecord, WriteRecord
 from bridge_core.sim.personality import add_ignore_argument
+from bridge_core.sim.serving import Simulator
 from bridge_core.sim.sim_base import (
     FUNCTION_TABLES,
     ILLEGAL_ADDRESS,
     ILLEGAL_FUNCTION,
     ILLEGAL_VALUE,
-    ReadRecord,
     SimulatedDevice,
-    Simulator,
-    WriteRecord,
-    add_tcp_arguments,
-    serve_tcp_until_signalled,
 )
 from bridge_core.wire.codec import int_to_words, words_to_int
 from bridge_core.wire.registers import Table, WordOrder

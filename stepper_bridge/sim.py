@@ -58,15 +58,11 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
+from bridge_core.sim.command_line import add_serial_arguments, serve_serial_until_signalled
+from bridge_core.sim.logs import WriteRecord
 from bridge_core.sim.personality import add_delay_argument, add_ignore_argument
-from bridge_core.sim.sim_base import (
-    ILLEGAL_VALUE,
-    SimulatedDevice,
-    Simulator,
-    WriteRecord,
-    add_serial_arguments,
-    serve_serial_until_signalled,
-)
+from bridge_core.sim.serving import Simulator
+from bridge_core.sim.sim_base import ILLEGAL_VALUE, SimulatedDevice
 from bridge_core.wire.codec import decode
 from bridge_core.wire.registers import Table
 

@@ -33,7 +33,7 @@ from rcl_interfaces.srv import SetParameters
 from std_msgs.msg import Float64
 from std_srvs.srv import SetBool
 
-from bridge_core.sim.sim_base import WriteRecord
+from bridge_core.sim.logs import WriteRecord
 from bridge_core.wire.registers import Table
 from msg_defs.msg import MotecState, StepperState
 from msg_defs.srv import SetControlMode

@@ -31,7 +31,7 @@ from std_srvs.srv import SetBool, Trigger
 
 from bridge_core.ros.node_streams import DEADMAN_PERIOD_MAX_S
 from bridge_core.runtime import joint_commands as jc
-from bridge_core.sim.sim_base import WriteRecord
+from bridge_core.sim.logs import WriteRecord
 from bridge_core.wire.registers import Table
 from bridge_core.wire.transport import SerialSettings
 from modbus_bridge.description import load as load_description

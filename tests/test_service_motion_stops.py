@@ -27,7 +27,7 @@ from lifecycle_msgs.msg import Transition
 from lifecycle_msgs.srv import ChangeState
 from std_srvs.srv import SetBool, Trigger
 
-from bridge_core.sim.sim_base import WriteRecord
+from bridge_core.sim.logs import WriteRecord
 from bridge_core.wire.registers import Table
 from motec_bridge.sim import MotecSimDrive
 from msg_defs.msg import MotecState, R6State, StepperState, XArmState

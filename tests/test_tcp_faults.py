@@ -19,7 +19,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from std_srvs.srv import Trigger
 
 from bridge_core.ros.node_base import LINK_DOWN_LOG_PERIOD_S
-from bridge_core.sim.sim_base import read_write_log
+from bridge_core.sim.logs import read_write_log
 from bridge_core.wire.ports import free_port
 from msg_defs.msg import R6State, XArmState
 

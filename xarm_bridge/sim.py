@@ -35,16 +35,15 @@ from collections.abc import Mapping, Sequence
 from typing import ClassVar
 
 from bridge_core.runtime.units import euler_xyz_deg_to_quaternion, quaternion_to_rotation_vector_deg
+from bridge_core.sim.command_line import add_tcp_arguments, serve_tcp_until_signalled
+from bridge_core.sim.logs import WriteRecord
 from bridge_core.sim.personality import add_ignore_argument
+from bridge_core.sim.serving import Simulator
 from bridge_core.sim.sim_base import (
     ILLEGAL_ADDRESS,
     ILLEGAL_FUNCTION,
     ILLEGAL_VALUE,
     SimulatedDevice,
-    Simulator,
-    WriteRecord,
-    add_tcp_arguments,
-    serve_tcp_until_signalled,
 )
 from bridge_core.wire.registers import Table
 

@@ -6,7 +6,7 @@ request arriving meanwhile overwrites, so it loses pipelined requests. ``InOrder
 decodes every whole frame of a chunk, queues them, and answers them one after another in
 arrival order, as a device that reads its socket in order does.
 
-Two switches of ``sim_base.Simulator`` shape it, both live:
+Two switches of ``serving.Simulator`` shape it, both live:
 
 - ``round_trip_s`` (``--reply-delay-ms MIN[:MAX]``): a simulated network round trip, half
   on the way in, half on the way out, drawn per request in the range. Each direction is a
@@ -34,7 +34,7 @@ from pymodbus.server.requesthandler import ServerRequestHandler
 from pymodbus.transaction import TransactionManager
 
 if TYPE_CHECKING:
-    from .sim_base import Simulator
+    from .serving import Simulator
 
 
 class _Delayed:

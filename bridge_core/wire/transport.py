@@ -1,6 +1,6 @@
 """The transport: one pymodbus client (TCP or RTU) behind a small interface.
 
-Together with ``serial_timing`` (our RTU client) and ``sim_base`` (the simulators) this is
+Together with ``serial_timing`` (our RTU client) and ``bridge_core.sim`` (the simulators) this is
 the only module that imports pymodbus; its API moves between minor versions
 (docs/architecture.md, "pymodbus pitfalls we work around"), so the version is pinned and
 every pymodbus error is translated here into ``bridge_core.wire.errors``.

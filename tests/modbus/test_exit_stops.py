@@ -24,7 +24,7 @@ from lifecycle_msgs.msg import Transition
 from lifecycle_msgs.srv import ChangeState
 from std_srvs.srv import Trigger
 
-from bridge_core.sim.sim_base import Simulator
+from bridge_core.sim.serving import Simulator
 from bridge_core.wire.registers import Table
 from modbus_bridge.description import load
 from modbus_bridge.sim import DescribedSimDevice, make_simulator

@@ -17,7 +17,7 @@ from std_msgs.msg import Float64
 from std_srvs.srv import SetBool, Trigger
 
 from bridge_core.runtime.units import DEG
-from bridge_core.sim.sim_base import Simulator
+from bridge_core.sim.serving import Simulator
 from bridge_core.wire.registers import Table
 from modbus_bridge.description import (
     NODE_PARAMETERS,

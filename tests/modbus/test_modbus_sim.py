@@ -14,7 +14,7 @@ import pytest
 
 from bridge_core.runtime.stream_guard import StreamGuard
 from bridge_core.runtime.units import DEG
-from bridge_core.sim.sim_base import Simulator
+from bridge_core.sim.serving import Simulator
 from bridge_core.wire.channel import DeviceChannel
 from bridge_core.wire.errors import CommandRejected, DeviceException, LinkError, LinkTimeout
 from bridge_core.wire.registers import Table

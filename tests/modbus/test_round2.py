@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 
 from bench.line_relay import REQUEST, LineRelay, silence_violations
-from bridge_core.sim.sim_base import PtyPair
+from bridge_core.sim.pty_pair import PtyPair
 from bridge_core.wire.channel import DeviceChannel
 from bridge_core.wire.codec import encode
 from bridge_core.wire.errors import CommandRejected

@@ -16,7 +16,8 @@ from lifecycle_msgs.msg import Transition
 from lifecycle_msgs.srv import ChangeState
 from std_srvs.srv import Trigger
 
-from bridge_core.sim.sim_base import Simulator, WriteRecord
+from bridge_core.sim.logs import WriteRecord
+from bridge_core.sim.serving import Simulator
 from bridge_core.wire.channel import DeviceChannel
 from bridge_core.wire.transport import ModbusLink, TcpSettings
 from msg_defs.action import PointUpload, RunCycle

@@ -36,14 +36,15 @@ from rclpy.parameter import Parameter
 from std_srvs.srv import Trigger
 
 from bridge_core.runtime.goals import Outcome
-from bridge_core.sim.sim_base import Simulator
+from bridge_core.sim.serving import Simulator
 from bridge_core.wire.channel import DeviceChannel
 from bridge_core.wire.errors import DeviceException, NotConfirmed
 from bridge_core.wire.transport import ModbusLink, TcpSettings
 from msg_defs.action import RunCycle
 from msg_defs.msg import MotionOutcome, R6State
 from msg_defs.srv import ClearAlarmAndNext, SetValue
-from r6_bridge.device import R6Device, RunCycleMotion
+from r6_bridge.device import R6Device
+from r6_bridge.motions import RunCycleMotion
 from r6_bridge.registers import COMMANDS, R6_MAP, parameter_address
 from r6_bridge.sim import IGNORABLE, R6SimDevice, make_simulator
 

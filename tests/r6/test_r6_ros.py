@@ -18,7 +18,7 @@ import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from std_srvs.srv import Trigger
 
-from bridge_core.sim.sim_base import Simulator
+from bridge_core.sim.serving import Simulator
 from bridge_core.wire.ports import free_port
 from bridge_core.wire.registers import Table
 from msg_defs.msg import R6State

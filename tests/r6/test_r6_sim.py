@@ -12,14 +12,16 @@ from collections.abc import Callable, Iterator
 import pytest
 
 from bridge_core.runtime.goals import Outcome, Verdict
-from bridge_core.sim.sim_base import WriteRecord
+from bridge_core.sim.logs import WriteRecord
 from bridge_core.wire.channel import DeviceChannel
 from bridge_core.wire.errors import CommandRejected, DeviceException, NotConfirmed
 from bridge_core.wire.registers import Table
 from bridge_core.wire.transport import ModbusLink, TcpSettings
-from r6_bridge.device import PointUpload, R6Device, R6Snapshot, RunCycleMotion
+from r6_bridge.device import R6Device, R6Snapshot
+from r6_bridge.motions import RunCycleMotion
 from r6_bridge.registers import COMMANDS, MAX_AXES, NOT_OFFERED, R6_LIMITS, R6_MAP
 from r6_bridge.sim import MANUAL_VERSION, R6SimDevice, axis_speed_deg_s, make_simulator
+from r6_bridge.upload import PointUploadSteps
 
 
 @pytest.fixture
@@ -820,7 +822,7 @@ def test_an_abandoned_upload_clears_its_source(
 ) -> None:
     """Decision 25: the source does not keep a path cut short."""
     device, sim, _ = r6
-    upload = PointUpload(device, 3, 6, 0x3F, list(range(6 * 25)))  # 3 frames
+    upload = PointUploadSteps(device, 3, 6, 0x3F, list(range(6 * 25)))  # 3 frames
     upload.step()
     assert sim.points[3] == list(range(60)) and upload.result()["points_held"] == 10
     assert "cleared" in upload.abandon()

@@ -25,7 +25,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from pymodbus.framer import FramerRTU
 from std_srvs.srv import Trigger
 
-from bridge_core.sim.sim_base import end_socat
+from bridge_core.sim.pty_pair import end_socat
 from msg_defs.msg import StepperState
 from stepper_bridge.sim import StepperSimDevice, make_simulator
 

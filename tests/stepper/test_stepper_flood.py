@@ -21,7 +21,7 @@ import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from std_msgs.msg import Float64
 
-from bridge_core.sim.sim_base import WriteRecord
+from bridge_core.sim.logs import WriteRecord
 from bridge_core.wire.registers import Table
 from msg_defs.msg import StepperState
 from stepper_bridge.interface import JOG_WRITE_RATE_HZ

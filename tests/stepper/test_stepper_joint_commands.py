@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import pytest
 
-from bridge_core.sim.sim_base import Simulator
+from bridge_core.sim.serving import Simulator
 from bridge_core.wire.channel import DeviceChannel
 from bridge_core.wire.errors import CommandRejected
 from bridge_core.wire.registers import Table

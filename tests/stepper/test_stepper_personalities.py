@@ -29,7 +29,8 @@ from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
 from bench.line_relay import LineRelay
-from bridge_core.sim.sim_base import Simulator, WriteRecord
+from bridge_core.sim.logs import WriteRecord
+from bridge_core.sim.serving import Simulator
 from bridge_core.wire.channel import DeviceChannel
 from bridge_core.wire.errors import NotConfirmed
 from bridge_core.wire.registers import Table

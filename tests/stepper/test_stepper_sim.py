@@ -21,7 +21,7 @@ import serial
 from pymodbus.framer import FramerRTU
 
 from bridge_core.runtime.goals import Outcome, Verdict
-from bridge_core.sim.sim_base import Simulator
+from bridge_core.sim.serving import Simulator
 from bridge_core.wire.channel import DeviceChannel, Priority
 from bridge_core.wire.errors import CommandRejected, DeviceException, LinkError, NotConfirmed
 from bridge_core.wire.registers import Table
@@ -1003,7 +1003,7 @@ def test_homing_that_ends_off_the_home_input(rig: Rig) -> None:
 
 def test_stepper_sim_cli_on_its_own_pty(tmp_path: Path) -> None:
     """`stepper_sim --pty LINK`: socat pty pair, 9600 baud, the manual's 35 ms reply delay."""
-    from bridge_core.sim.sim_base import read_write_log
+    from bridge_core.sim.logs import read_write_log
 
     from ..support.ros import ROOT
 

@@ -20,7 +20,7 @@ from typing import Any
 
 from std_srvs.srv import Trigger
 
-from bridge_core.sim.sim_base import ReadRecord, WriteRecord, read_read_log, read_write_log
+from bridge_core.sim.logs import ReadRecord, WriteRecord, read_read_log, read_write_log
 from bridge_core.wire.ports import free_port
 from bridge_core.wire.registers import Register
 from modbus_bridge.description import load as load_description

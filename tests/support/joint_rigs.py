@@ -16,7 +16,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from bridge_core.sim.sim_base import WriteRecord
+from bridge_core.sim.logs import WriteRecord
 from msg_defs.msg import DeviceValues, MotecState, StepperState
 
 from .bridges import BRIDGES, BridgeInfo, SimProcess

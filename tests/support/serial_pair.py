@@ -8,7 +8,8 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from bridge_core.sim.sim_base import PtyPair, Simulator
+from bridge_core.sim.pty_pair import PtyPair
+from bridge_core.sim.serving import Simulator
 
 # A pty's bytes wait for the kernel's flip-buffer worker: beside the suite and two CPU
 # burners on the 2-core test machine, bench/stall_probe.py saw a byte echoed through a

@@ -27,7 +27,8 @@ from rcl_interfaces.srv import SetParameters
 from rclpy.parameter import Parameter
 from std_srvs.srv import Trigger
 
-from bridge_core.sim.sim_base import Simulator, WriteRecord
+from bridge_core.sim.logs import WriteRecord
+from bridge_core.sim.serving import Simulator
 from bridge_core.wire.channel import DeviceChannel
 from bridge_core.wire.errors import LinkTimeout, NotConfirmed
 from bridge_core.wire.ports import free_port

@@ -10,7 +10,8 @@ from collections.abc import Iterator
 import pytest
 
 from bridge_core.runtime.rate_groups import PollGroups
-from bridge_core.sim.sim_base import SimulatedDevice, Simulator
+from bridge_core.sim.serving import Simulator
+from bridge_core.sim.sim_base import SimulatedDevice
 from bridge_core.wire.channel import DeviceChannel
 from bridge_core.wire.errors import LinkError, PollIncomplete
 from bridge_core.wire.planner import plan_reads

@@ -11,7 +11,8 @@ import pytest
 
 from bridge_core.runtime.poller import Poller, PollOutcome
 from bridge_core.runtime.reads import read_blocks, read_splits
-from bridge_core.sim.sim_base import ILLEGAL_VALUE, SimulatedDevice, Simulator
+from bridge_core.sim.serving import Simulator
+from bridge_core.sim.sim_base import ILLEGAL_VALUE, SimulatedDevice
 from bridge_core.wire.channel import DeviceChannel, Priority
 from bridge_core.wire.codec import Value
 from bridge_core.wire.errors import DeviceException

@@ -14,8 +14,10 @@ import pytest
 import serial
 from pymodbus.framer import FramerRTU
 
+from bridge_core.sim.logs import WriteRecord
 from bridge_core.sim.personality import DelayRange, add_ignore_argument, delay_range_ms
-from bridge_core.sim.sim_base import SimulatedDevice, Simulator, WriteRecord
+from bridge_core.sim.serving import Simulator
+from bridge_core.sim.sim_base import SimulatedDevice
 from bridge_core.wire.registers import Access, DeviceLimits, Register, RegisterMap, Table, ValueType
 
 from ...support.serial_pair import socat_pair

@@ -6,7 +6,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from bridge_core.sim.sim_base import PtyPair, end_socat
+from bridge_core.sim.pty_pair import PtyPair, end_socat
 
 IGNORES_SIGTERM = (
     "import signal, sys, time\n"

@@ -18,7 +18,8 @@ from pymodbus.pdu.decoders import DecodePDU
 
 from bench.line_relay import LineRelay
 from bridge_core.sim.rtu_framing import RTU_MIN_FRAME, SlaveFramerRTU, slave_framer
-from bridge_core.sim.sim_base import SimulatedDevice, Simulator
+from bridge_core.sim.serving import Simulator
+from bridge_core.sim.sim_base import SimulatedDevice
 from bridge_core.sim.strict_decoding import strict_decoder
 from bridge_core.wire.registers import Access, DeviceLimits, Register, RegisterMap, ValueType
 

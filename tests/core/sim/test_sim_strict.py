@@ -19,7 +19,8 @@ import pytest
 import serial
 from pymodbus.framer import FramerRTU
 
-from bridge_core.sim.sim_base import SimulatedDevice, Simulator
+from bridge_core.sim.serving import Simulator
+from bridge_core.sim.sim_base import SimulatedDevice
 from bridge_core.wire.registers import Access, DeviceLimits, Register, RegisterMap, Table, ValueType
 
 from ...support.serial_pair import socat_pair

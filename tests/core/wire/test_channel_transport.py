@@ -15,7 +15,8 @@ from contextlib import contextmanager, suppress
 import pytest
 from pymodbus.exceptions import ModbusIOException
 
-from bridge_core.sim.sim_base import SimulatedDevice, Simulator
+from bridge_core.sim.serving import Simulator
+from bridge_core.sim.sim_base import SimulatedDevice
 from bridge_core.wire.channel import DeviceChannel, Priority, PriorityLock
 from bridge_core.wire.errors import DeviceException, FrameError, LinkDown, LinkTimeout
 from bridge_core.wire.link_stats import Backoff

@@ -14,7 +14,8 @@ from collections.abc import Callable, Iterator
 import pytest
 
 from bridge_core.runtime.poller import Poller, PollOutcome
-from bridge_core.sim.sim_base import SimulatedDevice, Simulator
+from bridge_core.sim.serving import Simulator
+from bridge_core.sim.sim_base import SimulatedDevice
 from bridge_core.wire.channel import DeviceChannel
 from bridge_core.wire.errors import LinkTimeout
 from bridge_core.wire.link_state import LinkEvent, LinkState

@@ -16,7 +16,8 @@ from contextlib import contextmanager
 import pytest
 
 from bridge_core.runtime.reads import read_plan
-from bridge_core.sim.sim_base import SimulatedDevice, Simulator
+from bridge_core.sim.serving import Simulator
+from bridge_core.sim.sim_base import SimulatedDevice
 from bridge_core.wire.channel import DeviceChannel, Priority
 from bridge_core.wire.errors import DeviceException, FrameError
 from bridge_core.wire.planner import plan_reads

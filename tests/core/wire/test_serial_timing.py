@@ -38,7 +38,8 @@ from bench.line_relay import (
     request_gaps,
     silence_violations,
 )
-from bridge_core.sim.sim_base import SimulatedDevice, Simulator
+from bridge_core.sim.serving import Simulator
+from bridge_core.sim.sim_base import SimulatedDevice
 from bridge_core.wire.channel import DeviceChannel
 from bridge_core.wire.errors import DeviceException, FrameError, LinkTimeout
 from bridge_core.wire.registers import (
