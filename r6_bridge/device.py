@@ -1,18 +1,17 @@
 """R6 device model: polls into typed snapshots, commands into checked writes.
 
 No ROS here. Every command validates all of its inputs before the first write, so a
-refused command writes nothing. "R6 decision N" is reading N of docs/decisions/r6.md.
+refused command writes nothing. The program's checks and read backs are in program.py,
+the point upload in upload.py, the action goals in motions.py. "R6 decision N" is reading
+N of docs/decisions/r6.md.
 """
 
 from __future__ import annotations
 
-import time
-from collections.abc import Hashable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
 
 from bridge_core.runtime.checks import check_whole_number
-from bridge_core.runtime.goals import Motion, Outcome, Verdict
 from bridge_core.runtime.rate_groups import SLOW_POLL_PERIOD_DEFAULT_S, PollGroups
 from bridge_core.runtime.reads import holds, read_named
 from bridge_core.wire.channel import Priority, RegisterIO
@@ -25,41 +24,44 @@ from bridge_core.wire.errors import (
     PollIncomplete,
 )
 from bridge_core.wire.planner import ReadRequest, plan_reads
-from bridge_core.wire.registers import MAX_READ_REGISTERS, MAX_WRITE_REGISTERS, WordOrder
+from bridge_core.wire.registers import MAX_READ_REGISTERS, MAX_WRITE_REGISTERS
 
+from .program import (
+    START_COMMANDS,
+    check_program_command,
+    confirm_cleared,
+    confirm_halted,
+    confirm_start,
+)
 from .registers import (
     COMMANDS,
     EU_BOARD,
     FIRST_M_BOARD,
+    HIGH,
+    I32_MAX,
+    I32_MIN,
     M_BOARDS,
     MAX_AXES,
     MAX_COUNTERS,
     MAX_IO_BOARDS,
     MAX_VERSION_BYTES,
-    MODE_NAMES,
     OUTPUT_BOARDS_ACCEPTED,
     OUTPUT_POINTS,
     PARAMETER_COUNT,
     PARAMETER_WRITE_LAST_INDEX,
-    POINT_AXIS_MASK_MAX,
-    POINT_FRAME_MAX_BYTES,
-    POINT_VALUES_PER_POINT,
     POINTS_PER_BOARD,
     R6_MAP,
     STOP_COMMANDS,
+    mode_name,
     parameter_address,
     parameter_offered,
 )
+from .upload import PointUploadSteps
 
-HIGH = WordOrder.HIGH_FIRST
 U32_MAX = 0xFFFF_FFFF
 # §3.1.3: ids past the counter count are padded with 0xFF bytes.
 COUNTER_ID_PADDING = U32_MAX
-I32_MIN, I32_MAX = -(1 << 31), (1 << 31) - 1
 COUNTER_IDS_SHOWN = 10  # ids named in a refusal of an unknown counter
-# Registers in one upload frame: the manual's 256-byte frame cap and Modbus's 123 (FC 10).
-POINT_FRAME_MAX_REGISTERS = min(POINT_FRAME_MAX_BYTES // 2, MAX_WRITE_REGISTERS)
-POINT_FRAME_HEADER_REGISTERS = 2  # 30005 point count, 30006 clear flag
 # joint_states is stamped with the read time of the block holding the axis positions,
 # ~/tcp_pose with that of the world block (read just before it), ~/state with the time the
 # blocks before those two were read (R6 decision 26).
@@ -72,71 +74,6 @@ WORLD_STAMP_REGISTER = "world_x"
 # moves by itself or is judged by a motion (alarm, moving, cycle times), or shares a
 # request with such a row; the IO board outputs stay fast: a running program switches them.
 SLOW_NAMES = frozenset({"axis_count", "global_speed"})
-MODE_AUTO = 2  # 2185: "2 自动" (decision 2)
-# The commands that set the program running (R6 decision 23): checked first.
-PROGRAM_COMMANDS = ("start", "single_cycle", "clear_alarm_and_continue", "clear_alarm_and_next")
-CLEAR_COMMANDS = ("clear_alarm_and_continue", "clear_alarm_and_next")
-# The rows those checks read fresh, at command priority (moving and the current cycle time:
-# what a start is confirmed against, and whether a program already runs).
-READINESS_ROWS = (
-    "mode",
-    "alarm_code",
-    "homed",
-    "global_speed",
-    "last_cycle_time",
-    "moving",
-    "current_cycle_time",
-)
-# The commands that set the program running from standstill, confirmed after the write.
-START_COMMANDS = ("start", "single_cycle")
-# R6 decision 29: a stop, pause or stop button is done when the controller, read back,
-# shows the program standing (2470 moving 0 and the current cycle time 2397 not counting
-# over PROGRAM_STILL_S) within HALT_CONFIRM_S of the write's acknowledgement; a start or
-# single cycle when it shows it running (moving 1, 2397 or 2401 changed) within
-# START_CONFIRM_S. Otherwise: "not confirmed", with what was written and read.
-HALT_CONFIRM_S = 1.0
-START_CONFIRM_S = 1.0
-PROGRAM_STILL_S = 0.1  # 2397 unchanged this long (moving 0): the cycle is not counting
-CONFIRM_READ_PERIOD_S = 0.02  # between two read backs while waiting
-
-
-def mode_name(mode: int) -> str:
-    return MODE_NAMES.get(mode, f"unknown({mode})")
-
-
-@dataclass(frozen=True)
-class Readiness:
-    """The rows a program start is checked against, read just before it is written."""
-
-    mode: int
-    alarm_code: int
-    homed: bool
-    global_speed_percent: float
-    last_cycle_time_ms: int
-    moving: bool = False
-    current_cycle_time_ms: int = 0
-
-
-@dataclass(frozen=True)
-class ProgramState:
-    """What a stop or start is confirmed from (R6 decision 29): 2470, 2397 and (for a
-    start) 2401, read at ``at`` (time.monotonic(), after the reply)."""
-
-    moving: bool
-    cycle_ms: int
-    last_cycle_ms: int | None
-    at: float
-
-    @property
-    def text(self) -> str:
-        last = (
-            ""
-            if self.last_cycle_ms is None
-            else f", last cycle time (2401) {self.last_cycle_ms} ms"
-        )
-        return (
-            f"moving (2470) {int(self.moving)}, current cycle time (2397) {self.cycle_ms} ms{last}"
-        )
 
 
 @dataclass(frozen=True)
@@ -426,153 +363,26 @@ class R6Device:
         if name in STOP_COMMANDS:
             self.stops += 1
 
-    def read_readiness(self) -> Readiness:
-        values = self.read_named(*READINESS_ROWS)
-        return Readiness(
-            mode=int(values["mode"]),
-            alarm_code=int(values["alarm_code"]),
-            homed=bool(values["homed"]),
-            global_speed_percent=float(values["global_speed"]),
-            last_cycle_time_ms=int(values["last_cycle_time"]),
-            moving=bool(values["moving"]),
-            current_cycle_time_ms=int(values["current_cycle_time"]),
-        )
-
-    def read_program_state(self, *, last_cycle: bool = False) -> ProgramState:
-        """2470 and 2397 (and 2401 with ``last_cycle``), at command priority."""
-        names = ("moving", "current_cycle_time", *(("last_cycle_time",) if last_cycle else ()))
-        values = self.read_named(*names)
-        return ProgramState(
-            moving=bool(values["moving"]),
-            cycle_ms=int(values["current_cycle_time"]),
-            last_cycle_ms=int(values["last_cycle_time"]) if last_cycle else None,
-            at=time.monotonic(),
-        )
-
     def halt(self, name: str) -> str:
         """stop (20000), pause (20001) or stop button (20004), done only when the
-        controller shows the program standing within HALT_CONFIRM_S (R6 decision 29):
-        moving (2470) 0 and the current cycle time (2397) not counting over
-        PROGRAM_STILL_S (a step that waits for an input shows moving 0 while its cycle
-        counts). Not shown: ``NotConfirmed`` with what was written and read."""
+        controller shows the program standing (``program.confirm_halted``, R6 decision
+        29); otherwise ``NotConfirmed`` with what was written and read."""
         if name not in STOP_COMMANDS:
             raise CommandRejected(
                 f"{name} is not a stop; stops: {', '.join(sorted(STOP_COMMANDS))}"
             )
         self.command(name)
-        wrote = f"wrote {COMMANDS[name]} = 1 ({name}), acknowledged"
-        deadline = time.monotonic() + HALT_CONFIRM_S
-        still: ProgramState | None = None  # the first read of the current standstill
-        while True:
-            try:
-                seen = self.read_program_state()
-            except LinkError as err:
-                raise NotConfirmed(f"sent ({wrote}); the read back failed: {err}") from err
-            if seen.moving:
-                still = None
-            elif still is None or seen.cycle_ms != still.cycle_ms:
-                still = seen
-            elif seen.at - still.at >= PROGRAM_STILL_S:
-                return f"{wrote}; read {seen.text}, not counting: the program stands"
-            if time.monotonic() >= deadline:
-                raise NotConfirmed(
-                    f"sent ({wrote}); read {seen.text} {HALT_CONFIRM_S:g} s after "
-                    "(HALT_CONFIRM_S): the program may still run"
-                )
-            time.sleep(CONFIRM_READ_PERIOD_S)
-
-    def confirm_start(self, name: str, before: Readiness) -> str:
-        """A start or single cycle just acknowledged: done only when the controller shows
-        the program running within START_CONFIRM_S (R6 decision 29): moving (2470) 1, or
-        the current (2397) or last (2401) cycle time changed from ``before`` (read just
-        before the write: a step that waits counts 2397 with moving 0; a cycle shorter
-        than a read back changes 2401). Not shown: ``NotConfirmed``."""
-        wrote = f"wrote {COMMANDS[name]} = 1 ({name}), acknowledged"
-        was = (
-            f"moving (2470) {int(before.moving)}, current cycle time (2397) "
-            f"{before.current_cycle_time_ms} ms, last cycle time (2401) "
-            f"{before.last_cycle_time_ms} ms"
-        )
-        deadline = time.monotonic() + START_CONFIRM_S
-        while True:
-            try:
-                seen = self.read_program_state(last_cycle=True)
-            except LinkError as err:
-                raise NotConfirmed(f"sent ({wrote}); the read back failed: {err}") from err
-            if (
-                seen.moving
-                or seen.cycle_ms != before.current_cycle_time_ms
-                or seen.last_cycle_ms != before.last_cycle_time_ms
-            ):
-                already = " (it was moving before the write)" if before.moving else ""
-                return f"{wrote}; read {seen.text}: the program runs{already}"
-            if time.monotonic() >= deadline:
-                raise NotConfirmed(
-                    f"sent ({wrote}); read {seen.text} {START_CONFIRM_S:g} s after "
-                    f"(START_CONFIRM_S); before the write: {was}: the program did not start"
-                )
-            time.sleep(CONFIRM_READ_PERIOD_S)
-
-    def check_program_command(self, name: str, *, skip_failed_step: bool = False) -> Readiness:
-        """Refuse a command that sets the program running unless the controller, read just
-        now, is in auto mode and homed, and (start, single cycle) has no alarm or (the
-        clear-alarm commands) has one to clear (R6 decision 23). 20005 skips the
-        instruction that raised the alarm: only with ``skip_failed_step``."""
-        if name not in PROGRAM_COMMANDS:
-            raise CommandRejected(f"{name} does not start the program")
-        if name == "clear_alarm_and_next" and not skip_failed_step:
-            raise CommandRejected(
-                "clear_alarm_and_next (20005) skips the instruction that raised the alarm "
-                "(e.g. a failed vacuum check): send skip_failed_step: true to mean it, or "
-                "clear_alarm_and_continue to retry that instruction"
-            )
-        ready = self.read_readiness()
-        if ready.mode != MODE_AUTO:
-            raise CommandRejected(
-                f"the controller is in {mode_name(ready.mode)} mode (2185 = {ready.mode}), "
-                "not auto: switch to auto on the pendant first"
-            )
-        if not ready.homed:
-            raise CommandRejected(
-                "the controller is not homed (2471 = 0): set every axis's origin first"
-            )
-        if name in CLEAR_COMMANDS:
-            if not ready.alarm_code:
-                raise CommandRejected("no alarm is active (2396 = 0): nothing to clear")
-        elif ready.alarm_code:
-            raise CommandRejected(
-                f"alarm {ready.alarm_code} is active and blocks the program: clear it first"
-            )
-        return ready
+        return confirm_halted(self.io, name)
 
     def run_program(self, name: str, *, skip_failed_step: bool = False) -> str:
-        """A checked 20002 / 20003 / 20005 / 20006 (``check_program_command``): refused
-        with the reason, nothing written, unless the controller is ready for it. A start
-        or single cycle is then confirmed (``confirm_start``); returns what was read."""
-        ready = self.check_program_command(name, skip_failed_step=skip_failed_step)
+        """A checked 20002 / 20003 / 20005 / 20006 (``program.check_program_command``):
+        refused with the reason, nothing written, unless the controller is ready for it.
+        Then confirmed (``confirm_start``, ``confirm_cleared``); returns what was read."""
+        ready = check_program_command(self.io, name, skip_failed_step=skip_failed_step)
         self.command(name)
         if name in START_COMMANDS:
-            return self.confirm_start(name, ready)
-        return self.confirm_cleared(name, ready)
-
-    def confirm_cleared(self, name: str, before: Readiness) -> str:
-        """20005 / 20006 just acknowledged: done only when the alarm code (2396) reads 0
-        within START_CONFIRM_S (R6 decision 29); otherwise ``NotConfirmed``."""
-        wrote = f"wrote {COMMANDS[name]} = 1 ({name}), acknowledged"
-        deadline = time.monotonic() + START_CONFIRM_S
-        while True:
-            try:
-                code = int(self.read_named("alarm_code")["alarm_code"])
-            except LinkError as err:
-                raise NotConfirmed(f"sent ({wrote}); the read back failed: {err}") from err
-            if code == 0:
-                return f"{wrote}; read alarm code (2396) 0 (was {before.alarm_code})"
-            if time.monotonic() >= deadline:
-                raise NotConfirmed(
-                    f"sent ({wrote}); read alarm code (2396) {code} {START_CONFIRM_S:g} s "
-                    "after (START_CONFIRM_S): the alarm was not cleared"
-                )
-            time.sleep(CONFIRM_READ_PERIOD_S)
+            return confirm_start(self.io, name, ready)
+        return confirm_cleared(self.io, name, ready)
 
     def set_global_speed(self, percent: float) -> None:
         """§3.2.2: one register, FC 06, 0-1000 = 0.0-100.0 %."""
@@ -744,303 +554,10 @@ class R6Device:
     def upload_points(
         self, data_source_id: int, values_per_point: int, axis_mask: int, values: Sequence[int]
     ) -> int:
-        """§3.3.5 in one go (the ``~/upload_points`` service); the number of data frames.
-
-        A frame that fails after others went out leaves the source half filled: it is
-        cleared (``PointUpload.abandon``), and the error says so, or, if the clear fails
-        too, how many points of this upload the source holds (R6 decision 25)."""
-        upload = PointUpload(self, data_source_id, values_per_point, axis_mask, values)
-        while upload.sent < upload.total:
-            try:
-                upload.step()
-            except LinkError as err:
-                if upload.sent == 0:
-                    raise
-                failed = f"frame {upload.sent + 1} of {upload.total} failed ({err})"
-                try:
-                    undone = upload.abandon()
-                except LinkError as again:
-                    undone = (
-                        f"the clear failed too ({again}): source {data_source_id} holds "
-                        f"{upload.points_held_text()}"
-                    )
-                raise NotConfirmed(f"{failed}; {undone}") from err
-        return upload.total
-
-
-# When this controller writes 2401 (R6 decision 23): seen by a run_cycle goal, None
-# until one has seen it (every reconnect forgets it: the controller may differ).
-CYCLE_TIME_AT_END = "end"
-CYCLE_TIME_AT_START = "start"
-
-POINT_DATA = "point_data"  # the axis of an upload goal: the point-data rows 30000-30006
-PROGRAM = "program"  # the axis of what runs the controller's program (run_cycle, ~/start)
-
-
-class PointUpload:
-    """§3.3.5 point data in steps: configure 30002-30004, then frames at 30005 (count,
-    clear flag, data), each one FC 10. The first frame clears the source (30006 = 1),
-    later ones append (0). Every value is checked before the first write; each ``step``
-    sends the next frame (the first also the configuration), so an action can stop
-    between frames."""
-
-    axes: frozenset[Hashable] = frozenset({POINT_DATA})
-
-    def __init__(
-        self,
-        device: R6Device,
-        data_source_id: int,
-        values_per_point: int,
-        axis_mask: int,
-        values: Sequence[int],
-    ) -> None:
-        check_whole_number("data source id", data_source_id, 0, 0xFFFF)
-        if values_per_point not in POINT_VALUES_PER_POINT:
-            raise CommandRejected(f"values_per_point must be one of {POINT_VALUES_PER_POINT}")
-        check_whole_number("axis mask", axis_mask, 0, POINT_AXIS_MASK_MAX)
-        # §4 30004: bits 0-5 = axes 1-6 of a point; a point of 4 values has no axes 5-6
-        # and a mask of 0 marks no value valid (R6 decision 25).
-        if axis_mask == 0:
-            raise CommandRejected("axis mask 0 marks no axis of a point valid")
-        if axis_mask >> values_per_point:
-            raise CommandRejected(
-                f"axis mask 0x{axis_mask:02X} names axes past the {values_per_point} values "
-                f"of a point (at most 0x{(1 << values_per_point) - 1:02X})"
-            )
-        if not values or len(values) % values_per_point:
-            raise CommandRejected(
-                f"{len(values)} values is not a whole, non-zero number of "
-                f"{values_per_point}-value points"
-            )
-        for value in values:
-            check_whole_number("point value", value, I32_MIN, I32_MAX)
-        per_frame = (POINT_FRAME_MAX_REGISTERS - POINT_FRAME_HEADER_REGISTERS) // (
-            2 * values_per_point
-        )
-        self.frames: list[list[int]] = []
-        self.frame_points: list[int] = []
-        points = [values[k : k + values_per_point] for k in range(0, len(values), values_per_point)]
-        for first in range(0, len(points), per_frame):
-            chunk = points[first : first + per_frame]
-            words = [len(chunk), 1 if first == 0 else 0]
-            for point in chunk:
-                for value in point:
-                    words += int_to_words(value, 2, True, HIGH)
-            self.frames.append(words)
-            self.frame_points.append(len(chunk))
-        self.device = device
-        self.points_held = 0  # points of this upload the source holds
-        self.setup = [data_source_id, values_per_point, axis_mask]
-        self.what = f"upload_points source {data_source_id}: {len(points)} points"
-        self.total = len(self.frames)
-        self.sent = 0
-
-    def step(self) -> None:
-        io = self.device.io
-        if self.sent == 0:
-            io.write_registers(R6_MAP["point_source_id"].address, self.setup)
-        io.write_registers(R6_MAP["point_count"].address, self.frames[self.sent])
-        self.points_held += self.frame_points[self.sent]
-        self.sent += 1
-
-    def abandon(self) -> str:
-        """An upload that will not finish: clear the source it half filled (the set-up
-        again, then a frame of 0 points with the clear flag), so the controller never
-        runs a path cut short (R6 decision 25)."""
-        io = self.device.io
-        io.write_registers(R6_MAP["point_source_id"].address, self.setup)
-        io.write_registers(R6_MAP["point_count"].address, [0, 1])
-        self.points_held = 0
-        return f"source {self.setup[0]} cleared (it held {self.points_held_text()})"
-
-    def points_held_text(self) -> str:
-        return f"{sum(self.frame_points[: self.sent])} points of this upload"
-
-    def feedback(self) -> dict[str, Any]:
-        return {"frames_sent": self.sent, "frames_total": self.total}
-
-    def result(self) -> dict[str, Any]:
-        return {**self.feedback(), "points_held": self.points_held}
-
-
-class RunCycleMotion(Motion[R6Snapshot]):
-    """``~/run_cycle``: single cycle (20002) or start (20003), followed through ``moving``
-    (2470). Checked twice: against the last poll when the goal comes (rejected), and
-    against rows read just before the command (REFUSED): auto mode, homed, no alarm, a
-    global speed above 0. An alarm (2396) ends it as FAULT. A single cycle is REACHED
-    only when the controller showed it running and then standing, and the last cycle
-    time (2401, "上模周期") proves the cycle finished under either reading of when the
-    controller writes it (R6 decision 23): it kept its value read before the start on
-    every poll that saw the cycle running and changed after, to a time no shorter than
-    the cycle was seen to run. A cycle no poll saw running is REACHED only on a controller
-    seen (by an earlier goal) to write 2401 at a cycle's end. A goal sent while the
-    program already ran is never REACHED (the cycle that ends began before it).
-    Otherwise its end is STOPPED, and so is a continuous run's (it runs until stopped).
-    Ends this goal causes (cancel, timeout, link loss, the node's halts) send pause
-    (20001), which keeps the program's step, confirmed like ``~/pause`` (decision 29).
-    Both kinds take the node's ``goal_timeout_s`` when the goal gives ``timeout_s`` 0, a
-    continuous run too: a goal whose client vanished must not keep the robot cycling
-    (decision 27)."""
-
-    axes: frozenset[Hashable] = frozenset({PROGRAM})
-    confirm_reached = True  # the result's last cycle time is read apart from `moving`
-
-    def __init__(self, device: R6Device, last: R6Snapshot | None, *, single_cycle: bool) -> None:
-        super().__init__()
-        if last is not None:
-            if last.mode != MODE_AUTO:
-                raise CommandRejected(
-                    f"the controller is in {last.mode_name} mode, not auto: switch to auto "
-                    "on the pendant first"
-                )
-            if not last.homed:
-                raise CommandRejected("the controller is not homed (2471 = 0)")
-            if last.alarm_code:
-                raise CommandRejected(
-                    f"alarm {last.alarm_code} is active and blocks the program: clear it first"
-                )
-            if last.global_speed_percent <= 0:
-                raise CommandRejected(
-                    "the global speed is 0 %: the program would not move (set_global_speed)"
-                )
-        self.device = device
-        self.single_cycle = single_cycle
-        self.command = "single_cycle" if single_cycle else "start"
-        self.what = f"run_cycle ({'single cycle' if single_cycle else 'continuous'})"
-        self.stops_at_start = device.stops
-        self.last_cycle_at_start: int | None = None
-        self.cycle_ms: int | None = None  # the current cycle time of the previous poll
-        # The current cycle time of the poll before the goal (a program counting since).
-        self.cycle_ms_before = None if last is None else last.current_cycle_time_ms
-        self.running_before = False  # the program ran when the start was written
-        self.changed_while_running: int | None = None  # 2401 as a running poll read it
-        self.unchanged_while_running = False  # a running poll read 2401 as before
-        self.longest_ms = 0  # the longest current cycle time a running poll read
-
-    def start(self) -> None:
-        ready = self.device.check_program_command(self.command)
-        if ready.global_speed_percent <= 0:
-            raise CommandRejected(
-                "the global speed is 0 %: the program would not move (set_global_speed)"
-            )
-        self.last_cycle_at_start = ready.last_cycle_time_ms
-        self.running_before = ready.moving or (
-            self.cycle_ms_before is not None and ready.current_cycle_time_ms > self.cycle_ms_before
-        )
-        self.stops_at_start = self.device.stops
-        self.device.command(self.command)
-
-    def stop(self) -> str:
-        said = self.device.halt("pause")
-        return f"pause (20001) sent: the program keeps its step ({said})"
-
-    def running(self, snapshot: R6Snapshot) -> bool:
-        """``moving``, or the current cycle time still counting: a program that waits in a
-        step (a dwell, an input) may show ``moving`` 0 while its cycle goes on."""
-        previous, self.cycle_ms = self.cycle_ms, snapshot.current_cycle_time_ms
-        counting = previous is not None and snapshot.current_cycle_time_ms > previous
-        running = snapshot.moving or counting
-        if running:
-            self.longest_ms = max(self.longest_ms, snapshot.current_cycle_time_ms)
-            if snapshot.last_cycle_time_ms != self.last_cycle_at_start:
-                if self.changed_while_running is None:
-                    self.changed_while_running = snapshot.last_cycle_time_ms
-            elif snapshot.current_cycle_time_ms > 0:
-                self.unchanged_while_running = True
-        return running
-
-    def fault(self, snapshot: R6Snapshot) -> Verdict | None:
-        code = snapshot.alarm_code
-        if not code:
-            return None
-        return Verdict(Outcome.FAULT, f"{self.what}: alarm {code}", code, f"alarm code {code}")
-
-    def ended(self, snapshot: R6Snapshot) -> Verdict:
-        last, before = snapshot.last_cycle_time_ms, self.last_cycle_at_start
-        unproven = f"{self.what}: could not prove the cycle finished"
-        if self.device.stops > self.stops_at_start:
-            return Verdict(Outcome.STOPPED, f"{self.what}: stopped by a stop or pause command")
-        read = (
-            f"read moving (2470) {int(snapshot.moving)}, current cycle time (2397) "
-            f"{snapshot.current_cycle_time_ms} ms, last cycle time (2401) {last} ms (was "
-            f"{before} ms)"
-        )
-        if not self.seen_running and last == before:
-            return Verdict(
-                Outcome.STOPPED,
-                f"{self.what}: the controller acknowledged the start but never showed moving "
-                f"(2470): the cycle did not run (wrote {COMMANDS[self.command]} = 1 "
-                f"({self.command}); {read})",
-            )
-        # Paused keeps the cycle's time (20001 resumes at the step), stopped resets it.
-        how = (
-            f"paused (current cycle time kept at {snapshot.current_cycle_time_ms} ms)"
-            if snapshot.current_cycle_time_ms
-            else "stopped or finished (current cycle time back to 0)"
-        )
-        if not self.single_cycle:
-            return Verdict(Outcome.STOPPED, f"{self.what}: the program {how}")
-        if self.running_before:
-            return Verdict(
-                Outcome.STOPPED,
-                f"{unproven}: the program was already running when the goal came, so the "
-                f"cycle that ended began before it ({read})",
-            )
-        if not self.seen_running:
-            # A cycle shorter than a poll (or polls held up on a loaded host) can begin
-            # and end between two polls. 2401 changed: at this cycle's end, or at its
-            # start (a cycle stopped half-way reads the same); only a controller seen to
-            # write 2401 at a cycle's end proves it finished (decision 23).
-            if self.device.cycle_time_written_at == CYCLE_TIME_AT_END:
-                return Verdict(
-                    Outcome.REACHED,
-                    f"{self.what}: the cycle ended between two polls (last cycle {last} ms, "
-                    f"was {before} ms; no poll saw it moving; this controller writes 2401 "
-                    "at a cycle's end)",
-                )
-            return Verdict(
-                Outcome.STOPPED,
-                f"{unproven}: no poll saw it running and 2401 changed, which a cycle "
-                "stopped half-way does too on a controller that writes 2401 at a cycle's "
-                f"start; not yet seen which this one does ({read})",
-            )
-        if self.changed_while_running is not None:
-            self.device.cycle_time_written_at = CYCLE_TIME_AT_START
-            return Verdict(
-                Outcome.STOPPED,
-                f"{unproven}: 2401 changed while the cycle ran (read "
-                f"{self.changed_while_running} ms, was {before} ms): this controller writes "
-                f"it at a cycle's start, so it cannot show this cycle's end ({read})",
-            )
-        if last == before:
-            return Verdict(
-                Outcome.STOPPED,
-                f"{unproven}: moving ended but the last cycle time did not change "
-                f"({last} ms): the program {how}; a cycle exactly as long as the last one "
-                "reads the same as a stop from another client, the pendant or the program",
-            )
-        if last < self.longest_ms:
-            return Verdict(
-                Outcome.STOPPED,
-                f"{unproven}: 2401 reads {last} ms, shorter than the {self.longest_ms} ms "
-                f"the cycle was seen to run ({read})",
-            )
-        if self.unchanged_while_running:
-            self.device.cycle_time_written_at = CYCLE_TIME_AT_END
-        return Verdict(
-            Outcome.REACHED,
-            f"{self.what}: the cycle ended (last cycle {last} ms, was {before} ms)",
-        )
-
-    def feedback(self, snapshot: R6Snapshot) -> dict[str, Any]:
-        return {
-            "moving": snapshot.moving,
-            "current_cycle_time_ms": snapshot.current_cycle_time_ms,
-            "alarm_code": snapshot.alarm_code,
-        }
-
-    def result(self, snapshot: R6Snapshot | None) -> dict[str, Any]:
-        return {"last_cycle_time_ms": 0 if snapshot is None else snapshot.last_cycle_time_ms}
+        """§3.3.5 in one go (the ``~/upload_points`` service): ``PointUploadSteps.send_all``;
+        the number of data frames."""
+        upload = PointUploadSteps(self, data_source_id, values_per_point, axis_mask, values)
+        return upload.send_all()
 
 
 def _check_board_in_use(board: int, boards_in_use: int | None) -> None:

@@ -32,17 +32,12 @@ from msg_defs.srv import (
     WriteParameter,
 )
 
-from .device import (
-    POINT_DATA,
-    PROGRAM,
-    PROGRAM_COMMANDS,
-    R6Device,
-    R6Snapshot,
-    RunCycleMotion,
-)
-from .device import PointUpload as PointUploadSteps
+from .device import R6Device, R6Snapshot
 from .interface import EXTRA_WORLD_AXES, PARAMETERS, R6_DEFAULTS
+from .motions import RunCycleMotion
+from .program import PROGRAM, PROGRAM_COMMANDS
 from .registers import COMMANDS, MAX_AXES, STOP_COMMANDS
+from .upload import POINT_DATA, PointUploadSteps
 
 T = TypeVar("T")
 

@@ -22,10 +22,13 @@ from bridge_core.wire.registers import (
     RegisterMap,
     Table,
     ValueType,
+    WordOrder,
     register_array,
 )
 
 T = "§4 address table"
+HIGH = WordOrder.HIGH_FIRST  # 32/64-bit values high word first (decision 1)
+I32_MIN, I32_MAX = -(1 << 31), (1 << 31) - 1  # parameters and point values are int32
 MAX_AXES = 8
 MAX_IO_BOARDS = 5
 M_BOARDS = 3
@@ -60,6 +63,11 @@ COIL_BANKS = (
 )
 
 MODE_NAMES = {1: "manual", 2: "auto", 3: "configuration"}
+
+
+def mode_name(mode: int) -> str:
+    return MODE_NAMES.get(mode, f"unknown({mode})")
+
 
 # Command registers 20000-20006 (§3.2.1, §4): any value executes; FC 06 only.
 COMMANDS: dict[str, int] = {

@@ -383,7 +383,7 @@ def test_point_upload() -> None:  # §3.3.5
 
 def test_large_upload_is_split_into_frames_of_at_most_256_bytes() -> None:
     # 25 points x 6 values: 10 points per frame (2 + 120 registers = 244 bytes of data).
-    from r6_bridge.device import POINT_FRAME_MAX_REGISTERS
+    from r6_bridge.upload import POINT_FRAME_MAX_REGISTERS
 
     values = list(range(150))
     server_steps = [
