@@ -16,8 +16,9 @@ from typing import Any
 
 from rclpy.node import Node
 
-from bridge_core.ros.node_parameters import DeviceDefaults, ParameterNode
+from bridge_core.ros.node_parameters import ParameterNode
 from bridge_core.ros.process import BusNode, spin_nodes
+from bridge_core.runtime.parameters import DeviceDefaults
 from bridge_core.wire.channel import UNIT_ID_MAX
 from bridge_core.wire.errors import ConfigurationError
 

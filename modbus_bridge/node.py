@@ -26,13 +26,13 @@ from std_srvs.srv import SetBool
 
 from bridge_core.ros.joint_commands import JointCommandTopic
 from bridge_core.ros.node_base import BridgeNode
-from bridge_core.ros.node_parameters import DeviceDefaults, ParameterNode
+from bridge_core.ros.node_parameters import ParameterNode
 from bridge_core.ros.process import spin_node
 from bridge_core.runtime.checks import listed
 from bridge_core.runtime.diagnostics import Level, Report
 from bridge_core.runtime.joint_commands import MAX_JUMP_SPEC
 from bridge_core.runtime.keepalive import FEED_WAKE_S, Keepalive
-from bridge_core.runtime.parameters import ParameterSpec
+from bridge_core.runtime.parameters import DeviceDefaults, ParameterSpec
 from bridge_core.runtime.rate_groups import PollGroups
 from bridge_core.runtime.stream_guard import StreamGuard
 from bridge_core.wire.codec import Value

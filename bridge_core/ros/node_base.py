@@ -43,7 +43,7 @@ from ..runtime.diagnostics import Report
 from ..runtime.joint_commands import Gate, RefusalCounts, gate_of
 from ..runtime.keepalive import Keepalive
 from ..runtime.motion_ledger import MotionLedger
-from ..runtime.parameters import bridge_specs
+from ..runtime.parameters import DeviceDefaults, bridge_specs
 from ..runtime.poller import Poller, PollOutcome
 from ..runtime.rate_groups import PollGroups
 from ..runtime.wire_budget import WireBudget
@@ -53,7 +53,7 @@ from ..wire.link_state import LinkEvent
 from ..wire.transport import ModbusLink
 from .node_actions import ActionHost
 from .node_diagnostics import DiagnosticsPublisher
-from .node_parameters import DeviceDefaults, ParameterNode, link_settings
+from .node_parameters import ParameterNode, link_settings
 from .node_services import CommandServices
 from .node_streams import StreamHost
 

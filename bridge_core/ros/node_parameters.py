@@ -5,8 +5,9 @@
 ``ros2 param set`` changes them). ``DeviceDefaults`` and the spec builders
 (``transport_specs``, ``unit_id_spec``, ``channel_specs``, ``node_specs``,
 ``AUTOSTART_SPEC``: the parameters every bridge and bus owner shares, so that the nodes,
-the bus owners and the docs agree on them) are plain data in ``bridge_core.runtime.parameters``
-(listed without ROS by ``bridge_core.runtime.interface``), imported here for the nodes.
+the bus owners and the docs agree on them) are plain data, imported from
+``bridge_core.runtime.parameters`` only (listed without ROS by
+``bridge_core.runtime.interface``).
 """
 
 from __future__ import annotations
@@ -26,19 +27,7 @@ from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.lifecycle import LifecycleNode
 from rclpy.parameter import Parameter
 
-from ..runtime.parameters import (
-    AUTOSTART_SPEC,
-    PARITIES,
-    RTU_UNIT_ID_RANGE,
-    UNIT_ID_RANGE,
-    DeviceDefaults,
-    ParameterSpec,
-    ParameterValue,
-    channel_specs,
-    node_specs,
-    transport_specs,
-    unit_id_spec,
-)
+from ..runtime.parameters import ParameterSpec, ParameterValue
 from ..wire.errors import ConfigurationError
 from ..wire.transport import SerialSettings, TcpSettings
 from .inbox import Inbox
@@ -213,17 +202,8 @@ def one_line(err: BaseException) -> str:
 
 
 __all__ = [
-    "AUTOSTART_SPEC",
-    "PARITIES",
-    "RTU_UNIT_ID_RANGE",
-    "UNIT_ID_RANGE",
-    "DeviceDefaults",
     "ParameterNode",
-    "channel_specs",
     "descriptor",
     "link_settings",
-    "node_specs",
     "one_line",
-    "transport_specs",
-    "unit_id_spec",
 ]

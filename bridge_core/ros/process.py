@@ -25,14 +25,14 @@ from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import try_shutdown
 
-from ..runtime.parameters import bus_specs
+from ..runtime.parameters import DeviceDefaults, bus_specs
 from ..runtime.wire_budget import WIRE_FULL, Budget, line_load, line_text
 from ..wire.channel import Priority
 from ..wire.errors import ConfigurationError
 from ..wire.transport import ModbusLink
 from .command_line import EXIT_CONFIGURATION_ERROR, command_line_error, init_from_command_line
 from .node_base import BridgeNode
-from .node_parameters import DeviceDefaults, ParameterNode, link_settings, one_line
+from .node_parameters import ParameterNode, link_settings, one_line
 
 # The poll threads wait on the line and then need the GIL for a moment; with Python's
 # default 5 ms switch interval, each such moment waits out a busy thread's whole slice

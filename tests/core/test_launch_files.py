@@ -18,7 +18,7 @@ from pathlib import Path
 
 import yaml  # type: ignore[import-untyped]
 
-from bridge_core.ros.node_parameters import DeviceDefaults
+from bridge_core.runtime.parameters import DeviceDefaults
 
 from ..support.ros import ROOT
 
