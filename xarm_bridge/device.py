@@ -3,21 +3,21 @@
 Every command validates all of its inputs before its first write, so a refused command
 writes nothing; writes to channels the manual does not call valid never reach the wire.
 The arm's joint count (5, 6 or 7) and the user coils it reads (a range of C256-511, or
-none) are fixed when the device is made: they shape the poll and the snapshot. "xArm
-decision N" is reading N of docs/decisions/xarm.md.
+none) are fixed when the device is made: they shape the poll and the snapshot. The
+output writes are in outputs.py. "xArm decision N" is reading N of docs/decisions/xarm.md.
 """
 
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
-from bridge_core.runtime.checks import check_count, check_index, check_whole_number
+from bridge_core.runtime.checks import check_index, check_whole_number
 from bridge_core.runtime.rate_groups import SLOW_POLL_PERIOD_DEFAULT_S, PollGroups
 from bridge_core.runtime.reads import read_blocks, read_named
 from bridge_core.wire.channel import Priority, RegisterIO
-from bridge_core.wire.codec import Value, encode
+from bridge_core.wire.codec import Value
 from bridge_core.wire.errors import (
     CommandRejected,
     ConfigurationError,
@@ -28,6 +28,7 @@ from bridge_core.wire.errors import (
 from bridge_core.wire.planner import ReadRequest, plan_reads
 from bridge_core.wire.registers import Table
 
+from . import outputs
 from .registers import (
     COIL_FENCE_MODE,
     COIL_PAUSED,
@@ -37,7 +38,6 @@ from .registers import (
     CONTROLLER_DIGITAL_VALID,
     ENABLE_FIRST,
     ERROR_TEXTS,
-    FIRST_TOOL_DIGITAL,
     JOINT_COUNTS,
     JOINTS,
     MODE_NAMES,
@@ -56,8 +56,6 @@ from .registers import (
     WARNING_TEXTS,
     WORLD,
     WRITABLE_ANALOG_OUTPUTS,
-    WRITABLE_DIGITAL_OUTPUTS,
-    WRITABLE_TOOL_DIGITAL_OUTPUTS,
     XARM_MAP,
 )
 
@@ -434,58 +432,6 @@ class XArmDevice:
         self.set_state(state)
         return self._confirm("stop" if state == SET_STATE_STOP else "pause", f"H33 = {state}")
 
-    def set_digital_output(self, index: int, on: bool) -> None:
-        """Controller DO 0-15 (FC 05 to coil ``index``)."""
-        _check_channel("digital output", index, WRITABLE_DIGITAL_OUTPUTS)
-        self.io.write_coil(index, bool(on))
-
-    def set_tool_digital_output(self, index: int, on: bool) -> None:
-        """Tool DO 0-1 (FC 05 to coil 32 + ``index``)."""
-        _check_channel("tool digital output", index, WRITABLE_TOOL_DIGITAL_OUTPUTS)
-        self.io.write_coil(FIRST_TOOL_DIGITAL + index, bool(on))
-
-    def write_digital_outputs(self, first: int, values: Sequence[bool]) -> None:
-        """Consecutive controller DOs in one FC 0F write."""
-        if not values:
-            raise CommandRejected("no output values given")
-        for k in range(first, first + len(values)):
-            _check_channel("digital output", k, WRITABLE_DIGITAL_OUTPUTS)
-        self.io.write_coils(first, [bool(v) for v in values])
-
-    def set_digital_outputs(self, indexes: Sequence[int], states: Sequence[bool]) -> str:
-        """Controller DOs ``indexes[k]`` to ``states[k]`` (DO 0-15, any order, each once):
-        each run of consecutive indexes in one FC 0F write to its coils, lowest first; no
-        other output is touched. Returns what was written (e.g. "DO 2-3 on off, DO 9 on").
-
-        Coils, not the FC 0x16 mask write of H0: the manual defines coil addressing
-        exactly, the bit order of the DO word only by "每1位表示1路IO" (xArm
-        decision 9)."""
-        changes = _changes(
-            "digital output",
-            indexes,
-            states,
-            lambda index: _check_channel("digital output", index, WRITABLE_DIGITAL_OUTPUTS),
-            len(WRITABLE_DIGITAL_OUTPUTS),
-        )
-        return self._write_runs("DO", changes)
-
-    def set_user_coils(self, addresses: Sequence[int], states: Sequence[bool]) -> str:
-        """User coils (C256-511, "用户自定义使用") within the configured range, written like
-        ``set_digital_outputs``: a run of consecutive addresses per FC 0F write."""
-        if not self.user_coils:
-            raise CommandRejected(
-                "no user coils configured (set user_coil_count, and user_coil_first, at start-up)"
-            )
-        coils = self.user_coils
-        changes = _changes(
-            "user coil",
-            addresses,
-            states,
-            lambda address: check_index("user coil", address, coils),
-            len(coils),
-        )
-        return self._write_runs("C", changes)
-
     def set_joint_enable(self, joint: int, enable: bool) -> str:
         """Enable or disable joint ``joint`` (1..joint_count, coil 134 + joint, FC 05), or
         with 0 every joint of the arm (C135.., one FC 0F). The brake coils C128-134 are
@@ -511,50 +457,39 @@ class XArmDevice:
             raise NotConfirmed(f"{wrote}, reads {reads}")
         return f"{wrote}, reads {reads}"
 
-    def change_digital_outputs(self, changes: Mapping[int, bool]) -> None:
-        """Several controller DOs in one FC 0x16 mask write to H0, the others kept; bit n
-        of H0 is DO n (xArm decision 9). Device layer only: ROS writes coils."""
-        if not changes:
-            raise CommandRejected("no output changes given")
-        and_mask, or_mask = 0xFFFF, 0
-        for index, on in changes.items():
-            _check_channel("digital output", index, WRITABLE_DIGITAL_OUTPUTS)
-            and_mask &= ~(1 << index) & 0xFFFF
-            if on:
-                or_mask |= 1 << index
-        self.io.mask_write_register(XARM_MAP["controller_do_word_0"].address, and_mask, or_mask)
+    # ------------------------------------------------------------------ outputs (outputs.py)
+    def set_digital_output(self, index: int, on: bool) -> None:
+        """Controller DO 0-15 (FC 05 to coil ``index``)."""
+        outputs.set_digital_output(self.io, index, on)
 
-    def _write_runs(self, label: str, changes: Mapping[int, bool]) -> str:
-        """One FC 0F write per run of consecutive coil addresses, lowest first. A write that
-        fails after others went through says which did (writes are never retried)."""
-        done: list[str] = []
-        for first, values in _runs(changes):
-            try:
-                self.io.write_coils(first, values)
-            except LinkError as err:
-                if done:
-                    err.args = (
-                        f"{err.args[0] if err.args else err}; written before it: {', '.join(done)}",
-                    )
-                raise
-            done.append(_describe_run(label, first, values))
-        return ", ".join(done)
+    def set_tool_digital_output(self, index: int, on: bool) -> None:
+        """Tool DO 0-1 (FC 05 to coil 32 + ``index``)."""
+        outputs.set_tool_digital_output(self.io, index, on)
+
+    def write_digital_outputs(self, first: int, values: Sequence[bool]) -> None:
+        """Consecutive controller DOs in one FC 0F write."""
+        outputs.write_digital_outputs(self.io, first, values)
+
+    def set_digital_outputs(self, indexes: Sequence[int], states: Sequence[bool]) -> str:
+        """Controller DOs ``indexes[k]`` to ``states[k]``, a run of consecutive indexes
+        per FC 0F write (xArm decision 9); returns what was written."""
+        return outputs.set_digital_outputs(self.io, indexes, states)
+
+    def set_user_coils(self, addresses: Sequence[int], states: Sequence[bool]) -> str:
+        """User coils within the configured range, written like ``set_digital_outputs``."""
+        return outputs.set_user_coils(self.io, self.user_coils, addresses, states)
+
+    def change_digital_outputs(self, changes: Mapping[int, bool]) -> None:
+        """Several controller DOs in one FC 0x16 mask write to H0 (device layer only)."""
+        outputs.change_digital_outputs(self.io, changes)
 
     def set_analog_output(self, channel: int, volts: float) -> None:
         """Controller AO 0-1 in volts (x1000, signed 16-bit, FC 06)."""
-        _check_channel("analog output", channel, WRITABLE_ANALOG_OUTPUTS)
-        reg = XARM_MAP[f"controller_ao_{channel}"]
-        self.io.write_register(reg.address, encode(reg, float(volts))[0])
+        outputs.set_analog_output(self.io, channel, volts)
 
     def set_analog_outputs(self, volts: Sequence[float]) -> None:
         """Controller AO 0.. in one FC 10 write."""
-        if not volts:
-            raise CommandRejected("no analog values given")
-        words: list[int] = []
-        for channel, value in enumerate(volts):
-            _check_channel("analog output", channel, WRITABLE_ANALOG_OUTPUTS)
-            words += encode(XARM_MAP[f"controller_ao_{channel}"], float(value))
-        self.io.write_registers(XARM_MAP["controller_ao_0"].address, words)
+        outputs.set_analog_outputs(self.io, volts)
 
     def set_reduced_mode(self, on: bool, confirm: str = "") -> str:
         return self._set_safety_mode("set_reduced_mode", COIL_REDUCED_MODE, on, confirm)
@@ -591,53 +526,5 @@ class XArmDevice:
         return self._confirm("task", f"projects {listed} at H{OFFLINE_TASK_ADDRESS}")
 
 
-def _changes(
-    what: str,
-    indexes: Sequence[int],
-    states: Sequence[bool],
-    check: Callable[[int], object],
-    most: int,
-) -> dict[int, bool]:
-    """``indexes[k]`` -> ``states[k]``, checked: at most ``most`` (each index once), as
-    many states as indexes, at least one, each passing ``check``. An oversized request
-    is refused by its size, before any index is looked at."""
-    check_count("indexes", len(indexes), most)
-    if len(indexes) != len(states):
-        raise CommandRejected(f"{len(indexes)} indexes but {len(states)} states: give one each")
-    if not indexes:
-        raise CommandRejected("no outputs given")
-    changes: dict[int, bool] = {}
-    for index, state in zip(indexes, states, strict=True):
-        check(index)
-        if index in changes:
-            raise CommandRejected(f"{what} {index} given twice")
-        changes[index] = bool(state)
-    return changes
-
-
-def _runs(changes: Mapping[int, bool]) -> list[tuple[int, list[bool]]]:
-    """Runs of consecutive addresses: [(first address, values)], lowest first."""
-    runs: list[tuple[int, list[bool]]] = []
-    for address in sorted(changes):
-        if runs and runs[-1][0] + len(runs[-1][1]) == address:
-            runs[-1][1].append(changes[address])
-        else:
-            runs.append((address, [changes[address]]))
-    return runs
-
-
-def _describe_run(label: str, first: int, values: Sequence[bool]) -> str:
-    where = f"{label} {first}" if len(values) == 1 else f"{label} {first}-{first + len(values) - 1}"
-    return f"{where} {' '.join('on' if v else 'off' for v in values)}"
-
-
 def _signed(word: int) -> int:
     return word - 0x10000 if word >= 0x8000 else word
-
-
-def _check_channel(what: str, index: int, valid: range) -> None:
-    """Only the channels the manual calls valid (xArm decision 3)."""
-    try:
-        check_index(what, index, valid)
-    except CommandRejected as err:
-        raise CommandRejected(f"{err}: the manual names only these as valid") from None
