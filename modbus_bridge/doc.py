@@ -10,7 +10,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from bridge_core.runtime.bridge_doc import table
+from bridge_core.runtime.interface_doc import table
 from bridge_core.wire.registers import Access, Register, ValueType
 from bridge_core.wire.transport import SerialSettings
 

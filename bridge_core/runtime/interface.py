@@ -220,10 +220,44 @@ def standard_services(node: NodeInterface) -> tuple[Service, ...]:
     return ROS_SERVICES + (LIFECYCLE_SERVICES if node.lifecycle else ())
 
 
+@dataclass(frozen=True)
+class Bridge:
+    """One bridge package as the entry-point group names it (``r6`` -> ``r6_bridge``)."""
+
+    name: str
+    spec: str  # module:attr of its NODES
+
+    @property
+    def module(self) -> str:
+        return self.spec.partition(":")[0]
+
+    @property
+    def package(self) -> str:
+        return self.module.split(".")[0]
+
+    @property
+    def source(self) -> str:
+        return self.module.replace(".", "/") + ".py"
+
+
+def bridges() -> dict[str, Bridge]:
+    """Every bridge by name, in declared order: one per entry of ``ENTRY_POINT_GROUP``
+    (pyproject.toml in a checkout, else the installed entry points:
+    ``bridge_core.runtime.entries``). The one list of bridges the tools, tests and scripts
+    use: a new bridge is in it by its entry point alone."""
+    table = entries.entry_table(ENTRY_POINT_GROUP)
+    return {name: Bridge(name, spec) for name, spec in table.items()}
+
+
+def bridge_packages() -> tuple[str, ...]:
+    """The bridges' packages (``r6_bridge``, ...), in declared order."""
+    return tuple(bridge.package for bridge in bridges().values())
+
+
 def entry_specs() -> list[str]:
     """The ``module:attr`` of every bridge's ``NODES`` (pyproject.toml in a checkout, else
     the installed entry points: ``bridge_core.runtime.entries``)."""
-    return entries.entry_specs(ENTRY_POINT_GROUP)
+    return [bridge.spec for bridge in bridges().values()]
 
 
 def nodes(specs: Sequence[str] | None = None) -> list[NodeInterface]:
@@ -238,10 +272,13 @@ def nodes(specs: Sequence[str] | None = None) -> list[NodeInterface]:
 
 __all__ = [
     "Action",
+    "Bridge",
     "NodeInterface",
     "Service",
     "Topic",
     "bridge_node",
+    "bridge_packages",
+    "bridges",
     "bus_node",
     "expand",
     "nodes",

@@ -15,13 +15,15 @@ from pathlib import Path
 
 import pytest
 
-from bridge_core.runtime import bridge_doc, interface
-from bridge_core.runtime.bridge_doc import BEGIN, END, HEADING, main
+from bridge_core.ros import bridge_doc
+from bridge_core.ros.bridge_doc import main
+from bridge_core.runtime import interface, interface_doc
 from bridge_core.runtime.interface import NodeInterface, Service, Topic
+from bridge_core.runtime.interface_doc import BEGIN, END, HEADING
 from bridge_core.runtime.parameters import ParameterSpec
 
 ROOT = Path(__file__).resolve().parents[3]
-BRIDGES = bridge_doc.bridges()  # the entry-point group's names: r6, xarm, ...
+BRIDGES = interface.bridges()  # the entry-point group's names: r6, xarm, ...
 NODE_HEADING = re.compile(r"^### Node `(?P<name>[^`]+)`")
 TABLE_HEADING = re.compile(r"^#### (?P<kind>\w+)")
 UNESCAPED_BAR = re.compile(r"(?<!\\)\|")
@@ -72,7 +74,7 @@ def coverage_gaps(node: NodeInterface, region: str) -> list[str]:
 
 @pytest.mark.parametrize("bridge", list(BRIDGES))
 def test_the_committed_page_is_a_fresh_render(bridge: str) -> None:
-    assert committed_region(bridge) == bridge_doc.render(BRIDGES[bridge]), (
+    assert committed_region(bridge) == interface_doc.render(BRIDGES[bridge]), (
         f"docs/bridges/{bridge}.md is stale: run `bridge_doc --write {bridge}`"
     )
 
@@ -123,7 +125,7 @@ def test_the_coverage_check_reports_an_undocumented_declaration() -> None:
 
 # ---------------------------------------------------------------- rendering
 def test_patterns_stay_patterns_with_their_default_values() -> None:
-    text = bridge_doc.render(BRIDGES["stepper"])
+    text = interface_doc.render(BRIDGES["stepper"])
     assert "| `~/motor_{motor}/jog` | `std_msgs/msg/Float64` | subscribed |" in text
     assert "- `{motor}`: `1`, `2`, `3`, `4`, `5`" in text
     assert "~/motor_1/jog" not in text
@@ -133,8 +135,8 @@ def test_a_run_time_description_is_documented_by_its_static_text() -> None:
     (_, drive) = interface.nodes([BRIDGES["motec"].spec])
     (lifeguard,) = [p for p in drive.parameters if p.name == "lifeguard_ms"]
     assert lifeguard.text_of is not None and lifeguard.description != lifeguard.static_text
-    text = bridge_doc.render(BRIDGES["motec"])
-    assert bridge_doc.cell(lifeguard.static_text) in text
+    text = interface_doc.render(BRIDGES["motec"])
+    assert interface_doc.cell(lifeguard.static_text) in text
     assert lifeguard.description not in text
 
 
@@ -147,7 +149,7 @@ def test_a_bar_in_a_cell_is_escaped() -> None:
         (ParameterSpec("gain", 2, "a | b", 0, 10, live=True),),
         (Topic("~/t", "std_msgs/msg/Bool", False, "x|y"),),
     )
-    rows = [line for line in bridge_doc.node_lines(node) if line.startswith("| `")]
+    rows = [line for line in interface_doc.node_lines(node) if line.startswith("| `")]
     assert rows == [
         "| `~/t` | `std_msgs/msg/Bool` | subscribed | x\\|y |",
         "| `gain` | integer | `2` | 0 .. 10 | live | a \\| b |",
@@ -155,14 +157,14 @@ def test_a_bar_in_a_cell_is_escaped() -> None:
 
 
 def test_the_modbus_page_says_which_description_files_it_shows() -> None:
-    text = bridge_doc.render(BRIDGES["modbus"])
+    text = interface_doc.render(BRIDGES["modbus"])
     assert "config/devices/xarm.yaml" in text and "config/devices/rtu_multidrop.yaml" in text
 
 
 # ---------------------------------------------------------------- command line
 def test_printing_one_bridge(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["xarm"]) == 0
-    assert capsys.readouterr().out == bridge_doc.render(BRIDGES["xarm"])
+    assert capsys.readouterr().out == interface_doc.render(BRIDGES["xarm"])
 
 
 def test_an_unknown_bridge_is_one_line_and_exit_2(capsys: pytest.CaptureFixture[str]) -> None:
@@ -205,7 +207,7 @@ def test_write_keeps_the_prose_around_the_markers(tmp_path: Path) -> None:
     before = f"# r6_bridge\n\nIntro.\n\n{HEADING}\n\n{BEGIN}\n"
     page.write_text(f"{before}stale\n{END}\n\n## Hardware checks\n\nText.\n")
     assert main(["--write", "--root", str(tmp_path), "r6"]) == 0
-    rendered = bridge_doc.render(BRIDGES["r6"])
+    rendered = interface_doc.render(BRIDGES["r6"])
     assert page.read_text() == f"{before}{rendered}{END}\n\n## Hardware checks\n\nText.\n"
 
 

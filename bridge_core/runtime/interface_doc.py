@@ -1,36 +1,26 @@
-"""``bridge_doc BRIDGE``: the ROS API reference of a bridge's page, rendered from its
-``<bridge>/interface.py`` (the listing ``tests/test_interface.py`` checks against running
-nodes), so the page says what the nodes declare.
+"""A bridge's ROS API reference as Markdown, rendered from its ``<bridge>/interface.py``
+(the listing ``tests/test_interface.py`` checks against running nodes), so its page says
+what the nodes declare. Plain text in, text out: ``bridge_core.ros.bridge_doc`` (the
+``bridge_doc`` tool) reads and writes the pages, ``modbus_doc`` uses ``table``.
 
 The rendered section lives in ``docs/bridges/<bridge>.md`` between two marker lines
-(``BEGIN``, ``END``); the prose around them is hand-written. ``bridge_doc --write``
-rewrites the section, ``bridge_doc --check`` fails when a page differs from a fresh
-render (tests/core/runtime/test_bridge_doc.py runs the same comparison). ROS-free: the
-listing needs no rclpy.
+(``BEGIN``, ``END``); the prose around them is hand-written.
 """
 
 from __future__ import annotations
 
-import argparse
 import importlib
 import json
-import sys
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
-from pathlib import Path
 
-from . import entries
-from .interface import ENTRY_POINT_GROUP, NodeInterface, nodes
+from .interface import Bridge, NodeInterface, nodes
 from .parameters import ParameterSpec, ParameterValue
 
 BEGIN = "<!-- bridge_doc:begin -->"
 END = "<!-- bridge_doc:end -->"
 HEADING = "## ROS API (generated)"
-PAGES = Path("docs") / "bridges"  # under the repository root
 NOTE_ATTRIBUTE = "DOC_NOTE"  # a bridge's interface module may say what its nodes depend on
 RANGE_DIGITS = 12  # significant digits of a range's ends
-EXIT_DIFFERS = 1  # --check: a page is not what bridge_doc renders
-EXIT_USAGE = 2  # a bad name, a page the tool cannot rewrite
 
 
 # What rclpy adds to every node: in the ROS graph, not in a bridge's listing.
@@ -43,40 +33,6 @@ STANDARD_NOTE = (
 
 class PageError(Exception):
     """A page the generated section cannot be put into (one line for the user)."""
-
-
-@dataclass(frozen=True)
-class Bridge:
-    """One bridge package as the entry-point group names it (``r6`` -> ``r6_bridge``)."""
-
-    name: str
-    spec: str  # module:attr of its NODES
-
-    @property
-    def module(self) -> str:
-        return self.spec.partition(":")[0]
-
-    @property
-    def package(self) -> str:
-        return self.module.split(".")[0]
-
-    @property
-    def source(self) -> str:
-        return self.module.replace(".", "/") + ".py"
-
-    @property
-    def page_name(self) -> str:
-        """The page as messages name it: relative to the repository root."""
-        return str(PAGES / f"{self.name}.md")
-
-    def page(self, root: Path) -> Path:
-        return root / self.page_name
-
-
-def bridges() -> dict[str, Bridge]:
-    """Every bridge by name, as pyproject.toml declares them (the checkout holding us)."""
-    table = entries.entry_table(ENTRY_POINT_GROUP)
-    return {name: Bridge(name, spec) for name, spec in table.items()}
 
 
 # ---------------------------------------------------------------- rendering
@@ -210,74 +166,3 @@ def region(text: str, where: str = "page") -> str:
 
 def new_page(bridge: Bridge, rendered: str) -> str:
     return f"# {bridge.package}\n\n{HEADING}\n\n{BEGIN}\n{rendered}{END}\n"
-
-
-def written(bridge: Bridge, root: Path) -> str:
-    """The page's text with a fresh section (a new page if there is none)."""
-    page = bridge.page(root)
-    rendered = render(bridge)
-    if not page.exists():
-        return new_page(bridge, rendered)
-    before, _, after = split_page(page.read_text(encoding="utf-8"), bridge.page_name)
-    return before + rendered + after
-
-
-def differs(bridge: Bridge, root: Path) -> str | None:
-    """Why the page is not what bridge_doc renders (one line), or None."""
-    page = bridge.page(root)
-    fix = f"run `bridge_doc --write {bridge.name}`"
-    if not page.exists():
-        return f"{bridge.page_name}: missing; {fix}"
-    try:
-        current = region(page.read_text(encoding="utf-8"), bridge.page_name)
-    except PageError as err:
-        return str(err)
-    if current != render(bridge):
-        return f"{bridge.page_name}: differs from `bridge_doc {bridge.name}`; {fix}"
-    return None
-
-
-# ---------------------------------------------------------------- command line
-def chosen(names: Sequence[str], known: Mapping[str, Bridge]) -> list[Bridge]:
-    unknown = [name for name in names if name not in known]
-    if unknown:
-        raise PageError(f"unknown bridge {unknown[0]!r} (one of {', '.join(known)})")
-    return [known[name] for name in names or known]
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="bridge_doc", description="a bridge's ROS API reference, from its interface.py"
-    )
-    parser.add_argument(
-        "bridges", nargs="*", metavar="BRIDGE", help="r6, xarm, ... (--write, --check: default all)"
-    )
-    mode = parser.add_mutually_exclusive_group()
-    mode.add_argument("--write", action="store_true", help="rewrite docs/bridges/BRIDGE.md")
-    mode.add_argument("--check", action="store_true", help="exit 1 if a page differs")
-    parser.add_argument("--root", type=Path, default=entries.ROOT, help="repository root")
-    args = parser.parse_args(argv)
-    try:
-        targets = chosen(args.bridges, bridges())
-        if args.check:
-            found = [line for b in targets if (line := differs(b, args.root)) is not None]
-            for line in found:
-                print(line)
-            return EXIT_DIFFERS if found else 0
-        if args.write:
-            pages = {b.page(args.root): written(b, args.root) for b in targets}  # all or none
-            for page, text in pages.items():
-                page.parent.mkdir(parents=True, exist_ok=True)
-                page.write_text(text, encoding="utf-8")
-            return 0
-        if len(args.bridges) != 1:
-            raise PageError("name one bridge to print (or give --write or --check)")
-        sys.stdout.write(render(targets[0]))
-        return 0
-    except (PageError, OSError) as err:  # one line for the user, not a traceback
-        print(f"bridge_doc: {err}", file=sys.stderr)
-        return EXIT_USAGE
-
-
-if __name__ == "__main__":
-    sys.exit(main())
