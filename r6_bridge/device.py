@@ -2,8 +2,8 @@
 
 No ROS here. Every command validates all of its inputs before the first write, so a
 refused command writes nothing. The program's checks and read backs are in program.py,
-the point upload in upload.py, the action goals in motions.py. "R6 decision N" is reading
-N of docs/decisions/r6.md.
+the output writes in outputs.py, the point upload in upload.py, the action goals in
+motions.py. "R6 decision N" is reading N of docs/decisions/r6.md.
 """
 
 from __future__ import annotations
@@ -26,6 +26,7 @@ from bridge_core.wire.errors import (
 from bridge_core.wire.planner import ReadRequest, plan_reads
 from bridge_core.wire.registers import MAX_READ_REGISTERS, MAX_WRITE_REGISTERS
 
+from . import outputs
 from .program import (
     START_COMMANDS,
     check_program_command,
@@ -35,8 +36,6 @@ from .program import (
 )
 from .registers import (
     COMMANDS,
-    EU_BOARD,
-    FIRST_M_BOARD,
     HIGH,
     I32_MAX,
     I32_MIN,
@@ -45,20 +44,17 @@ from .registers import (
     MAX_COUNTERS,
     MAX_IO_BOARDS,
     MAX_VERSION_BYTES,
-    OUTPUT_BOARDS_ACCEPTED,
-    OUTPUT_POINTS,
     PARAMETER_COUNT,
     PARAMETER_WRITE_LAST_INDEX,
-    POINTS_PER_BOARD,
     R6_MAP,
     STOP_COMMANDS,
+    U32_MAX,
     mode_name,
     parameter_address,
     parameter_offered,
 )
 from .upload import PointUploadSteps
 
-U32_MAX = 0xFFFF_FFFF
 # §3.1.3: ids past the counter count are padded with 0xFF bytes.
 COUNTER_ID_PADDING = U32_MAX
 COUNTER_IDS_SHOWN = 10  # ids named in a refusal of an unknown counter
@@ -410,80 +406,17 @@ class R6Device:
     def set_output(
         self, board: int, point: int, on: bool, boards_in_use: int | None = None
     ) -> None:
-        """Boards 0-3: §3.3.3, board, point and state in one FC 10 write to 20056-20058.
-        Boards 4-8 (IO board 4, M boards 5-7, EU board 8): §5's FC 05 coil 32·board + point,
-        the numbering that is unambiguous (R6 decisions 3, 19, 21)."""
-        if point not in OUTPUT_POINTS:
-            raise CommandRejected(f"output point {point} outside 0-31")
-        if board in OUTPUT_BOARDS_ACCEPTED:
-            # A board the controller does not report in use has no outputs to switch: the
-            # write would be acknowledged with no effect (R6 decision 24).
-            _check_board_in_use(board, self._boards(boards_in_use))
-            words = [board, point, 1 if on else 0]
-            self.io.write_registers(R6_MAP["output_board"].address, words)
-            return
-        if board < FIRST_M_BOARD:
-            _check_board_in_use(board, self._boards(boards_in_use))
-        elif board < EU_BOARD:
-            if not self.m_boards:
-                raise CommandRejected(
-                    f"output board {board} (M board {board - FIRST_M_BOARD}) refused: the M "
-                    "boards are off (parameter m_boards; the handheld network-port version "
-                    "does not offer them)"
-                )
-        elif board == EU_BOARD:
-            if not self.eu_board:
-                raise CommandRejected(
-                    f"output board {board} (EU board) refused: no EU board (parameter eu_board)"
-                )
-        else:
-            raise CommandRejected(f"output board {board} outside 0-{EU_BOARD}")
-        self.io.write_coil(POINTS_PER_BOARD * board + point, on)
-
-    def _boards(self, boards_in_use: int | None) -> int:
-        """The IO board count: as last polled, else read now (2186)."""
-        if boards_in_use is not None:
-            return boards_in_use
-        return int(self.read_named("io_board_count")["io_board_count"])
+        """One output point of board 0-8 (``outputs.set_output``); ``boards_in_use``: the
+        IO board count the controller last reported (2186), None: read it now."""
+        outputs.set_output(
+            self.io, board, point, on, boards_in_use, m_boards=self.m_boards, eu_board=self.eu_board
+        )
 
     def write_board_outputs(
         self, board: int, bits: int, mask: int, boards_in_use: int | None = None
     ) -> str:
-        """§3.3.1: outputs of one IO board (FC 10, 2 registers, high word first); only the
-        outputs in ``mask`` change (R6 decision 24).
-
-        The manual has no mask write, so a partial mask is a read-modify-write at command
-        priority, the read just before the write: not atomic against the robot program,
-        which may switch an output of the board in between (that change is then undone).
-        ``boards_in_use`` (the count the controller last reported, 2186): a board past it
-        is refused. Returns what was read and written."""
-        if not 0 <= board < MAX_IO_BOARDS:
-            raise CommandRejected(f"IO board {board} outside 0-{MAX_IO_BOARDS - 1}")
-        check_whole_number("output bits", bits, 0, U32_MAX)
-        check_whole_number("output mask", mask, 0, U32_MAX)
-        if mask == 0:
-            raise CommandRejected(
-                "mask 0 changes no output: set bit n of mask for each output n to change "
-                "(0xFFFFFFFF: the whole board)"
-            )
-        if bits & ~mask:
-            raise CommandRejected(
-                f"bits 0x{bits:08X} set outputs outside mask 0x{mask:08X} "
-                f"(0x{bits & ~mask:08X}): add them to the mask or clear them"
-            )
-        _check_board_in_use(board, self._boards(boards_in_use))
-        reg = R6_MAP[f"io_board_output_{board}"]
-        if mask == U32_MAX:
-            self.io.write_registers(reg.address, int_to_words(bits, 2, False, HIGH))
-            return f"board {board} outputs = 0x{bits:08X}"
-        words = self.io.read_registers(reg.address, 2, priority=Priority.COMMAND)
-        before = words_to_int(words, False, HIGH)
-        after = (before & ~mask) | bits
-        self.io.write_registers(reg.address, int_to_words(after, 2, False, HIGH))
-        return (
-            f"board {board} outputs read 0x{before:08X}, wrote 0x{after:08X} (mask "
-            f"0x{mask:08X}; a read-modify-write, not atomic against the robot program)"
-        )
+        """The outputs of one IO board under ``mask`` (``outputs.write_board_outputs``)."""
+        return outputs.write_board_outputs(self.io, board, bits, mask, boards_in_use)
 
     def set_counter(self, counter_id: int, value: int) -> str:
         """§3.3.2: id, target (ignored by the host: 0) and current value, 6 registers.
@@ -558,15 +491,6 @@ class R6Device:
         the number of data frames."""
         upload = PointUploadSteps(self, data_source_id, values_per_point, axis_mask, values)
         return upload.send_all()
-
-
-def _check_board_in_use(board: int, boards_in_use: int | None) -> None:
-    """``boards_in_use``: the count the controller last reported (2186); None before the
-    first poll."""
-    if boards_in_use is not None and board >= boards_in_use:
-        raise CommandRejected(
-            f"IO board {board} is not in use: the controller reports {boards_in_use} board(s)"
-        )
 
 
 def _check_parameter_index(index: int) -> None:

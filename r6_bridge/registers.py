@@ -29,6 +29,7 @@ from bridge_core.wire.registers import (
 T = "§4 address table"
 HIGH = WordOrder.HIGH_FIRST  # 32/64-bit values high word first (decision 1)
 I32_MIN, I32_MAX = -(1 << 31), (1 << 31) - 1  # parameters and point values are int32
+U32_MAX = 0xFFFF_FFFF  # counters, counter ids and a board's outputs are uint32
 MAX_AXES = 8
 MAX_IO_BOARDS = 5
 M_BOARDS = 3
