@@ -340,6 +340,9 @@ def test_contract_goals_against_ignored_writes(
         ok(b, Trigger, "motor_1/stop")
 
 
+HELD_JOG_TIMEOUT_S = 30.0
+
+
 def jog_publisher(client: Client, b: Bridge, motor: int) -> Any:
     pub = client.node.create_publisher(Float64, f"{b.ns}/stepper_bridge/motor_{motor}/jog", 10)
     wait_subscribed(pub)
@@ -464,7 +467,9 @@ def test_contract_halts_against_an_ignored_stop(
         "poll_rate_hz": 20.0,
         "timeout_s": TIMEOUT_S,
         "reconnect_max_s": 1.0,
-        "command_timeout_s": COMMAND_TIMEOUT_S,
+        # The jog is published once: its deadman must not stop motor 2 before the stops are
+        # ignored (a loaded machine took longer than COMMAND_TIMEOUT_S to get there).
+        "command_timeout_s": HELD_JOG_TIMEOUT_S,
     }
     with node_process(
         "stepper_bridge.node", params, tmp_path, ["-r", f"__ns:={namespace}"]

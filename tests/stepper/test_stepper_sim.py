@@ -26,16 +26,12 @@ from bridge_core.wire.channel import DeviceChannel, Priority
 from bridge_core.wire.errors import CommandRejected, DeviceException, LinkError, NotConfirmed
 from bridge_core.wire.registers import Table
 from bridge_core.wire.transport import ModbusLink, SerialSettings
-from stepper_bridge.device import (
-    HomeMotion,
-    InterpolationMotion,
-    JointScale,
-    StepperDevice,
-    StepperMotion,
-    pair_axes,
-)
+from stepper_bridge.device import StepperDevice
+from stepper_bridge.interpolation import pair_axes
+from stepper_bridge.motions import HomeMotion, InterpolationMotion, StepperMotion
 from stepper_bridge.registers import STEPPER_MAP, UNDEFINED_HOLDING, holding, motor_coil
 from stepper_bridge.sim import START_POSITION, StepperSimDevice, make_simulator
+from stepper_bridge.units import JointScale
 
 from ..support.serial_pair import socat_pair
 
@@ -1006,6 +1002,7 @@ def test_stepper_sim_cli_on_its_own_pty(tmp_path: Path) -> None:
     from bridge_core.sim.logs import read_write_log
 
     from ..support.ros import ROOT
+    from ..support.serial_pair import PTY_REPLY_TIMEOUT_S
 
     link_path, log = tmp_path / "stepper", tmp_path / "writes.jsonl"
     proc = subprocess.Popen(
@@ -1026,7 +1023,8 @@ def test_stepper_sim_cli_on_its_own_pty(tmp_path: Path) -> None:
         assert proc.stdout is not None
         line = proc.stdout.readline().decode()
         assert "listening on" in line and "reply delay 35 ms" in line, line
-        link = ModbusLink(SerialSettings(str(link_path), 9600, timeout_s=0.5))
+        # Not a test of the reply timeout: a loaded machine stalls a pty for seconds.
+        link = ModbusLink(SerialSettings(str(link_path), 9600, timeout_s=PTY_REPLY_TIMEOUT_S))
         channel = DeviceChannel(link, 1, retries=0)
         device = StepperDevice(channel)
         assert device.poll().config.motors[0].lead == 5.0
