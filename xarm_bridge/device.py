@@ -4,12 +4,12 @@ Every command validates all of its inputs before its first write, so a refused c
 writes nothing; writes to channels the manual does not call valid never reach the wire.
 The arm's joint count (5, 6 or 7) and the user coils it reads (a range of C256-511, or
 none) are fixed when the device is made: they shape the poll and the snapshot. The
-output writes are in outputs.py. "xArm decision N" is reading N of docs/decisions/xarm.md.
+output writes are in outputs.py; what a stop, pause, start or task reads back to be done,
+in arm_state.py. "xArm decision N" is reading N of docs/decisions/xarm.md.
 """
 
 from __future__ import annotations
 
-import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
@@ -26,9 +26,16 @@ from bridge_core.wire.errors import (
     NotConfirmed,
 )
 from bridge_core.wire.planner import ReadRequest, plan_reads
-from bridge_core.wire.registers import Table
 
 from . import outputs
+from .arm_state import (
+    MODE_ADDRESS,
+    STATE_ADDRESS,
+    ArmReading,
+    confirm,
+    read_arm,
+    signed,
+)
 from .registers import (
     COIL_FENCE_MODE,
     COIL_PAUSED,
@@ -37,10 +44,8 @@ from .registers import (
     CONTROLLER_ANALOG_INPUT_VALID,
     CONTROLLER_DIGITAL_VALID,
     ENABLE_FIRST,
-    ERROR_TEXTS,
     JOINT_COUNTS,
     JOINTS,
-    MODE_NAMES,
     MOTION_MODES,
     OFFLINE_TASK_ADDRESS,
     OFFLINE_TASK_MAX,
@@ -49,11 +54,9 @@ from .registers import (
     SET_STATE_START,
     SET_STATE_STOP,
     SETTABLE_STATES,
-    STATE_NAMES,
     TOOL_ANALOG_INPUT_VALID,
     TOOL_DIGITAL_VALID,
     USER_COILS,
-    WARNING_TEXTS,
     WORLD,
     WRITABLE_ANALOG_OUTPUTS,
     XARM_MAP,
@@ -61,74 +64,6 @@ from .registers import (
 
 TASK_NUMBER_MIN = 1
 TASK_NUMBER_MAX = 0xFFFF
-MODE_ADDRESS = XARM_MAP["arm_mode"].address
-STATE_ADDRESS = XARM_MAP["arm_state"].address
-
-
-def error_text(code: int) -> str:
-    return "" if code == 0 else ERROR_TEXTS.get(code, "unknown error code")
-
-
-def warning_text(code: int) -> str:
-    return "" if code == 0 else WARNING_TEXTS.get(code, "unknown warning code")
-
-
-def state_name(state: int) -> str:
-    return STATE_NAMES.get(state, f"unknown({state})")
-
-
-def mode_name(mode: int) -> str:
-    return MODE_NAMES.get(mode, f"mode {mode}")
-
-
-# A stop, pause or start is given this long to show in the state read back (the SDK's
-# own set_state answers at once; a stop that ramps down shows its state when it begins).
-CONFIRM_S = 0.5
-CONFIRM_READ_PERIOD_S = 0.02  # between two read backs of the state while waiting
-STATE_IN_MOTION = 1  # H33 read (the xArm SDK's get_state)
-STATE_READY = 2  # "sleeping": ready, nothing to do (what a start leaves when no task waits)
-ERROR_ADDRESS = XARM_MAP["error_code"].address
-
-# What the state read back must show (xArm decisions 19 and 20), per command kind.
-SHOWN_BY = {
-    "stop": "state 4 (stopped)",
-    "pause": "state 3 (paused) or 4 (stopped)",
-    "start": "state 1 (in motion) or 2 (ready) with no error",
-    "task": "state 1 (in motion) with no error",
-}
-
-
-@dataclass(frozen=True)
-class ArmReading:
-    """What a motion command reads back: H32, H33, the error code I32 and the pause /
-    stop coils C144 / C145 (shown, never taken as proof: xArm decision 19)."""
-
-    mode: int
-    state: int
-    error_code: int
-    paused: bool
-    stopped: bool
-
-    def shows(self, kind: str) -> bool:
-        """Whether H33 (and I32) show ``kind`` done (``SHOWN_BY``). A pause is not shown
-        by state 2: a task waiting on an input stands in state 2 and moves again."""
-        if kind == "stop":
-            return self.state == SET_STATE_STOP
-        if kind == "pause":
-            return self.state in (SET_STATE_PAUSE, SET_STATE_STOP)
-        if kind == "start":
-            return self.error_code == 0 and self.state in (STATE_IN_MOTION, STATE_READY)
-        return self.error_code == 0 and self.state == STATE_IN_MOTION
-
-    def __str__(self) -> str:
-        error = f"error {self.error_code}"
-        if self.error_code:
-            error += f" ({error_text(self.error_code)})"
-        return (
-            f"mode {self.mode} ({mode_name(self.mode)}), state {self.state} "
-            f"({state_name(self.state)}), {error}, C144 paused {int(self.paused)}, C145 "
-            f"stopped {int(self.stopped)}"
-        )
 
 
 @dataclass(frozen=True)
@@ -355,30 +290,11 @@ class XArmDevice:
                 f"state {state!r} refused: the controller takes 0 (start), 3 (pause), 4 (stop)"
             )
         mode_now, state_now = self.io.read_write_registers(MODE_ADDRESS, 2, STATE_ADDRESS, [state])
-        return _signed(mode_now), _signed(state_now)
+        return signed(mode_now), signed(state_now)
 
     def read_arm(self) -> ArmReading:
         """H32-33, the error code I32 and the coils C144-145, at command priority."""
-        mode, state = self.io.read_registers(MODE_ADDRESS, 2, priority=Priority.COMMAND)
-        (error,) = self.io.read_registers(
-            ERROR_ADDRESS, 1, table=Table.INPUT, priority=Priority.COMMAND
-        )
-        paused, stopped = self.io.read_bits(COIL_PAUSED, 2, priority=Priority.COMMAND)
-        return ArmReading(_signed(mode), _signed(state), error, bool(paused), bool(stopped))
-
-    def _confirm(self, kind: str, wrote: str) -> str:
-        """The state read back until it shows ``kind`` or CONFIRM_S passed: what was
-        written and read when it shows; ``NotConfirmed`` saying both when it does not."""
-        deadline = time.monotonic() + CONFIRM_S
-        while True:
-            seen = self.read_arm()
-            if seen.shows(kind):
-                return f"wrote {wrote}; reads {seen}"
-            if time.monotonic() >= deadline:
-                raise NotConfirmed(
-                    f"wrote {wrote}; reads {seen} after {CONFIRM_S:g} s, not {SHOWN_BY[kind]}"
-                )
-            time.sleep(CONFIRM_READ_PERIOD_S)
+        return read_arm(self.io)
 
     def halt(self, kind: str) -> str:
         """``stop`` / ``pause``: the coil the manual names (C145 "停止运动控制", C144
@@ -405,7 +321,7 @@ class XArmDevice:
             if lost is not None:
                 raise lost from None
             raise
-        return self._confirm(kind, f"C{coil} = 1{refused} and H33 = {state}")
+        return confirm(self.io, kind, f"C{coil} = 1{refused} and H33 = {state}")
 
     def pause(self) -> str:
         return self.halt("pause")
@@ -419,7 +335,7 @@ class XArmDevice:
         ready or moving with no error (xArm decision 20): an arm in error stays in
         state 4 and does not move."""
         self.set_state(SET_STATE_START)
-        return self._confirm("start", f"H33 = {SET_STATE_START}")
+        return confirm(self.io, "start", f"H33 = {SET_STATE_START}")
 
     def resume(self) -> str:
         return self.start()
@@ -430,7 +346,7 @@ class XArmDevice:
         if state == SET_STATE_START:
             return self.start()
         self.set_state(state)
-        return self._confirm("stop" if state == SET_STATE_STOP else "pause", f"H33 = {state}")
+        return confirm(self.io, "stop" if state == SET_STATE_STOP else "pause", f"H33 = {state}")
 
     def set_joint_enable(self, joint: int, enable: bool) -> str:
         """Enable or disable joint ``joint`` (1..joint_count, coil 134 + joint, FC 05), or
@@ -523,8 +439,4 @@ class XArmDevice:
             check_whole_number("project number", number, TASK_NUMBER_MIN, TASK_NUMBER_MAX)
         self.io.write_registers(OFFLINE_TASK_ADDRESS, list(projects))
         listed = " ".join(str(p) for p in projects)
-        return self._confirm("task", f"projects {listed} at H{OFFLINE_TASK_ADDRESS}")
-
-
-def _signed(word: int) -> int:
-    return word - 0x10000 if word >= 0x8000 else word
+        return confirm(self.io, "task", f"projects {listed} at H{OFFLINE_TASK_ADDRESS}")

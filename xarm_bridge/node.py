@@ -33,9 +33,17 @@ from msg_defs.srv import (
     SetSafetyMode,
 )
 
-from .device import XArmDevice, XArmSnapshot, error_text, mode_name, state_name, warning_text
+from .device import XArmDevice, XArmSnapshot
 from .interface import PARAMETERS, XARM_DEFAULTS
-from .registers import SET_STATE_START, USER_COILS, WORLD
+from .registers import (
+    SET_STATE_START,
+    USER_COILS,
+    WORLD,
+    error_text,
+    mode_name,
+    state_name,
+    warning_text,
+)
 
 T = TypeVar("T")
 

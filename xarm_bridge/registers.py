@@ -299,3 +299,19 @@ XARM_MAP = RegisterMap("xarm", _build(), XARM_LIMITS)
 WRITABLE_DIGITAL_OUTPUTS = range(0, CONTROLLER_DIGITAL_VALID)
 WRITABLE_TOOL_DIGITAL_OUTPUTS = range(0, TOOL_DIGITAL_VALID)
 WRITABLE_ANALOG_OUTPUTS = range(0, CONTROLLER_ANALOG_OUTPUT_VALID)
+
+
+def error_text(code: int) -> str:
+    return "" if code == 0 else ERROR_TEXTS.get(code, "unknown error code")
+
+
+def warning_text(code: int) -> str:
+    return "" if code == 0 else WARNING_TEXTS.get(code, "unknown warning code")
+
+
+def state_name(state: int) -> str:
+    return STATE_NAMES.get(state, f"unknown({state})")
+
+
+def mode_name(mode: int) -> str:
+    return MODE_NAMES.get(mode, f"mode {mode}")

@@ -24,8 +24,8 @@ from bridge_core.wire.errors import (
 )
 from bridge_core.wire.registers import Table
 from bridge_core.wire.transport import ModbusLink, TcpSettings
-from xarm_bridge.device import POLL_PLAN, XArmDevice, error_text, poll_plan
-from xarm_bridge.registers import COIL_PAUSED, COIL_STOPPED, XARM_MAP
+from xarm_bridge.device import POLL_PLAN, XArmDevice, poll_plan
+from xarm_bridge.registers import COIL_PAUSED, COIL_STOPPED, XARM_MAP, error_text
 from xarm_bridge.sim import IN_MOTION, PAUSED, SLEEPING, STOPPED, XArmSimDevice, make_simulator
 
 
