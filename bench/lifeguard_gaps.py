@@ -5,8 +5,8 @@ Issue 9 measured, before feeds had their own thread and went first on the line: 
 drives, drive 3 unplugged, ``lifeguard_ms`` 500 and ``timeout_s`` 0.5: drives 1 and 2
 faulted within 1.8 s; at 100 ms / 0.1 s the lifeguard tripped in 2 of 3 runs with every
 drive alive. The bridge now refuses a lifeguard time below
-``motec_bridge.device.lifeguard_min_ms`` (docs/bridges/motec.md, "Lifeguard"); this bench runs it at
-exactly that floor, the hardest setting it accepts.
+``motec_bridge.lifeguard.lifeguard_min_ms`` (docs/bridges/motec.md, "Lifeguard"); this bench
+runs it at exactly that floor, the hardest setting it accepts.
 
 Setup: the MOTEC simulator (three drives at 115200 baud) in this process on a socat pty
 pair, ``motec_bridge`` in a process of its own (10 Hz polls, ``lifeguard_ms`` = the
@@ -64,7 +64,7 @@ def armed(drive: Any) -> bool:
 def run(timeout_s: float, seconds: float) -> list[tuple[str, int, list[str]]]:
     """Both phases at one timeout; rows of (phase, lifeguard_ms, one cell per drive)."""
     from bridge_core.wire.transport import SerialSettings
-    from motec_bridge.device import lifeguard_min_ms
+    from motec_bridge.lifeguard import lifeguard_min_ms
     from motec_bridge.registers import CONTROL_MODE_VELOCITY, OPERATION_MODE_NETWORK
     from motec_bridge.sim import make_simulator
     from tests.support.ros import node_process, wait_for

@@ -111,7 +111,7 @@ from bridge_core.wire.registers import RegisterMap  # noqa: E402
 from bridge_core.wire.requests import RTU_ADU_OVERHEAD, pdu_bytes  # noqa: E402
 from bridge_core.wire.serial_timing import silence_s  # noqa: E402
 from bridge_core.wire.transport import SerialSettings  # noqa: E402
-from motec_bridge import device as motec_device  # noqa: E402
+from motec_bridge import snapshots as motec_snapshots  # noqa: E402
 from motec_bridge.registers import MOTEC_MAP  # noqa: E402
 from stepper_bridge import device as stepper_device  # noqa: E402
 from stepper_bridge.registers import REPLY_DELAY_S as STEPPER_REPLY_DELAY_S  # noqa: E402
@@ -177,8 +177,8 @@ def rtu_cases(drives: Sequence[int]) -> list[RtuCase]:
             0.0,
             MOTEC_TIMEOUT_S,
             MOTEC_MAP,
-            tuple(motec_device.FAST_PLAN),
-            tuple(motec_device.SLOW_PLAN),
+            tuple(motec_snapshots.FAST_PLAN),
+            tuple(motec_snapshots.SLOW_PLAN),
         )
         for n in drives
     ]

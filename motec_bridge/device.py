@@ -2,14 +2,13 @@
 
 Every command checks all of its inputs (and, where the drive's mode matters, the mode
 read fresh from the drive) before its first write, so a refused command writes nothing.
-Units are the drive's: encoder counts and rpm; ``DriveScale`` converts to SI. "MOTEC
-decision N" is reading N of docs/decisions/motec.md.
+Units are the drive's: encoder counts and rpm; ``DriveScale`` (units.py) converts to SI.
+"MOTEC decision N" is reading N of docs/decisions/motec.md.
 
-Polling: 2 reads per drive every poll (0xAA-0xAF, 0xC5-0xC9), and the slow group's 2
-(0x24-0x2D, 0x109) every ``slow_poll_period_s`` (MOTEC decision 20; see registers.py on
-reading through unnamed parameters). The configuration (analog max speed 0x6D, lifeguard
-0x112 / 0x114) is read whole when the link comes up, then one request per poll every
-``config_refresh_s``, and the cache follows the bridge's own writes.
+Around ``MotecDevice``: snapshots.py (what a poll reads: the plans, the snapshot),
+stops.py (how a stop is verified), lifeguard.py (the watchdog's arithmetic),
+parameters.py (which Pr.N may be read or written), broadcast.py (``disable_all`` /
+``start_all``, every drive at once) and motions.py (``~/move_to``'s goal).
 
 Commands that depend on the mode (``move``, ``enable``, ``stop``, the first velocity
 command of a stream) read 0x24-0x29 first at command priority (one FC 03, ~3 ms at
@@ -22,43 +21,34 @@ until a 0 command (or the node's deadman), so a joystick still held cannot resta
 motor. ``velocity_stop`` (the deadman) writes 0 rpm; the drive ramps down by its own
 acceleration (§4.2).
 
-Lifeguard (§3.4): ``arm_lifeguard(ms)`` writes 0x112 = ms then 0x114 = 9999 (the
-manual's two FC 06 frames), ``disarm_lifeguard`` 0x112 = 0 then 0x114 = 0;
-``feed_lifeguard`` rewrites 0x112 (at ``Priority.KEEPALIVE``, before commands and polls)
-when no other write went to the drive for a feed period (also while the drive is marked
-down), so the drive's watchdog only fires when the bridge is gone (or the bus is, for
-longer than the lifeguard time less a feed period). ``lifeguard_min_ms`` is the shortest
-lifeguard time a bus can keep fed.
+Lifeguard (§3.4, lifeguard.py): ``arm_lifeguard`` / ``disarm_lifeguard`` write 0x112 and
+0x114; ``feed_lifeguard`` rewrites 0x112 on ``next_feed``'s schedule.
 """
 
 from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Hashable, Iterable, Mapping
-from dataclasses import dataclass
+from collections.abc import Callable
 from typing import Any
 
 from bridge_core.runtime.checks import (
     check_choice,
-    check_converted,
-    check_finite,
     check_index,
     check_range,
     check_whole_number,
 )
 from bridge_core.runtime.config_cache import ConfiguredDevice
-from bridge_core.runtime.goals import Motion, Outcome, Verdict
-from bridge_core.runtime.keepalive import FEED_WAKE_S
 from bridge_core.runtime.rate_groups import SLOW_POLL_PERIOD_DEFAULT_S, PollGroups
 from bridge_core.runtime.reads import read_blocks
 from bridge_core.runtime.stream_guard import StreamGuard
 from bridge_core.wire.channel import Priority, RegisterIO
 from bridge_core.wire.codec import Value, encode
 from bridge_core.wire.errors import CommandRejected, LinkError, NotConfirmed, NotSent
-from bridge_core.wire.planner import ReadRequest, plan_reads
-from bridge_core.wire.registers import Register, Table
+from bridge_core.wire.registers import Table
 
+from .lifeguard import check_lifeguard_ms, next_feed_time
+from .parameters import parameter_to_read, parameter_to_write
 from .registers import (
     CONTROL_MODE_POSITION,
     CONTROL_MODE_VELOCITY,
@@ -75,45 +65,31 @@ from .registers import (
     OUTPUT1_COIL_CHOICES,
     OUTPUT1_COIL_DEFAULT,
     OUTPUTS,
-    PARAMETER_OWN_SERVICE,
     SAVE_TO_FLASH,
     START_MOVE,
-    STOP_MOVE,
-    control_mode_name,
-    fault_text,
-    operation_mode_name,
     output_coil,
-    parameter_numbers,
-    parameter_register,
 )
+from .snapshots import (
+    CONFIG_PLAN,
+    FAST_PLAN,
+    MODE_PLAN,
+    MOTION_PLAN,
+    OUTPUT_WORD_PLAN,
+    SLOW_PLAN,
+    STAMP_REGISTER,
+    STANDSTILL_SPEED_RPM,
+    Modes,
+    MotecConfig,
+    MotecSnapshot,
+    read_modes,
+)
+from .stops import release_checked, verified_position_stop, watch_stop
+from .units import SPEED_LIMIT_RPM
 
 DEFAULT_CONFIG_REFRESH_S = 5.0
-# ~/read_parameter / ~/write_parameter: Pr.N is holding address N, one of 65536 (FC 03 /
-# FC 06 carry a 16-bit address); an unlisted parameter is one 16-bit word.
-PARAMETER_NUMBER_LIMIT = 0x10000
-U16_LIMIT = 0xFFFF
-I16_LIMIT = 0x8000
 DEFAULT_MAX_SPEED_RPM = 3000
 DEFAULT_VELOCITY_TIMEOUT_S = 0.5
 VELOCITY_STREAM = 0  # the key of the drive's one cmd_velocity stream
-SPEED_LIMIT_RPM = 32767  # 0xAE is a signed 16-bit register
-LIFEGUARD_MIN_MS = 50  # below this a feed every third of it would crowd the bus
-FEEDS_PER_PERIOD = 3  # the bridge writes at least 3 times per lifeguard time
-# While a drive is marked down, within the lifeguard time since its last write, a feed is
-# tried this often (each try holds the line for the short stop timeout): a line that
-# answers again is found, and the drive fed, within about this (issue 39 hole 11).
-DOWN_FEED_RETRY_S = 0.1
-# A servo at rest dithers by a count or two and shows an rpm or two in 0xAF (MOTEC
-# decision 17): |0xAF| within this band counts as standing still.
-STANDSTILL_SPEED_RPM = 3
-# ~/move_to's default time limit: the move's time at its speed limit times this margin,
-# plus an allowance for the ramps (the manual gives no acceleration; decision 17).
-MOVE_TIME_MARGIN = 2.0
-MOVE_TIME_ALLOWANCE_S = 2.0
-# A position stop (0x29 = 0) is verified on this many reads of 0xAA-0xAF, one poll period
-# of the default 10 Hz apart (decision 18); unverified, the drive is released.
-STOP_CHECK_READS = 2
-STOP_CHECK_PERIOD_S = 0.1
 # A move's start is confirmed when the motor is seen moving within this (read every
 # START_CHECK_PERIOD_S), or 0x26 / 0x29 do not read what was written: "not confirmed".
 # A target within MOVE_SEEN_COUNTS of where the motor is needs no motion to be seen.
@@ -121,216 +97,6 @@ START_CHECK_S = 0.5
 START_CHECK_PERIOD_S = 0.02
 START_CHECK_READS = round(START_CHECK_S / START_CHECK_PERIOD_S)
 MOVE_SEEN_COUNTS = 10
-# A stop that took (|0xAF| falling) must bring the drive into the standstill band within
-# this (the manual gives no deceleration; decision 22); otherwise the drive is released.
-STOP_SETTLE_S = 2.0
-STOP_SETTLE_READS = round(STOP_SETTLE_S / STOP_CHECK_PERIOD_S)
-
-CONFIG_NAMES = ("analog_max_speed", "lifeguard_time", "lifeguard_mode")
-MODE_NAMES = ("operation_mode", "control_mode", "target_distance", "enable", "start")
-
-# Rate groups (MOTEC decision 20). Fast, every poll: 0xAA-0xAF (joint_states, the
-# moves' verdicts) and 0xC5-0xC9 (the fault code: a move ends FAULT at once; the inputs
-# share the request). Slow: 0x24-0x2D (the modes, enable, start: host-written; a drive
-# that drops enable on a lifeguard trip also raises its fault code, which is fast; every
-# command that depends on a mode reads it at command priority) and 0x109 (the analog
-# input: nothing the bridge decides reads it).
-FAST_NAMES = (
-    "position_setpoint",
-    "position_actual",
-    "speed_setpoint",
-    "speed_actual",
-    "input_word",
-    "output_state",
-    "fault_code",
-)
-SLOW_NAMES = (*MODE_NAMES, "motion_mode", "analog_input")
-STATUS_NAMES = (*FAST_NAMES, *SLOW_NAMES)
-STATUS_PLAN: list[ReadRequest] = plan_reads(MOTEC_MAP, MOTEC_MAP.select(STATUS_NAMES))
-FAST_PLAN: list[ReadRequest] = plan_reads(MOTEC_MAP, MOTEC_MAP.select(FAST_NAMES))
-SLOW_PLAN: list[ReadRequest] = plan_reads(MOTEC_MAP, MOTEC_MAP.select(SLOW_NAMES))
-CONFIG_PLAN: list[ReadRequest] = plan_reads(MOTEC_MAP, MOTEC_MAP.select(CONFIG_NAMES))
-MODE_PLAN: list[ReadRequest] = plan_reads(MOTEC_MAP, MOTEC_MAP.select(MODE_NAMES))
-OUTPUT_WORD_PLAN: list[ReadRequest] = plan_reads(MOTEC_MAP, MOTEC_MAP.select(("output_word",)))
-# A stop's check: 0xAA-0xAF in one read (the actual position and speed; decision 22).
-MOTION_PLAN: list[ReadRequest] = plan_reads(
-    MOTEC_MAP, MOTEC_MAP.select(("position_setpoint", "position_actual", "speed_actual"))
-)
-# After a broadcast: what each drive shows (0x28, 0x29, 0xAA, 0xAF).
-BROADCAST_CHECK_NAMES = ("enable", "start", "position_setpoint", "speed_actual")
-BROADCAST_CHECK_PLAN: list[ReadRequest] = plan_reads(
-    MOTEC_MAP, MOTEC_MAP.select(BROADCAST_CHECK_NAMES)
-)
-# Before start_all: what ~/move checks (modes, the speed limit 0xAE) and the fault code.
-START_CHECK_NAMES = (*MODE_NAMES, "position_setpoint", "speed_setpoint", "fault_code")
-START_CHECK_PLAN: list[ReadRequest] = plan_reads(MOTEC_MAP, MOTEC_MAP.select(START_CHECK_NAMES))
-# joint_states is stamped with the read time of the block holding the actual position.
-STAMP_REGISTER = "position_actual"
-
-
-# ---------------------------------------------------------------- snapshots
-
-
-@dataclass(frozen=True)
-class Modes:
-    """What decides whether the drive may move over Modbus (0x24, 0x25, 0x28)."""
-
-    operation_mode: int
-    control_mode: int
-    enabled: bool
-
-    @property
-    def network(self) -> bool:
-        return self.operation_mode == OPERATION_MODE_NETWORK
-
-    def describe(self) -> str:
-        return (
-            f"operation mode {operation_mode_name(self.operation_mode)}, control mode "
-            f"{control_mode_name(self.control_mode)}, {'enabled' if self.enabled else 'disabled'}"
-        )
-
-
-@dataclass(frozen=True)
-class MotecConfig:
-    analog_max_speed_rpm: int
-    lifeguard_time_ms: int
-    lifeguard_mode: int
-
-    @property
-    def lifeguard_armed(self) -> bool:
-        """Taken as armed unless 0x112 reads 0: §3.4 arms it with a non-zero time and mode
-        9999, and gives no other mode's meaning, so a drive with a time and any mode may
-        be watching (MOTEC decision 9)."""
-        return self.lifeguard_time_ms != LIFEGUARD_OFF_MS
-
-
-@dataclass(frozen=True)
-class MotecSnapshot:
-    """One poll of one drive (drive units)."""
-
-    read_time: float  # wall clock when 0xAA-0xAF were read
-    slow_read_time: float  # wall clock when the slow group was read (modes, analog input)
-    modes: Modes
-    motion_mode: int
-    target_distance: int  # counts, as last written
-    start: int
-    position_setpoint: int  # counts
-    position_actual: int  # counts
-    speed_setpoint_rpm: int
-    speed_actual_rpm: int
-    input_word: int
-    output_word: int
-    fault_code: int
-    analog_input: int
-    config: MotecConfig
-    output1_coil: int = OUTPUT1_COIL_DEFAULT  # bit of OUTPUT1 in 0xC6 / 0x79 / FC 01
-    # The IO tables (``read_io_tables``): 0x79, FC 01 and FC 02; None when not read.
-    output_word_79: int | None = None
-    coil_outputs: tuple[bool, ...] | None = None
-    discrete_inputs: tuple[bool, ...] | None = None
-
-    @property
-    def fault_flag(self) -> int:
-        """0xC8, the high word: §4.3 writes "0—无故障" / "1—有故障" beside it (decision 7)."""
-        return self.fault_code >> 16
-
-    @property
-    def fault_detail(self) -> int:
-        """0xC9, the low word: the manual gives none of its values."""
-        return self.fault_code & 0xFFFF
-
-    @property
-    def inputs(self) -> tuple[bool, ...]:
-        return tuple(bool(self.input_word >> k & 1) for k in range(INPUTS))
-
-    @property
-    def outputs(self) -> tuple[bool, ...]:
-        return output_bits(self.output_word, self.output1_coil)
-
-    @property
-    def moving(self) -> bool:
-        """Derived (the manual gives no motion flag's address): turning, or not yet at
-        the setpoint (with no band: ``stands`` is the verdict a goal waits for)."""
-        return self.speed_actual_rpm != 0 or self.position_setpoint != self.position_actual
-
-    @property
-    def turning(self) -> bool:
-        """|0xAF| above the standstill band (a resting servo's dither is not motion)."""
-        return abs(self.speed_actual_rpm) > STANDSTILL_SPEED_RPM
-
-    def stands(self, tolerance_counts: int) -> bool:
-        """At rest: |0xAF| within the standstill band and the actual position within
-        ``tolerance_counts`` of the setpoint (decision 17)."""
-        return (
-            not self.turning
-            and abs(self.position_setpoint - self.position_actual) <= tolerance_counts
-        )
-
-
-def output_bits(word: int, output1_coil: int) -> tuple[bool, ...]:
-    """OUTPUT1-3 from an output word whose bit ``output1_coil`` is OUTPUT1 (decision 6)."""
-    return tuple(bool(word >> (k + output1_coil) & 1) for k in range(OUTPUTS))
-
-
-def read_modes(io: RegisterIO) -> Modes:
-    """0x24-0x29 now, at command priority (one FC 03)."""
-    v: dict[str, Value] = {}
-    for request in MODE_PLAN:
-        v.update(read_blocks(io, (request,), Priority.COMMAND)[0])
-    return Modes(int(v["operation_mode"]), int(v["control_mode"]), bool(v["enable"]))
-
-
-# ---------------------------------------------------------------- units
-
-
-@dataclass(frozen=True)
-class DriveScale:
-    """Drive units <-> SI for one joint (docs/bridges/motec.md, ``joint_states``).
-
-    ``counts_per_rev``: encoder counts per motor revolution; ``gear_ratio``: motor
-    revolutions per joint revolution. rad = counts / (counts_per_rev x gear) x 2 pi;
-    rad/s = rpm x 2 pi / 60 / gear.
-    """
-
-    counts_per_rev: float = 10000.0
-    gear_ratio: float = 1.0
-
-    def __post_init__(self) -> None:
-        for what, value in (
-            ("counts_per_rev", self.counts_per_rev),
-            ("gear_ratio", self.gear_ratio),
-        ):
-            if not math.isfinite(value) or value <= 0:
-                raise ValueError(f"{what} must be positive and finite, got {value}")
-
-    def position(self, counts: int) -> float:
-        return counts / (self.counts_per_rev * self.gear_ratio) * 2.0 * math.pi
-
-    def velocity(self, rpm: float) -> float:
-        return rpm * 2.0 * math.pi / 60.0 / self.gear_ratio
-
-    def to_counts(self, rad: float) -> int:
-        check_finite("position", rad)
-        kind = MOTEC_MAP["target_distance"].value_type
-        counts = check_converted(
-            f"position {rad:g} rad in counts",
-            rad / (2.0 * math.pi) * self.counts_per_rev * self.gear_ratio,
-            kind.raw_min,
-            kind.raw_max,
-        )
-        return round(counts)
-
-    def to_rpm(self, rad_s: float) -> float:
-        check_finite("velocity", rad_s)
-        return check_converted(
-            f"velocity {rad_s:g} rad/s in rpm",
-            rad_s * 60.0 / (2.0 * math.pi) * self.gear_ratio,
-            -SPEED_LIMIT_RPM,
-            SPEED_LIMIT_RPM,
-        )
-
-
-# ---------------------------------------------------------------- the device
 
 
 class MotecDevice(ConfiguredDevice[MotecConfig]):
@@ -688,39 +454,24 @@ class MotecDevice(ConfiguredDevice[MotecConfig]):
     # ------------------------------------------------------------------ parameters
     def read_parameter(self, number: int) -> int:
         """Pr.``number`` (address ``number``, §5.2) with FC 03; a named 32-bit one whole
-        (§3.2), any other number as one unsigned 16-bit word (a read needs no range: a
-        number past the drive's table answers exception 02, §2.7; decision 13)."""
-        check_index("parameter number", number, range(PARAMETER_NUMBER_LIMIT))
-        reg = parameter_register(number)
+        (§3.2), any other number as one unsigned 16-bit word (``parameter_to_read``;
+        decision 13)."""
+        reg = parameter_to_read(number)
         if reg is None:
-            second_word_of(number)  # the low word of a named 32-bit value: refused
             return int(self.io.read_registers(number, 1, Table.HOLDING, Priority.COMMAND)[0])
         return int(self.read_named(reg.name)[reg.name])
 
     def write_parameter(self, number: int, value: int) -> None:
         """Pr.``number`` = ``value`` (FC 06, or FC 16 high word first for a 32-bit one,
-        §3.1), within the manual's range; refused before any write otherwise. A number the
-        manual does not name only with ``allow_unlisted_parameters`` (FC 06, one word,
-        0..65535 or -32768..-1 as its two's complement): its range is the drive's to
-        check, which answers exception 03 for a value it does not take (§2.7, §3.1)."""
-        check_index("parameter number", number, range(PARAMETER_NUMBER_LIMIT))
-        reg = parameter_register(number)
+        §3.1), checked by ``parameter_to_write`` before any write. A number the manual
+        does not name only with ``allow_unlisted_parameters`` (FC 06, one word)."""
+        reg, word = parameter_to_write(number, value, self.allow_unlisted_parameters)
         if reg is None:
-            second_word_of(number)
-            if not self.allow_unlisted_parameters:
-                known_parameter(number)  # refused, with the list of known ones
-            word = check_whole_number(f"Pr.{number} (unlisted)", value, -I16_LIMIT, U16_LIMIT)
             sent = self._clock()
-            self.io.write_register(number, word & U16_LIMIT, Priority.COMMAND)
+            self.io.write_register(number, word, Priority.COMMAND)
             self.last_write = max(self.last_write, sent)
             return
-        what = f"Pr.{number} (0x{number:X}, {reg.name})"
-        if not reg.access.writable:
-            raise CommandRejected(f"{what} is read only (§3.2)")
-        if reg.name in PARAMETER_OWN_SERVICE:
-            raise CommandRejected(f"{what} is written by {PARAMETER_OWN_SERVICE[reg.name]}")
-        low, high = int(reg.minimum or 0), int(reg.maximum or 0)
-        self._write(reg.name, check_whole_number(what, value, low, high))
+        self._write(reg.name, word)
 
     # ------------------------------------------------------------------ velocity stream
     def velocity(self, rpm: float) -> bool:
@@ -780,7 +531,7 @@ class MotecDevice(ConfiguredDevice[MotecConfig]):
     # ------------------------------------------------------------------ lifeguard
     def arm_lifeguard(self, time_ms: int) -> None:
         """§3.4: detection time 0x112 (ms), then mode 0x114 = 9999."""
-        _check_lifeguard_ms(time_ms)
+        check_lifeguard_ms(time_ms)
         self._write("lifeguard_time", int(time_ms))
         self._write("lifeguard_mode", LIFEGUARD_ACTIVE)
 
@@ -792,21 +543,9 @@ class MotecDevice(ConfiguredDevice[MotecConfig]):
         self._write("lifeguard_mode", LIFEGUARD_MODE_OFF)
 
     def next_feed(self, time_ms: int, down: bool = False) -> float:
-        """When the lifeguard needs its next write (``clock()`` time).
-
-        Up: a feed period after the request of the last write of any kind (a feed that
-        failed while the line was down does not delay it: once the line answers again the
-        overdue feed goes at once, issue 39 hole 11). Down (``down``): the first try a
-        feed period after the last write, then one every ``DOWN_FEED_RETRY_S`` until the
-        lifeguard time since the last write is over (after it a real drive has tripped
-        unless a try got through), then one per feed period."""
-        period = lifeguard_feed_period_s(time_ms)
-        first = self.last_write + period
-        if not down or self.last_feed_try < first - period:
-            return first
-        trip = self.last_write + time_ms / 1000.0
-        retry = DOWN_FEED_RETRY_S if self.last_feed_try + DOWN_FEED_RETRY_S < trip else period
-        return max(first, self.last_feed_try + min(retry, period))
+        """When the lifeguard needs its next write (``clock()`` time; ``next_feed_time``
+        from this drive's last write and last feed try)."""
+        return next_feed_time(time_ms, self.last_write, self.last_feed_try, down)
 
     def feed_lifeguard(self, time_ms: int, down: bool = False) -> bool:
         """Rewrite 0x112 if nothing was written to the drive for a feed period. Also while
@@ -825,463 +564,3 @@ class MotecDevice(ConfiguredDevice[MotecConfig]):
             self.last_feed_try = tried  # nothing went out: due again at once
             raise
         return True
-
-
-def move_time_limit_s(
-    distance_counts: int, speed_rpm: float, counts_per_rev: float, margin: float
-) -> float:
-    """A move's default time limit: ``distance`` at ``speed_rpm`` (motor counts per
-    revolution ``counts_per_rev``) times ``margin``, plus ``MOVE_TIME_ALLOWANCE_S`` for
-    the ramps. A 0 rpm limit gives no limit (the move is refused anyway)."""
-    if speed_rpm <= 0:
-        return math.inf
-    travel_s = distance_counts / counts_per_rev / (speed_rpm / 60.0)
-    return travel_s * margin + MOVE_TIME_ALLOWANCE_S
-
-
-def lifeguard_feed_period_s(time_ms: int) -> float:
-    return time_ms / 1000.0 / FEEDS_PER_PERIOD
-
-
-def lifeguard_min_ms(drives: int, hold_s: float) -> int:
-    """The shortest lifeguard time the bridge can keep fed on a bus (docs/bridges/motec.md).
-
-    A feed falls due ``time / FEEDS_PER_PERIOD`` after the request of the drive's last
-    write (counted from the request, not the reply: the drive's watchdog may restart as
-    early as the request reaches it), starts up to ``FEED_WAKE_S`` late, then waits for
-    the line: for the transaction in progress and for the feeds of the other drives
-    queued before it (feeds go first), each at most ``hold_s``
-    (``SerialSettings.longest_hold_s``: silence, the longest frame, the reply timeout).
-    The gap between two writes to a live drive stays within the time if
-        time / 3 + FEED_WAKE_S + drives x hold_s <= time,
-    i.e. time >= 1.5 x (FEED_WAKE_S + drives x hold_s) with 3 feeds per period. While
-    the line is down the feeds go on with the short stop timeout (``next_feed``: every
-    ``DOWN_FEED_RETRY_S`` within the lifeguard time), so a drive whose line answers x
-    after its last write is fed before it trips when x + DOWN_FEED_RETRY_S +
-    FEED_WAKE_S + hold_s < time (docs/bridges/motec.md, "Across line outages";
-    bench/motec_blackout.py)."""
-    gap_s = FEED_WAKE_S + drives * hold_s
-    bound_ms = gap_s * FEEDS_PER_PERIOD / (FEEDS_PER_PERIOD - 1) * 1000.0
-    return max(LIFEGUARD_MIN_MS, math.ceil(round(bound_ms, 6)))  # 90.00000000000001 is 90
-
-
-def lifeguard_bound_text(drives: int, hold_s: float) -> str:
-    """The formula of ``lifeguard_min_ms`` with this bus's numbers, for messages."""
-    return (
-        f"{FEEDS_PER_PERIOD / (FEEDS_PER_PERIOD - 1):g} x ({FEED_WAKE_S:g} s wake-up + "
-        f"{drives} drive(s) x {hold_s:.3f} s, the longest transaction on this line: "
-        f"silence, the longest frame, timeout_s)"
-    )
-
-
-@dataclass
-class StopWatch:
-    """What a stop's check read: 0xAC and 0xAF, in order (decision 22)."""
-
-    positions: list[int]
-    speeds: list[int]
-
-    @property
-    def stands(self) -> bool:
-        return bool(self.speeds) and abs(self.speeds[-1]) <= STANDSTILL_SPEED_RPM
-
-    def text(self) -> str:
-        if not self.speeds:
-            return "nothing read"
-        reads = f" over {len(self.speeds)} reads" if len(self.speeds) > 2 else ""
-        return (
-            f"0xAC {self.positions[0]} -> {self.positions[-1]}, 0xAF {self.speeds[0]} -> "
-            f"{self.speeds[-1]} rpm{reads}"
-        )
-
-
-def watch_stop(io: RegisterIO, sleep: Callable[[float], None] = time.sleep) -> StopWatch:
-    """0xAA-0xAF now and every ``STOP_CHECK_PERIOD_S`` until the drive stands (|0xAF|
-    within the standstill band, decision 22: an unchanged 0xAA proves nothing). Gives up
-    when ``STOP_CHECK_READS`` reads in a row did not show |0xAF| falling by more than the
-    band (the stop did not take), or after ``STOP_SETTLE_S`` (a ramp too long)."""
-    watch = StopWatch([], [])
-    since_fall = 0
-    for n in range(STOP_SETTLE_READS + 1):
-        if n:
-            sleep(STOP_CHECK_PERIOD_S)
-        v = read_blocks(io, MOTION_PLAN, Priority.COMMAND)[0]
-        speed = int(v["speed_actual"])
-        if watch.speeds:
-            falls = abs(speed) < abs(watch.speeds[-1]) - STANDSTILL_SPEED_RPM
-            since_fall = 0 if falls else since_fall + 1
-        watch.positions.append(int(v["position_actual"]))
-        watch.speeds.append(speed)
-        if watch.stands or since_fall >= STOP_CHECK_READS:
-            break
-    return watch
-
-
-def verified_position_stop(
-    io: RegisterIO,
-    write: Callable[[str, Value], None],
-    sleep: Callable[[float], None] = time.sleep,
-) -> str:
-    """0x29 = 0, then ``watch_stop``: stopped only when |0xAF| is within the standstill
-    band (decision 22; a falling speed keeps the check reading, up to ``STOP_SETTLE_S``).
-    Otherwise 0x28 = 0 (release, the stop the manual gives for every mode), 0x28 read back
-    and the drive watched again (``release_checked``). Returns what was done and seen when
-    the drive stands; ``NotConfirmed`` (what was written and read) when it does not
-    (decision 18)."""
-    write("start", STOP_MOVE)
-    try:
-        watch = watch_stop(io, sleep)
-        if watch.stands:
-            return f"move stopped (0x29 = 0; {watch.text()})"
-        seen = watch.text()
-    except LinkError as err:
-        seen = f"its effect could not be read: {err}"
-    return release_checked(io, write, sleep, f"0x29 = 0 did not stop the move ({seen})")
-
-
-def release_checked(
-    io: RegisterIO,
-    write: Callable[[str, Value], None],
-    sleep: Callable[[float], None],
-    why: str,
-) -> str:
-    """0x28 = 0 after a stop that did not take (``why``), then 0x28 read back and the
-    drive watched until it stands (``watch_stop``); ``NotConfirmed`` unless it reads 0x28
-    = 0 and stands."""
-    write("enable", ENABLE_OFF)
-    try:
-        enable = int(read_blocks(io, MODE_PLAN, Priority.COMMAND)[0]["enable"])
-        watch = watch_stop(io, sleep)
-    except LinkError as err:
-        raise NotConfirmed(
-            f"{why}: sent, not confirmed: wrote 0x28 = 0 (release), not read back: {err}"
-        ) from None
-    if enable != ENABLE_OFF:
-        raise NotConfirmed(
-            f"{why}: sent, not confirmed: wrote 0x28 = 0 (release), read 0x28 = {enable} "
-            f"({watch.text()})"
-        )
-    if not watch.stands:
-        raise NotConfirmed(
-            f"{why}: drive released (0x28 = 0, reads 0), not confirmed standing: {watch.text()}"
-        )
-    return f"{why}: drive released (0x28 = 0, reads 0; {watch.text()})"
-
-
-def _drive_line(unit: int, v: Mapping[str, Value]) -> str:
-    return (
-        f"drive {unit}: 0x28 = {v['enable']}, 0x29 = {v['start']}, "
-        f"0xAA = {v['position_setpoint']}, 0xAF = {v['speed_actual']} rpm"
-    )
-
-
-def disable_all(broadcast: RegisterIO, drives: Mapping[int, RegisterIO]) -> tuple[bool, str]:
-    """Release every drive on the bus with one broadcast write (unit 0, §2.5): 0x28 = 0.
-
-    No drive answers a broadcast, so each drive's 0x28 / 0x29 / 0xAA / 0xAF is read back
-    after it; a drive still enabled (it missed the frame) gets its own 0x28 = 0 and is read
-    again. True only when every drive reads 0x28 = 0 (decision 15); the text says, drive
-    by drive, what was seen.
-    """
-    reg = MOTEC_MAP["enable"]
-    broadcast.write_register(reg.address, encode(reg, ENABLE_OFF)[0])
-    ok = True
-    lines: list[str] = []
-    for unit, io in drives.items():
-        try:
-            v = read_blocks(io, BROADCAST_CHECK_PLAN, Priority.COMMAND)[0]
-            if int(v["enable"]) != ENABLE_OFF:
-                io.write_register(reg.address, encode(reg, ENABLE_OFF)[0])
-                v = read_blocks(io, BROADCAST_CHECK_PLAN, Priority.COMMAND)[0]
-                note = " (missed the broadcast: released by a write of its own)"
-            else:
-                note = ""
-        except LinkError as err:
-            ok = False
-            lines.append(f"drive {unit}: did not answer ({err}): its state is unknown")
-            continue
-        if int(v["enable"]) != ENABLE_OFF:
-            ok = False
-            note = " STILL ENABLED"
-        lines.append(_drive_line(unit, v) + note)
-    return ok, "; ".join(lines)
-
-
-def _start_checked(drives: Mapping[int, RegisterIO], read_only: Iterable[int]) -> dict[int, int]:
-    """``start_all``'s checks before it sends anything (refused: ``CommandRejected``,
-    naming every drive that fails one); the setpoint 0xAA each drive had, by unit."""
-    refused = [f"drive {u}'s node is read_only" for u in sorted(set(read_only) & set(drives))]
-    before: dict[int, int] = {}
-    for unit, io in drives.items():
-        try:
-            v = read_blocks(io, START_CHECK_PLAN, Priority.COMMAND)[0]
-            before[unit] = int(v["position_setpoint"])
-        except LinkError as err:
-            raise CommandRejected(f"drive {unit} did not answer ({err}); nothing sent") from None
-        modes = Modes(int(v["operation_mode"]), int(v["control_mode"]), bool(v["enable"]))
-        if not (modes.network and modes.control_mode == CONTROL_MODE_POSITION and modes.enabled):
-            refused.append(f"drive {unit} is in {modes.describe()}")
-        if int(v["fault_code"]):
-            refused.append(f"drive {unit} has fault {int(v['fault_code'])}")
-        if int(v["speed_setpoint"]) <= 0:
-            refused.append(
-                f"drive {unit}'s speed limit 0xAE is {int(v['speed_setpoint'])} rpm (the move "
-                "could not run)"
-            )
-    if refused:
-        raise CommandRejected(
-            "a synchronised start needs every drive in network mode, position control, "
-            f"enabled, without a fault, with a speed limit 0xAE > 0 and writable; "
-            f"{'; '.join(refused)}; nothing was sent"
-        )
-    return before
-
-
-def _stop_the_started(
-    drives: Mapping[int, RegisterIO], to_stop: Iterable[int], sleep: Callable[[float], None]
-) -> list[str]:
-    """A start not every drive took: the drives that took it, and those whose state is
-    unknown (they may be running), stopped (``verified_position_stop``), a line each."""
-    stops: list[str] = []
-    for unit in to_stop:
-        io = drives[unit]
-
-        def write(name: str, value: Value, io: RegisterIO = io) -> None:
-            r = MOTEC_MAP[name]
-            io.write_register(r.address, encode(r, value)[0])
-
-        try:
-            stops.append(f"drive {unit}: {verified_position_stop(io, write, sleep)}")
-        except NotConfirmed as err:
-            stops.append(f"drive {unit}: stop not confirmed: {err}")
-        except LinkError as err:
-            stops.append(f"drive {unit}: stop failed: {err}")
-    return stops
-
-
-def start_all(
-    broadcast: RegisterIO,
-    drives: Mapping[int, RegisterIO],
-    read_only: Iterable[int] = (),
-    sleep: Callable[[float], None] = time.sleep,
-) -> tuple[bool, str]:
-    """A synchronised start (§4.1 step 6 "0x29 写 1" sent to unit 0, §2.5: "支持广播通信方式
-    ... 不回应广播"): every drive starts the move it was given (0x26, 0x2D, 0xAE).
-
-    Before: ``~/move``'s checks for every drive (network mode, position control, enabled,
-    a speed limit 0xAE > 0), no fault code, and no drive whose node is ``read_only``;
-    refused, nothing sent, otherwise. After (nothing answers a broadcast): every drive's
-    0x28 / 0x29 / 0xAA / 0xAF read back. A drive took the start if its setpoint 0xAA moved
-    since the check or |0xAF| is above the standstill band (0x29 may read 1 from an
-    earlier move: it proves nothing). One that did not leaves a start that is not
-    synchronised, so the drives that did are stopped (``verified_position_stop``) and the
-    answer is False (decision 15); a zero-length move counts as not started. A drive whose
-    read-back is lost is neither: its state is unknown, it may be running, so it is
-    stopped too and the answer is False.
-    """
-    before = _start_checked(drives, read_only)
-    reg = MOTEC_MAP["start"]
-    broadcast.write_register(reg.address, encode(reg, START_MOVE)[0])
-    seen: dict[int, Mapping[str, Value]] = {}
-    unknown: dict[int, str] = {}
-    for unit, io in drives.items():
-        try:
-            seen[unit] = read_blocks(io, BROADCAST_CHECK_PLAN, Priority.COMMAND)[0]
-        except LinkError as err:
-            unknown[unit] = str(err)
-    missed = [
-        u
-        for u, v in seen.items()
-        if int(v["position_setpoint"]) == before[u]
-        and abs(int(v["speed_actual"])) <= STANDSTILL_SPEED_RPM
-    ]
-    lines = [
-        f"drive {u}: not read back ({unknown[u]}): its state is unknown"
-        if u in unknown
-        else _drive_line(u, seen[u])
-        for u in drives
-    ]
-    if not missed and not unknown:
-        return True, "; ".join(lines)
-    to_stop = [u for u in drives if u not in missed]
-    stops = _stop_the_started(drives, to_stop, sleep)
-    what = []
-    if missed:
-        what.append(f"drives {missed} did not take the start")
-    if unknown:
-        what.append(f"drives {sorted(unknown)} were not read back (they may be running)")
-    return False, (
-        f"{' and '.join(what)} ({'; '.join(lines)}); stopped the others: "
-        f"{'; '.join(stops) or 'none had started'}"
-    )
-
-
-# ---------------------------------------------------------------- checks
-
-
-def second_word_of(number: int) -> None:
-    """Refuse Pr.``number`` if it is the low word of a named 32-bit parameter."""
-    for other in MOTEC_MAP.in_table(Table.HOLDING):
-        if number in other.addresses() and number != other.address:
-            raise CommandRejected(
-                f"Pr.{number} is the low word of the 32-bit Pr.{other.address} ({other.name}, "
-                f"high word first, §3.1.2): give {other.address}"
-            )
-
-
-def known_parameter(number: int) -> Register:
-    """The register of Pr.``number`` (a parameter the manual names), else refused."""
-    reg = parameter_register(number)
-    if reg is not None:
-        return reg
-    second_word_of(number)
-    known = ", ".join(str(n) for n in parameter_numbers())
-    raise CommandRejected(
-        f"Pr.{number} is not a parameter the manual names, so its range is unknown (known: "
-        f"{known}); the drive node's allow_unlisted_parameters lets ~/write_parameter send it "
-        "anyway (the drive checks the value: exception 03)"
-    )
-
-
-def _check_lifeguard_ms(time_ms: int) -> None:
-    reg = MOTEC_MAP["lifeguard_time"]
-    if (
-        isinstance(time_ms, bool)
-        or not isinstance(time_ms, int)
-        or not LIFEGUARD_MIN_MS <= time_ms <= (reg.maximum or 0)
-    ):
-        raise CommandRejected(
-            f"lifeguard time {time_ms!r} ms outside {LIFEGUARD_MIN_MS}..{int(reg.maximum or 0)}"
-        )
-
-
-class MoveToMotion(Motion[MotecSnapshot]):
-    """``~/move_to``: one point-to-point move followed through the polls (docs/actions.md). Over
-    when the drive stands (``MotecSnapshot.stands``: |0xAF| within the standstill band, 0xAC
-    within ``tolerance_counts`` of 0xAA) on two polls in a row: at the target within
-    ``tolerance_counts`` it is REACHED, elsewhere STOPPED (a stop service, a disable, the
-    drive); a fault code ends it at once. Its stop is ``~/stop``'s, verified.
-    ``time_limit_margin`` > 0 (and no goal ``timeout_s``): the goal is stopped and TIMED_OUT
-    after the move's time at its speed limit times the margin plus ``MOVE_TIME_ALLOWANCE_S``
-    (decision 17)."""
-
-    axes: frozenset[Hashable] = frozenset({"drive"})
-    confirm_reached = True  # "stands" on two polls, REACHED too
-
-    def __init__(
-        self,
-        device: MotecDevice,
-        scale: DriveScale,
-        position_rad: float,
-        *,
-        relative: bool,
-        max_velocity_rad_s: float,
-        tolerance_counts: int,
-        time_limit_margin: float = 0.0,
-    ) -> None:
-        super().__init__()
-        self.device = device
-        self.scale = scale
-        self.counts = scale.to_counts(position_rad)
-        self.speed_rpm = scale.to_rpm(max_velocity_rad_s)
-        device.check_move(self.counts, self.speed_rpm)
-        self.relative = relative
-        self.tolerance_counts = tolerance_counts
-        self.time_limit_margin = time_limit_margin
-        self.time_limit_s = math.inf  # set at the start (distance and speed known then)
-        self.target = self.counts  # absolute; a relative move's is known at its start
-        self.what = f"move_to {'by' if relative else 'to'} {position_rad:g} rad"
-
-    def start(self) -> None:
-        # Where the drive is now: a relative move's target, an absolute one's distance.
-        position = int(self.device.read_named("position_actual")["position_actual"])
-        if self.relative:
-            self.target = position + self.counts
-        if self.time_limit_margin > 0:
-            rpm = self.speed_rpm or abs(
-                int(self.device.read_named("speed_setpoint")["speed_setpoint"])
-            )
-            self.time_limit_s = move_time_limit_s(
-                abs(self.target - position),
-                rpm,
-                self.scale.counts_per_rev,
-                self.time_limit_margin,
-            )
-        # A relative goal is sent as the absolute target it computed: the drive counts a
-        # relative move from its setpoint when 0x29 is written, which a move still under
-        # way shifts after this read, and the goal would judge a target the drive never
-        # had (MOTEC decision 19).
-        self.device.move(self.target, relative=False, speed_rpm=self.speed_rpm)
-
-    def stop(self) -> str:
-        return self.device.stop_move()
-
-    def running(self, snapshot: MotecSnapshot) -> bool:
-        return not snapshot.stands(self.tolerance_counts)
-
-    def default_timeout_s(self, node_default_s: float) -> float:
-        """Its own limit from the distance and the speed (decision 17) is judged on the
-        polls; the node's ``goal_timeout_s`` stays a backstop for when no poll comes (a
-        device that refuses every poll but the link is up)."""
-        return node_default_s
-
-    def judge(self, snapshot: MotecSnapshot, since_start_s: float = math.inf) -> Verdict | None:
-        if since_start_s != math.inf and since_start_s > self.time_limit_s:
-            if (verdict := self.fault(snapshot)) is not None:
-                return verdict
-            return Verdict(
-                Outcome.TIMED_OUT,
-                f"{self.what}: not done within {self.time_limit_s:.3g} s, the default limit "
-                f"(the move's time at {self.speed_rpm or 'the drive'}'s speed limit x "
-                f"{self.time_limit_margin:g} + {MOVE_TIME_ALLOWANCE_S:g} s; goal timeout_s "
-                "sets another, the node's move_time_margin 0 none)",
-            )
-        return super().judge(snapshot, since_start_s)
-
-    def fault(self, snapshot: MotecSnapshot) -> Verdict | None:
-        code = snapshot.fault_code
-        if not code:
-            return None
-        text = fault_text(code)
-        return Verdict(Outcome.FAULT, f"{self.what}: drive fault {code}: {text}", code, text)
-
-    def ended(self, snapshot: MotecSnapshot) -> Verdict:
-        short = self.target - snapshot.position_actual
-        if abs(short) <= self.tolerance_counts:
-            return Verdict(Outcome.REACHED, f"{self.what}: reached ({short} counts from target)")
-        return Verdict(
-            Outcome.STOPPED,
-            f"{self.what}: the drive stopped {self.scale.position(short):.6g} rad "
-            f"({short} counts) short of the target",
-        )
-
-    def feedback(self, snapshot: MotecSnapshot) -> dict[str, Any]:
-        return {
-            "position": self.scale.position(snapshot.position_actual),
-            "velocity": self.scale.velocity(snapshot.speed_actual_rpm),
-            "distance_to_go": self.scale.position(self.target - snapshot.position_actual),
-        }
-
-    def result(self, snapshot: MotecSnapshot | None) -> dict[str, Any]:
-        position = math.nan if snapshot is None else self.scale.position(snapshot.position_actual)
-        return {"position": position, "target_counts": self.target}
-
-
-__all__ = [
-    "CONFIG_PLAN",
-    "MODE_PLAN",
-    "STATUS_PLAN",
-    "DriveScale",
-    "Modes",
-    "MotecConfig",
-    "MotecDevice",
-    "MotecSnapshot",
-    "MoveToMotion",
-    "disable_all",
-    "lifeguard_bound_text",
-    "lifeguard_feed_period_s",
-    "lifeguard_min_ms",
-    "move_time_limit_s",
-    "start_all",
-    "verified_position_stop",
-]

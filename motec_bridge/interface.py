@@ -10,14 +10,9 @@ from bridge_core.runtime.parameters import DeviceDefaults, ParameterSpec
 from bridge_core.runtime.stream_guard import COMMAND_TIMEOUT_RANGE_S
 from bridge_core.wire.serial_timing import longest_hold_s
 
-from .device import (
-    DEFAULT_CONFIG_REFRESH_S,
-    DEFAULT_MAX_SPEED_RPM,
-    MOVE_TIME_MARGIN,
-    SPEED_LIMIT_RPM,
-    lifeguard_bound_text,
-    lifeguard_min_ms,
-)
+from .device import DEFAULT_CONFIG_REFRESH_S, DEFAULT_MAX_SPEED_RPM
+from .lifeguard import lifeguard_bound_text, lifeguard_min_ms
+from .motions import MOVE_TIME_MARGIN
 from .registers import (
     DEFAULT_BAUDRATE,
     INTERFACE_RS485,
@@ -25,6 +20,7 @@ from .registers import (
     OUTPUT1_COIL_CHOICES,
     OUTPUT1_COIL_DEFAULT,
 )
+from .units import SPEED_LIMIT_RPM
 
 # A speed write is one FC 06 of ~2-3 ms at 115200 baud: 20 a second per drive cost a few
 # percent of the bus that every drive's polls share.

@@ -36,7 +36,8 @@ from bridge_core.runtime.joint_commands import (
 )
 from bridge_core.runtime.stream_guard import StreamGuard
 
-from .device import VELOCITY_STREAM, DriveScale, MotecDevice
+from .device import VELOCITY_STREAM, MotecDevice
+from .units import DriveScale
 
 
 class DriveTarget:

@@ -62,19 +62,12 @@ from msg_defs.srv import (
     WriteParameter,
 )
 
-from .device import (
-    VELOCITY_STREAM,
-    DriveScale,
-    MotecDevice,
-    MotecSnapshot,
-    MoveToMotion,
-    disable_all,
-    lifeguard_bound_text,
-    lifeguard_min_ms,
-    start_all,
-)
+from .broadcast import disable_all, start_all
+from .device import VELOCITY_STREAM, MotecDevice
 from .interface import BUS_PARAMETERS, MOTEC_DEFAULTS, drive_parameters
 from .joint_commands import DriveTarget, command_joint
+from .lifeguard import lifeguard_bound_text, lifeguard_min_ms
+from .motions import MoveToMotion
 from .registers import (
     BROADCAST_UNIT,
     INTERFACE_RS232,
@@ -84,6 +77,8 @@ from .registers import (
     fault_text,
     operation_mode_name,
 )
+from .snapshots import MotecSnapshot
+from .units import DriveScale
 
 BUS_NODE_NAME = "motec_bridge"
 

@@ -33,24 +33,10 @@ from bridge_core.wire.errors import (
 )
 from bridge_core.wire.registers import Table, ValueType, WordOrder
 from bridge_core.wire.transport import ModbusLink, SerialSettings
-from motec_bridge.device import (
-    CONFIG_PLAN,
-    DOWN_FEED_RETRY_S,
-    MODE_PLAN,
-    MOVE_TIME_ALLOWANCE_S,
-    STANDSTILL_SPEED_RPM,
-    STATUS_PLAN,
-    DriveScale,
-    Modes,
-    MotecConfig,
-    MotecDevice,
-    MotecSnapshot,
-    MoveToMotion,
-    disable_all,
-    lifeguard_bound_text,
-    lifeguard_min_ms,
-    move_time_limit_s,
-)
+from motec_bridge.broadcast import disable_all
+from motec_bridge.device import MotecDevice
+from motec_bridge.lifeguard import DOWN_FEED_RETRY_S, lifeguard_bound_text, lifeguard_min_ms
+from motec_bridge.motions import MOVE_TIME_ALLOWANCE_S, MoveToMotion, move_time_limit_s
 from motec_bridge.registers import (
     CONTROL_MODE_POSITION,
     CONTROL_MODE_VELOCITY,
@@ -59,6 +45,16 @@ from motec_bridge.registers import (
     fault_text,
     output_coil,
 )
+from motec_bridge.snapshots import (
+    CONFIG_PLAN,
+    MODE_PLAN,
+    STANDSTILL_SPEED_RPM,
+    STATUS_PLAN,
+    Modes,
+    MotecConfig,
+    MotecSnapshot,
+)
+from motec_bridge.units import DriveScale
 
 from ..support.rtu_replay import RtuReplay, Step
 from ..support.serial_pair import socat_pair

@@ -27,8 +27,9 @@ from std_srvs.srv import SetBool, Trigger
 from bench.line_relay import LineRelay
 from bridge_core.wire.registers import Table
 from bridge_core.wire.transport import SerialSettings
-from motec_bridge.device import STANDSTILL_SPEED_RPM, lifeguard_min_ms
+from motec_bridge.lifeguard import lifeguard_min_ms
 from motec_bridge.sim import LIFEGUARD_FAULT_CODE, MotecSimDrive, MotecSimulator, make_simulator
+from motec_bridge.snapshots import STANDSTILL_SPEED_RPM
 from msg_defs.msg import MotecState
 from msg_defs.srv import (
     PositionMove,

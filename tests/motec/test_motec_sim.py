@@ -14,7 +14,8 @@ from bridge_core.wire.channel import DeviceChannel, Priority
 from bridge_core.wire.errors import CommandRejected, DeviceException, LinkTimeout
 from bridge_core.wire.registers import Table
 from bridge_core.wire.transport import ModbusLink, SerialSettings
-from motec_bridge.device import MotecDevice, disable_all, start_all
+from motec_bridge.broadcast import disable_all, start_all
+from motec_bridge.device import MotecDevice
 from motec_bridge.registers import (
     CONTROL_MODE_POSITION,
     CONTROL_MODE_VELOCITY,
