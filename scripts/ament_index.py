@@ -28,33 +28,42 @@ from pathlib import Path
 from typing import Any
 
 ROOT = Path(__file__).resolve().parent.parent
+if str(ROOT) not in sys.path:  # a colcon build runs this before bridge_core is installed
+    sys.path.insert(1, str(ROOT))
+
+from bridge_core.runtime.entries import DEMO_GROUP, bridge_packages, entry_table  # noqa: E402
+
 PYPROJECT = ROOT / "pyproject.toml"
 INDEX = Path("share") / "ament_index" / "resource_index" / "packages"
 # ros/<package>/ holds each Python package's ROS manifest and colcon setup.py.
 ROS_PACKAGES = ROOT / "ros"
-
-# What each package installs under share/<package>/ besides package.xml (paths from the
-# repository root; kept in the same relative place). The demo cell's launch file reads
-# every bridge's config, so bridge_core carries all four.
-SHARE_FILES: dict[str, tuple[str, ...]] = {
-    "bridge_core": (
-        "launch/cell.launch.py",
-        "config/r6.yaml",
-        "config/xarm.yaml",
-        "config/stepper.yaml",
-        "config/motec.yaml",
-    ),
-    "r6_bridge": ("launch/r6.launch.py", "config/r6.yaml"),
-    "xarm_bridge": ("launch/xarm.launch.py", "config/xarm.yaml"),
-    "stepper_bridge": ("launch/stepper.launch.py", "config/stepper.yaml"),
-    "motec_bridge": ("launch/motec.launch.py", "config/motec.yaml"),
-    "modbus_bridge": (
-        "launch/modbus.launch.py",
-        "config/modbus.yaml",
-        "config/devices/xarm.yaml",
-        "config/devices/rtu_multidrop.yaml",
-    ),
+CELL_LAUNCH = "launch/cell.launch.py"
+# What a bridge installs besides its launch file and example config.
+EXTRA_SHARE_FILES: dict[str, tuple[str, ...]] = {
+    "modbus_bridge": ("config/devices/xarm.yaml", "config/devices/rtu_multidrop.yaml"),
 }
+
+
+def share_files() -> dict[str, tuple[str, ...]]:
+    """What each package installs under share/<package>/ besides package.xml (paths from
+    the repository root; kept in the same relative place): each bridge of
+    ``bridge_packages()`` its launch file and example config, named as its entry
+    (``launch/<name>.launch.py``, ``config/<name>.yaml``), and ``EXTRA_SHARE_FILES``;
+    bridge_core the demo cell's launch file, which reads the config of every bridge in the
+    demo (the ``modbus_bridges.demo`` entries), and those configs."""
+    table = {
+        "bridge_core": (
+            CELL_LAUNCH,
+            *(f"config/{name}.yaml" for name in entry_table(DEMO_GROUP, ROOT)),
+        )
+    }
+    for name, package in bridge_packages(ROOT).items():
+        own = (f"launch/{name}.launch.py", f"config/{name}.yaml")
+        table[package] = (*own, *EXTRA_SHARE_FILES.get(package, ()))
+    return table
+
+
+SHARE_FILES = share_files()
 
 
 def project() -> dict[str, Any]:

@@ -20,7 +20,6 @@ STAMP="$VENV/.setup-stamp"
 MSG_DEFS_BUILD="$VENV/build/msg_defs"
 LOG="$VENV/setup.log"
 PY="${PYTHON:-python3}"
-PACKAGES=(bridge_core r6_bridge xarm_bridge stepper_bridge motec_bridge modbus_bridge)
 
 log() { printf 'setup: %s\n' "$*"; }
 die() { printf 'setup: ERROR: %s\n' "$*" >&2; exit 1; }
@@ -53,9 +52,7 @@ hash_files() {  # sha256 over the contents and names of the files under the give
 env_hash() {
     {
         "$PY" --version 2>&1
-        for p in "${PACKAGES[@]}"; do
-            if [[ -f "$p/__init__.py" ]]; then echo "package $p"; fi
-        done
+        for p in */__init__.py; do echo "package ${p%/__init__.py}"; done
         hash_files pyproject.toml scripts/setup.sh scripts/ament_index.py ros
     } | sha256sum | cut -d' ' -f1
 }

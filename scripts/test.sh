@@ -13,11 +13,16 @@ bash scripts/setup.sh
 # Keep ROS discovery on this machine (tests start nodes of their own).
 export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
 
+# The Python packages: bridge_core and every bridge (bridge_core.runtime.entries: the
+# modbus_bridges.interface entry points of pyproject.toml).
+mapfile -t PACKAGES < <(.venv/bin/python -c 'from bridge_core.runtime.entries import bridge_packages
+print("bridge_core", *bridge_packages().values(), sep="\n")')
+((${#PACKAGES[@]} > 1)) || { echo "test: no bridges found in pyproject.toml" >&2; exit 1; }
+
 # The packages and tests compiled to bytecode once, into their __pycache__ (ignored by
 # git): where Python is told not to write it (PYTHONDONTWRITEBYTECODE, as on the CI
 # machine), each of the suite's ~500 processes would compile them again (~0.1 CPU-s each).
-.venv/bin/python -m compileall -q -j 0 bridge_core r6_bridge xarm_bridge stepper_bridge \
-    motec_bridge modbus_bridge tests bench >/dev/null
+.venv/bin/python -m compileall -q -j 0 "${PACKAGES[@]}" tests bench >/dev/null
 
 if [[ "${LINT:-1}" == 1 ]]; then
     # mypy's cache is kept per machine, not per checkout: mypy checks each cached module
@@ -26,7 +31,7 @@ if [[ "${LINT:-1}" == 1 ]]; then
     # ~1 s instead of ~11 s on 2 cores. MYPY_CACHE_DIR chooses another place.
     export MYPY_CACHE_DIR="${MYPY_CACHE_DIR:-${XDG_CACHE_HOME:-$HOME/.cache}/modbus-ros-bridges/mypy}"
     pkgs=()
-    for p in bridge_core r6_bridge xarm_bridge stepper_bridge motec_bridge modbus_bridge; do
+    for p in "${PACKAGES[@]}"; do
         [[ -d "$p" ]] && pkgs+=("$p")
     done
     if ((${#pkgs[@]})); then

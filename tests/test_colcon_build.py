@@ -22,22 +22,15 @@ from types import ModuleType
 
 import pytest
 
+from bridge_core.runtime.entries import bridge_packages
 from bridge_core.wire.ports import free_port
 
 from .support.colcon import BUILD_TIMEOUT_S, colcon_build, venv_env
 from .support.ros import ROOT, ros_client, unique_namespace, wait_for
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(BUILD_TIMEOUT_S + 300)]
-PACKAGES = {
-    "msg_defs",
-    "bridge_core",
-    "r6_bridge",
-    "xarm_bridge",
-    "stepper_bridge",
-    "motec_bridge",
-    "modbus_bridge",
-}
-BRIDGES = PACKAGES - {"msg_defs", "bridge_core"}
+BRIDGES = set(bridge_packages().values())
+PACKAGES = {"msg_defs", "bridge_core", *BRIDGES}
 CPP_TYPESUPPORTS = (
     "rosidl_typesupport_cpp",
     "rosidl_typesupport_fastrtps_cpp",

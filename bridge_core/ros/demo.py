@@ -62,7 +62,7 @@ DEFAULT_DOMAIN_ID = 42
 INTERRUPTED = threading.Event()
 CONNECT_TIMEOUT_S = 30.0
 ROOT = entries.ROOT
-ENTRY_POINT_GROUP = "modbus_bridges.demo"
+ENTRY_POINT_GROUP = entries.DEMO_GROUP
 
 
 @dataclass

@@ -3,6 +3,11 @@ installed entry points (plain Python, so ROS-free listings can use it as the dem
 
 A name declared twice (a colcon install sourced over the editable install) is the same
 device: the first on the path wins, as for imports.
+
+``bridge_packages()`` is the one list of bridges: one per entry of ``BRIDGES_GROUP`` (each
+bridge's nodes as data), used by the tests and scripts that go over every bridge, so a new
+bridge joins them by its entry point alone. Standard library only: scripts/ament_index.py
+imports it in a colcon build, before bridge_core is installed.
 """
 
 from __future__ import annotations
@@ -13,6 +18,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]  # the checkout (or site-packages) holding us
 PROJECT_NAME = "modbus-ros-bridges"
+BRIDGES_GROUP = "modbus_bridges.interface"  # one entry per bridge: its nodes as data
+DEMO_GROUP = "modbus_bridges.demo"  # a bridge's entry in bridge_demo (the demo cell's bridges)
 
 
 def entry_table(group: str, root: Path = ROOT) -> dict[str, str]:
@@ -33,3 +40,13 @@ def entry_table(group: str, root: Path = ROOT) -> dict[str, str]:
 def entry_specs(group: str, root: Path = ROOT) -> list[str]:
     """The ``module:attr`` of every entry of ``group``."""
     return list(entry_table(group, root).values())
+
+
+def package_of(spec: str) -> str:
+    """The package of an entry: ``"r6_bridge.interface:NODES"`` -> ``"r6_bridge"``."""
+    return spec.partition(":")[0].split(".")[0]
+
+
+def bridge_packages(root: Path = ROOT) -> dict[str, str]:
+    """Every bridge, in declared order: its name (``r6``) -> its package (``r6_bridge``)."""
+    return {name: package_of(spec) for name, spec in entry_table(BRIDGES_GROUP, root).items()}

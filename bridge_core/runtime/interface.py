@@ -36,8 +36,6 @@ from .parameters import (
     bus_specs,
 )
 
-ENTRY_POINT_GROUP = "modbus_bridges.interface"
-
 
 @dataclass(frozen=True)
 class Topic:
@@ -233,7 +231,7 @@ class Bridge:
 
     @property
     def package(self) -> str:
-        return self.module.split(".")[0]
+        return entries.package_of(self.spec)
 
     @property
     def source(self) -> str:
@@ -241,17 +239,11 @@ class Bridge:
 
 
 def bridges() -> dict[str, Bridge]:
-    """Every bridge by name, in declared order: one per entry of ``ENTRY_POINT_GROUP``
-    (pyproject.toml in a checkout, else the installed entry points:
-    ``bridge_core.runtime.entries``). The one list of bridges the tools, tests and scripts
-    use: a new bridge is in it by its entry point alone."""
-    table = entries.entry_table(ENTRY_POINT_GROUP)
+    """Every bridge by name, in declared order: one per entry of the group
+    ``entries.BRIDGES_GROUP`` (pyproject.toml in a checkout, else the installed entry
+    points), as ``entries.bridge_packages()`` lists them."""
+    table = entries.entry_table(entries.BRIDGES_GROUP)
     return {name: Bridge(name, spec) for name, spec in table.items()}
-
-
-def bridge_packages() -> tuple[str, ...]:
-    """The bridges' packages (``r6_bridge``, ...), in declared order."""
-    return tuple(bridge.package for bridge in bridges().values())
 
 
 def entry_specs() -> list[str]:
@@ -277,7 +269,6 @@ __all__ = [
     "Service",
     "Topic",
     "bridge_node",
-    "bridge_packages",
     "bridges",
     "bus_node",
     "expand",

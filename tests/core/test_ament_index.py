@@ -15,6 +15,8 @@ from pathlib import Path
 
 import pytest
 
+from bridge_core.runtime.entries import bridge_packages
+
 from ..support.ros import ROOT
 
 
@@ -31,7 +33,7 @@ def test_every_console_script_is_reachable_as_ros2_run(monkeypatch: pytest.Monke
     from ament_index_python.packages import get_package_prefix
 
     packages = console_scripts()
-    assert {"r6_bridge", "xarm_bridge", "stepper_bridge", "motec_bridge"} <= packages.keys()
+    assert set(bridge_packages().values()) <= packages.keys()
     for package, names in packages.items():
         prefix = Path(get_package_prefix(package))
         for name in names:

@@ -18,12 +18,13 @@ from pathlib import Path
 
 import yaml  # type: ignore[import-untyped]
 
+from bridge_core.runtime.entries import bridge_packages
 from bridge_core.runtime.parameters import DeviceDefaults
 
 from ..support.ros import ROOT
 
 LAUNCH = ROOT / "launch"
-BRIDGES = {"r6_bridge", "xarm_bridge", "stepper_bridge", "motec_bridge", "modbus_bridge"}
+BRIDGES = set(bridge_packages().values())
 
 
 def console_scripts() -> dict[str, str]:
@@ -48,11 +49,7 @@ def test_every_launch_file_names_existing_packages_executables_and_files() -> No
     scripts = console_scripts()
     files = sorted(LAUNCH.glob("*.launch.py"))
     assert {f.name for f in files} >= {
-        "r6.launch.py",
-        "xarm.launch.py",
-        "stepper.launch.py",
-        "motec.launch.py",
-        "modbus.launch.py",
+        *(f"{name}.launch.py" for name in bridge_packages()),
         "cell.launch.py",
     }
     launched: set[str] = set()

@@ -19,8 +19,10 @@ from pathlib import Path
 
 import pytest
 
+from bridge_core.runtime.entries import bridge_packages
+
 ROOT = Path(__file__).resolve().parents[2]
-BRIDGES = ("r6_bridge", "xarm_bridge", "stepper_bridge", "motec_bridge", "modbus_bridge")
+BRIDGES = tuple(bridge_packages().values())
 LAYER_ORDER = {"wire": 0, "runtime": 1, "sim": 1, "ros": 2}
 # Third-party packages each layer may import (besides the standard library and PyYAML).
 PYMODBUS_LAYERS = {"wire", "sim"}

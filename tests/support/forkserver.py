@@ -48,12 +48,14 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from bridge_core.runtime.entries import bridge_packages
+
 ROOT = Path(__file__).resolve().parents[2]
 # What each server imports before it forks: the bridges' nodes (they bring rclpy, the
 # message packages, numpy, pymodbus and the register maps), and apart from them the
 # simulators, which do not use ROS: a simulator forked with rclpy loaded paid for it at its
 # exit (Fast DDS's factory destructor sleeps 0.1 s; a stop took 0.2 s instead of 0.06 s).
-BRIDGE_PACKAGES = ("r6_bridge", "xarm_bridge", "stepper_bridge", "motec_bridge", "modbus_bridge")
+BRIDGE_PACKAGES = tuple(bridge_packages().values())
 PRELOAD = {
     "node": tuple(f"{package}.node" for package in BRIDGE_PACKAGES),
     "sim": tuple(f"{package}.sim" for package in BRIDGE_PACKAGES),
