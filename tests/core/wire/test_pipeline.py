@@ -1,6 +1,6 @@
 """Pipelined Modbus TCP: replies matched by transaction id, the fallback, stops first.
 
-Against the simulator (``sim_base`` + ``tcp_serving``, real sockets) and, for replies a
+Against the simulator (``sim.serving`` + ``tcp_serving``, real sockets) and, for replies a
 simulator never sends (out of order, to a transaction not in flight), a raw peer.
 """
 
