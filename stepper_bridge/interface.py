@@ -9,16 +9,11 @@ from bridge_core.runtime.joint_commands import MAX_JUMP_SPEC
 from bridge_core.runtime.parameters import DeviceDefaults, ParameterSpec
 from bridge_core.runtime.stream_guard import COMMAND_TIMEOUT_RANGE_S
 
-from .device import (
-    DEFAULT_CONFIG_REFRESH_S,
-    DEFAULT_JOG_TIMEOUT_S,
-    DEFAULT_UNITS_PER_METER,
-    DESTRUCTIVE_COMMANDS,
-    PAIR_READING_CHOICES,
-    PAIR_READING_UNSET,
-    SYSTEM_COMMANDS,
-)
+from .device import DEFAULT_CONFIG_REFRESH_S, DESTRUCTIVE_COMMANDS, SYSTEM_COMMANDS
+from .interpolation import PAIR_READING_CHOICES, PAIR_READING_UNSET
+from .jog import DEFAULT_JOG_TIMEOUT_S
 from .registers import DEFAULT_BAUDRATE, MOTOR_ACTIONS, MOTORS, REPLY_DELAY_S
+from .units import DEFAULT_UNITS_PER_METER
 
 # A jog speed change is one FC 06 of ~52 ms at 9600 baud with the manual's 35 ms reply
 # delay (plus a direction coil when it reverses): 5 a second per motor leave the polls

@@ -36,7 +36,8 @@ from bridge_core.runtime.joint_commands import CommandJoint, CommandStream, Gate
 from bridge_core.runtime.stream_guard import Deferred, StreamGuard
 from bridge_core.wire.errors import CommandRejected
 
-from .device import SPEED_MAX_RPM, JointScale, StepperDevice
+from .device import StepperDevice
+from .jog import SPEED_MAX_RPM
 from .registers import (
     DISTANCE_SCALE,
     I32_SCALED_MAX,
@@ -44,6 +45,7 @@ from .registers import (
     MOTORS,
     motor_register,
 )
+from .units import JointScale
 
 SECONDS_PER_MINUTE = 60.0
 # The smallest run the controller takes: one step of its distance registers (0.01 unit).

@@ -48,7 +48,6 @@ from bridge_core.ros.process import spin_node
 from bridge_core.runtime.checks import board_zero_index, listed
 from bridge_core.runtime.diagnostics import Level, Report
 from bridge_core.runtime.joint_commands import MAX_JUMP_SPEC
-from bridge_core.runtime.parameters import padded
 from bridge_core.runtime.rate_groups import PollGroups
 from bridge_core.wire.errors import CommandRejected, ConfigurationError
 from bridge_core.wire.serial_timing import char_time_s
@@ -68,21 +67,10 @@ from msg_defs.srv import (
     SetValue,
 )
 
-from .device import (
-    DEFAULT_UNITS_PER_METER,
-    DESTRUCTIVE_COMMANDS,
-    JOINT_TYPES,
-    SYSTEM_COMMANDS,
-    CoilMotion,
-    HomeMotion,
-    InterpolationMotion,
-    JointScale,
-    MoveByMotion,
-    StepperDevice,
-    StepperSnapshot,
-)
+from .device import DESTRUCTIVE_COMMANDS, SYSTEM_COMMANDS, StepperDevice
 from .interface import PARAMETERS, STEPPER_DEFAULTS
 from .joint_commands import MotorTargets, command_joints
+from .motions import CoilMotion, HomeMotion, InterpolationMotion, MoveByMotion
 from .registers import (
     INTERPOLATION_PAIRS,
     LONGEST_REPLY_BYTES,
@@ -91,6 +79,8 @@ from .registers import (
     MOTORS,
     REPLY_DELAY_S,
 )
+from .snapshots import StepperSnapshot
+from .units import joint_scales
 
 # StepperState fields copied from the snapshot, and per-motor configuration fields.
 STATE_FIELDS = ("running", "coordinates", "inputs", "outputs")
@@ -183,7 +173,7 @@ class StepperBridgeNode(BridgeNode[StepperSnapshot]):
                 reply_timeout_floor_s(settings), settings.timeout_s
             )
         values = self.declare_specs(PARAMETERS)
-        self.scales = _joint_scales(
+        self.scales = joint_scales(
             values["joint_types"], values["units_per_meter"], values["units_per_revolution"]
         )
         self.device = StepperDevice(
@@ -709,29 +699,6 @@ def _said(response: Any, result: object) -> None:
     """A confirmed command's reply: what was written and read back."""
     if result:
         response.message = f"{response.message}: {result}"
-
-
-def _joint_scales(
-    types: Sequence[str],
-    units_per_meter: Sequence[float],
-    units_per_revolution: Sequence[float] = (),
-) -> list[JointScale]:
-    """Per-motor scales from the start-up parameters; a bad value is a ConfigurationError."""
-    types = list(types)[:MOTORS] + ["prismatic"] * (MOTORS - len(types))
-    for joint_type in types:
-        if joint_type not in JOINT_TYPES:
-            raise ConfigurationError(
-                f"joint_types: {joint_type!r} is not one of {', '.join(JOINT_TYPES)}"
-            )
-    units = padded(units_per_meter, MOTORS, DEFAULT_UNITS_PER_METER)
-    per_revolution = padded(units_per_revolution, MOTORS, 0.0)
-    for value in per_revolution:
-        if not math.isfinite(value) or value < 0:
-            raise ConfigurationError(
-                f"units_per_revolution: every value must be 0 (the lead) or positive and "
-                f"finite, got {value!r}"
-            )
-    return [JointScale(t, u, r) for t, u, r in zip(types, units, per_revolution, strict=True)]
 
 
 def main(args: Sequence[str] | None = None) -> int:

@@ -135,7 +135,7 @@ OUTPUT_COIL_FIRST = 49  # 00049-00072: output n on = 49 + 2(n-1), off = 50 + 2(n
 # Descriptions follow the type rows: they define the register written, say it identically
 # twice, and name the pairs in order. Types 2 and 3 are refused until the node's
 # interpolation_pair_reading names the reading a hardware check showed (stepper
-# decision 19, stepper_bridge.device.pair_axes).
+# decision 19, stepper_bridge.interpolation.pair_axes).
 INTERPOLATION_PAIRS: dict[int, tuple[int, int]] = {1: (1, 2), 2: (1, 3), 3: (2, 3)}
 # The point rows' reading, kept to tell which motors the two readings disagree on.
 INTERPOLATION_PAIRS_POINT_ROWS: dict[int, tuple[int, int]] = {1: (1, 2), 2: (2, 3), 3: (1, 3)}

@@ -17,10 +17,11 @@ from bridge_core.wire.channel import DeviceChannel
 from bridge_core.wire.errors import CommandRejected
 from bridge_core.wire.registers import Table
 from bridge_core.wire.transport import ModbusLink, SerialSettings
-from stepper_bridge.device import JointScale, StepperDevice
+from stepper_bridge.device import StepperDevice
 from stepper_bridge.joint_commands import MotorTargets, to_rpm, to_target
 from stepper_bridge.registers import STEPPER_MAP, motor_coil, motor_register
 from stepper_bridge.sim import FACTORY, StepperSimDevice, make_simulator
+from stepper_bridge.units import JointScale
 
 from ..support.ros import wait_for
 from ..support.serial_pair import PTY_REPLY_TIMEOUT_S, socat_pair
