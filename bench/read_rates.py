@@ -113,7 +113,7 @@ from bridge_core.wire.serial_timing import silence_s  # noqa: E402
 from bridge_core.wire.transport import SerialSettings  # noqa: E402
 from motec_bridge import snapshots as motec_snapshots  # noqa: E402
 from motec_bridge.registers import MOTEC_MAP  # noqa: E402
-from stepper_bridge import device as stepper_device  # noqa: E402
+from stepper_bridge import snapshots as stepper_snapshots  # noqa: E402
 from stepper_bridge.registers import REPLY_DELAY_S as STEPPER_REPLY_DELAY_S  # noqa: E402
 from stepper_bridge.registers import STEPPER_MAP  # noqa: E402
 
@@ -165,8 +165,8 @@ def rtu_cases(drives: Sequence[int]) -> list[RtuCase]:
         STEPPER_REPLY_DELAY_S,
         STEPPER_TIMEOUT_S,
         STEPPER_MAP,
-        tuple(stepper_device.FAST_PLAN),
-        tuple(stepper_device.SLOW_PLAN),
+        tuple(stepper_snapshots.FAST_PLAN),
+        tuple(stepper_snapshots.SLOW_PLAN),
     )
     motec = [
         RtuCase(
