@@ -108,7 +108,7 @@ from stepper_bridge.registers import motor_register  # noqa: E402
 
 RESULTS = ROOT / "bench" / "results" / "rtu_devices.json"
 MOTEC_BAUD = 115200
-# Node defaults (bridge_core/ros/node_parameters.py parameters, motec_bridge/node.py bus parameters;
+# Node defaults (bridge_core/ros/node_parameters.py parameters, motec_bridge/bus.py bus parameters;
 # not imported: those modules need rclpy).
 NODE_RETRIES = 1  # "retries"
 NODE_RECONNECT_MAX_S = 5.0  # "reconnect_max_s"

@@ -2,17 +2,18 @@
 
 One process, one serial port, one node per drive. ``main`` starts:
 
-- ``motec_bridge``: the bus owner (``bridge_core.ros.process.BusNode``). It has the serial
+- ``motec_bridge``: the bus owner (``MotecBusNode``, bus.py). It has the serial
   parameters (``serial_port``, ``baudrate``, ``parity``, ``stopbits``, ``timeout_s``)
   ``unit_ids`` and ``interface`` (rs485 / rs232: at most 31 / 8 drives, §1.1), opens the
   one ``ModbusLink`` every drive shares, and offers ``~/disable_all`` (one broadcast write,
   unit 0: 0x28 = 0 on every drive, unanswered) and ``~/start_all`` (every drive's modes
   read, then a broadcast 0x29 = 1: a synchronised start, MOTEC decision 15).
-- ``motec_<id>`` per unit id: a ``BridgeNode`` given the shared link and its unit id as
-  Python values, with its own ``DeviceChannel`` (so its own backoff: a dead drive is
-  retried on its own schedule, the others keep their poll slots), poll thread, topics,
-  services and parameters. It declares no serial parameters (they are the bus's) and
-  never closes the link (the bus node does, after every drive stopped).
+- ``motec_<id>`` per unit id: a ``BridgeNode`` (``MotecDriveNode``, here) given the
+  shared link and its unit id as Python values, with its own ``DeviceChannel`` (so its
+  own backoff: a dead drive is retried on its own schedule, the others keep their poll
+  slots), poll thread, topics, services and parameters. It declares no serial
+  parameters (they are the bus's) and never closes the link (the bus node does, after
+  every drive stopped).
 
 Parameters: a params file's ``/**:`` block reaches every node of the process (bus and
 drives); a ``/**/motec_<id>:`` block overrides one drive; ``-p name:=value`` on the
@@ -28,7 +29,6 @@ x 2 pi (rad), velocity = 0xAF rpm x 2 pi / 60 / ``gear_ratio`` (rad/s); ``~/move
 
 from __future__ import annotations
 
-import functools
 import sys
 import time
 from collections.abc import Sequence
@@ -39,17 +39,14 @@ from rclpy.node import Node
 from std_msgs.msg import Float64
 from std_srvs.srv import SetBool, Trigger
 
-from bridge_core.ros.joint_commands import JointCommandTopic
 from bridge_core.ros.node_base import BridgeNode, copy_fields
-from bridge_core.ros.process import BusNode, spin_nodes
+from bridge_core.ros.process import spin_nodes
 from bridge_core.runtime.checks import board_zero_index
 from bridge_core.runtime.diagnostics import Level, Report
 from bridge_core.runtime.joint_commands import MAX_JUMP_SPEC, CommandJoint, RefusalCounts
 from bridge_core.runtime.keepalive import IDLE_CHECK_S
 from bridge_core.runtime.rate_groups import PollGroups
-from bridge_core.wire.channel import DeviceChannel
-from bridge_core.wire.errors import CommandRejected, ConfigurationError, DeviceException, LinkError
-from bridge_core.wire.requests import Span
+from bridge_core.wire.errors import ConfigurationError, DeviceException, LinkError
 from bridge_core.wire.transport import ModbusLink
 from msg_defs.action import MoveTo
 from msg_defs.msg import MotecState
@@ -62,25 +59,15 @@ from msg_defs.srv import (
     WriteParameter,
 )
 
-from .broadcast import disable_all, start_all
+from .bus import MotecBusNode
 from .device import VELOCITY_STREAM, MotecDevice
-from .interface import BUS_PARAMETERS, MOTEC_DEFAULTS, drive_parameters
+from .interface import MOTEC_DEFAULTS, drive_parameters
 from .joint_commands import DriveTarget, command_joint
 from .lifeguard import lifeguard_bound_text, lifeguard_min_ms
 from .motions import MoveToMotion
-from .registers import (
-    BROADCAST_UNIT,
-    INTERFACE_RS232,
-    MAX_DRIVES,
-    UNIT_IDS,
-    control_mode_name,
-    fault_text,
-    operation_mode_name,
-)
+from .registers import control_mode_name, fault_text, operation_mode_name
 from .snapshots import MotecSnapshot
 from .units import DriveScale
-
-BUS_NODE_NAME = "motec_bridge"
 
 # MotecState fields copied as they are from the snapshot and its configuration.
 STATE_FIELDS = (
@@ -489,101 +476,6 @@ class MotecDriveNode(BridgeNode[MotecSnapshot]):
             super().close()  # stops first
         finally:
             self.keepalive.close()
-
-
-class MotecBusNode(BusNode):
-    """The serial bus shared by every drive node of the process."""
-
-    def __init__(self, **kwargs: Any) -> None:
-        super().__init__(
-            BUS_NODE_NAME,
-            MOTEC_DEFAULTS,
-            unit_id_range=range(min(UNIT_IDS), max(UNIT_IDS) + 1),
-            **kwargs,
-        )
-        values = self.declare_specs(BUS_PARAMETERS)
-        interface = str(values["interface"]).lower()
-        if len(self.unit_ids) > MAX_DRIVES[interface]:
-            raise ConfigurationError(
-                f"unit_ids has {len(self.unit_ids)} drives, but an {interface} line takes at "
-                f"most {MAX_DRIVES[interface]} (§1.1.1: RS232通讯口最多可以支持连接8台驱动器联网)"
-                if interface == INTERFACE_RS232
-                else f"unit_ids has {len(self.unit_ids)} drives, more than {MAX_DRIVES[interface]}"
-            )
-        self.interface = interface
-        self.read_only = bool(values["read_only"])
-        self.on_parameter("read_only", lambda value: setattr(self, "read_only", bool(value)))
-        self.broadcast = DeviceChannel(self.link, BROADCAST_UNIT, retries=0)
-        # One channel per drive for start_all's check (its own: no drive node's backoff).
-        self.drive_channels = {u: DeviceChannel(self.link, u, retries=0) for u in self.unit_ids}
-        # Their writes (and the broadcast's) change what the drive nodes' slow groups hold
-        # (0x28, 0x29): those are read again at the next poll.
-        self.broadcast.add_write_listener(self._broadcast_written)
-        for unit, channel in self.drive_channels.items():
-            channel.add_write_listener(functools.partial(self._drive_written, unit))
-        # The drive nodes of this process (build_nodes): start_all obeys their read_only.
-        self.drive_nodes: dict[int, MotecDriveNode] = {}
-        self.create_service(Trigger, "~/disable_all", self._disable_all)
-        self.create_service(Trigger, "~/start_all", self._start_all)
-
-    def command_drives(self) -> None:
-        """``~/joint_commands``: one topic for every drive of the bus, each name handed to
-        its drive node's streams, judged by that node's lifecycle and read_only, and
-        counted in that drive's diagnostics (a message refused whole: in the diagnostics
-        of each drive it names)."""
-        self.joint_commands = JointCommandTopic(
-            self, [drive.command_joint() for drive in self.drive_nodes.values()]
-        )
-
-    def _broadcast_written(self, span: Span) -> None:
-        for unit in self.drive_nodes:
-            self._drive_written(unit, span)
-
-    def _drive_written(self, unit: int, span: Span) -> None:
-        drive = self.drive_nodes.get(unit)
-        if drive is not None:
-            drive.device.groups.note_write(span)
-
-    def _disable_all(self, _request: Any, response: Any) -> Any:
-        if self.read_only:
-            response.success, response.message = False, "disable_all refused: read_only is set"
-            return response
-        try:
-            ok, seen = disable_all(self.broadcast, self.drive_channels)
-        except LinkError as err:
-            response.success, response.message = False, f"disable_all failed: {err}"
-            return response
-        response.success = ok
-        response.message = (
-            f"disable_all: broadcast 0x28 = 0 sent, read back: {seen}"
-            if ok
-            else f"disable_all: broadcast 0x28 = 0 sent, NOT every drive released: {seen}"
-        )
-        return response
-
-    def _start_all(self, _request: Any, response: Any) -> Any:
-        """Broadcast 0x29 = 1: every drive starts its prepared move at once (guarded)."""
-        response.success = False
-        if self._state_machine.current_state[1] != "active":
-            response.message = "start_all refused: the node is not active (lifecycle)"
-        elif self.read_only:
-            response.message = "start_all refused: read_only is set, nothing was written"
-        else:
-            read_only = [u for u, node in self.drive_nodes.items() if node.read_only]
-            try:
-                ok, seen = start_all(self.broadcast, self.drive_channels, read_only)
-            except CommandRejected as err:
-                response.message = f"start_all refused: {err}"
-            except LinkError as err:
-                response.message = f"start_all failed: {err}"
-            else:
-                response.success = ok
-                response.message = (
-                    f"start_all: broadcast 0x29 = 1 sent, read back: {seen}"
-                    if ok
-                    else f"start_all: broadcast 0x29 = 1 sent, not synchronised: {seen}"
-                )
-        return response
 
 
 def _said(response: Any, what: str) -> None:
