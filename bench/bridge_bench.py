@@ -749,6 +749,7 @@ def measure_node(
         "rate_hz": cycles / span,
         "rate_over_diagnostics_window_hz": tail_polls / tail_span if tail_span else math.nan,
         "diagnostics_window_s": tail_span,
+        "diagnostics_rate_window_s": RATE_WINDOW_S,  # the node's "achieved poll rate" window
         "transactions": b["transactions"] - a["transactions"],
         "slow_group_reads": slow_total,
         "joint_states_received_hz": (b["joint_states"] - a["joint_states"])
@@ -1091,7 +1092,8 @@ def print_table(results: dict[str, Any]) -> None:
         m = r["node_1000"]
         rows.append(
             (
-                f"   1b over the node's last {fmt(m['diagnostics_window_s'])} s / its diagnostics",
+                f"   1b counted, last {fmt(m['diagnostics_window_s'])} s / node's diagnostics "
+                f"({m['diagnostics_rate_window_s']:g} s)",
                 f"{fmt(m['rate_over_diagnostics_window_hz'])} / "
                 f"{fmt(m['diagnostics_achieved_hz'])}",
                 "",

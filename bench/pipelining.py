@@ -9,7 +9,8 @@ way, requests in flight overlap; docs/architecture.md, "Pipelined Modbus TCP") t
 simulator runs in a process of its own, and this process polls it as fast as it can:
 
 - ``bare``: a bare sync pymodbus ``ModbusTcpClient`` loop issuing the device's full poll
-  plan (R6 13 reads, xArm 8), one request at a time, as in bench/bridge_bench.py;
+  plan (R6 13 reads, xArm 8), one request at a time (bench/bridge_bench.py's bare loop
+  reads the device's rate groups instead, as the node does);
 - ``N``: the device layer (``R6Device.poll`` / ``XArmDevice.poll``: the fast group every
   poll, the slow group once a second) through a ``DeviceChannel`` with ``max_in_flight``
   N (1 = one request at a time, as before this work).

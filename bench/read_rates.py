@@ -524,7 +524,8 @@ def node_part(
 ) -> list[dict[str, Any]]:
     print(
         f"node (bridge_bench.py): poll rate at poll_rate_hz {NODE_RATE_HZ:g}, no subscriber "
-        "(the node's transactions / its fast requests per poll), CPU from /proc; latency = "
+        "(the node's transactions less its slow group's / its fast requests per poll), "
+        "CPU from /proc; latency = "
         "register change -> joint_states, node at 100 Hz"
     )
     bridge_bench.isolate_ros(domain_id)  # before rclpy is imported
