@@ -56,7 +56,7 @@ from __future__ import annotations
 import argparse
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 from bridge_core.sim.command_line import add_serial_arguments, serve_serial_until_signalled
 from bridge_core.sim.logs import WriteRecord
@@ -84,6 +84,7 @@ from .registers import (
     SYSTEM_COILS,
     motor_register,
 )
+from .sim_interpolation import Interpolation, center_arc, three_point_arc
 
 TRAVEL = 500.0  # physical position of each positive limit switch, user units
 START_POSITION = 50.0  # physical position at power-on (coordinate 0)
@@ -167,21 +168,6 @@ class Motion:
 
     kind: str
     target: float = 0.0  # physical position for 'single' / 'to_coordinate'
-
-
-@dataclass
-class Interpolation:
-    kind: str  # "line" or "arc"
-    motors: tuple[int, int]
-    start: tuple[float, float]  # coordinates
-    end: tuple[float, float]
-    rpm: float
-    center: tuple[float, float] = (0.0, 0.0)
-    sweep: float = 0.0  # signed angle of the arc (rad), ccw positive
-    phase: str = "approach"  # "approach" (each motor to the start), then "path"
-    travelled: float = 0.0  # along the path, user units
-    length: float = 0.0
-    done: list[int] = field(default_factory=list)
 
 
 # Non-zero minimums the bridge sets for its own unit arithmetic (step angle, microstep,
@@ -439,24 +425,16 @@ class StepperSimDevice(SimulatedDevice):
             job.length = math.dist(start, end)
         else:
             if int(self.get("arc_mode")) == ARC_MODE_CENTER:
-                center = point("arc_center")
-                ccw = bool(int(self.get("arc_direction")))
-                sweep = _angle(center, end) - _angle(center, start)
-                if ccw and sweep <= 0:
-                    sweep += 2 * math.pi
-                if not ccw and sweep >= 0:
-                    sweep -= 2 * math.pi
+                arc = center_arc(
+                    start, end, point("arc_center"), bool(int(self.get("arc_direction")))
+                )
             else:
-                via = point("arc_via")
-                found = _circumcenter(start, via, end)
+                found = three_point_arc(start, point("arc_via"), end)
                 if found is None:
                     return
-                center = found
-                to_via = (_angle(center, via) - _angle(center, start)) % (2 * math.pi)
-                to_end = (_angle(center, end) - _angle(center, start)) % (2 * math.pi)
-                sweep = to_end if to_via <= to_end else to_end - 2 * math.pi
-            job.center, job.sweep = center, sweep
-            job.length = abs(sweep) * math.dist(center, start)
+                arc = found
+            job.center, job.sweep = arc
+            job.length = abs(job.sweep) * math.dist(job.center, start)
         for m in job.motors:
             self.motion[m] = None
         self.interpolation = job
@@ -538,17 +516,7 @@ class StepperSimDevice(SimulatedDevice):
         previous = (self.position[a], self.position[b])
         job.travelled = min(job.length, job.travelled + self._speed(a, job.rpm) * dt)
         fraction = job.travelled / job.length if job.length > 0 else 1.0
-        if job.kind == "line":
-            point = tuple(s + (e - s) * fraction for s, e in zip(job.start, job.end, strict=True))
-        else:
-            radius = math.dist(job.center, job.start)
-            angle = _angle(job.center, job.start) + job.sweep * fraction
-            point = (
-                job.center[0] + radius * math.cos(angle),
-                job.center[1] + radius * math.sin(angle),
-            )
-            if fraction >= 1.0:
-                point = job.end
+        point = job.point_at(fraction)
         for m, value, before in zip((a, b), point, previous, strict=True):
             new = value + self.offset[m]
             if new != before and self._blocked(m, new - before):
@@ -566,22 +534,6 @@ class StepperSimDevice(SimulatedDevice):
             self.set(motor_register(m, "running"), 1 if running else 0)
         for n in range(1, INPUTS + 1):
             self.set(f"input_{n}", 1 if self.input_on(n) else 0)
-
-
-def _angle(center: tuple[float, float], point: tuple[float, float]) -> float:
-    return math.atan2(point[1] - center[1], point[0] - center[0])
-
-
-def _circumcenter(
-    p: tuple[float, float], q: tuple[float, float], r: tuple[float, float]
-) -> tuple[float, float] | None:
-    d = 2 * (p[0] * (q[1] - r[1]) + q[0] * (r[1] - p[1]) + r[0] * (p[1] - q[1]))
-    if abs(d) < 1e-12:
-        return None
-    pp, qq, rr = p[0] ** 2 + p[1] ** 2, q[0] ** 2 + q[1] ** 2, r[0] ** 2 + r[1] ** 2
-    x = (pp * (q[1] - r[1]) + qq * (r[1] - p[1]) + rr * (p[1] - q[1])) / d
-    y = (pp * (r[0] - q[0]) + qq * (p[0] - r[0]) + rr * (q[0] - p[0])) / d
-    return (x, y)
 
 
 def make_simulator(
