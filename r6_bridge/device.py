@@ -2,8 +2,9 @@
 
 No ROS here. Every command validates all of its inputs before the first write, so a
 refused command writes nothing. The program's checks and read backs are in program.py,
-the output writes in outputs.py, the point upload in upload.py, the action goals in
-motions.py. "R6 decision N" is reading N of docs/decisions/r6.md.
+the output writes in outputs.py, the counters in counters.py, the point upload in
+upload.py, the action goals in motions.py. "R6 decision N" is reading N of
+docs/decisions/r6.md.
 """
 
 from __future__ import annotations
@@ -24,9 +25,9 @@ from bridge_core.wire.errors import (
     PollIncomplete,
 )
 from bridge_core.wire.planner import ReadRequest, plan_reads
-from bridge_core.wire.registers import MAX_READ_REGISTERS, MAX_WRITE_REGISTERS
+from bridge_core.wire.registers import MAX_WRITE_REGISTERS
 
-from . import outputs
+from . import counters, outputs
 from .program import (
     START_COMMANDS,
     check_program_command,
@@ -41,23 +42,18 @@ from .registers import (
     I32_MIN,
     M_BOARDS,
     MAX_AXES,
-    MAX_COUNTERS,
     MAX_IO_BOARDS,
     MAX_VERSION_BYTES,
     PARAMETER_COUNT,
     PARAMETER_WRITE_LAST_INDEX,
     R6_MAP,
     STOP_COMMANDS,
-    U32_MAX,
     mode_name,
     parameter_address,
     parameter_offered,
 )
 from .upload import PointUploadSteps
 
-# §3.1.3: ids past the counter count are padded with 0xFF bytes.
-COUNTER_ID_PADDING = U32_MAX
-COUNTER_IDS_SHOWN = 10  # ids named in a refusal of an unknown counter
 # joint_states is stamped with the read time of the block holding the axis positions,
 # ~/tcp_pose with that of the world block (read just before it), ~/state with the time the
 # blocks before those two were read (R6 decision 26).
@@ -293,43 +289,12 @@ class R6Device:
         return int(self.read_named("mode")["mode"])
 
     def read_counter_ids(self) -> list[int]:
-        """§3.1.3: the count, then 2 registers per id in chunks that keep ids whole."""
-        count = self.io.read_registers(R6_MAP["counter_count"].address, 1)[0]
-        count = min(count, MAX_COUNTERS)
-        ids: list[int] = []
-        per_request = (MAX_READ_REGISTERS // 2) * 2
-        first = R6_MAP["counter_id_0"].address
-        remaining = 2 * count
-        address = first
-        while remaining > 0:
-            n = min(per_request, remaining)
-            words = self.io.read_registers(address, n)
-            ids += [words_to_int(words[k : k + 2], False, HIGH) for k in range(0, n, 2)]
-            address += n
-            remaining -= n
-        # A count that shrank between the two reads pads the rest with 0xFF (§3.1.3).
-        return [counter_id for counter_id in ids if counter_id != COUNTER_ID_PADDING]
+        """§3.1.3: the ids of the counters the controller lists (``counters``)."""
+        return counters.read_counter_ids(self.io)
 
     def read_counter(self, counter_id: int) -> tuple[int, int, int]:
-        """§3.1.4: write the id to 2179, then read id, target and current (6 registers).
-
-        The id read back must be the one written: another client selecting a counter in
-        between would otherwise hand us its counter's values."""
-        check_whole_number("counter id", counter_id, 0, COUNTER_ID_PADDING - 1)
-        address = R6_MAP["counter_select_id"].address
-        self.io.write_registers(address, int_to_words(counter_id, 2, False, HIGH))
-        words = self.io.read_registers(address, 6, priority=Priority.COMMAND)
-        selected = words_to_int(words[0:2], False, HIGH)
-        if selected != counter_id:
-            raise CommandRejected(
-                f"counter {counter_id}: the controller answered for counter {selected} "
-                "(another client selected a counter in between); try again"
-            )
-        return (
-            selected,
-            words_to_int(words[2:4], False, HIGH),
-            words_to_int(words[4:6], False, HIGH),
-        )
+        """§3.1.4: (id, target, current) of one counter, selected and checked."""
+        return counters.read_counter(self.io, counter_id)
 
     def read_data_source_length(self, source_id: int) -> int:
         """§4 rows 30000-30001: select the data source to view, read its buffer length
@@ -419,41 +384,12 @@ class R6Device:
         return outputs.write_board_outputs(self.io, board, bits, mask, boards_in_use)
 
     def set_counter(self, counter_id: int, value: int) -> str:
-        """§3.3.2: id, target (ignored by the host: 0) and current value, 6 registers.
-
-        The id must be one the controller lists (§3.1.3): the host acknowledges a write to
-        an unknown id and changes nothing. The counter is read back (§3.1.4) and the
-        reply says what it holds (R6 decision 24)."""
-        check_whole_number("counter id", counter_id, 0, U32_MAX)
-        check_whole_number("counter value", value, 0, U32_MAX)
-        ids = self.read_counter_ids()
-        if counter_id not in ids:
-            listed = ", ".join(str(k) for k in ids[:COUNTER_IDS_SHOWN])
-            extra = len(ids) - COUNTER_IDS_SHOWN
-            more = f" and {extra} more" if extra > 0 else ""
-            raise CommandRejected(
-                f"counter {counter_id} is not one the controller lists ({listed or 'none'}"
-                f"{more}; ~/list_counters)"
-            )
-        self.write_counter(counter_id, value)
-        _, target, current = self.read_counter(counter_id)
-        if current != value:
-            raise NotConfirmed(
-                f"counter {counter_id}: wrote {value}, reads {current} (target {target})"
-            )
-        return f"counter {counter_id} reads {current} (target {target})"
+        """§3.3.2: a listed counter's current value, read back (R6 decision 24)."""
+        return counters.set_counter(self.io, counter_id, value)
 
     def write_counter(self, counter_id: int, value: int) -> None:
         """§3.3.2's frame alone: id, target (ignored by the host: 0) and current value."""
-        check_whole_number("counter id", counter_id, 0, U32_MAX)
-        check_whole_number("counter value", value, 0, U32_MAX)
-        words = [
-            *int_to_words(counter_id, 2, False, HIGH),
-            0,
-            0,
-            *int_to_words(value, 2, False, HIGH),
-        ]
-        self.io.write_registers(R6_MAP["counter_modify_id"].address, words)
+        counters.write_counter(self.io, counter_id, value)
 
     def write_parameter(self, index: int, value: int) -> str:
         """One parameter, read back after the write (R6 decision 24): the host
