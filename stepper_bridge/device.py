@@ -6,10 +6,10 @@ for lead, run distance and coordinates (the device stores them x100), rpm, Hz, d
 
 "Stepper decision N" is reading N of docs/decisions/stepper.md.
 
-Confirmation (issue 39, stepper decision 23): the controller acknowledges every write
-whether or not it obeys, so a stop is done when the running flags (40168+) read 0, a start
-when one reads 1 or a coordinate moved, a register write when it reads back; otherwise
-``NotConfirmed`` says what was written and what was read.
+Confirmation (issue 39, stepper decision 23; ``confirm``): the controller acknowledges every
+write whether or not it obeys, so a stop is done when the running flags (40168+) read 0, a
+start when one reads 1 or a coordinate moved, a register write when it reads back;
+otherwise ``NotConfirmed`` says what was written and what was read.
 
 Polling (``snapshots``: the plans and types): status every poll, the outputs every
 ``slow_poll_period_s``; the configuration is read whole when the link comes up, then
@@ -36,6 +36,7 @@ from bridge_core.wire.codec import Value, decode, encode
 from bridge_core.wire.errors import CommandRejected, LinkError, NotConfirmed
 from bridge_core.wire.registers import Register
 
+from .confirm import confirm_started, confirm_stopped
 from .interpolation import PAIR_READING_UNSET, InterpolationControl, InterpolationRun
 from .jog import DEFAULT_JOG_TIMEOUT_S, JogControl
 from .registers import (
@@ -58,12 +59,8 @@ from .replies import (
     check_integer,
     check_motor,
     coil_label,
-    coordinates_text,
-    flags_text,
     motor_coils_text,
-    register_label,
     register_text,
-    units_differ,
 )
 from .snapshots import (
     CONFIG_PLAN,
@@ -87,16 +84,6 @@ DESTRUCTIVE_COMMANDS = ("factory_reset", "clear_all_parameters")
 DEFAULT_CONFIG_REFRESH_S = 5.0
 # Coils that stop motion: sent at Priority.STOP (with each motor's stop coil).
 _STOP_COILS = frozenset({"emergency_stop", "arc_stop", "line_stop"})
-# Confirmation (issue 39, stepper decision 23): a command that starts, stops or changes
-# motion is done only when the controller's own state, read back, shows it. A stop: the
-# running flags (40168+) of its motors read 0 within STOP_CONFIRM_S (the stop coil is the
-# manual's "急停", an immediate stop); a start: a running flag reads 1, or a coordinate
-# (40108+) moved, within START_CONFIRM_S; a register write: the register reads the value
-# written. Read at command priority every CONFIRM_READ_PERIOD_S (polls get the line
-# between two reads); not shown in time: ``NotConfirmed`` saying what was written and read.
-STOP_CONFIRM_S = 0.5
-START_CONFIRM_S = 0.5
-CONFIRM_READ_PERIOD_S = 0.05
 
 
 # Speed register name -> its motor (a speed written by a command is the configured one).
@@ -259,7 +246,7 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
         wrote = motor_coils_text([motor], action)
         if not confirm:
             return f"wrote {wrote}"
-        return self.confirm_started([motor], wrote, before)
+        return confirm_started(self, [motor], wrote, before)
 
     def send_motor_stops(self, motors: Sequence[int]) -> LinkError | None:
         """Each motor's stop coil at stop priority, every one tried; the first failure is
@@ -288,7 +275,7 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
         error = self.send_motor_stops(motors)
         if error is not None:
             raise error
-        return self.confirm_stopped(motors, motor_coils_text(motors, "stop"))
+        return confirm_stopped(self, motors, motor_coils_text(motors, "stop"))
 
     def stream_stop(self, motor: int) -> str:
         """A stream's stop (a jog's 0, the deadman, a halt; the position stream's too):
@@ -296,61 +283,14 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
         (``NotConfirmed`` otherwise: the stream's stop stays pending and is sent again)."""
         self.io.write_coil(motor_coil(motor, "stop"), True, Priority.STOP)
         self.jog_control.direction[motor] = 0
-        return self.confirm_stopped([motor], motor_coils_text([motor], "stop"))
+        return confirm_stopped(self, [motor], motor_coils_text([motor], "stop"))
 
     # ------------------------------------------------------------------ read-back
-    def _running_flags(self, motors: Sequence[int]) -> dict[int, bool]:
-        """The running flags (40168+) of ``motors``, read now at command priority."""
-        names = {m: motor_register(m, "running") for m in motors}
-        values = self.read_named(*names.values())
-        return {m: bool(values[name]) for m, name in names.items()}
-
     def coordinates(self, motors: Sequence[int]) -> dict[int, float]:
         """The coordinates of ``motors`` read now (user units)."""
         names = {m: motor_register(m, "coordinate") for m in motors}
         values = self.read_named(*names.values())
         return {m: float(values[name]) for m, name in names.items()}
-
-    def confirm_stopped(self, motors: Sequence[int], wrote: str) -> str:
-        """The running flags of ``motors`` read until every one is 0, for STOP_CONFIRM_S:
-        what was written and read, or ``NotConfirmed`` saying so."""
-        deadline = time.monotonic() + STOP_CONFIRM_S
-        while True:
-            flags = self._running_flags(motors)
-            still = [m for m in motors if flags[m]]
-            if not still:
-                return f"wrote {wrote}; read {flags_text(motors, 0)}"
-            if time.monotonic() >= deadline:
-                raise NotConfirmed(
-                    f"wrote {wrote}; read {flags_text(still, 1)} {STOP_CONFIRM_S:g} s after"
-                )
-            time.sleep(CONFIRM_READ_PERIOD_S)
-
-    def confirm_started(self, motors: Sequence[int], wrote: str, before: dict[int, float]) -> str:
-        """A start shown: a running flag of ``motors`` reads 1, or a coordinate left its
-        value ``before`` the start by a step (a short single run may end before the first
-        read), within START_CONFIRM_S; else ``NotConfirmed`` with what was read."""
-        deadline = time.monotonic() + START_CONFIRM_S
-        while True:
-            flags = self._running_flags(motors)
-            on = [m for m in motors if flags[m]]
-            if on:
-                return f"wrote {wrote}; read {flags_text(on, 1)}"
-            now = self.coordinates(motors)
-            moved = [m for m in motors if units_differ(now[m], before[m])]
-            if moved:
-                return f"wrote {wrote}; read {coordinates_text(moved, before, now)}"
-            if time.monotonic() >= deadline:
-                unchanged = ", ".join(
-                    f"motor {m} coordinate ({register_label(motor_register(m, 'coordinate'))}) "
-                    f"{now[m]:g}"
-                    for m in motors
-                )
-                raise NotConfirmed(
-                    f"wrote {wrote}; read {flags_text(motors, 0)} and {unchanged} unchanged "
-                    f"{START_CONFIRM_S:g} s after"
-                )
-            time.sleep(CONFIRM_READ_PERIOD_S)
 
     def _read_back(self, values: Sequence[tuple[str, Value]]) -> str:
         """The registers just written read back: "wrote X = 1, Y = 2 (read back)", or
@@ -545,9 +485,9 @@ class StepperDevice(ConfiguredDevice[StepperConfig]):
                 self.jog_control.restore_after_stop(list(range(1, MOTORS + 1)))
         wrote = f"{name.replace('_', ' ')} (coil {coil_label(coil(SYSTEM_COILS[name]))} = ON)"
         if name == "emergency_stop":
-            return self.confirm_stopped(every, wrote)
+            return confirm_stopped(self, every, wrote)
         if starts:
-            return self.confirm_started(every, wrote, before)
+            return confirm_started(self, every, wrote, before)
         if name == "return_to_zero" and confirm:
             return f"wrote {wrote}; every coordinate read 0 before it"
         return f"wrote {wrote}"

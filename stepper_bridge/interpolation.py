@@ -21,6 +21,7 @@ from bridge_core.runtime.checks import check_choice, check_finite
 from bridge_core.wire.codec import encode
 from bridge_core.wire.errors import CommandRejected, LinkError
 
+from .confirm import confirm_started, confirm_stopped
 from .registers import (
     ARC_MODE_CENTER,
     ARC_MODE_THREE_POINTS,
@@ -240,7 +241,7 @@ class InterpolationControl:
             f"{name.replace('_', ' ')} (coil {coil_label(coil(SYSTEM_COILS[name]))} = ON)"
             for name in ("arc_stop", "line_stop")
         )
-        said = self.device.confirm_stopped(motors, f"{wrote}, {motor_coils_text(motors, 'stop')}")
+        said = confirm_stopped(self.device, motors, f"{wrote}, {motor_coils_text(motors, 'stop')}")
         if self.run is run:
             self.run = None
         return said
@@ -275,7 +276,7 @@ class InterpolationControl:
         wrote = f"{kind} start (coil {coil_label(coil(SYSTEM_COILS[name]))} = ON)"
         if not confirm:
             return f"wrote {wrote}"
-        return self.device.confirm_started(sorted(at_start), wrote, at_start)
+        return confirm_started(self.device, sorted(at_start), wrote, at_start)
 
     def note_wrong_pair(self, coordinates: Sequence[float]) -> None:
         run = self.run
