@@ -47,6 +47,15 @@ ROS_FREE_BRIDGE_MODULES = (
     "doc",
     "interface",
     "joint_commands",
+    # the stepper's rooms (its device split by job)
+    "confirm",
+    "interpolation",
+    "jog",
+    "motions",
+    "replies",
+    "sim_interpolation",
+    "snapshots",
+    "units",
 )
 
 
