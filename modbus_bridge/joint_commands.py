@@ -1,4 +1,4 @@
-"""A described device's ``~/joint_commands`` (issue 25, docs/ros2_control.md). No ROS here.
+"""A described device's ``~/joint_commands`` (docs/ros2_control.md). No ROS here.
 
 A joint with a ``command`` block in its description takes position targets, velocities, or
 both (modbus_bridge decision 18, docs/decisions/modbus.md):

@@ -70,7 +70,7 @@ def _number(value: Value) -> float:
 def joint_positions(positions: Sequence[float], joints: int) -> Sequence[float]:
     """joint_states' ``position``: one per joint always, NaN for a joint without a position
     register (decision 14): a file of velocity-only joints (a VFD) publishes NaN, as beside
-    a position joint, not an empty array (issue 41 item 6; docs/bridges/modbus.md,
+    a position joint, not an empty array (docs/bridges/modbus.md,
     "Velocity-only joints"). ``velocity`` and ``effort`` stay empty when no joint has them."""
     return positions if positions else (math.nan,) * joints
 

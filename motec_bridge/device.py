@@ -362,7 +362,7 @@ class MotecDevice(ConfiguredDevice[MotecConfig]):
         the drive turns towards it from where it is (MOTEC decision 21). 0x26-0x27 and
         0x29 are read back (one read): a drive that did not take the target would run on
         to the older one, so it is stopped and ``NotConfirmed`` says what was written and
-        read (issue 39)."""
+        read (MOTEC decision 21)."""
         encode(MOTEC_MAP["target_distance"], counts)  # range check before any write
         self._write("motion_mode", MOTION_ABSOLUTE)
         self._write("target_distance", counts)

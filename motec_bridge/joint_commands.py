@@ -1,5 +1,5 @@
-"""A MOTEC drive's part of the bus owner's ``~/joint_commands`` (issue 25,
-docs/ros2_control.md). No ROS here.
+"""A MOTEC drive's part of the bus owner's ``~/joint_commands`` (docs/ros2_control.md).
+No ROS here.
 
 One joint per drive (``drive_<id>``, as in ``joint_states``):
 
@@ -19,7 +19,7 @@ The position stream follows the velocity guard (one lock; ``~/stop``, a disable 
 change takes both over) and has the drive's ``command_timeout_s`` deadman and
 ``command_rate_hz``. The joint is judged by its own drive node's state (``gate``) and its
 refusals count in that node's diagnostics (``counts``): a drive deactivated refuses its
-own values, the other drives of the bus apply theirs (issue 40).
+own values, the other drives of the bus apply theirs.
 """
 
 from __future__ import annotations

@@ -24,7 +24,8 @@ LIFEGUARD_MIN_MS = 50  # below this a feed every third of it would crowd the bus
 FEEDS_PER_PERIOD = 3  # the bridge writes at least 3 times per lifeguard time
 # While a drive is marked down, within the lifeguard time since its last write, a feed is
 # tried this often (each try holds the line for the short stop timeout): a line that
-# answers again is found, and the drive fed, within about this (issue 39 hole 11).
+# answers again is found, and the drive fed, within about this (docs/bridges/motec.md,
+# "Across line outages").
 DOWN_FEED_RETRY_S = 0.1
 
 
@@ -47,12 +48,12 @@ def next_feed_time(
     """When the lifeguard needs its next write (the clock of ``last_write``, the request
     of the drive's last successful write, and ``last_feed_try``, the last feed's request).
 
-    Up: a feed period after the request of the last write of any kind (a feed that
-    failed while the line was down does not delay it: once the line answers again the
-    overdue feed goes at once, issue 39 hole 11). Down (``down``): the first try a
-    feed period after the last write, then one every ``DOWN_FEED_RETRY_S`` until the
-    lifeguard time since the last write is over (after it a real drive has tripped
-    unless a try got through), then one per feed period."""
+    Up: a feed period after the request of the last write of any kind (a feed that failed
+    while the line was down does not delay it: once the line answers again the overdue feed
+    goes at once; docs/bridges/motec.md, "Across line outages"). Down (``down``): the first
+    try a feed period after the last write, then one every ``DOWN_FEED_RETRY_S`` until the
+    lifeguard time since the last write is over (after it a real drive has tripped unless a
+    try got through), then one per feed period."""
     period = lifeguard_feed_period_s(time_ms)
     first = last_write + period
     if not down or last_feed_try < first - period:

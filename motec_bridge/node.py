@@ -157,7 +157,7 @@ class MotecDriveNode(BridgeNode[MotecSnapshot]):
             "position_max_velocity",
             lambda value: setattr(self, "position_max_velocity", float(value)),
         )
-        # This drive's own refusals of the bus owner's topic (its diagnostics, issue 40).
+        # This drive's own refusals of the bus owner's topic (in its own diagnostics).
         self.joint_refusals = RefusalCounts()
         self.joint_command_refusals = self.joint_refusals
         self.target = DriveTarget(

@@ -6,7 +6,7 @@ for lead, run distance and coordinates (the device stores them x100), rpm, Hz, d
 
 "Stepper decision N" is reading N of docs/decisions/stepper.md.
 
-Confirmation (issue 39, stepper decision 23; ``confirm``): the controller acknowledges every
+Confirmation (stepper decision 23; ``confirm``): the controller acknowledges every
 write whether or not it obeys, so a stop is done when the running flags (40168+) read 0, a
 start when one reads 1 or a coordinate moved, a register write when it reads back;
 otherwise ``NotConfirmed`` says what was written and what was read.

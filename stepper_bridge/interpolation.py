@@ -223,9 +223,9 @@ class InterpolationControl:
         """Arc stop (00101) and line stop (00103), then the stop coil of each motor the
         line / arc may move (the bridge's run's, under either reading of its pair; every
         motor a pair can name when the bridge started none), every one tried even if
-        one fails; then their running flags read back until 0 (issue 39 hole 7: a
-        controller that kept running after the interpolation stops was reported
-        stopped; stepper decision 23). Raises the first LinkError, or NotConfirmed."""
+        one fails; then their running flags read back until 0 (stepper decision 23: a
+        controller that kept running after the interpolation stops was once reported
+        stopped). Raises the first LinkError, or NotConfirmed."""
         run = self.run
         motors = list(run.motors) if run is not None else list(INTERPOLATION_MOTORS)
         error: LinkError | None = None

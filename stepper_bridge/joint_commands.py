@@ -1,4 +1,4 @@
-"""The stepper's ``~/joint_commands`` (issue 25, docs/ros2_control.md). No ROS here.
+"""The stepper's ``~/joint_commands`` (docs/ros2_control.md). No ROS here.
 
 Joints ``motor_1 .. motor_5`` (the names of ``joint_states``, with ``joint_prefix``):
 
@@ -87,7 +87,7 @@ class MotorTargets:
         if stream.active and not stream.stop_pending and stream.value == target:
             return target
         if stream.locked and not stream.settled:
-            # Refused by the guard's lock (issue 40): no reads on the line for it (a
+            # Refused by the guard's lock: no reads on the line for it (a
             # controller holding a target the stop cut short starved the polls).
             return target
         running = self._read(motor, "running")
@@ -116,7 +116,7 @@ class MotorTargets:
             return  # there already
         # Direction and run distance are written every time, as move_by does: the values
         # the bridge read may have been changed at the controller (its touch panel) since,
-        # and a cached direction would send the motor the wrong way (issue 39 hole 8).
+        # and a cached direction would send the motor the wrong way (stepper decision 22).
         self.device.move_by(motor, distance, confirm=False)
 
     def _observed(self, motor: int) -> tuple[bool, float | None]:

@@ -44,11 +44,11 @@ N of docs/decisions/stepper.md):
 
 The special modes 1-5 (input-driven motion, §5(3)) are stored but not simulated.
 
-Personalities (issue 39, ``bridge_core.sim.personality``): ``--reply-delay-ms MIN[:MAX]``
-and ``--ignore NAME,...`` with the names of ``IGNORABLE`` (per motor: run, forward,
-reverse, home, stop, speed, direction, distance; system: estop, to_zero, home_all,
-line_start, line_stop, arc_start, arc_stop). A motor's stop coil also ends a line / arc
-that moves it (stepper decision 23).
+Personalities (docs/tools.md, "Device personalities"; ``bridge_core.sim.personality``):
+``--reply-delay-ms MIN[:MAX]`` and ``--ignore NAME,...`` with the names of ``IGNORABLE``
+(per motor: run, forward, reverse, home, stop, speed, direction, distance; system: estop,
+to_zero, home_all, line_start, line_stop, arc_start, arc_stop). A motor's stop coil also
+ends a line / arc that moves it (stepper decision 23).
 """
 
 from __future__ import annotations

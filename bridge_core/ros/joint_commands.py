@@ -1,4 +1,5 @@
-"""``~/joint_commands``: one ``sensor_msgs/JointState`` command topic per node (issue 25).
+"""``~/joint_commands``: one ``sensor_msgs/JointState`` command topic per node
+(docs/ros2_control.md).
 
 Part of the ROS side (imports rclpy). The checks are ``bridge_core.runtime.joint_commands``
 (plain Python); here is the subscription: a message is checked whole on arrival, on the

@@ -25,13 +25,13 @@ if TYPE_CHECKING:
 
 T = TypeVar("T")
 # The deadman looks every command_timeout_s / DEADMAN_CHECKS (within these bounds): its
-# stop comes at most one period after the timeout (issue 9: within command_timeout_s and
-# one bus transaction of the last message).
+# stop comes at most one period after the timeout (the goal: within command_timeout_s and
+# one bus transaction of the last message; docs/behaviour.md, "Command streams").
 DEADMAN_CHECKS = 20
 DEADMAN_PERIOD_MIN_S = 0.01
 DEADMAN_PERIOD_MAX_S = 0.05
 STREAM_DEPTH = 1  # command streams: only the newest message matters
-# What a 0 that found nothing to stop says while the node is inactive (issue 40: it said
+# What a 0 that found nothing to stop says while the node is inactive (it once said
 # "refused", though a stop always goes and nothing needed writing).
 NOTHING_MOVED = "nothing was moving, nothing written (the node is not active)"
 
@@ -200,7 +200,7 @@ class StreamHost:
             if not ok:
                 self._refused(guard, key, message, stopping)
             elif a_stop and not wrote and not self.node.active:
-                # Issue 40: not "refused": there was nothing to stop.
+                # Not "refused": there was nothing to stop.
                 self.node.get_logger().info(
                     f"{what(key, value)}: {NOTHING_MOVED}", throttle_duration_sec=2.0
                 )

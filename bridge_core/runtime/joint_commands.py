@@ -1,4 +1,4 @@
-"""``~/joint_commands`` (issue 25): a ``sensor_msgs/JointState`` command message checked
+"""``~/joint_commands`` (docs/ros2_control.md): a ``sensor_msgs/JointState`` command message checked
 whole, then handed to the joints' stream guards. Plain Python (no rclpy).
 
 The far end is ros2_control's topic-based system (``joint_state_topic_hardware_interface``,
@@ -14,8 +14,9 @@ command topics already use), and ``plan`` checks one message against them:
 - the state of the node that drives each joint (its ``gate``): a joint whose node is
   inactive, under ``read_only`` or without its link has its value refused, unless it is
   a velocity 0 (a stop always goes). When every joint named is refused so, the message is
-  refused whole; else only those joints' values are (counted by their own node, issue 40:
-  a MOTEC drive's deactivate stopped the other drives of its bus) and the others apply;
+  refused whole; else only those joints' values are (counted by their own node; when
+  the whole message was refused, a MOTEC drive's deactivate stopped the other drives of its
+  bus) and the others apply;
 - every value finite and, converted by the joint's own conversion (the one its
   ``joint_states`` uses), inside the joint's limits;
 - a position target no farther than ``joint_command_max_jump`` (rad or m; 0: no check)
@@ -66,7 +67,7 @@ MAX_JUMP_LIMIT = 1e6
 # a share of joint_command_max_jump (of its default when the check is off): 1 mm or 1 mrad
 # at the default, what a controller holding the joint where it stands (or a trajectory
 # starting there) publishes, far less than what a trajectory still running towards a
-# target the stop cut short is off by (issue 40; docs/ros2_control.md).
+# target the stop cut short is off by (docs/ros2_control.md).
 UNLOCK_SHARE = 0.01
 
 

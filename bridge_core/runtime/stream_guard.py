@@ -12,7 +12,7 @@ MOTEC ``~/cmd_velocity``. Each stream key (a motor number, a drive) has the same
   ``stop_when_idle`` for a 0 to a stream that commanded nothing);
 - after a halt (``stop_all``), a stop by a service or an e-stop the stream is *locked*;
   it moves again only on a value that cannot surprise (``settles``), never because it
-  fell silent, nor because messages were refused meanwhile (issue 40): a jog / velocity
+  fell silent, nor because messages were refused meanwhile: a jog / velocity
   stream on a 0; a position stream on a target ``near`` where the joint stands (judged by
   the caller, ``joint_commands``: within its unlock tolerance of the newest published
   position) that the controller *holds* (it repeats the stream's previous arrival) or
@@ -31,13 +31,13 @@ MOTEC ``~/cmd_velocity``. Each stream key (a motor number, a drive) has the same
 - ``permit()`` (set by the node) is asked under the guard's lock before every non-zero
   write: a write already queued when the node stopped accepting commands is refused.
 
-A position stream (``joint_commands``, issue 25) is a guard with ``zero_stops=False``: every
-value is a target, 0 included; only the deadman, a halt or a stop service stops it, and a
-target held where the joint stands (above) unlocks it. It ``follow``s the joint's velocity
-guard: one lock for both, and every takeover of the velocity stream (a stop service, an
-e-stop, a mode change) is the position stream's too. A ``send`` that cannot go yet (the
-device still runs the stream's previous target) raises ``Deferred``: nothing was written
-and the value waits for the next pass.
+A position stream (``joint_commands``, docs/ros2_control.md) is a guard with
+``zero_stops=False``: every value is a target, 0 included; only the deadman, a halt or a
+stop service stops it, and a target held where the joint stands (above) unlocks it. It
+``follow``s the joint's velocity guard: one lock for both, and every takeover of the
+velocity stream (a stop service, an e-stop, a mode change) is the position stream's too. A
+``send`` that cannot go yet (the device still runs the stream's previous target) raises
+``Deferred``: nothing was written and the value waits for the next pass.
 
 The guard knows no device: ``send(key, value, previous)`` writes a non-zero speed (the
 previous one commanded, or ``None`` when unknown, e.g. after a lost write or a
@@ -400,7 +400,7 @@ class StreamGuard(Generic[Key]):
     @_locked
     def expire(self, key: Key) -> bool:
         """The deadman for one stream ``due``: stop it if it may move. A lock is kept:
-        silence never unlocks a stream (issue 40: messages the node refused while inactive
+        silence never unlocks a stream (messages the node refused while inactive once
         looked like silence, and a controller that kept publishing restarted the motor).
         A stop only pending (commands still coming) is sent again.
 

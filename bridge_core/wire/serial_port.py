@@ -28,7 +28,7 @@ def write_all(
     A write is judged by the bytes that left: pyserial's ``write`` with a write timeout
     checks its deadline after ``os.write`` returned and raises SerialTimeoutException for
     a frame that was in fact written whole whenever the process was descheduled for
-    longer than the timeout (issue 9: a flood on a loaded machine closed live links).
+    longer than the timeout (seen: a flood on a loaded machine closed live links).
     Here only a buffer that stays full for ``stall_s`` is an error.
     """
     view = memoryview(data)

@@ -74,8 +74,8 @@ class _LastConnectError(logging.Handler):
 
     pymodbus 3.16's ``connect()`` catches the OS error of a failed open (``connection
     refused``, ``no such file or directory``) and only logs it; ``ModbusLink.open`` takes
-    the reason from here so the bridge can say it (issue 11: "a link that cannot be
-    opened logs ... with the OS reason").
+    the reason from here so the bridge can say it (docs/behaviour.md, "Stale data": a
+    device never reached is a WARN with the OS's reason).
     """
 
     def __init__(self) -> None:
