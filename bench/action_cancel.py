@@ -1,11 +1,12 @@
 #!/usr/bin/env python3
 """Actions: how soon a cancel puts the stop on the wire, and how soon feedback starts.
 
-Issue 12's "cancel = stop". Setup: ``motec_bridge`` in a process of its own (one drive,
-115200 baud, 20 Hz polls, ``timeout_s`` 1.0) against the MOTEC simulator in this process
-on a socat pty pair; an ``rclpy.action.ActionClient`` here. Per repetition: a long
-``~/move_to`` goal; once its feedback shows the drive turning, cancel it. Measured with
-wall-clock stamps of this host (the simulator's write log uses ``time.time()``):
+What "cancelling it stops it" (docs/actions.md) costs. Setup: ``motec_bridge`` in a process
+of its own (one drive, 115200 baud, 20 Hz polls, ``timeout_s`` 1.0) against the MOTEC
+simulator in this process on a socat pty pair; an ``rclpy.action.ActionClient`` here. Per
+repetition: a long ``~/move_to`` goal; once its feedback shows the drive turning, cancel it.
+Measured with wall-clock stamps of this host (the simulator's write log uses
+``time.time()``):
 
 - ``accept``: goal sent -> goal response (accepted);
 - ``first feedback``: goal response -> first feedback message;

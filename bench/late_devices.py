@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Connect success and poll rate against a device's reply delay (issue 39, hole 1).
+"""Connect success and poll rate against a device's reply delay.
 
 A real RTU device answers later than its manual's minimum. Per bridge and reply delay
 (the simulator's ``set_reply_delay``, the ``--reply-delay-ms MIN[:MAX]`` personality,

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Lifeguard feed gaps on a MOTEC bus with one drive dead: the margin the bridge keeps.
 
-Issue 9 measured, before feeds had their own thread and went first on the line: three
+Measured before feeds had their own thread and went first on the line: three
 drives, drive 3 unplugged, ``lifeguard_ms`` 500 and ``timeout_s`` 0.5: drives 1 and 2
 faulted within 1.8 s; at 100 ms / 0.1 s the lifeguard tripped in 2 of 3 runs with every
 drive alive. The bridge now refuses a lifeguard time below

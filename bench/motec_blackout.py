@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """MOTEC lifeguard across line blackouts: does a drive trip when its line goes dark?
 
-Issue 20 item 5 measured, before the feeds went on while a drive is marked down: with
+Measured before the feeds went on while a drive is marked down: with
 ``config/motec.yaml`` (three drives, ``lifeguard_ms`` 1000, ``timeout_s`` 0.1) a 600 ms
 blackout left a drive 1.29 s without a write: it faulted and released its motor. Now a
 drive marked down is fed like a stop is sent (one try, the short stop timeout) every

@@ -16,7 +16,7 @@ simulator runs in a process of its own, and this process polls it as fast as it 
   N (1 = one request at a time, as before this work).
 
 ``--nagle on`` runs the simulator with its ``--nagle`` personality: a device that leaves
-Nagle's algorithm on for its replies (issue 41 item 5: pipelined, each reply then waited
+Nagle's algorithm on for its replies (seen: pipelined, each reply then waited
 for the client's delayed ACK; ``bridge_core.wire.pipeline`` acknowledges at once).
 
 Each figure is the median over ``--repeats`` rounds (every window measured once per

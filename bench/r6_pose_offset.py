@@ -7,7 +7,7 @@ wall time it handled each read request. Per poll it prints the time between the 
 block's request (2332+) and the position block's (2268+), and how far the pose's stamp
 lies from the world block's read: for the poll as the bridge reads it now (the world
 block just before the positions, the pose stamped with its own read time) and as it read
-it before issue 20 (the world block 8 requests before the positions, the pose stamped
+it in the old order (the world block 8 requests before the positions, the pose stamped
 with the positions' time). Asserts nothing; prints medians and maxima in ms.
 
     .venv/bin/python bench/r6_pose_offset.py [--polls 300]
@@ -43,7 +43,7 @@ def measure(polls: int, old_order: bool) -> tuple[list[float], list[float]]:
     link = ModbusLink(TcpSettings("127.0.0.1", port, timeout_s=1.0))
     channel = DeviceChannel(link, 1, retries=0)
     device = R6Device(channel)
-    # Before issue 20: one read of the blocks by address, only the positions last, and
+    # The old order: one read of the blocks by address, only the positions last, and
     # ~/tcp_pose stamped with the positions' read time.
     plan = device.poll_plan(6, 1)
     old_plan = [*sorted(plan[:-1], key=lambda r: r.address), plan[-1]]
@@ -75,7 +75,7 @@ def main() -> None:
         "| order | polls | world -> positions p50 / max ms | pose stamp - world read p50 / max ms |"
     )
     print("|---|---|---|---|")
-    for name, old in (("before issue 20", True), ("now", False)):
+    for name, old in (("old order", True), ("now", False)):
         gaps, errors = measure(args.polls, old)
         print(
             f"| {name} | {args.polls} | {statistics.median(gaps):.2f} / {max(gaps):.2f} | "

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Read rates side by side (issue 24, part 4): rate groups against the wire limit, and
+"""Read rates side by side: rate groups against the wire limit, and
 pipelined Modbus TCP against one request at a time and a bare pymodbus loop.
 
     .venv/bin/python bench/read_rates.py [--quick] [--parts rtu,tcp,node]

@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
-"""Device-level RTU figures on the emulated byte-timed line (issues 3 and 4;
-docs/architecture.md, "Performance: how it is measured").
+"""Device-level RTU figures on the emulated byte-timed line (docs/architecture.md,
+"Performance: how it is measured").
 
 Prints tables and writes bench/results/rtu_devices.json; asserts nothing.
 

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Stop latency on a shared stepper line with one controller absent (issue 20, item 3).
+"""Stop latency on a shared stepper line with one controller absent (stepper decision 18).
 
 Setup: ``stepper_bus`` (``python -m stepper_bridge.bus``) in a process of its own with
 ``unit_ids [1, 2]`` and the node's defaults (``timeout_s`` 0.5, 3 Hz polls) unless

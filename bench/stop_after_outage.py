@@ -1,8 +1,8 @@
 #!/usr/bin/env python3
 """A stop while the stepper's line is down: how soon it reaches the device once it is back.
 
-Issue 9's figure: "a stop while the link is down reaches the device within 0.3 s of the
-line coming back". Setup: ``stepper_bridge`` in a process of its own with the node's
+The goal: "a stop while the link is down reaches the device within 0.3 s of the line
+coming back". Setup: ``stepper_bridge`` in a process of its own with the node's
 defaults (9600 baud, ``timeout_s`` 0.5, ``command_timeout_s`` 0.5, ``reconnect_max_s`` 5,
 3 Hz polls) unless overridden, against the stepper simulator in this process on a socat pty
 pair (the manual's 35 ms reply delay). Per repetition: jog motor 1 until it runs, cut the
@@ -40,7 +40,7 @@ sys.path.insert(0, str(ROOT))
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ.setdefault("ROS_DOMAIN_ID", "105")
 
-FIGURE_S = 0.3  # issue 9: the stop reaches the device within this of the line coming back
+FIGURE_S = 0.3  # the goal: the stop reaches the device within this of the line coming back
 JOG_RPM = 100.0
 MOTOR = 1
 WAIT_S = 30.0  # generous bound on every wait for the bridge (a loaded machine)
