@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Command -> register write latency of ``~/joint_commands`` at 100 Hz commands (issue 25).
+"""Command -> register write latency of ``~/joint_commands`` at 100 Hz commands.
 
 A client publishes ``sensor_msgs/JointState`` commands for one joint at 100 Hz, as
 ros2_control's topic-based interface does with ``trigger_joint_command_threshold`` -1

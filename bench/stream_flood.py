@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """A command-stream flood: poll rates kept, writes/s, stop delay (MOTEC or stepper).
 
-Issue 9 measured, before command streams kept only their newest value: 1000 msg/s of a
+Measured before command streams kept only their newest value: 1000 msg/s of a
 constant ``cmd_velocity`` on one MOTEC drive dropped every drive's poll rate from 10 Hz to
 2.0-3.8 Hz and cost links; a varying stepper jog flood kept writing for 0.84 s after the
 last message and stopped 1.34 s after it against a 0.5 s ``command_timeout_s``.
@@ -23,7 +23,7 @@ every message), then silence: the stop delay is the simulator's time of the dead
 minus the last message's send time. Prints a table; asserts nothing. Only loopback and
 ptys; discovery on localhost.
 
-``--topic joint_commands`` floods ``~/joint_commands`` instead (issue 25: ``JointState``
+``--topic joint_commands`` floods ``~/joint_commands`` instead (``JointState``
 with the joint's name and a velocity in SI units; the MOTEC bus owner's topic for drive 2,
 the stepper's for motor 1): the same phases, the same stop.
 
