@@ -22,11 +22,12 @@ from typing import Any
 
 from rclpy.lifecycle import LifecycleState, TransitionCallbackReturn
 from std_msgs.msg import Float64
-from std_srvs.srv import SetBool
 
 from bridge_core.ros.joint_commands import JointCommandTopic
 from bridge_core.ros.node_base import BridgeNode
 from bridge_core.ros.node_parameters import ParameterNode
+from bridge_core.ros.node_services import Command
+from bridge_core.ros.node_services import trigger as trigger_service
 from bridge_core.ros.process import spin_node
 from bridge_core.runtime.checks import listed
 from bridge_core.runtime.diagnostics import Level, Report
@@ -40,7 +41,6 @@ from bridge_core.wire.errors import CommandRejected, ConfigurationError, DeviceE
 from bridge_core.wire.registers import ValueType
 from bridge_core.wire.transport import ModbusLink
 from msg_defs.msg import DeviceValues
-from msg_defs.srv import ReadRegisters, SetValue, WriteRegister
 
 from .description import (
     Description,
@@ -54,8 +54,10 @@ from .interface import (
     DEVICE_FILE_SPEC,
     JOINT_COMMAND_PARAMETERS,
     NODE_NAME,
+    SERVICES,
     commanded,
     defaults_of,
+    expansion,
     stream_parameters,
 )
 from .joint_commands import JointStreams
@@ -276,8 +278,13 @@ class ModbusBridgeNode(BridgeNode[DeviceSnapshot]):
         return Report(Level.OK, "connected", values)
 
     # ------------------------------------------------------------ services
+    # The handler of each row of interface.SERVICES (a file's triggers, values and coils:
+    # a function of the name).
     def _create_services(self) -> None:
         device = self.device
+        commands = self.described.commands
+        triggers = {t.name: t for t in commands.triggers}
+        coils = {c.name: c for c in commands.coils}
 
         def fill_read(response: Any, values: dict[str, Value]) -> None:
             register_map = self.described.register_map
@@ -286,52 +293,55 @@ class ModbusBridgeNode(BridgeNode[DeviceSnapshot]):
             response.units = [register_map[name].unit for name in values]
             response.texts = [v if isinstance(v, str) else "" for v in values.values()]
 
-        self.command_service(
-            ReadRegisters,
-            "~/read",
-            lambda r: f"read {listed(r.names, 'names')}",
-            lambda r: device.read(list(r.names)),
-            writes=False,
-            fill=fill_read,
-        )
-        self.command_service(
-            WriteRegister,
-            "~/write",
-            lambda r: f"write {r.name}",
-            lambda r: device.write(r.name, self._write_value(r)),
-            fill=lambda response, written: setattr(response, "message", f"{written}: done"),
-        )
-        for trigger in self.described.commands.triggers:
+        def trigger_command(trigger: str) -> Command[object]:
+            spec = triggers[trigger]
             # A starts_motion trigger's group is in the node's motion ledger once its write
             # went out, with its group's stop trigger: every way out sends that stop.
-            exit_stop = device.exit_stops.get(trigger.group) if trigger.starts_motion else None
-            self.trigger_service(
-                f"~/{trigger.name}",
-                trigger.name,
-                _bind(device.trigger, trigger.name),
-                stop=trigger.stop,
+            exit_stop = device.exit_stops.get(spec.group) if spec.starts_motion else None
+            return trigger_service(
+                trigger,
+                _bind(device.trigger, trigger),
+                stop=spec.stop,
                 starts=None
                 if exit_stop is None
-                else (trigger.group, _bind(device.trigger, exit_stop)),
-                stops_axes=(trigger.group,) if trigger.stop else (),
+                else (spec.group, _bind(device.trigger, exit_stop)),
+                stops_axes=(spec.group,) if spec.stop else (),
             )
-        for value in self.described.commands.values:
-            name = value.name
-            self.command_service(
-                SetValue,
-                f"~/{name}",
-                _describe_value(name),
-                _set_value(device, name),
+
+        def value_command(value: str) -> Command[object]:
+            return Command(
+                _describe_value(value),
+                _set_value(device, value),
                 fill=lambda response, written: setattr(response, "message", f"{written}: done"),
             )
-        for coil in self.described.commands.coils:
-            self.command_service(
-                SetBool,
-                f"~/{coil.name}",
-                _describe_coil(coil.name),
-                _set_coil(device, coil.name),
-                stop=_stops_when(coil.stop_on),
+
+        def coil_command(coil: str) -> Command[object]:
+            return Command(
+                _describe_coil(coil),
+                _set_coil(device, coil),
+                stop=_stops_when(coils[coil].stop_on),
             )
+
+        self.command_services.create(
+            SERVICES,
+            {
+                "~/read": Command(
+                    lambda r: f"read {listed(r.names, 'names')}",
+                    lambda r: device.read(list(r.names)),
+                    writes=False,
+                    fill=fill_read,
+                ),
+                "~/write": Command(
+                    lambda r: f"write {r.name}",
+                    lambda r: device.write(r.name, self._write_value(r)),
+                    fill=lambda response, written: setattr(response, "message", f"{written}: done"),
+                ),
+                "~/{trigger}": trigger_command,
+                "~/{value}": value_command,
+                "~/{coil}": coil_command,
+            },
+            expansion(self.described),
+        )
 
     def _published_position(self, index: int) -> float | None:
         """Joint ``index``'s position in the newest joint_states (SI), None before it."""

@@ -37,9 +37,9 @@ from typing import Any
 from rclpy.lifecycle import LifecycleState, TransitionCallbackReturn
 from rclpy.node import Node
 from std_msgs.msg import Float64
-from std_srvs.srv import SetBool, Trigger
 
 from bridge_core.ros.node_base import BridgeNode, copy_fields
+from bridge_core.ros.node_services import Command, trigger
 from bridge_core.ros.process import spin_nodes
 from bridge_core.runtime.checks import board_zero_index
 from bridge_core.runtime.diagnostics import Level, Report
@@ -48,20 +48,11 @@ from bridge_core.runtime.keepalive import IDLE_CHECK_S
 from bridge_core.runtime.rate_groups import PollGroups
 from bridge_core.wire.errors import ConfigurationError, DeviceException, LinkError
 from bridge_core.wire.transport import ModbusLink
-from msg_defs.action import MoveTo
 from msg_defs.msg import MotecState
-from msg_defs.srv import (
-    PositionMove,
-    ReadParameter,
-    SetControlMode,
-    SetOutput,
-    SetValue,
-    WriteParameter,
-)
 
 from .bus import MotecBusNode
 from .device import VELOCITY_STREAM, MotecDevice
-from .interface import MOTEC_DEFAULTS, drive_parameters
+from .interface import DRIVE_ACTIONS, DRIVE_SERVICES, MOTEC_DEFAULTS, drive_parameters
 from .joint_commands import DriveTarget, command_joint
 from .lifeguard import lifeguard_bound_text, lifeguard_min_ms
 from .motions import MoveToMotion
@@ -298,72 +289,54 @@ class MotecDriveNode(BridgeNode[MotecSnapshot]):
         return Report(Level.OK, "connected", values)
 
     # ------------------------------------------------------------ services
+    # The handler of each row of interface.DRIVE_SERVICES / DRIVE_ACTIONS.
     def _create_services(self) -> None:
         d = self.device
-        self.command_service(
-            SetBool,
-            "~/enable",
-            lambda r: f"enable {'on' if r.data else 'off'}",
-            lambda r: d.enable(bool(r.data)),
-            stop=lambda r: not r.data,  # a disable ends motion: tried even while down
-            stops_axes=lambda r: () if r.data else (DRIVE,),
+        self.command_services.create(
+            DRIVE_SERVICES,
+            {
+                "~/enable": Command(
+                    lambda r: f"enable {'on' if r.data else 'off'}",
+                    lambda r: d.enable(bool(r.data)),
+                    stop=lambda r: not r.data,  # a disable ends motion: tried even while down
+                    stops_axes=lambda r: () if r.data else (DRIVE,),
+                ),
+                "~/set_control_mode": Command(
+                    lambda r: f"set_control_mode {control_mode_name(r.mode)}",
+                    self._set_control_mode,
+                ),
+                "~/move": Command(
+                    lambda r: f"move {'by' if r.relative else 'to'} {r.position} rad",
+                    self._move,
+                    fill=lambda response, counts: setattr(response, "counts", counts),
+                    # A halt stops the move it set going: 0x29 = 0 at once, verified
+                    # (stop_move; ~/stop's mode read first could keep it off the wire on a
+                    # bad line).
+                    starts=lambda _r: (DRIVE, d.stop_move),
+                ),
+                "~/stop": trigger("stop", d.stop, stop=True, fill=_said, stops_axes=(DRIVE,)),
+                "~/save_to_flash": trigger("save_to_flash", d.save_to_flash),
+                "~/set_output": Command(
+                    lambda r: f"set_output {r.index} {'on' if r.state else 'off'}",
+                    lambda r: d.set_output(board_zero_index("drive", r.board, r.index), r.state),
+                ),
+                "~/set_analog_max_speed": Command(
+                    lambda r: f"set_analog_max_speed {r.value} rpm",
+                    lambda r: d.set_analog_max_speed(r.value),
+                ),
+                "~/read_parameter": Command(
+                    lambda r: f"read_parameter Pr.{r.index}",
+                    lambda r: d.read_parameter(int(r.index)),
+                    writes=False,
+                    fill=lambda response, value: setattr(response, "value", value),
+                ),
+                "~/write_parameter": Command(
+                    lambda r: f"write_parameter Pr.{r.index} = {r.value}",
+                    lambda r: d.write_parameter(int(r.index), int(r.value)),
+                ),
+            },
         )
-        self.command_service(
-            SetControlMode,
-            "~/set_control_mode",
-            lambda r: f"set_control_mode {control_mode_name(r.mode)}",
-            self._set_control_mode,
-        )
-        self.command_service(
-            PositionMove,
-            "~/move",
-            lambda r: f"move {'by' if r.relative else 'to'} {r.position} rad",
-            self._move,
-            fill=lambda response, counts: setattr(response, "counts", counts),
-            # A halt stops the move it set going: 0x29 = 0 at once, verified (stop_move;
-            # ~/stop's mode read first could keep it off the wire on a bad line).
-            starts=lambda _r: (DRIVE, d.stop_move),
-        )
-        self.command_service(
-            Trigger,
-            "~/stop",
-            lambda _r: "stop",
-            lambda _r: d.stop(),
-            stop=True,
-            fill=_said,
-            stops_axes=lambda _r: (DRIVE,),
-        )
-        self.command_service(
-            Trigger, "~/save_to_flash", lambda _r: "save_to_flash", lambda _r: d.save_to_flash()
-        )
-        self.command_service(
-            SetOutput,
-            "~/set_output",
-            lambda r: f"set_output {r.index} {'on' if r.state else 'off'}",
-            lambda r: d.set_output(board_zero_index("drive", r.board, r.index), r.state),
-        )
-        self.command_service(
-            SetValue,
-            "~/set_analog_max_speed",
-            lambda r: f"set_analog_max_speed {r.value} rpm",
-            lambda r: d.set_analog_max_speed(r.value),
-        )
-        self.command_service(
-            ReadParameter,
-            "~/read_parameter",
-            lambda r: f"read_parameter Pr.{r.index}",
-            lambda r: d.read_parameter(int(r.index)),
-            writes=False,
-            fill=lambda response, value: setattr(response, "value", value),
-        )
-        self.command_service(
-            WriteParameter,
-            "~/write_parameter",
-            lambda r: f"write_parameter Pr.{r.index} = {r.value}",
-            lambda r: d.write_parameter(int(r.index), int(r.value)),
-        )
-
-        self.actions.motion(MoveTo, "~/move_to", self._move_to)
+        self.actions.create(DRIVE_ACTIONS, {"~/move_to": self._move_to})
 
     def _move_to(self, goal: Any) -> MoveToMotion:
         return MoveToMotion(

@@ -7,33 +7,26 @@ from collections.abc import Callable, Sequence
 from typing import Any, TypeVar
 
 from geometry_msgs.msg import PoseStamped
-from std_srvs.srv import Trigger
 
 from bridge_core.ros.node_base import BridgeNode, copy_fields
+from bridge_core.ros.node_services import Command
 from bridge_core.ros.process import spin_node
 from bridge_core.runtime.diagnostics import Level, Report
 from bridge_core.runtime.parameters import padded
 from bridge_core.runtime.rate_groups import PollGroups
 from bridge_core.runtime.units import DEG, MM, RPM_TO_RAD_S, euler_xyz_deg_to_quaternion
 from bridge_core.wire.errors import CommandRejected, DeviceException, FrameError
-from msg_defs.action import PointUpload, RunCycle
 from msg_defs.msg import R6State
-from msg_defs.srv import (
-    ClearAlarmAndNext,
-    ListCounters,
-    ReadCounter,
-    ReadDataSource,
-    ReadParameter,
-    SetCounter,
-    SetOutput,
-    SetOutputBoard,
-    SetValue,
-    UploadPoints,
-    WriteParameter,
-)
 
 from .device import R6Device, R6Snapshot
-from .interface import EXTRA_WORLD_AXES, PARAMETERS, R6_DEFAULTS
+from .interface import (
+    ACTIONS,
+    EXTRA_WORLD_AXES,
+    PARAMETERS,
+    R6_DEFAULTS,
+    SERVICES,
+    TRIGGER_COMMANDS,
+)
 from .motions import RunCycleMotion
 from .program import PROGRAM, PROGRAM_COMMANDS
 from .registers import COMMANDS, MAX_AXES, STOP_COMMANDS
@@ -173,130 +166,117 @@ class R6BridgeNode(BridgeNode[R6Snapshot]):
         ``~/pause`` is (decision 29: "not confirmed" in the log otherwise)."""
         return PROGRAM, lambda: self.device.halt("pause")
 
-    # One table: a row per service (type, name, log text, device call); splitting it would
-    # scatter the node's interface.
+    # One table: the handler of each row of interface.SERVICES / ACTIONS (the log text and
+    # the device call); splitting it would scatter the node's interface.
     def _create_services(self) -> None:
         d = self.device
-        for name in COMMANDS:
-            if name == "clear_alarm_and_next":
-                continue  # its own type: skip_failed_step (below)
+
+        def command(command: str) -> Command[str]:
             # Done only when the controller shows it (decision 29): the reply says what
             # was written and read back.
-            self.command_service(
-                Trigger,
-                f"~/{name}",
-                _constant(name),
-                _constant_call(_command(d, name)),
-                stop=name in STOP_COMMANDS,
-                starts=(lambda _r: self._program_started) if name in PROGRAM_COMMANDS else None,
-                stops_axes=(lambda _r: (PROGRAM,)) if name in STOP_COMMANDS else None,
+            return Command(
+                _constant(command),
+                _constant_call(_command(d, command)),
+                stop=command in STOP_COMMANDS,
+                starts=(lambda _r: self._program_started) if command in PROGRAM_COMMANDS else None,
+                stops_axes=(lambda _r: (PROGRAM,)) if command in STOP_COMMANDS else None,
                 fill=_said,
             )
-        self.command_service(
-            ClearAlarmAndNext,
-            "~/clear_alarm_and_next",
-            lambda r: f"clear_alarm_and_next (skip_failed_step {r.skip_failed_step})",
-            lambda r: d.run_program(
-                "clear_alarm_and_next", skip_failed_step=bool(r.skip_failed_step)
-            ),
-            starts=lambda _r: self._program_started,
-            fill=_said,
+
+        self.command_services.create(
+            SERVICES,
+            {
+                "~/{command}": command,
+                "~/clear_alarm_and_next": Command(
+                    lambda r: f"clear_alarm_and_next (skip_failed_step {r.skip_failed_step})",
+                    lambda r: d.run_program(
+                        "clear_alarm_and_next", skip_failed_step=bool(r.skip_failed_step)
+                    ),
+                    starts=lambda _r: self._program_started,
+                    fill=_said,
+                ),
+                "~/set_global_speed": Command(
+                    lambda r: f"set_global_speed {r.value} %",
+                    lambda r: d.set_global_speed_read_back(r.value),
+                    fill=_said,
+                ),
+                "~/set_output": Command(
+                    lambda r: (
+                        f"set_output board {r.board} point {r.index} {'on' if r.state else 'off'}"
+                    ),
+                    lambda r: d.set_output(r.board, r.index, r.state, self._boards_in_use()),
+                ),
+                "~/set_board_outputs": Command(
+                    lambda r: (
+                        f"set_board_outputs board {r.board} = 0x{r.bits:08X} mask 0x{r.mask:08X}"
+                    ),
+                    lambda r: d.write_board_outputs(r.board, r.bits, r.mask, self._boards_in_use()),
+                    fill=_said,
+                ),
+                "~/set_counter": Command(
+                    lambda r: f"set_counter {r.id} = {r.value}",
+                    lambda r: d.set_counter(r.id, r.value),
+                    fill=_said,
+                ),
+                "~/list_counters": Command(
+                    lambda r: "list_counters",
+                    lambda r: d.read_counter_ids(),
+                    writes=False,
+                    fill=lambda response, ids: setattr(response, "ids", ids),
+                ),
+                "~/read_counter": Command(
+                    lambda r: f"read_counter {r.id}",
+                    lambda r: d.read_counter(r.id),  # writes the id to 2179: refused if read_only
+                    fill=_fill_counter,
+                ),
+                "~/read_parameter": Command(
+                    lambda r: f"read_parameter {r.index}",
+                    lambda r: d.read_parameter(r.index),
+                    writes=False,
+                    fill=lambda response, value: setattr(response, "value", value),
+                ),
+                "~/write_parameter": Command(
+                    lambda r: f"write_parameter {r.index} = {r.value}",
+                    lambda r: d.write_parameter(r.index, r.value),
+                    fill=_said,
+                ),
+                "~/read_data_source": Command(
+                    lambda r: f"read_data_source {r.source_id}",
+                    lambda r: self._unless_uploading(  # writes 30000: refused if read_only
+                        lambda: d.read_data_source_length(r.source_id)
+                    ),
+                    fill=lambda response, points: setattr(response, "points", points),
+                ),
+                "~/upload_points": Command(
+                    lambda r: f"upload_points to source {r.data_source_id}",
+                    lambda r: self._unless_uploading(
+                        lambda: d.upload_points(
+                            r.data_source_id,
+                            r.values_per_point,
+                            r.axis_mask,
+                            [int(v) for v in r.values],
+                        )
+                    ),
+                    fill=lambda response, frames: setattr(response, "frames_sent", frames),
+                ),
+            },
+            {"command": TRIGGER_COMMANDS},
         )
-        self.command_service(
-            SetValue,
-            "~/set_global_speed",
-            lambda r: f"set_global_speed {r.value} %",
-            lambda r: d.set_global_speed_read_back(r.value),
-            fill=_said,
-        )
-        self.command_service(
-            SetOutput,
-            "~/set_output",
-            lambda r: f"set_output board {r.board} point {r.index} {'on' if r.state else 'off'}",
-            lambda r: d.set_output(r.board, r.index, r.state, self._boards_in_use()),
-        )
-        self.command_service(
-            SetOutputBoard,
-            "~/set_board_outputs",
-            lambda r: f"set_board_outputs board {r.board} = 0x{r.bits:08X} mask 0x{r.mask:08X}",
-            lambda r: d.write_board_outputs(r.board, r.bits, r.mask, self._boards_in_use()),
-            fill=_said,
-        )
-        self.command_service(
-            SetCounter,
-            "~/set_counter",
-            lambda r: f"set_counter {r.id} = {r.value}",
-            lambda r: d.set_counter(r.id, r.value),
-            fill=_said,
-        )
-        self.command_service(
-            ListCounters,
-            "~/list_counters",
-            lambda r: "list_counters",
-            lambda r: d.read_counter_ids(),
-            writes=False,
-            fill=lambda response, ids: setattr(response, "ids", ids),
-        )
-        self.command_service(
-            ReadCounter,
-            "~/read_counter",
-            lambda r: f"read_counter {r.id}",
-            lambda r: d.read_counter(r.id),  # writes the id to 2179: refused while read_only
-            fill=_fill_counter,
-        )
-        self.command_service(
-            ReadParameter,
-            "~/read_parameter",
-            lambda r: f"read_parameter {r.index}",
-            lambda r: d.read_parameter(r.index),
-            writes=False,
-            fill=lambda response, value: setattr(response, "value", value),
-        )
-        self.command_service(
-            WriteParameter,
-            "~/write_parameter",
-            lambda r: f"write_parameter {r.index} = {r.value}",
-            lambda r: d.write_parameter(r.index, r.value),
-            fill=_said,
-        )
-        self.command_service(
-            ReadDataSource,
-            "~/read_data_source",
-            lambda r: f"read_data_source {r.source_id}",
-            lambda r: self._unless_uploading(  # writes 30000: refused if read_only
-                lambda: d.read_data_source_length(r.source_id)
-            ),
-            fill=lambda response, points: setattr(response, "points", points),
-        )
-        self.command_service(
-            UploadPoints,
-            "~/upload_points",
-            lambda r: f"upload_points to source {r.data_source_id}",
-            lambda r: self._unless_uploading(
-                lambda: d.upload_points(
-                    r.data_source_id, r.values_per_point, r.axis_mask, [int(v) for v in r.values]
-                )
-            ),
-            fill=lambda response, frames: setattr(response, "frames_sent", frames),
-        )
-        # The same as actions (docs/actions.md): progress, cancel, a result when done.
-        self.actions.steps(
-            PointUpload,
-            "~/upload_points",
-            lambda goal: PointUploadSteps(
-                d,
-                goal.data_source_id,
-                goal.values_per_point,
-                goal.axis_mask,
-                [int(v) for v in goal.values],
-            ),
-        )
-        self.actions.motion(
-            RunCycle,
-            "~/run_cycle",
-            lambda goal: RunCycleMotion(
-                d, self.last_snapshot, single_cycle=bool(goal.single_cycle)
-            ),
+        # The upload as an action too (docs/actions.md): progress, cancel, a result when done.
+        self.actions.create(
+            ACTIONS,
+            {
+                "~/upload_points": lambda goal: PointUploadSteps(
+                    d,
+                    goal.data_source_id,
+                    goal.values_per_point,
+                    goal.axis_mask,
+                    [int(v) for v in goal.values],
+                ),
+                "~/run_cycle": lambda goal: RunCycleMotion(
+                    d, self.last_snapshot, single_cycle=bool(goal.single_cycle)
+                ),
+            },
         )
 
     def _unless_uploading(self, action: Callable[[], T]) -> T:

@@ -11,32 +11,13 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from std_srvs.srv import SetBool, Trigger
-
+from bridge_core.ros.node_services import Command, Started, trigger
 from bridge_core.runtime.checks import board_zero_index, listed
 from bridge_core.wire.errors import CommandRejected
-from msg_defs.action import ArcMotion, LineMotion, StepperMoveBy, StepperRun
-from msg_defs.srv import (
-    ArcMove,
-    ConfigureMotor,
-    ConfirmedCommand,
-    LineMove,
-    MoveBy,
-    SetHomingOrder,
-    SetInteger,
-    SetLimitInputs,
-    SetOutput,
-    SetValue,
-)
 
-from .device import DESTRUCTIVE_COMMANDS, SYSTEM_COMMANDS
+from .interface import ACTIONS, EXPANSION, SERVICES
 from .motions import CoilMotion, HomeMotion, InterpolationMotion, MoveByMotion
-from .registers import (
-    INTERPOLATION_PAIRS,
-    MOTOR_ACTIONS,
-    MOTOR_FORBIDDEN_DURING_INTERPOLATION,
-    MOTORS,
-)
+from .registers import INTERPOLATION_PAIRS, MOTOR_FORBIDDEN_DURING_INTERPOLATION, MOTORS
 
 if TYPE_CHECKING:
     from .node import StepperBridgeNode
@@ -56,37 +37,39 @@ CLEAR_ALL_WARNING = (
 
 
 # ------------------------------------------------------------ services
-# One table: a row per service of each motor and of the controller (type, name, log
-# text, device call); splitting it would scatter the node's interface.
 def create_services(node: StepperBridgeNode) -> None:
+    """A service per row of ``interface.SERVICES``, each answered by its handler here
+    (a per-motor row's: a function of the motor)."""
     d = node.device
-    for n in range(1, MOTORS + 1):
-        ns = f"~/motor_{n}"
-        motor_started = (("motor", n), _bind(d.motor_action, n, "stop"))
-        for action in MOTOR_ACTIONS:
-            _read_back_trigger(
-                node,
-                f"{ns}/{action}",
-                f"motor {n} {action}",
-                _bind(d.motor_action, n, action),
-                stop=action == "stop",
-                starts=None if action == "stop" else motor_started,
-                stops_axes=(("motor", n),) if action == "stop" else (),
-            )
-        node.command_service(
-            MoveBy,
-            f"{ns}/move_by",
-            lambda r, n=n: f"motor {n} move_by {r.distance}",  # type: ignore[misc]
-            lambda r, n=n: d.move_by(n, node.to_units(n, r.distance)),  # type: ignore[misc]
-            starts=lambda _r, started=motor_started: started,  # type: ignore[misc]
+
+    def motor_started(motor: int) -> Started:
+        return (("motor", motor), _bind(d.motor_action, motor, "stop"))
+
+    def motor_action(motor: int, motor_action: str) -> Command[object]:
+        stop = motor_action == "stop"
+        return trigger(
+            f"motor {motor} {motor_action}",
+            _bind(d.motor_action, motor, motor_action),
+            stop=stop,
+            starts=None if stop else motor_started(motor),
+            stops_axes=(("motor", motor),) if stop else (),
             fill=_said,
         )
-        node.command_service(
-            ConfigureMotor,
-            f"{ns}/configure",
-            lambda _r, n=n: f"motor {n} configure",  # type: ignore[misc]
-            lambda r, n=n: d.configure(  # type: ignore[misc]
-                n,
+
+    def move_by(motor: int) -> Command[object]:
+        started = motor_started(motor)
+        return Command(
+            lambda r: f"motor {motor} move_by {r.distance}",
+            lambda r: d.move_by(motor, node.to_units(motor, r.distance)),
+            starts=lambda _r: started,
+            fill=_said,
+        )
+
+    def configure(motor: int) -> Command[object]:
+        return Command(
+            lambda _r: f"motor {motor} configure",
+            lambda r: d.configure(
+                motor,
                 step_angle_deg=r.step_angle_deg,
                 microstep=r.microstep,
                 start_frequency_hz=r.start_frequency_hz,
@@ -95,133 +78,112 @@ def create_services(node: StepperBridgeNode) -> None:
                 lead=r.lead,
             ),
         )
-        node.command_service(
-            SetInteger,
-            f"{ns}/set_speed",
-            lambda r, n=n: f"motor {n} set_speed {r.value} rpm",  # type: ignore[misc]
-            lambda r, n=n: d.set_speed(n, r.value),  # type: ignore[misc]
+
+    def set_speed(motor: int) -> Command[object]:
+        return Command(
+            lambda r: f"motor {motor} set_speed {r.value} rpm",
+            lambda r: d.set_speed(motor, r.value),
             fill=_said,
         )
-        node.command_service(
-            SetInteger,
-            f"{ns}/set_direction",
-            lambda r, n=n: f"motor {n} set_direction {r.value}",  # type: ignore[misc]
-            lambda r, n=n: d.set_direction(n, r.value),  # type: ignore[misc]
+
+    def set_direction(motor: int) -> Command[object]:
+        return Command(
+            lambda r: f"motor {motor} set_direction {r.value}",
+            lambda r: d.set_direction(motor, r.value),
         )
-        node.command_service(
-            SetValue,
-            f"{ns}/set_run_distance",
-            lambda r, n=n: f"motor {n} set_run_distance {r.value}",  # type: ignore[misc]
-            lambda r, n=n: _set_run_distance(node, n, r.value),  # type: ignore[misc]
+
+    def set_run_distance(motor: int) -> Command[object]:
+        return Command(
+            lambda r: f"motor {motor} set_run_distance {r.value}",
+            lambda r: _set_run_distance(node, motor, r.value),
         )
-        node.command_service(
-            SetInteger,
-            f"{ns}/set_round_trips",
-            lambda r, n=n: f"motor {n} set_round_trips {r.value}",  # type: ignore[misc]
-            lambda r, n=n: d.set_round_trips(n, r.value),  # type: ignore[misc]
+
+    def set_round_trips(motor: int) -> Command[object]:
+        return Command(
+            lambda r: f"motor {motor} set_round_trips {r.value}",
+            lambda r: d.set_round_trips(motor, r.value),
         )
-        node.command_service(
-            SetLimitInputs,
-            f"{ns}/set_limit_inputs",
-            lambda r, n=n: (  # type: ignore[misc]
-                f"motor {n} limit inputs +{r.positive_limit} -{r.negative_limit} home {r.home}"
+
+    def set_limit_inputs(motor: int) -> Command[object]:
+        return Command(
+            lambda r: (
+                f"motor {motor} limit inputs +{r.positive_limit} -{r.negative_limit} home {r.home}"
             ),
-            lambda r, n=n: d.set_limit_inputs(  # type: ignore[misc]
-                n, r.positive_limit, r.negative_limit, r.home
-            ),
+            lambda r: d.set_limit_inputs(motor, r.positive_limit, r.negative_limit, r.home),
         )
-    for name in SYSTEM_COMMANDS:
-        _read_back_trigger(
-            node,
-            f"~/{name}",
-            name,
-            _bind(d.system_command, name),
-            stop=name == "emergency_stop",
+
+    def system_command(system_command: str) -> Command[object]:
+        return trigger(
+            system_command,
+            _bind(d.system_command, system_command),
+            stop=system_command == "emergency_stop",
             starts=(ALL_MOTORS, lambda: _stop_every_motor(node))
-            if name in ALL_MOTOR_MOTIONS
+            if system_command in ALL_MOTOR_MOTIONS
             else None,
-            stops_axes=EVERY_AXIS if name == "emergency_stop" else (),
+            stops_axes=EVERY_AXIS if system_command == "emergency_stop" else (),
+            fill=_said,
         )
-    for name in DESTRUCTIVE_COMMANDS:
-        node.command_service(
-            ConfirmedCommand,
-            f"~/{name}",
-            lambda _r, name=name: name,  # type: ignore[misc]
-            lambda r, name=name: _destructive(node, name, r.confirm),  # type: ignore[misc]
-            fill=_clear_all_reply if name == "clear_all_parameters" else None,
+
+    def destructive_command(destructive_command: str) -> Command[None]:
+        return Command(
+            lambda _r: destructive_command,
+            lambda r: _destructive(node, destructive_command, r.confirm),
+            fill=_clear_all_reply if destructive_command == "clear_all_parameters" else None,
         )
-    node.command_service(
-        SetOutput,
-        "~/set_output",
-        lambda r: f"set_output {r.index} {'on' if r.state else 'off'}",
-        lambda r: d.set_output(board_zero_index("stepper controller", r.board, r.index), r.state),
-    )
-    node.command_service(
-        SetBool,
-        "~/set_all_outputs",
-        lambda r: f"set_all_outputs {'on' if r.data else 'off'}",
-        lambda r: d.set_all_outputs(r.data),
-    )
-    node.command_service(
-        SetHomingOrder,
-        "~/set_homing_order",
-        lambda r: f"set_homing_order {listed(r.motors, 'motors', bracketed=True)}",
-        lambda r: d.set_homing_order([int(m) for m in r.motors]),
-    )
-    node.command_service(
-        SetInteger,
-        "~/set_system_mode",
-        lambda r: f"set_system_mode {r.value}",
-        lambda r: d.set_system_mode(r.value),
-    )
+
     pair_started = (PAIR, d.stop_interpolation)
-    node.command_service(
-        LineMove,
-        "~/line_move",
-        lambda r: _pair_move_text("line_move", r.pair),
-        lambda r: _prepare_line(node, r).send(True),
-        starts=lambda _r: pair_started,
-        fill=_said,
-    )
-    node.command_service(
-        ArcMove,
-        "~/arc_move",
-        lambda r: _pair_move_text("arc_move", r.pair),
-        lambda r: _prepare_arc(node, r).send(True),
-        starts=lambda _r: pair_started,
-        fill=_said,
-    )
-    _read_back_trigger(
-        node,
-        "~/stop_interpolation",
-        "stop_interpolation",
-        d.stop_interpolation,
-        stop=True,
-        stops_axes=(PAIR,),
-    )
-
-
-def _read_back_trigger(
-    node: StepperBridgeNode,
-    name: str,
-    what: str,
-    action: Callable[[], object],
-    *,
-    stop: bool = False,
-    starts: tuple[Any, Callable[[], object]] | None = None,
-    stops_axes: Sequence[Any] = (),
-) -> None:
-    """A std_srvs/Trigger service whose reply says what was written and read back
-    (the device's text), as ``trigger_service`` otherwise."""
-    node.command_service(
-        Trigger,
-        name,
-        lambda _request: what,
-        lambda _request: action(),
-        stop=stop,
-        starts=None if starts is None else lambda _request: starts,
-        stops_axes=lambda _request: stops_axes,
-        fill=_said,
+    node.command_services.create(
+        SERVICES,
+        {
+            "~/motor_{motor}/{motor_action}": motor_action,
+            "~/motor_{motor}/move_by": move_by,
+            "~/motor_{motor}/configure": configure,
+            "~/motor_{motor}/set_speed": set_speed,
+            "~/motor_{motor}/set_direction": set_direction,
+            "~/motor_{motor}/set_run_distance": set_run_distance,
+            "~/motor_{motor}/set_round_trips": set_round_trips,
+            "~/motor_{motor}/set_limit_inputs": set_limit_inputs,
+            "~/{system_command}": system_command,
+            "~/{destructive_command}": destructive_command,
+            "~/set_output": Command(
+                lambda r: f"set_output {r.index} {'on' if r.state else 'off'}",
+                lambda r: d.set_output(
+                    board_zero_index("stepper controller", r.board, r.index), r.state
+                ),
+            ),
+            "~/set_all_outputs": Command(
+                lambda r: f"set_all_outputs {'on' if r.data else 'off'}",
+                lambda r: d.set_all_outputs(r.data),
+            ),
+            "~/set_homing_order": Command(
+                lambda r: f"set_homing_order {listed(r.motors, 'motors', bracketed=True)}",
+                lambda r: d.set_homing_order([int(m) for m in r.motors]),
+            ),
+            "~/set_system_mode": Command(
+                lambda r: f"set_system_mode {r.value}",
+                lambda r: d.set_system_mode(r.value),
+            ),
+            "~/line_move": Command(
+                lambda r: _pair_move_text("line_move", r.pair),
+                lambda r: _prepare_line(node, r).send(True),
+                starts=lambda _r: pair_started,
+                fill=_said,
+            ),
+            "~/arc_move": Command(
+                lambda r: _pair_move_text("arc_move", r.pair),
+                lambda r: _prepare_arc(node, r).send(True),
+                starts=lambda _r: pair_started,
+                fill=_said,
+            ),
+            "~/stop_interpolation": trigger(
+                "stop_interpolation",
+                d.stop_interpolation,
+                stop=True,
+                stops_axes=(PAIR,),
+                fill=_said,
+            ),
+        },
+        EXPANSION,
     )
 
 
@@ -234,54 +196,47 @@ def _stop_every_motor(node: StepperBridgeNode) -> str:
 
 # ------------------------------------------------------------ actions
 def create_actions(node: StepperBridgeNode) -> None:
-    """The timed motions as actions (docs/actions.md), beside their services."""
+    """The timed motions as actions (docs/actions.md), beside their services: one per
+    row of ``interface.ACTIONS``."""
     d = node.device
     every_motor = tuple(range(1, MOTORS + 1))
-    for n in every_motor:
-        node.actions.motion(
-            StepperMoveBy,
-            f"~/motor_{n}/move_by",
-            lambda goal, n=n: MoveByMotion(  # type: ignore[misc]
-                d,
-                node.scales,
-                n,
-                node.to_units(n, goal.distance),
-                float(goal.distance),
-                tolerance=node.goal_tolerance,
-            ),
-        )
-        node.actions.motion(
-            StepperRun,
-            f"~/motor_{n}/home",
-            lambda _goal, n=n: HomeMotion(  # type: ignore[misc]
-                d, node.scales, "home", (n,), tolerance=node.goal_tolerance, zero=_zero(node)
-            ),
-        )
-    node.actions.motion(
-        StepperRun,
-        "~/home_all",
-        lambda _goal: HomeMotion(
+
+    def move_by(motor: int) -> Callable[[Any], MoveByMotion]:
+        return lambda goal: MoveByMotion(
             d,
             node.scales,
-            "home_all",
-            every_motor,
+            motor,
+            node.to_units(motor, goal.distance),
+            float(goal.distance),
             tolerance=node.goal_tolerance,
-            homed=_homing_order(node),
-            zero=_zero(node),
-        ),
-    )
-    node.actions.motion(
-        StepperRun,
-        "~/return_to_zero",
-        lambda _goal: CoilMotion(
-            d, node.scales, "return_to_zero", every_motor, tolerance=node.goal_tolerance
-        ),
-    )
-    node.actions.motion(
-        LineMotion, "~/line_move", lambda goal: _pair_motion(node, _prepare_line(node, goal))
-    )
-    node.actions.motion(
-        ArcMotion, "~/arc_move", lambda goal: _pair_motion(node, _prepare_arc(node, goal))
+        )
+
+    def home(motor: int) -> Callable[[Any], HomeMotion]:
+        return lambda _goal: HomeMotion(
+            d, node.scales, "home", (motor,), tolerance=node.goal_tolerance, zero=_zero(node)
+        )
+
+    node.actions.create(
+        ACTIONS,
+        {
+            "~/motor_{motor}/move_by": move_by,
+            "~/motor_{motor}/home": home,
+            "~/home_all": lambda _goal: HomeMotion(
+                d,
+                node.scales,
+                "home_all",
+                every_motor,
+                tolerance=node.goal_tolerance,
+                homed=_homing_order(node),
+                zero=_zero(node),
+            ),
+            "~/return_to_zero": lambda _goal: CoilMotion(
+                d, node.scales, "return_to_zero", every_motor, tolerance=node.goal_tolerance
+            ),
+            "~/line_move": lambda goal: _pair_motion(node, _prepare_line(node, goal)),
+            "~/arc_move": lambda goal: _pair_motion(node, _prepare_arc(node, goal)),
+        },
+        EXPANSION,
     )
 
 

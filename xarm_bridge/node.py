@@ -7,9 +7,9 @@ from collections.abc import Callable, Sequence
 from typing import Any, TypeVar
 
 from geometry_msgs.msg import PoseStamped
-from std_srvs.srv import Trigger
 
 from bridge_core.ros.node_base import BridgeNode, copy_fields
+from bridge_core.ros.node_services import Command, trigger
 from bridge_core.ros.process import spin_node
 from bridge_core.runtime.checks import board_zero_index, listed
 from bridge_core.runtime.diagnostics import Level, Report
@@ -23,18 +23,9 @@ from bridge_core.runtime.units import (
 )
 from bridge_core.wire.errors import ConfigurationError, NotConfirmed
 from msg_defs.msg import XArmState
-from msg_defs.srv import (
-    RunOfflineTask,
-    SetChannelValue,
-    SetInteger,
-    SetJointEnable,
-    SetOutput,
-    SetOutputs,
-    SetSafetyMode,
-)
 
 from .device import XArmDevice, XArmSnapshot
-from .interface import PARAMETERS, XARM_DEFAULTS
+from .interface import PARAMETERS, SERVICES, XARM_DEFAULTS
 from .registers import (
     SET_STATE_START,
     USER_COILS,
@@ -185,117 +176,89 @@ class XArmBridgeNode(BridgeNode[XArmSnapshot]):
         return Report(Level.OK, "connected", values)
 
     # ------------------------------------------------------------ services
-    # One table: a row per service (type, name, log text, device call); splitting it would
-    # scatter the node's interface.
+    # One table: the handler of each row of interface.SERVICES (the log text and the device
+    # call); splitting it would scatter the node's interface.
     def _create_services(self) -> None:
         d = self.device
 
-        # Stop and pause: C145 / C144 and H33 at once, answered from H33 read back
-        # (decisions 6, 19).
-        for name, halt in (("pause", d.pause), ("stop", d.stop)):
-            self.command_service(
-                Trigger,
-                f"~/{name}",
-                _named(name),
-                _call(halt),
-                stop=True,
-                fill=_written,
-                stops_axes=lambda _r: (ARM,),
-            )
+        def halt(what: str, action: Callable[[], str]) -> Command[str]:
+            # Stop and pause: C145 / C144 and H33 at once, answered from H33 read back
+            # (decisions 6, 19).
+            return trigger(what, action, stop=True, fill=_written, stops_axes=(ARM,))
+
         # What sets the arm moving: a halt (deactivate, exit, read_only) stops it (C145
         # and H33 = 4); a stop the arm does not show is logged "sent, not confirmed".
         arm_started = (ARM, _halt_stop(d.stop))
-        self.command_service(
-            Trigger,
-            "~/resume",
-            _named("resume"),
-            _call(d.resume),
-            fill=_written,
-            starts=lambda _r: arm_started,
-        )
-        self.command_service(
-            SetInteger,
-            "~/set_mode",
-            lambda r: f"set_mode {r.value}",
-            lambda r: d.set_mode(r.value),
-            fill=lambda response, _: setattr(
-                response, "message", response.message + " (in force after set_state 0)"
-            ),
-        )
-        self.command_service(
-            SetInteger,
-            "~/set_state",
-            lambda r: f"set_state {r.value}",
-            lambda r: d.command_state(r.value),
-            fill=_written,
-            starts=lambda r: arm_started if r.value == SET_STATE_START else None,
-        )
-        self.command_service(
-            SetOutput,
-            "~/set_digital_output",
-            lambda r: f"set_digital_output {r.index} {'on' if r.state else 'off'}",
-            lambda r: d.set_digital_output(_board_zero(r.board, r.index), r.state),
-        )
-        self.command_service(
-            SetOutputs,
-            "~/set_digital_outputs",
-            lambda r: f"set_digital_outputs {_pairs(r)}",
-            lambda r: d.set_digital_outputs(list(r.indexes), list(r.states)),
-            fill=_written,
-        )
-        self.command_service(
-            SetOutputs,
-            "~/set_user_coils",
-            lambda r: f"set_user_coils {_pairs(r)}",
-            lambda r: d.set_user_coils(list(r.indexes), list(r.states)),
-            fill=_written,
-        )
-        self.command_service(
-            SetJointEnable,
-            "~/set_joint_enable",
-            lambda r: (
-                f"set_joint_enable {'all joints' if r.joint == 0 else f'joint {r.joint}'} "
-                f"{'enable' if r.enable else 'disable'}"
-            ),
-            lambda r: d.set_joint_enable(r.joint, r.enable),
-            fill=_written,
-            stop=lambda r: not r.enable,  # disabling ends motion: tried at once, like a stop
-            stops_axes=lambda r: (ARM,) if not r.enable and r.joint == 0 else (),
-        )
-        self.command_service(
-            SetOutput,
-            "~/set_tool_digital_output",
-            lambda r: f"set_tool_digital_output {r.index} {'on' if r.state else 'off'}",
-            lambda r: d.set_tool_digital_output(_board_zero(r.board, r.index), r.state),
-        )
-        self.command_service(
-            SetChannelValue,
-            "~/set_analog_output",
-            lambda r: f"set_analog_output {r.channel} = {r.value} V",
-            lambda r: d.set_analog_output(r.channel, r.value),
-        )
-        # Off only with confirm (decision 17); read back either way.
-        self.command_service(
-            SetSafetyMode,
-            "~/set_reduced_mode",
-            lambda r: f"set_reduced_mode {r.data}",
-            lambda r: d.set_reduced_mode(r.data, r.confirm),
-            fill=_written,
-        )
-        self.command_service(
-            SetSafetyMode,
-            "~/set_fence_mode",
-            lambda r: f"set_fence_mode {r.data}",
-            lambda r: d.set_fence_mode(r.data, r.confirm),
-            fill=_written,
-        )
-        self.command_service(
-            RunOfflineTask,
-            "~/run_offline_task",
-            lambda r: f"run_offline_task {listed(r.projects, 'projects', bracketed=True)}",
-            lambda r: d.run_offline_task([int(p) for p in r.projects]),
-            fill=_written,
-            starts=lambda _r: arm_started,
+        self.command_services.create(
+            SERVICES,
+            {
+                "~/pause": halt("pause", d.pause),
+                "~/stop": halt("stop", d.stop),
+                "~/resume": trigger("resume", d.resume, fill=_written, starts=arm_started),
+                "~/set_mode": Command(
+                    lambda r: f"set_mode {r.value}",
+                    lambda r: d.set_mode(r.value),
+                    fill=lambda response, _: setattr(
+                        response, "message", response.message + " (in force after set_state 0)"
+                    ),
+                ),
+                "~/set_state": Command(
+                    lambda r: f"set_state {r.value}",
+                    lambda r: d.command_state(r.value),
+                    fill=_written,
+                    starts=lambda r: arm_started if r.value == SET_STATE_START else None,
+                ),
+                "~/set_digital_output": Command(
+                    lambda r: f"set_digital_output {r.index} {'on' if r.state else 'off'}",
+                    lambda r: d.set_digital_output(_board_zero(r.board, r.index), r.state),
+                ),
+                "~/set_digital_outputs": Command(
+                    lambda r: f"set_digital_outputs {_pairs(r)}",
+                    lambda r: d.set_digital_outputs(list(r.indexes), list(r.states)),
+                    fill=_written,
+                ),
+                "~/set_user_coils": Command(
+                    lambda r: f"set_user_coils {_pairs(r)}",
+                    lambda r: d.set_user_coils(list(r.indexes), list(r.states)),
+                    fill=_written,
+                ),
+                "~/set_joint_enable": Command(
+                    lambda r: (
+                        "set_joint_enable "
+                        f"{'all joints' if r.joint == 0 else f'joint {r.joint}'} "
+                        f"{'enable' if r.enable else 'disable'}"
+                    ),
+                    lambda r: d.set_joint_enable(r.joint, r.enable),
+                    fill=_written,
+                    stop=lambda r: not r.enable,  # disabling ends motion: tried at once
+                    stops_axes=lambda r: (ARM,) if not r.enable and r.joint == 0 else (),
+                ),
+                "~/set_tool_digital_output": Command(
+                    lambda r: f"set_tool_digital_output {r.index} {'on' if r.state else 'off'}",
+                    lambda r: d.set_tool_digital_output(_board_zero(r.board, r.index), r.state),
+                ),
+                "~/set_analog_output": Command(
+                    lambda r: f"set_analog_output {r.channel} = {r.value} V",
+                    lambda r: d.set_analog_output(r.channel, r.value),
+                ),
+                # Off only with confirm (decision 17); read back either way.
+                "~/set_reduced_mode": Command(
+                    lambda r: f"set_reduced_mode {r.data}",
+                    lambda r: d.set_reduced_mode(r.data, r.confirm),
+                    fill=_written,
+                ),
+                "~/set_fence_mode": Command(
+                    lambda r: f"set_fence_mode {r.data}",
+                    lambda r: d.set_fence_mode(r.data, r.confirm),
+                    fill=_written,
+                ),
+                "~/run_offline_task": Command(
+                    lambda r: f"run_offline_task {listed(r.projects, 'projects', bracketed=True)}",
+                    lambda r: d.run_offline_task([int(p) for p in r.projects]),
+                    fill=_written,
+                    starts=lambda _r: arm_started,
+                ),
+            },
         )
 
 
@@ -334,14 +297,6 @@ def _halt_stop(stop: Callable[[], str]) -> Callable[[], str]:
 
 def _written(response: Any, written: str) -> None:
     response.message += f" ({written})"
-
-
-def _named(name: str) -> Callable[[Any], str]:
-    return lambda _request: name
-
-
-def _call(action: Callable[[], T]) -> Callable[[Any], T]:
-    return lambda _request: action()
 
 
 def _board_zero(board: int, index: int) -> int:

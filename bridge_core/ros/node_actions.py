@@ -30,7 +30,7 @@ import math
 import threading
 import time
 import traceback
-from collections.abc import Callable, Hashable
+from collections.abc import Callable, Hashable, Mapping, Sequence
 from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 
 from rclpy.action.server import ActionServer, CancelResponse, GoalResponse, ServerGoalHandle
@@ -41,6 +41,7 @@ from ..runtime.goals import GoalRun, Motion, Outcome, Verdict, needs_stop
 from ..runtime.parameters import GOAL_TIMEOUT_DEFAULT_S, GOAL_TIMEOUT_SPEC
 from ..wire.errors import CommandRejected, LinkError
 from .action_results import filled, finish_run, refuse_goal, result_of, send_result
+from .node_services import Row, bound_rows, interface_type
 
 if TYPE_CHECKING:
     from .node_base import BridgeNode
@@ -101,28 +102,29 @@ class ActionHost:
         self.goal_timeout_s = float(value)
 
     # ------------------------------------------------------------------ servers
-    def motion(
+    def create(
         self,
-        action_type: Any,
-        name: str,
-        make_motion: Callable[[Any], Motion[Any]],
+        rows: Sequence[Row],
+        makers: Mapping[str, Callable[..., Any]],
+        expansion: Mapping[str, Sequence[object]] | None = None,
     ) -> None:
-        """An action whose goal starts a motion the polls follow (``goal.timeout_s``)."""
-        self._server(
-            action_type,
-            name,
-            make_motion,
-            lambda handle, motion: self._execute_motion(action_type, name, motion, handle),
-        )
+        """An action server per name of each ``Action`` row of ``<bridge>/interface.py``
+        (``expansion``: each placeholder's values), of the row's type: its goal makes a
+        ``Motion`` the polls follow, or ``Steps`` the bridge carries out, through the maker
+        its row's name has in ``makers`` (a pattern's: a function of its placeholders that
+        returns the maker). Rows and makers must match (``node_services.bound_rows``)."""
+        for row, name, make in bound_rows(rows, makers, expansion or {}):
+            self.add(interface_type(row.type), name, make)
 
-    def steps(self, action_type: Any, name: str, make_steps: Callable[[Any], Steps]) -> None:
-        """An action whose goal the bridge carries out in steps (``goal.timeout_s``)."""
-        self._server(
-            action_type,
-            name,
-            make_steps,
-            lambda handle, steps: self._execute_steps(action_type, name, steps, handle),
-        )
+    def add(self, action_type: Any, name: str, make: Callable[[Any], Motion[Any] | Steps]) -> None:
+        """An action whose goal starts a motion or steps (``goal.timeout_s``)."""
+
+        def run(handle: ServerGoalHandle, made: Motion[Any] | Steps) -> Any:
+            if isinstance(made, Motion):
+                return self._execute_motion(action_type, name, made, handle)
+            return self._execute_steps(action_type, name, made, handle)
+
+        self._server(action_type, name, make, run)
 
     def _guarded(
         self, action_type: Any, name: str, handle: ServerGoalHandle, execute: Callable[[], Any]

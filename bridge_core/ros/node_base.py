@@ -6,8 +6,9 @@ own thread, pacing, re-plan on device exceptions, a publisher thread), ``joint_s
 ``~/connected`` / ``/diagnostics``, the stale-data policy (no fresh stamps while the link
 is down), the lifecycle, and the command guard that refuses, writing nothing, when the
 link is down or ``read_only`` is set, and turns device errors into a clear ``message``.
-Its command streams (``node_streams``) and action goals (``node_actions``) go through that
-guard; ``process`` spins the nodes.
+Its command services (``node_services``), command streams (``node_streams``) and action
+goals (``node_actions``) go through that guard, each a host on the node (``command_services``,
+``streams``, ``actions``); ``process`` spins the nodes.
 
 Threading: the poll and publisher threads belong to the poller (bench/r6_bench.py
 measured an executor timer at ~1 ms of CPU per poll cycle); a MultiThreadedExecutor runs
@@ -54,15 +55,12 @@ from ..wire.transport import ModbusLink
 from .node_actions import ActionHost
 from .node_diagnostics import DiagnosticsPublisher
 from .node_parameters import ParameterNode, link_settings
-from .node_services import CommandServices
+from .node_services import ServiceHost
 from .node_streams import StreamHost
 
 T = TypeVar("T")
 SnapshotT = TypeVar("SnapshotT")
 LINK_DOWN_LOG_PERIOD_S = 10.0  # while a device stays down, say so this often on the console
-# A halt's stop of a service's motion that failed is tried again this often (a probe of a
-# dead line each time: the streams' deadman retries at 0.05 s).
-PENDING_STOP_RETRY_S = 0.25
 # How long a halt waits for a command that was past its guards (on the wire) to finish.
 HALT_COMMAND_WAIT_S = 30.0
 JOINT_STATES_DEPTH = 10
@@ -70,7 +68,7 @@ JOINT_STATES_DEPTH = 10
 EXIT_LINK_OUTCOMES = (PollOutcome.LINK_LOST, PollOutcome.UNREACHABLE, PollOutcome.STILL_DOWN)
 
 
-class BridgeNode(ParameterNode, CommandServices, Generic[SnapshotT]):
+class BridgeNode(ParameterNode, Generic[SnapshotT]):
     """Base of the bridge nodes; subclasses poll, publish and add services.
 
     The node opens its own link from its transport parameters, unless it is given
@@ -106,6 +104,8 @@ class BridgeNode(ParameterNode, CommandServices, Generic[SnapshotT]):
         self.joint_command_refusals: RefusalCounts | None = None
         # Motions services started (fire-and-forget): stopped by a halt like the streams'.
         self.service_motions = MotionLedger()
+        # Services made from the interface rows (command_services.create).
+        self.command_services = ServiceHost(self, LINK_DOWN_LOG_PERIOD_S)
         self._command_mutex = threading.RLock()  # one command (not stop) at a time
         # Set before a halt (deactivate, shutdown, error, exit) stops anything, cleared on
         # activate: a command or stream value that waited for its turn while the halt ran
@@ -143,11 +143,6 @@ class BridgeNode(ParameterNode, CommandServices, Generic[SnapshotT]):
         self._poll_starter = self.create_timer(0.0, self._start_polling)
         self.diagnostics = DiagnosticsPublisher(self, float(values["diagnostic_period_s"]))
         self.on_parameter("diagnostic_period_s", self.diagnostics.set_period)
-        self.create_timer(
-            PENDING_STOP_RETRY_S,
-            self._retry_pending_stops,
-            callback_group=MutuallyExclusiveCallbackGroup(),  # never in a stop service's way
-        )
 
     def _open_channel(
         self,
@@ -255,24 +250,7 @@ class BridgeNode(ParameterNode, CommandServices, Generic[SnapshotT]):
         ``on_link_up``. A stop that failed while the link was down goes out before any
         poll; if it fails again the link is still down and the poller says so."""
         self.streams.send_pending_stops()
-        for stopped in self.service_motions.retry_pending():
-            if isinstance(stopped.error, DeviceException):
-                # Answered: the device refused the stop. Said loudly, not retried for ever
-                # (polls must go on); the motion may still run.
-                self.service_motions.stopped(stopped.axis)
-                self.get_logger().error(
-                    f"{stopped.what}: the device refused its pending stop: {stopped.error}"
-                )
-            elif isinstance(stopped.error, NotConfirmed):
-                # Answered, and the device does not show it: said loudly, kept for the
-                # next halt, not retried for ever (polls must go on).
-                self.get_logger().error(
-                    f"{stopped.what}: its pending stop went out, not confirmed: {stopped.error}"
-                )
-            elif stopped.error is not None:
-                raise stopped.error  # still down: the poller says so, and tries again
-            else:
-                self.get_logger().info(f"{stopped.what}: the pending stop was sent on reconnect")
+        self.command_services.send_pending_stops()
         self.on_link_up()
 
     def poll_groups(self) -> PollGroups:
@@ -563,40 +541,11 @@ class BridgeNode(ParameterNode, CommandServices, Generic[SnapshotT]):
         session). Each part is tried whatever another raised; the streams' and services'
         stops go before the goals' (whose stop may wait for a start on the wire)."""
         self.streams.stop_all()
-        for stopped in self.service_motions.stop_all():
-            if stopped.error is None:
-                self.get_logger().info(f"{stopped.what}: stopped ({reason})")
-            elif isinstance(stopped.error, NotConfirmed):
-                self.get_logger().error(
-                    f"{stopped.what}: its stop went out, not confirmed ({reason}): {stopped.error}"
-                )
-            else:
-                self.get_logger().error(
-                    f"{stopped.what}: its stop failed ({reason}): {stopped.error}; "
-                    "tried again until it gets through"
-                )
+        self.command_services.stop_all(reason)
         try:
             self.actions.stop_all(reason)
         except Exception as err:
             self.get_logger().error(f"stopping action goals failed: {err}")
-
-    def _retry_pending_stops(self) -> None:
-        """A halt's stop that failed (the link was down) is tried again on a timer, also
-        while the node is inactive (nobody reactivates it to get the stop out)."""
-        if not self.service_motions.pending():
-            return
-        for stopped in self.service_motions.retry_pending():
-            if stopped.error is None:
-                self.get_logger().info(f"{stopped.what}: the pending stop got through")
-            elif isinstance(stopped.error, NotConfirmed):
-                self.get_logger().error(
-                    f"{stopped.what}: its pending stop went out, not confirmed: {stopped.error}"
-                )
-            else:
-                self.get_logger().warn(
-                    f"{stopped.what}: its stop still fails: {stopped.error}",
-                    throttle_duration_sec=LINK_DOWN_LOG_PERIOD_S,
-                )
 
     def close(self) -> None:
         """Stop motion, then polling, then close the link if this node opened it."""
