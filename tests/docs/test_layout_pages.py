@@ -32,14 +32,15 @@ def packages() -> tuple[str, ...]:
     return ("bridge_core", *bridge_packages().values())
 
 
-def package_modules(root: Path = ROOT) -> set[str]:
+@cache
+def package_modules(root: Path = ROOT) -> frozenset[str]:
     """Every module of the packages, as a path: ``bridge_core/sim/serving.py``."""
-    return {
+    return frozenset(
         path.relative_to(root).as_posix()
         for top in packages()
         for path in (root / top).rglob("*.py")
         if path.name != "__init__.py"
-    }
+    )
 
 
 @cache
@@ -107,10 +108,46 @@ def _check_module(
         out.stale.append(f"{page}:{number}: {what}: {module} defines no {attr}")
 
 
+def _named_anywhere(page: str, number: int, line: str, root: Path, out: Findings) -> None:
+    """Paths, dotted names and layer-relative names: the forms that mean the same anywhere."""
+    for match in PATH.finditer(line):
+        target = match.group(1)
+        if target.endswith(".py") and target.split("/")[0] in packages():
+            _check_module(page, number, target, target, None, root, out)
+        elif not (root / target).exists():
+            out.stale.append(f"{page}:{number}: {target}: no such file or directory")
+    for match in DOTTED.finditer(line):
+        module, attr = _resolve_dotted(match.group(1).split("."), root)
+        if module is not None:
+            _check_module(page, number, match.group(1), module, attr, root, out)
+    for match in LAYERED.finditer(line):
+        token = match.group(1)
+        if re.fullmatch(r"\w+\.py", token):
+            continue  # sim.py: a bridge's module, not the sim layer
+        module, attr = _resolve_dotted(["bridge_core", *re.split(r"[./]", token)], root)
+        if module is not None:
+            _check_module(page, number, token, module, attr, root, out)
+
+
+def _bare_names(
+    page: str, number: int, line: str, block: str | None, root: Path, out: Findings
+) -> None:
+    """``name.py``: in a block of the tree, a file under that directory; else a module."""
+    for match in BARE_PY.finditer(line):
+        name = match.group(1)
+        if block is None:
+            if not any(Path(m).match(name) for m in package_modules(root)):
+                out.stale.append(f"{page}:{number}: {name}: no module of that name")
+            continue
+        found = sorted((root / block).rglob(name))
+        if not found:
+            out.stale.append(f"{page}:{number}: {name}: nothing of that name in {block}/")
+        out.named.update(p.relative_to(root).as_posix() for p in found if p.name != "__init__.py")
+
+
 def findings(page: str, text: str, root: Path = ROOT) -> Findings:
     """What ``page`` (its text) names, and what it names that does not exist."""
     out = Findings()
-    modules = package_modules(root)
     layer: str | None = None  # the bridge_core layer whose section this line is in
     block: str | None = None  # the top-level directory whose block of the tree this is in
     fenced = False
@@ -123,46 +160,14 @@ def findings(page: str, text: str, root: Path = ROOT) -> Findings:
             layer = heading.group(1) if heading and heading.group(1) in LAYERS else None
         if fenced:
             start = BLOCK_START.match(line)
-            if start:
-                block = start.group(1)
-            elif not line.startswith(" "):
-                block = None
-        for match in PATH.finditer(line):
-            target = match.group(1)
-            if target.endswith(".py") and target.split("/")[0] in packages():
-                _check_module(page, number, target, target, None, root, out)
-            elif not (root / target).exists():
-                out.stale.append(f"{page}:{number}: {target}: no such file or directory")
-        for match in DOTTED.finditer(line):
-            module, attr = _resolve_dotted(match.group(1).split("."), root)
-            if module is not None:
-                _check_module(page, number, match.group(1), module, attr, root, out)
-        for match in LAYERED.finditer(line):
-            token = match.group(1)
-            if re.fullmatch(r"\w+\.py", token):
-                continue  # sim.py: a bridge's module, not the sim layer
-            parts = ["bridge_core", *re.split(r"[./]", token)]
-            module, attr = _resolve_dotted(parts, root)
-            if module is not None:
-                _check_module(page, number, token, module, attr, root, out)
+            block = start.group(1) if start else (block if line.startswith(" ") else None)
+        _named_anywhere(page, number, line, root, out)
         if layer is not None:
             for match in ITEM.finditer(line):
                 module = f"bridge_core/{layer}/{match.group(1)}.py"
                 _check_module(page, number, f"`{match.group(1)}`", module, None, root, out)
-        if block is not None:
-            for match in BARE_PY.finditer(line):
-                name = match.group(1)
-                found = sorted((root / block).rglob(name))
-                if not found:
-                    out.stale.append(f"{page}:{number}: {name}: nothing of that name in {block}/")
-                out.named.update(
-                    p.relative_to(root).as_posix() for p in found if p.name != "__init__.py"
-                )
-        elif not fenced:
-            for match in BARE_PY.finditer(line):
-                name = match.group(1)
-                if not any(Path(m).match(name) for m in modules):
-                    out.stale.append(f"{page}:{number}: {name}: no module of that name")
+        if block is not None or not fenced:
+            _bare_names(page, number, line, block, root, out)
     return out
 
 
