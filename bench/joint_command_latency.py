@@ -11,7 +11,7 @@ client published the step's first message. The simulator logs its writes with
 ``time.time()`` in its own process on this machine, so both clocks are the same.
 
 Cases (each bridge and its simulator in processes of their own, the test suite's set-ups:
-tests/support/joint_rigs.py, as tests/test_joint_commands.py uses them):
+tests/support/joint_rigs.py, as tests/core/ros/test_joint_commands.py uses them):
 
 - ``stepper`` motor_1 velocity (m/s -> jog rpm), 9600 baud, 35 ms replies, the node's
   ``command_rate_hz`` (5);

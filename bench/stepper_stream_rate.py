@@ -1,17 +1,17 @@
 #!/usr/bin/env python3
 """The stepper's ``joint_states`` rate while ``~/joint_commands`` streams position targets.
 
-The test suite's stepper set-up (tests/support/joint_rigs.py, as tests/test_joint_commands.py
-uses it): the simulator at 9600 baud with 35 ms replies in a process of its own, the
-bridge with its default ``poll_rate_hz`` (3) in another. A client publishes position
-targets for ``motor_1`` and ``motor_2`` at 100 Hz, every joint every cycle (ros2_control's
-topic-based interface with ``trigger_joint_command_threshold`` -1), each a triangle of
-``--amplitude-mm`` at ``--speed-mm-s`` (1.5 mm/s, as the test's ramps), then holds the last
-target. Counted by the messages' header stamps (one per poll), per phase: idle before,
-streaming, holding; the rate over the phase and the fewest / most stamps in any whole
-second of it, and the longest gap between two stamps; and the writes on the wire per second
-while streaming (the simulator's log).
-Prints figures; asserts nothing. Loopback and ptys only; discovery on localhost.
+The test suite's stepper set-up (tests/support/joint_rigs.py, as
+tests/core/ros/test_joint_commands.py uses it): the simulator at 9600 baud with 35 ms replies
+in a process of its own, the bridge with its default ``poll_rate_hz`` (3) in another. A client
+publishes position targets for ``motor_1`` and ``motor_2`` at 100 Hz, every joint every cycle
+(ros2_control's topic-based interface with ``trigger_joint_command_threshold`` -1), each a
+triangle of ``--amplitude-mm`` at ``--speed-mm-s`` (1.5 mm/s, as the test's ramps), then holds
+the last target. Counted by the messages' header stamps (one per poll), per phase: idle before,
+streaming, holding; the rate over the phase and the fewest / most stamps in any whole second of
+it, and the longest gap between two stamps; and the writes on the wire per second while
+streaming (the simulator's log). Prints figures; asserts nothing. Loopback and ptys only;
+discovery on localhost.
 
     .venv/bin/python bench/stepper_stream_rate.py [--stream-s 30] [--idle-s 10] [--hold-s 6]
         [--command-rate-hz 5]

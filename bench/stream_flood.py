@@ -118,7 +118,7 @@ TARGETS = {
         is_stop=lambda r: r.table.value == "coil" and r.address == 4,  # 00005: motor 1 stop
         jc_node="stepper_bridge",
         jc_joint="motor_1",
-        jc_constant=0.003,  # m/s (tests/test_joint_commands.py's speeds)
+        jc_constant=0.003,  # m/s (tests/core/ros/test_joint_commands.py's speeds)
         jc_varying=lambda n: 0.001 + (n % 50) * 1e-5,
     ),
 }

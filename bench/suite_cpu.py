@@ -11,7 +11,7 @@ compilers, socat, processes killed before their exit hook), and the Python CPU b
 process, by test module and by test.
 
     .venv/bin/python bench/suite_cpu.py                     # the whole suite (~9 min)
-    .venv/bin/python bench/suite_cpu.py tests/test_contract.py -k r6
+    .venv/bin/python bench/suite_cpu.py tests/core/ros/test_contract.py -k r6
     .venv/bin/python bench/suite_cpu.py --log results/cpu.jsonl --top 20
 
 Figures only; nothing is asserted. A process ended by SIGKILL writes no record.

@@ -9,7 +9,7 @@ scripts/setup.sh, or a colcon install). The parameters come from the example fil
 launch arguments (`ros2 launch ... --show-args` lists them). Each node of the process is
 managed (`ros2 lifecycle`), but launch_ros's `LifecycleNode` names one node per process, so
 this is a plain `Node`. Needs `launch_ros` (a sourced ROS 2 Jazzy; the PyPI wheels in .venv
-have none: tests/test_launch_parameters.py evaluates this file with a stand-in and starts
+have none: tests/core/test_launch_parameters.py evaluates this file with a stand-in and starts
 its node with exactly these parameters).
 Keep ROS discovery local when everything is on one machine:
 `ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`.

@@ -6,7 +6,7 @@
 The first form runs from this checkout, the second from an install (the venv after
 scripts/setup.sh, or a colcon install). The parameters come from the example file, then the
 launch arguments (`ros2 launch ... --show-args` lists them). Needs `launch_ros` (a
-sourced ROS 2 Jazzy; the PyPI wheels in .venv have none: tests/test_launch_parameters.py
+sourced ROS 2 Jazzy; the PyPI wheels in .venv have none: tests/core/test_launch_parameters.py
 evaluates this file with a stand-in and starts its node with exactly these parameters).
 Keep ROS discovery local when everything is on one machine:
 `ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`.

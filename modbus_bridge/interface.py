@@ -2,7 +2,7 @@
 ``modbus_bridge.node`` and ``modbus_bridge.bus`` declare these parameters;
 ``bridge_core.runtime.interface`` lists the nodes of the launch file's default description
 (config/devices/xarm.yaml) and of the multi-drop example (rtu_multidrop.yaml);
-tests/test_interface.py checks the topics and services against running nodes."""
+tests/core/ros/test_interface.py checks the topics and services against running nodes."""
 
 from __future__ import annotations
 

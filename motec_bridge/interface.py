@@ -1,7 +1,7 @@
 """The MOTEC nodes' ROS interface as data (no rclpy): ``motec_bridge.bus`` (the bus node) and
 ``motec_bridge.node`` (each drive node) declare these parameters; ``bridge_core.runtime.interface``
-lists the nodes; tests/test_interface.py checks the topics, services and actions against running
-nodes."""
+lists the nodes; tests/core/ros/test_interface.py checks the topics, services and actions
+against running nodes."""
 
 from __future__ import annotations
 

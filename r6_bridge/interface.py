@@ -1,6 +1,6 @@
 """The R6 node's ROS interface as data (no rclpy): ``r6_bridge.node`` declares these
-parameters; ``bridge_core.runtime.interface`` lists the node; tests/test_interface.py checks the
-topics, services and actions against a running node."""
+parameters; ``bridge_core.runtime.interface`` lists the node;
+tests/core/ros/test_interface.py checks the topics, services and actions against a running node."""
 
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """The stepper nodes' ROS interface as data (no rclpy): ``stepper_bridge.node`` and
 ``stepper_bridge.bus`` declare these parameters; ``bridge_core.runtime.interface`` lists the nodes;
-tests/test_interface.py checks the topics, services and actions against running nodes."""
+tests/core/ros/test_interface.py checks the topics, services and actions against running nodes."""
 
 from __future__ import annotations
 

@@ -22,7 +22,7 @@ from bridge_core.wire.ports import free_port  # noqa: E402 (needs the path above
 # Fast DDS accepts domain ids 0-101 (and 215-232) with default ports; 1-100 by pid.
 DOMAIN_IDS = 100
 os.environ.setdefault("ROS_DOMAIN_ID", str(1 + os.getpid() % DOMAIN_IDS))
-COLCON_TESTS = "tests/test_colcon_build.py"
+COLCON_TESTS = "tests/core/test_colcon_build.py"
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ.pop("ROS_LOCALHOST_ONLY", None)
 # Ctrl-C as a terminal gives it, whatever the runner left: a shell that starts the suite in

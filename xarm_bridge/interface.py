@@ -1,6 +1,6 @@
 """The xArm node's ROS interface as data (no rclpy): ``xarm_bridge.node`` declares these
-parameters; ``bridge_core.runtime.interface`` lists the node; tests/test_interface.py checks the
-topics and services against a running node."""
+parameters; ``bridge_core.runtime.interface`` lists the node;
+tests/core/ros/test_interface.py checks the topics and services against a running node."""
 
 from __future__ import annotations
 

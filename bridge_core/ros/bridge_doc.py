@@ -3,7 +3,7 @@
 ``<bridge>/interface.py``.
 
 ``bridge_doc --write`` rewrites the generated section, ``bridge_doc --check`` fails when a
-page differs from a fresh render (tests/core/runtime/test_bridge_doc.py runs the same
+page differs from a fresh render (tests/core/ros/test_bridge_doc.py runs the same
 comparison). ROS-free, as ``bridge_plot``: the listing needs no rclpy.
 """
 

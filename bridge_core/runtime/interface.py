@@ -15,7 +15,7 @@ namespace), ``joint_states`` (the node's namespace), ``/diagnostics`` (absolute)
 per joint, motor, drive or register is a pattern with ``{placeholders}``; ``expansion``
 gives each placeholder's values in the node's default configuration, and ``topics()``,
 ``services()``, ``actions()`` expand the patterns (``declared_*`` keep them).
-``tests/test_interface.py`` compares each listing with a running node's ROS graph.
+``tests/core/ros/test_interface.py`` compares each listing with a running node's ROS graph.
 """
 
 from __future__ import annotations

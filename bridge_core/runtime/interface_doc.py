@@ -1,5 +1,5 @@
 """A bridge's ROS API reference as Markdown, rendered from its ``<bridge>/interface.py``
-(the listing ``tests/test_interface.py`` checks against running nodes), so its page says
+(the listing ``tests/core/ros/test_interface.py`` checks against running nodes), so its page says
 what the nodes declare. Plain text in, text out: ``bridge_core.ros.bridge_doc`` (the
 ``bridge_doc`` tool) reads and writes the pages, ``modbus_doc`` uses ``table``.
 

@@ -1,4 +1,4 @@
-"""The bridges as data, for the contract suite (tests/test_contract.py).
+"""The bridges as data, for the contract suite (tests/core/ros/test_contract.py).
 
 Each entry says how to start the bridge's simulator (its own process, so a test can
 SIGKILL it; accepted writes and handled read requests logged to files) and its node, one

@@ -1,4 +1,4 @@
-"""The colcon build of tests/test_colcon_build.py, started when the session begins.
+"""The colcon build of tests/core/test_colcon_build.py, started when the session begins.
 
 Building ``msg_defs`` (C and C++ type support of 6 messages, 28 services and 7 actions)
 takes minutes of compiler time. The build reuses the venv's msg_defs build directory

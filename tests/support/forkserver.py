@@ -25,7 +25,7 @@ What the fork changes, and why that is safe here:
 
 Any module can be run so (``PRELOAD`` is what each server imports beforehand).
 ``BRIDGE_TESTS_FORKSERVER=0`` starts every process with ``subprocess.Popen`` instead (an
-A/B of the two, or a suspicion about the fork); tests/test_support_forkserver.py compares
+A/B of the two, or a suspicion about the fork); tests/support_tests/test_forkserver.py compares
 the two. The demo, ``bridge_record`` and the colcon install are still started as typed.
 """
 

@@ -1,4 +1,4 @@
-"""A program for tests/test_support_forkserver.py: what a forked child sees of itself.
+"""A program for tests/support_tests/test_forkserver.py: what a forked child sees of itself.
 
 ``python -m tests.support.forkserver_probe ACTION [ARG]``: prints its argv, working
 directory, ``PROBE`` variable and whether it leads a process group, then ``exit CODE``,

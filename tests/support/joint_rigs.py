@@ -1,5 +1,5 @@
 """The three set-ups of ``~/joint_commands`` (issue 25), shared by
-tests/test_joint_commands.py and bench/joint_command_latency.py: a simulator process with
+tests/core/ros/test_joint_commands.py and bench/joint_command_latency.py: a simulator process with
 its writes logged, and its bridge in another process under a fresh namespace.
 
 - the stepper as the issue asks: 9600 baud, replies no sooner than 35 ms;

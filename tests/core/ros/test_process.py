@@ -2,7 +2,7 @@
 only the first signal interrupts, and at once whichever thread takes it.
 
 rclpy.init raises before any node exists, so ``spin_node`` runs here in the test's own
-process (the exit-2 path of a whole bridge process is tests/test_contract.py's)."""
+process (the exit-2 path of a whole bridge process is tests/core/ros/test_contract.py's)."""
 
 from __future__ import annotations
 

@@ -25,9 +25,9 @@ from msg_defs.srv import SetControlMode
 from stepper_bridge.registers import STEPPER_MAP, motor_coil
 from stepper_bridge.sim import StepperSimDevice
 
-from .support.ros import Bridge, Client, node_process, ros_client, wait_for
-from .support.serial_pair import served_on_pty
-from .support.sims import stepper_on_pty
+from ...support.ros import Bridge, Client, node_process, ros_client, wait_for
+from ...support.serial_pair import served_on_pty
+from ...support.sims import stepper_on_pty
 
 pytestmark = pytest.mark.ros
 

@@ -5,7 +5,7 @@ run here (loopback and ptys only), so each is checked without starting anything:
 console script is one of pyproject.toml's, every ``-p name:=value`` is a parameter that a
 node of that executable declares (``bridge_core.runtime.interface``), with a value of the
 parameter's type and in its range, and every ``--params-file`` under ``config/`` exists.
-The lines against the demo run in tests/test_readme_cli.py.
+The lines against the demo run in tests/docs/test_readme_cli.py.
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ import yaml  # type: ignore[import-untyped]
 from bridge_core.runtime import interface
 from bridge_core.runtime.parameters import ParameterSpec, ParameterValue
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
 BASH_BLOCK = re.compile(r"^\s*```(?:bash|sh)\n(.*?)^\s*```", re.DOTALL | re.MULTILINE)
 

@@ -41,7 +41,7 @@ from xarm_bridge.registers import COIL_STOPPED
 from xarm_bridge.sim import IN_MOTION, XArmSimDevice
 from xarm_bridge.sim import make_simulator as make_xarm
 
-from .support.ros import (
+from ...support.ros import (
     WAIT_S,
     Bridge,
     Client,
@@ -52,7 +52,7 @@ from .support.ros import (
     unique_namespace,
     wait_for,
 )
-from .support.sims import motec_on_pty, stepper_on_pty
+from ...support.sims import motec_on_pty, stepper_on_pty
 
 pytestmark = pytest.mark.ros
 

@@ -22,9 +22,9 @@ from r6_bridge.registers import COMMANDS, MAX_AXES
 from r6_bridge.sim import R6SimDevice, make_simulator
 from stepper_bridge.registers import motor_coil
 
-from .support.ros import Client, ros_client, start_bridge
-from .support.serial_pair import PTY_REPLY_TIMEOUT_S
-from .support.sims import stepper_on_pty
+from ...support.ros import Client, ros_client, start_bridge
+from ...support.serial_pair import PTY_REPLY_TIMEOUT_S
+from ...support.sims import stepper_on_pty
 
 pytestmark = pytest.mark.ros
 

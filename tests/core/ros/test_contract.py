@@ -42,9 +42,9 @@ from modbus_bridge.description import load as load_description
 from msg_defs.msg import DeviceValues
 from msg_defs.srv import ReadRegisters, SetValue
 
-from .support import forkserver
-from .support.bridges import BRIDGES, BridgeInfo, Call, JointCommandRow, SimProcess
-from .support.ros import (
+from ...support import forkserver
+from ...support.bridges import BRIDGES, BridgeInfo, Call, JointCommandRow, SimProcess
+from ...support.ros import (
     LATCHED,
     ROOT,
     Bridge,

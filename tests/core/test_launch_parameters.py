@@ -18,9 +18,9 @@ from typing import Any
 import pytest
 from lifecycle_msgs.srv import GetState
 
-from .support import forkserver
-from .support.launch_run import MissingArgument, evaluate, started
-from .support.ros import ROOT, Client, ros_client, unique_namespace, wait_for
+from ..support import forkserver
+from ..support.launch_run import MissingArgument, evaluate, started
+from ..support.ros import ROOT, Client, ros_client, unique_namespace, wait_for
 
 pytestmark = pytest.mark.ros
 

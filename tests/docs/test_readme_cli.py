@@ -33,7 +33,7 @@ from rcl_interfaces.srv import SetParameters
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
-from .support.ros import (
+from ..support.ros import (
     ROOT,
     WAIT_S,
     Client,

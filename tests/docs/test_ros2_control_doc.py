@@ -18,7 +18,7 @@ from motec_bridge.demo import UNITS
 from stepper_bridge.demo import DEMO as STEPPER_DEMO
 from stepper_bridge.registers import MOTORS
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 PAGE = ROOT / "docs" / "ros2_control.md"
 BLOCK = re.compile(r"^```(\w+)\n(.*?)^```", re.MULTILINE | re.DOTALL)
 PLUGIN = "joint_state_topic_hardware_interface/JointStateTopicSystem"

@@ -22,7 +22,7 @@ from bridge_core.wire.registers import Table
 from stepper_bridge.registers import holding, motor_coil
 from stepper_bridge.sim import StepperSimDevice, make_simulator
 
-from .support.ros import (
+from ...support.ros import (
     WAIT_S,
     Client,
     node_process,
@@ -31,7 +31,7 @@ from .support.ros import (
     wait_for,
     wait_subscribed,
 )
-from .support.serial_pair import served_on_pty
+from ...support.serial_pair import served_on_pty
 
 pytestmark = pytest.mark.ros
 

@@ -1,5 +1,5 @@
 """The demo of the README's quick start ends after its ``--duration`` and its monitor leaves
-Ctrl-C to Python (its console and its Ctrl-C against the demo tests/test_readme_cli.py
+Ctrl-C to Python (its console and its Ctrl-C against the demo tests/docs/test_readme_cli.py
 starts); the example YAML configures the node."""
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from sensor_msgs.msg import JointState
 
 from r6_bridge.sim import make_simulator
 
-from .support.ros import ROOT, node_process, ros_client, unique_namespace
+from ...support.ros import ROOT, node_process, ros_client, unique_namespace
 
 pytestmark = pytest.mark.ros
 
@@ -46,7 +46,7 @@ def test_example_yaml_configures_the_node(tmp_path: Path) -> None:
 
 def test_demo_ends_after_its_duration() -> None:
     """``--duration``: the demo stops itself (exit 0, no traceback, the last line says it
-    stopped). Its console while it runs, and its Ctrl-C, are tests/test_readme_cli.py's
+    stopped). Its console while it runs, and its Ctrl-C, are tests/docs/test_readme_cli.py's
     (one demo for both)."""
     result = subprocess.run(
         [sys.executable, "-m", "bridge_core.ros.demo", "--devices", "R6", "--duration", "3"],

@@ -39,7 +39,7 @@ from msg_defs.msg import MotecState, StepperState
 from msg_defs.srv import SetControlMode
 from stepper_bridge.registers import STEPPER_MAP, motor_coil
 
-from .support.ros import (
+from ...support.ros import (
     WAIT_S,
     Bridge,
     Client,
@@ -50,8 +50,8 @@ from .support.ros import (
     wait_for,
     wait_subscribed,
 )
-from .support.serial_pair import PTY_REPLY_TIMEOUT_S
-from .support.sims import motec_on_pty, stepper_on_pty
+from ...support.serial_pair import PTY_REPLY_TIMEOUT_S
+from ...support.sims import motec_on_pty, stepper_on_pty
 
 BAUD = 115200
 REPS = int(os.environ.get("HALT_RACE_REPS", "10"))

@@ -41,7 +41,7 @@ from stepper_bridge.interface import JOG_WRITE_RATE_HZ
 from stepper_bridge.node import reply_timeout_floor_s
 from stepper_bridge.registers import motor_coil
 
-from .support.joint_rigs import (
+from ...support.joint_rigs import (
     AXES,
     COMMAND_TIMEOUT_S,
     STEPPER_BAUD,
@@ -50,7 +50,7 @@ from .support.joint_rigs import (
     motec_rig,
     stepper_rig,
 )
-from .support.ros import (
+from ...support.ros import (
     WAIT_S,
     Client,
     ros_client,
@@ -59,7 +59,7 @@ from .support.ros import (
     wait_for,
     wait_subscribed,
 )
-from .support.topic_system import (
+from ...support.topic_system import (
     DEFAULT_THRESHOLD,
     EVERY_CYCLE,
     Sent,

@@ -23,7 +23,7 @@ from bridge_core.sim.logs import read_write_log
 from bridge_core.wire.ports import free_port
 from msg_defs.msg import R6State, XArmState
 
-from .support.ros import (
+from ...support.ros import (
     ROOT,
     Client,
     node_process,

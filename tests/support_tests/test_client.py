@@ -25,7 +25,7 @@ from rclpy.utilities import try_shutdown
 
 from msg_defs.action import StepperMoveBy
 
-from .support.ros import ros_client, unique_namespace
+from ..support.ros import ros_client, unique_namespace
 
 pytestmark = pytest.mark.ros
 

@@ -25,8 +25,8 @@ import pytest
 from bridge_core.runtime.entries import bridge_packages
 from bridge_core.wire.ports import free_port
 
-from .support.colcon import BUILD_TIMEOUT_S, colcon_build, venv_env
-from .support.ros import ROOT, ros_client, unique_namespace, wait_for
+from ..support.colcon import BUILD_TIMEOUT_S, colcon_build, venv_env
+from ..support.ros import ROOT, ros_client, unique_namespace, wait_for
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(BUILD_TIMEOUT_S + 300)]
 BRIDGES = set(bridge_packages().values())

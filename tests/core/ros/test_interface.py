@@ -35,9 +35,9 @@ from modbus_bridge.sim import make_simulator as make_described_simulator
 from motec_bridge.interface import drive_parameters
 from stepper_bridge.sim import make_bus_simulator
 
-from .support.bridges import BRIDGES, RTU_BAUD, SimProcess
-from .support.ros import ROOT, Client, node_process, ros_client, unique_namespace, wait_for
-from .support.serial_pair import served_on_pty
+from ...support.bridges import BRIDGES, RTU_BAUD, SimProcess
+from ...support.ros import ROOT, Client, node_process, ros_client, unique_namespace, wait_for
+from ...support.serial_pair import served_on_pty
 
 pytestmark = pytest.mark.ros
 

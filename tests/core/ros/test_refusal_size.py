@@ -12,7 +12,7 @@ from msg_defs.msg import XArmState
 from msg_defs.srv import SetOutputs
 from xarm_bridge.sim import XArmSimDevice, make_simulator
 
-from .support.ros import ros_client, start_bridge
+from ...support.ros import ros_client, start_bridge
 
 pytestmark = pytest.mark.ros
 
