@@ -94,9 +94,10 @@ def pytest_collection_modifyitems(session: pytest.Session, items: list[pytest.It
 
     xdist 3.8 tells its scheduler a test's group by appending ``@group`` to the nodeid it
     reports, through ``item._nodeid``; pytest 9.2 builds the nodeid from ``item._id``, so
-    that append is lost and every test is scheduled alone (pytest-xdist issue 1386, fix
-    pending in its pull request 1388, which sets the structured id as done here). A
-    pytest or xdist that changes this again fails here at collection, not silently."""
+    that append is lost and every test is scheduled alone
+    (https://github.com/pytest-dev/pytest-xdist/issues/1386, fix pending in its pull
+    request 1388, which sets the structured id as done here). A pytest or xdist that
+    changes this again fails here at collection, not silently."""
     items.sort(key=lambda item: item.nodeid.startswith(COLCON_TESTS))
     if xdist_worker(session.config) is None:
         return

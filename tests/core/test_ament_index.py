@@ -1,4 +1,4 @@
-"""``ros2 run <package> <executable>`` resolves every console script (issue 11).
+"""``ros2 run <package> <executable>`` resolves every console script.
 
 There is no ``ros2`` command here; ``ros2 run`` finds the package prefix through the
 ament index and runs ``<prefix>/lib/<package>/<executable>``: the same lookup through

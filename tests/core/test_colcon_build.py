@@ -1,4 +1,4 @@
-"""The repository is a ROS 2 workspace package set that colcon builds (issue 11, item 4).
+"""The repository is a ROS 2 workspace package set that colcon builds.
 
 colcon comes from PyPI (the ``dev`` extra) and builds against the ROS 2 wheels in the venv:
 ``msg_defs`` as ament_cmake (its CMakeLists.txt finds the wheels itself), the five Python

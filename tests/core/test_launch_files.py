@@ -1,4 +1,4 @@
-"""The launch files name only what exists (issue 11).
+"""The launch files name only what exists.
 
 ``launch_ros`` is not among the PyPI wheels here, so a launch file cannot be run. Each one
 is read as Python source instead: every ``Node(package=..., executable=...)`` must be a

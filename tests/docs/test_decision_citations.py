@@ -1,4 +1,4 @@
-"""Every decision a tracked file cites exists (issue 26).
+"""Every decision a tracked file cites exists.
 
 Code, tests, config and docs cite the readings taken where a manual is unclear by bridge
 and number: "R6 decision 21", "stepper decisions 11, 19", "xArm decisions 1-4 and 8",

@@ -1,5 +1,5 @@
 """The ros2 command lines of docs/ros2-cli.md and docs/actions.md, and the action examples of
-every page under docs/, run as typed against the demo (issues 11, 22, 26); then the demo's
+every page under docs/, run as typed against the demo; then the demo's
 console (every device connected and moving) and its Ctrl-C, so the suite starts the whole
 demo once.
 

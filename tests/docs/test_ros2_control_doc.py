@@ -1,5 +1,5 @@
-"""docs/ros2_control.md's URDF tags and controller YAML name what the bridges really have
-(issue 25, "Done when"): the command and state topics of the demo's namespaces, the joint
+"""docs/ros2_control.md's URDF tags and controller YAML name what the bridges really have:
+the command and state topics of the demo's namespaces, the joint
 names, the command and state interfaces, the stock interface's parameters."""
 
 from __future__ import annotations
@@ -135,7 +135,7 @@ def test_the_controller_manager_runs_the_stock_controllers() -> None:
 
 
 def test_the_lock_rule_figures_and_lines_are_the_codes() -> None:
-    """Issue 40: the page's unlock tolerance (1 % of joint_command_max_jump, 0.001 when the
+    """The page's unlock tolerance (1 % of joint_command_max_jump, 0.001 when the
     check is off) and the line it quotes are what the code has."""
     from bridge_core.ros.node_streams import NOTHING_MOVED
     from bridge_core.runtime import joint_commands as jc

@@ -196,7 +196,7 @@ CASES: list[Case] = [
         1,
         "link",
     ),
-    # --- issue 41 (round 3): keepalive, starts_motion, link and poll keys
+    # --- round 3: keepalive, starts_motion, link and poll keys
     (
         "keepalive_value_not_allowed",  # item 1: a feed ~/write would refuse
         LAST,

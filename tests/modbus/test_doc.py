@@ -104,7 +104,7 @@ def test_addresses_in_decimal_and_hex_led_by_the_files_notation(tmp_path: Path) 
 
 
 def test_poll_groups_in_flight_bits_and_the_line_as_manuals_print_it(tmp_path: Path) -> None:
-    """Issue 41 item 8: each register's rate group, a TCP link's ``max_in_flight``, the
+    """Each register's rate group, a TCP link's ``max_in_flight``, the
     bits per read only where the file has bit tables, ``19200 8E1`` (not ``192008E1``)
     and ``1 device``."""
     tcp = tmp_path / "tcp.yaml"

@@ -1,4 +1,4 @@
-"""Issue 21: what modbus_bridge starts with a ``starts_motion`` trigger, it stops on every
+"""What modbus_bridge starts with a ``starts_motion`` trigger, it stops on every
 way out, and a keepalive stops the device when the bridge is gone.
 
 The VFD example (config/devices/vfd_rtu.yaml, RTU 8E1 on a pty: parity end to end) runs
@@ -7,7 +7,7 @@ exactly its stop trigger's write on the wire (the simulator's write log, the kee
 counter writes aside). A silent line still gets the stop on the wire (the silent simulator
 hears it; the node says it failed for want of a reply); ``kill -9`` leaves the drive to
 its watchdog, which the simulator models and times (it trips within its period).
-A signal's exit prints no ERROR, traceback or uncollected callback error (issue 40).
+A signal's exit prints no ERROR, traceback or uncollected callback error.
 """
 
 from __future__ import annotations
@@ -212,7 +212,7 @@ def test_kill_9_leaves_the_drive_to_its_keepalive_watchdog(client: Client, tmp_p
 
 
 def test_a_rounded_write_answers_what_was_written(client: Client, tmp_path: Path) -> None:
-    """Issue 21 item 6: ``~/write accel_time 12.34`` on a 0.1 s register."""
+    """``~/write accel_time 12.34`` on a 0.1 s register."""
     with running_forward(client, tmp_path) as (b, _, _, device):
         request = WriteRegister.Request(name="accel_time", value=12.34)
         reply = client.call(WriteRegister, b.service("write"), request)

@@ -1,5 +1,5 @@
 """Malformed description files: one line ``FILE:LINE: key: what is wrong`` and exit 2 from
-modbus_doc, modbus_sim and modbus_bridge alike, never a traceback (issue 21, items 3-5).
+modbus_doc, modbus_sim and modbus_bridge alike, never a traceback.
 
 The cases are in ``malformed_cases.py``. modbus_doc and modbus_sim run in this process
 (their ``main``); modbus_bridge runs every case in one child process that calls its

@@ -1,4 +1,4 @@
-"""Issue 39 for modbus_bridge: the described devices' simulator plays a device that does
+"""Device personalities for modbus_bridge: the described devices' simulator plays a device that does
 not obey (``--ignore`` of the file's motion writes) or answers late (``--reply-delay-ms``),
 and the bridge reports no success it did not read back (decision 19,
 docs/decisions/modbus.md).
@@ -69,7 +69,7 @@ CONTROL_WORD = VFD_MAP["control_word"].address
 WAIT_S = 30.0
 EXIT_TIMEOUT_S = 20.0
 TIMEOUT_S = 1.0
-# A device on TCP whose round trip is up to this (issue 39: "TCP up to 50 ms").
+# A device on TCP whose round trip is up to this.
 TCP_ROUND_TRIP_MAX_S = 0.05
 SIM = (sys.executable, "-m", "modbus_bridge.sim")
 # The RTU row's device: a reply delay drawn in this range (the link's timeout_s is
@@ -447,7 +447,7 @@ def test_the_vfd_on_rtu_stop_ignored_on_exit_is_tried_and_said_not_confirmed(
 
 def test_the_vfd_run_forward_ignored_is_not_success(client: Client, tmp_path: Path) -> None:
     with running_forward(client, tmp_path) as (b, _, _, device):
-        # Issue 41 item 6: the velocity-only joint's position is NaN (one per name, as
+        # The velocity-only joint's position is NaN (one per name, as
         # sensor_msgs/JointState wants), not an empty array; a field no joint has is empty.
         states = client.wait_message(b.joint_states, timeout=WAIT_S)
         assert len(states.name) == 1 and len(states.velocity) == 1

@@ -167,7 +167,7 @@ def test_every_command_kind_writes_what_the_file_says(sim, client: Client, tmp_p
         assert log_of(device) == expected
         # The command topic: rad/s x 57.3 -> deg/s in speed_command; the deadman writes
         # the stop value after 0.3 s of silence. set_run false (a stop) locked the stream:
-        # a 0 unlocks it, writing nothing (nothing moved; silence never unlocks: issue 40).
+        # a 0 unlocks it, writing nothing (nothing moved; silence never unlocks).
         topic = client.node.create_publisher(Float64, f"{b.ns}/modbus_bridge/cmd_speed", 10)
         wait_subscribed(topic)
         topic.publish(Float64(data=0.0))

@@ -1,4 +1,4 @@
-"""Issue 21 without ROS: 8E1/8O1/8N2 on a pty (the port layer, modbus_sim --pty), the
+"""modbus_bridge, round 2, without ROS: 8E1/8O1/8N2 on a pty (the port layer, modbus_sim --pty), the
 example descriptions in config/devices/ against modbus_sim (a velocity-only VFD joint that
 ramps, f32 in CDAB and ABCD), exit stops of started motion, the keepalive (fed, required,
 and the simulator's watchdog), and replies that say what a rounded write wrote."""

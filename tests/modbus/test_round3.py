@@ -1,4 +1,4 @@
-"""Issue 41 (modbus_bridge round 3), items 1-4, 7 and 9: a description can never make the
+"""modbus_bridge, round 3: a description can never make the
 bridge harm the device. The malformed-file variants of these items (one line, its line
 number, in all three commands) are in malformed_cases.py; these are the rest: what a
 loaded file does in the device layer, the simulator and the poll loop.

@@ -213,7 +213,7 @@ def test_move_to_ended_by_a_fault_by_read_only_and_by_a_lost_link(
 def test_move_to_default_time_limit_and_a_stop_that_does_not_take(
     bus: tuple[MotecSimulator, str], client: Client, tmp_path: Path
 ) -> None:
-    """Issue 20 items 6 and 7: a goal without timeout_s ends TIMED_OUT after the move's
+    """A goal without timeout_s ends TIMED_OUT after the move's
     time at its speed limit x move_time_margin + the ramps' allowance; a cancel on a
     drive that takes 0x29 as a start trigger only sees the move go on, releases the
     drive and says so in the result."""

@@ -207,7 +207,7 @@ def test_absolute_move_with_a_speed_limit_and_stop() -> None:
 
 
 def test_a_position_stop_that_does_not_take_releases_the_drive() -> None:
-    """Issue 20 item 7: a drive that takes 0x29 as a start trigger only runs on after
+    """A drive that takes 0x29 as a start trigger only runs on after
     0x29 = 0; within two reads the setpoint still advances at full speed: released."""
     steps = [
         echo("06 00 29 00 00", "stop"),
@@ -226,7 +226,7 @@ def test_a_position_stop_that_does_not_take_releases_the_drive() -> None:
 
 
 def test_an_unchanged_setpoint_at_full_speed_is_not_a_stop() -> None:
-    """Issue 39 hole 4: a drive whose 0xAA holds the move's target (the other reading of
+    """A drive whose 0xAA holds the move's target (the other reading of
     "位置设定值", decision 22) shows an unchanged 0xAA while 0xAF reads full speed: not
     stopped. The speed does not fall: released, and the release checked."""
     steps = [
@@ -597,13 +597,13 @@ def test_lifeguard_disarm_and_feeds_go_first() -> None:
     d = MotecDevice(io)
     assert d.feed_lifeguard(500)
     d.disarm_lifeguard()
-    # Issue 20 item 9: §3.4's frame disarms with 0x112 = 0; 0x114 = 0 only after it.
+    # §3.4's frame disarms with 0x112 = 0; 0x114 = 0 only after it.
     assert io.writes == [("06", 0x112, 500), ("06", 0x112, 0), ("06", 0x114, 0)]
     assert io.priorities == [Priority.KEEPALIVE, Priority.COMMAND, Priority.COMMAND]
 
 
 def test_a_drive_is_armed_unless_its_lifeguard_time_reads_0() -> None:
-    """Issue 20 item 9: a non-zero 0x112 with any mode may be watching (decision 9)."""
+    """A non-zero 0x112 with any mode may be watching (decision 9)."""
     assert MotecConfig(0, 500, 0).lifeguard_armed
     assert MotecConfig(0, 500, 9999).lifeguard_armed
     assert not MotecConfig(0, 0, 9999).lifeguard_armed
@@ -628,7 +628,7 @@ class SlowIO(FakeIO):
 
 
 def test_lifeguard_feeds_count_from_the_request_and_go_on_while_down() -> None:
-    """Issue 20 item 5: the next feed is due a feed period after the last write's
+    """The next feed is due a feed period after the last write's
     request (not its reply), and a feed that failed (line down) is tried again a feed
     period after its own request: never waiting for a reconnect, never in a burst."""
     now = [100.0]
@@ -657,7 +657,7 @@ def test_lifeguard_feeds_count_from_the_request_and_go_on_while_down() -> None:
 
 
 def test_hole11_a_line_back_late_in_the_lifeguard_time_is_fed_at_once() -> None:
-    """Issue 39 hole 11: lifeguard 1000 ms, last write at 100.0, the line down from just
+    """Lifeguard 1000 ms, last write at 100.0, the line down from just
     after it. Before, the tries sat on the 1/3 s grid of the last write (100.333,
     100.667, 101.0), so a line back at 100.8 got its first write at 101.0, when the drive
     trips. Now the tries come every DOWN_FEED_RETRY_S within the lifeguard time, and
@@ -788,7 +788,7 @@ def move_to(tolerance: int = 10, margin: float = 0.0) -> MoveToMotion:
 
 
 def test_move_to_ends_on_a_servo_that_rests_a_few_counts_off() -> None:
-    """Issue 20 item 6: a real servo at rest dithers (0xAF +-1-2 rpm, 0xAC 1-2 counts
+    """A real servo at rest dithers (0xAF +-1-2 rpm, 0xAC 1-2 counts
     from 0xAA); "stands" is a band, seen on two polls in a row, REACHED too."""
     motion = move_to()
     assert STANDSTILL_SPEED_RPM >= 2
@@ -808,7 +808,7 @@ def test_move_to_ends_on_a_servo_that_rests_a_few_counts_off() -> None:
 
 
 def test_move_to_has_a_default_time_limit() -> None:
-    """Issue 20 item 6: without a goal timeout_s the move is limited to its time at the
+    """Without a goal timeout_s the move is limited to its time at the
     speed limit x the margin + the ramps' allowance; a margin 0 (explicit) gives none."""
     # 100000 counts at 600 rpm (10 turns a second) of a 10000-count motor: 1 s; x 2 +
     # the allowance.

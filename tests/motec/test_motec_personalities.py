@@ -1,4 +1,4 @@
-"""MOTEC against drives that do not obey or answer late (issue 39): the simulator's
+"""MOTEC against drives that do not obey or answer late: the simulator's
 personalities (``--ignore`` names, ``setpoint_holds_target``), the holes of the verified
 stop (4), ``start_all`` (6) and ``~/set_control_mode`` (9), driven by the device layer
 over a real pty pair; then the contract rows over ROS (the bridge in its own process):
@@ -550,7 +550,7 @@ def test_contract_joint_commands_position_target_against_an_ignored_start(
 
 # Replies after 50-80 ms, drawn per reply: all later than the short wait a request to a
 # drive marked down used to get (down_write_timeout_s, 50 ms), all within the link's
-# timeout_s 0.1 with the frames at 115200 baud (issue 39 hole 1).
+# timeout_s 0.1 with the frames at 115200 baud.
 # Past the short wait of a stop to a drive marked down (STOP_TIMEOUT_S, 0.05 s), which
 # the probes waited before hole 1's fix; the link's timeout_s (0.25 s here) leaves a loaded
 # host 0.15 s over the longest reply (at 0.1 s with 50-80 ms replies a set_control_mode

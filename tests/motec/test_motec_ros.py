@@ -340,7 +340,7 @@ def test_three_drives_topics_services_and_deadman(bus, client: Client, tmp_path:
 def test_cmd_velocity_floods_are_coalesced_and_rate_limited(
     bus: tuple[MotecSimulator, str], client: Client, tmp_path: Path
 ) -> None:
-    """Issue 9: a command stream keeps only its newest value and writes at most
+    """A command stream keeps only its newest value and writes at most
     ``command_rate_hz`` speeds a second; a flood costs no drive its link, and the deadman
     stop after it is the last write (counted from the last message's arrival)."""
     sim, port = bus
@@ -475,7 +475,7 @@ def test_lifeguard_fault_after_the_bridge_dies(bus, client: Client, tmp_path: Pa
 def test_lifeguard_armed_changed_and_disarmed_at_run_time(
     bus: tuple[MotecSimulator, str], client: Client, tmp_path: Path
 ) -> None:
-    """Issue 9: lifeguard_ms is live: a set arms, re-arms or (0) disarms the drive at
+    """lifeguard_ms is live: a set arms, re-arms or (0) disarms the drive at
     once, and is refused with the reason, writing nothing, when it is too small for the
     bus, under read_only, or while the drive does not answer."""
     sim, port = bus
@@ -508,7 +508,7 @@ def test_lifeguard_armed_changed_and_disarmed_at_run_time(
         result = b.set_param(1, "lifeguard_ms", floor - 1)
         assert not result.successful
         assert f"below {floor} ms" in result.reason and "3 drive(s)" in result.reason
-        # Issue 20 item 5: read_only would end the feeds of the armed drive: refused.
+        # read_only would end the feeds of the armed drive: refused.
         result = b.set_param(1, "read_only", True)
         assert not result.successful, "read_only set on an armed drive"
         assert f"lifeguard is armed ({changed} ms)" in result.reason, result.reason
@@ -557,7 +557,7 @@ def test_a_lifeguard_too_short_for_the_bus_is_refused_at_start() -> None:
 def test_a_dead_drive_never_starves_the_lifeguard_of_the_others(
     client: Client, tmp_path: Path
 ) -> None:
-    """Issue 9: three drives, lifeguard_ms at the shortest the bridge accepts; drive 3
+    """Three drives, lifeguard_ms at the shortest the bridge accepts; drive 3
     dies (first while still marked connected: a read and its retry; then every reconnect
     probe holds the line for a whole timeout): drives 1 and 2 never go a lifeguard time
     without a write, and never trip."""
@@ -644,7 +644,7 @@ def config_motec_yaml(tmp_path: Path, port: str) -> list[str]:
 def test_line_blackouts_never_trip_a_drive_that_answers_again_in_time(
     client: Client, tmp_path: Path
 ) -> None:
-    """Issue 20 item 5: with config/motec.yaml (lifeguard 1000 ms, fed every 333 ms), the
+    """With config/motec.yaml (lifeguard 1000 ms, fed every 333 ms), the
     emulated line goes dark for 300, 600 and 900 ms, each time just after a write reached
     drive 1. The feeds go on while the drives are marked down (one try with the short stop
     timeout each feed period), so a drive whose line comes back within lifeguard - feed
@@ -759,7 +759,7 @@ def test_refusals_read_only_and_params_file(bus, client: Client, tmp_path: Path)
         b.wait_connected(2, False, since=t)
         reply = b.call(2, SetBool, "enable", data=True)
         assert not reply.success and "not connected" in reply.message
-        # A stop is tried on the wire even so (issue 9), and says it failed.
+        # A stop is tried on the wire even so, and says it failed.
         reply = b.call(2, Trigger, "stop")
         assert not reply.success and reply.message.startswith("stop failed:"), reply.message
         sim.plug(2)
@@ -779,7 +779,7 @@ def test_refusals_read_only_and_params_file(bus, client: Client, tmp_path: Path)
 def test_parameters_start_all_io_tables_and_output_numbering(
     bus: tuple[MotecSimulator, str], client: Client, tmp_path: Path
 ) -> None:
-    """Issue 10: ~/read_parameter and ~/write_parameter (guarded), the bus node's broadcast
+    """~/read_parameter and ~/write_parameter (guarded), the bus node's broadcast
     start of a synchronised move, the IO tables and 0x29 in ~/state, output1_coil."""
     sim, port = bus
     units = [1, 2]
@@ -805,7 +805,7 @@ def test_parameters_start_all_io_tables_and_output_numbering(
             reply = b.call(1, WriteParameter, "write_parameter", index=index, value=value)
             assert not reply.success and "refused" in reply.message, reply.message
             assert reason in reply.message, reply.message
-        # Issue 20 item 10: any Pr.N reads (an unnamed one reads 0 in the simulator).
+        # Any Pr.N reads (an unnamed one reads 0 in the simulator).
         assert b.ok(1, ReadParameter, "read_parameter", index=0x2A).value == 0
         reply = b.call(1, ReadParameter, "read_parameter", index=0x115)
         assert not reply.success and "ILLEGAL DATA ADDRESS" in reply.message, reply.message
@@ -827,7 +827,7 @@ def test_parameters_start_all_io_tables_and_output_numbering(
         reply = b.call(None, Trigger, "start_all")
         assert not reply.success and "not active" in reply.message, reply.message
         assert bus_transition(client, b.ns, Transition.TRANSITION_ACTIVATE)
-        # Issue 20 item 8: a drive node's read_only holds for the broadcast too.
+        # A drive node's read_only holds for the broadcast too.
         assert b.set_param(2, "read_only", True).successful
         reply = b.call(None, Trigger, "start_all")
         assert not reply.success and "drive 2's node is read_only" in reply.message, reply.message
@@ -870,7 +870,7 @@ def reads_speed(rpm: int) -> Callable[[Any], bool]:
 def test_set_control_mode_refuses_a_turning_motor_not_speed_noise(
     client: Client, tmp_path: Path
 ) -> None:
-    """Issue 20 item 6, decision 17: a servo at rest dithers a few rpm on 0xAF; the
+    """Decision 17: a servo at rest dithers a few rpm on 0xAF; the
     mode change is refused only above the standstill band, with nothing written."""
     with motec_on_pty([1], BAUD) as (sim, port):
         drive = sim.drive(1)
@@ -898,7 +898,7 @@ def test_set_control_mode_refuses_a_turning_motor_not_speed_noise(
 
 
 def test_an_armed_drive_whose_replies_are_lost_is_still_fed(client: Client, tmp_path: Path) -> None:
-    """Issue 20 item 5, the node's half: the drive's replies are lost for four lifeguard
+    """The node's half: the drive's replies are lost for four lifeguard
     times while it still hears the line (a broken transmit pair). The bridge marks it
     down, and its lifeguard feeds go on, one try each feed period with the short stop
     timeout, so the drive never trips. The reconnect backoff is the default 5 s cap: the
@@ -932,7 +932,7 @@ def test_an_armed_drive_whose_replies_are_lost_is_still_fed(client: Client, tmp_
 def test_drives_that_together_exceed_their_line_are_said_once_by_the_bus_owner(
     client: Client, tmp_path: Path
 ) -> None:
-    """Issue 24, wire budget: three drives at 9600 baud, each asking 6 polls a second. A
+    """The wire budget: three drives at 9600 baud, each asking 6 polls a second. A
     poll is ~60 ms of frames at 9600 (the budget counts a real line's bytes; the pty moves
     them faster), so each drive alone needs ~40 % of the line and the three ~120 %: the
     bus owner says so once, with the rates the line carries, and each drive's diagnostics

@@ -167,7 +167,7 @@ def test_lifeguard_expiry_latches_a_fault_and_releases() -> None:
     now[0] += 0.21
     drive.tick(DT)
     assert drive.value("fault_code") == LIFEGUARD_FAULT_CODE
-    # Issue 20 item 12: §4.3's "1—有故障" stands beside 0xC8 (decision 7): the flag word.
+    # §4.3's "1—有故障" stands beside 0xC8 (decision 7): the flag word.
     assert drive.read(3, 0xC8, 2) == [1, 0]
     assert not drive.enabled and drive.value("speed_actual") == 0
     assert write(drive, "enable", 1) == 3  # refused while the fault is latched
@@ -204,7 +204,7 @@ def test_writes_refused_where_the_drive_would() -> None:
     assert drive.read(3, 0x2A, 3) == [0, 0, 0]  # unnamed parameters read as 0
     assert drive.read(3, 0x114, 2) == 2  # past the end of the table
     assert write(drive, "save_to_flash", 1) is None
-    # Issue 20 item 12: cleared "when done" (the next tick), so the FC 06 reply, built
+    # Cleared "when done" (the next tick), so the FC 06 reply, built
     # from what the register holds after the write, echoes §3.5's printed 00 01.
     assert drive.value("save_to_flash") == 1 and drive.saves == 1
     drive.tick(DT)
@@ -282,7 +282,7 @@ def test_broadcast_reaches_every_drive_and_nobody_answers(bus: Bus) -> None:
         bus.devices[u].enable(True)
     broadcast = DeviceChannel(bus.link, 0, retries=0)
     drives = {u: bus.channels[u] for u in UNITS}
-    # Issue 20 item 8: drive 2 misses the frame; the read-back finds it still enabled and
+    # Drive 2 misses the frame; the read-back finds it still enabled and
     # it gets a write of its own; the answer comes from what every drive reads.
     bus.sim.deaf_to_broadcast.add(2)
     ok, seen = disable_all(broadcast, drives)
@@ -353,7 +353,7 @@ def test_lifeguard_over_the_bus(bus: Bus) -> None:
     assert d.poll().fault_code == 0
 
 
-# ---------------------------------------------------------------- issue 10 items
+# ------------------------------------------------- parameters by number, broadcast start, IO tables
 
 
 def test_parameters_by_number_over_the_bus(bus: Bus) -> None:
@@ -384,7 +384,7 @@ def test_parameters_by_number_over_the_bus(bus: Bus) -> None:
     for number, value, reason in refusals:
         with pytest.raises(CommandRejected, match=reason):
             d.write_parameter(number, value)
-    # Issue 20 item 10: any Pr.N reads (no range needed); past the table the drive says 02.
+    # Any Pr.N reads (no range needed); past the table the drive says 02.
     assert d.read_parameter(0x2A) == 0
     with pytest.raises(DeviceException, match="ILLEGAL DATA ADDRESS"):
         d.read_parameter(0x115)
@@ -427,7 +427,7 @@ def test_broadcast_start_moves_every_ready_drive_and_gets_no_reply(bus: Bus) -> 
     with pytest.raises(CommandRejected, match="drive 3 did not answer"):
         start_all(broadcast, drives)
     bus.sim.plug(3)
-    # Issue 20 item 8: ~/move's checks and each drive node's read_only.
+    # ~/move's checks and each drive node's read_only.
     with pytest.raises(CommandRejected, match="drive 2's node is read_only"):
         start_all(broadcast, drives, read_only=[2])
     bus.channels[3].write_register(0xAE, 0)
@@ -478,7 +478,7 @@ def test_io_tables_fault_halves_and_output_numbering(bus: Bus) -> None:
     assert bus.devices[1].poll().outputs == (False, False, True)  # default numbering
 
 
-# ---------------------------------------------------------------- issue 20 items
+# --------------------------------- save echo, frames pymodbus cannot cut, a stop that does not take
 
 
 def rtu(body: str, unit: int = 1) -> bytes:

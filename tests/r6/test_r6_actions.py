@@ -240,7 +240,7 @@ def test_upload_points_with_progress_and_cancel(
 def test_a_halt_pauses_a_running_cycle(
     sim: tuple[R6SimDevice, int], client: Client, tmp_path: Path, end: str
 ) -> None:
-    """Issue 20 item 17: deactivate and exit end a run_cycle goal through the node's halt
+    """Deactivate and exit end a run_cycle goal through the node's halt
     (``stop_all``), not its cancel: that path too sends pause (20001), which keeps the
     program's step, and never stop (20000), which would send the operator's next start
     back to step 1 from wherever the arm stands."""

@@ -1,4 +1,4 @@
-"""The R6 bridge against a controller that does not obey or answers late (issue 39).
+"""The R6 bridge against a controller that does not obey or answers late.
 
 The simulator plays such a controller (docs/tools.md "Device personalities",
 docs/bridges/r6.md "Simulator"): ``--ignore NAME,...`` acknowledges the named motion

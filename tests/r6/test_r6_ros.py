@@ -379,7 +379,7 @@ def test_disconnected_bridge_refuses_and_connects_later(bridge_factory, client: 
 
 
 def test_a_stop_goes_out_while_the_link_is_marked_down(bridge_factory, client: Client) -> None:  # type: ignore[no-untyped-def]
-    """A stop does not wait for the reconnect backoff (issue 9): with the next probe seconds
+    """A stop does not wait for the reconnect backoff: with the next probe seconds
     away, ``~/start`` is refused as not connected and ``~/stop`` right after reaches the
     controller; the poller then does its link-up work and publishes at once."""
     port = free_port()
@@ -489,7 +489,7 @@ def _seconds(msg: Any) -> float:
 def test_pose_and_state_carry_the_read_time_of_their_own_rows(  # type: ignore[no-untyped-def]
     sim, bridge_factory, client: Client
 ) -> None:
-    """Issue 20 item 20, decision 26, through the node: ~/tcp_pose carries the time the
+    """Decision 26, through the node: ~/tcp_pose carries the time the
     world block was read, joint_states that of the axis positions, ~/state that of the
     other rows. The simulated controller takes BLOCK_DELAY_S over the world block and
     over the positions, so the three reads of a poll are far apart; each stamp must then

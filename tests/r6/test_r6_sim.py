@@ -355,7 +355,7 @@ def test_a_simulator_that_cannot_listen_says_so_in_one_line(
     assert "Traceback" not in result.stderr
 
 
-# ---------------------------------------------------------------- R6 behaviour (issue 10)
+# ---------------------------------------------------------------- R6 behaviour
 WAIT_S = 30.0
 # Between two polls of wait_for_poll: a bridge's 50 Hz, short beside the programs' steps.
 POLL_PAUSE_S = 0.02
@@ -628,7 +628,7 @@ def test_the_counter_list_leaves_out_padding_ids(
     assert device.read_counter_ids() == [5]
 
 
-# ---------------------------------------------------------------- issue 20 (decisions 23-25)
+# ---------------------------------------------------------------- decisions 23-25
 
 
 @pytest.mark.parametrize(

@@ -200,7 +200,7 @@ def test_stepper_actions(sim: tuple[StepperSimDevice, str], client: Client, tmp_
 def test_a_line_on_the_wrong_motors_is_stopped_and_homing_needs_no_zero(
     sim: tuple[StepperSimDevice, str], client: Client, tmp_path: Path
 ) -> None:
-    """Issue 20: configured for the type rows (pair 2 = motors 1+3) on a controller that
+    """Configured for the type rows (pair 2 = motors 1+3) on a controller that
     follows the point rows (2+3): motor 2 moves, the goal is stopped (the interpolation
     stop coils) and aborted, its result naming the motor; a matching one says which moved.
     A controller that leaves the coordinate at home: the home goal succeeds (home input on,
@@ -219,7 +219,7 @@ def test_a_line_on_the_wrong_motors_is_stopped_and_homing_needs_no_zero(
         assert "motor 2 0 ->" in outcome.message and "type_rows" in outcome.message
         assert device.interpolation is None
         # Arc stop 00101, line stop 00103, then the own stop of motors 1-3 (every motor
-        # either reading of pair 2 names: issue 39 hole 7).
+        # either reading of pair 2 names).
         assert coil_writes(device)[-5:] == [100, 102, 4, 9, 14]
         device.pair_reading = "type_rows"
         goal = b.send_goal(

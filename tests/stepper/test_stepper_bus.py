@@ -1,4 +1,4 @@
-"""Several stepper controllers on one RS-485 line (issue 10, 40212 "主-从模式的多机通信"):
+"""Several stepper controllers on one RS-485 line (40212 "主-从模式的多机通信"):
 ``python -m stepper_bridge.bus`` in its own process against two simulated controllers on
 one socat pty pair, driven by an rclpy client in this process."""
 

@@ -147,7 +147,7 @@ def test_fc05_example_frame_is_motor_2_reverse() -> None:
         (
             with_crc("01 03 00 A8 00 01"),
             with_crc("01 03 02 00 01"),
-            "motor 2 running (40169) read back: 1, the start is confirmed (issue 39)",
+            "motor 2 running (40169) read back: 1, the start is confirmed",
         ),
     ]
     said = run(steps, lambda d: d.motor_action(2, "reverse"))
@@ -167,7 +167,7 @@ def test_move_by_is_direction_distance_then_single_run() -> None:
         (
             with_crc("01 03 00 0E 00 06"),
             with_crc("01 03 0C 00 01 00 3C 01 F4 00 00 86 A0 00 01"),
-            "40015-40020 read back (issue 39): direction 1, speed 60, lead 5.00, distance 1000.00",
+            "40015-40020 read back: direction 1, speed 60, lead 5.00, distance 1000.00",
         ),
         echo(with_crc("01 05 00 05 FF 00"), "motor 2 single run (coil 00006)"),
     ]
@@ -210,7 +210,7 @@ def test_jog_is_speed_then_direction_coil() -> None:
         (
             with_crc("01 03 00 A7 00 01"),
             with_crc("01 03 02 00 00"),
-            "motor 1 running (40168) read back: 0, the stop is confirmed (issue 39)",
+            "motor 1 running (40168) read back: 0, the stop is confirmed",
         ),
         echo(with_crc("01 06 00 05 00 3C"), "motor 1 speed 60 rpm again"),
     ]

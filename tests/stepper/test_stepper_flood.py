@@ -1,4 +1,4 @@
-"""Issue 9 on the stepper: jog floods against the bridge in its own process, the simulator
+"""Jog floods on the stepper: the bridge in its own process, the simulator
 in another (on a socat pty pair, its writes and reads logged to files), an rclpy client in
 this process publishing the flood. The simulator has a process of its own so that the flood
 this process publishes cannot slow the device down: what is measured is the bridge.
@@ -193,7 +193,7 @@ def check_nothing_after_stop(after: list[Write], motor: int) -> None:
 def test_a_varying_jog_flood_is_rate_limited_and_stopped_after_its_last_message(
     sim: SimProcess, client: Client, tmp_path: Path
 ) -> None:
-    """Issue 9: ~1000 msg/s of never-repeating jog values on motor 1 write at most
+    """~1000 msg/s of never-repeating jog values on motor 1 write at most
     ``command_rate_hz`` speeds a second, the newest value last; the deadman's stop comes
     command_timeout_s after the last message's arrival and nothing moves the motor after
     it; the bridge keeps its link and keeps polling meanwhile."""
@@ -222,7 +222,7 @@ def test_a_varying_jog_flood_is_rate_limited_and_stopped_after_its_last_message(
             coil_write(motor, "forward")
         ], during
         # (a) At most command_rate_hz speeds a second: over the flood and the newest
-        # value's wait (issue 9's bound), and by the guard's own spacing: the n writes
+        # value's wait (behaviour.md's bound), and by the guard's own spacing: the n writes
         # need (n - 1) / rate s between the first message and the last write.
         assert 1 <= len(speeds) <= RATE_HZ * (last - first + SLACK_S) + 1, speeds
         assert len(speeds) - 1 <= RATE_HZ * (speed_records[-1].time - first) + 0.05, [

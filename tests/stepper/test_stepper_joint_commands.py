@@ -107,7 +107,7 @@ def test_a_target_behind_writes_the_direction_first(rig: Rig) -> None:
 def test_a_change_at_the_touch_panel_never_sends_a_target_the_wrong_way(
     rig: Rig, direction: int, distance: float, target: float
 ) -> None:
-    """Issue 39 hole 8: the direction and run distance the bridge read (its cache, kept up
+    """The direction and run distance the bridge read (its cache, kept up
     to config_refresh_s) may have been changed at the controller since; a target writes
     both every time, so the single run goes where the target is and ends on it."""
     motor = 3

@@ -1,4 +1,4 @@
-"""The stepper bridge against a controller that does not obey (issue 39): the simulator's
+"""The stepper bridge against a controller that does not obey: the simulator's
 ``--ignore`` personality (stepper_bridge/sim.py ``IGNORABLE``) acknowledges a motion write
 as the manual says and changes nothing. A command that starts, stops or changes motion is a
 success only when the controller's own state, read back, shows it; otherwise the reply says
@@ -122,7 +122,7 @@ def running_line(rig: Rig) -> None:
 
 
 def test_an_interpolation_stop_the_controller_ignores_still_stops_its_motors(rig: Rig) -> None:
-    """Issue 39 hole 7: the interpolation stop sent only the arc and line stop coils. A
+    """The interpolation stop sent only the arc and line stop coils. A
     controller that does not obey them (here: acknowledges and ignores them) kept the
     pair moving while the bridge said "stopped". The motors' own stop coils follow, and
     their running flags are read back."""
@@ -156,7 +156,7 @@ def test_an_interpolation_stop_nothing_obeys_is_not_confirmed(rig: Rig) -> None:
 
 
 def test_every_motion_write_of_the_bridge_has_an_ignore_name() -> None:
-    """stepper_sim's ``--ignore`` names (issue 39 part 1): each coil and register the
+    """stepper_sim's ``--ignore`` names: each coil and register the
     bridge starts, stops or changes motion with is one of them, on every motor."""
     fake = StepperSimDevice()
 
@@ -234,7 +234,7 @@ def test_contract_services_against_ignored_writes(
 ) -> None:
     """Every service that starts, stops or changes motion, against a controller that
     acknowledges that write and ignores it: never success, and the reply says what was
-    written and read back (issue 39 part 2). Before issue 39 each said "done"."""
+    written and read back (stepper decision 23). Each once said "done"."""
     fake, port = sim
     fake.set("homing_order_1", 2)  # home_all homes motor 2
     with bridge(client, tmp_path, port) as (b, _proc):
@@ -311,7 +311,7 @@ def test_contract_goals_against_ignored_writes(
 ) -> None:
     """Goals: a move_by whose single run is ignored is never REACHED and its result says
     what was written and read; a cancel whose stop is ignored ends CANCELLED with "not
-    confirmed" and what was written and read (before issue 39: "stop coil ... sent")."""
+    confirmed" and what was written and read (it once said "stop coil ... sent")."""
     fake, port = sim
     with bridge(client, tmp_path, port) as (b, _proc):
         client.wait_message(b.state)
@@ -428,14 +428,14 @@ def test_contract_halts_against_an_ignored_stop(
     """Deactivate, read_only and exit with a motor a service set running, one a jog set
     running and a move_by goal running, against a controller that ignores the stop coil:
     every stop still goes out (the write log: ignored) and each is logged "not
-    confirmed" (before issue 39: "stopped")."""
+    confirmed" (it once said "stopped")."""
     fake, port = sim
 
     def start_all(b: Bridge) -> tuple[Any, Any]:
         ok(b, Trigger, "motor_1/forward")
         jog = jog_publisher(client, b, 2)
-        # The halt and stop before locked the jog: a 0 unlocks it (silence never does,
-        # issue 40); taken before the next message (a depth-1 subscription).
+        # The halt and stop before locked the jog: a 0 unlocks it (silence never does);
+        # taken before the next message (a depth-1 subscription).
         jog.publish(Float64(data=0.0))
         time.sleep(0.3)
         jog.publish(Float64(data=600.0))
@@ -515,7 +515,7 @@ LINE_BAUD = 9600  # the manual's (§3), on the byte-timed line: a 49-register re
 # Replies 35-300 ms after each request, drawn per reply: all within timeout_s 0.5 with the
 # frames at 9600 baud (8 bytes out, at most 103 back: 0.3 + 0.11 s), most of them later
 # than the short wait (0.15 s, the reply timeout floor) a request to a controller marked
-# down used to get (issue 39 hole 1).
+# down used to get.
 DELAY_S = (0.035, 0.3)
 DELAY_TIMEOUT_S = 0.5
 # Every wait on this line is long: a poll is three requests of up to ~0.4 s each, the

@@ -194,7 +194,7 @@ def test_topics_jog_and_deadman(sim, client: Client, tmp_path: Path) -> None:  #
 
 
 def test_a_jog_gives_the_configured_speed_back(sim, client: Client, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
-    """Issue 9 item 6: the jog's speed is not left in the speed register. After the stop
+    """The jog's speed is not left in the speed register. After the stop
     service the configured speed is written back, a move_by then runs at it; a refused
     restore is logged and in diagnostics, never fails the stop, and is retried before the
     next move_by's single run."""
@@ -276,7 +276,7 @@ def jog_motor_1(client: Client, b: Bridge, device: StepperSimDevice) -> Any:
 def test_a_deadman_stop_lost_in_an_outage_is_the_first_request_when_the_line_is_back(
     client: Client, tmp_path: Path
 ) -> None:
-    """Issue 9: the deadman's stop, lost while the line is silent, stays pending and is the
+    """The deadman's stop, lost while the line is silent, stays pending and is the
     first request the controller handles when the line comes back (before any poll)."""
     simulator = make_simulator(reply_delay_s=0.0)
     device = simulator.device
@@ -311,7 +311,7 @@ def test_a_deadman_stop_lost_in_an_outage_is_the_first_request_when_the_line_is_
 def test_a_stop_service_that_fails_in_an_outage_leaves_the_jogs_stop_pending(
     client: Client, tmp_path: Path
 ) -> None:
-    """Issue 9: ~/motor_1/stop while the line is silent is tried at once and fails; the jog
+    """~/motor_1/stop while the line is silent is tried at once and fails; the jog
     it meant to end keeps its stop pending (the first request when the line is back) and
     stays locked (a jog command is refused until a 0)."""
     simulator = make_simulator(reply_delay_s=0.0)
@@ -390,7 +390,7 @@ def test_services_write_what_they_should(sim, client: Client, tmp_path: Path) ->
         for name in ("zero_coordinates", "return_to_zero"):
             ok(Trigger, name)
         # No homing order yet (40177-40181 all 0): the coil goes out and homes nothing.
-        # The reply says what was written and read (issue 39): "not confirmed" when every
+        # The reply says what was written and read: "not confirmed" when every
         # running flag reads 0, "done" when one still reads 1 from a motion above.
         reply = b.call(Trigger, "home_all")
         assert "wrote home all (coil 00046 = ON); read motor " in reply.message, reply.message
@@ -457,7 +457,7 @@ def test_services_write_what_they_should(sim, client: Client, tmp_path: Path) ->
             (5, C, 101, (1,)),
             (5, C, 100, (1,)),
             (5, C, 102, (1,)),
-            (5, C, 4, (1,)),  # the pair's own stops (issue 39 hole 7)
+            (5, C, 4, (1,)),  # the pair's own stops
             (5, C, 9, (1,)),
             (
                 16,
@@ -476,7 +476,7 @@ def test_services_write_what_they_should(sim, client: Client, tmp_path: Path) ->
 
 
 def test_issue_10_setters_read_back_and_interpolation(sim, client: Client, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
-    """Issue 10: device id and baud rate in diagnostics; round trips and the interpolation
+    """Device id and baud rate in diagnostics; round trips and the interpolation
     set-up in the state; speed / direction / run distance (SI) / round trips setters;
     a second line / arc while one runs refused, nothing written; clear-all warns."""
     device, port = sim
@@ -678,7 +678,7 @@ def test_revolute_joints_with_a_reduction(sim, client: Client, tmp_path: Path) -
 def test_pairs_2_and_3_are_refused_until_the_reading_is_set(
     sim: tuple[StepperSimDevice, str], client: Client, tmp_path: Path
 ) -> None:
-    """Issue 20: pairs 2 and 3 (motors 1+3 / 2+3 or 2+3 / 1+3 by the manual's two
+    """Pairs 2 and 3 (motors 1+3 / 2+3 or 2+3 / 1+3 by the manual's two
     readings) are refused, services and actions, in one line saying what to do, while
     interpolation_pair_reading is unset (the default); nothing is written, pair 1 goes."""
     device, port = sim

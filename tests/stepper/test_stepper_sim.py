@@ -292,7 +292,7 @@ def test_homing_limits_and_zero(rig: Rig) -> None:
     assert s.coordinates[1] == 0.0 and s.inputs[3] and fake.position[2] == 0.0
     # The negative limit is on: it does not move. The reply is "not confirmed" unless the
     # read-back caught the running flag of the simulator's one tick before the limit
-    # ended the motion (issue 39).
+    # ended the motion.
     with contextlib.suppress(NotConfirmed):
         d.motor_action(2, "reverse")
     # The simulator's next tick ended the motion on the limit (a run that ignored the
@@ -369,7 +369,7 @@ def test_line_and_arc_interpolation(rig: Rig) -> None:
     d.stop_interpolation()
     assert fake.interpolation is None
     # The interpolation stops, then the own stop of every motor either reading of pair 3
-    # names (issue 39 hole 7).
+    # names.
     assert rig.writes()[-5:] == [
         (5, Table.COIL, 100, (1,)),
         (5, Table.COIL, 102, (1,)),
@@ -403,7 +403,7 @@ def test_factory_reset_and_clear_need_their_name(rig: Rig) -> None:
 
 
 def test_link_settings_round_trips_and_interpolation_are_read_back(rig: Rig) -> None:
-    """Issue 10: 40212-40214, 40301-40305 and 40182-40211 come with the configuration."""
+    """40212-40214, 40301-40305 and 40182-40211 come with the configuration."""
     d, fake = rig.device, rig.fake
     fake.set("baud_rate", 19200)
     fake.set("motor3_reciprocations", 7)
@@ -435,7 +435,7 @@ def test_link_settings_round_trips_and_interpolation_are_read_back(rig: Rig) -> 
 
 
 def test_standalone_setters_write_one_register_each(rig: Rig) -> None:
-    """Issue 10: speed, direction, run distance, mode-1 round trips on their own."""
+    """Speed, direction, run distance, mode-1 round trips on their own."""
     d = rig.device
     d.set_speed(2, 300)
     d.set_direction(2, 1)
@@ -454,7 +454,7 @@ def test_standalone_setters_write_one_register_each(rig: Rig) -> None:
 
 
 def test_a_second_interpolation_is_refused_while_one_runs(rig: Rig) -> None:
-    """Issue 10: "插补过程运行中不可调节": the bridge refuses a second line / arc, nothing
+    """The manual's "插补过程运行中不可调节": the bridge refuses a second line / arc, nothing
     written, until a poll begun after the start shows the motors stopped (or a stop)."""
     d, fake = rig.device, rig.fake
     d.pair_reading = "type_rows"  # pair 3 below: refused for this reason, not the reading
@@ -760,7 +760,7 @@ class PriorityRecorder:
 
 
 def test_stops_go_at_stop_priority(rig: Rig) -> None:
-    """Issue 20: on a shared line every stop coil goes in the next free slot
+    """On a shared line every stop coil goes in the next free slot
     (Priority.STOP), before other controllers' commands and polls; motions do not."""
     io = PriorityRecorder(rig.channel)
     d = StepperDevice(io)
@@ -781,14 +781,14 @@ def test_stops_go_at_stop_priority(rig: Rig) -> None:
         (STEPPER_MAP["line_start"].address, command),
         (STEPPER_MAP["arc_stop"].address, stop),
         (STEPPER_MAP["line_stop"].address, stop),
-        (motor_coil(1, "stop"), stop),  # the pair's own stops (issue 39 hole 7)
+        (motor_coil(1, "stop"), stop),  # the pair's own stops
         (motor_coil(2, "stop"), stop),
         (STEPPER_MAP["emergency_stop"].address, stop),
     ]
 
 
 def test_pairs_2_and_3_are_refused_until_the_reading_is_set() -> None:
-    """Issue 20: pairs 2 and 3 are motors 1+3 / 2+3 by the manual's type rows and 2+3 /
+    """Pairs 2 and 3 are motors 1+3 / 2+3 by the manual's type rows and 2+3 /
     1+3 by its point rows; pair 1 is 1+2 either way."""
     for reading in ("unset", "type_rows", "point_rows"):
         assert pair_axes(1, reading) == (1, 2)
@@ -850,7 +850,7 @@ def line_goal(rig: Rig, pair: int) -> InterpolationMotion:
 def test_a_line_on_other_motors_than_the_configured_reading_is_stopped(
     rig: Rig, reading: str
 ) -> None:
-    """Issue 20: a controller that follows the other reading moves a motor outside the
+    """A controller that follows the other reading moves a motor outside the
     configured pair; the goal ends HALTED (its stop sent) naming it, not REACHED."""
     d, fake = rig.device, rig.fake
     for motor in (1, 2, 3):
@@ -925,7 +925,7 @@ def home_goal(rig: Rig, motor: int, **kwargs: Any) -> HomeMotion:
 
 
 def test_homing_is_judged_by_the_home_input_not_a_zero_coordinate(rig: Rig) -> None:
-    """Issue 20: a controller that does not zero the coordinate at home ends the homing
+    """A controller that does not zero the coordinate at home ends the homing
     REACHED (home input on, motor stopped) with the coordinate it reads; it used to end
     LIMIT (home is wired to the reverse limit input)."""
     d, fake = rig.device, rig.fake

@@ -1,4 +1,4 @@
-"""The wire budget on the emulated byte-timed line (issue 24: "a rate that the wire cannot
+"""The wire budget on the emulated byte-timed line ("a rate that the wire cannot
 carry gives one WARN with the achievable rate"): the stepper node at the manual's 9600
 baud with its 35 ms replies (bench/line_relay.py paces every byte at 10 bits / baud),
 asked for more polls than the line carries."""

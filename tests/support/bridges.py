@@ -66,7 +66,7 @@ class Call:
 
 @dataclass(frozen=True)
 class JointCommandRow:
-    """A bridge's ``~/joint_commands`` (issue 25): the node that owns the topic, and a
+    """A bridge's ``~/joint_commands``: the node that owns the topic, and a
     joint of it (as named in ``joint_states``)."""
 
     node: str

@@ -1,4 +1,4 @@
-"""The three set-ups of ``~/joint_commands`` (issue 25), shared by
+"""The three set-ups of ``~/joint_commands``, shared by
 tests/core/ros/test_joint_commands.py and bench/joint_command_latency.py: a simulator process with
 its writes logged, and its bridge in another process under a fresh namespace.
 

@@ -1,5 +1,5 @@
 """The xArm bridge against an arm that does not obey, keeps its coils as written, or
-answers late (issue 39; docs/tools.md "Device personalities"): no command that starts,
+answers late (docs/tools.md "Device personalities"): no command that starts,
 stops or changes motion reports success the arm's own state, read back, does not show.
 
 First the device layer against the simulator over a real socket (xArm decisions 19, 20),

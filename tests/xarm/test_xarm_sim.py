@@ -230,7 +230,7 @@ def test_map_follows_the_appendix() -> None:
         assert XARM_MAP[name].scale == 1000 and XARM_MAP[name].value_type.signed
 
 
-# ---------------------------------------------------------------- issue 10
+# ------------------------------------------------- modes, joint count, outputs, user coils, enables
 def test_a_new_mode_takes_effect_after_set_state_0(xarm) -> None:  # type: ignore[no-untyped-def]
     """H32 takes the mode; H32 and C146-159 read the old one until set_state 0."""
     device, sim, channel, _ = xarm

@@ -1,5 +1,5 @@
 """docs/bridges/<bridge>.md, the reference pages ``bridge_doc`` renders from each bridge's
-interface listing (issue 26): the committed pages are what a fresh render gives, and
+interface listing: the committed pages are what a fresh render gives, and
 every parameter, topic, service and action a node declares is named on its page.
 
 The coverage check reads the committed page's tables itself (not through the renderer),

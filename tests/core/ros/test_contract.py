@@ -81,7 +81,7 @@ VFD_MAP = load_description(VFD).device.register_map
 INVERTER = DEVICES / "inverter_tcp_f32.yaml"
 INVERTER_MAP = load_description(INVERTER).device.register_map
 MODBUS_STARTUP_ONLY = ("unit_id", "timeout_s", "joint_prefix", "device_file")
-# The two examples of issue 21: a VFD on RTU 8E1 (velocity-only joint, a keepalive) and a
+# The two examples of config/devices/: a VFD on RTU 8E1 (velocity-only joint, a keepalive) and a
 # TCP inverter with f32 in CDAB and ABCD. Their params-file test is config/modbus.yaml's
 # (the "modbus" entry): ``config`` empty.
 DESCRIBED: tuple[DescribedInfo, ...] = (
@@ -304,7 +304,7 @@ def test_refused_value_writes_nothing(shared: Running) -> None:
 
 # ---------------------------------------------------------------- 1b. joint_commands
 def test_a_refused_joint_command_writes_nothing(shared: Running) -> None:
-    """``~/joint_commands`` (issue 25, docs/ros2_control.md): a message naming a joint the
+    """``~/joint_commands`` (docs/ros2_control.md): a message naming a joint the
     node does not have beside one it has, and one with a NaN, are refused whole: counted
     by kind in the diagnostics, nothing written (the next, good call's write is the only
     new record)."""

@@ -1,4 +1,4 @@
-"""Managed bridge nodes (issue 11): driven through lifecycle_msgs from a client process.
+"""Managed bridge nodes: driven through lifecycle_msgs from a client process.
 
 The stepper bridge started with ``autostart:=false`` waits unconfigured: it polls nothing
 and refuses commands. configure -> inactive, activate -> polls and publishes; a jog runs;

@@ -170,7 +170,7 @@ def test_the_wait_ends_at_the_threads_word_while_it_still_runs() -> None:
 
 # A signal the process got and no thread has taken yet (blocked here, as it is for the
 # instant before a thread runs its handler): a poll that finds its link closed by the
-# same Ctrl-C must count the process as exiting (issue 40).
+# same Ctrl-C must count the process as exiting.
 SIGNAL_PENDING = """
 import os, signal
 # Blocked before the import: the threads rclpy's import starts inherit the mask (one that

@@ -83,7 +83,7 @@ def test_bag_of_a_running_bridge(tmp_path: Path, monkeypatch: pytest.MonkeyPatch
     assert result.returncode == 0, result.stdout + result.stderr
     assert (bag / "metadata.yaml").exists()
     assert list(bag.glob("*.mcap"))
-    # The distribution recorded with, as ros2 bag record writes it, not "rosbags" (issue 40).
+    # The distribution recorded with, as ros2 bag record writes it, not "rosbags".
     info = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
     assert info["ros_distro"] == DISTRO, info["ros_distro"]
 
@@ -114,7 +114,7 @@ def test_bag_of_a_running_bridge(tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 
     # An independent reader (mcap + mcap-ros2-support): every message decodes from the
     # schemas in the file, and the latched ~/connected keeps its offered QoS, so that
-    # `ros2 bag play` replays it latched (issue 11).
+    # `ros2 bag play` replays it latched.
     (mcap_file,) = bag.glob("*.mcap")
     decoded: dict[str, int] = {}
     qos_of: dict[str, list[dict[str, object]]] = {}

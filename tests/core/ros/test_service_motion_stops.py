@@ -6,7 +6,7 @@ moving; then the node is deactivated or gets SIGINT. The halt must stop that mot
 the wire (the node's motion ledger, ``bridge_core/runtime/motion_ledger.py``), and the simulated
 device must stand still. A stop service in between means nothing is left to stop.
 
-Every SIGINT exit here is also a clean one (issue 40): no ERROR line, no callback error
+Every SIGINT exit here is also a clean one: no ERROR line, no callback error
 left uncollected ("The following exception was never retrieved"), no traceback. With
 nothing left to stop, the TCP simulators close their end with the same Ctrl-C, as the
 demo cell's do (launch/cell.launch.py): a link the exit closes is not an error.

@@ -126,7 +126,7 @@ def test_simulator_killed_and_restarted(
 
 
 def test_a_device_never_reached_is_said_on_the_console(client: Client, tmp_path: Path) -> None:
-    """Issue 11: a bridge that cannot reach its device says so at once (WARN, with the OS
+    """A bridge that cannot reach its device says so at once (WARN, with the OS
     reason), again at most every 10 s while it lasts, and INFO once it is up."""
     port = free_port()  # nothing listens there yet
     where = f"tcp://127.0.0.1:{port} unit 1"

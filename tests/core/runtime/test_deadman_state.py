@@ -98,7 +98,7 @@ def test_motec_failed_first_velocity_write_keeps_the_deadman_on() -> None:
 
 @pytest.mark.parametrize("which", ["motor stop", "emergency stop"])
 def test_stepper_a_failed_stop_service_leaves_the_jogs_stop_pending(which: str) -> None:
-    """Issue 9: a stop service that fails on the link must not make the guard forget the
+    """A stop service that fails on the link must not make the guard forget the
     jog it meant to end: that jog's own stop stays pending (sent first when the link is
     back) and the jog is locked, so a joystick still held cannot restart the motor."""
     io = FlakyIO()

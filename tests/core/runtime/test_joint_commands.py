@@ -157,7 +157,7 @@ def test_a_closed_node_refuses_all_but_stops(kind: str) -> None:
 
 
 def test_each_joint_is_judged_by_its_own_node() -> None:
-    """Issue 40 (MOTEC): one topic for joints of several nodes; a node that is inactive
+    """MOTEC: one topic for joints of several nodes; a node that is inactive
     refuses its own joints' values only, the others apply; refused whole only when every
     joint named is refused."""
     open_node, closed_node = Node(), Node(closed=(jc.INACTIVE, "motec_1 is not active"))
@@ -194,7 +194,7 @@ def test_a_target_where_the_joint_stands_is_offered_near() -> None:
 
 
 def test_refused_values_are_arrivals_for_the_lock_rule() -> None:
-    """A stopped position stream does not take refused messages for silence (issue 40:
+    """A stopped position stream does not take refused messages for silence (seen:
     a controller publishing through a deactivate restarted the motor on activation)."""
     node = Node(here={"a": 1.0}, max_jump=0.5)
     made, _, position = joints(node)

@@ -1,4 +1,4 @@
-"""The stream guard's position streams (issue 25): ``zero_stops=False``, ``follow`` and
+"""The stream guard's position streams: ``zero_stops=False``, ``follow`` and
 ``Deferred``, with a fake device and a fake clock."""
 
 from __future__ import annotations
@@ -93,7 +93,7 @@ def test_a_halt_drops_an_offered_zero_target() -> None:
 
 
 def test_a_target_held_where_the_joint_stands_unlocks_a_position_stream() -> None:
-    """Issue 40: a stopped position stream moves again only on a target ``near`` where the
+    """A stopped position stream moves again only on a target ``near`` where the
     joint stands (judged by joint_commands) that the controller holds (a repeat of the
     previous arrival) or that comes after timeout_s of silence; never on silence alone,
     never on a trajectory that runs on through the stop, never on a target from afar."""

@@ -1,5 +1,5 @@
 """A merged read the device refuses with ILLEGAL DATA ADDRESS is split in the same poll and
-remembered (issue 20 item 11, issue 21 "minimal reads"): real pymodbus servers over TCP,
+remembered: real pymodbus servers over TCP,
 the bridges' own channel and poller."""
 
 from __future__ import annotations

@@ -75,7 +75,7 @@ def test_first_zero_of_an_idle_stream_depends_on_the_device() -> None:
 
 
 def test_lock_after_a_service_stop_until_a_zero_never_silence() -> None:
-    """Issue 40: silence no longer unlocks a stopped stream; only a 0 does."""
+    """Silence no longer unlocks a stopped stream; only a 0 does."""
     guard, _, clock = make()
     guard.command(1, 50.0)
     guard.taken_over(1, locked=True)
@@ -245,7 +245,7 @@ def test_only_a_zero_that_arrived_after_the_stop_unlocks_it() -> None:
     """The unlock is decided on arrival, never by a timer's turn: a 0 that arrived (and
     coalesced with a newer value before the writer's pass) unlocks the stream, and the
     newer value is applied; a 0 that arrived before the stop cannot undo it; a new press
-    after a halt and long silence is refused (issue 40: the jog topics and
+    after a halt and long silence is refused (the jog topics and
     ~/joint_commands follow one rule)."""
     guard, motors, clock = make()
     guard.hold(1)  # a stop service of the device: the stream never commanded anything
@@ -291,7 +291,7 @@ def test_stop_all_drops_offered_values_and_locks_every_stream() -> None:
     assert motors.log == [("send", 1, 10.0, None), ("stop", 1, None, None)]
     guard.command(1, 0.0)  # a 0 unlocks (the motor already stands: nothing written)
     assert guard.command(1, 30.0)
-    clock.now += 1.0  # silence does not (issue 40), the deadman's expire neither
+    clock.now += 1.0  # silence does not, the deadman's expire neither
     guard.expire(2)
     with pytest.raises(CommandRejected, match="stopped"):
         guard.command(2, 5.0)

@@ -1,4 +1,4 @@
-"""Every simulator answers like a strict device (issue 10): raw frames on a real TCP socket
+"""Every simulator answers like a strict device: raw frames on a real TCP socket
 and a real pty.
 
 - a function code the device does not have is ``FC|0x80, 0x01`` (ILLEGAL FUNCTION with the
@@ -132,7 +132,7 @@ def rtu_request(port: serial.Serial, pdu: bytes, reply_length: int, unit: int = 
     return reply[1:-2]
 
 
-# Issue 20 item 12: codes pymodbus cannot frame (0x41) too, framed by their CRC: before,
+# Codes pymodbus cannot frame (0x41) too, framed by their CRC: before,
 # such a request got no reply and the next request was lost with it.
 @pytest.mark.parametrize(("function", "body"), FOREIGN + UNKNOWN_TO_PYMODBUS)
 def test_rtu_answers_a_foreign_function_code_with_its_own_code(

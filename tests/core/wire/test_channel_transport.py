@@ -180,7 +180,7 @@ def _quietly(call: Callable[[], object]) -> None:
 
 
 def test_a_stop_goes_in_the_next_free_slot() -> None:
-    """Issue 20: on a shared line a stop queued behind another device's transaction goes
+    """On a shared line a stop queued behind another device's transaction goes
     right after it, before the commands and polls that queued up earlier (feeds aside)."""
     bus = ScriptedBus()
     absent = DeviceChannel(bus, 7, retries=0)
@@ -384,7 +384,7 @@ def test_a_write_to_a_device_marked_down_waits_its_short_timeout() -> None:
 @pytest.mark.parametrize("at_start", [True, False], ids=["at_start", "after_outage"])
 def test_a_device_answering_late_within_the_timeout_is_found(at_start: bool) -> None:
     """A device that answers later than the stop's short wait but within the link's
-    timeout is connected at start and found again after an outage (issue 39, hole 1):
+    timeout is connected at start and found again after an outage:
     stepper at 35-300 ms with timeout_s 0.5, stop_timeout_s 0.15. Stops keep the short
     wait."""
     sim_device = SimulatedDevice(TEST_MAP, 3)

@@ -296,7 +296,7 @@ def _segments_out(sock: socket.socket) -> int:
 
 @pytest.mark.skipif(not hasattr(socket, "TCP_QUICKACK"), reason="TCP_QUICKACK is Linux's")
 def test_a_pipelined_reply_is_acknowledged_before_receive_returns() -> None:
-    """Issue 41 item 5: pipelined, every request is already out, so nothing carries the
+    """Pipelined, every request is already out, so nothing carries the
     ACK of a reply but the ACK itself; Linux delays it (40 ms or more), and a device
     that leaves Nagle on holds its next reply until then (22.7 polls/s against 1777).
     Checked without a clock: the client's own segment count (TCP_INFO, pure ACKs

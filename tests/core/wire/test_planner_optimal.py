@@ -1,5 +1,5 @@
 """The planner's request count is the optimum: a brute-force search over every valid read
-window agrees on 200 random maps (issue 21, "minimal reads")."""
+window agrees on 200 random maps."""
 
 from __future__ import annotations
 

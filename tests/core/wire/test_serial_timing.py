@@ -527,7 +527,7 @@ def test_a_late_reply_is_not_taken_for_the_next_one() -> None:
 
 
 def test_a_reply_in_by_the_deadline_is_taken_however_late_the_thread_runs() -> None:
-    """Issue 9: under CPU load the reading thread may run only after the reply deadline,
+    """Under CPU load the reading thread may run only after the reply deadline,
     with the whole reply waiting in the buffer. That is a reply, not a timeout: the line
     decides, not the scheduler."""
     master, slave = pty.openpty()
