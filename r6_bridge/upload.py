@@ -8,9 +8,10 @@ reading N of docs/decisions/r6.md.
 from __future__ import annotations
 
 from collections.abc import Hashable, Sequence
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 from bridge_core.runtime.checks import check_whole_number
+from bridge_core.wire.channel import RegisterIO
 from bridge_core.wire.codec import int_to_words
 from bridge_core.wire.errors import CommandRejected, LinkError, NotConfirmed
 from bridge_core.wire.registers import MAX_WRITE_REGISTERS
@@ -25,8 +26,14 @@ from .registers import (
     R6_MAP,
 )
 
-if TYPE_CHECKING:
-    from .device import R6Device
+
+class UploadDevice(Protocol):
+    """What an upload writes through (``R6Device``), named here so the device imports
+    this module and never the other way round."""
+
+    @property
+    def io(self) -> RegisterIO: ...
+
 
 # Registers in one upload frame: the manual's 256-byte frame cap and Modbus's 123 (FC 10).
 POINT_FRAME_MAX_REGISTERS = min(POINT_FRAME_MAX_BYTES // 2, MAX_WRITE_REGISTERS)
@@ -45,7 +52,7 @@ class PointUploadSteps:
 
     def __init__(
         self,
-        device: R6Device,
+        device: UploadDevice,
         data_source_id: int,
         values_per_point: int,
         axis_mask: int,

@@ -14,29 +14,37 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
+from typing import Protocol
 
+from bridge_core.wire.codec import Value
 from bridge_core.wire.errors import NotConfirmed
 
 from .registers import motor_register
 from .replies import coordinates_text, flags_text, register_label, units_differ
 
-if TYPE_CHECKING:
-    from .device import StepperDevice
+
+class ConfirmingDevice(Protocol):
+    """What a confirmation reads from the device (``StepperDevice``), named here so the
+    device imports this module and never the other way round."""
+
+    def read_named(self, *names: str) -> dict[str, Value]: ...
+
+    def coordinates(self, motors: Sequence[int]) -> dict[int, float]: ...
+
 
 STOP_CONFIRM_S = 0.5
 START_CONFIRM_S = 0.5
 CONFIRM_READ_PERIOD_S = 0.05
 
 
-def running_flags(device: StepperDevice, motors: Sequence[int]) -> dict[int, bool]:
+def running_flags(device: ConfirmingDevice, motors: Sequence[int]) -> dict[int, bool]:
     """The running flags (40168+) of ``motors``, read now at command priority."""
     names = {m: motor_register(m, "running") for m in motors}
     values = device.read_named(*names.values())
     return {m: bool(values[name]) for m, name in names.items()}
 
 
-def confirm_stopped(device: StepperDevice, motors: Sequence[int], wrote: str) -> str:
+def confirm_stopped(device: ConfirmingDevice, motors: Sequence[int], wrote: str) -> str:
     """The running flags of ``motors`` read until every one is 0, for STOP_CONFIRM_S:
     what was written and read, or ``NotConfirmed`` saying so."""
     deadline = time.monotonic() + STOP_CONFIRM_S
@@ -53,7 +61,7 @@ def confirm_stopped(device: StepperDevice, motors: Sequence[int], wrote: str) ->
 
 
 def confirm_started(
-    device: StepperDevice, motors: Sequence[int], wrote: str, before: dict[int, float]
+    device: ConfirmingDevice, motors: Sequence[int], wrote: str, before: dict[int, float]
 ) -> str:
     """A start shown: a running flag of ``motors`` reads 1, or a coordinate left its
     value ``before`` the start by a step (a short single run may end before the first

@@ -15,13 +15,14 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 from bridge_core.runtime.checks import check_choice, check_finite
-from bridge_core.wire.codec import encode
+from bridge_core.wire.codec import Value, encode
 from bridge_core.wire.errors import CommandRejected, LinkError
 
-from .confirm import confirm_started, confirm_stopped
+from .confirm import ConfirmingDevice, confirm_started, confirm_stopped
+from .jog import JogControl
 from .registers import (
     ARC_MODE_CENTER,
     ARC_MODE_THREE_POINTS,
@@ -34,8 +35,26 @@ from .registers import (
 )
 from .replies import check_integer, coil_label, motor_coils_text
 
-if TYPE_CHECKING:
-    from .device import StepperDevice
+
+class InterpolationDevice(ConfirmingDevice, Protocol):
+    """What a line / arc uses of the device (``StepperDevice``), named here so the
+    device imports this module and never the other way round."""
+
+    @property
+    def pair_reading(self) -> str: ...
+
+    @property
+    def next_poll(self) -> int: ...
+
+    @property
+    def jog_control(self) -> JogControl: ...
+
+    def write_values(self, values: Sequence[tuple[str, Value]], *, jog: bool = False) -> None: ...
+
+    def send_coil(self, name: str) -> None: ...
+
+    def send_motor_stops(self, motors: Sequence[int]) -> LinkError | None: ...
+
 
 # interpolation_pair_reading: which of the manual's two readings of pair types 2 and 3 the
 # controller follows (stepper decision 19). Unset until the hardware check in
@@ -107,7 +126,7 @@ class InterpolationControl:
     """The line / arc commands of one controller and the run the bridge started (``run``);
     the pair reading is the device's ``pair_reading``."""
 
-    def __init__(self, device: StepperDevice) -> None:
+    def __init__(self, device: InterpolationDevice) -> None:
         self.device = device
         self.run: InterpolationRun | None = None
         # A line / arc that moved a motor outside its configured pair, once per run: the

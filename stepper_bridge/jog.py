@@ -21,17 +21,36 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 from bridge_core.runtime.checks import check_range
 from bridge_core.runtime.stream_guard import StreamGuard
+from bridge_core.wire.channel import RegisterIO
+from bridge_core.wire.codec import Value
 from bridge_core.wire.errors import DeviceException, LinkError
 
 from .registers import MOTORS, U16_MAX, motor_coil, motor_register
 from .replies import check_motor
 
-if TYPE_CHECKING:
-    from .device import StepperDevice
+
+class JogDevice(Protocol):
+    """What the jog streams use of the device (``StepperDevice``), named here so the
+    device imports this module and never the other way round."""
+
+    @property
+    def io(self) -> RegisterIO: ...
+
+    @property
+    def on_speed_restore_failure(self) -> Callable[[int, int, LinkError], None]: ...
+
+    def read_named(self, *names: str) -> dict[str, Value]: ...
+
+    def cached_value(self, name: str) -> Value | None: ...
+
+    def write_values(self, values: Sequence[tuple[str, Value]], *, jog: bool = False) -> None: ...
+
+    def stream_stop(self, motor: int) -> str: ...
+
 
 DEFAULT_JOG_TIMEOUT_S = 0.5
 SPEED_MAX_RPM = U16_MAX
@@ -43,7 +62,7 @@ class JogControl:
 
     def __init__(
         self,
-        device: StepperDevice,
+        device: JogDevice,
         *,
         timeout_s: float = DEFAULT_JOG_TIMEOUT_S,
         clock: Callable[[], float] = time.monotonic,

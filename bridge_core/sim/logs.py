@@ -6,14 +6,27 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO, TYPE_CHECKING, Any
+from typing import IO, Any, Protocol
 
 from ..wire.registers import Table
 
-if TYPE_CHECKING:
-    from .serving import Simulator
+
+class LoggingDevice(Protocol):
+    """A simulated unit's log files (``sim_base.SimulatedDevice``)."""
+
+    log_file: IO[str] | None
+    read_log_file: IO[str] | None
+
+
+class LoggedSimulator(Protocol):
+    """A simulator's units (``serving.Simulator``), named here so sim_base and serving
+    import this module and never the other way round."""
+
+    @property
+    def devices(self) -> Mapping[int, LoggingDevice]: ...
 
 
 class _JsonRecord:
@@ -89,7 +102,7 @@ def add_log_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def open_logs(args: argparse.Namespace, sim: Simulator) -> list[IO[str]]:
+def open_logs(args: argparse.Namespace, sim: LoggedSimulator) -> list[IO[str]]:
     """Attach ``--write-log`` / ``--read-log`` files to every unit; the files to close."""
     write_log = args.write_log.open("a") if args.write_log else None
     read_log = args.read_log.open("a") if args.read_log else None

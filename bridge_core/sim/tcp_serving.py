@@ -25,7 +25,7 @@ import contextlib
 import socket
 import time
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 from pymodbus.constants import ExcCodes
 from pymodbus.exceptions import ModbusIOException, NoSuchIdException
@@ -33,8 +33,24 @@ from pymodbus.pdu import ExceptionResponse, ModbusPDU
 from pymodbus.server.requesthandler import ServerRequestHandler
 from pymodbus.transaction import TransactionManager
 
-if TYPE_CHECKING:
-    from .serving import Simulator
+
+class ServedSimulator(Protocol):
+    """The switches and records of ``serving.Simulator`` a connection uses, named here so
+    serving imports this module and never the other way round."""
+
+    @property
+    def nagle(self) -> bool: ...
+
+    @property
+    def one_request_at_a_time(self) -> bool: ...
+
+    @property
+    def connections_nodelay(self) -> list[bool]: ...
+
+    @property
+    def dropped(self) -> list[tuple[float, int]]: ...
+
+    def round_trip(self) -> float: ...
 
 
 class _Delayed:
@@ -71,7 +87,7 @@ class _Delayed:
 class InOrderHandler(ServerRequestHandler):
     """One client connection of a TCP simulator (see the module's docstring)."""
 
-    def __init__(self, owner: Any, sim: Simulator) -> None:
+    def __init__(self, owner: Any, sim: ServedSimulator) -> None:
         super().__init__(  # type: ignore[no-untyped-call]  # untyped in pymodbus 3.16
             owner, owner.trace_packet, owner.trace_pdu, owner.trace_connect
         )
