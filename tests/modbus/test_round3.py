@@ -15,8 +15,9 @@ from bridge_core.wire.errors import CommandRejected
 from modbus_bridge import sim as sim_command
 from modbus_bridge.description import DescriptionError, load
 from modbus_bridge.sim import DescribedSimDevice
-from tests.core.runtime.test_poller import FakeChannel, FakeClock, FakeDevice
+from tests.core.runtime.test_poller import FakeChannel, FakeDevice
 
+from ..support.fakes import FakeClock
 from .test_modbus_sim import over_tcp, wait_for
 from .test_round2 import INVERTER, MULTIDROP, VFD
 
@@ -114,7 +115,7 @@ def test_a_poll_failure_prints_its_traceback_once() -> None:
     every REPEAT_REPORT_S with how often it came again (was: a traceback every 0.1 s)."""
     channel = FakeChannel()
     device = FakeDevice(channel)
-    clock = FakeClock()
+    clock = FakeClock(1000.0)
     reports: list[str] = []
     poller: Poller[int] = Poller(
         channel,

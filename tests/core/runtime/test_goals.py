@@ -18,6 +18,8 @@ from bridge_core.runtime.goals import (
     within,
 )
 
+from ...support.fakes import FakeClock
+
 
 @dataclass
 class Snap:
@@ -57,16 +59,8 @@ class FakeMotion(Motion[Snap]):
         return Verdict(Outcome.STOPPED, "short")
 
 
-class FakeClock:
-    def __init__(self) -> None:
-        self.now = 100.0
-
-    def __call__(self) -> float:
-        return self.now
-
-
 def started_run(timeout_s: float = 0.0, clock: FakeClock | None = None) -> GoalRun[Snap]:
-    run = GoalRun(FakeMotion(), timeout_s=timeout_s, clock=clock or FakeClock())
+    run = GoalRun(FakeMotion(), timeout_s=timeout_s, clock=clock or FakeClock(100.0))
     run.started(1000.0)
     return run
 
@@ -126,7 +120,7 @@ def test_reached_waits_for_a_second_idle_poll_when_the_motion_asks() -> None:
 def test_a_motion_not_yet_shown_running_gets_start_polls_and_time() -> None:
     """A flag may come late: idle polls count only from START_POLLS on and after
     START_GRACE_S (fast polls must not end a motion whose flag rises 0.1 s late)."""
-    clock = FakeClock()
+    clock = FakeClock(100.0)
     run = started_run(clock=clock)
     for _ in range(START_POLLS + 3):
         assert judge(run, Snap(False, 0.0)) is None  # many polls, too soon
@@ -142,7 +136,7 @@ def test_a_motion_not_yet_shown_running_gets_start_polls_and_time() -> None:
 
 
 def test_a_zero_length_move_is_reached_without_ever_running() -> None:
-    clock = FakeClock()
+    clock = FakeClock(100.0)
     run = started_run(clock=clock)
     clock.now += START_GRACE_S
     run.motion.target = 0.0  # type: ignore[attr-defined]
@@ -158,7 +152,7 @@ def test_a_fault_ends_it_at_once_even_while_running() -> None:
 
 
 def test_the_time_limit() -> None:
-    clock = FakeClock()
+    clock = FakeClock(100.0)
     run = started_run(timeout_s=2.0, clock=clock)
     clock.now += 1.9
     assert run.next_ending(True, None) is None
@@ -169,7 +163,7 @@ def test_the_time_limit() -> None:
 
 
 def test_no_time_limit_with_zero() -> None:
-    clock = FakeClock()
+    clock = FakeClock(100.0)
     run = started_run(timeout_s=0.0, clock=clock)
     clock.now += 1e6
     assert run.next_ending(True, None) is None

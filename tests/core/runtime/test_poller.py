@@ -17,13 +17,7 @@ from bridge_core.wire.errors import (
 )
 from bridge_core.wire.link_state import LinkEvent, LinkState
 
-
-class FakeClock:
-    def __init__(self) -> None:
-        self.now = 1000.0
-
-    def __call__(self) -> float:
-        return self.now
+from ...support.fakes import FakeClock
 
 
 class FakeChannel:
@@ -97,7 +91,7 @@ def make(
         link_up=device.link_up,
         replan=device.replan,
         report=lambda outcome, _text: events.append(outcome),
-        clock=FakeClock(),
+        clock=FakeClock(1000.0),
     )
 
 
@@ -378,7 +372,7 @@ def test_a_poll_stops_at_its_next_request_once_a_command_lost_the_link() -> None
         lambda _snapshot: None,
         rate_hz=10.0,
         report=lambda outcome, _text: events.append(outcome),
-        clock=FakeClock(),
+        clock=FakeClock(1000.0),
     )
     assert poller.tick() is PollOutcome.LINK_LOST
     assert len(transport.sent) == requests_before + 1
@@ -397,7 +391,7 @@ def test_a_probe_poll_yields_to_a_stop_that_failed_while_it_waited() -> None:
         channel.read_registers(0, 1)
         return 1
 
-    poller = Poller(channel, poll, lambda _snapshot: None, rate_hz=10.0, clock=FakeClock())
+    poller = Poller(channel, poll, lambda _snapshot: None, rate_hz=10.0, clock=FakeClock(1000.0))
     assert poller.tick() is PollOutcome.LINK_LOST
     assert transport.sent == []
     # Without a stop failing meanwhile, the probe (once the backoff allows) reconnects.

@@ -10,13 +10,7 @@ import pytest
 from bridge_core.runtime.stream_guard import Deferred, StreamGuard
 from bridge_core.wire.errors import CommandRejected, LinkTimeout
 
-
-class Clock:
-    def __init__(self) -> None:
-        self.now = 0.0
-
-    def __call__(self) -> float:
-        return self.now
+from ...support.fakes import FakeClock
 
 
 class Axis:
@@ -43,9 +37,9 @@ class Axis:
         self.log.append(("stop", key, None))
 
 
-def pair() -> tuple[StreamGuard[int], StreamGuard[int], Axis, Axis, Clock]:
+def pair() -> tuple[StreamGuard[int], StreamGuard[int], Axis, Axis, FakeClock]:
     """A velocity guard and a position guard that follows it."""
-    clock = Clock()
+    clock = FakeClock()
     jog, target = Axis(), Axis()
     velocity = StreamGuard((1, 2), jog.send, jog.stop, timeout_s=0.5, clock=clock)
     position = StreamGuard(

@@ -19,6 +19,8 @@ from bridge_core.wire.registers import Access, Register, RegisterMap, Table, Val
 from bridge_core.wire.requests import Span
 from bridge_core.wire.transport import ModbusLink, TcpSettings
 
+from ...support.fakes import FakeClock
+
 MAP = RegisterMap(
     "groups",
     (
@@ -35,14 +37,6 @@ SLOW = plan_reads(MAP, MAP.select(["setting", "firmware"]))
 OUTPUT_COIL = Span(Table.COIL, 5)
 
 
-class Clock:
-    def __init__(self) -> None:
-        self.now = 100.0
-
-    def __call__(self) -> float:
-        return self.now
-
-
 class Rig:
     """A simulated device over TCP, a channel to it, and the groups under test."""
 
@@ -53,7 +47,7 @@ class Rig:
         self.sim.start_tcp()
         self.link = ModbusLink(TcpSettings(port=self.sim.port, timeout_s=1.0))
         self.channel = DeviceChannel(self.link, 1, retries=0, reconnect_max_s=0.3)
-        self.clock = Clock()
+        self.clock = FakeClock(100.0)
         self.groups = PollGroups(
             FAST, SLOW, period_s=period_s, touched_by=[OUTPUT_COIL], clock=self.clock
         )

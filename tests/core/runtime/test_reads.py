@@ -10,14 +10,7 @@ from bridge_core.wire.channel import Priority
 from bridge_core.wire.planner import plan_reads
 from bridge_core.wire.registers import Register, RegisterMap, Table, ValueType
 
-
-class FakeClock:
-    def __init__(self) -> None:
-        self.now = 1000.0
-
-    def __call__(self) -> float:
-        return self.now
-
+from ...support.fakes import FakeClock
 
 MAP = RegisterMap(
     "test",
@@ -59,7 +52,7 @@ class TimedIO:
 
 
 def test_stamp_is_the_read_time_of_the_position_block_not_the_first_or_last() -> None:
-    clock = FakeClock()
+    clock = FakeClock(1000.0)
     # The first block is slow (retried), the last one slower still.
     io = TimedIO(clock, {0: 0.5, 10: 0.002, 20: 0.7})
     requests = plan_reads(MAP, MAP.select(["status", "position", "speed"]))
@@ -71,7 +64,7 @@ def test_stamp_is_the_read_time_of_the_position_block_not_the_first_or_last() ->
 
 
 def test_stamp_register_must_be_in_the_plan() -> None:
-    clock = FakeClock()
+    clock = FakeClock(1000.0)
     io = TimedIO(clock, {})
     requests = plan_reads(MAP, MAP.select(["status"]))
     with pytest.raises(ValueError, match="position"):

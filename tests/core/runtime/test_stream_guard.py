@@ -7,13 +7,7 @@ import pytest
 from bridge_core.runtime.stream_guard import STOP_RETRY_GAP_S, StreamGuard
 from bridge_core.wire.errors import CommandRejected, LinkTimeout
 
-
-class Clock:
-    def __init__(self) -> None:
-        self.now = 0.0
-
-    def __call__(self) -> float:
-        return self.now
+from ...support.fakes import FakeClock
 
 
 class Motors:
@@ -37,8 +31,8 @@ class Motors:
         self.log.append(("stop", key, None, None))
 
 
-def make(stop_when_idle: bool = True) -> tuple[StreamGuard[int], Motors, Clock]:
-    motors, clock = Motors(), Clock()
+def make(stop_when_idle: bool = True) -> tuple[StreamGuard[int], Motors, FakeClock]:
+    motors, clock = Motors(), FakeClock()
     guard = StreamGuard(
         (1, 2),
         motors.send,
@@ -213,7 +207,7 @@ def test_a_repeat_in_another_unit_wakes_no_writer() -> None:
 def test_after_stop_follows_the_acknowledged_stops() -> None:
     """after_stop (the stepper's speed restore) runs after the stops it follows: once per
     stop(), once after all of stop_all()'s stops, never for a stop that failed."""
-    motors, clock = Motors(), Clock()
+    motors, clock = Motors(), FakeClock()
     after: list[list[int]] = []
 
     def follow(keys: list[int]) -> None:

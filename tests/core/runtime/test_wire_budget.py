@@ -23,6 +23,8 @@ from bridge_core.wire.planner import plan_reads
 from bridge_core.wire.registers import Register, RegisterMap, Table, ValueType
 from bridge_core.wire.requests import ReadRegisters, Request
 
+from ...support.fakes import FakeClock
+
 MAP = RegisterMap(
     "budget",
     (
@@ -37,14 +39,6 @@ SLOW = plan_reads(MAP, MAP.select(["setting", "firmware"]))  # two reads
 FRAME_PER_REGISTER_S = 0.001  # the stand-in link's frame time: 1 ms a register + 2 ms
 FRAME_BASE_S = 0.002
 TURNAROUND_S = 0.010
-
-
-class Clock:
-    def __init__(self) -> None:
-        self.now = 0.0
-
-    def __call__(self) -> float:
-        return self.now
 
 
 class CostedChannel:
@@ -72,7 +66,7 @@ class CostedChannel:
 
 class Rig:
     def __init__(self, rate_hz: float = 10.0, period_s: float = 1.0) -> None:
-        self.clock = Clock()
+        self.clock = FakeClock()
         self.channel = CostedChannel()
         self.groups = PollGroups(FAST, SLOW, period_s=period_s, clock=self.clock)
         self.rate_hz = rate_hz
