@@ -10,7 +10,6 @@ state, asked through the ROS graph) and keeps running although its device is abs
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
@@ -19,8 +18,9 @@ import pytest
 from lifecycle_msgs.srv import GetState
 
 from ..support import forkserver
+from ..support.fixtures import client_fixture
 from ..support.launch_run import MissingArgument, evaluate, started
-from ..support.ros import ROOT, Client, ros_client, unique_namespace, wait_for
+from ..support.ros import ROOT, Client, unique_namespace, wait_for
 
 pytestmark = pytest.mark.ros
 
@@ -31,10 +31,7 @@ START_S = 60.0
 REQUIRED = {"host": "127.0.0.1"}
 
 
-@pytest.fixture(scope="module")
-def client() -> Iterator[Client]:
-    with ros_client("launch_parameters_client") as c:
-        yield c
+client = client_fixture("launch_parameters_client", scope="module")
 
 
 def launch_files() -> list[Path]:

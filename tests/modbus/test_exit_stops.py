@@ -31,6 +31,7 @@ from modbus_bridge.sim import DescribedSimDevice, make_simulator
 from msg_defs.msg import DeviceValues
 from msg_defs.srv import SetValue, WriteRegister
 
+from ..support.fixtures import client_fixture
 from ..support.ros import (
     Bridge,
     Client,
@@ -38,7 +39,6 @@ from ..support.ros import (
     node_log,
     node_process,
     refused_at_start,
-    ros_client,
     unique_namespace,
     wait_for,
 )
@@ -61,10 +61,7 @@ assert KEEPALIVE is not None
 KEEPALIVE_PERIOD_S = KEEPALIVE.period_s
 
 
-@pytest.fixture(scope="module")
-def client() -> Iterator[Client]:
-    with ros_client("modbus_exit_client") as c:
-        yield c
+client = client_fixture("modbus_exit_client", scope="module")
 
 
 @contextmanager

@@ -47,11 +47,11 @@ from modbus_bridge.sim import DescribedSimDevice, make_simulator
 from msg_defs.msg import DeviceValues
 from msg_defs.srv import SetValue, WriteRegister
 
+from ..support.fixtures import client_fixture
 from ..support.ros import (
     Bridge,
     Client,
     node_process,
-    ros_client,
     unique_namespace,
     wait_for,
     wait_subscribed,
@@ -256,11 +256,7 @@ def test_a_write_only_register_is_sent_not_confirmed(tmp_path: Path) -> None:
 
 
 # ------------------------------------------------------------------ the node (ROS)
-@pytest.fixture(scope="module")
-def client() -> Iterator[Client]:
-    with ros_client("modbus_personality_client") as c:
-        c.subscribe_log()
-        yield c
+client = client_fixture("modbus_personality_client", log=True, scope="module")
 
 
 @contextmanager

@@ -11,7 +11,6 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.srv import ListParameters
 from std_msgs.msg import Float64
 from std_srvs.srv import SetBool, Trigger
@@ -29,10 +28,10 @@ from modbus_bridge.sim import DescribedSimDevice, make_simulator
 from msg_defs.msg import DeviceValues
 from msg_defs.srv import ReadRegisters, SetValue, WriteRegister
 
+from ..support.fixtures import client_fixture
 from ..support.ros import (
     Client,
     refused_at_start,
-    ros_client,
     start_bridge,
     wait_for,
     wait_stream_refusals,
@@ -48,11 +47,7 @@ RTU_BAUD = 115200
 MULTIDROP = Path(__file__).resolve().parents[2] / "config" / "devices" / "rtu_multidrop.yaml"
 
 
-@pytest.fixture(scope="module")
-def client() -> Iterator[Client]:
-    with ros_client("modbus_client") as c:
-        c.subscribe(DiagnosticArray, "/diagnostics")
-        yield c
+client = client_fixture("modbus_client", diagnostics=True, scope="module")
 
 
 def describe(tmp_path: Path, text: str = MOVER) -> Description:

@@ -11,7 +11,6 @@ from typing import Any
 
 import pytest
 from action_msgs.msg import GoalStatus
-from diagnostic_msgs.msg import DiagnosticArray
 from std_srvs.srv import SetBool, Trigger
 
 from bridge_core.wire.registers import Table
@@ -21,7 +20,8 @@ from msg_defs.action import MoveTo
 from msg_defs.msg import MotionOutcome
 from msg_defs.srv import SetControlMode
 
-from ..support.ros import Client, ros_client, values_of, wait_for
+from ..support.fixtures import client_fixture
+from ..support.ros import Client, values_of, wait_for
 from ..support.sims import motec_on_pty
 from .test_motec_ros import BAUD, UNITS, MotecBridge, bridge_params, motec, writes
 
@@ -33,12 +33,7 @@ SLOW = TURN  # rad/s = 60 rpm: one turn a second
 LONG = 20 * TURN  # 20 s at SLOW: cancelled, preempted, timed out long before
 
 
-@pytest.fixture
-def client() -> Iterator[Client]:
-    with ros_client("motec_action_client") as c:
-        c.subscribe_log()
-        c.subscribe(DiagnosticArray, "/diagnostics")
-        yield c
+client = client_fixture("motec_action_client", diagnostics=True, log=True)
 
 
 @pytest.fixture

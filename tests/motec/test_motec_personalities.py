@@ -34,7 +34,8 @@ from motec_bridge.snapshots import STANDSTILL_SPEED_RPM
 from msg_defs.msg import MotionOutcome
 from msg_defs.srv import PositionMove, SetControlMode
 
-from ..support.ros import Client, ros_client, wait_for, wait_subscribed
+from ..support.fixtures import client_fixture
+from ..support.ros import Client, wait_for, wait_subscribed
 from ..support.serial_pair import served_on_pty
 from ..support.sims import motec_on_pty
 from .test_motec_ros import MotecBridge, bridge_params, motec
@@ -337,11 +338,7 @@ TURN = 2 * 3.141592653589793  # rad of one motor turn (gear 1)
 SLOW = TURN  # rad/s: 60 rpm
 
 
-@pytest.fixture
-def client() -> Iterator[Client]:
-    with ros_client("motec_personality_client") as c:
-        c.subscribe_log()
-        yield c
+client = client_fixture("motec_personality_client", log=True)
 
 
 @pytest.fixture

@@ -15,7 +15,6 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from diagnostic_msgs.msg import DiagnosticArray
 from lifecycle_msgs.msg import Transition
 from lifecycle_msgs.srv import ChangeState
 from rcl_interfaces.srv import SetParameters
@@ -40,6 +39,7 @@ from msg_defs.srv import (
     WriteParameter,
 )
 
+from ..support.fixtures import client_fixture
 from ..support.ros import (
     LATCHED,
     ROOT,
@@ -48,7 +48,6 @@ from ..support.ros import (
     node_process,
     refused_at_start,
     ros_args,
-    ros_client,
     unique_namespace,
     values_of,
     wait_for,
@@ -175,15 +174,10 @@ class MotecBridge:
         assert not reply.success and "refused" in reply.message, reply.message
 
 
-@pytest.fixture
-def client() -> Iterator[Client]:
-    # One per test: the last test of the module, under heavy load, twice missed messages
-    # a long-lived client had subscribed to (cause not found; a fresh one carries none of
-    # the earlier tests' subscriptions and /rosout history).
-    with ros_client("motec_client") as c:
-        c.subscribe(DiagnosticArray, "/diagnostics")
-        c.subscribe_log()
-        yield c
+# One per test: the last test of the module, under heavy load, twice missed messages
+# a long-lived client had subscribed to (cause not found; a fresh one carries none of
+# the earlier tests' subscriptions and /rosout history).
+client = client_fixture("motec_client", diagnostics=True, log=True)
 
 
 @pytest.fixture

@@ -26,11 +26,11 @@ from msg_defs.srv import ClearAlarmAndNext, ReadDataSource, UploadPoints
 from r6_bridge.registers import COMMANDS, MAX_AXES, R6_MAP
 from r6_bridge.sim import R6SimDevice, make_simulator
 
+from ..support.fixtures import client_fixture
 from ..support.ros import (
     Bridge,
     Client,
     node_process,
-    ros_client,
     start_bridge,
     unique_namespace,
 )
@@ -45,11 +45,7 @@ POINT_COUNT = R6_MAP["point_count"].address
 FRAME_DELAY_S = 0.01  # the simulated controller takes this long over each point frame
 
 
-@pytest.fixture
-def client() -> Iterator[Client]:
-    with ros_client("r6_action_client") as c:
-        c.subscribe_log()
-        yield c
+client = client_fixture("r6_action_client", log=True)
 
 
 @pytest.fixture

@@ -49,11 +49,11 @@ from r6_bridge.registers import COMMANDS, R6_MAP, parameter_address
 from r6_bridge.sim import IGNORABLE, R6SimDevice, make_simulator
 
 from ..support.bridges import BRIDGES, SimProcess
+from ..support.fixtures import client_fixture
 from ..support.ros import (
     Bridge,
     Client,
     node_process,
-    ros_client,
     start_bridge,
     unique_namespace,
     wait_for,
@@ -311,11 +311,7 @@ def test_a_cycle_between_two_polls_is_not_claimed_before_2401_was_seen(
 
 
 # ---------------------------------------------------------------- the node
-@pytest.fixture(scope="module")
-def client() -> Iterator[Client]:
-    with ros_client("r6_personality_client") as c:
-        c.subscribe_log()
-        yield c
+client = client_fixture("r6_personality_client", log=True, scope="module")
 
 
 def node_params(port: int, **more: Any) -> dict[str, Any]:

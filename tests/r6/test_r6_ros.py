@@ -15,7 +15,6 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from diagnostic_msgs.msg import DiagnosticArray
 from std_srvs.srv import Trigger
 
 from bridge_core.sim.serving import Simulator
@@ -38,7 +37,8 @@ from msg_defs.srv import (
 from r6_bridge.registers import COMMANDS, R6_MAP
 from r6_bridge.sim import R6SimDevice, make_simulator
 
-from ..support.ros import WAIT_S, Client, ros_client, start_bridge, values_of, wait_for
+from ..support.fixtures import client_fixture
+from ..support.ros import WAIT_S, Client, start_bridge, values_of, wait_for
 
 pytestmark = pytest.mark.ros
 
@@ -52,11 +52,7 @@ STAMP_POLLS = 5  # polls collected on each topic
 STAMP_SLACK_S = 0.001  # clock reading and float rounding between two processes' stamps
 
 
-@pytest.fixture(scope="module")
-def client() -> Iterator[Client]:
-    with ros_client() as c:
-        c.subscribe(DiagnosticArray, "/diagnostics")
-        yield c
+client = client_fixture(diagnostics=True, scope="module")
 
 
 @pytest.fixture

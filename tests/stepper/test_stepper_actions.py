@@ -22,7 +22,8 @@ from msg_defs.srv import LineMove, SetHomingOrder
 from stepper_bridge.registers import MOTORS, motor_coil, motor_register
 from stepper_bridge.sim import START_POSITION, TRAVEL, StepperSimDevice
 
-from ..support.ros import Client, ros_client
+from ..support.fixtures import client_fixture
+from ..support.ros import Client
 from ..support.sims import stepper_on_pty
 from .test_stepper_ros import BAUD, bridge, writes
 
@@ -32,11 +33,7 @@ FAST_RPM = 600  # x lead 5.00 = 50 units (mm) a second
 MM = 0.001  # m per controller unit (units_per_meter 1000)
 
 
-@pytest.fixture
-def client() -> Iterator[Client]:
-    with ros_client("stepper_action_client") as c:
-        c.subscribe_log()
-        yield c
+client = client_fixture("stepper_action_client", log=True)
 
 
 @pytest.fixture

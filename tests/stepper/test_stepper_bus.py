@@ -5,17 +5,16 @@ one socat pty pair, driven by an rclpy client in this process."""
 from __future__ import annotations
 
 import functools
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from diagnostic_msgs.msg import DiagnosticArray
 
 from bridge_core.wire.registers import Table
 from msg_defs.msg import StepperState
 from msg_defs.srv import MoveBy
 from stepper_bridge.sim import StepperSimDevice, make_bus_simulator
 
+from ..support.fixtures import client_fixture
 from ..support.ros import (
     WAIT_S,
     Bridge,
@@ -23,7 +22,6 @@ from ..support.ros import (
     node_process,
     refused_at_start,
     ros_args,
-    ros_client,
     unique_namespace,
     values_of,
     wait_for,
@@ -36,11 +34,7 @@ BAUD = 115200
 UNITS = (1, 3)
 
 
-@pytest.fixture(scope="module")
-def client() -> Iterator[Client]:
-    with ros_client("stepper_bus_client") as c:
-        c.subscribe(DiagnosticArray, "/diagnostics")
-        yield c
+client = client_fixture("stepper_bus_client", diagnostics=True, scope="module")
 
 
 def params_file(tmp_path: Path, port: str) -> Path:

@@ -16,12 +16,10 @@ import shutil
 import subprocess
 import threading
 import time
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
-from diagnostic_msgs.msg import DiagnosticArray
 from pymodbus.framer import FramerRTU
 from std_srvs.srv import Trigger
 
@@ -29,7 +27,8 @@ from bridge_core.sim.pty_pair import end_socat
 from msg_defs.msg import StepperState
 from stepper_bridge.sim import StepperSimDevice, make_simulator
 
-from ..support.ros import WAIT_S, Bridge, Client, ros_client, start_bridge, values_of, wait_for
+from ..support.fixtures import client_fixture
+from ..support.ros import WAIT_S, Bridge, Client, start_bridge, values_of, wait_for
 from ..support.serial_pair import socat_pair
 
 pytestmark = pytest.mark.ros
@@ -125,11 +124,7 @@ class Relay:
         os.close(self._b)
 
 
-@pytest.fixture(scope="module")
-def client() -> Iterator[Client]:
-    with ros_client("stepper_fault_client") as c:
-        c.subscribe(DiagnosticArray, "/diagnostics")
-        yield c
+client = client_fixture("stepper_fault_client", diagnostics=True, scope="module")
 
 
 def status_after(b: Bridge, since: float, level: int, **expect: Any) -> Any:

@@ -18,7 +18,6 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from diagnostic_msgs.msg import DiagnosticArray
 from std_msgs.msg import Float64
 
 from bridge_core.sim.logs import WriteRecord
@@ -29,11 +28,11 @@ from stepper_bridge.registers import STEPPER_MAP, motor_coil, motor_register
 from stepper_bridge.sim import StepperSimDevice
 
 from ..support.bridges import BRIDGES, SimProcess
+from ..support.fixtures import client_fixture
 from ..support.ros import (
     WAIT_S,
     Bridge,
     Client,
-    ros_client,
     start_bridge,
     wait_for,
     wait_subscribed,
@@ -71,12 +70,7 @@ H, C = Table.HOLDING, Table.COIL
 Write = tuple[int, Table, int, tuple[int, ...]]
 
 
-@pytest.fixture(scope="module")
-def client() -> Iterator[Client]:
-    with ros_client("stepper_flood_client") as c:
-        c.subscribe(DiagnosticArray, "/diagnostics")
-        c.subscribe_log()
-        yield c
+client = client_fixture("stepper_flood_client", diagnostics=True, log=True, scope="module")
 
 
 @pytest.fixture

@@ -54,12 +54,12 @@ from stepper_bridge.sim import (
     make_simulator,
 )
 
+from ..support.fixtures import client_fixture
 from ..support.ros import (
     WAIT_S,
     Bridge,
     Client,
     node_process,
-    ros_client,
     start_bridge,
     unique_namespace,
     wait_for,
@@ -189,11 +189,7 @@ MM = 0.001  # m per controller unit (units_per_meter 1000)
 ROS_BAUD = 115200
 
 
-@pytest.fixture
-def client() -> Iterator[Client]:
-    with ros_client("stepper_personality_client") as c:
-        c.subscribe_log()
-        yield c
+client = client_fixture("stepper_personality_client", log=True)
 
 
 @pytest.fixture

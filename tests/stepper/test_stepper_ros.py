@@ -11,7 +11,6 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from diagnostic_msgs.msg import DiagnosticArray
 from std_msgs.msg import Float64
 from std_srvs.srv import SetBool, Trigger
 
@@ -32,12 +31,12 @@ from msg_defs.srv import (
 )
 from stepper_bridge.sim import START_POSITION, StepperSimDevice, make_simulator
 
+from ..support.fixtures import client_fixture
 from ..support.ros import (
     WAIT_S,
     Bridge,
     Client,
     refused_at_start,
-    ros_client,
     start_bridge,
     unique_namespace,
     values_of,
@@ -57,15 +56,10 @@ TIMEOUT_S = 1.0
 COMMAND_TIMEOUT_S = 1.5
 
 
-@pytest.fixture
-def client() -> Iterator[Client]:
-    # One per test, as the MOTEC tests: beside two CPU burners a long-lived client once
-    # heard nothing from the third bridge of this module on (cause not found; a fresh
-    # client carries no other test's subscriptions, discovery or /rosout history).
-    with ros_client("stepper_client") as c:
-        c.subscribe(DiagnosticArray, "/diagnostics")
-        c.subscribe_log()
-        yield c
+# One per test, as the MOTEC tests: beside two CPU burners a long-lived client once
+# heard nothing from the third bridge of this module on (cause not found; a fresh
+# client carries no other test's subscriptions, discovery or /rosout history).
+client = client_fixture("stepper_client", diagnostics=True, log=True)
 
 
 @pytest.fixture

@@ -7,12 +7,10 @@ from __future__ import annotations
 
 import re
 import time
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
-from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.srv import SetParameters
 from rclpy.parameter import Parameter
 
@@ -21,7 +19,8 @@ from msg_defs.msg import StepperState
 from stepper_bridge.registers import REPLY_DELAY_S
 from stepper_bridge.sim import make_simulator
 
-from ..support.ros import WAIT_S, Client, ros_client, start_bridge, values_of, wait_for
+from ..support.fixtures import client_fixture
+from ..support.ros import WAIT_S, Client, start_bridge, values_of, wait_for
 
 pytestmark = pytest.mark.ros
 
@@ -34,12 +33,7 @@ SLOW_WAIT_S = 3 * WAIT_S
 WARN = re.compile(r"poll_rate_hz (\S+) needs (\d+)% of the wire .* carries about ([\d.]+) Hz")
 
 
-@pytest.fixture
-def client() -> Iterator[Client]:
-    with ros_client("wire_budget_client") as c:
-        c.subscribe(DiagnosticArray, "/diagnostics")
-        c.subscribe_log()
-        yield c
+client = client_fixture("wire_budget_client", diagnostics=True, log=True)
 
 
 def warnings(client: Client, node: str) -> list[re.Match[str]]:

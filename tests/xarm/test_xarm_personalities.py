@@ -20,7 +20,6 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from diagnostic_msgs.msg import DiagnosticArray
 from lifecycle_msgs.msg import Transition
 from lifecycle_msgs.srv import ChangeState
 from rcl_interfaces.srv import SetParameters
@@ -41,12 +40,12 @@ from xarm_bridge.registers import COIL_PAUSED, COIL_STOPPED, ENABLE_FIRST
 from xarm_bridge.sim import IN_MOTION, PAUSED, SLEEPING, STOPPED, XArmSimDevice, make_simulator
 
 from ..core.sim.test_sim_strict import tcp_request
+from ..support.fixtures import client_fixture
 from ..support.ros import (
     WAIT_S,
     Bridge,
     Client,
     node_process,
-    ros_client,
     unique_namespace,
     values_of,
     wait_for,
@@ -301,12 +300,7 @@ def test_fc06_reply_is_the_echo_of_the_request() -> None:
 
 
 # ---------------------------------------------------------------- contract rows (ROS)
-@pytest.fixture(scope="module")
-def client() -> Iterator[Client]:
-    with ros_client("xarm_personality_client") as c:
-        c.subscribe(DiagnosticArray, "/diagnostics")
-        c.subscribe_log()
-        yield c
+client = client_fixture("xarm_personality_client", diagnostics=True, log=True, scope="module")
 
 
 @contextmanager

@@ -9,7 +9,6 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from diagnostic_msgs.msg import DiagnosticArray
 from std_srvs.srv import Trigger
 
 from bridge_core.wire.registers import Table
@@ -25,7 +24,8 @@ from msg_defs.srv import (
 )
 from xarm_bridge.sim import IN_MOTION, PAUSED, SLEEPING, STOPPED, XArmSimDevice, make_simulator
 
-from ..support.ros import Client, refused_at_start, ros_client, start_bridge, values_of
+from ..support.fixtures import client_fixture
+from ..support.ros import Client, refused_at_start, start_bridge, values_of
 
 pytestmark = pytest.mark.ros
 
@@ -33,11 +33,7 @@ pytestmark = pytest.mark.ros
 TIMEOUT_S = 1.0
 
 
-@pytest.fixture(scope="module")
-def client() -> Iterator[Client]:
-    with ros_client("xarm_client") as c:
-        c.subscribe(DiagnosticArray, "/diagnostics")
-        yield c
+client = client_fixture("xarm_client", diagnostics=True, scope="module")
 
 
 @pytest.fixture

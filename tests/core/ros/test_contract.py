@@ -29,7 +29,6 @@ from typing import Any
 
 import pytest
 import yaml  # type: ignore[import-untyped]
-from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.srv import GetParameters, ListParameters, SetParameters
 from rclpy.node import NodeNameNonExistentError
 from rclpy.parameter import Parameter, parameter_value_to_python
@@ -44,6 +43,7 @@ from msg_defs.srv import ReadRegisters, SetValue
 
 from ...support import forkserver
 from ...support.bridges import BRIDGES, BridgeInfo, Call, JointCommandRow, SimProcess
+from ...support.fixtures import client_fixture
 from ...support.ros import (
     LATCHED,
     ROOT,
@@ -51,7 +51,6 @@ from ...support.ros import (
     Client,
     node_process,
     refused_at_start,
-    ros_client,
     start_bridge,
     status_node,
     until_sent,
@@ -266,11 +265,7 @@ def running(
         sim.stop()
 
 
-@pytest.fixture(scope="module")
-def client() -> Iterator[Client]:
-    with ros_client("contract_client") as c:
-        c.subscribe(DiagnosticArray, "/diagnostics")
-        yield c
+client = client_fixture("contract_client", diagnostics=True, scope="module")
 
 
 @pytest.fixture(scope="module", params=ALL, ids=IDS)

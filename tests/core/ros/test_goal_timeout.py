@@ -8,7 +8,6 @@ leave the motor running for ever: with ``timeout_s`` 0 the goal gets the node's 
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -22,7 +21,8 @@ from r6_bridge.registers import COMMANDS, MAX_AXES
 from r6_bridge.sim import R6SimDevice, make_simulator
 from stepper_bridge.registers import motor_coil
 
-from ...support.ros import Client, ros_client, start_bridge
+from ...support.fixtures import client_fixture
+from ...support.ros import Client, start_bridge
 from ...support.serial_pair import PTY_REPLY_TIMEOUT_S
 from ...support.sims import stepper_on_pty
 
@@ -36,10 +36,7 @@ GOAL_TIMEOUT_S = 1.5
 R6_PROGRAM = ((15.0,) * MAX_AXES, (0.0,) * MAX_AXES)
 
 
-@pytest.fixture
-def client() -> Iterator[Client]:
-    with ros_client("goal_timeout_client") as c:
-        yield c
+client = client_fixture("goal_timeout_client")
 
 
 def test_a_goal_without_timeout_ends_at_the_nodes_goal_timeout(

@@ -20,7 +20,7 @@ import os
 import signal
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -39,12 +39,12 @@ from msg_defs.msg import MotecState, StepperState
 from msg_defs.srv import SetControlMode
 from stepper_bridge.registers import STEPPER_MAP, motor_coil
 
+from ...support.fixtures import client_fixture
 from ...support.ros import (
     WAIT_S,
     Bridge,
     Client,
     node_process,
-    ros_client,
     unique_namespace,
     values_of,
     wait_for,
@@ -70,10 +70,7 @@ SPEED_SETPOINT = 0xAE  # MOTEC speed setpoint register
 DIAGNOSTIC_PERIOD_S = 0.1
 
 
-@pytest.fixture
-def client() -> Iterator[Client]:
-    with ros_client("halt_race_client") as c:
-        yield c
+client = client_fixture("halt_race_client")
 
 
 def stepper_params(port: str) -> dict[str, object]:

@@ -36,7 +36,8 @@ from motec_bridge.interface import drive_parameters
 from stepper_bridge.sim import make_bus_simulator
 
 from ...support.bridges import BRIDGES, RTU_BAUD, SimProcess
-from ...support.ros import ROOT, Client, node_process, ros_client, unique_namespace, wait_for
+from ...support.fixtures import client_fixture
+from ...support.ros import ROOT, Client, node_process, unique_namespace, wait_for
 from ...support.serial_pair import served_on_pty
 
 pytestmark = pytest.mark.ros
@@ -132,10 +133,7 @@ RUNS: dict[str, Callable[[Path], Any]] = {
 }
 
 
-@pytest.fixture(scope="module")
-def client() -> Iterator[Client]:
-    with ros_client("interface_client") as c:
-        yield c
+client = client_fixture("interface_client", scope="module")
 
 
 def test_every_executable_is_listed_and_checked() -> None:

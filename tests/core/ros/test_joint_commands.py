@@ -21,7 +21,6 @@ from collections.abc import Callable, Iterator, Mapping, Sequence
 from typing import Any
 
 import pytest
-from diagnostic_msgs.msg import DiagnosticArray
 from lifecycle_msgs.msg import Transition
 from lifecycle_msgs.srv import ChangeState
 from rcl_interfaces.srv import SetParameters
@@ -41,6 +40,7 @@ from stepper_bridge.interface import JOG_WRITE_RATE_HZ
 from stepper_bridge.node import reply_timeout_floor_s
 from stepper_bridge.registers import motor_coil
 
+from ...support.fixtures import client_fixture
 from ...support.joint_rigs import (
     AXES,
     COMMAND_TIMEOUT_S,
@@ -53,7 +53,6 @@ from ...support.joint_rigs import (
 from ...support.ros import (
     WAIT_S,
     Client,
-    ros_client,
     status_node,
     values_of,
     wait_for,
@@ -110,12 +109,7 @@ AXES_STEP_M = 1e-5  # lift_target's 0.01 mm
 AXES_DISTANCE_TOLERANCE_RAD = 0.8  # of 8 rad: whole rpm, 10 Hz, a 0.1 s lag
 
 
-@pytest.fixture(scope="module")
-def client() -> Iterator[Client]:
-    with ros_client("joint_commands_client") as c:
-        c.subscribe(DiagnosticArray, "/diagnostics")
-        c.subscribe_log()
-        yield c
+client = client_fixture("joint_commands_client", diagnostics=True, log=True, scope="module")
 
 
 @pytest.fixture(scope="module")

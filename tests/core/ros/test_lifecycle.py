@@ -8,7 +8,6 @@ shutdown follow. The MOTEC bus and drive nodes are managed the same way (each it
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -22,11 +21,11 @@ from bridge_core.wire.registers import Table
 from stepper_bridge.registers import holding, motor_coil
 from stepper_bridge.sim import StepperSimDevice, make_simulator
 
+from ...support.fixtures import client_fixture
 from ...support.ros import (
     WAIT_S,
     Client,
     node_process,
-    ros_client,
     unique_namespace,
     wait_for,
     wait_subscribed,
@@ -38,10 +37,7 @@ pytestmark = pytest.mark.ros
 BAUD = 115200
 
 
-@pytest.fixture(scope="module")
-def client() -> Iterator[Client]:
-    with ros_client("lifecycle_client") as c:
-        yield c
+client = client_fixture("lifecycle_client", scope="module")
 
 
 def state(client: Client, node: str) -> str:

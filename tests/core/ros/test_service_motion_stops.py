@@ -41,6 +41,7 @@ from xarm_bridge.registers import COIL_STOPPED
 from xarm_bridge.sim import IN_MOTION, XArmSimDevice
 from xarm_bridge.sim import make_simulator as make_xarm
 
+from ...support.fixtures import client_fixture
 from ...support.ros import (
     WAIT_S,
     Bridge,
@@ -48,7 +49,6 @@ from ...support.ros import (
     exit_complaints,
     node_log,
     node_process,
-    ros_client,
     unique_namespace,
     wait_for,
 )
@@ -66,10 +66,7 @@ IN_FLIGHT_DELAY_S = 0.4
 IN_FLIGHT_LEAD_S = 0.3
 
 
-@pytest.fixture(scope="module")
-def client() -> Iterator[Client]:
-    with ros_client("service_motion_client") as c:
-        yield c
+client = client_fixture("service_motion_client", scope="module")
 
 
 @dataclass

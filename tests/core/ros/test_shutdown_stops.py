@@ -25,7 +25,8 @@ from msg_defs.srv import SetControlMode
 from stepper_bridge.registers import STEPPER_MAP, motor_coil
 from stepper_bridge.sim import StepperSimDevice
 
-from ...support.ros import Bridge, Client, node_process, ros_client, wait_for
+from ...support.fixtures import client_fixture
+from ...support.ros import Bridge, Client, node_process, wait_for
 from ...support.serial_pair import served_on_pty
 from ...support.sims import stepper_on_pty
 
@@ -35,10 +36,7 @@ BAUD = 115200
 EXIT_TIMEOUT_S = 20.0
 
 
-@pytest.fixture(scope="module")
-def client() -> Iterator[Client]:
-    with ros_client("shutdown_client") as c:
-        yield c
+client = client_fixture("shutdown_client", scope="module")
 
 
 @pytest.fixture

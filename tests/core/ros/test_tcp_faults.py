@@ -10,12 +10,10 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
-from diagnostic_msgs.msg import DiagnosticArray
 from std_srvs.srv import Trigger
 
 from bridge_core.ros.node_base import LINK_DOWN_LOG_PERIOD_S
@@ -23,11 +21,11 @@ from bridge_core.sim.logs import read_write_log
 from bridge_core.wire.ports import free_port
 from msg_defs.msg import R6State, XArmState
 
+from ...support.fixtures import client_fixture
 from ...support.ros import (
     ROOT,
     Client,
     node_process,
-    ros_client,
     start_bridge,
     unique_namespace,
     values_of,
@@ -44,12 +42,7 @@ DEVICES = [
 ]
 
 
-@pytest.fixture(scope="module")
-def client() -> Iterator[Client]:
-    with ros_client("fault_client") as c:
-        c.subscribe(DiagnosticArray, "/diagnostics")
-        c.subscribe_log()
-        yield c
+client = client_fixture("fault_client", diagnostics=True, log=True, scope="module")
 
 
 @pytest.mark.parametrize(("package", "state_type", "command", "sim_args"), DEVICES)
