@@ -15,9 +15,8 @@ from bridge_core.wire.errors import CommandRejected
 from modbus_bridge import sim as sim_command
 from modbus_bridge.description import DescriptionError, load
 from modbus_bridge.sim import DescribedSimDevice
-from tests.core.runtime.test_poller import FakeChannel, FakeDevice
 
-from ..support.fakes import FakeClock
+from ..support.fakes import FakeChannel, FakeClock, FakeDevice
 from .test_modbus_sim import over_tcp, wait_for
 from .test_round2 import INVERTER, MULTIDROP, VFD
 

@@ -1,7 +1,13 @@
 """Fakes the plain-Python unit tests share: one clock for the code that takes a
-``clock: Callable[[], float]`` (the monotonic time it reads), set by hand."""
+``clock: Callable[[], float]`` (the monotonic time it reads), set by hand; a channel and a
+device for the poller (tests/core/runtime/test_poller.py, tests/modbus/test_round3.py)."""
 
 from __future__ import annotations
+
+import contextlib
+
+from bridge_core.wire.errors import DeviceException, LinkError
+from bridge_core.wire.link_state import LinkState
 
 
 class FakeClock:
@@ -12,3 +18,56 @@ class FakeClock:
 
     def __call__(self) -> float:
         return self.now
+
+
+class FakeChannel:
+    """may_attempt / connected / link_state as a DeviceChannel would report them."""
+
+    def __init__(self) -> None:
+        self.link_state = LinkState()
+        self.backoff_elapsed = True
+
+    @property
+    def connected(self) -> bool:
+        return self.link_state.connected
+
+    @connected.setter
+    def connected(self, up: bool) -> None:
+        # As DeviceChannel: an answer, or a failure (a poll's or a command's).
+        if up:
+            self.link_state.answered()
+        else:
+            self.link_state.went_down("no reply")
+
+    def command_session(self, *, probe: bool = False) -> contextlib.AbstractContextManager[int]:
+        return contextlib.nullcontext(self.link_state.epoch)
+
+    def may_attempt(self) -> bool:
+        return self.connected or self.backoff_elapsed
+
+
+class FakeDevice:
+    """Raises the queued errors one poll at a time, else returns a counter snapshot."""
+
+    def __init__(self, channel: FakeChannel) -> None:
+        self.channel = channel
+        self.errors: list[Exception] = []
+        self.polls = 0
+        self.link_ups = 0
+        self.replans = 0
+
+    def poll(self) -> int:
+        self.polls += 1
+        if self.errors:
+            error = self.errors.pop(0)
+            if isinstance(error, LinkError) and not isinstance(error, DeviceException):
+                self.channel.connected = False  # as the channel marks it down
+            raise error
+        self.channel.connected = True
+        return self.polls
+
+    def link_up(self) -> None:
+        self.link_ups += 1
+
+    def replan(self) -> None:
+        self.replans += 1
