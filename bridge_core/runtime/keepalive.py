@@ -5,7 +5,7 @@ and under a command flood or a slow subscriber the executor runs late by more th
 watchdog's margin. This thread sleeps until the next feed is due, then waits only for the
 link, where feeds go first (``Priority.KEEPALIVE``). So the longest gap between two feeds
 is bounded by the feed period, ``FEED_WAKE_S`` and the line, which is what a watchdog time
-is checked against (``motec_bridge.device.lifeguard_min_ms``).
+is checked against (``motec_bridge.lifeguard.lifeguard_min_ms``).
 
 Plain Python (no ROS): the owner says when the next feed is due and how to feed.
 """

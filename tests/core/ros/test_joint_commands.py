@@ -886,6 +886,7 @@ def position_after_a_stop(
         now[0] = lambda: here  # the controller holds the joint where it stands: unlocked
         time.sleep(hold_here_s)
         goal = here + distance / 4
+        ramp_writes = len(rig.writes())
         t1 = time.monotonic()
         again = ramp(here, [(1.0, goal)])
         now[0] = lambda: again(time.monotonic() - t1)
@@ -897,8 +898,15 @@ def position_after_a_stop(
     finally:
         end()
         s.close()
-    quiet = len(rig.writes())
-    wait_for(lambda: any(stops(r) for r in rig.writes(quiet)), WAIT_S, f"{joint}'s deadman")
+    # The deadman's stop comes a timeout after the last message; at the default threshold
+    # the interface falls silent once the joint sits on its goal, so the stop may already
+    # lie behind us: looked for from the new ramp on, past the last message's timeout.
+    silent_from = s.sent[-1].wall_before + COMMAND_TIMEOUT_S * 0.9
+    wait_for(
+        lambda: any(stops(r) and r.time >= silent_from for r in rig.writes(ramp_writes)),
+        WAIT_S,
+        f"{joint}'s deadman",
+    )
     print(f"{joint}: stopped {here - start:+.5f} from the start, then moved to the new end")
 
 
