@@ -6,7 +6,8 @@ Modbus traffic: ``--device r6`` a 6-joint JointState, an R6State and a PoseStamp
 array sizes the xArm bridge fills and a PoseStamped; ``--device modbus`` a 7-joint
 JointState and a DeviceValues of the xArm description's readable registers (no pose:
 modbus_bridge publishes none). The bench
-(``bench/bridge_bench.py``) reads this process's CPU from /proc to get "floor A".
+(``bench/bridge_bench.py``'s cpu phase, bench/cpu_phase.py) reads this process's CPU from
+/proc to get "floor A".
 
     python bench/floor_rclpy_publisher.py [--device r6|xarm|modbus] [--rate 100]
         [--executor single|multi|events] [--ros-args ...]

@@ -9,7 +9,7 @@ way, requests in flight overlap; docs/architecture.md, "Pipelined Modbus TCP") t
 simulator runs in a process of its own, and this process polls it as fast as it can:
 
 - ``bare``: a bare sync pymodbus ``ModbusTcpClient`` loop issuing the device's full poll
-  plan (R6 13 reads, xArm 8), one request at a time (bench/bridge_bench.py's bare loop
+  plan (R6 13 reads, xArm 8), one request at a time (bench/bare_loops.py's bare loop
   reads the device's rate groups instead, as the node does);
 - ``N``: the device layer (``R6Device.poll`` / ``XArmDevice.poll``: the fast group every
   poll, the slow group once a second) through a ``DeviceChannel`` with ``max_in_flight``
@@ -50,7 +50,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from bench.bridge_bench import PROFILES  # noqa: E402
+from bench.bridge_profiles import PROFILES  # noqa: E402
 from bench.change_probe import answer_changes  # noqa: E402
 from bridge_core.runtime.rate_groups import SLOW_POLL_PERIOD_DEFAULT_S  # noqa: E402
 from bridge_core.wire.channel import DeviceChannel  # noqa: E402
@@ -157,8 +157,8 @@ def serve_controlled(
 ) -> None:
     """The device's simulator on a free port with the simulated round trip, until ``stop``
     is set (a process of its own): sends the port, then sets joint 1 (the register of
-    bridge_bench.py's profile) to each value ``control`` brings
-    (``change_probe.answer_changes``). Built as bridge_bench.py's latency phase builds it
+    bridge_profiles.py's profile) to each value ``control`` brings
+    (``change_probe.answer_changes``). Built as latency_phase.py (bridge_bench.py) builds it
     (``make_simulator``: R6 not running, xArm sleeping, so its tick leaves the joints
     alone), not through its command line (``simulator``), so its registers can be set."""
     profile = PROFILES[name]

@@ -22,7 +22,7 @@ measures nothing of its own: it composes the benches that do (bench/README.md).
    a bare sync pymodbus loop issuing the device layer's own plan (its fast group every
    poll, its slow group once a second: ``pipelining.device_groups``), and the device
    layer with ``max_in_flight`` 1, 4 and 13.
-3. node (``bridge_bench.measure_node`` / ``phase_latency``): the bridge node itself for
+3. node (``node_measure.measure_node`` / ``latency_phase.phase_latency``): the node for
    TCP cases (R6, xArm; ``--node all`` every TCP case, ``some`` R6 at the largest round
    trip with N = 1 and the largest): its poll rate at ``poll_rate_hz`` 1000 without a
    subscriber, its CPU per poll, and register -> ``joint_states`` at 100 Hz.
