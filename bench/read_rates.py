@@ -10,7 +10,7 @@ pipelined Modbus TCP against one request at a time and a bare pymodbus loop.
 Prints three tables and writes bench/results/read_rates.json; asserts nothing. It
 measures nothing of its own: it composes the benches that do (bench/README.md).
 
-1. RTU (``rtu_devices.saturated_run``): the stepper at 9600 baud with 35 ms replies and
+1. RTU (``rtu_saturated.saturated_run``): the stepper at 9600 baud with 35 ms replies and
    MOTEC with 1 / 3 / 8 drives on one bus at 115200, the bridges' device layers polled
    back to back by the nodes' own poller (``NodePoller``) through one ``ModbusLink`` on
    the emulated byte-timed line (``line_relay.py``), against the bridges' simulators.
@@ -27,10 +27,10 @@ measures nothing of its own: it composes the benches that do (bench/README.md).
    trip with N = 1 and the largest): its poll rate at ``poll_rate_hz`` 1000 without a
    subscriber, its CPU per poll, and register -> ``joint_states`` at 100 Hz.
 
-How "today's plan" is emulated (``rtu_devices.read_whole_map``, bench only): the
+How "today's plan" is emulated (``rtu_pollers.read_whole_map``, bench only): the
 device is built as the bridge builds it, then its ``PollGroups`` get, through their
 public ``set_plans``, one fast plan covering every register of both groups (planned as
-one by the bridges' planner, ``rtu_devices.whole_map_plan``) and no slow group. Every
+one by the bridges' planner, ``rtu_pollers.whole_map_plan``) and no slow group. Every
 poll then makes the requests a poll made before the rate groups (the tree before
 dc8e5b1: stepper 4 requests, MOTEC 4; with the groups 3 and 2 a poll, plus the slow
 group's 1 and 2 once a second). No bridge code changes: the bridges keep their groups.
@@ -95,14 +95,14 @@ from bench.pipelining import (  # noqa: E402
     device_groups,
     device_rate,
 )
-from bench.rtu_devices import (  # noqa: E402
+from bench.rtu_pollers import (  # noqa: E402
     MOTEC_BAUD,
     MOTEC_TIMEOUT_S,
     STEPPER_TIMEOUT_S,
     NodePoller,
-    saturated_run,
     whole_map_plan,
 )
+from bench.rtu_saturated import saturated_run  # noqa: E402
 from bench.rtu_wire import transaction_wire_s  # noqa: E402
 from bridge_core.runtime.rate_groups import SLOW_POLL_PERIOD_DEFAULT_S  # noqa: E402
 from bridge_core.runtime.reads import as_request  # noqa: E402
