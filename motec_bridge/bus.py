@@ -12,24 +12,36 @@ and ``~/joint_commands`` (one topic for every drive, joint_commands.py).
 from __future__ import annotations
 
 import functools
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 from std_srvs.srv import Trigger
 
 from bridge_core.ros.joint_commands import JointCommandTopic
 from bridge_core.ros.process import BusNode
+from bridge_core.runtime.joint_commands import CommandJoint
 from bridge_core.wire.channel import DeviceChannel
 from bridge_core.wire.errors import CommandRejected, ConfigurationError, LinkError
 from bridge_core.wire.requests import Span
 
 from .broadcast import disable_all, start_all
+from .device import MotecDevice
 from .interface import BUS_PARAMETERS, MOTEC_DEFAULTS
 from .registers import BROADCAST_UNIT, INTERFACE_RS232, MAX_DRIVES, UNIT_IDS
 
-if TYPE_CHECKING:
-    from .node import MotecDriveNode
-
 BUS_NODE_NAME = "motec_bridge"
+
+
+class BusDrive(Protocol):
+    """What the bus owner uses of a drive node of its line (``MotecDriveNode``), named
+    here so the drive node's module imports this one and never the other way round."""
+
+    @property
+    def device(self) -> MotecDevice: ...
+
+    @property
+    def read_only(self) -> bool: ...
+
+    def command_joint(self) -> CommandJoint: ...
 
 
 class MotecBusNode(BusNode):
@@ -63,7 +75,7 @@ class MotecBusNode(BusNode):
         for unit, channel in self.drive_channels.items():
             channel.add_write_listener(functools.partial(self._drive_written, unit))
         # The drive nodes of this process (build_nodes): start_all obeys their read_only.
-        self.drive_nodes: dict[int, MotecDriveNode] = {}
+        self.drive_nodes: dict[int, BusDrive] = {}
         self.create_service(Trigger, "~/disable_all", self._disable_all)
         self.create_service(Trigger, "~/start_all", self._start_all)
 

@@ -9,18 +9,57 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 
-from bridge_core.ros.node_services import Command, Started, trigger
+from bridge_core.ros.node_actions import ActionHost
+from bridge_core.ros.node_services import Command, ServiceHost, Started, trigger
 from bridge_core.runtime.checks import board_zero_index, listed
 from bridge_core.wire.errors import CommandRejected
 
+from .device import StepperDevice
 from .interface import ACTIONS, EXPANSION, SERVICES
 from .motions import CoilMotion, HomeMotion, InterpolationMotion, MoveByMotion
 from .registers import INTERPOLATION_PAIRS, MOTOR_FORBIDDEN_DURING_INTERPOLATION, MOTORS
+from .snapshots import StepperSnapshot
+from .units import JointScale
 
 if TYPE_CHECKING:
-    from .node import StepperBridgeNode
+    from rclpy.impl.rcutils_logger import RcutilsLogger
+
+T = TypeVar("T")
+
+
+class StepperServicesOwner(Protocol):
+    """What the services and actions here use of their node (``StepperBridgeNode``),
+    named here so the node imports this module and never the other way round."""
+
+    @property
+    def device(self) -> StepperDevice: ...
+
+    @property
+    def scales(self) -> Sequence[JointScale]: ...
+
+    @property
+    def goal_tolerance(self) -> float: ...
+
+    @property
+    def zero_after_home(self) -> bool: ...
+
+    @property
+    def last_snapshot(self) -> StepperSnapshot | None: ...
+
+    @property
+    def command_services(self) -> ServiceHost: ...
+
+    @property
+    def actions(self) -> ActionHost: ...
+
+    def to_units(self, motor: int, si: float) -> float: ...
+
+    def run_command(self, what: str, action: Callable[[], T]) -> tuple[bool, str, T | None]: ...
+
+    def get_logger(self) -> RcutilsLogger: ...
+
 
 # Axes of the node's motion ledger (what services set moving; a halt stops them).
 ALL_MOTORS = "all motors"  # home_all / return_to_zero
@@ -37,7 +76,7 @@ CLEAR_ALL_WARNING = (
 
 
 # ------------------------------------------------------------ services
-def create_services(node: StepperBridgeNode) -> None:
+def create_services(node: StepperServicesOwner) -> None:
     """A service per row of ``interface.SERVICES``, each answered by its handler here
     (a per-motor row's: a function of the motor)."""
     d = node.device
@@ -187,7 +226,7 @@ def create_services(node: StepperBridgeNode) -> None:
     )
 
 
-def _stop_every_motor(node: StepperBridgeNode) -> str:
+def _stop_every_motor(node: StepperServicesOwner) -> str:
     """Each motor's own stop coil (not the e-stop, which also switches every output
     off), every one tried, then the running flags read back: what a halt sends after
     a service's ``home_all`` / ``return_to_zero``."""
@@ -195,7 +234,7 @@ def _stop_every_motor(node: StepperBridgeNode) -> str:
 
 
 # ------------------------------------------------------------ actions
-def create_actions(node: StepperBridgeNode) -> None:
+def create_actions(node: StepperServicesOwner) -> None:
     """The timed motions as actions (docs/actions.md), beside their services: one per
     row of ``interface.ACTIONS``."""
     d = node.device
@@ -241,7 +280,7 @@ def create_actions(node: StepperBridgeNode) -> None:
 
 
 def _zero(
-    node: StepperBridgeNode,
+    node: StepperServicesOwner,
 ) -> Callable[[Sequence[int]], tuple[bool, str, dict[int, float] | None]] | None:
     """zero_after_home: the zero coordinates coil as a guarded command, read back."""
     if not node.zero_after_home:
@@ -251,7 +290,7 @@ def _zero(
     )
 
 
-def _homing_order(node: StepperBridgeNode) -> list[int]:
+def _homing_order(node: StepperServicesOwner) -> list[int]:
     order = [m for m in node.device.config.homing_order if m]
     if not order:
         raise CommandRejected(
@@ -262,7 +301,7 @@ def _homing_order(node: StepperBridgeNode) -> list[int]:
 
 
 # ------------------------------------------------------------ line / arc
-def _prepare_line(node: StepperBridgeNode, r: Any) -> _PairMove:
+def _prepare_line(node: StepperServicesOwner, r: Any) -> _PairMove:
     """A LineMove request or LineMotion goal checked (every refusal before a write)
     and in controller units: one preparation, so the service and the action agree."""
     _check_interpolation_allowed(node)
@@ -277,7 +316,7 @@ def _prepare_line(node: StepperBridgeNode, r: Any) -> _PairMove:
     )
 
 
-def _prepare_arc(node: StepperBridgeNode, r: Any) -> _PairMove:
+def _prepare_arc(node: StepperServicesOwner, r: Any) -> _PairMove:
     """An ArcMove request or ArcMotion goal, as ``_prepare_line``."""
     _check_interpolation_allowed(node)
     start, end, center, via = _pair_points(
@@ -295,7 +334,7 @@ def _prepare_arc(node: StepperBridgeNode, r: Any) -> _PairMove:
     )
 
 
-def _pair_motion(node: StepperBridgeNode, move: _PairMove) -> InterpolationMotion:
+def _pair_motion(node: StepperServicesOwner, move: _PairMove) -> InterpolationMotion:
     """The action of a prepared line / arc: its send is the goal's begin."""
     return InterpolationMotion(
         node.device,
@@ -309,14 +348,14 @@ def _pair_motion(node: StepperBridgeNode, move: _PairMove) -> InterpolationMotio
 
 
 def _pair_points(
-    node: StepperBridgeNode, pair: int, *points: tuple[Sequence[float], str]
+    node: StepperServicesOwner, pair: int, *points: tuple[Sequence[float], str]
 ) -> list[tuple[float, float]]:
     """Each (SI point, name) in the pair's controller units, checked in order; (0, 0)
     for a pair that does not exist, which the device's check refuses with its text."""
     return [_pair_units(node, pair, point, what) or (0.0, 0.0) for point, what in points]
 
 
-def _set_run_distance(node: StepperBridgeNode, motor: int, distance: float) -> None:
+def _set_run_distance(node: StepperServicesOwner, motor: int, distance: float) -> None:
     """Run distance in m / rad like move_by's; a magnitude (the sign is 40005+)."""
     if math.isfinite(distance) and distance < 0:
         raise CommandRejected(
@@ -326,7 +365,7 @@ def _set_run_distance(node: StepperBridgeNode, motor: int, distance: float) -> N
     node.device.set_run_distance(motor, node.to_units(motor, distance))
 
 
-def _destructive(node: StepperBridgeNode, name: str, confirm: str) -> None:
+def _destructive(node: StepperServicesOwner, name: str, confirm: str) -> None:
     """Factory reset / clear-all. Clear-all warns (WARN log) before its coil is sent:
     its reply may never come if the controller moves off the bridge's id or baud."""
     if name == "clear_all_parameters" and confirm == name:
@@ -339,7 +378,7 @@ def _clear_all_reply(response: Any, _result: object) -> None:
 
 
 def _pair_units(
-    node: StepperBridgeNode, pair: int, point: Sequence[float], what: str
+    node: StepperServicesOwner, pair: int, point: Sequence[float], what: str
 ) -> tuple[float, float] | None:
     if pair not in INTERPOLATION_PAIRS:
         return None  # the device layer refuses the pair with the full message
@@ -349,7 +388,7 @@ def _pair_units(
     return (node.to_units(a, point[0]), node.to_units(b, point[1]))
 
 
-def _check_interpolation_allowed(node: StepperBridgeNode) -> None:
+def _check_interpolation_allowed(node: StepperServicesOwner) -> None:
     s = node.last_snapshot
     motor = MOTOR_FORBIDDEN_DURING_INTERPOLATION
     if s is not None and s.running[motor - 1]:

@@ -4,7 +4,8 @@ Every import counts, ``if TYPE_CHECKING:`` ones too (a reader follows them as we
 relative ones resolved. A circle (a strongly connected component of the module graph)
 fails unless it lies inside an entry of ALLOWED, which says why it is tolerated. A job
 module that needs its host types it with a small ``typing.Protocol`` instead of
-importing the host (stepper_bridge.jog.JogDevice, bridge_core.sim.logs.LoggedSimulator).
+importing the host (stepper_bridge.jog.JogDevice, bridge_core.sim.logs.LoggedSimulator,
+stepper_bridge.node_services.StepperServicesOwner, motec_bridge.bus.BusDrive).
 """
 
 from __future__ import annotations
@@ -30,9 +31,6 @@ ALLOWED: dict[frozenset[str], str] = {
             "bridge_core.ros.node_services",
         }
     ): "the node base and its hosts: each host types the node it serves",
-    # Being removed (services registered from interface.py rows): drop after that lands.
-    frozenset({"stepper_bridge.node", "stepper_bridge.node_services"}): "being removed",
-    frozenset({"motec_bridge.bus", "motec_bridge.node"}): "being removed",
 }
 
 
