@@ -24,7 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from bench.bench_processes import Processes, proc_cpu_s
+from bench.bench_processes import Processes, cycle_figures, proc_cpu_s
 from bench.bridge_profiles import Profile
 
 UNIT_ID = 1
@@ -184,11 +184,7 @@ def loop_figures(samples: list[list[float]]) -> dict[str, Any]:
         if wb > wa:
             per_slice.append((nb - na) / (wb - wa))
     return {
-        "rate_hz": cycles / (w1 - w0),
-        "cpu_us_per_cycle": 1e6 * (c1 - c0) / cycles if cycles else float("nan"),
-        "cpu_percent": 100.0 * (c1 - c0) / (w1 - w0),
-        "cycles": cycles,
-        "window_s": w1 - w0,
+        **cycle_figures(cycles, c1 - c0, w1 - w0),
         "slice_rates_hz": per_slice,
         "sim_cpu_percent": 100.0 * (s1 - s0) / (w1 - w0),
         "cpu_source": "time.process_time in the loop process",

@@ -35,6 +35,18 @@ def loadavg() -> list[float]:
         return []
 
 
+def cycle_figures(cycles: float, cpu_s: float, window_s: float) -> dict[str, float]:
+    """The figures every measured loop reports over its window (the bare loops, the
+    device layer, the node, the floor publisher): rate, CPU per cycle and CPU share."""
+    return {
+        "rate_hz": cycles / window_s,
+        "cpu_us_per_cycle": 1e6 * cpu_s / cycles if cycles else float("nan"),
+        "cpu_percent": 100.0 * cpu_s / window_s,
+        "cycles": cycles,
+        "window_s": window_s,
+    }
+
+
 def log(text: str) -> None:
     print(f"[{time.strftime('%H:%M:%S')}] {text}", flush=True)
 

@@ -14,7 +14,7 @@ import time
 from typing import Any
 
 from bench.bare_loops import ReadPlan
-from bench.bench_processes import proc_cpu_s, wait_until
+from bench.bench_processes import cycle_figures, proc_cpu_s, wait_until
 
 # The node's diagnostics value "slow group" (bridge_core/ros/node_diagnostics.py,
 # slow_group_text): "<n> request(s) every <p> s, last read <age> s ago".
@@ -212,7 +212,6 @@ def measure_node(
     tail_span = b["stamp"] - got[k]["stamp"]
     tail_polls = plan.polls(b["transactions"] - got[k]["transactions"], sum(n for *_, n in tail))
     return {
-        "rate_hz": cycles / span,
         "rate_over_diagnostics_window_hz": tail_polls / tail_span if tail_span else math.nan,
         "diagnostics_window_s": tail_span,
         "diagnostics_rate_window_s": RATE_WINDOW_S,  # the node's "achieved poll rate" window
@@ -221,10 +220,7 @@ def measure_node(
         "joint_states_received_hz": (b["joint_states"] - a["joint_states"])
         / (b["mono"] - a["mono"]),
         "diagnostics_achieved_hz": b["achieved"],
-        "cpu_us_per_cycle": 1e6 * cpu / cycles if cycles else float("nan"),
-        "cpu_percent": 100.0 * cpu / span,
-        "cycles": cycles,
-        "window_s": span,
+        **cycle_figures(cycles, cpu, span),
         "slice_rates_hz": slice_rates,
         "bench_process_cpu_percent": 100.0
         * (b["bench_cpu"] - a["bench_cpu"])
@@ -264,11 +260,7 @@ def measure_publisher(
     (w0, c0, n0), (w1, c1, n1) = samples[0], samples[-1]
     cycles = n1 - n0
     return {
-        "rate_hz": cycles / (w1 - w0),
-        "cpu_us_per_cycle": 1e6 * (c1 - c0) / cycles if cycles else float("nan"),
-        "cpu_percent": 100.0 * (c1 - c0) / (w1 - w0),
-        "cycles": cycles,
-        "window_s": w1 - w0,
+        **cycle_figures(cycles, c1 - c0, w1 - w0),
         "slice_rates_hz": [
             (nb - na) / (wb - wa) for (wa, _, na), (wb, _, nb) in itertools.pairwise(samples)
         ],
