@@ -50,9 +50,10 @@ from pymodbus.pdu import bit_message as pdu_bit
 from pymodbus.pdu import register_message as pdu_reg
 
 from . import requests as rq
-from .errors import DeviceException, FrameError, LinkDown, LinkTimeout
+from .errors import DeviceException, FrameError, LinkDown, LinkError, LinkTimeout
 from .registers import Table
 from .requests import Reply, Request
+from .wire_tap import Outcome, WireTap
 
 RECV_CHUNK = 4096
 # A reply is at most one MBAP header (7) and a 253-byte PDU; more buffered than a full
@@ -77,18 +78,26 @@ class InFlight:
     request: rq.ReadRegisters | rq.ReadBits
     unit_id: int
     sent_at: float  # time.perf_counter() after its sendall
+    # Recording the wire only (``wire_tap``): its ADU, sequence number and wall-clock time.
+    frame: bytes = b""
+    sequence: int = 0
+    sent_wall: float = 0.0
 
 
 class TcpPipeline:
     """Requests in flight on one ``ModbusTcpClient``'s socket, matched by transaction id.
 
     The caller (``ModbusLink``, under its link lock) sends with ``send`` and takes replies
-    with ``receive``; ``reset`` forgets everything (the socket was closed).
+    with ``receive``; ``reset`` forgets everything (the socket was closed). ``tap``: gets
+    every request's frame, answered or lost (recording the wire; None: nothing kept).
     """
 
-    def __init__(self, client: ModbusTcpClient, timeout_s: float) -> None:
+    def __init__(
+        self, client: ModbusTcpClient, timeout_s: float, tap: WireTap | None = None
+    ) -> None:
         self._client = client
         self.timeout_s = timeout_s
+        self.tap = tap
         self._in_flight: dict[int, InFlight] = {}
         self._buffer = b""
 
@@ -116,7 +125,11 @@ class TcpPipeline:
             sock.sendall(frame)
         except OSError as err:
             raise LinkDown(f"send failed: {err}") from err
-        self._in_flight[tid] = InFlight(request, unit_id, time.perf_counter())
+        flight = InFlight(request, unit_id, time.perf_counter())
+        if self.tap is not None:
+            flight.frame, flight.sequence = bytes(frame), self.tap.next_sequence()
+            flight.sent_wall = time.time()
+        self._in_flight[tid] = flight
         return tid
 
     def receive(self) -> tuple[int, InFlight, Reply | DeviceException]:
@@ -126,11 +139,54 @@ class TcpPipeline:
             raise ValueError("nothing in flight")
         oldest = min(f.sent_at for f in self._in_flight.values())
         deadline = oldest + self.timeout_s
+        if self.tap is not None:
+            return self._receive_recorded(self.tap, deadline)
         while True:
             frame = self._take_frame()
             if frame is not None:
                 return self._match(*frame)
             self._read_more(deadline)
+
+    def _receive_recorded(
+        self, tap: WireTap, deadline: float
+    ) -> tuple[int, InFlight, Reply | DeviceException]:
+        """``receive`` with each request's frame to ``tap``: the answered one, or every one
+        in flight when the link fails (the link then forgets them)."""
+        try:
+            while True:
+                raw = self._buffer
+                frame = self._take_frame()
+                if frame is not None:
+                    reply = raw[: len(raw) - len(self._buffer)]
+                    tid, flight, outcome = self._match(*frame)
+                    if isinstance(outcome, DeviceException):
+                        code, kind = outcome.exception_code, Outcome.EXCEPTION
+                    else:
+                        code, kind = 0, Outcome.OK
+                    tap.pipelined(
+                        flight.sequence,
+                        flight.unit_id,
+                        flight.frame,
+                        flight.sent_wall,
+                        reply,
+                        kind,
+                        code,
+                    )
+                    return tid, flight, outcome
+                self._read_more(deadline)
+        except LinkError as err:
+            kind = (
+                Outcome.TIMEOUT
+                if isinstance(err, LinkTimeout)
+                else Outcome.LINK_DOWN
+                if isinstance(err, LinkDown)
+                else Outcome.FRAME_ERROR
+            )
+            for flight in sorted(self._in_flight.values(), key=lambda f: f.sequence):
+                tap.pipelined(
+                    flight.sequence, flight.unit_id, flight.frame, flight.sent_wall, b"", kind
+                )
+            raise
 
     def _take_frame(self) -> tuple[int, int, bytes] | None:
         """(transaction id, unit id, PDU) of the first whole frame buffered, or None."""

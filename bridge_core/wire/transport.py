@@ -58,6 +58,7 @@ from .serial_timing import (
     longest_hold_s,
     silence_s,
 )
+from .wire_tap import Outcome, WireCallback, WireTap, function_code
 
 __all__ = [
     "CheckedTcpClient",
@@ -246,21 +247,28 @@ class CheckedTcpClient(ModbusTcpClient):
 
 
 class ModbusLink:
-    """One client and its transaction lock. Callers hold ``lock`` around ``execute``."""
+    """One client and its transaction lock. Callers hold ``lock`` around ``execute``.
 
-    def __init__(self, settings: LinkSettings) -> None:
+    ``wire``: called with every transaction as a ``wire_tap.WireFrame`` (the parameter
+    ``record_wire``), under the lock, so it must not block; None installs nothing.
+    """
+
+    def __init__(self, settings: LinkSettings, wire: WireCallback | None = None) -> None:
         self.settings = settings
         self._open_failure = ""  # the OS's reason of the last failed open
         self.lock = PriorityLock()
         self.is_serial = isinstance(settings, SerialSettings)
+        self._tap = WireTap(wire, rtu=self.is_serial) if wire is not None else None
+        # pymodbus's own hook gives the whole ADUs of a one-at-a-time transaction.
+        trace: dict[str, Any] = {"trace_packet": self._tap.packet} if self._tap else {}
         # retries=0: retrying is DeviceChannel's decision (reads only, never writes).
         self._client: ModbusTcpClient | ModbusSerialClient
         self._pipeline: TcpPipeline | None = None
         if isinstance(settings, TcpSettings):
             self._client = CheckedTcpClient(
-                settings.host, port=settings.port, timeout=settings.timeout_s, retries=0
+                settings.host, port=settings.port, timeout=settings.timeout_s, retries=0, **trace
             )
-            self._pipeline = TcpPipeline(self._client, settings.timeout_s)
+            self._pipeline = TcpPipeline(self._client, settings.timeout_s, tap=self._tap)
         else:
             self._client = TimedSerialClient(
                 settings.port,
@@ -271,6 +279,7 @@ class ModbusLink:
                 timeout=settings.timeout_s,
                 retries=0,
                 min_frame_gap_s=settings.frame_gap_s,
+                **trace,
             )
         self._open = False
 
@@ -309,6 +318,34 @@ class ModbusLink:
 
         ``timeout_s``: a shorter reply timeout for this one (RTU; a TCP link keeps its own).
         """
+        if self._tap is None:
+            return self._execute(unit_id, request, timeout_s)
+        return self._execute_recorded(self._tap, unit_id, request, timeout_s)
+
+    def _execute_recorded(
+        self, tap: WireTap, unit_id: int, request: Request, timeout_s: float | None
+    ) -> Reply:
+        """``_execute``, and its frame to the tap however it ends."""
+        tap.begin()
+        code = function_code(request)
+        try:
+            reply = self._execute(unit_id, request, timeout_s)
+        except DeviceException as err:
+            tap.ended(unit_id, code, Outcome.EXCEPTION, err.exception_code)
+            raise
+        except LinkTimeout:
+            tap.ended(unit_id, code, Outcome.TIMEOUT)
+            raise
+        except FrameError:
+            tap.ended(unit_id, code, Outcome.FRAME_ERROR)
+            raise
+        except LinkDown:
+            tap.ended(unit_id, code, Outcome.LINK_DOWN)
+            raise
+        tap.ended(unit_id, code, Outcome.OK)
+        return reply
+
+    def _execute(self, unit_id: int, request: Request, timeout_s: float | None) -> Reply:
         if not self._open:
             raise LinkDown(f"{self.describe()} is not open")
         timed = isinstance(self._client, TimedSerialClient) and timeout_s is not None
