@@ -21,7 +21,8 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
@@ -225,21 +226,54 @@ def run_goal_to_its_end(client: Client, words: list[str]) -> None:
         goal.close()
 
 
+def device_of(words: list[str]) -> str:
+    """The demo device a ``ros2 service call`` / ``action send_goal`` line talks to: its
+    name's namespace (``/r6/r6_bridge/stop`` -> ``/r6``)."""
+    name = next(word for word in words[3:] if word.startswith("/"))
+    return "/" + name.split("/")[1]
+
+
+def per_device(
+    lines: list[Any], run: Callable[[Any], None], words: Callable[[Any], list[str]]
+) -> None:
+    """Each device's lines in their order, the devices side by side: the demo's four
+    simulators are independent, so what a user types for one does not wait on another's
+    motion (the R6's single cycle and the stepper's home take ~12 s each). Every device's
+    failure is reported, the first raised."""
+    groups: dict[str, list[Any]] = {}
+    for line in lines:
+        groups.setdefault(device_of(words(line)), []).append(line)
+
+    def run_group(group: list[Any]) -> None:
+        for line in group:
+            run(line)
+
+    with ThreadPoolExecutor(max_workers=len(groups) or 1) as pool:
+        futures = [pool.submit(run_group, group) for group in groups.values()]
+    errors = [err for future in futures if (err := future.exception()) is not None]
+    if errors:
+        raise errors[0]
+
+
 def test_every_actions_page_line_works_as_typed(demo: Client) -> None:
     """docs/actions.md's block, as a user types it against the demo: each goal is accepted,
     sends feedback and runs to its end, REACHED; a service call in it (the R6 program
-    stopped before a single cycle, R6 decision 23) succeeds."""
+    stopped before a single cycle, R6 decision 23) succeeds. Each device's lines in their
+    order, the devices side by side (``per_device``)."""
     commands = doc_commands(ACTIONS_PAGE, ACTIONS_SECTION)
     assert len(commands) >= 3, commands
-    for words in commands:
+
+    def run(words: list[str]) -> None:
         if words[1:3] == ["service", "call"]:
             name, type_name, text = words[3:6]
             srv = interface(type_name)
             reply = demo.call(srv, name, filled(srv.Request(), text), timeout=WAIT_S * 3)
             assert reply.success, f"{' '.join(words)}: {reply.message}"
-            continue
+            return
         assert "--feedback" in words, " ".join(words)
         run_goal_to_its_end(demo, words)
+
+    per_device(commands, run, lambda words: words)
 
 
 def docs_action_lines() -> list[tuple[str, list[str], bool]]:
@@ -258,19 +292,23 @@ def test_every_docs_action_line_works_as_typed_or_is_marked(demo: Client) -> Non
     """The docs' send_goal examples against the same demo: each runs to its end, REACHED,
     unless it is marked "(real device only: why)" right after it (a check that needs the
     pendant, the wiring or settings the demo does not start with). A line docs/actions.md's
-    block holds too (but for ``--feedback``) ran there already."""
+    block holds too (but for ``--feedback``) ran there already. The devices side by side,
+    as in the block's test."""
     lines = docs_action_lines()
     marked = [words for _file, words, real_only in lines if real_only]
     runnable = [(file, words) for file, words, real_only in lines if not real_only]
     assert len(marked) >= 3 and len(runnable) >= 3, lines
     in_block = {_without_feedback(words) for words in doc_commands(ACTIONS_PAGE, ACTIONS_SECTION)}
-    for file, words in runnable:
-        if _without_feedback(words) in in_block:
-            continue
+
+    def run(line: tuple[str, list[str]]) -> None:
+        file, words = line
         try:
             run_goal_to_its_end(demo, words)
         except AssertionError as err:
             raise AssertionError(f"{file}: {err}") from err
+
+    todo = [line for line in runnable if _without_feedback(line[1]) not in in_block]
+    per_device(todo, run, lambda line: line[1])
 
 
 def _without_feedback(words: list[str]) -> tuple[str, ...]:
