@@ -57,6 +57,7 @@ from .node_diagnostics import DiagnosticsPublisher
 from .node_parameters import ParameterNode, link_settings
 from .node_services import ServiceHost
 from .node_streams import StreamHost
+from .node_wire import WirePublisher, wire_publisher
 
 T = TypeVar("T")
 SnapshotT = TypeVar("SnapshotT")
@@ -154,8 +155,12 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
         """The device's channel: on a link of its own, opened from its transport
         parameters, or on the ``link`` it was given (a bus's, never closed here)."""
         self._owned_link: ModbusLink | None = None
+        # ~/wire (record_wire): of the link's owner; a bus owner lends it (watch_line).
+        self.wire: WirePublisher | None = None
         if link is None:
-            link = self._owned_link = ModbusLink(link_settings(values))
+            self.wire = wire_publisher(self, values)
+            tap = self.wire.callback if self.wire is not None else None
+            link = self._owned_link = ModbusLink(link_settings(values), wire=tap)
             unit_id = int(values["unit_id"])
         if unit_id is None:
             raise ValueError("a node on a shared link needs its unit_id")
@@ -385,6 +390,8 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
         if self._owned_link is not None:
             with self._owned_link.lock.hold(Priority.COMMAND):  # never mid-transaction
                 self._owned_link.close()
+            if self.wire is not None:
+                self.wire.close()
 
     def _poll_report(self, outcome: PollOutcome, text: str) -> None:
         logger = self.get_logger()

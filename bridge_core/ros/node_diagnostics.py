@@ -74,6 +74,8 @@ class DiagnosticsPublisher:
         values += budget_values(node.wire_budget.budget(), node.link.is_serial)
         if node.line_load is not None:
             values.append(("line load, all devices (%)", node.line_load()))
+        if node.wire is not None:
+            values += node.wire.values()
         if node.streams.guards:
             values.append(("stream commands refused", str(node.streams.refusals)))
         if node.joint_command_refusals is not None:

@@ -33,6 +33,7 @@ from ..wire.transport import ModbusLink
 from .command_line import EXIT_CONFIGURATION_ERROR, command_line_error, init_from_command_line
 from .node_base import BridgeNode
 from .node_parameters import ParameterNode, link_settings, one_line
+from .node_wire import wire_publisher
 
 # The poll threads wait on the line and then need the GIL for a moment; with Python's
 # default 5 ms switch interval, each such moment waits out a busy thread's whole slice
@@ -82,7 +83,9 @@ class BusNode(ParameterNode):
                 )
         self.unit_ids = units
         self.settings = link_settings(values)
-        self.link = ModbusLink(self.settings)
+        # ~/wire (record_wire): every unit's frames, once, on the bus owner's topic.
+        self.wire = wire_publisher(self, values)
+        self.link = ModbusLink(self.settings, wire=self.wire.callback if self.wire else None)
         self.devices: list[BridgeNode[Any]] = []  # the nodes polling this line (watch_line)
         self._judged: int | None = None  # the devices' budget generations last judged
 
@@ -93,6 +96,7 @@ class BusNode(ParameterNode):
         self.devices = list(devices)
         for device in self.devices:
             device.line_load = self.line_load_text
+            device.wire = device.wire or self.wire  # the line's counts in its diagnostics
         self.create_timer(LINE_CHECK_PERIOD_S, self._judge_line)
 
     def _budgets(self) -> list[Budget] | None:
@@ -116,6 +120,8 @@ class BusNode(ParameterNode):
     def close(self) -> None:
         with self.link.lock.hold(Priority.COMMAND):
             self.link.close()
+        if self.wire is not None:
+            self.wire.close()
 
 
 def interrupt_on_signals(on_signal: Callable[[], None] | None = None) -> None:

@@ -201,6 +201,15 @@ class DeviceDefaults:
     pose_topic: str = ""
 
 
+# Off by default: recording costs CPU per frame (bench/wire_record.py).
+RECORD_WIRE_SPEC = ParameterSpec(
+    "record_wire",
+    False,
+    "publish every Modbus frame the link sends and receives on ~/wire "
+    "(msg_defs/ModbusFrame); on a shared line the bus owner's ~/wire carries every unit's",
+)
+
+
 def transport_specs(defaults: DeviceDefaults) -> tuple[ParameterSpec, ...]:
     """Where the device is: the parameters of a node (or bus) that opens its own link."""
     specs: tuple[ParameterSpec, ...]
@@ -244,6 +253,7 @@ def transport_specs(defaults: DeviceDefaults) -> tuple[ParameterSpec, ...]:
             defaults.timeout_min_s,
             TIMEOUT_MAX_S,
         ),
+        RECORD_WIRE_SPEC,
     )
 
 
@@ -350,6 +360,7 @@ __all__ = [
     "AUTOSTART_SPEC",
     "GOAL_TIMEOUT_SPEC",
     "PARITIES",
+    "RECORD_WIRE_SPEC",
     "RTU_UNIT_ID_RANGE",
     "UNIT_ID_RANGE",
     "DeviceDefaults",
