@@ -224,6 +224,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             scan_table(prober, scan, block)
     except BudgetSpent as err:
         spent = str(err)
+        for unread in scans[scans.index(scan) + 1 :]:
+            unread.scanned_to = unread.ranges[0][0]
     except DeviceStopped as err:
         print(
             f"{PROGRAM}: error: {setup.link_text} unit {args.unit_id}: {err} "

@@ -24,6 +24,7 @@ from bridge_core.wire.registers import READ_FUNCTION, Table
 from modbus_bridge import doc
 from modbus_bridge.description import load
 from modbus_bridge.scan import READ_ONLY_LINE, main
+from modbus_bridge.scan_probe import Prober
 from modbus_bridge.sim import make_simulator as make_described
 from motec_bridge.sim import make_simulator as make_motec
 from r6_bridge.sim import make_simulator as make_r6
@@ -342,3 +343,60 @@ def test_the_console_script_says_a_bad_option_in_one_line(tmp_path: Path) -> Non
     assert result.stderr.splitlines() == [
         "modbus_scan: error: --unit-id 0 is the broadcast on a serial line: no device answers it"
     ]
+
+
+def test_a_device_that_never_answers_is_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """No reply at all (another unit id, a wrong line setting): three requests, one line."""
+    simulator = make_xarm()
+    simulator.withhold_replies = True
+    with over_tcp(simulator) as (_, link):
+        args = [*link, "--range", "holding:0-40", "--timeout-s", "0.2", "--pause-ms", "0"]
+        assert main([*args, "-o", str(tmp_path / "x.yaml")]) == 1
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and "no reply to 3 requests in a row" in err[0], err
+    assert "(after 3 requests; nothing written" in err[0]
+    assert not (tmp_path / "x.yaml").exists()
+
+
+def test_the_budget_ends_the_scan_with_what_was_read(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "x.yaml"
+    with over_tcp(make_xarm()) as (device, link):
+        device.log_reads = True
+        ranges = ["--range", "holding:0-40", "--range", "coil:0-50"]
+        assert main([*link, *ranges, "--pause-ms", "0", "--budget", "30", "-o", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert len(device.read_log) == 30
+    assert "the request budget (30) ran out at holding" in printed
+    text = out.read_text()
+    assert "incomplete: the request budget ran out at holding" in text
+    assert "incomplete: the request budget ran out at coil 0" in text
+    assert "holding_0" in {r.name for r in load(out).device.register_map}
+
+
+def test_requests_are_paced() -> None:
+    """Each request waits the pause after the previous reply (a fake clock)."""
+    now = [0.0]
+    slept: list[float] = []
+
+    class Reader:
+        def read_registers(
+            self, address: int, count: int, table: Table = Table.HOLDING
+        ) -> list[int]:
+            now[0] += 0.01  # the reply takes 10 ms
+            return [0] * count
+
+        def read_bits(self, address: int, count: int, table: Table = Table.COIL) -> list[bool]:
+            return [False] * count
+
+    def sleep(seconds: float) -> None:
+        slept.append(round(seconds, 9))
+        now[0] += seconds
+
+    prober = Prober(Reader(), budget=3, pause_s=0.05, clock=lambda: now[0], sleep=sleep)
+    for address in range(3):
+        assert prober.read(Table.HOLDING, address, 1) is None
+    assert slept == [0.05, 0.05]
