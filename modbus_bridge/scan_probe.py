@@ -6,8 +6,11 @@ elsewhere) is split in two, down to single addresses, which finds the addresses 
 answer and the exception each other one gets. Split points fall on multiples of
 ``SPLIT_ALIGN`` where they can, so a 32- or 64-bit value at an aligned address is never
 cut in two (a strict device refuses a read that cuts a value: it would look undefined).
-Runs of single refusals next to answers are then read as 2- and 4-register values from
-each answering edge inward (``join_cut_values``): a value a split did cut answers whole.
+In a register table, each run of refused registers is then read again with odd split
+points (``odd_pass``: values at odd addresses), and what is still refused next to an
+answer as 2- and 4-register values from each answering edge inward
+(``join_cut_values``): a value a split did cut answers whole. Last, each merged block is
+read once whole (``confirm_blocks``), as the bridge would poll it.
 
 Every request goes through ``Prober.read``, which counts it against the budget, keeps the
 pause before it, and tells a device that stopped answering (``DeviceStopped``) from one
@@ -280,14 +283,12 @@ def odd_pass(prober: Prober, scan: TableScan, block: int) -> None:
     """Read each run of refused registers again with odd split points: a 32-bit value at
     an odd address between refused ones is cut by every even split of the first pass."""
     for first, count in refused_runs(scan):
-        if count < min(WHOLE_VALUE_WIDTHS):
+        # Requests start at odd addresses (an even first address was read alone already).
+        start = first | 1
+        if first + count - start < min(WHOLE_VALUE_WIDTHS):
             continue
-        # Requests start at odd addresses: an even first address goes alone.
-        starts = [first] if first % 2 else [first, first + 1]
-        if first % 2 == 0:
-            probe_block(prober, scan, first, 1, odd=True)
         size = block - block % 2 or 1
-        for address, length in blocks_of(starts[-1], first + count - 1, size):
+        for address, length in blocks_of(start, first + count - 1, size):
             probe_block(prober, scan, address, length, odd=True)
 
 
