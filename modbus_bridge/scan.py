@@ -12,6 +12,7 @@ a bad option is one line (exit 2). docs/bridges/modbus.md, "modbus_scan".
 from __future__ import annotations
 
 import argparse
+import json
 import re
 import sys
 import time
@@ -164,7 +165,8 @@ def _setup(args: argparse.Namespace) -> tuple[LinkSettings, ScanSetup]:
     settings: LinkSettings
     if args.host is not None:
         settings = TcpSettings(args.host, args.port, timeout_s=args.timeout_s)
-        link_yaml = f"tcp: {{host: {args.host}, port: {args.port}}}"
+        # Quoted as JSON strings (valid YAML): an IPv6 host or a path may hold ':' or '#'.
+        link_yaml = f"tcp: {{host: {json.dumps(args.host)}, port: {args.port}}}"
     else:
         settings = SerialSettings(
             args.serial,
@@ -174,7 +176,7 @@ def _setup(args: argparse.Namespace) -> tuple[LinkSettings, ScanSetup]:
             timeout_s=args.timeout_s,
         )
         link_yaml = (
-            f"rtu: {{serial_port: {args.serial}, baudrate: {args.baudrate}, "
+            f"rtu: {{serial_port: {json.dumps(args.serial)}, baudrate: {args.baudrate}, "
             f"parity: {args.parity}, stopbits: {args.stopbits}}}"
         )
     described = settings.describe()

@@ -228,14 +228,20 @@ def test_the_scan_finds_the_map(
 ) -> None:
     serve, ranges, extra = CASES[name]
     out = tmp_path / "scan.yaml"
-    with serve() as (device, link):
+    with serve() as (device, args):
         want = expected(device, ranges, extra(device))
-        code = main([*link, *range_args(ranges), *FAST, "-o", str(out)])
+        code = main([*args, *range_args(ranges), *FAST, "-o", str(out)])
     printed = capsys.readouterr()
     assert code == 0, printed.err
     assert printed.out.splitlines()[0] == READ_ONLY_LINE
     got = written_blocks(out)
     assert got == {table: blocks for table, blocks in want.items() if blocks}, printed.out
+    link = load(out).device.spec.device.link  # the link scanned, as the file's default
+    assert link is not None
+    if link.rtu is not None:
+        assert link.rtu.serial_port == args[args.index("--serial") + 1]
+    else:
+        assert link.tcp is not None and link.tcp.port == int(args[args.index("--port") + 1])
     # The summary names each block (table, first, last).
     for blocks in got.values():
         for first, count in blocks:
