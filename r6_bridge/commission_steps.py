@@ -49,7 +49,7 @@ LISTED_MAX = 8  # rows named in one finding; the rest counted
 # Guided steps: how long they may take, and how often they read.
 CYCLE_ATTEMPTS = 2  # single cycles: a second one if the first leaves 2401 unchanged
 CYCLE_LIMIT_S = 120.0  # one single cycle that has not ended by then: stopped, could not tell
-RUN_BEFORE_PAUSE_S = 1.0  # decision 29's step: the program runs this long before the pause
+RUN_BEFORE_PAUSE_S = 0.5  # decision 29's step: the program runs this long before the pause
 STANDSTILL_LIMIT_S = 10.0  # the program must stand (moving 0) this long before a step
 
 
