@@ -36,7 +36,7 @@ from ..runtime.commission import (
     Report,
     commissionings,
 )
-from ..runtime.commission_run import Operator, commission, verdict_lines
+from ..runtime.commission_run import DEVICE_LOST, Operator, commission, verdict_lines
 from ..runtime.interface import NodeInterface, nodes
 from ..wire.channel import DeviceChannel
 from ..wire.errors import ConfigurationError, LinkError
@@ -45,7 +45,7 @@ from .command_line import EXIT_CONFIGURATION_ERROR, init_from_command_line
 from .node_parameters import ParameterNode, link_settings, one_line
 from .process import _refuse_unused_parameters
 
-EXIT_NO_DEVICE = 1  # the device never answered: nothing checked
+EXIT_NO_DEVICE = 1  # the device never answered (no report), or stopped answering (a report)
 EXIT_DOCS_DIFFER = 1  # --check-docs: a page is not what the data renders
 EXIT_INTERRUPTED = 130  # Ctrl-C or SIGTERM: the report holds what was found so far
 # Where the device is: copied into the recommended params file as given.
@@ -145,6 +145,8 @@ def run(
             )
     finally:
         link.close()
+    if report.interrupted.startswith(DEVICE_LOST):
+        return report, EXIT_NO_DEVICE
     return report, EXIT_INTERRUPTED if report.interrupted else 0
 
 

@@ -46,6 +46,10 @@ YES = "yes"
 STOP_KEYS = "Enter or s"  # what the prompt names: any line stops a running step
 PROMPT = f"type {YES} to run it, anything else skips it: "
 STOP_WAIT_S = 0.05  # how often a step's wait looks at the stop key (``Operator.wait``)
+# Rows in a row without a reply: the device is gone (each waited ``timeout_s``), the scan
+# ends and the report says why (``DEVICE_LOST``).
+SCAN_NO_REPLY_LIMIT = 3
+DEVICE_LOST = "the device stopped answering"
 EOF = None  # what a line source returns at the end of its input
 
 
@@ -131,8 +135,10 @@ def measure_replies(io: RegisterIO, ping: Callable[[RegisterIO], object], sample
 
 
 def scan_rows(commissioning: Commissioning, probe: Probe) -> RowScan:
-    """Every readable row of the map, each alone (a string row: its whole length)."""
+    """Every readable row of the map, each alone (a string row: its whole length).
+    ``SCAN_NO_REPLY_LIMIT`` rows in a row without a reply raise the last ``LinkError``."""
     scan = RowScan()
+    silent = 0
     for reg in commissioning.register_map:
         if not reg.access.readable:
             continue
@@ -155,9 +161,14 @@ def scan_rows(commissioning: Commissioning, probe: Probe) -> RowScan:
                 )
             )
         except LinkError as err:
+            silent += 1
+            if silent >= SCAN_NO_REPLY_LIMIT:
+                raise
             scan.refused.append(
                 Refusal(reg.name, reg.address, reg.table.value, f"no reply ({err})", None)
             )
+            continue
+        silent = 0
     return scan
 
 
@@ -280,13 +291,18 @@ def commission(
     timeout_low_s: float = 0.0,
 ) -> Report:
     """Both phases, then the report's recommendations. Ctrl-C or SIGTERM
-    (``KeyboardInterrupt``) ends the run with what was found so far (``interrupted``)."""
+    (``KeyboardInterrupt``), or a device that stops answering, ends the run with what was
+    found so far (``interrupted``); one that never answered raises ``LinkError``."""
     probe.say(FIRST_LINE)
     try:
         read_phase(commissioning, probe, report, samples, timeout_low_s)
         guided_phase(commissioning, probe, report, operator)
     except KeyboardInterrupt:
         report.interrupted = "Ctrl-C or SIGTERM"
+    except LinkError as err:
+        if report.reply is None:
+            raise  # never answered: no report (the command line says so)
+        report.interrupted = f"{DEVICE_LOST} ({err})"
     not_run(commissioning, report, report.interrupted or "not reached")
     order = {c.key: k for k, c in enumerate(commissioning.checks)}
     report.results.sort(key=lambda r: order[r.check.key])
@@ -299,6 +315,7 @@ def verdict_lines(report: Report) -> Sequence[str]:
 
 
 __all__ = [
+    "DEVICE_LOST",
     "FIRST_LINE",
     "PROMPT",
     "Operator",

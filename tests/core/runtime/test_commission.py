@@ -29,8 +29,9 @@ from bridge_core.runtime.commission import (
     recommend_timeout_s,
     reply_times,
 )
-from bridge_core.runtime.commission_run import Operator, commission, guided_phase
+from bridge_core.runtime.commission_run import DEVICE_LOST, Operator, commission, guided_phase
 from bridge_core.wire.channel import RegisterIO
+from bridge_core.wire.errors import LinkTimeout
 from bridge_core.wire.registers import DeviceLimits, Register, RegisterMap, ValueType
 
 MAP = RegisterMap("t", (Register("a", 0, ValueType.U16, "test row"),), DeviceLimits())
@@ -168,3 +169,38 @@ def test_ctrl_c_in_a_step_sends_its_stop_and_ends_the_run() -> None:
     assert report.interrupted
     assert report.results[0].finding.verdict is Verdict.NOT_RUN
     assert report.recommended["timeout_s"] == TIMEOUT_FLOOR_S
+
+
+class DyingIO:
+    """Answers ``answers`` reads, then never again (a cable pulled)."""
+
+    def __init__(self, answers: int) -> None:
+        self.left = answers
+
+    def read_registers(self, address: int, count: int, *_args: Any, **_kw: Any) -> list[int]:
+        if self.left <= 0:
+            raise LinkTimeout("no reply within 0.5 s")
+        self.left -= 1
+        return [0] * count
+
+
+ROWS = RegisterMap(
+    "t", tuple(Register(f"r{i}", i, ValueType.U16, "test row") for i in range(5)), DeviceLimits()
+)
+
+
+@pytest.mark.parametrize("answers", [0, 10])
+def test_a_device_that_stops_answering_ends_the_run(answers: int) -> None:
+    """Never answered: ``LinkError`` (no report). Gone after the reply times: the row scan
+    gives up after SCAN_NO_REPLY_LIMIT silent rows and the report says why."""
+    commissioning = Commissioning(
+        "t", "n", ROWS, (), lambda io: io.read_registers(0, 1), lambda p: 1
+    )
+    probe = Probe(cast(RegisterIO, DyingIO(answers)), {}, say=lambda _line: None)
+    report = Report("t", "n", "here")
+    if not answers:
+        with pytest.raises(LinkTimeout):
+            commission(commissioning, probe, report, samples=10, operator=None)
+        return
+    commission(commissioning, probe, report, samples=10, operator=None)
+    assert report.interrupted.startswith(DEVICE_LOST)
