@@ -20,11 +20,16 @@ import pytest
 import yaml  # type: ignore[import-untyped]
 
 from bridge_core.runtime import interface
+from bridge_core.runtime.commission import commissionings
 from bridge_core.runtime.parameters import ParameterSpec, ParameterValue
 
 ROOT = Path(__file__).resolve().parents[2]
 PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
 BASH_BLOCK = re.compile(r"^\s*```(?:bash|sh)\n(.*?)^\s*```", re.DOTALL | re.MULTILINE)
+
+
+# bridge_commission BRIDGE [options] --ros-args ...: the bridge's parameters, checked alike.
+COMMISSION = "bridge_commission"
 
 
 def console_scripts() -> set[str]:
@@ -34,7 +39,7 @@ def console_scripts() -> set[str]:
 
 def bridge_lines() -> list[tuple[str, list[str]]]:
     """``(where, words)`` of each line of a bash block that starts a node executable."""
-    executables = {node.executable for node in interface.nodes()}
+    executables = {node.executable for node in interface.nodes()} | {COMMISSION}
     found = []
     for page in PAGES:
         text = page.read_text(encoding="utf-8")
@@ -66,17 +71,24 @@ def test_the_pages_have_bridge_lines() -> None:
     nothing)."""
     readme = [words[0] for where, words in LINES if where.startswith("README.md")]
     assert {"r6_bridge", "stepper_bridge", "motec_bridge"} <= set(readme), readme
+    assert any(words[0] == COMMISSION for _, words in LINES)  # docs/commissioning.md
 
 
 @pytest.mark.parametrize(("where", "words"), LINES, ids=[where for where, _ in LINES])
 def test_a_bridge_line_names_what_exists(where: str, words: list[str]) -> None:
     executable = words[0]
     assert executable in console_scripts(), f"{where}: no console script {executable}"
+    chosen = [node for node in interface.nodes() if node.executable == executable]
+    if executable == COMMISSION:  # the named bridge's node; the tool's options before
+        known = commissionings()
+        assert words[1] in known, f"{where}: {words[1]} has no hardware checks"
+        chosen = [node for node in interface.nodes() if node.node == known[words[1]].node]
+        assert "--ros-args" in words, f"{where}: the bridge's parameters need --ros-args"
+        words = [executable, *words[words.index("--ros-args") :]]
     assert words[1] == "--ros-args", f"{where}: parameters need --ros-args first"
     specs: dict[str, ParameterSpec] = {}
-    for node in interface.nodes():
-        if node.executable == executable:
-            specs.update({spec.name: spec for spec in node.parameters})
+    for node in chosen:
+        specs.update({spec.name: spec for spec in node.parameters})
     problems = []
     args = iter(words[2:])
     for arg in args:
