@@ -23,12 +23,15 @@ import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from lifecycle_msgs.msg import Transition
 from lifecycle_msgs.srv import ChangeState
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
 from rcl_interfaces.srv import SetParameters
 from rosbags.rosbag2 import Reader
 from sensor_msgs.msg import JointState
 
 from bridge_core.ros.recorder import typestore_for
+from msg_defs.msg import ModbusFrame
 from r6_bridge.sim import R6SimDevice, make_simulator
 
 from ...support.ros import ROOT, Client, node_process, ros_client, values_of, wait_for
@@ -153,6 +156,14 @@ def record(tmp_path: Path, bag: Path) -> list[tuple[float, ...]]:
         ]
         frames = sum(c.msgcount for c in reader.connections if c.topic == topics[1])
     assert frames > len(recorded) > 10
+    # An independent reader (mcap + mcap-ros2-support) decodes the frames from the schema
+    # bridge_record wrote: the bag stays readable by other tools (ros2 bag reads the same).
+    (mcap_file,) = bag.glob("*.mcap")
+    with mcap_file.open("rb") as stream:
+        mcap = make_reader(stream, decoder_factories=[DecoderFactory()])
+        decoded = [m for _s, c, _m, m in mcap.iter_decoded_messages() if c.topic == topics[1]]
+    assert len(decoded) == frames
+    assert all(m.outcome == ModbusFrame.OK and len(m.reply) > 7 for m in decoded)
     return positions(recorded)
 
 
