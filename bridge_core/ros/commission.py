@@ -32,6 +32,7 @@ from ..runtime.commission import (
     REPLY_SAMPLES_DEFAULT,
     REPLY_SAMPLES_RANGE,
     Commissioning,
+    Described,
     Probe,
     Report,
     commissionings,
@@ -52,11 +53,19 @@ EXIT_INTERRUPTED = 130  # Ctrl-C or SIGTERM: the report holds what was found so 
 LINK_PARAMETERS = ("host", "port", "serial_port", "baudrate", "parity", "stopbits", "unit_id")
 RECONNECT_MAX_S = 1.0  # the tool's channel: a lost device is tried again soon
 EXIT_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+# A bus bridge's commission module (MOTEC: node motec_{unit_id}, link on the bus node) may
+# list the node the tool parses as (bus and device parameters together) and the params
+# file's node name ("*": every node of the process).
+COMMISSION_NODE = "COMMISSION_NODE"
+PARAMS_NODE = "PARAMS_NODE"
 
 
-def parse_parameters(node: NodeInterface, ros_args: Sequence[str]) -> dict[str, Any]:
+def parse_parameters(
+    node: NodeInterface, ros_args: Sequence[str], described: Described | None = None
+) -> dict[str, Any]:
     """The bridge's parameters from its command line, as the bridge takes them; raises
-    ``ConfigurationError`` with the bridge's one line."""
+    ``ConfigurationError`` with the bridge's one line. ``described``: the parameters that
+    name the bridge's file first, then those of the node the file makes."""
     context = Context()
     refused = init_from_command_line(
         ["bridge_commission", *ros_args],
@@ -68,7 +77,12 @@ def parse_parameters(node: NodeInterface, ros_args: Sequence[str]) -> dict[str, 
     parser: ParameterNode | None = None
     try:
         parser = ParameterNode(node.node, context=context)
-        values = parser.declare_specs(node.parameters)
+        if described is None:
+            values = parser.declare_specs(node.parameters)
+        else:
+            values = parser.declare_specs(described.first)
+            rest = [s for s in described.node(values).parameters if s.name not in values]
+            values.update(parser.declare_specs(rest))
         _refuse_unused_parameters([parser])
         return values
     except ParameterException as err:
@@ -108,8 +122,28 @@ def stdin_line() -> str | None:
     return None if line == "" else line.rstrip("\n")
 
 
-def the_node(commissioning: Commissioning) -> NodeInterface:
+def the_node(commissioning: Commissioning, values: dict[str, Any] | None = None) -> NodeInterface:
+    """The bridge's node (a described bridge's: the one its file in ``values`` makes)."""
+    if commissioning.described is not None and values is not None:
+        return commissioning.described.node(values)
+    listed = getattr(bus_module(commissioning), COMMISSION_NODE, None)
+    if listed is not None:
+        return listed
     return next(n for n in nodes() if n.node == commissioning.node)
+
+
+def bus_module(commissioning: Commissioning) -> Any:
+    """The bridge's ``<package>.commission`` module (a bus bridge's lists its node)."""
+    package = entries.bridge_packages()[commissioning.bridge]
+    return sys.modules.get(f"{package}.commission")
+
+
+def unit_of(values: dict[str, Any], args: argparse.Namespace) -> int:
+    """The device's unit: ``unit_id``, or on a bus (``unit_ids``) ``--unit-id`` or the
+    first of ``unit_ids``."""
+    if "unit_id" in values:
+        return int(values["unit_id"])
+    return int(args.unit_id if args.unit_id is not None else values["unit_ids"][0])
 
 
 def run(
@@ -121,18 +155,22 @@ def run(
 ) -> tuple[Report, int]:
     """Open the link from the parameters, run both phases, close it."""
     link = ModbusLink(link_settings(values))
-    channel = DeviceChannel(
-        link, int(values["unit_id"]), retries=0, reconnect_max_s=RECONNECT_MAX_S
-    )
-    device = f"{link.describe()} unit {values['unit_id']}"
-    report = Report(commissioning.bridge, commissioning.node, device)
-    report.link = {name: values[name] for name in LINK_PARAMETERS if name in values}
+    unit = unit_of(values, args)
+    channel = DeviceChannel(link, unit, retries=0, reconnect_max_s=RECONNECT_MAX_S)
+    device = f"{link.describe()} unit {unit}"
+    params_node = getattr(bus_module(commissioning), PARAMS_NODE, commissioning.node)
+    report = Report(commissioning.bridge, params_node, device)
+    first = commissioning.described.first if commissioning.described is not None else ()
+    linked = (*(spec.name for spec in first), *LINK_PARAMETERS)  # the file, then the link
+    report.link = {name: values[name] for name in linked if name in values}
     operator = None if args.read_only else Operator(read_line)
     probe = Probe(channel, values, say=say)
     if operator is not None:
         probe.stop_requested = operator.stop_requested
         probe.wait = operator.wait
-    timeout = next(s for s in the_node(commissioning).parameters if s.name == "timeout_s")
+    timeout = next(s for s in the_node(commissioning, values).parameters if s.name == "timeout_s")
+    if commissioning.described is not None:  # the rows of the file the parameters name
+        commissioning = commissioning.described.bind(commissioning, values)
     try:
         with interrupted_by_signals():
             commission(
@@ -197,6 +235,12 @@ def parser_of(known: dict[str, Commissioning]) -> argparse.ArgumentParser:
         help=f"requests timed for the reply times (default {REPLY_SAMPLES_DEFAULT})",
     )
     parser.add_argument("--read-only", action="store_true", help="skip the guided phase")
+    parser.add_argument(
+        "--unit-id",
+        type=int,
+        metavar="N",
+        help="a bus bridge (MOTEC): the device checked (default: the first of unit_ids)",
+    )
     parser.add_argument("--report", type=Path, help="Markdown report (commission-BRIDGE.md)")
     parser.add_argument("--json", type=Path, help="JSON report (commission-BRIDGE.json)")
     parser.add_argument("--params", type=Path, help="params file (commission-BRIDGE.yaml)")
@@ -232,7 +276,7 @@ def main(
         parser.error("name one bridge")
     commissioning = known[args.bridges[0]]
     try:
-        values = parse_parameters(the_node(commissioning), ros_args)
+        values = parse_parameters(the_node(commissioning), ros_args, commissioning.described)
     except ConfigurationError as err:
         print(f"error: {one_line(err)}", file=sys.stderr)
         return EXIT_CONFIGURATION_ERROR

@@ -24,7 +24,8 @@ from typing import Any
 from ..wire.channel import RegisterIO
 from ..wire.registers import Register, RegisterMap
 from . import entries
-from .parameters import TIMEOUT_MAX_S, ParameterValue
+from .interface import NodeInterface
+from .parameters import TIMEOUT_MAX_S, ParameterSpec, ParameterValue
 
 # Reply times: requests timed by default (``--samples``), and the recommendations' rules.
 REPLY_SAMPLES_DEFAULT = 300
@@ -136,6 +137,19 @@ class Check:
 
 
 @dataclass(frozen=True)
+class Described:
+    """A bridge whose node and rows a file makes (modbus_bridge's ``device_file``): the
+    parameters ``first`` are declared first; ``node(values)`` is the node their values
+    make (its other parameters are declared next) and ``bind(commissioning, values)`` the
+    commissioning of that file (its ``register_map`` and ``ping``). ``node`` may raise
+    ``ConfigurationError`` (one line, exit 2)."""
+
+    first: tuple[ParameterSpec, ...]
+    node: Callable[[Mapping[str, Any]], NodeInterface]
+    bind: Callable[[Commissioning, Mapping[str, Any]], Commissioning]
+
+
+@dataclass(frozen=True)
 class Commissioning:
     """A bridge's hardware checks and how the tool reaches its device.
 
@@ -146,7 +160,8 @@ class Commissioning:
     requests of one poll of the bridge (for the poll rate the line carries); ``setup``:
     builds ``probe.device`` and fills ``probe.facts`` (firmware, counts), reads only;
     ``refusal_reason``: why a row refused with an exception is expected (None:
-    unexpected)."""
+    unexpected); ``described``: set when a parameter names the file that makes the node
+    and its rows (then ``register_map`` and ``ping`` are placeholders)."""
 
     bridge: str
     node: str
@@ -156,6 +171,7 @@ class Commissioning:
     requests_per_poll: Callable[[Probe], int]
     setup: Callable[[Probe], None] = lambda _probe: None
     refusal_reason: Callable[[Register, Probe], str | None] = lambda _reg, _probe: None
+    described: Described | None = None
 
     def __post_init__(self) -> None:
         keys = [check.key for check in self.checks]
@@ -412,6 +428,7 @@ __all__ = [
     "REPLY_SAMPLES_DEFAULT",
     "Check",
     "Commissioning",
+    "Described",
     "Finding",
     "Guided",
     "Kind",
