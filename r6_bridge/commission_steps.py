@@ -50,7 +50,8 @@ LISTED_MAX = 8  # rows named in one finding; the rest counted
 CYCLE_ATTEMPTS = 2  # single cycles: a second one if the first leaves 2401 unchanged
 CYCLE_LIMIT_S = 120.0  # one single cycle that has not ended by then: stopped, could not tell
 RUN_BEFORE_PAUSE_S = 0.5  # decision 29's step: the program runs this long before the pause
-STANDSTILL_LIMIT_S = 10.0  # the program must stand (moving 0) this long before a step
+STANDSTILL_LIMIT_S = 10.0  # a step waits this long for the program to stand (moving 0)
+STANDSTILL_READ_PERIOD_S = 0.2  # between two reads of moving while it waits
 
 
 @dataclass
@@ -290,7 +291,7 @@ def _stands(probe: Probe, device: R6Device) -> str | None:
     """None once the program stands, else why the step does not start."""
     deadline = time.monotonic() + STANDSTILL_LIMIT_S
     while device.read_named("moving")["moving"]:
-        if time.monotonic() > deadline or probe.wait(RUN_BEFORE_PAUSE_S):
+        if time.monotonic() > deadline or probe.wait(STANDSTILL_READ_PERIOD_S):
             return "the program runs: stop it on the pendant first"
     return None
 
@@ -326,7 +327,9 @@ def cycle_time_2401(probe: Probe) -> Finding:
         try:
             ran = _one_cycle(probe, device)
         except CommandRejected as err:
-            return Finding(Verdict.NOT_RUN, f"refused, nothing written: {err}")
+            return Finding(
+                Verdict.NOT_RUN, f"refused by the bridge's checks, the step started nothing: {err}"
+            )
         if isinstance(ran, Finding):
             return ran
         motion, message = ran
@@ -356,7 +359,9 @@ def stop_shows_in_2470(probe: Probe) -> Finding:
     try:
         started = device.run_program("start")
     except CommandRejected as err:
-        return Finding(Verdict.NOT_RUN, f"refused, nothing written: {err}")
+        return Finding(
+            Verdict.NOT_RUN, f"refused by the bridge's checks, the step started nothing: {err}"
+        )
     except NotConfirmed as err:
         return Finding(Verdict.UNCLEAR, f"the program did not start: {err}")
     if probe.wait(RUN_BEFORE_PAUSE_S):

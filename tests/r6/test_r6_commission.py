@@ -1,21 +1,20 @@
 """``bridge_commission r6`` against the R6 simulator (docs/commissioning.md).
 
 The tool runs in-process (``bridge_core.ros.commission.main``, its operator's lines fed
-by ``Script``) against an in-process simulator on a free port, or as one subprocess where
-a signal is the point. Against the default simulator every read-only check is confirmed
-and both guided steps pass; against each personality that plays the other reading of a
-decision (docs/tools.md, "Device personalities") exactly that check is contradicted, or
-its recommendation changes. Nothing is written without ``yes`` (the write log stays
-empty), and every way out of a running step sends its pause (20001, in the write log
-after the step's start).
+by ``Script``) against an in-process simulator on a free port. Against the default
+simulator every read-only check is confirmed and both guided steps pass; against each
+personality that plays the other reading of a decision (docs/tools.md, "Device
+personalities") exactly that check is contradicted, or its recommendation changes.
+Nothing is written without ``yes`` (the write log stays empty), and every way out of a
+running step sends its pause (20001, in the write log after the step's start). Ctrl-C
+and SIGTERM are raised in this process, where the tool's handlers take them as they
+would in its own.
 """
 
 from __future__ import annotations
 
 import json
 import signal
-import subprocess
-import sys
 import threading
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -202,80 +201,42 @@ def test_the_other_readings_of_the_guided_steps_are_contradicted(
     assert all(found[key] == "confirmed" for key in READ_CHECKS), found
 
 
-@pytest.mark.parametrize("stop", ["", None, "ctrl-c"], ids=["enter", "stdin-closed", "ctrl-c"])
-def test_a_stop_key_closed_input_or_ctrl_c_stops_the_running_step(
-    sim: tuple[Simulator, R6SimDevice, int], tmp_path: Path, stop: str | None
+STOPS = {"enter": "", "stdin-closed": None, "ctrl-c": signal.SIGINT, "sigterm": signal.SIGTERM}
+
+
+@pytest.mark.parametrize("how", list(STOPS))
+def test_a_stop_key_closed_input_or_a_signal_stops_the_running_step(
+    sim: tuple[Simulator, R6SimDevice, int], tmp_path: Path, how: str
 ) -> None:
-    """Enter, the end of the input, or Ctrl-C while the cycle runs: pause goes out at
-    once, the step could not tell; after the end of the input or Ctrl-C the next step is
-    not run, and Ctrl-C ends the run (exit 130) with the report written."""
+    """Enter, the end of the input, Ctrl-C or SIGTERM while the cycle runs: pause goes
+    out at once and the step could not tell; after the end of the input or a signal the
+    next step is not run, and a signal ends the run (exit 130) with the report written."""
     _, device, port = sim
     device.program = timed_program(5.0, 0.0)  # a cycle the stop must cut short
-    if stop == "ctrl-c":
-        # SIGINT, as a terminal sends it: the tool's handler (main thread only) raises
-        # KeyboardInterrupt in the running step.
+    stop = STOPS[how]
+    if isinstance(stop, signal.Signals):
+        # The signal as a terminal or a service manager sends it, to this process: the
+        # tool's handler (main thread only) raises KeyboardInterrupt in the running step.
         assert threading.current_thread() is threading.main_thread()
 
         def cue() -> bool:
             if not device.running:
                 return False
-            signal.raise_signal(signal.SIGINT)
+            signal.raise_signal(stop)
             return True
 
         script = Script(("prompt", "yes"), (cue, None))
     else:
         script = Script(("prompt", "yes"), (lambda: device.running, stop), ("prompt", "no"))
     code, report = run(port, tmp_path, script)
-    assert code == (EXIT_INTERRUPTED if stop == "ctrl-c" else 0)
+    signalled = isinstance(stop, signal.Signals)
+    assert code == (EXIT_INTERRUPTED if signalled else 0)
     found = verdicts(report)
-    assert found["cycle_time_2401"] == ("not run" if stop == "ctrl-c" else "could not tell"), found
+    assert found["cycle_time_2401"] == ("not run" if signalled else "could not tell"), found
     assert found["stop_shows_in_2470"] == "not run"
-    assert bool(report["interrupted"]) is (stop == "ctrl-c")
+    assert bool(report["interrupted"]) is signalled
     assert stop_after_start(device, "single_cycle")
     assert not device.running
-
-
-def test_sigterm_during_a_step_sends_the_stop_and_writes_the_report(
-    sim: tuple[Simulator, R6SimDevice, int], tmp_path: Path
-) -> None:
-    """SIGTERM while the cycle runs (the tool in its own process, as a service manager
-    stops it): pause goes out, the report says interrupted, exit 130."""
-    _, device, port = sim
-    device.program = timed_program(5.0, 0.0)
-    proc = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "bridge_core.ros.commission",
-            "r6",
-            "--samples",
-            str(SAMPLES),
-            "--ros-args",
-            "-p",
-            f"port:={port}",
-        ],
-        stdin=subprocess.PIPE,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        cwd=tmp_path,
-    )
-    assert proc.stdin is not None
-    try:
-        proc.stdin.write("yes\n")
-        proc.stdin.flush()
-        wait_for(lambda: device.running, WAIT_S, "the single cycle to start")
-        proc.send_signal(signal.SIGTERM)
-        _, err = proc.communicate(timeout=WAIT_S)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-    assert proc.returncode == EXIT_INTERRUPTED, err
-    assert stop_after_start(device, "single_cycle")
-    report = json.loads((tmp_path / "commission-r6.json").read_text())
-    assert report["interrupted"]
-    assert verdicts(report)["stop_shows_in_2470"] == "not run"
-    assert "Traceback" not in err
 
 
 @pytest.mark.parametrize(
@@ -300,3 +261,19 @@ def test_a_bad_parameter_is_one_line_as_the_bridge_says_it(
     assert err.startswith(said) and err.count("\n") == 1, err
     assert device.write_log == []
     assert not (tmp_path / "commission-r6.json").exists()
+
+
+def test_a_step_the_bridge_refuses_starts_nothing(
+    sim: tuple[Simulator, R6SimDevice, int], tmp_path: Path
+) -> None:
+    """The controller in manual mode: both steps are refused by the bridge's own checks
+    (R6 decision 23) after ``yes``, not run; no start goes out, only their stops."""
+    _, device, port = sim
+    device.set("mode", 1)
+    code, report = run(port, tmp_path, answers("yes", "yes"))
+    assert code == 0
+    checks = {check["key"]: check for check in report["checks"]}
+    for key in GUIDED:
+        assert checks[key]["verdict"] == "not run", checks[key]
+        assert "manual mode" in checks[key]["seen"]
+    assert {r.address for r in device.write_log} == {PAUSE}
