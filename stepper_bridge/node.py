@@ -33,7 +33,6 @@ diagnostics and never written (decision 13).
 
 from __future__ import annotations
 
-import math
 import sys
 from collections.abc import Sequence
 from typing import Any
@@ -47,7 +46,6 @@ from bridge_core.runtime.diagnostics import Level, Report
 from bridge_core.runtime.joint_commands import MAX_JUMP_SPEC
 from bridge_core.runtime.rate_groups import PollGroups
 from bridge_core.wire.errors import ConfigurationError
-from bridge_core.wire.serial_timing import char_time_s
 from bridge_core.wire.transport import SerialSettings
 from msg_defs.msg import StepperState
 
@@ -59,6 +57,7 @@ from .registers import (
     LONGEST_REPLY_BYTES,
     MOTORS,
     REPLY_DELAY_S,
+    reply_timeout_floor_s,
 )
 from .snapshots import StepperSnapshot
 from .units import joint_scales
@@ -94,26 +93,11 @@ INTERPOLATION_FIELDS = (
     "line_end",
     "line_speed_rpm",
 )
-# §3: "485 接口通信时每帧数据响应时间不能低于 35ms": the controller answers no sooner than
-# 35 ms after a request (stepper decision 7). The reply timeout counts from the
-# request's last byte, so it must cover those 35 ms and the longest reply (a 49-register
-# read, 103 bytes: 107 ms at 9600 baud, 215 ms at 4800), plus a margin, rounded up to
-# 10 ms: 0.15 s at 9600 baud 8N1, 0.26 s at 4800, 0.10 s at 19200, 0.07 s at 38400
-# (``reply_timeout_floor_s``). A lower ``timeout_s`` is refused at start. The other
-# reading (the host must leave 35 ms between frames) is served by ``frame_gap_s``.
-TIMEOUT_MARGIN_S = 0.005
-TIMEOUT_STEP_S = 0.01
-
-
-def reply_timeout_floor_s(settings: SerialSettings) -> float:
-    """The least reply timeout the manual's 35 ms rule allows on this line (s)."""
-    char = char_time_s(settings.baudrate, settings.bytesize, settings.parity, settings.stopbits)
-    least = REPLY_DELAY_S + LONGEST_REPLY_BYTES * char + TIMEOUT_MARGIN_S
-    return math.ceil(round(least / TIMEOUT_STEP_S, 6)) * TIMEOUT_STEP_S
 
 
 def check_reply_timeout(settings: object) -> None:
-    """Refuse (one line) a ``timeout_s`` below the floor at the line's baud rate."""
+    """Refuse (one line) a ``timeout_s`` below the floor at the line's baud rate
+    (``registers.reply_timeout_floor_s``, stepper decision 7)."""
     if not isinstance(settings, SerialSettings):
         return
     floor = reply_timeout_floor_s(settings)

@@ -49,6 +49,9 @@ Readings taken (also in docs/decisions/stepper.md, "stepper decision N"):
 
 from __future__ import annotations
 
+import math
+from typing import TYPE_CHECKING
+
 from bridge_core.wire.registers import (
     Access,
     DeviceLimits,
@@ -58,6 +61,10 @@ from bridge_core.wire.registers import (
     ValueType,
     WordOrder,
 )
+from bridge_core.wire.serial_timing import char_time_s
+
+if TYPE_CHECKING:
+    from bridge_core.wire.transport import SerialSettings
 
 H = "§5(1) holding"
 C = "§5(2) coil"
@@ -83,6 +90,14 @@ REPLY_DELAY_S = 0.035
 MAX_REGISTERS_PER_REQUEST = 49  # §4: "可连续读取<50 个寄存器", "可连续写<50 个寄存器"
 # The longest reply: a read of 49 registers (unit, function, byte count, 98 data bytes, CRC).
 LONGEST_REPLY_BYTES = 5 + 2 * MAX_REGISTERS_PER_REQUEST
+# The reply timeout counts from the request's last byte, so it must cover those 35 ms and
+# the longest reply (107 ms at 9600 baud, 215 ms at 4800), plus a margin, rounded up to
+# 10 ms: 0.15 s at 9600 baud 8N1, 0.26 s at 4800, 0.10 s at 19200, 0.07 s at 38400
+# (``reply_timeout_floor_s``; stepper decision 7). A lower ``timeout_s`` is refused at
+# start (stepper_bridge.node). The other reading (the host must leave 35 ms between
+# frames) is served by ``frame_gap_s``.
+TIMEOUT_MARGIN_S = 0.005
+TIMEOUT_STEP_S = 0.01
 FUNCTION_CODES = frozenset({0x03, 0x05, 0x06, 0x10})  # §4
 DEFAULT_BAUDRATE = 9600  # §3
 BAUD_RATES = (4800, 9600, 19200, 38400)  # §5(1) 40213: "一般为:4800,9600,19200,38400"
@@ -425,3 +440,10 @@ UNDEFINED_HOLDING = (
     (40173, 40176),
     (40215, 40299),
 )
+
+
+def reply_timeout_floor_s(settings: SerialSettings) -> float:
+    """The least reply timeout the manual's 35 ms rule allows on this line (s)."""
+    char = char_time_s(settings.baudrate, settings.bytesize, settings.parity, settings.stopbits)
+    least = REPLY_DELAY_S + LONGEST_REPLY_BYTES * char + TIMEOUT_MARGIN_S
+    return math.ceil(round(least / TIMEOUT_STEP_S, 6)) * TIMEOUT_STEP_S

@@ -48,7 +48,10 @@ Personalities (docs/tools.md, "Device personalities"; ``bridge_core.sim.personal
 ``--reply-delay-ms MIN[:MAX]`` and ``--ignore NAME,...`` with the names of ``IGNORABLE``
 (per motor: run, forward, reverse, home, stop, speed, direction, distance; system: estop,
 to_zero, home_all, line_start, line_stop, arc_start, arc_stop). A motor's stop coil also
-ends a line / arc that moves it (stepper decision 23).
+ends a line / arc that moves it (stepper decision 23). The other readings of the
+decisions ``bridge_commission stepper`` settles: ``--pair-reading point_rows``
+(``pair_reading``), ``--no-zero-at-home`` (``zero_at_home``), ``--answer-undefined``
+(``answer_undefined``); a late controller is ``--reply-delay-ms``.
 """
 
 from __future__ import annotations
@@ -160,6 +163,8 @@ _IGNORABLE_REGISTERS: dict[int, str] = {
     for address in STEPPER_MAP[motor_register(m, field_name)].addresses()
 }
 _OUTPUT_COILS = range(OUTPUT_COIL_FIRST - 1, OUTPUT_COIL_FIRST - 1 + 2 * OUTPUTS)
+READ_HOLDING = 0x03
+PAIR_READINGS = ("type_rows", "point_rows")
 
 
 @dataclass
@@ -197,6 +202,9 @@ class StepperSimDevice(SimulatedDevice):
         # Whether homing sets the coordinate to 0 at the home switch (the manual does not
         # say; stepper decision 20): False plays a controller that leaves it.
         self.zero_at_home = True
+        # A controller that answers a read of undefined rows (40118-40123, ...) with zeros
+        # instead of 0x02 (stepper decisions 7, 21's other reading; ``--answer-undefined``).
+        self.answer_undefined = False
         # Told (old id, new id) when the device id changes, so the server answers the new
         # unit only (make_simulator re-keys its units).
         self.on_unit_id_change: Callable[[int, int], None] = lambda _old, _new: None
@@ -256,6 +264,19 @@ class StepperSimDevice(SimulatedDevice):
         return rpm / 60.0 * float(self.get(motor_register(motor, "lead")))
 
     # ------------------------------------------------------------ Modbus behaviour
+    def read(self, function_code: int, address: int, count: int) -> list[int] | int:
+        """With ``answer_undefined``, a read of undefined rows only answers zeros."""
+        if (
+            self.answer_undefined
+            and function_code == READ_HOLDING
+            and count <= self.limits.max_read_registers
+            and all(
+                self.map.owner_at(Table.HOLDING, a) is None for a in range(address, address + count)
+            )
+        ):
+            return [0] * count
+        return super().read(function_code, address, count)
+
     def write_names(self, record: WriteRecord) -> frozenset[str]:
         """Which of ``IGNORABLE`` a write is: a motion coil written ON, or a write that
         covers a motor's speed, direction or run distance (all of it is then ignored)."""
@@ -570,10 +591,30 @@ def main(argv: Sequence[str] | None = None) -> None:
     )
     add_ignore_argument(parser, StepperSimDevice.IGNORABLE)
     parser.add_argument("--travel", type=float, default=TRAVEL, help="positive limit, units")
+    parser.add_argument(
+        "--pair-reading",
+        choices=PAIR_READINGS,
+        default=PAIR_READINGS[0],
+        help="which motors pairs 2 and 3 drive: by the type rows (2 = 1+3, 3 = 2+3) or the "
+        "point rows (2 = 2+3, 3 = 1+3) (stepper decision 19)",
+    )
+    parser.add_argument(
+        "--no-zero-at-home",
+        action="store_true",
+        help="homing leaves the coordinate as it was (stepper decision 20's other reading)",
+    )
+    parser.add_argument(
+        "--answer-undefined",
+        action="store_true",
+        help="a read of undefined rows only answers zeros, not 0x02 (stepper decisions 7, 21)",
+    )
     args = parser.parse_args(argv)
     sim = make_simulator(args.unit_id, args.reply_delay_ms.low_s, args.travel)
     device = sim.device
     assert isinstance(device, StepperSimDevice)
+    device.pair_reading = args.pair_reading
+    device.zero_at_home = not args.no_zero_at_home
+    device.answer_undefined = args.answer_undefined
     serve_serial_until_signalled(
         sim,
         args,
