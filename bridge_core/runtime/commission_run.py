@@ -13,6 +13,7 @@ sent on every way out of it (its end, an error, Ctrl-C, SIGTERM, stdin closed).
 
 from __future__ import annotations
 
+import dataclasses
 import queue
 import threading
 import time
@@ -257,7 +258,7 @@ def run_step(
     run: Callable[[Probe], Finding], send_stop: Callable[[Probe], str], probe: Probe
 ) -> Finding:
     """One guided step; its stop goes out however the step ends (a ``KeyboardInterrupt``,
-    Ctrl-C or SIGTERM, goes on up after it)."""
+    Ctrl-C or SIGTERM, goes on up after it); the finding says what the stop read back."""
     try:
         finding = run(probe)
     except LinkError as err:
@@ -268,7 +269,7 @@ def run_step(
         except LinkError as err:
             said = f"the stop failed: {err}: stop it on the device"
         probe.say(f"  stop sent: {said}")
-    return finding
+    return dataclasses.replace(finding, seen=f"{finding.seen}; then the stop: {said}")
 
 
 def not_run(commissioning: Commissioning, report: Report, why: str) -> None:

@@ -143,6 +143,8 @@ def test_the_default_simulator_confirms_every_check(
     assert report["recommended_parameters"]["m_boards"] is True
     assert report["reply_times"]["count"] == SAMPLES
     assert stop_after_start(device, "single_cycle") and stop_after_start(device, "start")
+    seen = {check["key"]: check["seen"] for check in report["checks"]}
+    assert all("then the stop: wrote 20001 = 1 (pause)" in seen[key] for key in GUIDED), seen
     params = (tmp_path / "r6.yaml").read_text()
     assert params.startswith("# Recommended") and "/**/r6_bridge:\n  ros__parameters:" in params
     assert f"port: {port}" in params and "timeout_s: " in params
