@@ -81,10 +81,21 @@ def setup(probe: Probe) -> None:
     device = StepperDevice(probe.io, pair_reading=PAIR_READING_TRIED)
     config = device.read_config(Priority.COMMAND)
     probe.device = device
+    baud = str(config.baud_rate)
+    line_baud = int(probe.values.get("baudrate", config.baud_rate))
+    if config.baud_rate != line_baud:
+        # Decision 13 reads "一旦设定成功控制器立即生效" (at once): a rate that differs from
+        # the line's may be the one the controller comes up with after a power cycle.
+        baud += (
+            f" (the line runs at {line_baud}: after a power cycle the controller may answer "
+            f"at {config.baud_rate} only; tell us)"
+        )
     probe.facts.update(
         {
+            "firmware": "no register for it in the manual",
+            "watchdog": "none in the manual: a motion runs on when the bridge dies (README)",
             "device id (40212)": str(config.device_id),
-            "baud rate (40213)": str(config.baud_rate),
+            "baud rate (40213)": baud,
             "system mode (40300)": str(config.system_mode),
             "homing order (40177-40181)": ", ".join(map(str, config.homing_order)),
             "line / arc pair (40202 / 40182)": (
@@ -138,6 +149,8 @@ def reply_rule(probe: Probe) -> Finding:
     times = reply_times(samples, lost)
     timeout = recommend_timeout_s(times, floor)
     line = f"{settings.baudrate} baud: floor {floor:.2f} s"
+    if settings.timeout_s < floor - 1e-9:
+        line += f" (the timeout_s {settings.timeout_s:g} given is below it: the bridge refuses it)"
     if not samples:
         return Finding(Verdict.UNCLEAR, f"no reply to {lost} requests at {line}")
     least = min(samples)

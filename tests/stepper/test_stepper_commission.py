@@ -114,6 +114,7 @@ class Rig:
             fake.pair_reading = "type_rows"
             fake.zero_at_home = True
             fake.answer_undefined = False
+            fake.set("baud_rate", LINE_BAUD)  # the rate the tool is told the line runs at
             fake.interpolation = None
             for m in range(1, MOTORS + 1):
                 fake.motion[m] = None
@@ -193,6 +194,7 @@ def test_the_default_simulator_confirms_every_check(rig: Rig, tmp_path: Path) ->
     code, report = run(rig, tmp_path, script)
     assert code == 0
     assert script.said[0] == FIRST_LINE
+    assert report["facts"]["baud rate (40213)"] == str(LINE_BAUD)
     found = verdicts(report)
     assert all(found[key] == "confirmed" for key in (*READ_CHECKS, *GUIDED)), report["checks"]
     assert found["unit_ids"] == found["shared_line_stop"] == "not run"
