@@ -3,7 +3,8 @@
 (``bridge_commission --write-docs stepper``; tests/docs/test_commission_pages.py fails when
 the page and these rows differ). Read-only checks run first, then the guided steps, each
 after the operator's ``yes``; the manual ones are for a person with ``ros2`` (and a second
-controller or a logic analyser). The steps themselves are in commission_steps.py.
+controller or a logic analyser). The read-only checks are in commission_steps.py, the
+guided steps in commission_guided.py.
 "Stepper decision N" is reading N of docs/decisions/stepper.md.
 """
 
@@ -11,36 +12,37 @@ from __future__ import annotations
 
 from bridge_core.runtime.commission import Check, Commissioning, Guided
 
+from . import commission_guided as guided
 from . import commission_steps as steps
 from .registers import STEPPER_MAP
 
 CONTROLLER_STOP = "the controller's e-stop"
 PAIR_LINE = Guided(
     moves="every motor's coordinate set to 0 (coil 00044), then a line of pair "
-    f"{steps.PAIR_TRIED} from (0, 0) to ({steps.LINE_END_UNITS[0]:g}, "
-    f"{steps.LINE_END_UNITS[1]:g}) units at {steps.LINE_RPM} rpm, followed as a `line_move` "
+    f"{guided.PAIR_TRIED} from (0, 0) to ({guided.LINE_END_UNITS[0]:g}, "
+    f"{guided.LINE_END_UNITS[1]:g}) units at {guided.LINE_RPM} rpm, followed as a `line_move` "
     "goal under `type_rows`: motors 1 and 3 (or 2 and 3 on a controller that follows the "
     "point rows, stopped at the first poll that shows motor 2 moved)",
     stop_how=CONTROLLER_STOP + "; the tool then sends the arc and line stops and the stop "
     "coils of motors 1-3",
-    run=steps.pair_reading,
-    send_stop=steps.stop_interpolation,
+    run=guided.pair_reading,
+    send_stop=guided.stop_interpolation,
 )
 HOME_MOTOR_1 = Guided(
-    moves=f"motor {steps.HOME_MOTOR} runs {steps.HOME_OFF_UNITS:g} units forward (a single "
+    moves=f"motor {guided.HOME_MOTOR} runs {guided.HOME_OFF_UNITS:g} units forward (a single "
     "run, as `move_by`), then homes (its home coil, as the `home` goal) in reverse until its "
     "home input, at its configured speed",
-    stop_how=CONTROLLER_STOP + f"; the tool then sends motor {steps.HOME_MOTOR}'s stop coil",
-    run=steps.zero_at_home,
-    send_stop=steps.stop_motor_1,
+    stop_how=CONTROLLER_STOP + f"; the tool then sends motor {guided.HOME_MOTOR}'s stop coil",
+    run=guided.zero_at_home,
+    send_stop=guided.stop_motor_1,
 )
 FORWARD_THEN_STOP = Guided(
-    moves=f"motor {steps.HOME_MOTOR} forward at its configured speed (read back as "
-    f"`~/motor_1/forward`) for {steps.RUN_BEFORE_STOP_S:g} s, then its stop coil (read back as "
+    moves=f"motor {guided.HOME_MOTOR} forward at its configured speed (read back as "
+    f"`~/motor_1/forward`) for {guided.RUN_BEFORE_STOP_S:g} s, then its stop coil (read back as "
     "`~/motor_1/stop`); the line part of the check stays manual",
     stop_how=CONTROLLER_STOP,
-    run=steps.stop_and_start,
-    send_stop=steps.stop_motor_1,
+    run=guided.stop_and_start,
+    send_stop=guided.stop_motor_1,
 )
 
 CHECKS = (
