@@ -390,8 +390,6 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
         if self._owned_link is not None:
             with self._owned_link.lock.hold(Priority.COMMAND):  # never mid-transaction
                 self._owned_link.close()
-            if self.wire is not None:
-                self.wire.close()
 
     def _poll_report(self, outcome: PollOutcome, text: str) -> None:
         logger = self.get_logger()
@@ -565,6 +563,8 @@ class BridgeNode(ParameterNode, Generic[SnapshotT]):
             self.poller.stop()
             self._unlisten()
             self._close_owned_link()
+            if self._owned_link is not None and self.wire is not None:
+                self.wire.close()  # not on cleanup: a configure after it polls again
 
 
 def copy_fields(msg: Any, source: Any, names: Iterable[str]) -> Any:

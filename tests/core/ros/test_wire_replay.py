@@ -5,8 +5,8 @@ the R6 bridge with ``record_wire`` on polls its simulator (the axes moving) whil
 ``bridge_record`` records its ``~/wire`` and ``joint_states``; then ``bridge_replay``
 serves that bag over TCP and a second bridge (``record_wire`` off) polls the replay:
 it publishes the recorded positions in the recorded order. On the way: the parameter
-is read-only (a set is refused), the recording node's diagnostics count its frames, and
-with the parameter off there is no ``~/wire``.
+is read-only (a set is refused), ``~/wire`` outlives a lifecycle cleanup, the recording
+node's diagnostics count its frames, and with the parameter off there is no ``~/wire``.
 """
 
 from __future__ import annotations
@@ -124,6 +124,9 @@ def record(tmp_path: Path, bag: Path) -> list[tuple[float, ...]]:
                 while taken < len(topics) and time.monotonic() < deadline:
                     taken += "recording /rec/" in recorder.stdout.readline()
                 assert taken == len(topics), "the recorder did not take up the topics"
+                # Configured, cleaned up, then configured again: ~/wire outlives a cleanup.
+                change(client, f"{ns}/{NODE}", Transition.TRANSITION_CONFIGURE)
+                change(client, f"{ns}/{NODE}", Transition.TRANSITION_CLEANUP)
                 activate(client, f"{ns}/{NODE}")
                 wait_for(
                     lambda: len(client.received(topics[0])) >= RECORDED_POLLS,
