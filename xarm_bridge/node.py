@@ -27,6 +27,7 @@ from msg_defs.msg import XArmState
 from .device import XArmDevice, XArmSnapshot
 from .interface import PARAMETERS, SERVICES, XARM_DEFAULTS
 from .registers import (
+    ORIENTATION_MISMATCH_DEG,
     SET_STATE_START,
     USER_COILS,
     WORLD,
@@ -37,11 +38,6 @@ from .registers import (
 )
 
 T = TypeVar("T")
-
-# The pose's roll/pitch/yaw and the rotation vector rx/ry/rz are two readings of one
-# orientation, each rounded to 0.1 deg per value: they agree within ~0.2 deg. More than
-# this says the Euler convention of ~/tcp_pose (docs/bridges/r6.md) is not the controller's.
-ORIENTATION_MISMATCH_DEG = 1.0
 
 
 def _pose6(values: dict[str, float]) -> list[float]:

@@ -120,6 +120,11 @@ WARNING_TEXTS = {
 
 WORLD = ("x", "y", "z", "roll", "pitch", "yaw")
 ROTATION_VECTOR = ("rx", "ry", "rz")  # I70-72: the TCP orientation as axis times angle (deg)
+# The pose's roll/pitch/yaw and the rotation vector rx/ry/rz are two readings of one
+# orientation, each rounded to 0.1 deg per value: they agree within ~0.2 deg. More than
+# this says the Euler convention of ~/tcp_pose (docs/bridges/r6.md) is not the controller's
+# (xArm decision 13: the node's diagnostics and bridge_commission's check).
+ORIENTATION_MISMATCH_DEG = 1.0
 
 
 def _scaled(name: str, address: int, scale: float, unit: str, doc: str) -> Register:

@@ -24,7 +24,12 @@ Personalities (docs/tools.md, "Device personalities"): ``--ignore NAME,...`` (th
 writes of ``IGNORABLE``: acknowledged, nothing stored, no motion) and
 ``--coils-as-written`` (``coils_as_written``): C144 / C145 read back what was last
 written to them, ignored writes too, not the arm's state (a firmware that stores the coil
-and leaves the arm as it is).
+and leaves the arm as it is). The other readings that ``bridge_commission xarm`` tells
+apart (xarm_bridge/commission.py): ``--counter-low-first`` (``counter_low_first``: the
+counter I34-35 low word first, decision 4), ``--answer-reserved`` (``answer_reserved``:
+reserved rows answer 0, not 0x02, decision 2) and ``--euler-moving-axes``
+(``euler_moving_axes``: roll/pitch/yaw about the moving axes, so rx/ry/rz describe
+another orientation than the bridge's fixed-axis reading, decision 13).
 """
 
 from __future__ import annotations
@@ -34,12 +39,17 @@ import math
 from collections.abc import Mapping, Sequence
 from typing import ClassVar
 
-from bridge_core.runtime.units import euler_xyz_deg_to_quaternion, quaternion_to_rotation_vector_deg
+from bridge_core.runtime.units import (
+    DEG,
+    euler_xyz_deg_to_quaternion,
+    quaternion_to_rotation_vector_deg,
+)
 from bridge_core.sim.command_line import add_tcp_arguments, serve_tcp_until_signalled
 from bridge_core.sim.logs import WriteRecord
 from bridge_core.sim.personality import add_ignore_argument
 from bridge_core.sim.serving import Simulator
 from bridge_core.sim.sim_base import (
+    FUNCTION_TABLES,
     ILLEGAL_ADDRESS,
     ILLEGAL_FUNCTION,
     ILLEGAL_VALUE,
@@ -99,6 +109,10 @@ class XArmSimDevice(SimulatedDevice):
         self.tasks_started: list[list[int]] = []
         # ``--coils-as-written``: C144 / C145 hold what was last written, not the state.
         self.coils_as_written = False
+        # The other readings bridge_commission tells apart (xArm decisions 4, 2, 13).
+        self.counter_low_first = False  # ``--counter-low-first``: I34-35 low word first
+        self.answer_reserved = False  # ``--answer-reserved``: reserved rows answer 0
+        self.euler_moving_axes = False  # ``--euler-moving-axes``: rx/ry/rz of R = Rx Ry Rz
         self.write_guards.append(self._guard)
         self.write_hooks.append(self._on_write)
         self.set_state(SLEEPING)
@@ -148,6 +162,22 @@ class XArmSimDevice(SimulatedDevice):
             self._sync_words("controller_di", "controller_di_word", "tool_di", "tool_di_word")
 
     # ------------------------------------------------------------ Modbus behaviour
+    def read(self, function_code: int, address: int, count: int) -> list[int] | int:
+        """The read personalities: ``answer_reserved`` (a read of reserved rows only
+        answers 0, not 0x02) and ``counter_low_first`` (the counter's words swapped)."""
+        words = super().read(function_code, address, count)
+        table = FUNCTION_TABLES[function_code]
+        span = range(address, address + count)
+        if isinstance(words, int):
+            if self.answer_reserved and all(self.map.owner_at(table, a) is None for a in span):
+                return [0] * count
+            return words
+        first = XARM_MAP["counter"].address
+        if self.counter_low_first and table is Table.INPUT and first in span and first + 1 in span:
+            k = first - address
+            words[k], words[k + 1] = words[k + 1], words[k]
+        return words
+
     def write_names(self, record: WriteRecord) -> frozenset[str]:
         """Which of ``IGNORABLE`` this write is."""
         names: set[str] = set()
@@ -300,9 +330,11 @@ class XArmSimDevice(SimulatedDevice):
             self.set("tcp_roll", roll)
             self.set("tcp_pitch", pitch)
             self.set("tcp_yaw", yaw)
-            rotation = quaternion_to_rotation_vector_deg(
-                euler_xyz_deg_to_quaternion(roll, pitch, yaw)
-            )
+            if self.euler_moving_axes:
+                orientation = _moving_axes_quaternion(roll, pitch, yaw)
+            else:
+                orientation = euler_xyz_deg_to_quaternion(roll, pitch, yaw)
+            rotation = quaternion_to_rotation_vector_deg(orientation)
             for axis, value in zip(("rx", "ry", "rz"), rotation, strict=True):
                 self.set(f"tcp_{axis}", round(value, 1))
 
@@ -326,6 +358,32 @@ class XArmSimDevice(SimulatedDevice):
                 self.set(f"joint_speed_{j}", round(max(-3000.0, min(3000.0, speed)), 1))
             self._pose_from_joints()
             self.set("tcp_speed", 50.0 if moving else 0.0)
+
+
+Quaternion = tuple[float, float, float, float]
+
+
+def _about(axis: int, angle_deg: float) -> Quaternion:
+    q = [0.0, 0.0, 0.0, math.cos(angle_deg * DEG / 2.0)]
+    q[axis] = math.sin(angle_deg * DEG / 2.0)
+    return (q[0], q[1], q[2], q[3])
+
+
+def _product(a: Quaternion, b: Quaternion) -> Quaternion:
+    ax, ay, az, aw = a
+    bx, by, bz, bw = b
+    return (
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+        aw * bw - ax * bx - ay * by - az * bz,
+    )
+
+
+def _moving_axes_quaternion(roll: float, pitch: float, yaw: float) -> Quaternion:
+    """Roll, pitch, yaw about the moving X, Y', Z'' (R = Rx Ry Rz): the other reading of
+    xArm decision 13 (the bridge's is fixed axes, R = Rz Ry Rx)."""
+    return _product(_product(_about(0, roll), _about(1, pitch)), _about(2, yaw))
 
 
 def _signed(word: int) -> int:
@@ -360,12 +418,30 @@ def main(argv: Sequence[str] | None = None) -> None:
         action="store_true",
         help="C144 / C145 (pause / stop) read back what was last written, not the arm's state",
     )
+    parser.add_argument(
+        "--counter-low-first",
+        action="store_true",
+        help="the counter I34-35 low word first (xArm decision 4's other reading)",
+    )
+    parser.add_argument(
+        "--answer-reserved",
+        action="store_true",
+        help="reserved rows answer 0 instead of 0x02 (xArm decision 2's other reading)",
+    )
+    parser.add_argument(
+        "--euler-moving-axes",
+        action="store_true",
+        help="rx/ry/rz of roll/pitch/yaw about the moving axes (xArm decision 13's other)",
+    )
     args = parser.parse_args(argv)
     sim = make_simulator(args.joints)
     device = sim.device
     assert isinstance(device, XArmSimDevice)
     device.set_error(args.error)
     device.coils_as_written = bool(args.coils_as_written)
+    device.counter_low_first = bool(args.counter_low_first)
+    device.answer_reserved = bool(args.answer_reserved)
+    device.euler_moving_axes = bool(args.euler_moving_axes)
     serve_tcp_until_signalled(sim, args, "xarm_sim")
 
 
