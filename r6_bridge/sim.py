@@ -41,10 +41,10 @@ from bridge_core.sim.sim_base import (
 from bridge_core.wire.codec import int_to_words, words_to_int
 from bridge_core.wire.registers import Table, WordOrder
 
+from . import sim_readings as readings
 from .registers import (
     COIL_BANKS,
     COMMANDS,
-    M_BOARDS,
     MAX_AXES,
     MAX_COUNTERS,
     MAX_IO_BOARDS,
@@ -129,17 +129,6 @@ _IGNORABLE_AT: dict[int, str] = {
     COMMANDS["clear_alarm_and_continue"]: "clear_alarm",
     R6_MAP["global_speed"].address: "speed",
 }
-# The other readings bridge_commission settles, played on request (docs/tools.md, "Device
-# personalities"): 32/64-bit values low word first (R6 decision 1, ``--word-order low``),
-# the rows past the axis and IO board counts answered (decision 8), registers outside the
-# map answered with 0 (decision 11), the M boards' rows refused (the handheld
-# network-port version, decision 21).
-WORD_ORDERS = ("high", "low")
-M_BOARD_ROWS = (
-    range(R6_MAP["m_board_input_0"].address, R6_MAP[f"m_board_input_{M_BOARDS - 1}"].end),
-    range(R6_MAP["m_board_output_0"].address, R6_MAP[f"m_board_output_{M_BOARDS - 1}"].end),
-)
-M_BOARD_COILS = range(COIL_BANKS[1][1], COIL_BANKS[1][1] + COIL_BANKS[1][2])
 # When 2401 ("上模周期") is written (R6 decision 23 leaves it open; ``--cycle-time-at``):
 # at a cycle's end, the time of the cycle that just ended, or at a cycle's start, the
 # time of the last cycle completed before it.
@@ -164,7 +153,7 @@ class R6SimDevice(SimulatedDevice):
         self.cycle_time_at = "end"
         self._completed_cycle_ms: int | None = None
         self._serving_fc04 = False
-        # Personalities (main's options): the other readings of decisions 1, 8, 11, 21.
+        # Personalities (sim_readings: the other readings of decisions 1, 8, 11, 21).
         self.low_word_first = False
         self.answer_past_counts = False
         self.answer_undefined = False
@@ -244,44 +233,27 @@ class R6SimDevice(SimulatedDevice):
             table = FUNCTION_TABLES[function_code]
             code = self._refused_by_counts(table, address, count)
             if code is None and not self.m_boards_offered:
-                rows = (
-                    M_BOARD_COILS if table is Table.COIL else (*M_BOARD_ROWS[0], *M_BOARD_ROWS[1])
-                )
-                if any(a in rows for a in range(address, address + count)):
-                    code = ILLEGAL_ADDRESS
+                code = ILLEGAL_ADDRESS if readings.m_board_refused(table, address, count) else None
             if code is not None:
                 return code
-            if self.answer_undefined and all(
-                self.map.owner_at(table, a) is None for a in range(address, address + count)
-            ):
+            if self.answer_undefined and readings.undefined(self.map, table, address, count):
                 return [0] * count  # decision 11's other reading: no 0x02 outside the map
             if function_code != 4:
-                return self._word_order(table, address, super().read(function_code, address, count))
+                return self._answer(table, address, super().read(function_code, address, count))
             # §4 "功能码 0x03、0x04、0x06、0x10 地址表定义": FC 04 reads the FC 03 rows (the
             # read log still says FC 04).
             self._serving_fc04 = True
             try:
-                return self._word_order(table, address, super().read(3, address, count))
+                return self._answer(table, address, super().read(3, address, count))
             finally:
                 self._serving_fc04 = False
 
-    def _word_order(self, table: Table, address: int, words: list[int] | int) -> list[int] | int:
+    def _answer(self, table: Table, address: int, words: list[int] | int) -> list[int] | int:
         """With ``low_word_first`` (decision 1's other reading), every whole 32/64-bit value
         of the answer is sent low word first."""
         if not self.low_word_first or isinstance(words, int) or table.is_bit:
             return words
-        out = list(words)
-        at = address
-        while at < address + len(out):
-            owner = self.map.owner_at(table, at)
-            if owner is None or owner.count not in (2, 4) or owner.address != at:
-                at += 1
-                continue
-            start = at - address
-            if owner.end <= address + len(out):
-                out[start : start + owner.count] = reversed(out[start : start + owner.count])
-            at = owner.end
-        return out
+        return readings.low_word_first(self.map, table, address, words)
 
     def _log_read(self, record: ReadRecord) -> None:
         if self._serving_fc04:
@@ -536,28 +508,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         help="when the last cycle time 2401 is written: at a cycle's end (its own time) or "
         "at the next cycle's start (the last completed cycle's time)",
     )
-    parser.add_argument(
-        "--word-order",
-        choices=WORD_ORDERS,
-        default="high",
-        help="32/64-bit values high word first (the manual, decision 1) or low word first",
-    )
-    parser.add_argument(
-        "--answer-past-counts",
-        action="store_true",
-        help="answer the rows of axes and IO boards past their counts (decision 8: refused)",
-    )
-    parser.add_argument(
-        "--answer-undefined",
-        action="store_true",
-        help="answer registers outside the map with 0 (decision 11: exception 0x02)",
-    )
-    parser.add_argument(
-        "--no-m-boards",
-        action="store_true",
-        help="refuse the M boards' rows and coils, as the handheld network-port version "
-        "(decision 21)",
-    )
+    readings.add_arguments(parser)
     add_ignore_argument(parser, R6SimDevice.IGNORABLE)
     args = parser.parse_args(argv)
     sim = make_simulator(args.axes, args.io_boards)
@@ -567,10 +518,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     device.set_alarm(args.alarm)
     device.running = args.running and not args.alarm
     device.set_cycle_time_at(args.cycle_time_at)
-    device.low_word_first = args.word_order == "low"
-    device.answer_past_counts = args.answer_past_counts
-    device.answer_undefined = args.answer_undefined
-    device.m_boards_offered = not args.no_m_boards
+    readings.apply(device, args)
     serve_tcp_until_signalled(sim, args, "r6_sim")
 
 
