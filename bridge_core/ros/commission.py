@@ -20,7 +20,7 @@ import sys
 import threading
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from rclpy.context import Context
 from rclpy.exceptions import ParameterException
@@ -128,7 +128,7 @@ def the_node(commissioning: Commissioning, values: dict[str, Any] | None = None)
         return commissioning.described.node(values)
     listed = getattr(bus_module(commissioning), COMMISSION_NODE, None)
     if listed is not None:
-        return listed
+        return cast(NodeInterface, listed)  # the bus module's listing (getattr: Any)
     return next(n for n in nodes() if n.node == commissioning.node)
 
 
