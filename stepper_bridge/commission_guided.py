@@ -155,19 +155,22 @@ def zero_at_home(probe: Probe) -> Finding:
     if (busy := _stands(probe, device, [HOME_MOTOR])) is not None:
         return Finding(Verdict.NOT_RUN, busy)
     scales, tolerance = _scales(probe), _tolerance(probe)
+    try:  # both goals checked before the first write (a motor without a home input)
+        lead = device.config.motors[HOME_MOTOR - 1].lead
+        off_si = scales[HOME_MOTOR - 1].to_si(HOME_OFF_UNITS, lead)
+        off = MoveByMotion(device, scales, HOME_MOTOR, HOME_OFF_UNITS, off_si, tolerance=tolerance)
+        home = HomeMotion(device, scales, "home", [HOME_MOTOR], tolerance=tolerance)
+    except CommandRejected as err:
+        return Finding(Verdict.NOT_RUN, f"refused, nothing written: {err}")
     try:
-        off = MoveByMotion(
-            device, scales, HOME_MOTOR, HOME_OFF_UNITS, HOME_OFF_UNITS, tolerance=tolerance
-        )
         moved = follow(probe, device, off)
         if isinstance(moved, Finding):
             return moved
         if moved[0] is not Outcome.REACHED:
             return Finding(Verdict.UNCLEAR, f"the run off home ended {moved[0].name}: {moved[1]}")
-        home = HomeMotion(device, scales, "home", [HOME_MOTOR], tolerance=tolerance)
         ran = follow(probe, device, home)
     except CommandRejected as err:
-        return Finding(Verdict.NOT_RUN, f"refused, nothing written: {err}")
+        return Finding(Verdict.NOT_RUN, f"refused: {err}")
     if isinstance(ran, Finding):
         return ran
     outcome, message = ran

@@ -24,10 +24,13 @@ import pytest
 
 from bridge_core.ros.command_line import EXIT_CONFIGURATION_ERROR
 from bridge_core.ros.commission import EXIT_INTERRUPTED, main
-from bridge_core.runtime.commission_run import FIRST_LINE, PROMPT
+from bridge_core.runtime.commission import Probe, Verdict
+from bridge_core.runtime.commission_run import FIRST_LINE, PROMPT, run_step
 from bridge_core.sim.serving import Simulator
+from bridge_core.wire.channel import DeviceChannel
 from bridge_core.wire.registers import Table
-from bridge_core.wire.transport import SerialSettings
+from bridge_core.wire.transport import ModbusLink, SerialSettings
+from stepper_bridge import commission_guided, commission_steps
 from stepper_bridge.registers import (
     MOTORS,
     SYSTEM_COILS,
@@ -39,7 +42,7 @@ from stepper_bridge.registers import (
 from stepper_bridge.sim import StepperSimDevice, make_simulator
 
 from ..support.ros import ROOT, wait_for
-from ..support.serial_pair import served_on_pty
+from ..support.serial_pair import PTY_REPLY_TIMEOUT_S, served_on_pty
 
 READ_CHECKS = ("reply_rule", "undefined_rows")
 GUIDED = ("pair_reading", "zero_at_home", "stop_and_start")
@@ -304,6 +307,26 @@ def test_ctrl_c_stops_the_running_step_and_writes_the_report(rig: Rig, tmp_path:
     assert verdicts(report)["stop_and_start"] == "not run"
     assert coils(fake) == [FORWARD_1, STOP_1]
     assert fake.motion[1] is None
+
+
+def test_a_motor_without_a_home_input_is_refused_before_it_moves(rig: Rig) -> None:
+    """The homing step checks both goals before its first write (the bridge's own check:
+    homing without a home input runs until a stop): refused, nothing run; only the
+    step's stop goes out, as on every way out of a step. The step called directly, on
+    the tool's own channel (no read phase: only this step is the point)."""
+    fake = rig.fake
+    fake.set(motor_register(1, "home_input"), 0)
+    link = ModbusLink(SerialSettings(rig.port, LINE_BAUD, timeout_s=PTY_REPLY_TIMEOUT_S))
+    try:
+        probe = Probe(DeviceChannel(link, 1, retries=0), {"poll_rate_hz": POLL_RATE_HZ})
+        commission_steps.setup(probe)
+        finding = run_step(commission_guided.zero_at_home, commission_guided.stop_motor_1, probe)
+    finally:
+        link.close()
+        fake.set(motor_register(1, "home_input"), 2)
+    assert finding.verdict is Verdict.NOT_RUN, finding
+    assert finding.seen.startswith("refused, nothing written: motor 1 has no home input")
+    assert coils(fake) == [STOP_1]
 
 
 def test_a_bad_parameter_is_one_line_as_the_bridge_says_it(
