@@ -55,6 +55,7 @@ FLOOR_S = reply_timeout_floor_s(SerialSettings("", LINE_BAUD))
 LEAD = 50.0  # every motor: 60 rpm moves 50 units/s, so each guided step takes ~0.2 s
 SLOW_LEAD = 5.0  # motor 1 in the stop test: the pair-2 line at 30 rpm takes ~1.8 s
 SLOW_REPLY_S = 0.1  # above that floor
+CUE_UNITS = 2.0  # the Ctrl-C test: motor 1 this far on (40 ms at 50 units/s) when it signals
 POLL_RATE_HZ = 20.0  # the guided steps follow their motions at this rate
 WAIT_S = 30.0  # a bound, not a measure
 
@@ -295,7 +296,9 @@ def test_ctrl_c_stops_the_running_step_and_writes_the_report(rig: Rig, tmp_path:
     assert threading.current_thread() is threading.main_thread()
 
     def cue() -> bool:
-        if fake.motion[1] is None:
+        # Motor 1 a little way on: its start's read-back is over and the step waits (a
+        # signal then lands in the wait, not in the middle of a transaction).
+        if fake.motion[1] is None or fake.coordinate(1) < CUE_UNITS:
             return False
         signal.raise_signal(signal.SIGINT)  # the tool's handler (main thread only) raises
         return True
