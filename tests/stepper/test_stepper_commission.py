@@ -31,6 +31,7 @@ from bridge_core.wire.channel import DeviceChannel
 from bridge_core.wire.registers import Table
 from bridge_core.wire.transport import ModbusLink, SerialSettings
 from stepper_bridge import commission_guided, commission_steps
+from stepper_bridge.commission import CHECKS
 from stepper_bridge.registers import (
     MOTORS,
     SYSTEM_COILS,
@@ -190,11 +191,30 @@ FORWARD_1, STOP_1, HOME_1 = (motor_coil(1, action) for action in ("forward", "st
 LINE_START, LINE_STOP = (coil(SYSTEM_COILS[name]) for name in ("line_start", "line_stop"))
 
 
+def others_on(rig: Rig, step: str) -> None:
+    """The guided personalities of every step but ``step`` (a step's own reading stays
+    the default's)."""
+    fake = rig.fake
+    fake.pair_reading = "type_rows" if step == "pair_reading" else "point_rows"
+    fake.zero_at_home = step == "zero_at_home"
+    rig.sim.ignore(() if step == "stop_and_start" else ("stop",))
+
+
 def test_the_default_simulator_confirms_every_check(rig: Rig, tmp_path: Path) -> None:
-    """Read-only checks first (said in the first line), then the three steps after ``yes``,
-    each judged by what the controller reads back; the params file is the bridge's, with
-    the readings the steps showed."""
+    """Read-only checks first (said in the first line) against the default simulator,
+    then the three steps after ``yes``, each judged by what the controller reads back,
+    and each run with the OTHER steps' personalities on (the next test turns each on for
+    its own step): a personality flips its own step only. The params file is the
+    bridge's, with the readings the steps showed."""
     script = answers("yes", "yes", "yes")
+    headers = {f"[{k + 1}] {c.title} (": c.key for k, c in enumerate(CHECKS)}
+
+    def personalities_of_the_others(line: str) -> None:
+        for header, key in headers.items():
+            if line.startswith(header) and key in GUIDED:
+                others_on(rig, key)
+
+    script.on_say = personalities_of_the_others
     code, report = run(rig, tmp_path, script)
     assert code == 0
     assert script.said[0] == FIRST_LINE
