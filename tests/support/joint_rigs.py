@@ -24,6 +24,9 @@ from .ros import Bridge, Client, start_bridge
 
 AXES = Path(__file__).resolve().parent / "joint_axes.yaml"
 COMMAND_TIMEOUT_S = 0.5  # every bridge's default deadman
+# The rigs' status period: a refusal count is seen in a quarter of the default 1 s (the
+# refusal tests wait for one count after another).
+DIAGNOSTIC_PERIOD_S = 0.25
 STEPPER_BAUD = 9600
 STEPPER_REPLY_DELAY_MS = 35
 STEPPER_TIMEOUT_S = 1.0  # far above the 0.15 s floor: a loaded machine never looks dead
@@ -80,6 +83,7 @@ def _rig(
         **sim.address_params(),
         "reconnect_max_s": 1.0,
         "command_timeout_s": COMMAND_TIMEOUT_S,
+        "diagnostic_period_s": DIAGNOSTIC_PERIOD_S,
         **params,
     }
     try:
