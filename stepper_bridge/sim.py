@@ -265,9 +265,12 @@ class StepperSimDevice(SimulatedDevice):
 
     # ------------------------------------------------------------ Modbus behaviour
     def read(self, function_code: int, address: int, count: int) -> list[int] | int:
-        """With ``answer_undefined``, a read of undefined rows only answers zeros."""
+        """With ``answer_undefined``, a read of undefined rows only answers zeros (the
+        read is logged as any other)."""
+        result = super().read(function_code, address, count)
         if (
-            self.answer_undefined
+            isinstance(result, int)
+            and self.answer_undefined
             and function_code == READ_HOLDING
             and count <= self.limits.max_read_registers
             and all(
@@ -275,7 +278,7 @@ class StepperSimDevice(SimulatedDevice):
             )
         ):
             return [0] * count
-        return super().read(function_code, address, count)
+        return result
 
     def write_names(self, record: WriteRecord) -> frozenset[str]:
         """Which of ``IGNORABLE`` a write is: a motion coil written ON, or a write that
