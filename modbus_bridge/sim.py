@@ -35,7 +35,13 @@ Personalities (docs/tools.md "Device personalities"): ``--reply-delay-ms MIN[:MA
 trip) and ``--ignore NAME[,NAME...]``, whose names are the file's motion writes
 (``motion_writes``: its ``starts_motion`` and stop triggers, command topics, stop coils,
 and the registers its joints are moved and commanded by), checked once the file is
-loaded.
+loaded. The other readings ``bridge_commission modbus`` tells apart (each an attribute of
+the device): ``--swap-word-order`` (``swap_word_order``: every 32/64-bit value in the
+other word order than the file's, both ways), ``--refuse-undefined`` (``refuse_undefined``:
+reads over rows no register defines refused although the file says ``read_undefined``),
+``--address-shift N`` (``address_shift``: every row served N addresses lower, as a
+manual that counts from 1 would have it for N = 1) and ``--no-watchdog``
+(``watchdog_off``: a keepalive is accepted and never trips).
 """
 
 from __future__ import annotations
@@ -56,7 +62,12 @@ from bridge_core.sim.command_line import (
 )
 from bridge_core.sim.logs import WriteRecord, add_log_arguments
 from bridge_core.sim.serving import Simulator
-from bridge_core.sim.sim_base import ILLEGAL_ADDRESS, ILLEGAL_VALUE, SimulatedDevice
+from bridge_core.sim.sim_base import (
+    FUNCTION_TABLES,
+    ILLEGAL_ADDRESS,
+    ILLEGAL_VALUE,
+    SimulatedDevice,
+)
 from bridge_core.wire.codec import decode, encode
 from bridge_core.wire.registers import Register, Table, ValueType
 
@@ -244,14 +255,51 @@ class DescribedSimDevice(SimulatedDevice):
             self.write_hooks.append(self._keepalive_write)
         # keepalive mode any_frame: every request to this unit feeds the watchdog.
         self.frame_watchdog_s = device.frame_watchdog_s
+        # Personalities (the other reading of a check of bridge_commission modbus).
+        self.swap_word_order = False
+        self.refuse_undefined = False
+        self.address_shift = 0
+        self.watchdog_off = False
+        self._defined = {(r.table, a) for r in self.map for a in r.addresses()}
 
     def read(self, function_code: int, address: int, count: int) -> list[int] | int:
         self._frame()
-        return super().read(function_code, address, count)
+        address += self.address_shift
+        table = FUNCTION_TABLES[function_code]
+        if self.refuse_undefined and any(
+            (table, a) not in self._defined for a in range(address, address + count)
+        ):
+            return ILLEGAL_ADDRESS
+        words = super().read(function_code, address, count)
+        if self.swap_word_order and isinstance(words, list):
+            return self._swapped(table, address, words)
+        return words
 
     def write(self, function_code: int, address: int, values: Sequence[int]) -> int | None:
         self._frame()
+        address += self.address_shift
+        if self.swap_word_order:
+            values = self._swapped(FUNCTION_TABLES[function_code], address, values)
         return super().write(function_code, address, values)
+
+    def _swapped(self, table: Table, address: int, words: Sequence[int]) -> list[int]:
+        """``words`` with every whole multi-register value in them in the other word order
+        (``swap_word_order``: the device's order is not the file's)."""
+        swapped = list(words)
+        if table.is_bit:
+            return swapped
+        for register in self.map.in_table(table):
+            start = register.address - address
+            if (
+                register.count > 1
+                and register.value_type is not ValueType.STRING
+                and start >= 0
+                and start + register.count <= len(words)
+            ):
+                swapped[start : start + register.count] = reversed(
+                    words[start : start + register.count]
+                )
+        return swapped
 
     def _frame(self) -> None:
         """A request reached this unit: it feeds a watchdog of mode any_frame."""
@@ -295,7 +343,7 @@ class DescribedSimDevice(SimulatedDevice):
         now = time.monotonic()
         checked_at, self._keepalive_checked_at = self._keepalive_checked_at, now
         fed_at, period = self.keepalive_fed_at, self.keepalive_period_s()
-        if fed_at is None or period is None or now - fed_at <= period:
+        if self.watchdog_off or fed_at is None or period is None or now - fed_at <= period:
             return
         self.keepalive_fed_at = None  # disarmed until the next feed
         self.stop_all()
@@ -442,6 +490,32 @@ def unknown_ignore(path: Path, description: Description, names: frozenset[str]) 
     return f"error: --ignore {given}: not a motion write of {path}; its motion writes: {listing}"
 
 
+def add_personality_arguments(parser: argparse.ArgumentParser) -> None:
+    """The other readings of bridge_commission modbus's checks (docs/tools.md)."""
+    parser.add_argument(
+        "--swap-word-order",
+        action="store_true",
+        help="serve every 32/64-bit value in the other word order than the file's",
+    )
+    parser.add_argument(
+        "--refuse-undefined",
+        action="store_true",
+        help="refuse reads over rows no register defines, although the file's "
+        "read_undefined is true",
+    )
+    parser.add_argument(
+        "--address-shift",
+        type=int,
+        default=0,
+        metavar="N",
+        help="serve every row N addresses lower than the file says (1: a manual that "
+        "counts from 1)",
+    )
+    parser.add_argument(
+        "--no-watchdog", action="store_true", help="a keepalive is accepted and never trips"
+    )
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description="serve a device description (Modbus TCP or RTU)")
     parser.add_argument("--device-file", type=Path, required=True, help="device description YAML")
@@ -479,6 +553,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "command topics, stop coils and its joints' command and run registers (an unknown "
         "name: the error lists the file's)",
     )
+    add_personality_arguments(parser)
     args = parser.parse_args(argv)
     description = load_for_command(args.device_file)
     if description is None:
@@ -494,6 +569,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     link = description.line or description.device.link
     rtu = link.rtu if link is not None else None
     sim = make_simulator(description)
+    for device in sim.devices.values():
+        assert isinstance(device, DescribedSimDevice)
+        device.swap_word_order = args.swap_word_order
+        device.refuse_undefined = args.refuse_undefined
+        device.address_shift = args.address_shift
+        device.watchdog_off = args.no_watchdog
     names = ", ".join(f"{d.name} (unit {d.unit_id})" for d in description.devices)
     if args.serial or args.pty:
         if args.one_request_at_a_time or args.nagle:

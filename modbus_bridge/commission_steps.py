@@ -1,0 +1,392 @@
+"""modbus_bridge's commissioning steps, read-only (``bridge_commission modbus``): what the
+rows of ``modbus_bridge/commission.py`` name, for any device a description file makes.
+
+The file comes from the bridge's own ``device_file`` parameter: ``node_of`` is the node
+it makes (its link parameters' defaults), ``bind`` the map and the ping of that file.
+Every check reads the device through the bridge's own ``DescribedDevice`` and plan
+(``device.poll_plan``), and judges from the file alone (its rows' types, ranges, word
+orders, keepalive), never from a model of a product. A description key is no parameter:
+where one decides, the finding's ``seen`` names the key to change in the file. The
+guided steps are in commission_guided.py. No ROS here.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+import statistics
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from bridge_core.runtime.commission import Commissioning, Finding, Probe, Verdict
+from bridge_core.runtime.interface import NodeInterface
+from bridge_core.wire.channel import Priority, RegisterIO
+from bridge_core.wire.codec import decode
+from bridge_core.wire.errors import ConfigurationError, DeviceException
+from bridge_core.wire.planner import ReadRequest
+from bridge_core.wire.registers import Register, RegisterMap, Table, ValueType, WordOrder
+
+from .description import Device, load
+from .device import DescribedDevice, poll_plan
+from .doc import devices_text
+from .interface import described_nodes
+
+DEVICE_FILE = "device_file"  # the parameter that names the description
+# Decision 10's check: the plan with gaps capped at this many registers, timed against
+# the file's own plan over this many polls each; the capped plan "is faster" only when its
+# median poll is shorter by more than this share (noise on a busy line is not a verdict).
+CAPPED_GAP = 4
+PLAN_POLLS = 5
+PLAN_MARGIN = 0.1
+# Word order (inverter decision 16): a 32/64-bit row decoded in its file's order and in
+# the other one. With no ``range`` in the file, a float is plausible when 0 or its
+# magnitude lies in FLOAT_PLAUSIBLE (a swapped float's exponent comes from its mantissa's
+# low bits: tiny, huge or not a number); an integer when its magnitude is at most
+# INT_PLAUSIBLE_MAX raw and it is no nonzero multiple of 65536 (a small value read with
+# its words swapped has a low word of 0).
+FLOAT_PLAUSIBLE = (1e-6, 1e9)
+INT_PLAUSIBLE_MAX = 1_000_000_000
+WORD_VALUES = 1 << 16
+ADDRESS_SHIFTS = (-1, 1)  # decision 8: a refused row read again this far off
+LISTED_MAX = 8  # rows named in one finding; the rest counted
+
+
+@dataclass
+class Target:
+    """``probe.device`` of the modbus checks: the file, its device, and the bridge's
+    ``DescribedDevice`` on the tool's channel."""
+
+    file: str
+    device: Device
+    described: DescribedDevice
+
+
+def target(probe: Probe) -> Target:
+    found = probe.device
+    assert isinstance(found, Target), "setup() runs first"
+    return found
+
+
+# ---------------------------------------------------------------- the file
+def description_of(values: Mapping[str, Any]) -> Device:
+    """The device of the file ``device_file`` names; ``ConfigurationError`` (one line) as
+    the bridge says it, and for a file of several devices on a line (modbus_bus's)."""
+    path = str(values.get(DEVICE_FILE, ""))
+    if not path:
+        raise ConfigurationError("no device description: give -p device_file:=FILE")
+    if not Path(path).is_file():
+        raise ConfigurationError(f"parameter device_file:={path}: no such file")
+    description = load(path)
+    if description.line is not None:
+        raise ConfigurationError(
+            f"{path} describes {devices_text(len(description.devices))} on one line: "
+            "bridge_commission modbus takes a file of one device (modbus_bridge's)"
+        )
+    return description.device
+
+
+def node_of(values: Mapping[str, Any]) -> NodeInterface:
+    """The node ``modbus_bridge`` runs for the file (its parameters and their defaults)."""
+    description_of(values)  # the same one-line refusals as the bridge
+    return described_nodes(str(values[DEVICE_FILE]))[0]
+
+
+def _first_readable(register_map: RegisterMap) -> Register:
+    readable = [r for r in register_map if r.access.readable]
+    if not readable:
+        raise ConfigurationError(f"{register_map.device}: no readable register to check")
+    return min(readable, key=lambda r: (r.count, r.table.value, r.address))
+
+
+def ping_row(register: Register, io: RegisterIO) -> object:
+    """One short read, timed for the reply times: the file's shortest readable row."""
+    if register.table.is_bit:
+        return io.read_bits(register.address, 1, register.table, Priority.COMMAND)
+    return io.read_registers(register.address, register.count, register.table, Priority.COMMAND)
+
+
+def bind(commissioning: Commissioning, values: Mapping[str, Any]) -> Commissioning:
+    """The commissioning of the file ``device_file`` names: its rows and its ping."""
+    register_map = description_of(values).register_map
+    ping = functools.partial(ping_row, _first_readable(register_map))
+    return dataclasses.replace(commissioning, register_map=register_map, ping=ping)
+
+
+def ping_placeholder(_io: RegisterIO) -> object:
+    raise AssertionError("bind() gives the file's ping")
+
+
+def setup(probe: Probe) -> None:
+    """The file's facts for the report (reads only: the described device is built, not
+    polled)."""
+    device = description_of(probe.values)
+    probe.device = Target(str(probe.values[DEVICE_FILE]), device, DescribedDevice(probe.io, device))
+    fast, slow, _ = poll_plan(device)
+    keepalive = device.keepalive
+    if keepalive is not None:
+        period = (
+            f"{keepalive.period_s:g} s"
+            if keepalive.period_s is not None
+            else f"from {keepalive.period_register}"
+        )
+        fed = f"{keepalive.register} ({keepalive.mode}), watchdog time {period}"
+    elif device.frame_watchdog_s is not None:
+        fed = f"any frame, watchdog time {device.frame_watchdog_s:g} s"
+    else:
+        fed = "none"
+    probe.facts.update(
+        {
+            "description": str(probe.values[DEVICE_FILE]),
+            "device": device.spec.device.title or device.name,
+            "registers": str(len(device.register_map.registers)),
+            "joints": ", ".join(j.name for j in device.joints) or "none",
+            "poll plan": f"{len(fast)} requests, slow group {len(slow)}",
+            "keepalive": fed,
+        }
+    )
+
+
+def requests_per_poll(probe: Probe) -> int:
+    """The requests of one poll without the slow group (decision 17)."""
+    return len(poll_plan(target(probe).device)[0])
+
+
+def refusal_reason(_reg: Register, _probe: Probe) -> str | None:
+    """Every row of a file is one the device serves (the file says so): none expected."""
+    return None
+
+
+def listed(names: Sequence[str]) -> str:
+    shown = ", ".join(names[:LISTED_MAX])
+    return shown + (f" and {len(names) - LISTED_MAX} more" if len(names) > LISTED_MAX else "")
+
+
+def _span(request: ReadRequest) -> str:
+    return f"{request.table.value} {request.address}+{request.count}"
+
+
+# ---------------------------------------------------------------- read-only checks
+def _through(request: ReadRequest) -> bool:
+    """Whether ``request`` reads registers (or bits) no wanted row of it holds."""
+    return request.count > sum(r.count for r in request.registers)
+
+
+def _read(io: RegisterIO, table: Table, address: int, count: int) -> list[int]:
+    if table.is_bit:
+        return [int(b) for b in io.read_bits(address, count, table, Priority.COMMAND)]
+    return io.read_registers(address, count, table, Priority.COMMAND)
+
+
+def gaps_served(probe: Probe) -> Finding:
+    """Decisions 10 and 11: each request of the file's plan that reads through rows it
+    does not want, read as the bridge plans it."""
+    assert probe.rows is not None
+    found = target(probe)
+    fast, slow, _ = poll_plan(found.device)
+    refused_alone = probe.rows.refused_names()
+    through = [r for r in (*fast, *slow) if _through(r)]
+    judged = [r for r in through if not {reg.name for reg in r.registers} & refused_alone]
+    if not through:
+        return Finding(
+            Verdict.CONFIRMED,
+            f"the plan's {len(fast) + len(slow)} requests read through no gap: nothing the "
+            "device could refuse there",
+        )
+    if not judged:
+        return Finding(
+            Verdict.UNCLEAR,
+            "every request that reads through a gap holds a row refused alone: see the "
+            "addresses check first",
+        )
+    refused: list[str] = []
+    undefined = False
+    for request in judged:
+        try:
+            _read(probe.io, request.table, request.address, request.count)
+        except DeviceException as err:
+            refused.append(f"{_span(request)} ({err.name})")
+            undefined = undefined or any(
+                found.device.register_map.owner_at(request.table, a) is None
+                for a in range(request.address, request.end)
+            )
+    if not refused:
+        return Finding(
+            Verdict.CONFIRMED,
+            f"the {len(judged)} requests that read through gaps were served",
+        )
+    key = "`read_undefined: false`" if undefined else "a `max_gap`"
+    return Finding(
+        Verdict.CONTRADICTED,
+        f"the device refused {len(refused)} of the {len(judged)} merged reads: "
+        f"{listed(refused)}; the bridge reads them in parts after the first refusal, but "
+        f"set {key} under `device` in {found.file} so the plan does not try them at every "
+        "start",
+    )
+
+
+def _capped(device: Device, gap: int) -> Device:
+    register_map = device.register_map
+    limits = dataclasses.replace(register_map.limits, max_gap=gap)
+    capped = RegisterMap(register_map.device, register_map.registers, limits)
+    return dataclasses.replace(device, register_map=capped)
+
+
+def _poll_time(io: RegisterIO, plan: Sequence[ReadRequest]) -> float:
+    started = time.perf_counter()
+    for request in plan:
+        _read(io, request.table, request.address, request.count)
+    return time.perf_counter() - started
+
+
+def plan_speed(probe: Probe) -> Finding:
+    """Decision 10: the fewest-requests plan against one with gaps capped at
+    ``CAPPED_GAP``, each polled ``PLAN_POLLS`` times, alternately."""
+    found = target(probe)
+    own = poll_plan(found.device)[0]
+    limit = found.device.register_map.limits.max_gap
+    if limit is not None and limit <= CAPPED_GAP:
+        return Finding(Verdict.CONFIRMED, f"the file caps gaps at {limit} already")
+    capped = poll_plan(_capped(found.device, CAPPED_GAP))[0]
+    if [_span(r) for r in capped] == [_span(r) for r in own]:
+        return Finding(
+            Verdict.CONFIRMED,
+            f"`max_gap: {CAPPED_GAP}` makes the same {len(own)} requests: nothing to compare",
+        )
+    times: dict[str, list[float]] = {"own": [], "capped": []}
+    for _ in range(PLAN_POLLS):
+        times["own"].append(_poll_time(probe.io, own))
+        times["capped"].append(_poll_time(probe.io, capped))
+    mine, theirs = (statistics.median(times[k]) for k in ("own", "capped"))
+    said = (
+        f"the file's plan: {len(own)} requests, median poll {mine * 1000:.1f} ms; with "
+        f"`max_gap: {CAPPED_GAP}`: {len(capped)} requests, {theirs * 1000:.1f} ms"
+    )
+    if theirs < mine * (1 - PLAN_MARGIN):
+        return Finding(
+            Verdict.CONTRADICTED,
+            f"{said}: set `max_gap: {CAPPED_GAP}` under `device` in {found.file}",
+        )
+    return Finding(Verdict.CONFIRMED, said)
+
+
+def addresses(probe: Probe) -> Finding:
+    """Decision 8: every readable row answered alone at its address; a refused row is read
+    again ``ADDRESS_SHIFTS`` off (a manual that counts from 1)."""
+    assert probe.rows is not None
+    found = target(probe)
+    answered = len(probe.rows.answered)
+    if not probe.rows.refused:
+        return Finding(
+            Verdict.CONFIRMED,
+            f"all {answered} readable rows answered at their addresses; compare `modbus_doc "
+            f"{found.file}` with the manual row by row (the names are yours to check)",
+        )
+    shifted: dict[int, list[str]] = {shift: [] for shift in ADDRESS_SHIFTS}
+    for refusal in probe.rows.refused:
+        reg = found.device.register_map[refusal.name]
+        for shift in ADDRESS_SHIFTS:
+            try:
+                _read(probe.io, reg.table, reg.address + shift, reg.count)
+            except DeviceException:
+                continue
+            shifted[shift].append(reg.name)
+            break
+    names = [r.name for r in probe.rows.refused]
+    said = f"{len(names)} of {answered + len(names)} rows refused at their address: {listed(names)}"
+    for shift, moved in shifted.items():
+        if len(moved) == len(names):
+            how = "subtract 1 from" if shift < 0 else "add 1 to"
+            return Finding(
+                Verdict.CONTRADICTED,
+                f"{said}; each answers at its address {shift:+d}: the manual counts from "
+                f"{1 if shift < 0 else -1} (PLC numbering 40001): {how} every address in "
+                f"{found.file}",
+            )
+    return Finding(
+        Verdict.CONTRADICTED,
+        f"{said}: check their addresses and tables against the manual (every poll that "
+        "reads them fails)",
+    )
+
+
+def parity(probe: Probe) -> Finding:
+    """Decision 24: a device that answered at all answered at this framing."""
+    values = probe.values
+    if "serial_port" not in values:
+        return Finding(Verdict.NOT_RUN, "a TCP link: no serial framing to check")
+    framing = f"{values['baudrate']} 8{str(values['parity']).upper()}{values['stopbits']}"
+    return Finding(
+        Verdict.CONFIRMED, f"the device answered on {values['serial_port']} at {framing}"
+    )
+
+
+def _other(order: WordOrder) -> WordOrder:
+    return WordOrder.LOW_FIRST if order is WordOrder.HIGH_FIRST else WordOrder.HIGH_FIRST
+
+
+def plausible(reg: Register, value: float) -> bool:
+    """Whether ``value`` (engineering units) is one ``reg`` may read: within its ``range``
+    if the file gives one, and (a float always, an integer without a range) by the type's
+    rule (``FLOAT_PLAUSIBLE``, ``INT_PLAUSIBLE_MAX``)."""
+    if not math.isfinite(value):
+        return False
+    low = -math.inf if reg.minimum is None else reg.minimum
+    high = math.inf if reg.maximum is None else reg.maximum
+    if reg.value_type.is_float:  # a float within its range and of a plausible size
+        size_ok = value == 0 or FLOAT_PLAUSIBLE[0] <= abs(value) <= FLOAT_PLAUSIBLE[1]
+        return size_ok and low <= value <= high
+    if reg.minimum is not None or reg.maximum is not None:
+        return low <= value <= high
+    raw = round((value - reg.offset) * reg.scale)
+    return abs(raw) <= INT_PLAUSIBLE_MAX and (raw == 0 or raw % WORD_VALUES != 0)
+
+
+def word_order(probe: Probe) -> Finding:
+    """Inverter decision 16 (and decision 1): every nonzero 32/64-bit row decoded in its
+    file's word order and in the other."""
+    assert probe.rows is not None
+    found = target(probe)
+    agree: list[str] = []
+    other: list[str] = []
+    neither: list[str] = []
+    for reg in found.device.register_map:
+        words = probe.rows.answered.get(reg.name)
+        if reg.count < 2 or reg.value_type is ValueType.STRING or not words or not any(words):
+            continue
+        if reg.table.is_bit:
+            continue
+        swapped = dataclasses.replace(reg, word_order=_other(reg.word_order))
+        mine, theirs = (float(decode(r, words)) for r in (reg, swapped))
+        shown = f"{reg.name} {mine:g} ({swapped.word_order.value}: {theirs:g})"
+        ok_mine, ok_theirs = plausible(reg, mine), plausible(reg, theirs)
+        if ok_mine and not ok_theirs:
+            agree.append(shown)
+        elif ok_theirs and not ok_mine:
+            other.append(f"{shown}: set `word_order: {swapped.word_order.value}`")
+        else:
+            neither.append(shown)
+    if other:
+        return Finding(
+            Verdict.CONTRADICTED,
+            f"plausible only in the other word order ({len(other)} rows): "
+            f"{listed(other)} on each in {found.file} (or the device's `word_order`); "
+            f"as the file says: {listed(agree) or 'none'}",
+        )
+    if agree:
+        unsettled = f"; unsettled: {listed(neither)}" if neither else ""
+        return Finding(
+            Verdict.CONFIRMED,
+            f"plausible in the file's word order only ({len(agree)} rows): {listed(agree)}"
+            + unsettled,
+        )
+    if neither:
+        return Finding(Verdict.UNCLEAR, f"the values settle neither order: {listed(neither)}")
+    return Finding(
+        Verdict.UNCLEAR,
+        "no 32/64-bit row read nonzero (or the file has none): run the device (a speed, a "
+        "voltage) and run this again",
+    )
