@@ -178,6 +178,8 @@ class MotecBridge:
 # a long-lived client had subscribed to (cause not found; a fresh one carries none of
 # the earlier tests' subscriptions and /rosout history).
 client = client_fixture("motec_client", diagnostics=True, log=True)
+# Statuses every 0.25 s: the tests wait for a level or a count in them one after another.
+DIAGNOSTIC_PERIOD_S = 0.25
 
 
 @pytest.fixture
@@ -196,6 +198,7 @@ def bridge_params(port: str, **params: Any) -> dict[str, Any]:
         "timeout_s": TIMEOUT_S,
         "reconnect_max_s": 0.5,
         "command_timeout_s": COMMAND_TIMEOUT_S,
+        "diagnostic_period_s": DIAGNOSTIC_PERIOD_S,
     }
     defaults.update(params)
     return defaults
@@ -455,7 +458,11 @@ def test_lifeguard_fault_after_the_bridge_dies(bus, client: Client, tmp_path: Pa
         st = b.wait_state(1, lambda m: m.fault_code == LIFEGUARD_FAULT_CODE, since=t)
         assert st.fault_text == "fault (有故障)" and not st.enabled
         assert (st.fault_flag, st.fault_detail) == (1, 0)  # §4.3: 0xC8 reads 1 (item 12)
-        status = b.wait_diagnostic(1, level(2), since=t)
+        # The drive's ERROR, not the one of a status published before the first poll
+        # ("disconnected", also level 2).
+        status = b.wait_diagnostic(
+            1, lambda s: level(2)(s) and s.message.startswith("drive fault"), since=t
+        )
         assert status.message == f"drive fault {LIFEGUARD_FAULT_CODE}: fault (有故障)"
         assert values_of(status)["link state"] == "connected"
         b.ok(1, SetBool, "enable", data=False)  # releasing does not clear it (§3.4)

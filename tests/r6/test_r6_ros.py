@@ -53,6 +53,8 @@ STAMP_SLACK_S = 0.001  # clock reading and float rounding between two processes'
 
 
 client = client_fixture(diagnostics=True, scope="module")
+# Statuses every 0.25 s: the tests wait for a level or a count in them one after another.
+DIAGNOSTIC_PERIOD_S = 0.25
 
 
 @pytest.fixture
@@ -79,6 +81,7 @@ def bridge_factory(client: Client, tmp_path: Path):  # type: ignore[no-untyped-d
             "poll_rate_hz": 50.0,
             "timeout_s": TIMEOUT_S,
             "reconnect_max_s": 1.0,
+            "diagnostic_period_s": DIAGNOSTIC_PERIOD_S,
         }
         defaults.update(params)
         return start_bridge(client, tmp_path, "r6_bridge.node", "r6_bridge", R6State, defaults)

@@ -60,6 +60,8 @@ COMMAND_TIMEOUT_S = 1.5
 # heard nothing from the third bridge of this module on (cause not found; a fresh
 # client carries no other test's subscriptions, discovery or /rosout history).
 client = client_fixture("stepper_client", diagnostics=True, log=True)
+# Statuses every 0.25 s: the tests wait for a level or a count in them one after another.
+DIAGNOSTIC_PERIOD_S = 0.25
 
 
 @pytest.fixture
@@ -79,6 +81,7 @@ def bridge(
         "timeout_s": TIMEOUT_S,
         "reconnect_max_s": 1.0,
         "command_timeout_s": COMMAND_TIMEOUT_S,
+        "diagnostic_period_s": DIAGNOSTIC_PERIOD_S,
     }
     defaults.update(params)
     return start_bridge(
