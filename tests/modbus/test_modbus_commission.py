@@ -40,6 +40,7 @@ SAMPLES = 10  # the fewest the tool takes
 WAIT_S = 30.0  # a bound, not a measure
 WATCHDOG_S = 0.5  # the VFD copy's keepalive period (the example's 2 s, shortened)
 RUN, STOP = 1, 5  # the VFD's control word: run forward, stop
+KEEPALIVE = "keepalive: {register: comm_watchdog, mode: counter, period_s: 2.0}"
 
 
 def _written(tmp: Path, name: str, text: str) -> Path:
@@ -59,6 +60,8 @@ def files(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     old_link = "    rtu: {serial_port: /dev/ttyUSB0, baudrate: 19200, parity: E, stopbits: 1}"
     assert old_link in vfd and "period_s: 2.0}" in vfd and "  poll_rate_hz: 20\n" in inverter
     assert "range: [0, 200], poll: slow," in inverter
+    assert KEEPALIVE in vfd
+    vfd_tcp = vfd.replace(old_link, "    tcp: {host: 127.0.0.1, port: 502}")
     return {
         "inverter": _written(
             tmp,
@@ -68,11 +71,12 @@ def files(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
             ).replace("range: [0, 200], poll: slow,", "range: [0, 200],"),
         ),
         "vfd": _written(
+            tmp, "vfd.yaml", vfd_tcp.replace("period_s: 2.0}", f"period_s: {WATCHDOG_S}}}")
+        ),
+        "any_frame": _written(
             tmp,
-            "vfd.yaml",
-            vfd.replace(old_link, "    tcp: {host: 127.0.0.1, port: 502}").replace(
-                "period_s: 2.0}", f"period_s: {WATCHDOG_S}}}"
-            ),
+            "any_frame.yaml",
+            vfd_tcp.replace(KEEPALIVE, f"keepalive: {{mode: any_frame, period_s: {WATCHDOG_S}}}"),
         ),
     }
 
@@ -248,6 +252,25 @@ def test_the_vfd_runs_stops_and_trips_its_watchdog(
     assert found["read_back"] == "confirmed", found
     assert device.keepalive_trips >= 1
     assert control_words(device) == [RUN, STOP, RUN, STOP, RUN, STOP, STOP], control_words(device)
+
+
+def test_a_watchdog_any_frame_resets_trips_in_the_silence(
+    files: dict[str, Path], tmp_path: Path
+) -> None:
+    """The VFD with ``keepalive: {mode: any_frame}`` (decision 22): the drive runs while
+    read, then no frame for the watchdog time and the grace: it trips and slows."""
+    iterator = _serve(files["any_frame"])
+    device, port = next(iterator)
+    try:
+        device.set("frequency_setpoint", 10.0)
+        code, report = run(files["any_frame"], port, tmp_path, answers("no", "no", "yes", "no"))
+    finally:
+        next(iterator, None)  # the simulator stops
+    assert code == 0
+    found = verdicts(report)
+    assert found["frame_watchdog"] == "confirmed", found
+    assert device.keepalive_trips == 1
+    assert control_words(device) == [RUN, STOP], control_words(device)
 
 
 @pytest.mark.parametrize(
