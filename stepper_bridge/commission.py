@@ -47,6 +47,20 @@ FORWARD_THEN_STOP = Guided(
 
 CHECKS = (
     Check(
+        "word_order",
+        "32-bit values are low word first",
+        (1,),
+        (
+            "The baud rate (40213-40214), a 32-bit value whose every setting the manual lists "
+            "(4800, 9600, 19200, 38400), decoded both ways, the leads (40007+) listed beside "
+            "it. Expected: low word first (the note under the manual's §6 examples) gives one "
+            "of them, high word first an absurd value. Fails if only high word first gives "
+            "one: every lead, run distance, coordinate and interpolation point the bridge reads "
+            "and writes is wrong on this controller; do not run it, and tell us."
+        ),
+        read=steps.word_order,
+    ),
+    Check(
         "pair_reading",
         "Which motors interpolation pairs 2 and 3 drive: `interpolation_pair_reading`",
         (19,),

@@ -22,25 +22,33 @@ from bridge_core.runtime.commission import (
     reply_times,
 )
 from bridge_core.wire.channel import Priority, RegisterIO
+from bridge_core.wire.codec import words_to_int
 from bridge_core.wire.errors import (
     DeviceException,
     LinkError,
 )
+from bridge_core.wire.registers import WordOrder
 from bridge_core.wire.transport import SerialSettings
 
 from .device import StepperDevice
 from .registers import (
+    BAUD_RATES,
+    DISTANCE_SCALE,
     MAX_REGISTERS_PER_REQUEST,
+    MOTORS,
     REPLY_DELAY_S,
     STEPPER_MAP,
     UNDEFINED_HOLDING,
     holding,
+    motor_register,
     reply_timeout_floor_s,
 )
 from .snapshots import FAST_PLAN
 
 # Decision 7: the reply times the check takes itself (the runner's are not given to it).
 REPLY_PINGS = 10
+# Decision 1: the manual's order first (low word first), then the other.
+WORD_ORDERS = (WordOrder.LOW_FIRST, WordOrder.HIGH_FIRST)
 # Decisions 7 and 21: the undefined rows between the poll's blocks (PLC numbers, inclusive)
 # whose answer would let the coordinates, inputs, outputs and running flags be read in
 # fewer requests.
@@ -164,6 +172,36 @@ def reply_rule(probe: Probe) -> Finding:
         f"{seen}: the median reply within the floor{late}; timeout_s {timeout:g}",
         {"timeout_s": timeout},
     )
+
+
+def word_order(probe: Probe) -> Finding:
+    """Decision 1: the baud rate (40213-40214), a 32-bit value the manual lists every
+    possible value of, decoded both ways from the row scan's words: exactly one order
+    gives one of them. The leads read (nonzero) are listed both ways beside it."""
+    assert probe.rows is not None
+    words = probe.rows.answered.get("baud_rate")
+    if not words:
+        return Finding(Verdict.UNCLEAR, "the baud rate (40213-40214) was not read")
+    low, high = (words_to_int(words, False, order) for order in WORD_ORDERS)
+    leads = []
+    for m in range(1, MOTORS + 1):
+        lead = probe.rows.answered.get(motor_register(m, "lead"))
+        if lead and any(lead):
+            a, b = (words_to_int(lead, False, order) / DISTANCE_SCALE for order in WORD_ORDERS)
+            leads.append(f"motor {m} lead {a:g} (high word first: {b:g})")
+    seen = "; ".join([f"baud rate {low} (high word first: {high})", *leads])
+    if low in BAUD_RATES and high not in BAUD_RATES:
+        return Finding(
+            Verdict.CONFIRMED, f"low word first gives a baud rate the manual lists; {seen}"
+        )
+    if high in BAUD_RATES and low not in BAUD_RATES:
+        return Finding(
+            Verdict.CONTRADICTED,
+            "only high word first gives a baud rate the manual lists: every lead, run "
+            "distance, coordinate and interpolation point the bridge reads and writes would "
+            f"be wrong; do not run it, tell us; {seen}",
+        )
+    return Finding(Verdict.UNCLEAR, f"neither order settles it; {seen}")
 
 
 def _gap_ranges() -> list[tuple[int, int]]:

@@ -49,9 +49,9 @@ Personalities (docs/tools.md, "Device personalities"; ``bridge_core.sim.personal
 (per motor: run, forward, reverse, home, stop, speed, direction, distance; system: estop,
 to_zero, home_all, line_start, line_stop, arc_start, arc_stop). A motor's stop coil also
 ends a line / arc that moves it (stepper decision 23). The other readings of the
-decisions ``bridge_commission stepper`` settles: ``--pair-reading point_rows``
-(``pair_reading``), ``--no-zero-at-home`` (``zero_at_home``), ``--answer-undefined``
-(``answer_undefined``); a late controller is ``--reply-delay-ms``.
+decisions ``bridge_commission stepper`` settles (``sim_readings``): ``--word-order high``
+(``high_word_first``), ``--answer-undefined``, ``--pair-reading point_rows``,
+``--no-zero-at-home`` (``zero_at_home``); a late controller is ``--reply-delay-ms``.
 """
 
 from __future__ import annotations
@@ -69,6 +69,7 @@ from bridge_core.sim.sim_base import ILLEGAL_VALUE, SimulatedDevice
 from bridge_core.wire.codec import decode
 from bridge_core.wire.registers import Table
 
+from . import sim_readings as readings
 from .registers import (
     ARC_MODE_CENTER,
     BAUD_RATES,
@@ -164,7 +165,6 @@ _IGNORABLE_REGISTERS: dict[int, str] = {
 }
 _OUTPUT_COILS = range(OUTPUT_COIL_FIRST - 1, OUTPUT_COIL_FIRST - 1 + 2 * OUTPUTS)
 READ_HOLDING = 0x03
-PAIR_READINGS = ("type_rows", "point_rows")
 
 
 @dataclass
@@ -205,6 +205,8 @@ class StepperSimDevice(SimulatedDevice):
         # A controller that answers a read of undefined rows (40118-40123, ...) with zeros
         # instead of 0x02 (stepper decisions 7, 21's other reading; ``--answer-undefined``).
         self.answer_undefined = False
+        # 32-bit values read high word first (decision 1's other reading; reads only).
+        self.high_word_first = False
         # Told (old id, new id) when the device id changes, so the server answers the new
         # unit only (make_simulator re-keys its units).
         self.on_unit_id_change: Callable[[int, int], None] = lambda _old, _new: None
@@ -265,20 +267,22 @@ class StepperSimDevice(SimulatedDevice):
 
     # ------------------------------------------------------------ Modbus behaviour
     def read(self, function_code: int, address: int, count: int) -> list[int] | int:
-        """With ``answer_undefined``, a read of undefined rows only answers zeros (the
-        read is logged as any other)."""
+        """The other readings of decisions 1, 7 and 21 (``sim_readings``): 32-bit values
+        high word first, undefined rows answered with zeros (each read logged as any)."""
         result = super().read(function_code, address, count)
-        if (
-            isinstance(result, int)
-            and self.answer_undefined
-            and function_code == READ_HOLDING
-            and count <= self.limits.max_read_registers
-            and all(
-                self.map.owner_at(Table.HOLDING, a) is None for a in range(address, address + count)
-            )
-        ):
-            return [0] * count
-        return result
+        if function_code != READ_HOLDING:
+            return result
+        if isinstance(result, int):
+            if (
+                self.answer_undefined
+                and count <= self.limits.max_read_registers
+                and readings.undefined(self.map, address, count)
+            ):
+                return [0] * count
+            return result
+        return (
+            readings.high_word_first(self.map, address, result) if self.high_word_first else result
+        )
 
     def write_names(self, record: WriteRecord) -> frozenset[str]:
         """Which of ``IGNORABLE`` a write is: a motion coil written ON, or a write that
@@ -594,30 +598,12 @@ def main(argv: Sequence[str] | None = None) -> None:
     )
     add_ignore_argument(parser, StepperSimDevice.IGNORABLE)
     parser.add_argument("--travel", type=float, default=TRAVEL, help="positive limit, units")
-    parser.add_argument(
-        "--pair-reading",
-        choices=PAIR_READINGS,
-        default=PAIR_READINGS[0],
-        help="which motors pairs 2 and 3 drive: by the type rows (2 = 1+3, 3 = 2+3) or the "
-        "point rows (2 = 2+3, 3 = 1+3) (stepper decision 19)",
-    )
-    parser.add_argument(
-        "--no-zero-at-home",
-        action="store_true",
-        help="homing leaves the coordinate as it was (stepper decision 20's other reading)",
-    )
-    parser.add_argument(
-        "--answer-undefined",
-        action="store_true",
-        help="a read of undefined rows only answers zeros, not 0x02 (stepper decisions 7, 21)",
-    )
+    readings.add_arguments(parser)
     args = parser.parse_args(argv)
     sim = make_simulator(args.unit_id, args.reply_delay_ms.low_s, args.travel)
     device = sim.device
     assert isinstance(device, StepperSimDevice)
-    device.pair_reading = args.pair_reading
-    device.zero_at_home = not args.no_zero_at_home
-    device.answer_undefined = args.answer_undefined
+    readings.apply(device, args)
     serve_serial_until_signalled(
         sim,
         args,

@@ -45,7 +45,7 @@ from stepper_bridge.sim import StepperSimDevice, make_simulator
 from ..support.ros import ROOT, wait_for
 from ..support.serial_pair import PTY_REPLY_TIMEOUT_S, served_on_pty
 
-READ_CHECKS = ("reply_rule", "undefined_rows")
+READ_CHECKS = ("word_order", "reply_rule", "undefined_rows")
 GUIDED = ("pair_reading", "zero_at_home", "stop_and_start")
 SAMPLES = 10  # the tool's least: reply times are not the point here
 BAUD = 115200  # the simulator's end of the pty (a pty keeps no baud rate)
@@ -119,6 +119,7 @@ class Rig:
             fake.pair_reading = "type_rows"
             fake.zero_at_home = True
             fake.answer_undefined = False
+            fake.high_word_first = False
             fake.set("baud_rate", LINE_BAUD)  # the rate the tool is told the line runs at
             fake.interpolation = None
             for m in range(1, MOTORS + 1):
@@ -191,6 +192,13 @@ FORWARD_1, STOP_1, HOME_1 = (motor_coil(1, action) for action in ("forward", "st
 LINE_START, LINE_STOP = (coil(SYSTEM_COILS[name]) for name in ("line_start", "line_stop"))
 
 
+def header(key: str) -> str:
+    """How the tool's lines about a check begin: "[N] title" (N its place in the rows;
+    then " (decision ...)" before a guided step, ": verdict" after a check)."""
+    number = [check.key for check in CHECKS].index(key) + 1
+    return f"[{number}] {CHECKS[number - 1].title}"
+
+
 def others_on(rig: Rig, step: str) -> None:
     """The guided personalities of every step but ``step`` (a step's own reading stays
     the default's)."""
@@ -207,11 +215,10 @@ def test_the_default_simulator_confirms_every_check(rig: Rig, tmp_path: Path) ->
     its own step): a personality flips its own step only. The params file is the
     bridge's, with the readings the steps showed."""
     script = answers("yes", "yes", "yes")
-    headers = {f"[{k + 1}] {c.title} (": c.key for k, c in enumerate(CHECKS)}
 
     def personalities_of_the_others(line: str) -> None:
-        for header, key in headers.items():
-            if line.startswith(header) and key in GUIDED:
+        for key in GUIDED:
+            if line.startswith(f"{header(key)} ("):
                 others_on(rig, key)
 
     script.on_say = personalities_of_the_others
@@ -232,15 +239,19 @@ def test_the_default_simulator_confirms_every_check(rig: Rig, tmp_path: Path) ->
     assert f'serial_port: "{rig.port}"' in params and "zero_after_home: false" in params
 
 
-@pytest.mark.parametrize("key", ["reply_rule", "undefined_rows"])
+@pytest.mark.parametrize("key", READ_CHECKS)
 def test_a_read_only_personality_contradicts_its_check_only_and_nothing_is_written(
     rig: Rig, tmp_path: Path, key: str
 ) -> None:
-    """Replies later than the floor (during that check only: the rest stays fast) or
-    undefined rows that answer: that check is contradicted, the other confirmed, the
-    timeout recommended from the late replies; 'no' and a closed input leave every step
-    not run and the write log empty."""
-    if key == "undefined_rows":
+    """32-bit values high word first, replies later than the floor (during that check
+    only: the rest stays fast) or undefined rows that answer: that check is contradicted,
+    the others confirmed, the timeout recommended from the late replies only; answers
+    other than 'yes' and a closed input leave every step not run and the write log
+    empty."""
+    if key == "word_order":
+        rig.fake.high_word_first = True
+        script = answers("", "yes please", "NO")
+    elif key == "undefined_rows":
         rig.fake.answer_undefined = True
         script = answers("no", "n", None)
     else:
@@ -249,7 +260,7 @@ def test_a_read_only_personality_contradicts_its_check_only_and_nothing_is_writt
         def slow_during_the_check(line: str) -> None:
             if line.startswith("rows read:"):
                 rig.sim.set_reply_delay(SLOW_REPLY_S)
-            elif line.startswith("[3] "):
+            elif line.startswith(f"{header(key)}:"):  # its verdict: the next checks fast
                 rig.sim.set_reply_delay(0.0)
 
         script.on_say = slow_during_the_check
