@@ -1,11 +1,12 @@
 """``bridge_commission stepper`` against the stepper simulator on a pty (docs/commissioning.md).
 
 The tool runs in-process (``bridge_core.ros.commission.main``, its operator's lines fed by
-``Script`` from tests/r6/test_r6_commission.py) against one in-process simulator served on
-a socat pty pair, shared by the module (each test resets what it changed). Against the
-default simulator every read-only check is confirmed and the three guided steps pass;
-against each personality that plays the other reading of a decision (docs/tools.md,
-"Device personalities") exactly that check is contradicted and its parameter recommended.
+``Script``, as in tests/r6/test_r6_commission.py) against one in-process simulator served
+on a socat pty pair, shared by the module (each test resets what it changed). Against the
+default simulator every read-only check is confirmed and the three guided steps pass
+(each with the other steps' personalities on); against each personality that plays the
+other reading of a decision (docs/tools.md, "Device personalities") exactly that check is
+contradicted and its parameter recommended (the guided ones in one run).
 Nothing is written without ``yes`` (the write log stays empty), and every way out of a
 running step sends its stop (in the write log after the step's start).
 """
