@@ -60,7 +60,12 @@ from bridge_core.sim.command_line import add_serial_arguments, serve_serial_unti
 from bridge_core.sim.logs import WriteRecord
 from bridge_core.sim.personality import add_delay_argument, add_ignore_argument
 from bridge_core.sim.serving import TICK_S, Simulator
-from bridge_core.sim.sim_base import ILLEGAL_ADDRESS, ILLEGAL_VALUE, SimulatedDevice
+from bridge_core.sim.sim_base import (
+    FUNCTION_TABLES,
+    ILLEGAL_ADDRESS,
+    ILLEGAL_VALUE,
+    SimulatedDevice,
+)
 from bridge_core.wire.codec import decode
 from bridge_core.wire.registers import Table
 
@@ -95,6 +100,7 @@ LIFEGUARD_FAULT_CODE = FAULT_PRESENT << 16
 # the next tick, after what arrived was read (a drive that was really not fed trips then).
 STALLED_TICK_S = 0.1
 OUTPUT_MASK = (1 << OUTPUTS) - 1
+HOLDING_END = 0x10000  # one past the last holding address (``answer_past_table``)
 I32_MIN, I32_MAX = -(1 << 31), (1 << 31) - 1
 _WRITABLE_HOLDING = {
     address
@@ -180,6 +186,12 @@ class MotecSimDrive(SimulatedDevice):
         # True: 0xAA reads a running move's target, not the position it tracks (the other
         # reading of "当前电机的位置设定值", decision 22)
         self.setpoint_holds_target = False
+        # Personalities of ``bridge_commission motec`` (main's options): the other readings
+        # of decisions 2 (32-bit values low word first in every read), 3 (the unnamed
+        # parameters answer 0x02) and 13 (addresses past the table read 0, no 0x02).
+        self.low_word_first = False
+        self.unnamed_refused = False
+        self.answer_past_table = False
         self.lifeguard_trips = 0
         self.last_command = clock()
         self.write_guards.append(self._guard)
@@ -213,6 +225,14 @@ class MotecSimDrive(SimulatedDevice):
             self._update_registers()
 
     # ------------------------------------------------------------ for tests / the CLI
+    def power_up_armed(self, time_ms: int) -> None:
+        """The lifeguard saved to flash armed (0x112 = ``time_ms``, 0x114 = 9999): it is
+        so from now and after every restart."""
+        with self.lock:
+            for name, value in (("lifeguard_time", time_ms), ("lifeguard_mode", LIFEGUARD_ACTIVE)):
+                self.flash[name] = value
+                self.set(name, value)
+
     def inject_fault(self, code: int) -> None:
         """Latch fault ``code`` and release the motor, as a drive alarm does."""
         with self.lock:
@@ -271,6 +291,26 @@ class MotecSimDrive(SimulatedDevice):
             elif reg.name in ("operation_mode", "control_mode"):
                 names.add("control_mode")
         return frozenset(names)
+
+    def read(self, function_code: int, address: int, count: int) -> list[int] | int:
+        """The base's read, played by the commissioning personalities (``__init__``)."""
+        if FUNCTION_TABLES[function_code] is not Table.HOLDING:
+            return super().read(function_code, address, count)
+        addresses = range(address, address + count)
+        if self.answer_past_table and address > LAST_PARAMETER and addresses.stop <= HOLDING_END:
+            return [0] * count
+        if self.unnamed_refused and any(
+            self.map.owner_at(Table.HOLDING, a) is None for a in addresses
+        ):
+            return ILLEGAL_ADDRESS
+        words = super().read(function_code, address, count)
+        if not self.low_word_first or isinstance(words, int):
+            return words
+        for reg in MOTEC_MAP.in_table(Table.HOLDING):
+            if reg.count == 2 and reg.address in addresses and reg.end <= addresses.stop:
+                at = reg.address - address
+                words[at], words[at + 1] = words[at + 1], words[at]
+        return words
 
     def _guard(self, record: WriteRecord) -> int | None:
         end = record.address + len(record.values)
@@ -512,6 +552,48 @@ def _fault(text: str) -> tuple[int, int]:
         raise argparse.ArgumentTypeError(f"--fault {text!r}: UNIT:CODE, e.g. 2:0x31") from None
 
 
+def _add_commissioning_arguments(parser: argparse.ArgumentParser) -> None:
+    """The other readings ``bridge_commission motec`` settles (docs/tools.md)."""
+    parser.add_argument(
+        "--word-order",
+        choices=("high", "low"),
+        default="high",
+        help="32-bit values in reads: high word first (decision 2) or low",
+    )
+    parser.add_argument(
+        "--refuse-unnamed",
+        action="store_true",
+        help="unnamed parameters answer 0x02 (decision 3's other reading)",
+    )
+    parser.add_argument(
+        "--answer-past-table",
+        action="store_true",
+        help="addresses past Pr.276 read 0 instead of 0x02 (decision 13's other reading)",
+    )
+    parser.add_argument(
+        "--lifeguard-fault-code",
+        type=lambda text: int(text, 0),
+        default=LIFEGUARD_FAULT_CODE,
+        help="0xC8-0xC9 after a lifeguard trip (default 0x10000: 0xC8 = 1, decision 7; "
+        "1 puts the flag in 0xC9)",
+    )
+    parser.add_argument(
+        "--lifeguard-ms",
+        type=int,
+        default=0,
+        help="power up armed: 0x112 = this, 0x114 = 9999, as saved to flash (0: off)",
+    )
+
+
+def _play(drive: MotecSimDrive, args: argparse.Namespace) -> None:
+    drive.low_word_first = args.word_order == "low"
+    drive.unnamed_refused = args.refuse_unnamed
+    drive.answer_past_table = args.answer_past_table
+    drive.lifeguard_fault_code = args.lifeguard_fault_code
+    if args.lifeguard_ms:
+        drive.power_up_armed(args.lifeguard_ms)
+
+
 def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description="MOTEC β servo drives on one Modbus RTU bus")
     add_serial_arguments(parser, DEFAULT_BAUDRATE, "/tmp/motec")
@@ -533,6 +615,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument(
         "--fault", type=_fault, action="append", default=[], help="latch a fault: UNIT:CODE"
     )
+    _add_commissioning_arguments(parser)
     args = parser.parse_args(argv)
     if args.counts_per_rev <= 0 or args.accel_rpm_s <= 0 or args.move_speed_rpm <= 0:
         parser.error("--counts-per-rev, --accel-rpm-s and --move-speed-rpm must be > 0")
@@ -543,6 +626,8 @@ def main(argv: Sequence[str] | None = None) -> None:
         accel_rpm_s=args.accel_rpm_s,
         move_speed_rpm=args.move_speed_rpm,
     )
+    for drive in sim.drives.values():
+        _play(drive, args)
     for unit, code in args.fault:
         if unit not in sim.drives:
             parser.error(f"--fault: no drive {unit} on the bus")
