@@ -14,8 +14,10 @@ from __future__ import annotations
 from bridge_core.runtime.commission import Check, Commissioning, Described, Guided
 from bridge_core.wire.registers import RegisterMap
 
+from . import commission_file as file
 from . import commission_guided as guided
 from . import commission_steps as steps
+from .description_commands import ANY_FRAME_POLLS_PER_PERIOD
 from .interface import DEVICE_FILE_SPEC, NODE_NAME
 
 PANEL = "the drive's panel (its stop key or e-stop)"
@@ -120,6 +122,24 @@ CHECKS = (
             "1). Over TCP there is nothing to check."
         ),
         read=steps.parity,
+    ),
+    Check(
+        "keepalive_settings",
+        "The watchdog the file names can be fed",
+        (13, 21, 22),
+        (
+            "A register keepalive: its register (and a `period_from` register) answers "
+            "alone, and a watchdog time read from the device is above 0 (0: the watchdog is "
+            "off, and nothing stops the device when the bridge dies: write its time first). "
+            "Mode `any_frame`: `poll_rate_hz` sends at least "
+            f"{ANY_FRAME_POLLS_PER_PERIOD} polls within `period_s`, and one poll of "
+            "the file's plan takes less than a third of it on this line. Fails if a "
+            "register is refused (every feed fails: check its address), the time reads 0, "
+            "or the polls are too few (the report recommends `poll_rate_hz`) or too slow "
+            "(the line cannot carry them: set a longer time-out on the drive and in "
+            "`period_s`). A file without a keepalive: not run."
+        ),
+        read=steps.keepalive_settings,
     ),
     Check(
         "run_forward",
@@ -278,9 +298,9 @@ COMMISSIONING = Commissioning(
     node=NODE_NAME,
     register_map=RegisterMap("described by device_file", ()),  # bind() gives the file's
     checks=CHECKS,
-    ping=steps.ping_placeholder,
-    requests_per_poll=steps.requests_per_poll,
-    setup=steps.setup,
-    refusal_reason=steps.refusal_reason,
-    described=Described((DEVICE_FILE_SPEC,), steps.node_of, steps.bind),
+    ping=file.ping_placeholder,
+    requests_per_poll=file.requests_per_poll,
+    setup=file.setup,
+    refusal_reason=file.refusal_reason,
+    described=Described((DEVICE_FILE_SPEC,), file.node_of, file.bind),
 )

@@ -18,7 +18,7 @@ import time
 from bridge_core.runtime.commission import Finding, Probe, Verdict
 from bridge_core.wire.errors import CommandRejected, NotConfirmed
 
-from .commission_steps import Target, target
+from .commission_file import Target, target
 from .description_joints import RUNNING_MIN_SI
 
 # How long the steps may take, and how often they read.

@@ -1,8 +1,7 @@
-"""modbus_bridge's commissioning steps, read-only (``bridge_commission modbus``): what the
-rows of ``modbus_bridge/commission.py`` name, for any device a description file makes.
+"""modbus_bridge's read-only commissioning checks (``bridge_commission modbus``): what
+the rows of ``modbus_bridge/commission.py`` name, for any device a description file makes
+(the file, its node and the bridge's device: commission_file.py).
 
-The file comes from the bridge's own ``device_file`` parameter: ``node_of`` is the node
-it makes (its link parameters' defaults), ``bind`` the map and the ping of that file.
 Every check reads the device through the bridge's own ``DescribedDevice`` and plan
 (``device.poll_plan``), and judges from the file alone (its rows' types, ranges, word
 orders, keepalive), never from a model of a product. A description key is no parameter:
@@ -13,29 +12,20 @@ guided steps are in commission_guided.py. No ROS here.
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
 import statistics
-import time
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
-from pathlib import Path
-from typing import Any
 
-from bridge_core.runtime.commission import Commissioning, Finding, Probe, Verdict
-from bridge_core.runtime.interface import NodeInterface
-from bridge_core.wire.channel import Priority, RegisterIO
+from bridge_core.runtime.commission import Finding, Probe, Verdict
 from bridge_core.wire.codec import decode
-from bridge_core.wire.errors import ConfigurationError, DeviceException
+from bridge_core.wire.errors import DeviceException
 from bridge_core.wire.planner import ReadRequest
-from bridge_core.wire.registers import Register, RegisterMap, Table, ValueType, WordOrder
+from bridge_core.wire.registers import Register, RegisterMap, ValueType, WordOrder
 
-from .description import Device, load
-from .device import DescribedDevice, poll_plan
-from .doc import devices_text
-from .interface import described_nodes
+from .commission_file import listed, poll_time, read_rows, span, target
+from .description import Device
+from .description_commands import ANY_FRAME_POLLS_PER_PERIOD
+from .device import KEEPALIVE_FEEDS_PER_PERIOD, poll_plan
 
-DEVICE_FILE = "device_file"  # the parameter that names the description
 # Decision 10's check: the plan with gaps capped at this many registers, timed against
 # the file's own plan over this many polls each; the capped plan "is faster" only when its
 # median poll is shorter by more than this share (noise on a busy line is not a verdict).
@@ -51,134 +41,14 @@ PLAN_MARGIN = 0.1
 FLOAT_PLAUSIBLE = (1e-6, 1e9)
 INT_PLAUSIBLE_MAX = 1_000_000_000
 WORD_VALUES = 1 << 16
+RATE_STEP_HZ = 0.1  # a poll rate recommended for a watchdog any frame resets: rounded up
 ADDRESS_SHIFTS = (-1, 1)  # decision 8: a refused row read again this far off
-LISTED_MAX = 8  # rows named in one finding; the rest counted
-
-
-@dataclass
-class Target:
-    """``probe.device`` of the modbus checks: the file, its device, and the bridge's
-    ``DescribedDevice`` on the tool's channel."""
-
-    file: str
-    device: Device
-    described: DescribedDevice
-
-
-def target(probe: Probe) -> Target:
-    found = probe.device
-    assert isinstance(found, Target), "setup() runs first"
-    return found
-
-
-# ---------------------------------------------------------------- the file
-def description_of(values: Mapping[str, Any]) -> Device:
-    """The device of the file ``device_file`` names; ``ConfigurationError`` (one line) as
-    the bridge says it, and for a file of several devices on a line (modbus_bus's)."""
-    path = str(values.get(DEVICE_FILE, ""))
-    if not path:
-        raise ConfigurationError("no device description: give -p device_file:=FILE")
-    if not Path(path).is_file():
-        raise ConfigurationError(f"parameter device_file:={path}: no such file")
-    description = load(path)
-    if description.line is not None:
-        raise ConfigurationError(
-            f"{path} describes {devices_text(len(description.devices))} on one line: "
-            "bridge_commission modbus takes a file of one device (modbus_bridge's)"
-        )
-    return description.device
-
-
-def node_of(values: Mapping[str, Any]) -> NodeInterface:
-    """The node ``modbus_bridge`` runs for the file (its parameters and their defaults)."""
-    description_of(values)  # the same one-line refusals as the bridge
-    return described_nodes(str(values[DEVICE_FILE]))[0]
-
-
-def _first_readable(register_map: RegisterMap) -> Register:
-    readable = [r for r in register_map if r.access.readable]
-    if not readable:
-        raise ConfigurationError(f"{register_map.device}: no readable register to check")
-    return min(readable, key=lambda r: (r.count, r.table.value, r.address))
-
-
-def ping_row(register: Register, io: RegisterIO) -> object:
-    """One short read, timed for the reply times: the file's shortest readable row."""
-    if register.table.is_bit:
-        return io.read_bits(register.address, 1, register.table, Priority.COMMAND)
-    return io.read_registers(register.address, register.count, register.table, Priority.COMMAND)
-
-
-def bind(commissioning: Commissioning, values: Mapping[str, Any]) -> Commissioning:
-    """The commissioning of the file ``device_file`` names: its rows and its ping."""
-    register_map = description_of(values).register_map
-    ping = functools.partial(ping_row, _first_readable(register_map))
-    return dataclasses.replace(commissioning, register_map=register_map, ping=ping)
-
-
-def ping_placeholder(_io: RegisterIO) -> object:
-    raise AssertionError("bind() gives the file's ping")
-
-
-def setup(probe: Probe) -> None:
-    """The file's facts for the report (reads only: the described device is built, not
-    polled)."""
-    device = description_of(probe.values)
-    probe.device = Target(str(probe.values[DEVICE_FILE]), device, DescribedDevice(probe.io, device))
-    fast, slow, _ = poll_plan(device)
-    keepalive = device.keepalive
-    if keepalive is not None:
-        period = (
-            f"{keepalive.period_s:g} s"
-            if keepalive.period_s is not None
-            else f"from {keepalive.period_register}"
-        )
-        fed = f"{keepalive.register} ({keepalive.mode}), watchdog time {period}"
-    elif device.frame_watchdog_s is not None:
-        fed = f"any frame, watchdog time {device.frame_watchdog_s:g} s"
-    else:
-        fed = "none"
-    probe.facts.update(
-        {
-            "description": str(probe.values[DEVICE_FILE]),
-            "device": device.spec.device.title or device.name,
-            "registers": str(len(device.register_map.registers)),
-            "joints": ", ".join(j.name for j in device.joints) or "none",
-            "poll plan": f"{len(fast)} requests, slow group {len(slow)}",
-            "keepalive": fed,
-        }
-    )
-
-
-def requests_per_poll(probe: Probe) -> int:
-    """The requests of one poll without the slow group (decision 17)."""
-    return len(poll_plan(target(probe).device)[0])
-
-
-def refusal_reason(_reg: Register, _probe: Probe) -> str | None:
-    """Every row of a file is one the device serves (the file says so): none expected."""
-    return None
-
-
-def listed(names: Sequence[str]) -> str:
-    shown = ", ".join(names[:LISTED_MAX])
-    return shown + (f" and {len(names) - LISTED_MAX} more" if len(names) > LISTED_MAX else "")
-
-
-def _span(request: ReadRequest) -> str:
-    return f"{request.table.value} {request.address}+{request.count}"
 
 
 # ---------------------------------------------------------------- read-only checks
 def _through(request: ReadRequest) -> bool:
     """Whether ``request`` reads registers (or bits) no wanted row of it holds."""
     return request.count > sum(r.count for r in request.registers)
-
-
-def _read(io: RegisterIO, table: Table, address: int, count: int) -> list[int]:
-    if table.is_bit:
-        return [int(b) for b in io.read_bits(address, count, table, Priority.COMMAND)]
-    return io.read_registers(address, count, table, Priority.COMMAND)
 
 
 def gaps_served(probe: Probe) -> Finding:
@@ -206,9 +76,9 @@ def gaps_served(probe: Probe) -> Finding:
     undefined = False
     for request in judged:
         try:
-            _read(probe.io, request.table, request.address, request.count)
+            read_rows(probe.io, request.table, request.address, request.count)
         except DeviceException as err:
-            refused.append(f"{_span(request)} ({err.name})")
+            refused.append(f"{span(request)} ({err.name})")
             undefined = undefined or any(
                 found.device.register_map.owner_at(request.table, a) is None
                 for a in range(request.address, request.end)
@@ -235,13 +105,6 @@ def _capped(device: Device, gap: int) -> Device:
     return dataclasses.replace(device, register_map=capped)
 
 
-def _poll_time(io: RegisterIO, plan: Sequence[ReadRequest]) -> float:
-    started = time.perf_counter()
-    for request in plan:
-        _read(io, request.table, request.address, request.count)
-    return time.perf_counter() - started
-
-
 def plan_speed(probe: Probe) -> Finding:
     """Decision 10: the fewest-requests plan against one with gaps capped at
     ``CAPPED_GAP``, each polled ``PLAN_POLLS`` times, alternately."""
@@ -251,15 +114,15 @@ def plan_speed(probe: Probe) -> Finding:
     if limit is not None and limit <= CAPPED_GAP:
         return Finding(Verdict.CONFIRMED, f"the file caps gaps at {limit} already")
     capped = poll_plan(_capped(found.device, CAPPED_GAP))[0]
-    if [_span(r) for r in capped] == [_span(r) for r in own]:
+    if [span(r) for r in capped] == [span(r) for r in own]:
         return Finding(
             Verdict.CONFIRMED,
             f"`max_gap: {CAPPED_GAP}` makes the same {len(own)} requests: nothing to compare",
         )
     times: dict[str, list[float]] = {"own": [], "capped": []}
     for _ in range(PLAN_POLLS):
-        times["own"].append(_poll_time(probe.io, own))
-        times["capped"].append(_poll_time(probe.io, capped))
+        times["own"].append(poll_time(probe.io, own))
+        times["capped"].append(poll_time(probe.io, capped))
     mine, theirs = (statistics.median(times[k]) for k in ("own", "capped"))
     said = (
         f"the file's plan: {len(own)} requests, median poll {mine * 1000:.1f} ms; with "
@@ -290,7 +153,7 @@ def addresses(probe: Probe) -> Finding:
         reg = found.device.register_map[refusal.name]
         for shift in ADDRESS_SHIFTS:
             try:
-                _read(probe.io, reg.table, reg.address + shift, reg.count)
+                read_rows(probe.io, reg.table, reg.address + shift, reg.count)
             except DeviceException:
                 continue
             shifted[shift].append(reg.name)
@@ -390,3 +253,68 @@ def word_order(probe: Probe) -> Finding:
         "no 32/64-bit row read nonzero (or the file has none): run the device (a speed, a "
         "voltage) and run this again",
     )
+
+
+def _refused(probe: Probe, *names: str | None) -> list[str]:
+    assert probe.rows is not None
+    refused = probe.rows.refused_names()
+    return [name for name in names if name is not None and name in refused]
+
+
+def keepalive_settings(probe: Probe) -> Finding:
+    """Decisions 13, 21, 22: the watchdog the file names can be fed: its registers answer
+    and a time read from the device is not 0; a watchdog any frame resets gets
+    ``ANY_FRAME_POLLS_PER_PERIOD`` polls per watchdog time at ``poll_rate_hz``, on this
+    line."""
+    found = target(probe)
+    device, spec = found.device, found.device.keepalive
+    if spec is not None:
+        if bad := _refused(probe, spec.register, spec.period_register):
+            return Finding(
+                Verdict.CONTRADICTED,
+                f"{listed(bad)} refused alone: every feed (or arming) fails; check the "
+                f"address against the manual and the keepalive in {found.file}",
+            )
+        period = spec.period_s
+        if spec.period_register is not None:
+            assert probe.rows is not None
+            reg = device.register_map[spec.period_register]
+            period = float(decode(reg, probe.rows.answered[reg.name])) * spec.period_to_s
+            if period <= 0:
+                return Finding(
+                    Verdict.CONTRADICTED,
+                    f"{reg.name} reads 0: the device's watchdog is off (decision 22), so "
+                    "nothing stops it when the bridge dies; write its watchdog time there "
+                    f"first (~/write name: {reg.name})",
+                )
+        assert period is not None
+        return Finding(
+            Verdict.CONFIRMED,
+            f"{spec.register} answers; a watchdog time of {period:g} s, fed every "
+            f"{period / KEEPALIVE_FEEDS_PER_PERIOD:.3g} s ({spec.mode})",
+        )
+    watchdog_s = device.frame_watchdog_s
+    if watchdog_s is None:
+        return Finding(Verdict.NOT_RUN, "the file names no keepalive")
+    rate = float(probe.values["poll_rate_hz"])
+    needed = ANY_FRAME_POLLS_PER_PERIOD / watchdog_s
+    poll_s = poll_time(probe.io, poll_plan(device)[0])
+    said = (
+        f"poll_rate_hz {rate:g} sends {rate * watchdog_s:.3g} polls per {watchdog_s:g} s "
+        f"watchdog time; one poll takes {poll_s * 1000:.1f} ms on this line"
+    )
+    if poll_s * needed >= 1:
+        return Finding(
+            Verdict.CONTRADICTED,
+            f"{said}: the line cannot carry {ANY_FRAME_POLLS_PER_PERIOD} polls a watchdog "
+            f"time; set a longer time-out on the drive and as `period_s` in {found.file}",
+        )
+    if rate < needed:
+        wanted = math.ceil(round(needed / RATE_STEP_HZ, 6)) * RATE_STEP_HZ
+        return Finding(
+            Verdict.CONTRADICTED,
+            f"{said}: fewer than {ANY_FRAME_POLLS_PER_PERIOD}, the drive may trip while the "
+            "bridge runs",
+            {"poll_rate_hz": round(wanted, 6)},
+        )
+    return Finding(Verdict.CONFIRMED, said)

@@ -135,7 +135,7 @@ def _plain(device: DescribedSimDevice) -> None:
 
 
 def run(
-    file: Path, port: int, tmp_path: Path, script: Script, *options: str
+    file: Path, port: int, tmp_path: Path, script: Script, *options: str, ros: tuple[str, ...] = ()
 ) -> tuple[int, dict[str, Any]]:
     argv = [
         "modbus",
@@ -153,6 +153,7 @@ def run(
         f"device_file:={file}",
         "-p",
         f"port:={port}",
+        *ros,
     ]
     try:
         code = main(argv, read_line=script.read_line, say=script.say)
@@ -188,6 +189,7 @@ def test_the_inverter_confirms_every_read_check_and_nothing_is_written_without_y
     found = verdicts(report)
     assert all(found[key] == "confirmed" for key in READ_CHECKS), found
     assert found["parity"] == "not run"  # TCP
+    assert found["keepalive_settings"] == "not run"  # the file names none
     assert all(found[key] == "not run" for key in GUIDED), found
     assert "dc_bus_voltage 540" in seen(report, "word_order")
     assert "speed_setpoint 1500" in seen(report, "word_order")
@@ -250,6 +252,7 @@ def test_the_vfd_runs_stops_and_trips_its_watchdog(
     assert found["watchdog"] == "confirmed", found
     assert found["frame_watchdog"] == "not run"  # a register keepalive
     assert found["read_back"] == "confirmed", found
+    assert found["keepalive_settings"] == "confirmed", found
     assert device.keepalive_trips >= 1
     assert control_words(device) == [RUN, STOP, RUN, STOP, RUN, STOP, STOP], control_words(device)
 
@@ -264,11 +267,23 @@ def test_a_watchdog_any_frame_resets_trips_in_the_silence(
     try:
         device.set("frequency_setpoint", 10.0)
         code, report = run(files["any_frame"], port, tmp_path, answers("no", "no", "yes", "no"))
+        # At 2 Hz one poll per watchdog time, not three: the rate that feeds it recommended.
+        slow_code, slow = run(
+            files["any_frame"],
+            port,
+            tmp_path,
+            answers(),
+            "--read-only",
+            ros=("-p", "poll_rate_hz:=2.0"),
+        )
     finally:
         next(iterator, None)  # the simulator stops
-    assert code == 0
+    assert code == 0 and slow_code == 0
     found = verdicts(report)
     assert found["frame_watchdog"] == "confirmed", found
+    assert found["keepalive_settings"] == "confirmed", found
+    assert verdicts(slow)["keepalive_settings"] == "contradicted", verdicts(slow)
+    assert slow["recommended_parameters"]["poll_rate_hz"] == 3 / WATCHDOG_S
     assert device.keepalive_trips == 1
     assert control_words(device) == [RUN, STOP], control_words(device)
 
