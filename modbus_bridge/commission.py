@@ -21,11 +21,17 @@ from .description_commands import ANY_FRAME_POLLS_PER_PERIOD
 from .interface import DEVICE_FILE_SPEC, NODE_NAME
 
 PANEL = "the drive's panel (its stop key or e-stop)"
+# A keepalive the tool feeds only while a step runs: a drive it armed trips after the step.
+FED_DURING = (
+    "; a `require_keepalive` file's keepalive is fed while the step runs and not after it, "
+    "so a drive whose watchdog the feeds armed shows its communication-loss fault a "
+    "watchdog time later, as after the bridge exits: reset it at the panel"
+)
 RUN_FORWARD = Guided(
     moves="the file's first `starts_motion` trigger (the VFD's `run_forward`: control_word "
     "= 1), read back, at the setpoint the drive holds (the tool writes no setpoint), for "
     f"at most {guided.RUN_LIMIT_S:g} s until a joint's velocity reads motion, then the "
-    "trigger's stop (`stop`: control_word = 5), read back",
+    "trigger's stop (`stop`: control_word = 5), read back" + FED_DURING,
     stop_how=PANEL,
     run=guided.run_forward,
     send_stop=guided.stop,
@@ -33,7 +39,8 @@ RUN_FORWARD = Guided(
 WATCHDOG = Guided(
     moves="the start trigger as above, the keepalive fed for one watchdog time while the "
     "drive runs at the setpoint it holds, then no feed: the drive must slow to half its "
-    f"speed within the watchdog time and {guided.STOP_GRACE_S:g} s; then the stop trigger",
+    f"speed within the watchdog time and {guided.STOP_GRACE_S:g} s; then the stop trigger "
+    "(the drive is then in its communication-loss fault: reset it at the panel)",
     stop_how=PANEL,
     run=guided.watchdog,
     send_stop=guided.stop,
@@ -48,7 +55,7 @@ FRAME_WATCHDOG = Guided(
 )
 READ_BACK = Guided(
     moves="the start trigger (control_word = 1 on the VFD) and at once its stop trigger "
-    "(control_word = 5), each read back: the drive may start for a moment",
+    "(control_word = 5), each read back: the drive may start for a moment" + FED_DURING,
     stop_how=PANEL,
     run=guided.read_back,
     send_stop=guided.stop,
