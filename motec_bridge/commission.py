@@ -127,6 +127,15 @@ CHECKS = (
         'msg_defs/action/MoveTo "{position: 6.283, relative: true, max_velocity: 10.0}"` must '
         "end REACHED within about a second of the motor stopping. A drive that dithers more: "
         "raise `goal_tolerance_counts`, and report the figure (the band is a constant).",
+        guided=Guided(
+            moves="network mode and position control (0x24 = 0, 0x25 = 2) and enable (0x28 = "
+            f"1), no move: the motor holds where it is while 0xAA-0xAF are read every "
+            f"{guided.REST_READ_S:g} s for {guided.REST_WATCH_S:g} s; then the verified stop, "
+            "and released again if it was released before (the `~/move_to` half is yours)",
+            stop_how="the drive's enable input or its power",
+            run=guided.standstill,
+            send_stop=guided.stop_and_restore,
+        ),
     ),
     Check(
         "move_time_limit",
@@ -145,6 +154,16 @@ CHECKS = (
         "it again. Expected: `~/state` shows `fault_code: 0` and `lifeguard_time_ms: 0`. A "
         "fault there means the drive still watched with 0x112 = 0 (the manual says it does "
         "not).",
+        guided=Guided(
+            moves=f"network mode and position control (0x24 = 0, 0x25 = 2; nothing moves), the "
+            f"lifeguard armed with {guided.LIFEGUARD_TEST_MS} ms and disarmed at once as the "
+            "bridge does (0x112 = 0, then 0x114 = 0), then nothing written for "
+            f"{guided.OFF_WATCH_FACTOR} x that time before the fault code is read (a drive "
+            "that still watches trips: it releases the motor and needs a power cycle)",
+            stop_how="the drive's power",
+            run=guided.lifeguard_off,
+            send_stop=guided.disarm,
+        ),
     ),
     Check(
         "fault_halves",

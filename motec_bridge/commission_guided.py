@@ -41,6 +41,14 @@ TRIP_READ_S = 0.05
 TRIP_LIMIT_FACTOR = 3
 TRIP_SLACK_S = 1.0
 TRIP_EARLY_SHARE = 0.8  # a trip before this share of the time is too early
+# Disarming (decision 9): armed with LIFEGUARD_TEST_MS, disarmed, then nothing written or
+# read for OFF_WATCH_FACTOR x that time before the fault code is read.
+OFF_WATCH_FACTOR = 3
+# A resting servo (decision 17): enabled, no move, 0xAA-0xAF read every REST_READ_S for
+# REST_WATCH_S; a larger dither than goal_tolerance_counts gets REST_TOLERANCE_FACTOR x it.
+REST_WATCH_S = 1.0
+REST_READ_S = 0.1
+REST_TOLERANCE_FACTOR = 2
 
 
 def _ready(drive: Drive) -> str | None:
@@ -166,6 +174,83 @@ def setpoint_in_a_move(probe: Probe) -> Finding:
     )
 
 
+def standstill(probe: Probe) -> Finding:
+    """Decision 17: enabled in position control, no move: |0xAF| within the standstill
+    band and |0xAA - 0xAC| within ``goal_tolerance_counts`` on every read."""
+    drive = drive_of(probe)
+    if (busy := _ready(drive)) is not None:
+        return Finding(Verdict.NOT_RUN, busy)
+    try:
+        drive.device.set_control_mode(CONTROL_MODE_POSITION)
+        drive.device.enable(True)
+    except CommandRejected as err:
+        return Finding(Verdict.NOT_RUN, f"refused: {err}")
+    except NotConfirmed as err:
+        return Finding(Verdict.UNCLEAR, f"the drive was not enabled: {err}")
+    reads = [_motion(drive.device)]
+    while len(reads) * REST_READ_S < REST_WATCH_S:
+        if probe.wait(REST_READ_S):
+            return Finding(Verdict.UNCLEAR, "stopped by the operator during the reads")
+        reads.append(_motion(drive.device))
+    speed = max(abs(r[2]) for r in reads)
+    offset = max(abs(r[0] - r[1]) for r in reads)
+    tolerance = int(probe.values.get("goal_tolerance_counts", 10))
+    seen = (
+        f"{len(reads)} reads over {REST_WATCH_S:g} s: |0xAF| up to {speed} rpm (band "
+        f"{STANDSTILL_SPEED_RPM}), |0xAA - 0xAC| up to {offset} counts (goal_tolerance_counts "
+        f"{tolerance})"
+    )
+    if speed > STANDSTILL_SPEED_RPM:
+        return Finding(
+            Verdict.CONTRADICTED,
+            f"the resting servo reads more speed than the standstill band: {seen}; moves "
+            "may never end REACHED and stops may release it: report the figure (the band is "
+            "a constant)",
+        )
+    if offset > tolerance:
+        wanted = max(tolerance, REST_TOLERANCE_FACTOR * offset)
+        return Finding(
+            Verdict.CONTRADICTED,
+            f"the resting servo dithers more than goal_tolerance_counts: {seen}; raise it",
+            {"goal_tolerance_counts": wanted},
+        )
+    return Finding(Verdict.CONFIRMED, seen)
+
+
+def lifeguard_off(probe: Probe) -> Finding:
+    """Decision 9: armed by the bridge's arm, disarmed by its disarm (0x112 = 0, then
+    0x114 = 0), then nothing written: the drive must not trip."""
+    drive = drive_of(probe)
+    if (busy := _ready(drive)) is not None:
+        return Finding(Verdict.NOT_RUN, busy)
+    device = drive.device
+    try:
+        device.set_control_mode(CONTROL_MODE_POSITION)
+        device.arm_lifeguard(LIFEGUARD_TEST_MS)
+        device.disarm_lifeguard()
+    except CommandRejected as err:
+        return Finding(Verdict.NOT_RUN, f"refused: {err}")
+    except NotConfirmed as err:
+        return Finding(Verdict.UNCLEAR, f"network mode was not taken: {err}")
+    watch_s = OFF_WATCH_FACTOR * LIFEGUARD_TEST_MS / 1000.0
+    if probe.wait(watch_s):
+        return Finding(Verdict.UNCLEAR, "stopped by the operator before the fault code was read")
+    v = device.read_named("fault_code", "lifeguard_time", "lifeguard_mode")
+    seen = (
+        f"armed with {LIFEGUARD_TEST_MS} ms, disarmed (0x112 = 0, 0x114 = 0; read "
+        f"{int(v['lifeguard_time'])}, {int(v['lifeguard_mode'])}), nothing written for "
+        f"{watch_s:g} s: fault code 0x{int(v['fault_code']):08X}"
+    )
+    if int(v["fault_code"]) != FAULT_NONE:
+        return Finding(
+            Verdict.CONTRADICTED,
+            f"the drive still watched after the disarm: {seen}. lifeguard_ms 0 does not "
+            "disarm it: stop the bridge only with the drive released; power-cycle it now, "
+            "and tell us",
+        )
+    return Finding(Verdict.CONFIRMED, seen)
+
+
 def disarm(probe: Probe) -> str:
     """The lifeguard step's stop: the bridge's disarm (0x112 = 0, then 0x114 = 0), read
     back; the drive is not moving (the step starts none)."""
@@ -252,8 +337,10 @@ def lifeguard_trip(probe: Probe) -> Finding:
 
 __all__ = [
     "disarm",
+    "lifeguard_off",
     "lifeguard_trip",
     "position_stop",
     "setpoint_in_a_move",
+    "standstill",
     "stop_and_restore",
 ]

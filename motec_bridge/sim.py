@@ -192,6 +192,13 @@ class MotecSimDrive(SimulatedDevice):
         self.low_word_first = False
         self.unnamed_refused = False
         self.answer_past_table = False
+        # ... and of decisions 9 (once armed, the watchdog keeps its time until a restart,
+        # whatever 0x112 / 0x114 are set to) and 17 (at rest, enabled, 0xAC reads this
+        # many counts off the setpoint, alternately either side: a servo that dithers).
+        self.lifeguard_keeps_watching = False
+        self.rest_dither_counts = 0
+        self._armed_ms = 0  # the time the watchdog was last armed with (0: never)
+        self._dither_sign = 1
         self.lifeguard_trips = 0
         self.last_command = clock()
         self.write_guards.append(self._guard)
@@ -222,6 +229,7 @@ class MotecSimDrive(SimulatedDevice):
             self.position, self.speed, self.move = 0.0, 0.0, None
             self.outputs = 0
             self.last_command = self._clock()
+            self._armed_ms = 0
             self._update_registers()
 
     # ------------------------------------------------------------ for tests / the CLI
@@ -375,6 +383,8 @@ class MotecSimDrive(SimulatedDevice):
         for name in _OUTPUT_WORDS:
             if name in written:
                 self.outputs = self.value(name) & OUTPUT_MASK
+        if self.value("lifeguard_time") > 0 and self.value("lifeguard_mode") == LIFEGUARD_ACTIVE:
+            self._armed_ms = self.value("lifeguard_time")
         self._update_registers()
 
     def _start_move(self) -> None:
@@ -403,9 +413,13 @@ class MotecSimDrive(SimulatedDevice):
 
     def _check_lifeguard(self) -> None:
         time_ms = self.value("lifeguard_time")
+        armed = time_ms > 0 and self.value("lifeguard_mode") == LIFEGUARD_ACTIVE
+        if armed:
+            self._armed_ms = time_ms
+        elif self.lifeguard_keeps_watching and self._armed_ms:
+            time_ms, armed = self._armed_ms, True
         if (
-            time_ms > 0
-            and self.value("lifeguard_mode") == LIFEGUARD_ACTIVE
+            armed
             and self.value("operation_mode") == OPERATION_MODE_NETWORK
             and self.fault == FAULT_NONE
             and self._clock() - self.last_command > time_ms / 1000.0
@@ -452,8 +466,14 @@ class MotecSimDrive(SimulatedDevice):
 
     def _update_registers(self) -> None:
         position = max(I32_MIN, min(I32_MAX, round(self.position)))
-        self.set("position_actual", position)
         setpoint = position  # perfect tracking
+        resting = self.move is None and self.value("control_mode") == CONTROL_MODE_POSITION
+        if self.rest_dither_counts and self.enabled and resting:
+            self._dither_sign = -self._dither_sign
+            position = max(
+                I32_MIN, min(I32_MAX, position + self._dither_sign * self.rest_dither_counts)
+            )
+        self.set("position_actual", position)
         if self.setpoint_holds_target and self.move is not None and self.move.target is not None:
             setpoint = max(I32_MIN, min(I32_MAX, round(self.move.target)))
         self.set("position_setpoint", setpoint)
@@ -578,6 +598,17 @@ def _add_commissioning_arguments(parser: argparse.ArgumentParser) -> None:
         "1 puts the flag in 0xC9)",
     )
     parser.add_argument(
+        "--lifeguard-keeps-watching",
+        action="store_true",
+        help="once armed, the lifeguard watches until a restart (decision 9's other reading)",
+    )
+    parser.add_argument(
+        "--rest-dither-counts",
+        type=int,
+        default=0,
+        help="at rest, enabled: 0xAC this many counts off, alternately (decision 17)",
+    )
+    parser.add_argument(
         "--lifeguard-ms",
         type=int,
         default=0,
@@ -590,6 +621,8 @@ def _play(drive: MotecSimDrive, args: argparse.Namespace) -> None:
     drive.unnamed_refused = args.refuse_unnamed
     drive.answer_past_table = args.answer_past_table
     drive.lifeguard_fault_code = args.lifeguard_fault_code
+    drive.lifeguard_keeps_watching = args.lifeguard_keeps_watching
+    drive.rest_dither_counts = args.rest_dither_counts
     if args.lifeguard_ms:
         drive.power_up_armed(args.lifeguard_ms)
 

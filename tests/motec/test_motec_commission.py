@@ -33,7 +33,8 @@ from ..support.ros import ROOT, wait_for
 from ..support.serial_pair import PTY_REPLY_TIMEOUT_S, served_on_pty
 
 READ_CHECKS = ("word_order", "unnamed_rows", "lifeguard_settings", "table_end")
-GUIDED = ("position_stop", "setpoint_in_a_move", "fault_halves")
+GUIDED = ("position_stop", "setpoint_in_a_move", "standstill", "lifeguard_off", "fault_halves")
+NO = ("no",) * len(GUIDED)
 SAMPLES = 10  # reply times: enough to exercise the statistics
 WAIT_S = 30.0  # a bound, not a measure
 START = MOTEC_MAP["start"].address
@@ -139,20 +140,21 @@ def stopped_after_start(drive: MotecSimDrive) -> bool:
 def test_the_default_drive_confirms_every_check(
     bus: tuple[MotecSimulator, MotecSimDrive, str], tmp_path: Path
 ) -> None:
-    """Read-only checks first (said in the first line), then the three steps after
+    """Read-only checks first (said in the first line), then the five steps after
     ``yes``, each judged by what the drive reads back; each step's stop is in the write
-    log (0x29 = 0 after each move's start, 0x112 = 0 after the lifeguard's arming); the
+    log (0x29 = 0 after each move's start, 0x112 = 0 after each lifeguard arming); the
     params file reaches every node (``/**/*``) and recommends lifeguard_ms."""
     _, drive, end = bus
-    script = answers("yes", "yes", "yes")
+    script = answers(*("yes",) * len(GUIDED))
     code, report = run(end, tmp_path, script)
     assert code == 0
     assert script.said[0] == FIRST_LINE
     found = verdicts(report)
     assert all(found[key] == "confirmed" for key in (*READ_CHECKS, *GUIDED)), report["checks"]
-    assert found["standstill"] == "not run"
-    assert writes(drive, START).count(0) >= 2 and stopped_after_start(drive)
-    assert writes(drive, LIFEGUARD_TIME) == [LIFEGUARD_TEST_MS, 0]  # armed, then disarmed
+    assert found["move_time_limit"] == "not run"  # a manual check
+    assert writes(drive, START).count(0) >= 3 and stopped_after_start(drive)
+    # lifeguard_off: armed, disarmed, its stop; fault_halves: armed, its stop
+    assert writes(drive, LIFEGUARD_TIME) == [LIFEGUARD_TEST_MS, 0, 0, LIFEGUARD_TEST_MS, 0]
     assert writes(drive, LIFEGUARD_MODE)[-1] == 0
     assert drive.fault == FAULT_PRESENT << 16 and not drive.enabled  # tripped, released
     assert report["reply_times"]["count"] == SAMPLES
@@ -166,8 +168,8 @@ def test_the_default_drive_confirms_every_check(
 
 PERSONALITIES = [
     # (drive attribute, value, the check that flips, the operator's answers)
-    ("low_word_first", True, "word_order", ("no", "no", "no")),
-    ("unnamed_refused", True, "unnamed_rows", ("n", "", "yes please")),
+    ("low_word_first", True, "word_order", NO),
+    ("unnamed_refused", True, "unnamed_rows", ("n", "", "yes please", "nope", "NO")),
     ("answer_past_table", True, "table_end", (None,)),
 ]
 
@@ -218,25 +220,32 @@ def test_a_drive_armed_too_short_for_the_bus_gets_the_floor_recommended(
 def test_the_other_readings_of_the_guided_steps_are_contradicted(
     bus: tuple[MotecSimulator, MotecSimDrive, str], tmp_path: Path
 ) -> None:
-    """0x29 = 0 taken as no stop (decision 18), 0xAA holding a move's target (22), the
-    fault flag in 0xC9 (7): each step contradicted; the read-only checks confirmed."""
+    """0x29 = 0 taken as no stop (decision 18), a servo dithering at rest (17: the
+    tolerance recommended), the fault flag in 0xC9 (7); then 0xAA holding a move's target
+    (22) and a lifeguard that watches on after the disarm (9): each step contradicted,
+    the read-only checks confirmed."""
     simulator, drive, end = bus
     drive.start_is_trigger = True
+    drive.rest_dither_counts = 20
     drive.lifeguard_fault_code = FAULT_PRESENT
-    code, report = run(end, tmp_path, answers("yes", "no", "yes"))
+    code, report = run(end, tmp_path, answers("yes", "no", "yes", "no", "yes"))
     found = verdicts(report)
     assert code == 0
-    assert found["position_stop"] == "contradicted", report["checks"]
-    assert found["fault_halves"] == "contradicted", report["checks"]
+    for key in ("position_stop", "standstill", "fault_halves"):
+        assert found[key] == "contradicted", report["checks"]
+    assert report["recommended_parameters"]["goal_tolerance_counts"] == 40
     assert all(found[key] == "confirmed" for key in READ_CHECKS), found
     assert not drive.enabled and drive.speed == 0.0  # released by the verified stop
     simulator.power_cycle(UNITS[0])
     drive.start_is_trigger = False
+    drive.rest_dither_counts = 0
     drive.setpoint_holds_target = True
-    code, report = run(end, tmp_path, answers("no", "yes", "no"), "--unit-id", "1")
+    drive.lifeguard_keeps_watching = True
+    code, report = run(end, tmp_path, answers("no", "yes", "no", "yes", "no"), "--unit-id", "1")
     found = verdicts(report)
-    assert found["setpoint_in_a_move"] == "contradicted", report["checks"]
+    assert found["setpoint_in_a_move"] == found["lifeguard_off"] == "contradicted", found
     assert found["position_stop"] == found["fault_halves"] == "not run"
+    assert drive.fault != 0  # it tripped after the disarm
 
 
 @pytest.mark.parametrize("stop", ["", None, "ctrl-c"], ids=["enter", "stdin-closed", "ctrl-c"])
@@ -261,7 +270,7 @@ def test_a_stop_key_closed_input_or_ctrl_c_stops_the_running_move(
         script = Script(("prompt", "yes"), (cue, None))
     else:
         moving = (lambda: drive.speed != 0.0, stop)
-        script = Script(("prompt", "yes"), moving, ("prompt", "no"), ("prompt", "no"))
+        script = Script(("prompt", "yes"), moving, *(("prompt", "no"),) * (len(GUIDED) - 1))
     code, report = run(end, tmp_path, script)
     assert code == (EXIT_INTERRUPTED if stop == "ctrl-c" else 0)
     found = verdicts(report)
