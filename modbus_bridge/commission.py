@@ -38,17 +38,18 @@ RUN_FORWARD = Guided(
 )
 WATCHDOG = Guided(
     moves="the start trigger as above, the keepalive fed for one watchdog time while the "
-    "drive runs at the setpoint it holds, then no feed: the drive must slow to half its "
-    f"speed within the watchdog time and {guided.STOP_GRACE_S:g} s; then the stop trigger "
+    "drive runs at the setpoint it holds, then no feed: the drive must slow by a fifth "
+    f"within the watchdog time and {guided.STOP_GRACE_S:g} s; then the stop trigger "
     "(the drive is then in its communication-loss fault: reset it at the panel)",
     stop_how=PANEL,
     run=guided.watchdog,
     send_stop=guided.stop,
 )
 FRAME_WATCHDOG = Guided(
-    moves="the start trigger as above, the drive read until it turns, then no frame at all "
-    f"for the watchdog time and {guided.STOP_GRACE_S:g} s: it must read slowed to half its "
-    "speed; then the stop trigger",
+    moves="the start trigger as above, the drive read until it turns and for one watchdog "
+    f"time, then no frame at all for {guided.SILENCE_OVER:g} watchdog times, then reads: it "
+    f"must have slowed by a fifth within {guided.STOP_GRACE_S:g} s more; then the stop "
+    "trigger",
     stop_how=PANEL,
     run=guided.frame_watchdog,
     send_stop=guided.stop,
@@ -183,8 +184,9 @@ CHECKS = (
             "`keepalive`'s `register` at the one your manual names. A communication-loss "
             "fault while the bridge runs: the drive wants a shorter feed than `period_s` or "
             "another `mode`. The tool's step feeds the keepalive as the bridge does, then "
-            "stops feeding (the kill) and reads the joints: slowed to half within the "
-            "watchdog time and the grace, confirmed; still turning, contradicted."
+            "stops feeding (the kill) and reads the joints: slowed by a fifth within the "
+            "watchdog time and the grace, confirmed; still at its speed, contradicted; "
+            "slowing less, could not tell (a long ramp: watch it)."
         ),
         guided=WATCHDOG,
     ),

@@ -218,9 +218,7 @@ def word_order(probe: Probe) -> Finding:
     neither: list[str] = []
     for reg in found.device.register_map:
         words = probe.rows.answered.get(reg.name)
-        if reg.count < 2 or reg.value_type is ValueType.STRING or not words or not any(words):
-            continue
-        if reg.table.is_bit:
+        if not _multi_word(reg) or not words or not any(words):
             continue
         swapped = dataclasses.replace(reg, word_order=_other(reg.word_order))
         mine, theirs = (float(decode(r, words)) for r in (reg, swapped))
@@ -248,11 +246,16 @@ def word_order(probe: Probe) -> Finding:
         )
     if neither:
         return Finding(Verdict.UNCLEAR, f"the values settle neither order: {listed(neither)}")
+    if not any(_multi_word(reg) for reg in found.device.register_map):
+        return Finding(Verdict.NOT_RUN, "the file has no 32/64-bit row")
     return Finding(
         Verdict.UNCLEAR,
-        "no 32/64-bit row read nonzero (or the file has none): run the device (a speed, a "
-        "voltage) and run this again",
+        "no 32/64-bit row read nonzero: run the device (a speed, a voltage) and run this again",
     )
+
+
+def _multi_word(reg: Register) -> bool:
+    return reg.count > 1 and not reg.table.is_bit and reg.value_type is not ValueType.STRING
 
 
 def _refused(probe: Probe, *names: str | None) -> list[str]:

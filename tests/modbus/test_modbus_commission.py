@@ -401,4 +401,5 @@ def test_the_vfd_on_rtu_answers_at_its_parity(tmp_path: Path) -> None:
     found = verdicts(report)
     assert found["parity"] == "confirmed", found
     assert "19200 8E1" in seen(report, "parity")
+    assert found["word_order"] == "not run", found  # the VFD has no 32-bit row
     assert all(found[key] == "not run" for key in GUIDED), found
