@@ -146,6 +146,30 @@ CHECKS = (
         "a larger `move_time_margin` (`ros2 param set /motec/motec_1 move_time_margin 5.0`).",
     ),
     Check(
+        "new_target",
+        "A new target with 0x29 = 1 while a move runs (`~/joint_commands` position streams)",
+        (21,),
+        "In position control, enabled, start a long move (`ros2 service call "
+        '/motec/motec_1/move msg_defs/srv/PositionMove "{position: 60.0, relative: false, '
+        'max_velocity: 6.28}"`); a second later write a nearer target with Pr.38 and Pr.41 = '
+        "1 (`write_parameter` refuses 0x29: use `~/move` again with `position: 10.0`). "
+        "Expected (the simulator's reading): the drive turns towards the new target from "
+        "where it is and stops there (`~/state`: `position_actual` ends near 10 rad in "
+        "counts, no reversal beyond it). A drive that ignores 0x29 = 1 while it reads 1 runs "
+        "on to the first target: then `~/joint_commands` position streams must not be used on "
+        "it (velocity streams are unaffected).",
+        guided=Guided(
+            moves=f"network mode and position control, enable, an absolute move "
+            f"{guided.NEW_TARGET_FAR_TURNS} motor turns ahead at {guided.MOVE_SPEED_RPM} rpm, "
+            f"after {guided.RUN_BEFORE_STOP_S:g} s a target {guided.NEW_TARGET_NEAR_TURNS} "
+            "turn ahead of the start (0x2D = 1, 0x26, 0x29 = 1, read back), watched until it "
+            "stands; then the verified stop, and released again if it was released before",
+            stop_how="the drive's enable input or its power",
+            run=guided.new_target,
+            send_stop=guided.stop_and_restore,
+        ),
+    ),
+    Check(
         "lifeguard_off",
         "Disarming with 0x112 = 0 turns the lifeguard off",
         (9,),
@@ -247,20 +271,6 @@ CHECKS = (
         "shows the out-of-range value: the drive does not check its range, so keep "
         "`allow_unlisted_parameters` false on it and put the parameter back with the vendor "
         "tool.",
-    ),
-    Check(
-        "new_target",
-        "A new target with 0x29 = 1 while a move runs (`~/joint_commands` position streams)",
-        (21,),
-        "In position control, enabled, start a long move (`ros2 service call "
-        '/motec/motec_1/move msg_defs/srv/PositionMove "{position: 60.0, relative: false, '
-        'max_velocity: 6.28}"`); a second later write a nearer target with Pr.38 and Pr.41 = '
-        "1 (`write_parameter` refuses 0x29: use `~/move` again with `position: 10.0`). "
-        "Expected (the simulator's reading): the drive turns towards the new target from "
-        "where it is and stops there (`~/state`: `position_actual` ends near 10 rad in "
-        "counts, no reversal beyond it). A drive that ignores 0x29 = 1 while it reads 1 runs "
-        "on to the first target: then `~/joint_commands` position streams must not be used on "
-        "it (velocity streams are unaffected).",
     ),
 )
 

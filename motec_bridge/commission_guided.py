@@ -46,6 +46,14 @@ TRIP_EARLY_SHARE = 0.8  # a trip before this share of the time is too early
 OFF_WATCH_FACTOR = 3
 # A resting servo (decision 17): enabled, no move, 0xAA-0xAF read every REST_READ_S for
 # REST_WATCH_S; a larger dither than goal_tolerance_counts gets REST_TOLERANCE_FACTOR x it.
+# A new target while a move runs (decision 21): an absolute move NEW_TARGET_FAR_TURNS
+# ahead, after RUN_BEFORE_STOP_S a target NEW_TARGET_NEAR_TURNS ahead of where it started
+# (the bridge's retarget), then read every REST_READ_S until it stands (up to
+# NEW_TARGET_LIMIT_S) or runs NEW_TARGET_OVERSHOOT_TURNS past the new target.
+NEW_TARGET_FAR_TURNS = 4
+NEW_TARGET_NEAR_TURNS = 1
+NEW_TARGET_LIMIT_S = 10.0
+NEW_TARGET_OVERSHOOT_TURNS = 0.25  # this far past the new target: running on to the first
 REST_WATCH_S = 1.0
 REST_READ_S = 0.1
 REST_TOLERANCE_FACTOR = 2
@@ -251,6 +259,58 @@ def lifeguard_off(probe: Probe) -> Finding:
     return Finding(Verdict.CONFIRMED, seen)
 
 
+def new_target(probe: Probe) -> Finding:
+    """Decision 21: a newer absolute target and 0x29 = 1 while a move runs (the bridge's
+    ``retarget``, read back): the drive must turn to it and stand there, not run on to
+    the first target."""
+    drive = drive_of(probe)
+    if (busy := _ready(drive)) is not None:
+        return Finding(Verdict.NOT_RUN, busy)
+    device = drive.device
+    start = _motion(device)[1]
+    far = start + round(NEW_TARGET_FAR_TURNS * drive.counts_per_rev)
+    near = start + round(NEW_TARGET_NEAR_TURNS * drive.counts_per_rev)
+    try:
+        device.check_move(far, MOVE_SPEED_RPM)
+        device.set_control_mode(CONTROL_MODE_POSITION)
+        device.enable(True)
+        device.move(far, relative=False, speed_rpm=MOVE_SPEED_RPM)
+    except CommandRejected as err:
+        return Finding(Verdict.NOT_RUN, f"refused: {err}")
+    except NotConfirmed as err:
+        return Finding(Verdict.UNCLEAR, f"the move did not start: {err}")
+    if probe.wait(RUN_BEFORE_STOP_S):
+        return Finding(Verdict.UNCLEAR, "stopped by the operator before the new target")
+    try:
+        device.retarget(near)
+    except NotConfirmed as err:
+        return Finding(Verdict.CONTRADICTED, f"the drive did not take the new target: {err}")
+    started = time.monotonic()
+    position, speed = _motion(device)[1:]
+    overshoot = round(NEW_TARGET_OVERSHOOT_TURNS * drive.counts_per_rev)
+    while abs(speed) > STANDSTILL_SPEED_RPM:
+        if abs(position - start) > abs(near - start) + overshoot:
+            break  # well past the new target: running on to the first one
+        if time.monotonic() - started > NEW_TARGET_LIMIT_S:
+            break
+        if probe.wait(REST_READ_S):
+            return Finding(Verdict.UNCLEAR, "stopped by the operator before it stood")
+        position, speed = _motion(device)[1:]
+    tolerance = int(probe.values.get("goal_tolerance_counts", 10))
+    seen = (
+        f"from 0xAC {start}: target {far}, then {near} while it ran; 0xAC {position}, 0xAF "
+        f"{speed} rpm after {time.monotonic() - started:.1f} s"
+    )
+    if abs(speed) <= STANDSTILL_SPEED_RPM and abs(position - near) <= tolerance:
+        return Finding(Verdict.CONFIRMED, f"it stood at the new target: {seen}")
+    return Finding(
+        Verdict.CONTRADICTED,
+        f"it did not stand at the new target (it runs on to the first one): {seen}; do not "
+        "use ~/joint_commands position streams on this drive (velocity streams are "
+        "unaffected), and tell us",
+    )
+
+
 def disarm(probe: Probe) -> str:
     """The lifeguard step's stop: the bridge's disarm (0x112 = 0, then 0x114 = 0), read
     back; the drive is not moving (the step starts none)."""
@@ -339,6 +399,7 @@ __all__ = [
     "disarm",
     "lifeguard_off",
     "lifeguard_trip",
+    "new_target",
     "position_stop",
     "setpoint_in_a_move",
     "standstill",

@@ -196,6 +196,9 @@ class MotecSimDrive(SimulatedDevice):
         # whatever 0x112 / 0x114 are set to) and 17 (at rest, enabled, 0xAC reads this
         # many counts off the setpoint, alternately either side: a servo that dithers).
         self.lifeguard_keeps_watching = False
+        # ... and of decision 21: 0x29 = 1 while a move runs is taken and ignored (the drive
+        # runs on to the target it had).
+        self.ignores_new_target = False
         self.rest_dither_counts = 0
         self._armed_ms = 0  # the time the watchdog was last armed with (0: never)
         self._dither_sign = 1
@@ -371,7 +374,8 @@ class MotecSimDrive(SimulatedDevice):
             self.move = Move(None, 0.0) if self.speed else None
         if "start" in written:
             if self.value("start") == 1:
-                self._start_move()
+                if not (self.ignores_new_target and self.move is not None):
+                    self._start_move()
             elif self.move is not None and not self.start_is_trigger:
                 self.move = Move(None, 0.0) if self.speed else None
         if "save_to_flash" in written and self.value("save_to_flash") == 1:
@@ -603,6 +607,11 @@ def _add_commissioning_arguments(parser: argparse.ArgumentParser) -> None:
         help="once armed, the lifeguard watches until a restart (decision 9's other reading)",
     )
     parser.add_argument(
+        "--ignore-new-target",
+        action="store_true",
+        help="0x29 = 1 while a move runs changes nothing (decision 21's other reading)",
+    )
+    parser.add_argument(
         "--rest-dither-counts",
         type=int,
         default=0,
@@ -623,6 +632,7 @@ def _play(drive: MotecSimDrive, args: argparse.Namespace) -> None:
     drive.lifeguard_fault_code = args.lifeguard_fault_code
     drive.lifeguard_keeps_watching = args.lifeguard_keeps_watching
     drive.rest_dither_counts = args.rest_dither_counts
+    drive.ignores_new_target = args.ignore_new_target
     if args.lifeguard_ms:
         drive.power_up_armed(args.lifeguard_ms)
 

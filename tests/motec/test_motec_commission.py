@@ -33,7 +33,14 @@ from ..support.ros import ROOT, wait_for
 from ..support.serial_pair import PTY_REPLY_TIMEOUT_S, served_on_pty
 
 READ_CHECKS = ("word_order", "unnamed_rows", "lifeguard_settings", "table_end")
-GUIDED = ("position_stop", "setpoint_in_a_move", "standstill", "lifeguard_off", "fault_halves")
+GUIDED = (  # in the order they are asked
+    "position_stop",
+    "setpoint_in_a_move",
+    "standstill",
+    "new_target",
+    "lifeguard_off",
+    "fault_halves",
+)
 NO = ("no",) * len(GUIDED)
 SAMPLES = 10  # reply times: enough to exercise the statistics
 WAIT_S = 30.0  # a bound, not a measure
@@ -140,7 +147,7 @@ def stopped_after_start(drive: MotecSimDrive) -> bool:
 def test_the_default_drive_confirms_every_check(
     bus: tuple[MotecSimulator, MotecSimDrive, str], tmp_path: Path
 ) -> None:
-    """Read-only checks first (said in the first line), then the five steps after
+    """Read-only checks first (said in the first line), then the six steps after
     ``yes``, each judged by what the drive reads back; each step's stop is in the write
     log (0x29 = 0 after each move's start, 0x112 = 0 after each lifeguard arming); the
     params file reaches every node (``/**/*``) and recommends lifeguard_ms."""
@@ -152,7 +159,7 @@ def test_the_default_drive_confirms_every_check(
     found = verdicts(report)
     assert all(found[key] == "confirmed" for key in (*READ_CHECKS, *GUIDED)), report["checks"]
     assert found["move_time_limit"] == "not run"  # a manual check
-    assert writes(drive, START).count(0) >= 3 and stopped_after_start(drive)
+    assert writes(drive, START).count(0) >= 4 and stopped_after_start(drive)
     # lifeguard_off: armed, disarmed, its stop; fault_halves: armed, its stop
     assert writes(drive, LIFEGUARD_TIME) == [LIFEGUARD_TEST_MS, 0, 0, LIFEGUARD_TEST_MS, 0]
     assert writes(drive, LIFEGUARD_MODE)[-1] == 0
@@ -169,7 +176,7 @@ def test_the_default_drive_confirms_every_check(
 PERSONALITIES = [
     # (drive attribute, value, the check that flips, the operator's answers)
     ("low_word_first", True, "word_order", NO),
-    ("unnamed_refused", True, "unnamed_rows", ("n", "", "yes please", "nope", "NO")),
+    ("unnamed_refused", True, "unnamed_rows", ("n", "", "yes please", "nope", "NO", "y")),
     ("answer_past_table", True, "table_end", (None,)),
 ]
 
@@ -222,13 +229,13 @@ def test_the_other_readings_of_the_guided_steps_are_contradicted(
 ) -> None:
     """0x29 = 0 taken as no stop (decision 18), a servo dithering at rest (17: the
     tolerance recommended), the fault flag in 0xC9 (7); then 0xAA holding a move's target
-    (22) and a lifeguard that watches on after the disarm (9): each step contradicted,
-    the read-only checks confirmed."""
+    (22), a new target ignored while a move runs (21) and a lifeguard that watches on
+    after the disarm (9): each step contradicted, the read-only checks confirmed."""
     simulator, drive, end = bus
     drive.start_is_trigger = True
     drive.rest_dither_counts = 20
     drive.lifeguard_fault_code = FAULT_PRESENT
-    code, report = run(end, tmp_path, answers("yes", "no", "yes", "no", "yes"))
+    code, report = run(end, tmp_path, answers("yes", "no", "yes", "no", "no", "yes"))
     found = verdicts(report)
     assert code == 0
     for key in ("position_stop", "standstill", "fault_halves"):
@@ -241,9 +248,12 @@ def test_the_other_readings_of_the_guided_steps_are_contradicted(
     drive.rest_dither_counts = 0
     drive.setpoint_holds_target = True
     drive.lifeguard_keeps_watching = True
-    code, report = run(end, tmp_path, answers("no", "yes", "no", "yes", "no"), "--unit-id", "1")
+    drive.ignores_new_target = True
+    said = answers("no", "yes", "no", "yes", "yes", "no")
+    code, report = run(end, tmp_path, said, "--unit-id", "1")
     found = verdicts(report)
-    assert found["setpoint_in_a_move"] == found["lifeguard_off"] == "contradicted", found
+    for key in ("setpoint_in_a_move", "new_target", "lifeguard_off"):
+        assert found[key] == "contradicted", report["checks"]
     assert found["position_stop"] == found["fault_halves"] == "not run"
     assert drive.fault != 0  # it tripped after the disarm
 
