@@ -249,7 +249,12 @@ def lifeguard_settings(probe: Probe) -> Finding:
     time_ms, mode = time_words[0], mode_words[0]
     floor = lifeguard_floor_ms(probe.values)
     given = int(probe.values.get("lifeguard_ms", 0))
-    said = f"0x112 = {time_ms} ms, 0x114 = {mode}; this bus keeps at least {floor} ms fed"
+    drives = len(list(probe.values.get("unit_ids", [1])))
+    said = (
+        f"0x112 = {time_ms} ms, 0x114 = {mode}; this bus keeps at least {floor} ms fed "
+        f"({drives} drive(s), timeout_s {float(probe.values.get('timeout_s', 0.1)):g}: "
+        "lower it to the recommended one and this floor falls)"
+    )
     if time_ms == LIFEGUARD_OFF_MS:
         wanted = max(given or LIFEGUARD_RECOMMENDED_MS, floor)
         return Finding(
