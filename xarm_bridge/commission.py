@@ -33,6 +33,14 @@ PAUSE_STEP = Guided(
     run=guided.pause_step,
     send_stop=guided.stop,
 )
+START_IN_ERROR_STEP = Guided(
+    moves="only on an arm that shows an error and stands in state 4: the bridge's resume "
+    f"(H33 = 0) and then project {guided.PROJECT} (FC 10 at 0x30), each read back for 0.5 s; "
+    "an arm that takes one moves until the bridge's stop that follows",
+    stop_how=CONTROL_BOX,
+    run=guided.start_in_error,
+    send_stop=guided.stop,
+)
 
 CHECKS = (
     Check(
@@ -176,6 +184,7 @@ CHECKS = (
             "not show a running project as state 1: tell us, the check of decision 20 is then "
             "wrong for tasks)."
         ),
+        guided=START_IN_ERROR_STEP,
     ),
     Check(
         "safety_modes",

@@ -8,6 +8,8 @@ reading N of docs/decisions/xarm.md.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 from bridge_core.runtime.commission import Finding, Probe, Verdict
 from bridge_core.wire.errors import CommandRejected, DeviceException, NotConfirmed
 
@@ -122,3 +124,47 @@ def pause_step(probe: Probe) -> Finding:
             "show the last write; the bridge takes only H33 as proof, decision 19); tell us",
         )
     return Finding(Verdict.CONFIRMED, f"{said}; C144 reads {int(seen.paused)} after it")
+
+
+def _refused(probe: Probe, what: str, start: Callable[[], str]) -> str | None:
+    """A start on an arm in error: None when the bridge says "not confirmed" and H33
+    reads 4 (stopped), else what shows that the arm took it."""
+    try:
+        said = start()
+    except NotConfirmed:
+        seen = device(probe).read_arm()
+        if seen.state == SET_STATE_STOP:
+            return None
+        return f"{what}: not confirmed, but the arm reads {seen}"
+    return f"{what}: done while the error shows ({said})"
+
+
+def start_in_error(probe: Probe) -> Finding:
+    """Decision 20: on an arm that shows an error, the bridge's resume (H33 = 0) and its
+    offline task (project ``PROJECT``) are each not confirmed, and H33 stays 4."""
+    arm = device(probe)
+    seen = arm.read_arm()
+    if not seen.error_code:
+        return Finding(
+            Verdict.NOT_RUN,
+            "no error shows: press the control box's emergency stop, release it, leave the "
+            f"error, and run this again ({seen})",
+        )
+    if seen.state != SET_STATE_STOP:
+        return Finding(Verdict.NOT_RUN, f"the arm shows an error but is not stopped: {seen}")
+    starts: tuple[tuple[str, Callable[[], str]], ...] = (
+        ("resume", arm.resume),
+        (f"project {PROJECT}", lambda: arm.run_offline_task([PROJECT])),
+    )
+    for what, start in starts:  # the first one taken ends the step (and its stop goes out)
+        if (took := _refused(probe, what, start)) is not None:
+            return Finding(
+                Verdict.CONTRADICTED,
+                f"{took}: this firmware takes a start in error (the state is not 4), so "
+                "decision 20's check cannot tell an arm that refused it; tell us",
+            )
+    return Finding(
+        Verdict.CONFIRMED,
+        f"error {seen.error_code}: the resume and project {PROJECT} both not confirmed, H33 "
+        "reads 4 (stopped) after each",
+    )

@@ -29,7 +29,9 @@ apart (xarm_bridge/commission.py): ``--counter-low-first`` (``counter_low_first`
 counter I34-35 low word first, decision 4), ``--answer-reserved`` (``answer_reserved``:
 reserved rows answer 0, not 0x02, decision 2) and ``--euler-moving-axes``
 (``euler_moving_axes``: roll/pitch/yaw about the moving axes, so rx/ry/rz describe
-another orientation than the bridge's fixed-axis reading, decision 13).
+another orientation than the bridge's fixed-axis reading, decision 13) and
+``--starts-in-error`` (``starts_in_error``: a start, H33 = 0 or an offline task, is taken
+while an error shows, and the error stays shown, decision 20).
 """
 
 from __future__ import annotations
@@ -113,6 +115,7 @@ class XArmSimDevice(SimulatedDevice):
         self.counter_low_first = False  # ``--counter-low-first``: I34-35 low word first
         self.answer_reserved = False  # ``--answer-reserved``: reserved rows answer 0
         self.euler_moving_axes = False  # ``--euler-moving-axes``: rx/ry/rz of R = Rx Ry Rz
+        self.starts_in_error = False  # ``--starts-in-error``: starts taken, the error shown
         self.write_guards.append(self._guard)
         self.write_hooks.append(self._on_write)
         self.set_state(SLEEPING)
@@ -251,7 +254,7 @@ class XArmSimDevice(SimulatedDevice):
             projects = [v for v in record.values if v]
             self.tasks_started.append(projects)
             if (
-                int(self.get("error_code")) == 0
+                not self._refuses_starts()
                 and self.arm_state in (IN_MOTION, SLEEPING)
                 and self.ready()
             ):
@@ -269,13 +272,17 @@ class XArmSimDevice(SimulatedDevice):
             self.task_seconds_left = 0.0
             self.set_state(STOPPED)
         elif requested == 0:
-            if int(self.get("error_code")) or not self.ready():
+            if self._refuses_starts() or not self.ready():
                 self.set_state(STOPPED)
             else:
                 if self.pending_mode is not None:
                     self._set_mode(self.pending_mode)
                     self.pending_mode = None
                 self.set_state(IN_MOTION if self.task_seconds_left > 0 else SLEEPING)
+
+    def _refuses_starts(self) -> bool:
+        """An error refuses a start, unless ``starts_in_error`` (the error still shown)."""
+        return bool(int(self.get("error_code"))) and not self.starts_in_error
 
     def _set_mode(self, mode: int) -> None:
         self.mode = mode
@@ -429,6 +436,11 @@ def main(argv: Sequence[str] | None = None) -> None:
         help="reserved rows answer 0 instead of 0x02 (xArm decision 2's other reading)",
     )
     parser.add_argument(
+        "--starts-in-error",
+        action="store_true",
+        help="a start (H33 = 0, a task) is taken while an error shows (decision 20's other)",
+    )
+    parser.add_argument(
         "--euler-moving-axes",
         action="store_true",
         help="rx/ry/rz of roll/pitch/yaw about the moving axes (xArm decision 13's other)",
@@ -442,6 +454,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     device.counter_low_first = bool(args.counter_low_first)
     device.answer_reserved = bool(args.answer_reserved)
     device.euler_moving_axes = bool(args.euler_moving_axes)
+    device.starts_in_error = bool(args.starts_in_error)
     serve_tcp_until_signalled(sim, args, "xarm_sim")
 
 

@@ -35,7 +35,7 @@ from xarm_bridge.sim import IN_MOTION, STOPPED, XArmSimDevice, make_simulator
 from ..support.ros import ROOT, wait_for
 
 READ_CHECKS = ("signed_values", "counter_word_order", "joints", "reserved_rows", "rotation_vector")
-GUIDED = ("stop", "pause")
+GUIDED = ("stop", "pause", "start_in_error")
 SAMPLES = 10  # reply times: the fewest the tool takes
 WAIT_S = 30.0  # a bound, not a measure
 SHORT_RUN_S = 0.1  # the guided steps' project runs this long (short_steps)
@@ -146,6 +146,21 @@ def verdicts(report: dict[str, Any]) -> dict[str, str]:
     return {check["key"]: check["verdict"] for check in report["checks"]}
 
 
+def seen(report: dict[str, Any], key: str) -> str:
+    return str(next(check["seen"] for check in report["checks"] if check["key"] == key))
+
+
+STOP_WRITES = ((Table.COIL, COIL_STOPPED, (1,)), (Table.HOLDING, STATE, (STOPPED,)))
+
+
+def stop_after(device: XArmSimDevice, write: tuple[Table, int, tuple[int, ...]]) -> bool:
+    """The bridge's stop (C145 = 1, then H33 = 4) in the write log after ``write``."""
+    log = [(r.table, r.address, r.values) for r in device.write_log]
+    after = log[log.index(write) :] if write in log else []
+    coil, state = STOP_WRITES
+    return coil in after and state in after[after.index(coil) :]
+
+
 def stops_after_starts(device: XArmSimDevice) -> int:
     """How many project starts (FC 10 at 0x30) the bridge's stop (C145 = 1, then H33 = 4)
     followed, before the next start; asserts each start was followed by one."""
@@ -153,21 +168,22 @@ def stops_after_starts(device: XArmSimDevice) -> int:
     starts = [k for k, (table, address, _) in enumerate(log) if address == OFFLINE_TASK_ADDRESS]
     for k, start in enumerate(starts):
         after = log[start : starts[k + 1] if k + 1 < len(starts) else len(log)]
-        coil = (Table.COIL, COIL_STOPPED, (1,))
-        state = (Table.HOLDING, STATE, (STOPPED,))
+        coil, state = STOP_WRITES
         assert coil in after and state in after[after.index(coil) :], after
     return len(starts)
 
 
 def test_the_default_simulator_confirms_every_check(sim: Rig, tmp_path: Path) -> None:
     """Read-only checks first, then both steps after ``yes``, each judged by what H33
-    reads back and each ended by the bridge's stop; the params file is the bridge's."""
+    reads back and each ended by the bridge's stop (the start in error, with no error
+    shown, writes nothing); the params file is the bridge's."""
     _, device, port = sim
-    code, report = run(port, tmp_path, answers("yes", "yes"))
+    code, report = run(port, tmp_path, answers("yes", "yes", "yes"))
     assert code == 0
     found = verdicts(report)
-    assert all(found[key] == "confirmed" for key in (*READ_CHECKS, *GUIDED)), found
+    assert all(found[key] == "confirmed" for key in (*READ_CHECKS, "stop", "pause")), found
     assert found["start_in_error"] == found["safety_modes"] == "not run"
+    assert "no error shows" in seen(report, "start_in_error")  # after yes: nothing written
     assert report["recommended_parameters"]["joint_count"] == 7
     assert stops_after_starts(device) == 2
     assert device.arm_state == STOPPED
@@ -189,10 +205,10 @@ def _flag(name: str) -> Callable[[XArmSimDevice], None]:
 
 PERSONALITIES = [
     # (the arm's joints, the personality, the check that flips, the operator's answers)
-    (7, _flag("counter_low_first"), "counter_word_order", ("no", "no")),
-    (7, _flag("answer_reserved"), "reserved_rows", ("n", "")),
+    (7, _flag("counter_low_first"), "counter_word_order", ("no", "no", "no")),
+    (7, _flag("answer_reserved"), "reserved_rows", ("n", "", "nope")),
     (7, _flag("euler_moving_axes"), "rotation_vector", (None,)),
-    (7, _ai_beyond_its_range, "signed_values", ("yes please", "NO")),
+    (7, _ai_beyond_its_range, "signed_values", ("yes please", "NO", None)),
     (6, lambda _device: None, "joints", ("no", None)),
 ]
 
@@ -222,29 +238,46 @@ def test_a_personality_contradicts_its_check_only_and_nothing_is_written_without
         assert device.write_log == []
 
 
+GUIDED_READINGS = [
+    # (the personality, the step it is for, its verdict, the operator's answers)
+    ("ignore_stop", "stop", "contradicted", ("yes", "no", "no")),
+    ("coils_as_written", "pause", "contradicted", ("no", "yes", "no")),
+    ("error", "start_in_error", "confirmed", ("no", "no", "yes")),
+    ("starts_in_error", "start_in_error", "contradicted", ("no", "no", "yes")),
+]
+
+
 @pytest.mark.parametrize(
-    ("personality", "key", "said"),
-    [("ignore_stop", "stop", ("yes", "no")), ("coils_as_written", "pause", ("no", "yes"))],
-    ids=["ignored-stop", "coils-as-written"],
+    ("personality", "key", "verdict", "said"),
+    GUIDED_READINGS,
+    ids=[f"{p[0]}-{p[2]}" for p in GUIDED_READINGS],
 )
 def test_the_other_readings_of_the_guided_steps_are_contradicted(
-    sim: Rig, tmp_path: Path, personality: str, key: str, said: tuple[str, ...]
+    sim: Rig, tmp_path: Path, personality: str, key: str, verdict: str, said: tuple[str, ...]
 ) -> None:
     """A firmware that ignores both stop writes (decisions 6, 19): the stop step is
     contradicted, its stop still sent; one that keeps C144 as written: the pause step,
-    whose resume leaves C144 reading 1 while H33 reads 1 (in motion)."""
+    whose resume leaves C144 reading 1 while H33 reads 1 (in motion). An arm in error
+    (decision 20): the resume and the project are not confirmed, H33 stays 4; one that
+    takes a start in error: contradicted (its stop follows the start it took)."""
     simulator, device, port = sim
     if personality == "ignore_stop":
         simulator.ignore({"stop"})
-    else:
+    elif personality == "coils_as_written":
         device.coils_as_written = True
+    else:
+        device.set_error(1)
+        device.starts_in_error = personality == "starts_in_error"
     code, report = run(port, tmp_path, answers(*said))
     assert code == 0
     found = verdicts(report)
-    assert found[key] == "contradicted", found
+    assert found[key] == verdict, found
     assert all(found[other] == "not run" for other in GUIDED if other != key), found
     assert all(found[check] == "confirmed" for check in READ_CHECKS), found
-    assert stops_after_starts(device) == 1
+    if key == "start_in_error":  # the resume goes first, the stop after it
+        assert stop_after(device, (Table.HOLDING, STATE, (0,)))
+    else:
+        assert stops_after_starts(device) == 1
 
 
 def test_enter_and_closed_input_stop_the_running_step(
