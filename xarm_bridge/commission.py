@@ -41,6 +41,15 @@ START_IN_ERROR_STEP = Guided(
     run=guided.start_in_error,
     send_stop=guided.stop,
 )
+SAFETY_MODES_STEP = Guided(
+    moves="nothing moves (the arm must stand): reduced mode (C142) and then fence mode "
+    "(C143) switched on with the bridge's services' methods and read back, off refused "
+    "without `confirm`, and switched off with it when it was off; a step cut short leaves "
+    "a mode on (the safe side); then the bridge's stop, so the arm reads state 4",
+    stop_how=CONTROL_BOX,
+    run=guided.safety_modes,
+    send_stop=guided.stop,
+)
 
 CHECKS = (
     Check(
@@ -203,6 +212,7 @@ CHECKS = (
             "read; or if the reply and `~/state` agree but the pendant shows the other mode: "
             "the coil is kept without effect on this firmware; tell us either way."
         ),
+        guided=SAFETY_MODES_STEP,
     ),
 )
 

@@ -168,3 +168,39 @@ def start_in_error(probe: Probe) -> Finding:
         f"error {seen.error_code}: the resume and project {PROJECT} both not confirmed, H33 "
         "reads 4 (stopped) after each",
     )
+
+
+SAFETY_MODES = ("set_reduced_mode", "set_fence_mode")  # the device methods, as the services
+
+
+def safety_modes(probe: Probe) -> Finding:
+    """Decision 17: on an arm that stands, each safety mode switched on with the bridge's
+    method (the coil read back), off refused without ``confirm``, then back off with it
+    when it was off; a change the coil does not read back is the controller's refusal."""
+    arm = device(probe)
+    seen = arm.read_arm()
+    if seen.state == STATE_IN_MOTION:
+        return Finding(Verdict.NOT_RUN, f"the arm moves, stop it first: {seen}")
+    before = arm.read_named("reduced_mode", "fence_mode")
+    said: list[str] = []
+    for name, was in zip(SAFETY_MODES, before.values(), strict=True):
+        switch: Callable[..., str] = getattr(arm, name)
+        try:
+            said.append(f"{name} on: {switch(True)}")
+            try:
+                switch(False)
+            except CommandRejected as err:
+                said.append(f"off without confirm refused ({err})")
+            else:
+                return Finding(Verdict.CONTRADICTED, f"{name} off without confirm went out")
+            if not was:
+                said.append(f"off with confirm: {switch(False, name)}")
+        except NotConfirmed as err:
+            return Finding(
+                Verdict.CONTRADICTED,
+                f"{'; '.join(said)}; {name}: not confirmed: {err}: the controller refused "
+                "the change in its current state, and the mode is as it read; tell us",
+            )
+        if probe.stop_requested():
+            return Finding(Verdict.UNCLEAR, f"stopped by the operator: {'; '.join(said)}")
+    return Finding(Verdict.CONFIRMED, "; ".join(said))

@@ -31,7 +31,9 @@ reserved rows answer 0, not 0x02, decision 2) and ``--euler-moving-axes``
 (``euler_moving_axes``: roll/pitch/yaw about the moving axes, so rx/ry/rz describe
 another orientation than the bridge's fixed-axis reading, decision 13) and
 ``--starts-in-error`` (``starts_in_error``: a start, H33 = 0 or an offline task, is taken
-while an error shows, and the error stays shown, decision 20).
+while an error shows, and the error stays shown, decision 20) and ``--safety-modes-fixed``
+(``safety_modes_fixed``: writes to C142-143 are acknowledged and not applied, a controller
+that refuses the change in its state, decision 17).
 """
 
 from __future__ import annotations
@@ -62,6 +64,7 @@ from bridge_core.wire.registers import Table
 from .registers import (
     BRAKE_FIRST,
     COIL_PAUSED,
+    COIL_REDUCED_MODE,
     COIL_STOPPED,
     CONTROLLER_DIGITAL_CHANNELS,
     ENABLE_FIRST,
@@ -116,6 +119,8 @@ class XArmSimDevice(SimulatedDevice):
         self.answer_reserved = False  # ``--answer-reserved``: reserved rows answer 0
         self.euler_moving_axes = False  # ``--euler-moving-axes``: rx/ry/rz of R = Rx Ry Rz
         self.starts_in_error = False  # ``--starts-in-error``: starts taken, the error shown
+        self.safety_modes_fixed = False  # ``--safety-modes-fixed``: C142-143 not changed
+        self._safety_modes: list[int] = []  # C142-143 before a write, while fixed
         self.write_guards.append(self._guard)
         self.write_hooks.append(self._on_write)
         self.set_state(SLEEPING)
@@ -205,6 +210,8 @@ class XArmSimDevice(SimulatedDevice):
 
     def _guard(self, record: WriteRecord) -> int | None:
         code = self._check_write(record)
+        if self.safety_modes_fixed and record.table is Table.COIL:
+            self._safety_modes = self.get_words(Table.COIL, COIL_REDUCED_MODE, 2)
         if code is None and self.coils_as_written and self.ignores(record):
             # Ignored (no motion), and still stored: the coil reads what was written.
             for address, value in zip(
@@ -233,6 +240,9 @@ class XArmSimDevice(SimulatedDevice):
     def _on_write(self, record: WriteRecord) -> None:
         span = range(record.address, record.address + len(record.values))
         if record.table is Table.COIL:
+            if self.safety_modes_fixed and self._safety_modes:
+                # Acknowledged, not applied: the modes read as before the write.
+                self.set_words(Table.COIL, COIL_REDUCED_MODE, self._safety_modes)
             if any(a < FIRST_TOOL_DIGITAL + TOOL_DIGITAL_CHANNELS for a in span):
                 self._sync_words("controller_do", "controller_do_word", "tool_do", "tool_do_word")
             if any(BRAKE_FIRST <= a < ENABLE_FIRST + JOINTS for a in span):
@@ -441,6 +451,11 @@ def main(argv: Sequence[str] | None = None) -> None:
         help="a start (H33 = 0, a task) is taken while an error shows (decision 20's other)",
     )
     parser.add_argument(
+        "--safety-modes-fixed",
+        action="store_true",
+        help="writes to C142-143 (reduced, fence mode) acknowledged, not applied (decision 17)",
+    )
+    parser.add_argument(
         "--euler-moving-axes",
         action="store_true",
         help="rx/ry/rz of roll/pitch/yaw about the moving axes (xArm decision 13's other)",
@@ -455,6 +470,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     device.answer_reserved = bool(args.answer_reserved)
     device.euler_moving_axes = bool(args.euler_moving_axes)
     device.starts_in_error = bool(args.starts_in_error)
+    device.safety_modes_fixed = bool(args.safety_modes_fixed)
     serve_tcp_until_signalled(sim, args, "xarm_sim")
 
 

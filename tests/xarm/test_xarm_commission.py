@@ -29,13 +29,18 @@ from bridge_core.runtime.commission_run import PROMPT
 from bridge_core.sim.serving import Simulator
 from bridge_core.wire.registers import Table
 from xarm_bridge import commission_guided
-from xarm_bridge.registers import COIL_STOPPED, OFFLINE_TASK_ADDRESS, XARM_MAP
+from xarm_bridge.registers import (
+    COIL_REDUCED_MODE,
+    COIL_STOPPED,
+    OFFLINE_TASK_ADDRESS,
+    XARM_MAP,
+)
 from xarm_bridge.sim import IN_MOTION, STOPPED, XArmSimDevice, make_simulator
 
 from ..support.ros import ROOT, wait_for
 
 READ_CHECKS = ("signed_values", "counter_word_order", "joints", "reserved_rows", "rotation_vector")
-GUIDED = ("stop", "pause", "start_in_error")
+GUIDED = ("stop", "pause", "start_in_error", "safety_modes")
 SAMPLES = 10  # reply times: the fewest the tool takes
 WAIT_S = 30.0  # a bound, not a measure
 SHORT_RUN_S = 0.1  # the guided steps' project runs this long (short_steps)
@@ -178,15 +183,18 @@ def test_the_default_simulator_confirms_every_check(sim: Rig, tmp_path: Path) ->
     reads back and each ended by the bridge's stop (the start in error, with no error
     shown, writes nothing); the params file is the bridge's."""
     _, device, port = sim
-    code, report = run(port, tmp_path, answers("yes", "yes", "yes"))
+    code, report = run(port, tmp_path, answers("yes", "yes", "yes", "yes"))
     assert code == 0
     found = verdicts(report)
-    assert all(found[key] == "confirmed" for key in (*READ_CHECKS, "stop", "pause")), found
-    assert found["start_in_error"] == found["safety_modes"] == "not run"
+    assert all(
+        found[key] == "confirmed" for key in (*READ_CHECKS, "stop", "pause", "safety_modes")
+    ), found
+    assert found["start_in_error"] == "not run"
     assert "no error shows" in seen(report, "start_in_error")  # after yes: nothing written
     assert report["recommended_parameters"]["joint_count"] == 7
     assert stops_after_starts(device) == 2
     assert device.arm_state == STOPPED
+    assert not device.get("reduced_mode") and not device.get("fence_mode")  # as they were
     params = (tmp_path / "xarm.yaml").read_text()
     assert "/**/xarm_bridge:\n  ros__parameters:" in params and "joint_count: 7" in params
 
@@ -205,8 +213,8 @@ def _flag(name: str) -> Callable[[XArmSimDevice], None]:
 
 PERSONALITIES = [
     # (the arm's joints, the personality, the check that flips, the operator's answers)
-    (7, _flag("counter_low_first"), "counter_word_order", ("no", "no", "no")),
-    (7, _flag("answer_reserved"), "reserved_rows", ("n", "", "nope")),
+    (7, _flag("counter_low_first"), "counter_word_order", ("no", "no", "no", "no")),
+    (7, _flag("answer_reserved"), "reserved_rows", ("n", "", "nope", "no")),
     (7, _flag("euler_moving_axes"), "rotation_vector", (None,)),
     (7, _ai_beyond_its_range, "signed_values", ("yes please", "NO", None)),
     (6, lambda _device: None, "joints", ("no", None)),
@@ -240,10 +248,11 @@ def test_a_personality_contradicts_its_check_only_and_nothing_is_written_without
 
 GUIDED_READINGS = [
     # (the personality, the step it is for, its verdict, the operator's answers)
-    ("ignore_stop", "stop", "contradicted", ("yes", "no", "no")),
-    ("coils_as_written", "pause", "contradicted", ("no", "yes", "no")),
-    ("error", "start_in_error", "confirmed", ("no", "no", "yes")),
-    ("starts_in_error", "start_in_error", "contradicted", ("no", "no", "yes")),
+    ("ignore_stop", "stop", "contradicted", ("yes", "no", "no", "no")),
+    ("coils_as_written", "pause", "contradicted", ("no", "yes", "no", "no")),
+    ("error", "start_in_error", "confirmed", ("no", "no", "yes", "no")),
+    ("starts_in_error", "start_in_error", "contradicted", ("no", "no", "yes", "no")),
+    ("safety_modes_fixed", "safety_modes", "contradicted", ("no", "no", "no", "yes")),
 ]
 
 
@@ -265,6 +274,8 @@ def test_the_other_readings_of_the_guided_steps_are_contradicted(
         simulator.ignore({"stop"})
     elif personality == "coils_as_written":
         device.coils_as_written = True
+    elif personality == "safety_modes_fixed":
+        device.safety_modes_fixed = True
     else:
         device.set_error(1)
         device.starts_in_error = personality == "starts_in_error"
@@ -276,6 +287,8 @@ def test_the_other_readings_of_the_guided_steps_are_contradicted(
     assert all(found[check] == "confirmed" for check in READ_CHECKS), found
     if key == "start_in_error":  # the resume goes first, the stop after it
         assert stop_after(device, (Table.HOLDING, STATE, (0,)))
+    elif key == "safety_modes":  # reduced mode on first, the stop after it
+        assert stop_after(device, (Table.COIL, COIL_REDUCED_MODE, (1,)))
     else:
         assert stops_after_starts(device) == 1
 
