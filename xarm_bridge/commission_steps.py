@@ -166,11 +166,12 @@ def signed_values(probe: Probe) -> Finding:
         words = probe.rows.answered.get(reg.name)
         if reg.table is not Table.INPUT or reg.value_type is not ValueType.I16 or not words:
             continue
-        if not _in_use(reg, joint_count):
+        bound = PLAUSIBLE.get(reg.unit)
+        if bound is None or not _in_use(reg, joint_count):
             continue
         value = words_to_int(words, True, WordOrder.HIGH_FIRST) / reg.scale
         seen = f"{reg.name} {value:g} {reg.unit}"
-        if abs(value) > PLAUSIBLE[reg.unit]:
+        if abs(value) > bound:
             absurd.append(seen)
         elif value < 0:
             unsigned = words_to_int(words, False, WordOrder.HIGH_FIRST) / reg.scale
