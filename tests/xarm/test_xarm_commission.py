@@ -3,12 +3,12 @@
 The tool runs in-process (``bridge_core.ros.commission.main``, its operator's lines fed
 by ``Script``) against an in-process simulator on a free port, its arm off its origin (a
 negative joint, two of roll/pitch/yaw off 0, a counter that has counted). Against it
-every read-only check is confirmed and both guided steps pass; against each personality
-that plays the other reading of a decision (docs/tools.md, "Device personalities")
-exactly that check is contradicted (the joint count: recommended as the arm's). Nothing
-is written without ``yes`` (the write log stays empty), and every way out of a running
-step sends the bridge's stop (C145 and H33 = 4, in the write log after the project's
-start).
+every read-only check is confirmed and the guided steps pass (the start in error runs
+only on an arm in error); against each personality that plays the other reading of a
+decision (docs/tools.md, "Device personalities") exactly that check is contradicted (the
+joint count: recommended as the arm's). Nothing is written without ``yes`` (the write
+log stays empty), and every way out of a running step sends the bridge's stop (C145 and
+H33 = 4, in the write log after the step's first write).
 """
 
 from __future__ import annotations
@@ -179,9 +179,9 @@ def stops_after_starts(device: XArmSimDevice) -> int:
 
 
 def test_the_default_simulator_confirms_every_check(sim: Rig, tmp_path: Path) -> None:
-    """Read-only checks first, then both steps after ``yes``, each judged by what H33
-    reads back and each ended by the bridge's stop (the start in error, with no error
-    shown, writes nothing); the params file is the bridge's."""
+    """Read-only checks first, then the guided steps after ``yes``, each judged by what
+    the arm reads back and each ended by the bridge's stop (the start in error, with no
+    error shown, writes nothing); the params file is the bridge's."""
     _, device, port = sim
     code, report = run(port, tmp_path, answers("yes", "yes", "yes", "yes"))
     assert code == 0
@@ -233,7 +233,7 @@ def test_a_personality_contradicts_its_check_only_and_nothing_is_written_without
 ) -> None:
     """The other reading of one decision: that check is contradicted (a 6-joint arm with
     joint_count 7: joint_count 6 recommended), the others stay confirmed; answers other
-    than ``yes`` (and stdin closed) leave both steps not run and the write log empty."""
+    than ``yes`` (and stdin closed) leave every step not run and the write log empty."""
     with rig(joints) as (_, device, port):
         personality(device)
         code, report = run(port, tmp_path, answers(*said))
