@@ -5,7 +5,8 @@ The read-only phase writes nothing and says so in its first line: it connects, t
 ``samples`` short reads (reply times: the ``timeout_s`` and poll rate recommended), lets
 the bridge read its facts (``Commissioning.setup``), reads every readable row of the map
 alone (the refusals listed), then runs every read-only check. The guided phase takes the
-guided checks one at a time: it prints what will move, how far and how to stop it, and
+guided checks one at a time (none when the parameters say ``read_only: true``, as the
+bridge refuses every write then): it prints what will move, how far and how to stop it, and
 runs the step only when the operator types ``yes`` (anything else: "not run"). While a
 step runs, any line (Enter, ``s``) or the end of the input stops it; the step's stop is
 sent on every way out of it (its end, an error, Ctrl-C, SIGTERM, stdin closed).
@@ -52,6 +53,9 @@ STOP_WAIT_S = 0.05  # how often a step's wait looks at the stop key (``Operator.
 SCAN_NO_REPLY_LIMIT = 3
 DEVICE_LOST = "the device stopped answering"
 EOF = None  # what a line source returns at the end of its input
+# Why no guided step runs when the parameters given say read_only: true (the bridge would
+# refuse every write; the tool does the same rather than write behind that setting).
+READ_ONLY_REFUSAL = "read_only is true: nothing written (start without it to run the step)"
 
 
 class Operator:
@@ -238,8 +242,14 @@ def guided_phase(
         if operator is None:
             report.results.append(Result(check, Finding(Verdict.NOT_RUN, "--read-only")))
             continue
+        if probe.values.get("read_only") is True:
+            # The bridge's own read_only: every write refused, so no step is offered.
+            report.results.append(Result(check, Finding(Verdict.NOT_RUN, READ_ONLY_REFUSAL)))
+            probe.say(f"{label}: not run ({READ_ONLY_REFUSAL})")
+            continue
         step = check.guided
-        probe.say(f"{label} (decision {', '.join(map(str, check.decisions))})")
+        numbers = ", ".join(map(str, check.decisions))
+        probe.say(f"{label} (decision{'s' if len(check.decisions) > 1 else ''} {numbers})")
         probe.say(f"  what moves: {step.moves}")
         probe.say(f"  to stop it: {STOP_KEYS} here, or {step.stop_how}")
         answer = operator.ask(f"  {PROMPT}", probe.say)

@@ -130,11 +130,11 @@ class Steps:
         )
 
 
-def guided(steps: Steps, *lines: str | None) -> Finding:
+def guided(steps: Steps, *lines: str | None, values: dict[str, Any] | None = None) -> Finding:
     for line in lines:
         steps.lines.put(line)
     operator = Operator(steps.lines.get)
-    probe = Probe(IO, {}, say=lambda _line: None)
+    probe = Probe(IO, values or {}, say=lambda _line: None)
     probe.stop_requested, probe.wait = operator.stop_requested, operator.wait
     report = Report("t", "n", "here")
     guided_phase(steps.commissioning(), probe, report, operator)
@@ -148,6 +148,17 @@ def test_only_yes_runs_a_step(answer: str | None) -> None:
     finding = guided(steps, answer)
     assert finding.verdict is Verdict.NOT_RUN
     assert (steps.ran, steps.stops) == (0, 0)
+
+
+def test_read_only_offers_no_step_even_after_yes() -> None:
+    """The bridge's read_only parameter given to the tool: no step runs, nothing is sent."""
+    steps = Steps()
+    finding = guided(steps, "yes", values={"read_only": True})
+    assert finding.verdict is Verdict.NOT_RUN and "read_only" in finding.seen
+    assert (steps.ran, steps.stops) == (0, 0)
+    writable = Steps(enter_in_run=True)
+    guided(writable, "yes", values={"read_only": False})
+    assert (writable.ran, writable.stops) == (1, 1)
 
 
 def test_yes_runs_it_a_line_stops_it_and_the_stop_goes_out() -> None:
