@@ -87,8 +87,7 @@ def run(args: argparse.Namespace, client: Any) -> list[tuple[float, str]]:
     from bridge_core.wire.registers import Table
     from bridge_core.wire.transport import SerialSettings
     from msg_defs.msg import StepperState
-    from stepper_bridge.node import reply_timeout_floor_s
-    from stepper_bridge.registers import motor_coil
+    from stepper_bridge.registers import motor_coil, reply_timeout_floor_s
     from stepper_bridge.sim import StepperSimDevice, make_bus_simulator
     from tests.support.ros import Bridge, node_process, wait_for
 

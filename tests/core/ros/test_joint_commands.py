@@ -37,8 +37,7 @@ from modbus_bridge.description import load as load_description
 from motec_bridge.registers import MOTEC_MAP
 from msg_defs.srv import SetControlMode
 from stepper_bridge.interface import JOG_WRITE_RATE_HZ
-from stepper_bridge.node import reply_timeout_floor_s
-from stepper_bridge.registers import motor_coil
+from stepper_bridge.registers import motor_coil, reply_timeout_floor_s
 
 from ...support.fixtures import client_fixture
 from ...support.joint_rigs import (

@@ -49,7 +49,8 @@ def test_the_stepper_refuses_a_reply_timeout_its_replies_cannot_meet() -> None:
     from bridge_core.wire.errors import ConfigurationError
     from bridge_core.wire.transport import SerialSettings, TcpSettings
     from stepper_bridge.interface import STEPPER_DEFAULTS
-    from stepper_bridge.node import check_reply_timeout, reply_timeout_floor_s
+    from stepper_bridge.node import check_reply_timeout
+    from stepper_bridge.registers import reply_timeout_floor_s
 
     floors = {
         baud: reply_timeout_floor_s(SerialSettings("/dev/null", baud))
