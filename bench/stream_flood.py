@@ -82,7 +82,7 @@ class Target:
 TARGETS = {
     "motec": Target(
         module="motec_bridge.node",
-        sim_module="motec_bridge.sim",
+        sim_module="motec_bridge.sim_cli",
         sim_args=("--unit-ids", "1,2,3"),
         baudrate=115200,
         params={"unit_ids": [1, 2, 3]},

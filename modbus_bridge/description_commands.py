@@ -43,6 +43,7 @@ NODE_PARAMETERS = frozenset(
         "unit_id",
         "retries",
         "reconnect_max_s",
+        "record_wire",
         "poll_rate_hz",
         "slow_poll_period_s",
         "diagnostic_period_s",

@@ -47,7 +47,8 @@ summary is in docs/bridges/motec.md):
   and does nothing), and the other readings ``bridge_commission motec`` settles
   (``low_word_first``, ``unnamed_refused``, ``answer_past_table``,
   ``lifeguard_fault_code``, ``lifeguard_keeps_watching``, ``ignores_new_target``,
-  ``rest_dither_counts``, ``power_up_armed``). The command line is sim_cli.py's.
+  ``rest_dither_counts``, ``power_up_armed``). The command line, ``motec_sim``, is
+sim_cli.py's (``python -m motec_bridge.sim_cli``).
 """
 
 from __future__ import annotations
@@ -556,15 +557,3 @@ def make_simulator(
     )
     sim.reply_delay_s = reply_delay_s
     return sim
-
-
-def main(argv: Sequence[str] | None = None) -> None:
-    """``motec_sim``: the command line is sim_cli.py's (imported here, not at the top:
-    it builds on this module)."""
-    from .sim_cli import main as command_line
-
-    command_line(argv)
-
-
-if __name__ == "__main__":
-    main()

@@ -167,6 +167,10 @@ def run(rig: Rig, tmp_path: Path, script: Script, *options: str) -> tuple[int, d
         f"baudrate:={LINE_BAUD}",
         "-p",
         f"poll_rate_hz:={POLL_RATE_HZ}",
+        # A stalled pty on a loaded machine must not lose a reply (a step would end
+        # "could not tell"; seen in a full run at config/stepper.yaml's 0.5 s).
+        "-p",
+        f"timeout_s:={PTY_REPLY_TIMEOUT_S}",
     ]
     try:
         code = main(argv, read_line=script.read_line, say=script.say)
