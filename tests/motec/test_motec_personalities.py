@@ -29,7 +29,8 @@ from bridge_core.wire.transport import ModbusLink, SerialSettings
 from motec_bridge.broadcast import disable_all, start_all
 from motec_bridge.device import MotecDevice
 from motec_bridge.registers import CONTROL_MODE_POSITION, CONTROL_MODE_VELOCITY, MOTEC_MAP
-from motec_bridge.sim import MotecSimDrive, MotecSimulator, main, make_simulator
+from motec_bridge.sim import MotecSimDrive, MotecSimulator, make_simulator
+from motec_bridge.sim_cli import main
 from motec_bridge.snapshots import STANDSTILL_SPEED_RPM
 from msg_defs.msg import MotionOutcome
 from msg_defs.srv import PositionMove, SetControlMode
