@@ -21,6 +21,7 @@ def format_state(state: Any) -> str:
 DEMO = DemoDevice(
     name="MOTEC",
     package="motec_bridge",
+    sim_module="motec_bridge.sim_cli",
     sim_args=["--unit-ids", ",".join(str(u) for u in UNITS)],
     node_params={
         "baudrate": 115200,

@@ -1,7 +1,8 @@
 """``motec_sim``'s command line: the simulated bus (motec_bridge/sim.py) served on a pty or
 a serial port, with the personalities of docs/tools.md ("Device personalities") and those
 ``bridge_commission motec`` settles (the other reading of MOTEC decisions 2, 3, 7, 9, 13,
-17, 21). ``motec_bridge.sim.main`` calls ``main``.
+17, 21). The console script ``motec_sim`` and ``python -m motec_bridge.sim_cli`` run ``main``
+(sim.py holds the bus it serves and does not import this module).
 """
 
 from __future__ import annotations

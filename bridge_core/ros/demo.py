@@ -69,7 +69,8 @@ ENTRY_POINT_GROUP = entries.DEMO_GROUP
 class DemoDevice:
     """One simulator + bridge pair and how to show its state.
 
-    The pair is ``<package>.sim`` and ``<package>.node`` (node name = package), both told
+    The pair is ``<package>.sim`` (or ``sim_module``) and ``<package>.node`` (node name =
+    package), both told
     where the device is: a free TCP port (``--port`` / ``port``) or, with ``serial``, the
     path of a pty the simulator creates for the bridge's end (``--pty`` / ``serial_port``).
     """
@@ -87,6 +88,9 @@ class DemoDevice:
     state_nodes: list[str] = field(default_factory=list)
     # Where the device's block goes in the status output (lowest first).
     order: int = 100
+    # The simulator's module run with ``-m`` when it is not ``<package>.sim`` (MOTEC: its
+    # command line is ``sim_cli``).
+    sim_module: str = ""
 
     @property
     def node_name(self) -> str:
@@ -98,7 +102,8 @@ class DemoDevice:
 
     def simulator_command(self, where: Any) -> list[str]:
         flag = "--pty" if self.serial else "--port"
-        return ["-m", f"{self.package}.sim", flag, str(where), *self.sim_args]
+        module = self.sim_module or f"{self.package}.sim"
+        return ["-m", module, flag, str(where), *self.sim_args]
 
     def node_command(self, where: Any) -> list[str]:
         params = {"serial_port": str(where)} if self.serial else {"port": where}
