@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 import subprocess
 import sys
 from pathlib import Path
@@ -28,12 +29,16 @@ def test_entries_load_in_their_order() -> None:
     assert [d.name for d in devices] == ["R6", "xArm", "Stepper", "MOTEC"]
     for device in devices:
         where = "/tmp/x.pty" if device.serial else 1502
-        assert device.simulator_command(where)[:4] == [
+        command = device.simulator_command(where)
+        assert command[:4] == [
             "-m",
-            f"{device.package}.sim",
+            device.sim_module or f"{device.package}.sim",
             "--pty" if device.serial else "--port",
             str(where),
         ]
+        # The module run is a simulator's command line of the package (MOTEC: sim_cli).
+        assert command[1].startswith(f"{device.package}.sim")
+        assert callable(getattr(importlib.import_module(command[1]), "main", None)), command[1]
         node = device.node_command(where)
         assert node[:2] == ["-m", f"{device.package}.node"]
         assert f"__ns:=/{device.name.lower()}" in node
