@@ -29,7 +29,7 @@ from bridge_core.sim.serving import Simulator
 from modbus_bridge.description import load
 from modbus_bridge.sim import DescribedSimDevice, make_simulator
 
-from ..r6.test_r6_commission import Script, answers
+from ..support.commission import Script, answers, verdicts
 from ..support.ros import ROOT
 from ..support.serial_pair import socat_pair
 
@@ -160,10 +160,6 @@ def run(
     finally:
         script.close()
     return code, json.loads((tmp_path / "modbus.json").read_text())
-
-
-def verdicts(report: dict[str, Any]) -> dict[str, str]:
-    return {check["key"]: check["verdict"] for check in report["checks"]}
 
 
 def seen(report: dict[str, Any], key: str) -> str:

@@ -15,7 +15,7 @@ from __future__ import annotations
 import json
 import signal
 import threading
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -23,13 +23,14 @@ import pytest
 
 from bridge_core.ros.command_line import EXIT_CONFIGURATION_ERROR
 from bridge_core.ros.commission import EXIT_INTERRUPTED, main
-from bridge_core.runtime.commission_run import FIRST_LINE, PROMPT
+from bridge_core.runtime.commission_run import FIRST_LINE
 from motec_bridge.commission_guided import LIFEGUARD_TEST_MS
 from motec_bridge.commission_steps import lifeguard_floor_ms
 from motec_bridge.registers import FAULT_PRESENT, MOTEC_MAP
 from motec_bridge.sim import MotecSimDrive, MotecSimulator, make_simulator
 
-from ..support.ros import ROOT, wait_for
+from ..support.commission import Script, answers, verdicts
+from ..support.ros import ROOT
 from ..support.serial_pair import PTY_REPLY_TIMEOUT_S, served_on_pty
 
 READ_CHECKS = ("word_order", "unnamed_rows", "lifeguard_settings", "table_end")
@@ -60,46 +61,6 @@ def bus(tmp_path: Path) -> Iterator[tuple[MotecSimulator, MotecSimDrive, str]]:
         yield simulator, drive, bridge_end
 
 
-class Script:
-    """The operator: each line is given once its condition holds (a prompt was said, the
-    simulator shows the motor turning); None is the end of the input. After the last
-    line the input stays open (nothing typed) until ``close``."""
-
-    def __init__(self, *steps: tuple[Callable[[], bool] | str, str | None]) -> None:
-        self.said: list[str] = []
-        self._steps = list(steps)
-        self._changed = threading.Condition()
-        self._prompts_seen = 0
-        self._prompts_used = 0
-        self._closed = threading.Event()
-
-    def close(self) -> None:
-        self._closed.set()
-
-    def say(self, line: str) -> None:
-        with self._changed:
-            self.said.append(line)
-            self._prompts_seen += PROMPT in line
-            self._changed.notify_all()
-
-    def read_line(self) -> str | None:
-        if not self._steps:
-            self._closed.wait()
-            return None
-        when, line = self._steps.pop(0)
-        if callable(when):
-            wait_for(when, WAIT_S, "the operator's cue")
-            return line
-        with self._changed:
-            self._changed.wait_for(lambda: self._prompts_seen > self._prompts_used, WAIT_S)
-            self._prompts_used += 1
-        return line
-
-
-def answers(*lines: str | None) -> Script:
-    return Script(*(("prompt", line) for line in lines))
-
-
 def run(end: str, tmp_path: Path, script: Script, *options: str) -> tuple[int, dict[str, Any]]:
     argv = [
         "motec",
@@ -127,10 +88,6 @@ def run(end: str, tmp_path: Path, script: Script, *options: str) -> tuple[int, d
     finally:
         script.close()
     return code, json.loads((tmp_path / "motec.json").read_text())
-
-
-def verdicts(report: dict[str, Any]) -> dict[str, str]:
-    return {check["key"]: check["verdict"] for check in report["checks"]}
 
 
 def writes(drive: MotecSimDrive, address: int) -> list[int]:

@@ -16,7 +16,7 @@ from __future__ import annotations
 import json
 import signal
 import threading
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -24,12 +24,13 @@ import pytest
 
 from bridge_core.ros.command_line import EXIT_CONFIGURATION_ERROR
 from bridge_core.ros.commission import EXIT_INTERRUPTED, main
-from bridge_core.runtime.commission_run import FIRST_LINE, PROMPT
+from bridge_core.runtime.commission_run import FIRST_LINE
 from bridge_core.sim.serving import Simulator
 from r6_bridge.registers import COMMANDS
 from r6_bridge.sim import R6SimDevice, make_simulator
 
-from ..support.ros import ROOT, wait_for
+from ..support.commission import Script, answers, verdicts
+from ..support.ros import ROOT
 from .test_r6_sim import timed_program
 
 READ_CHECKS = ("word_order", "counts", "undefined_rows", "m_boards")
@@ -50,46 +51,6 @@ def sim() -> Iterator[tuple[Simulator, R6SimDevice, int]]:
     port = simulator.start_tcp()
     yield simulator, device, port
     simulator.stop()
-
-
-class Script:
-    """The operator: each line is given once its condition holds (a prompt was said, the
-    simulator shows the program running); None is the end of the input. After the last
-    line the input stays open (nothing typed) until ``close``."""
-
-    def __init__(self, *steps: tuple[Callable[[], bool] | str, str | None]) -> None:
-        self.said: list[str] = []
-        self._steps = list(steps)
-        self._changed = threading.Condition()
-        self._prompts_seen = 0
-        self._prompts_used = 0
-        self._closed = threading.Event()
-
-    def close(self) -> None:
-        self._closed.set()
-
-    def say(self, line: str) -> None:
-        with self._changed:
-            self.said.append(line)
-            self._prompts_seen += PROMPT in line
-            self._changed.notify_all()
-
-    def read_line(self) -> str | None:
-        if not self._steps:
-            self._closed.wait()
-            return None
-        when, line = self._steps.pop(0)
-        if callable(when):
-            wait_for(when, WAIT_S, "the operator's cue")  # the simulator's state: polled
-            return line
-        with self._changed:
-            self._changed.wait_for(lambda: self._prompts_seen > self._prompts_used, WAIT_S)
-            self._prompts_used += 1
-        return line
-
-
-def answers(*lines: str | None) -> Script:
-    return Script(*(("prompt", line) for line in lines))
 
 
 def run(port: int, tmp_path: Path, script: Script, *options: str) -> tuple[int, dict[str, Any]]:
@@ -115,10 +76,6 @@ def run(port: int, tmp_path: Path, script: Script, *options: str) -> tuple[int, 
     finally:
         script.close()
     return code, json.loads((tmp_path / "r6.json").read_text())
-
-
-def verdicts(report: dict[str, Any]) -> dict[str, str]:
-    return {check["key"]: check["verdict"] for check in report["checks"]}
 
 
 def stop_after_start(device: R6SimDevice, start: str) -> bool:

@@ -16,7 +16,7 @@ from __future__ import annotations
 import json
 import signal
 import threading
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -26,7 +26,7 @@ import pytest
 from bridge_core.ros.command_line import EXIT_CONFIGURATION_ERROR
 from bridge_core.ros.commission import EXIT_INTERRUPTED, main
 from bridge_core.runtime.commission import Probe, Verdict
-from bridge_core.runtime.commission_run import FIRST_LINE, PROMPT, run_step
+from bridge_core.runtime.commission_run import FIRST_LINE, run_step
 from bridge_core.sim.serving import Simulator
 from bridge_core.wire.channel import DeviceChannel
 from bridge_core.wire.registers import Table
@@ -43,7 +43,8 @@ from stepper_bridge.registers import (
 )
 from stepper_bridge.sim import StepperSimDevice, make_simulator
 
-from ..support.ros import ROOT, wait_for
+from ..support.commission import Script, answers, verdicts
+from ..support.ros import ROOT
 from ..support.serial_pair import PTY_REPLY_TIMEOUT_S, served_on_pty
 
 READ_CHECKS = ("word_order", "reply_rule", "undefined_rows")
@@ -60,48 +61,6 @@ SLOW_REPLY_S = 0.1  # above that floor
 CUE_UNITS = 2.0  # the Ctrl-C test: motor 1 this far on (40 ms at 50 units/s) when it signals
 POLL_RATE_HZ = 20.0  # the guided steps follow their motions at this rate
 WAIT_S = 30.0  # a bound, not a measure
-
-
-class Script:
-    """The operator (as tests/r6/test_r6_commission.py's): each line is given once its
-    condition holds (a prompt was said, or a callable of the simulator's state); None is
-    the end of the input. After the last line the input stays open until ``close``."""
-
-    def __init__(self, *steps: tuple[Callable[[], bool] | str, str | None]) -> None:
-        self.said: list[str] = []
-        self._steps = list(steps)
-        self._changed = threading.Condition()
-        self._prompts_seen = 0
-        self._prompts_used = 0
-        self._closed = threading.Event()
-        self.on_say: Callable[[str], None] = lambda _line: None
-
-    def close(self) -> None:
-        self._closed.set()
-
-    def say(self, line: str) -> None:
-        self.on_say(line)
-        with self._changed:
-            self.said.append(line)
-            self._prompts_seen += PROMPT in line
-            self._changed.notify_all()
-
-    def read_line(self) -> str | None:
-        if not self._steps:
-            self._closed.wait()
-            return None
-        when, line = self._steps.pop(0)
-        if callable(when):
-            wait_for(when, WAIT_S, "the operator's cue")  # the simulator's state: polled
-            return line
-        with self._changed:
-            self._changed.wait_for(lambda: self._prompts_seen > self._prompts_used, WAIT_S)
-            self._prompts_used += 1
-        return line
-
-
-def answers(*lines: str | None) -> Script:
-    return Script(*(("prompt", line) for line in lines))
 
 
 @dataclass
@@ -177,10 +136,6 @@ def run(rig: Rig, tmp_path: Path, script: Script, *options: str) -> tuple[int, d
     finally:
         script.close()
     return code, json.loads((tmp_path / "stepper.json").read_text())
-
-
-def verdicts(report: dict[str, Any]) -> dict[str, str]:
-    return {check["key"]: check["verdict"] for check in report["checks"]}
 
 
 def coils(fake: StepperSimDevice) -> list[int]:

@@ -25,7 +25,6 @@ import pytest
 
 from bridge_core.ros.command_line import EXIT_CONFIGURATION_ERROR
 from bridge_core.ros.commission import EXIT_INTERRUPTED, main
-from bridge_core.runtime.commission_run import PROMPT
 from bridge_core.sim.serving import Simulator
 from bridge_core.wire.registers import Table
 from xarm_bridge import commission_guided
@@ -37,7 +36,8 @@ from xarm_bridge.registers import (
 )
 from xarm_bridge.sim import IN_MOTION, STOPPED, XArmSimDevice, make_simulator
 
-from ..support.ros import ROOT, wait_for
+from ..support.commission import Script, answers, verdicts
+from ..support.ros import ROOT
 
 READ_CHECKS = ("signed_values", "counter_word_order", "joints", "reserved_rows", "rotation_vector")
 GUIDED = ("stop", "pause", "start_in_error", "safety_modes")
@@ -83,46 +83,6 @@ def sim() -> Iterator[Rig]:
         yield found
 
 
-class Script:
-    """The operator: each line is given once its condition holds (a prompt was said, or
-    the simulator's state); None is the end of the input. After the last line the input
-    stays open (nothing typed) until ``close``."""
-
-    def __init__(self, *steps: tuple[Callable[[], bool] | str, str | None]) -> None:
-        self.said: list[str] = []
-        self._steps = list(steps)
-        self._changed = threading.Condition()
-        self._prompts_seen = 0
-        self._prompts_used = 0
-        self._closed = threading.Event()
-
-    def close(self) -> None:
-        self._closed.set()
-
-    def say(self, line: str) -> None:
-        with self._changed:
-            self.said.append(line)
-            self._prompts_seen += PROMPT in line
-            self._changed.notify_all()
-
-    def read_line(self) -> str | None:
-        if not self._steps:
-            self._closed.wait()
-            return None
-        when, line = self._steps.pop(0)
-        if callable(when):
-            wait_for(when, WAIT_S, "the operator's cue")
-            return line
-        with self._changed:
-            self._changed.wait_for(lambda: self._prompts_seen > self._prompts_used, WAIT_S)
-            self._prompts_used += 1
-        return line
-
-
-def answers(*lines: str | None) -> Script:
-    return Script(*(("prompt", line) for line in lines))
-
-
 def run(port: int, tmp_path: Path, script: Script) -> tuple[int, dict[str, Any]]:
     argv = [
         "xarm",
@@ -145,10 +105,6 @@ def run(port: int, tmp_path: Path, script: Script) -> tuple[int, dict[str, Any]]
     finally:
         script.close()
     return code, json.loads((tmp_path / "xarm.json").read_text())
-
-
-def verdicts(report: dict[str, Any]) -> dict[str, str]:
-    return {check["key"]: check["verdict"] for check in report["checks"]}
 
 
 def seen(report: dict[str, Any], key: str) -> str:
