@@ -268,18 +268,67 @@ def run_step(
     run: Callable[[Probe], Finding], send_stop: Callable[[Probe], str], probe: Probe
 ) -> Finding:
     """One guided step; its stop goes out however the step ends (a ``KeyboardInterrupt``,
-    Ctrl-C or SIGTERM, goes on up after it); the finding says what the stop read back."""
-    try:
-        finding = run(probe)
-    except LinkError as err:
-        finding = Finding(Verdict.UNCLEAR, f"the step failed: {err}")
-    finally:
+    Ctrl-C or SIGTERM, goes on up after it); the finding says what the stop read back.
+
+    The step and its stop run on a thread of their own, so a Ctrl-C (raised in the main
+    thread) never lands inside one of their Modbus transactions: cut short there, it could
+    leave the link unable to send the stop (seen: the start written, no stop). The main
+    thread waits; a ``KeyboardInterrupt`` there asks the step to stop (its ``probe.wait``
+    and ``probe.stop_requested`` say so at once), waits for the stop to go out, then goes
+    on up."""
+    interrupted = threading.Event()
+    done = threading.Event()  # not Thread.join: a KeyboardInterrupt in join can leave
+    # the thread reported dead while it runs (CPython, issue 45274)
+    outcome: dict[str, Any] = {}
+    asked, waited = probe.stop_requested, probe.wait
+
+    def stop_requested() -> bool:
+        return interrupted.is_set() or asked()
+
+    def wait(seconds: float) -> bool:
+        deadline = time.monotonic() + seconds
+        while not stop_requested():
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return False
+            if waited(min(left, STOP_WAIT_S)):
+                return True
+        return True
+
+    def step() -> None:
         try:
-            said = send_stop(probe)
+            outcome["finding"] = run(probe)
         except LinkError as err:
-            said = f"the stop failed: {err}: stop it on the device"
-        probe.say(f"  stop sent: {said}")
-    return dataclasses.replace(finding, seen=f"{finding.seen}; then the stop: {said}")
+            outcome["finding"] = Finding(Verdict.UNCLEAR, f"the step failed: {err}")
+        except BaseException as err:  # KeyboardInterrupt from the step itself, or a bug
+            outcome["error"] = err
+        finally:
+            try:
+                said = send_stop(probe)
+            except LinkError as err:
+                said = f"the stop failed: {err}: stop it on the device"
+            except BaseException as err:
+                said = f"the stop failed: {err!r}: stop it on the device"
+            outcome["said"] = said
+            probe.say(f"  stop sent: {said}")
+            done.set()
+
+    probe.stop_requested, probe.wait = stop_requested, wait
+    worker = threading.Thread(target=step, name="guided step", daemon=True)
+    try:
+        worker.start()
+        while not done.is_set():
+            try:
+                done.wait(STOP_WAIT_S)
+            except KeyboardInterrupt:
+                interrupted.set()
+                outcome.setdefault("error", KeyboardInterrupt())
+    finally:
+        probe.stop_requested, probe.wait = asked, waited
+    if "error" in outcome:
+        raise outcome["error"]
+    finding: Finding = outcome["finding"]
+    return dataclasses.replace(finding, seen=f"{finding.seen}; then the stop: {outcome['said']}")
 
 
 def not_run(commissioning: Commissioning, report: Report, why: str) -> None:

@@ -7,6 +7,9 @@ from __future__ import annotations
 
 import json
 import queue
+import signal
+import threading
+import time
 from typing import Any, cast
 
 import pytest
@@ -29,7 +32,13 @@ from bridge_core.runtime.commission import (
     recommend_timeout_s,
     reply_times,
 )
-from bridge_core.runtime.commission_run import DEVICE_LOST, Operator, commission, guided_phase
+from bridge_core.runtime.commission_run import (
+    DEVICE_LOST,
+    Operator,
+    commission,
+    guided_phase,
+    run_step,
+)
 from bridge_core.wire.channel import RegisterIO
 from bridge_core.wire.errors import LinkTimeout
 from bridge_core.wire.registers import DeviceLimits, Register, RegisterMap, ValueType
@@ -180,6 +189,43 @@ def test_ctrl_c_in_a_step_sends_its_stop_and_ends_the_run() -> None:
     assert report.interrupted
     assert report.results[0].finding.verdict is Verdict.NOT_RUN
     assert report.recommended["timeout_s"] == TIMEOUT_FLOOR_S
+
+
+class Transaction:
+    """A step whose run is inside a (slow) Modbus transaction when Ctrl-C comes."""
+
+    def __init__(self) -> None:
+        self.started = threading.Event()
+        self.completed = False
+        self.stops = 0
+
+    def run(self, probe: Probe) -> Finding:
+        self.started.set()
+        time.sleep(0.3)  # the transaction: a KeyboardInterrupt here would cut it short
+        self.completed = True
+        stopped = probe.wait(5.0)
+        return Finding(Verdict.UNCLEAR if stopped else Verdict.CONFIRMED, "ran")
+
+    def send_stop(self, _probe: Probe) -> str:
+        self.stops += 1
+        return "stopped"
+
+
+def test_ctrl_c_never_lands_inside_a_steps_transaction() -> None:
+    """SIGINT while the step's transaction is under way: the transaction ends whole (the
+    step runs on a thread of its own, the main thread only waits), the step is asked to
+    stop, its stop goes out, and the interrupt goes on up."""
+    step = Transaction()
+    probe = Probe(IO, {}, say=lambda _line: None)
+
+    def interrupt() -> None:
+        step.started.wait(5.0)
+        signal.raise_signal(signal.SIGINT)  # Python's handler runs in the main thread
+
+    threading.Thread(target=interrupt, daemon=True).start()
+    with pytest.raises(KeyboardInterrupt):
+        run_step(step.run, step.send_stop, probe)
+    assert step.completed and step.stops == 1
 
 
 class DyingIO:
