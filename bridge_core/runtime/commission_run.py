@@ -278,7 +278,7 @@ def run_step(
     on up."""
     interrupted = threading.Event()
     done = threading.Event()  # not Thread.join: a KeyboardInterrupt in join can leave
-    # the thread reported dead while it runs (CPython, issue 45274)
+    # the thread reported dead while it runs (a known CPython bug, bpo-45274)
     outcome: dict[str, Any] = {}
     asked, waited = probe.stop_requested, probe.wait
 

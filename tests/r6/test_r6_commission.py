@@ -95,12 +95,14 @@ def test_the_default_simulator_confirms_every_check(
     assert code == 0
     assert script.said[0] == FIRST_LINE
     found = verdicts(report)
-    assert all(found[key] == "confirmed" for key in (*READ_CHECKS, *GUIDED)), found
+    seen = {check["key"]: check["seen"] for check in report["checks"]}
+    assert all(found[key] == "confirmed" for key in (*READ_CHECKS, *GUIDED)), {
+        key: (found[key], seen[key]) for key in (*READ_CHECKS, *GUIDED)
+    }
     assert found["waiting_step"] == "not run"
     assert report["recommended_parameters"]["m_boards"] is True
     assert report["reply_times"]["count"] == SAMPLES
     assert stop_after_start(device, "single_cycle") and stop_after_start(device, "start")
-    seen = {check["key"]: check["seen"] for check in report["checks"]}
     assert all("then the stop: wrote 20001 = 1 (pause)" in seen[key] for key in GUIDED), seen
     params = (tmp_path / "r6.yaml").read_text()
     assert params.startswith("# Recommended") and "/**/r6_bridge:\n  ros__parameters:" in params
