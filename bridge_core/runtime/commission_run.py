@@ -316,10 +316,15 @@ def run_step(
     probe.stop_requested, probe.wait = stop_requested, wait
     worker = threading.Thread(target=step, name="guided step", daemon=True)
     try:
-        worker.start()
-        while not done.is_set():
+        started = False
+        while True:  # the interrupt may land anywhere, start() too: caught around all of it
             try:
-                done.wait(STOP_WAIT_S)
+                if not started:
+                    started = True
+                    worker.start()
+                while not done.is_set():
+                    done.wait(STOP_WAIT_S)
+                break
             except KeyboardInterrupt:
                 interrupted.set()
                 outcome.setdefault("error", KeyboardInterrupt())
