@@ -77,13 +77,17 @@ def _start_move(probe: Probe) -> Finding | None:
     drive = drive_of(probe)
     if (busy := _ready(drive)) is not None:
         return Finding(Verdict.NOT_RUN, busy)
-    device = drive.device
-    counts = round(MOVE_TURNS * drive.counts_per_rev)
+    return _move(drive.device, round(MOVE_TURNS * drive.counts_per_rev), relative=True)
+
+
+def _move(device: MotecDevice, counts: int, *, relative: bool) -> Finding | None:
+    """Checked as the bridge checks it, position control, enabled, the move sent (each
+    read back by the device's methods): None, or why it did not start."""
     try:
         device.check_move(counts, MOVE_SPEED_RPM)
         device.set_control_mode(CONTROL_MODE_POSITION)
         device.enable(True)
-        device.move(counts, relative=True, speed_rpm=MOVE_SPEED_RPM)
+        device.move(counts, relative=relative, speed_rpm=MOVE_SPEED_RPM)
     except CommandRejected as err:
         return Finding(Verdict.NOT_RUN, f"refused: {err}")
     except NotConfirmed as err:
@@ -270,15 +274,8 @@ def new_target(probe: Probe) -> Finding:
     start = _motion(device)[1]
     far = start + round(NEW_TARGET_FAR_TURNS * drive.counts_per_rev)
     near = start + round(NEW_TARGET_NEAR_TURNS * drive.counts_per_rev)
-    try:
-        device.check_move(far, MOVE_SPEED_RPM)
-        device.set_control_mode(CONTROL_MODE_POSITION)
-        device.enable(True)
-        device.move(far, relative=False, speed_rpm=MOVE_SPEED_RPM)
-    except CommandRejected as err:
-        return Finding(Verdict.NOT_RUN, f"refused: {err}")
-    except NotConfirmed as err:
-        return Finding(Verdict.UNCLEAR, f"the move did not start: {err}")
+    if (failed := _move(device, far, relative=False)) is not None:
+        return failed
     if probe.wait(RUN_BEFORE_STOP_S):
         return Finding(Verdict.UNCLEAR, "stopped by the operator before the new target")
     try:
