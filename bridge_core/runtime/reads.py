@@ -65,6 +65,9 @@ def read_plan(
     parts (each part its own reply's).
     """
     splits = read_splits(io)
+    # A real channel's reply times are taken under its link lock; ``clock()`` here would
+    # come after the lock is released, when a stop may already have gone on the wire.
+    replied_at: Callable[[], float] = getattr(io, "replied_at", clock)
     pending = collections.deque((request, request) for request in plan)  # read, origin
     sent: list[tuple[ReadRequest, ReadRequest]] = []
     result = PlanRead()
@@ -99,7 +102,7 @@ def read_plan(
             got = len(outcome) if isinstance(outcome, list) else 0
             failure.append(FrameError(f"short reply: {got} of {request.count} values"))
             return
-        result.times.append((request, origin, clock()))
+        result.times.append((request, origin, replied_at()))
         result.values.update(decode_reply(request, outcome[: request.count]))
 
     # One at a time, the reads go as they always did (``read_registers`` / ``read_bits``).

@@ -211,6 +211,7 @@ def _hold(
                     stats.exceptions += 1
                     stats.last_error = str(outcome)
                     stats.last_error_time = time.time()
+                channel.note_reply()
                 calling = True  # an error of the caller's is not the wire's
                 on_reply(index, outcome)
                 calling = False

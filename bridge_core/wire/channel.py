@@ -185,6 +185,8 @@ class DeviceChannel:
         self.stats = LinkStats()
         self.link_state = LinkState()
         self._session = threading.local()
+        # When each thread's last reply arrived (``replied_at``): taken under the link lock.
+        self._replied = threading.local()
         self._write_listeners: list[Callable[[Span], None]] = []
         self._frame_times: dict[Request, float] = {}
         self.pipelining = Pipelining(max_in_flight)
@@ -347,6 +349,7 @@ class DeviceChannel:
                 self.stats.connect_failures += 1
                 self.mark_down(err)
                 return err
+            self.note_reply()
             stats = self.stats
             stats.transactions += 1
             elapsed = time.perf_counter() - started
@@ -358,6 +361,17 @@ class DeviceChannel:
             return reply
         finally:
             lock.release()
+
+    def note_reply(self) -> None:
+        """A reply to the calling thread's request arrived now (the link lock held)."""
+        self._replied.at = time.time()
+
+    def replied_at(self) -> float:
+        """When the reply to the calling thread's last request arrived (wall clock; 0.0:
+        none yet). Taken under the link lock, so it precedes whatever the next holder of
+        the lock sends: a stop that goes between two reads of a poll comes after the first
+        read's time, however late the polling thread looks at the clock."""
+        return float(getattr(self._replied, "at", 0.0))
 
     @staticmethod
     def _short(request: Request, priority: Priority) -> bool:
@@ -396,10 +410,12 @@ class DeviceChannel:
 
         ``next_request()`` gives the next read (None: no more); ``on_reply(index, outcome)``
         gets each answer (the values, or the ``DeviceException`` the device answered) with
-        the index of its request in the order they were given, as they arrive, under the
-        link lock (it must not transact). One at a time (``max_in_flight`` 1, a serial
-        link, after a fallback) it is exactly ``transact`` for each; a link error raises
-        as ``transact`` does. How a batch keeps stops first and falls back: ``batches``.
+        the index of its request in the order they were given, as they arrive (pipelined
+        under the link lock, one at a time right after each ``transact``; ``replied_at``
+        is the arrival time either way; it must not transact). One at a time
+        (``max_in_flight`` 1, a serial link, after a fallback) it is exactly ``transact``
+        for each; a link error raises as ``transact`` does. How a batch keeps stops first
+        and falls back: ``batches``.
         """
         run_batch(self, next_request, on_reply, priority)
 

@@ -1,16 +1,20 @@
 """``read_blocks``: what a device reads, and the time its poll is stamped with (fake IO and a
-fake clock, no sockets)."""
+fake clock, or a real channel over a scripted transport; no sockets)."""
 
 from __future__ import annotations
+
+import threading
+import time
+from typing import Any
 
 import pytest
 
 from bridge_core.runtime.reads import read_blocks
-from bridge_core.wire.channel import Priority
+from bridge_core.wire.channel import DeviceChannel, Priority
 from bridge_core.wire.planner import plan_reads
 from bridge_core.wire.registers import Register, RegisterMap, Table, ValueType
 
-from ...support.fakes import FakeClock
+from ...support.fakes import FakeClock, ScriptedBus
 
 MAP = RegisterMap(
     "test",
@@ -69,3 +73,39 @@ def test_stamp_register_must_be_in_the_plan() -> None:
     requests = plan_reads(MAP, MAP.select(["status"]))
     with pytest.raises(ValueError, match="position"):
         read_blocks(io, requests, stamp_register="position", clock=clock)  # type: ignore[arg-type]
+
+
+class StopAfterTheFirstRead(DeviceChannel):
+    """A channel whose first read is followed by a stop from another thread that takes the
+    link lock as soon as the read releases it, before the polling thread goes on."""
+
+    stop_sent: float | None = None
+
+    def read_registers(self, *args: Any, **kwargs: Any) -> list[int]:
+        values = super().read_registers(*args, **kwargs)
+        if self.stop_sent is None:
+            stop = threading.Thread(target=self.write_coil, args=(5, True, Priority.STOP))
+            stop.start()
+            stop.join(10)
+            self.stop_sent = time.time()
+            time.sleep(0.01)  # the polling thread scheduled out a little longer
+        return values
+
+
+def test_a_stop_sent_between_two_reads_comes_after_the_first_reads_stamp() -> None:
+    """A read is stamped when its reply arrived, under the link lock: a stop that takes
+    the lock as soon as the poll releases it, before the polling thread looks at a clock,
+    is sent after that time. Stamped after the lock, a state stamped after the stop would
+    show flags read before it (the stepper flood test's rare failure)."""
+    bus = ScriptedBus()
+    channel = StopAfterTheFirstRead(bus, 1, retries=0)
+    requests = plan_reads(MAP, MAP.select(["status", "position"]))
+    bus.script[1] = [[0], [], [0, 0]]  # the stop takes the middle step
+    values, stamp = read_blocks(channel, requests, stamp_register="status")
+    assert [type(r).__name__ for _, r in bus.executed] == [
+        "ReadRegisters",
+        "WriteCoil",
+        "ReadRegisters",
+    ]
+    assert channel.stop_sent is not None and stamp < channel.stop_sent
+    assert values == {"status": 0, "position": 0}

@@ -29,7 +29,7 @@ from bridge_core.wire.registers import (
     ValueType,
     register_array,
 )
-from bridge_core.wire.requests import ReadRegisters, Reply, Request
+from bridge_core.wire.requests import ReadRegisters
 from bridge_core.wire.serial_timing import ReplyCrcError, ReplyFromOtherUnit
 from bridge_core.wire.transport import (
     ModbusLink,
@@ -38,6 +38,7 @@ from bridge_core.wire.transport import (
     TcpSettings,
 )
 
+from ...support.fakes import ScriptedBus
 from ...support.replay import ReplayServer
 from ...support.replay import Step as TcpStep
 from ...support.rtu_replay import RtuReplay, rtu_frame
@@ -98,43 +99,6 @@ def test_priority_lock_serves_feeds_then_commands_first_then_fifo() -> None:
     for t in threads:
         t.join(5)
     assert order == ["feed-1", "command-1", "command-2", "poll-1", "poll-2"]
-
-
-class ScriptedBus:
-    """A Transport whose replies are scripted per unit: a value, an error to raise, or
-    an Event to block on first (so a test can queue other requests behind one)."""
-
-    def __init__(self) -> None:
-        self.lock = PriorityLock()
-        self.is_serial = True
-        self.is_open = True
-        self.executed: list[tuple[int, Request]] = []
-        self.script: dict[int, list[object]] = {}
-        self.entered = threading.Event()
-
-    def describe(self) -> str:
-        return "scripted bus"
-
-    def open(self) -> None:
-        self.is_open = True
-
-    def close(self) -> None:
-        self.is_open = False
-
-    def execute(self, unit_id: int, request: Request, timeout_s: float | None = None) -> Reply:
-        self.executed.append((unit_id, request))
-        script = self.script.get(unit_id)
-        step = script.pop(0) if script else [0]
-        if isinstance(step, threading.Event):
-            self.entered.set()
-            assert step.wait(10), "the test never let the request finish"
-            raise LinkTimeout(f"unit {unit_id}: no reply")
-        if isinstance(step, Exception):
-            raise step
-        return None if request.is_write else list(step)  # type: ignore[call-overload]
-
-    def frame_time_s(self, request: object) -> float:
-        return 0.0
 
 
 def test_a_retry_lets_a_queued_feed_go_first() -> None:
