@@ -32,8 +32,10 @@ class RunCycleMotion(Motion[R6Snapshot]):
     time (2401, "上模周期") proves the cycle finished under either reading of when the
     controller writes it (R6 decision 23): it kept its value read before the start on
     every poll that saw the cycle running and changed after, to a time no shorter than
-    the cycle was seen to run. A cycle no poll saw running is REACHED only on a controller
-    seen (by an earlier goal) to write 2401 at a cycle's end. A goal sent while the
+    the cycle was seen to run. A poll "saw the cycle running" when 2401 was read only if
+    ``moving`` (read after it) or the next poll's counting says so. A cycle no poll saw
+    running is REACHED only on a controller seen (by an earlier goal) to write 2401 at a
+    cycle's end. A goal sent while the
     program already ran is never REACHED (the cycle that ends began before it).
     Otherwise its end is STOPPED, and so is a continuous run's (it runs until stopped).
     Ends this goal causes (cancel, timeout, link loss, the node's halts) send pause
@@ -74,6 +76,10 @@ class RunCycleMotion(Motion[R6Snapshot]):
         self.cycle_ms_before = None if last is None else last.current_cycle_time_ms
         self.running_before = False  # the program ran when the start was written
         self.changed_while_running: int | None = None  # 2401 as a running poll read it
+        # 2401 changed in the previous poll, which only counting (2397, read before 2401)
+        # showed running: proved read while the cycle ran if this poll still counts.
+        self.changed_if_counting: int | None = None
+        self.unsettled_change: int | None = None  # such a change the next poll did not prove
         self.unchanged_while_running = False  # a running poll read 2401 as before
         self.longest_ms = 0  # the longest current cycle time a running poll read
 
@@ -100,14 +106,30 @@ class RunCycleMotion(Motion[R6Snapshot]):
         previous, self.cycle_ms = self.cycle_ms, snapshot.current_cycle_time_ms
         counting = previous is not None and snapshot.current_cycle_time_ms > previous
         running = snapshot.moving or counting
+        changed_before, self.changed_if_counting = self.changed_if_counting, None
         if running:
             self.longest_ms = max(self.longest_ms, snapshot.current_cycle_time_ms)
+            if counting and changed_before is not None:
+                self._changed_while_running(changed_before)
+                changed_before = None
             if snapshot.last_cycle_time_ms != self.last_cycle_at_start:
-                if self.changed_while_running is None:
-                    self.changed_while_running = snapshot.last_cycle_time_ms
+                # A poll reads 2397, then 2401, then 2470 (r6_bridge.device's plan): a
+                # cycle that ends between the first two reads counting and a new 2401,
+                # which an end-writer shows too. Only ``moving`` (read after 2401), or
+                # the next poll still counting, shows the cycle ran on after 2401's read.
+                if snapshot.moving:
+                    self._changed_while_running(snapshot.last_cycle_time_ms)
+                else:
+                    self.changed_if_counting = snapshot.last_cycle_time_ms
             elif snapshot.current_cycle_time_ms > 0:
                 self.unchanged_while_running = True
+        if changed_before is not None and self.unsettled_change is None:
+            self.unsettled_change = changed_before
         return running
+
+    def _changed_while_running(self, last_cycle_ms: int) -> None:
+        if self.changed_while_running is None:
+            self.changed_while_running = last_cycle_ms
 
     def fault(self, snapshot: R6Snapshot) -> Verdict | None:
         code = snapshot.alarm_code
@@ -171,6 +193,18 @@ class RunCycleMotion(Motion[R6Snapshot]):
                 f"{unproven}: 2401 changed while the cycle ran (read "
                 f"{self.changed_while_running} ms, was {before} ms): this controller writes "
                 f"it at a cycle's start, so it cannot show this cycle's end ({read})",
+            )
+        if (
+            self.unsettled_change is not None
+            and not self.unchanged_while_running
+            and self.device.cycle_time_written_at != CYCLE_TIME_AT_END
+        ):
+            # Read at the cycle's end or while it ran: the safe reading is the second.
+            return Verdict(
+                Outcome.STOPPED,
+                f"{unproven}: 2401 changed ({self.unsettled_change} ms, was {before} ms) in "
+                "the last poll that saw the cycle counting, and no poll showed whether the "
+                f"cycle ran on after that read: written at its end or its start ({read})",
             )
         if last == before:
             return Verdict(

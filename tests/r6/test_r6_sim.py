@@ -8,6 +8,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Callable, Iterator
+from typing import Any
 
 import pytest
 
@@ -744,6 +745,66 @@ def test_a_cycle_that_ends_between_two_polls_is_reached(
         assert time.monotonic() < deadline, "no verdict"
     assert verdict.outcome is Outcome.REACHED, verdict.message
     assert "no poll saw it moving" in verdict.message
+
+
+class EndBeforeTheLastCycleTime(DeviceChannel):
+    """Once ``armed``, the next read of 2401 waits until the simulator's cycle has ended: a
+    poll that read 2397 while the cycle counted reads the new 2401 (the cycle's end falls
+    between the two reads, as it may on a real controller)."""
+
+    sim: R6SimDevice
+    armed = False
+
+    def read_registers(self, address: int, *args: Any, **kwargs: Any) -> list[int]:
+        if self.armed and address == R6_MAP["last_cycle_time"].address:
+            self.armed = False
+            ended = self.sim.cycles_completed + 1
+            deadline = time.monotonic() + WAIT_S
+            while self.sim.cycles_completed < ended:
+                assert time.monotonic() < deadline, "the cycle did not end"
+                time.sleep(0.005)
+        return super().read_registers(address, *args, **kwargs)
+
+
+def test_a_cycle_ending_inside_a_poll_is_not_taken_for_a_start_writer(
+    sim: tuple[R6SimDevice, int],
+) -> None:
+    """Decision 23: a poll reads 2397, 2401, then 2470. A cycle that ends between the first
+    two reads leaves 2397 counting and the new 2401 in one poll; on this controller
+    (2401 written at the end) that is the cycle's end, not a 2401 written while it ran:
+    REACHED, and the bridge learns "end", not "start" (which would end every later
+    goal STOPPED)."""
+    simulated, port = sim
+    link = ModbusLink(TcpSettings("127.0.0.1", port, timeout_s=1.0))
+    channel = EndBeforeTheLastCycleTime(link, 1, retries=0)
+    channel.sim = simulated
+    try:
+        device = R6Device(channel)
+        plan = device.poll_plan(MAX_AXES, 0)
+        order = [
+            next(i for i, r in enumerate(plan) if name in r.names)
+            for name in ("current_cycle_time", "last_cycle_time", "moving")
+        ]
+        assert order == sorted(order), order  # what RunCycleMotion.running relies on
+        simulated.program = timed_program(0.6, 0.0)
+        simulated.set("global_speed", 100.0)
+        motion = RunCycleMotion(device, device.poll(), single_cycle=True)
+        motion.start()
+        wait_for_poll(
+            device,
+            lambda s: motion.judge(s) is None and s.current_cycle_time_ms > 0,
+            "the cycle counting",
+        )
+        channel.armed = True
+        torn = device.poll()
+        assert not torn.moving and torn.current_cycle_time_ms > 0, torn
+        assert torn.last_cycle_time_ms > 0, torn  # read after the end: the new time
+        assert motion.judge(torn) is None  # counting: still running, as far as it knows
+        verdict = judge_until_after_start(device, motion)
+    finally:
+        link.close()
+    assert verdict.outcome is Outcome.REACHED, verdict.message
+    assert device.cycle_time_written_at == "end"
 
 
 def test_a_start_the_controller_ignores_is_not_reached(
