@@ -13,8 +13,9 @@ from pathlib import Path
 
 from .test_docs_citations import ROOT, text_of, tracked_files
 
-# "issue" or "issues", any case, then a number ("#" allowed), also split over a line.
-ISSUE = re.compile(r"\bissues?\s+#?\d", re.IGNORECASE)
+# "issue" or "issues", any case, then a number ("#" allowed), also split over a line or
+# in a name (a test named after one, with "_"); not in an address ("/issues/1386").
+ISSUE = re.compile(r"(?<![a-z])issues?(?:\s+|_)#?\d", re.IGNORECASE)
 # Text a reader reads: every tracked file of these kinds, wherever it is.
 SUFFIXES = {
     ".py",
@@ -52,3 +53,12 @@ def test_nothing_cites_an_issue_number() -> None:
         'no issue tracker: state the fact, or cite "decision N" or a docs section instead of:\n'
         + "\n".join(found)
     )
+
+
+def test_the_pattern_finds_a_citation_in_prose_and_in_names() -> None:
+    word = "issue"  # the examples are built, or this file would cite them
+    cited = (f"see {word} 12", f"{word.title()}s #3 and 4", f"an {word}\n  7", f"test_{word}_10_x")
+    for text in cited:
+        assert ISSUE.search(text), text
+    for fine in ("issues/1386", "an issue with 3 parts", "tissue 5", "reissue_4"):
+        assert not ISSUE.search(fine), fine

@@ -472,7 +472,7 @@ def test_services_write_what_they_should(sim, client: Client, tmp_path: Path) ->
         ]
 
 
-def test_issue_10_setters_read_back_and_interpolation(sim, client: Client, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+def test_setters_read_back_and_interpolation(sim, client: Client, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     """Device id and baud rate in diagnostics; round trips and the interpolation
     set-up in the state; speed / direction / run distance (SI) / round trips setters;
     a second line / arc while one runs refused, nothing written; clear-all warns."""

@@ -410,7 +410,7 @@ def test_rotation_vector_is_the_pose_orientation(xarm) -> None:  # type: ignore[
         (lambda d: d.set_joint_enable(-1, False), "joint -1"),
     ],
 )
-def test_issue_10_refusals_write_nothing(xarm, call, match) -> None:  # type: ignore[no-untyped-def]
+def test_bad_outputs_and_joints_are_refused_and_write_nothing(xarm, call, match) -> None:  # type: ignore[no-untyped-def]
     device, sim, channel, _ = xarm
     before = channel.stats.transactions
     with pytest.raises(CommandRejected, match=match):
