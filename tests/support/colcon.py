@@ -5,7 +5,9 @@ takes minutes of compiler time. The build reuses the venv's msg_defs build direc
 (``reuse_msg_defs_build``) when set-up left one, where it compiled the C type supports and
 the Python bindings, so it compiles the C++ type supports only (~50 s on 2 idle cores, as
 a unity build); when set-up installed a wheel it had built before (scripts/setup.sh), the
-build is the whole package (~160 CPU-s). It starts at the lowest CPU priority (nice 19)
+build is the whole package (~160 CPU-s). Either way colcon's install of msg_defs is kept
+per machine under a hash of its inputs (``msg_defs_key``), and a later build of the same
+msg_defs (a fresh clone's) copies it and builds the Python packages only (~15 s). It starts at the lowest CPU priority (nice 19)
 when the tests are collected; the colcon tests, scheduled last (each alone in xdist's
 schedule, tests/conftest.py), wait for it at normal priority. Scheduled early, their
 worker waited ~135 s for it with 4 workers.
@@ -19,13 +21,17 @@ Without xdist the test process starts it when its collection is done.
 from __future__ import annotations
 
 import contextlib
+import hashlib
+import importlib.metadata
 import os
 import shutil
 import signal
 import subprocess
 import sys
+import sysconfig
 import tempfile
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 from .ros import ROOT
@@ -66,6 +72,59 @@ def reuse_msg_defs_build(build_base: Path) -> bool:
     return True
 
 
+CMAKE_ARGS = (
+    # The whole package, C++ type supports included, whatever the reused build directory
+    # was configured with.
+    "-DMSG_DEFS_PYTHON_ONLY=OFF",
+    # As set-up builds msg_defs (scripts/setup.sh): the C++ type supports' generated
+    # sources a few per compiler run (~70 CPU-s instead of ~130 on 2 cores). The install
+    # is the same files.
+    "-DCMAKE_UNITY_BUILD=ON",
+)
+
+# A colcon install of msg_defs kept per machine, under a hash of everything it is built
+# from (as set-up keeps msg_defs's wheel, scripts/setup.sh): a fresh clone of the same
+# msg_defs copies it into its workspace and builds the Python packages only. Building it
+# is ~160 CPU-s of compilers and rosidl's generators, which a fresh clone's suite (CPU-bound
+# on 2 cores) paid in ~20 s of its time. COLCON_MSG_DEFS_CACHE= (empty) builds it anyway.
+MSG_DEFS_CACHE_ENV = "COLCON_MSG_DEFS_CACHE"
+MSG_DEFS_CACHED_NOTE = "msg_defs.cached"  # in the workspace: the cached install it copied
+
+
+def msg_defs_cache_root() -> Path | None:
+    """Where cached msg_defs installs are kept (None: not kept)."""
+    configured = os.environ.get(MSG_DEFS_CACHE_ENV)
+    if configured is not None:
+        return Path(configured) if configured else None
+    base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+    return base / "modbus-ros-bridges" / "colcon-msg_defs"
+
+
+def msg_defs_key(cmake_args: Sequence[str]) -> str:
+    """A hash of what a colcon build of msg_defs depends on: its files (tracked or not,
+    its build directory aside), the CMake arguments, the Python, and the venv's
+    distributions (the ROS wheels and numpy it compiles against, colcon itself)."""
+    digest = hashlib.sha256()
+    source = ROOT / "msg_defs"
+    for path in sorted(source.rglob("*")):
+        relative = path.relative_to(source)
+        if relative.parts[0] == "build" or not path.is_file():
+            continue
+        digest.update(f"{relative}\0".encode())
+        digest.update(path.read_bytes())
+    digest.update("\0".join(cmake_args).encode())
+    digest.update(f"{sys.version}\0{sysconfig.get_platform()}\0".encode())
+    venv = sorted(
+        f"{dist.metadata['Name']}=={dist.version}"
+        for dist in importlib.metadata.distributions()
+        if dist.metadata["Name"]
+        and dist.metadata["Name"].lower().replace("_", "-")
+        not in {"msg-defs", "modbus-ros-bridges"}
+    )
+    digest.update("\n".join(venv).encode())
+    return digest.hexdigest()[:32]
+
+
 class ColconBuild:
     """``colcon build`` of this checkout into a workspace, in the background: ``start()``
     starts it; a process that did not start it (an xdist worker, the controller's build)
@@ -81,7 +140,13 @@ class ColconBuild:
         return cls(Path(tempfile.mkdtemp(prefix="colcon_ws_")))
 
     def start(self) -> None:
-        reuse_msg_defs_build(self.workspace / "build")
+        cached = self.cached_msg_defs()
+        if cached is not None:
+            # This msg_defs, built by colcon before on this machine: copied as installed.
+            shutil.copytree(cached, self.install / "msg_defs", symlinks=True)
+            (self.workspace / MSG_DEFS_CACHED_NOTE).write_text(str(cached))
+        else:
+            reuse_msg_defs_build(self.workspace / "build")
         colcon = [
             str(Path(sys.prefix) / "bin" / "colcon"),
             "--log-base",
@@ -93,18 +158,17 @@ class ColconBuild:
             str(self.workspace / "build"),
             "--install-base",
             str(self.workspace / "install"),
-            # The whole package, C++ type supports included, whatever the reused build
-            # directory was configured with.
             "--cmake-args",
-            "-DMSG_DEFS_PYTHON_ONLY=OFF",
-            # As set-up builds msg_defs (scripts/setup.sh): the C++ type supports'
-            # generated sources a few per compiler run (~70 CPU-s instead of ~130 on 2
-            # cores). The install is the same files.
-            "-DCMAKE_UNITY_BUILD=ON",
+            *CMAKE_ARGS,
             # Configure even when colcon's record of its last arguments matches: set-up's
             # pip build may have configured the reused directory since.
             "--cmake-force-configure",
         ]
+        if cached is not None:
+            # The Python packages only (colcon-core has no --packages-skip without
+            # colcon-package-selection): msg_defs is found installed, as the copy holds
+            # colcon's record of it.
+            colcon[colcon.index("--base-paths") + 1] = str(ROOT / "ros")
         # The exit code is written when colcon ends (renamed into place: whole or absent).
         script = '"$@"; echo $? >"$RC.new" && mv "$RC.new" "$RC"'
         with self.output.open("wb") as out:
@@ -120,6 +184,32 @@ class ColconBuild:
                 process_group=0,
             )
         self.group_file.write_text(str(self.process.pid))
+
+    def cached_msg_defs(self) -> Path | None:
+        """The cached install of this msg_defs (None: none, or no cache)."""
+        root = msg_defs_cache_root()
+        if root is None:
+            return None
+        cached = root / msg_defs_key(CMAKE_ARGS) / "msg_defs"
+        return cached if cached.is_dir() else None
+
+    def keep_msg_defs(self) -> None:
+        """After a build that compiled msg_defs: its install into the cache, whole or not
+        at all (two runs may finish at once on one machine)."""
+        root = msg_defs_cache_root()
+        built = self.install / "msg_defs"
+        if root is None or (self.workspace / MSG_DEFS_CACHED_NOTE).is_file() or not built.is_dir():
+            return
+        key = root / msg_defs_key(CMAKE_ARGS)
+        if key.is_dir():
+            return
+        root.mkdir(parents=True, exist_ok=True)
+        staging = Path(tempfile.mkdtemp(prefix=".new.", dir=root))
+        try:
+            shutil.copytree(built, staging / "msg_defs", symlinks=True)
+            staging.rename(key)
+        except OSError:
+            shutil.rmtree(staging, ignore_errors=True)
 
     @property
     def output(self) -> Path:
@@ -154,6 +244,8 @@ class ColconBuild:
                 raise TimeoutError(f"colcon build still running after {timeout_s} s")
             time.sleep(0.5)
         code = int(self.rc_file.read_text()) if self.rc_file.is_file() else -1
+        if code == 0:
+            self.keep_msg_defs()
         return code, self.output.read_text(errors="replace")
 
     def stop(self) -> None:
