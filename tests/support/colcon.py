@@ -7,10 +7,10 @@ the Python bindings, so it compiles the C++ type supports only (~50 s on 2 idle 
 a unity build); when set-up installed a wheel it had built before (scripts/setup.sh), the
 build is the whole package (~160 CPU-s). Either way colcon's install of msg_defs is kept
 per machine under a hash of its inputs (``msg_defs_key``), and a later build of the same
-msg_defs (a fresh clone's) copies it and builds the Python packages only (~15 s). It starts at the lowest CPU priority (nice 19)
-when the tests are collected; the colcon tests, scheduled last (each alone in xdist's
-schedule, tests/conftest.py), wait for it at normal priority. Scheduled early, their
-worker waited ~135 s for it with 4 workers.
+msg_defs (a fresh clone's) copies it and builds the Python packages only (~15 s). It
+starts at the lowest CPU priority (nice 19) when the tests are collected; the colcon
+tests, scheduled last (each alone in xdist's schedule, tests/conftest.py), wait for it at
+normal priority. Scheduled early, their worker waited ~135 s for it with 4 workers.
 
 Under pytest-xdist the controller process starts it once the workers have collected the
 colcon tests (tests/conftest.py) and tells the workers its workspace; the worker that runs
