@@ -33,7 +33,9 @@ class RunCycleMotion(Motion[R6Snapshot]):
     controller writes it (R6 decision 23): it kept its value read before the start on
     every poll that saw the cycle running and changed after, to a time no shorter than
     the cycle was seen to run. A poll "saw the cycle running" when 2401 was read only if
-    ``moving`` (read after it) or the next poll's counting says so. A cycle no poll saw
+    ``moving`` (read after it) or the next poll's counting says so, and the change proves
+    an end only after a poll read 2401 unchanged while 2397 counted (or on a controller
+    seen to write it at the end). A cycle no poll saw
     running is REACHED only on a controller seen (by an earlier goal) to write 2401 at a
     cycle's end. A goal sent while the
     program already ran is never REACHED (the cycle that ends began before it).
@@ -79,7 +81,6 @@ class RunCycleMotion(Motion[R6Snapshot]):
         # 2401 changed in the previous poll, which only counting (2397, read before 2401)
         # showed running: proved read while the cycle ran if this poll still counts.
         self.changed_if_counting: int | None = None
-        self.unsettled_change: int | None = None  # such a change the next poll did not prove
         self.unchanged_while_running = False  # a running poll read 2401 as before
         self.longest_ms = 0  # the longest current cycle time a running poll read
 
@@ -111,7 +112,6 @@ class RunCycleMotion(Motion[R6Snapshot]):
             self.longest_ms = max(self.longest_ms, snapshot.current_cycle_time_ms)
             if counting and changed_before is not None:
                 self._changed_while_running(changed_before)
-                changed_before = None
             if snapshot.last_cycle_time_ms != self.last_cycle_at_start:
                 # A poll reads 2397, then 2401, then 2470 (r6_bridge.device's plan): a
                 # cycle that ends between the first two reads counting and a new 2401,
@@ -123,8 +123,6 @@ class RunCycleMotion(Motion[R6Snapshot]):
                     self.changed_if_counting = snapshot.last_cycle_time_ms
             elif snapshot.current_cycle_time_ms > 0:
                 self.unchanged_while_running = True
-        if changed_before is not None and self.unsettled_change is None:
-            self.unsettled_change = changed_before
         return running
 
     def _changed_while_running(self, last_cycle_ms: int) -> None:
@@ -194,18 +192,6 @@ class RunCycleMotion(Motion[R6Snapshot]):
                 f"{self.changed_while_running} ms, was {before} ms): this controller writes "
                 f"it at a cycle's start, so it cannot show this cycle's end ({read})",
             )
-        if (
-            self.unsettled_change is not None
-            and not self.unchanged_while_running
-            and self.device.cycle_time_written_at != CYCLE_TIME_AT_END
-        ):
-            # Read at the cycle's end or while it ran: the safe reading is the second.
-            return Verdict(
-                Outcome.STOPPED,
-                f"{unproven}: 2401 changed ({self.unsettled_change} ms, was {before} ms) in "
-                "the last poll that saw the cycle counting, and no poll showed whether the "
-                f"cycle ran on after that read: written at its end or its start ({read})",
-            )
         if last == before:
             return Verdict(
                 Outcome.STOPPED,
@@ -218,6 +204,18 @@ class RunCycleMotion(Motion[R6Snapshot]):
                 Outcome.STOPPED,
                 f"{unproven}: 2401 reads {last} ms, shorter than the {self.longest_ms} ms "
                 f"the cycle was seen to run ({read})",
+            )
+        if (
+            not self.unchanged_while_running
+            and self.device.cycle_time_written_at != CYCLE_TIME_AT_END
+        ):
+            # No poll read 2401 while 2397 counted: its change may be this cycle's start
+            # on a controller that writes it then (a poll that read 2401 just before the
+            # start and ``moving`` just after, then a stop), so it proves no end.
+            return Verdict(
+                Outcome.STOPPED,
+                f"{unproven}: 2401 changed, but no poll read it while the cycle counted "
+                f"(2397 above 0), so it may have been written as the cycle began ({read})",
             )
         if self.unchanged_while_running:
             self.device.cycle_time_written_at = CYCLE_TIME_AT_END

@@ -229,13 +229,70 @@ def test_a_cycle_stopped_half_way_is_not_reached_when_2401_is_written_at_a_start
     device.program = PROGRAM
     motion = RunCycleMotion(bridge, bridge.poll(), single_cycle=True)
     motion.start()
-    wait_for_poll(bridge, lambda s: motion.judge(s) is None and s.moving, "the cycle under way")
+    # Under way with the 2401 its start wrote: a poll can read 2401 just before the start
+    # and ``moving`` just after (that case is the test below).
+    wait_for_poll(
+        bridge,
+        lambda s: motion.judge(s) is None and s.moving and s.last_cycle_time_ms != 0,
+        "the cycle under way, 2401 written",
+    )
     R6Device(channel).command("stop")  # another client's stop
     verdict = judge_until_after_start(bridge, motion)
     assert verdict.outcome is Outcome.STOPPED, verdict.message
     assert "could not prove the cycle finished" in verdict.message
     assert "changed while the cycle ran" in verdict.message
     assert bridge.cycle_time_written_at == "start"
+
+
+class StartBeforeMoving(DeviceChannel):
+    """Once ``armed``, the next read of 2470 first runs one tick of the (held) simulator:
+    its cycle begins, 2401 written, between a poll's read of 2401 and its read of
+    ``moving``, as it may on a real controller."""
+
+    sim: R6SimDevice
+    armed = False
+
+    def read_registers(self, address: int, *args: Any, **kwargs: Any) -> list[int]:
+        if self.armed and address == R6_MAP["moving"].address:
+            self.armed = False
+            R6SimDevice.tick(self.sim, 0.02)
+        return super().read_registers(address, *args, **kwargs)
+
+
+def test_a_cycle_stopped_before_any_poll_read_2401_while_it_counted_is_not_reached(
+    simulator: tuple[Simulator, R6SimDevice, int],
+) -> None:
+    """Decision 23: a poll that read 2401 (unchanged) just before the cycle began and
+    ``moving`` (1) just after, then a stop from another client: every later poll stands
+    with the 2401 the start wrote. No poll read 2401 while 2397 counted, so its change
+    proves no end: STOPPED, and the bridge learns neither reading (REACHED before)."""
+    _, device, port = simulator
+    device.set_cycle_time_at("start")
+    device.program = timed_program(0.1, 0.0)
+    run_one_cycle(device)  # a completed cycle for the next start to write
+    device.program = PROGRAM
+    link = ModbusLink(TcpSettings("127.0.0.1", port, timeout_s=1.0))
+    channel = StartBeforeMoving(link, 1, retries=0)
+    channel.sim = device
+    try:
+        bridge = R6Device(channel)
+        device.tick = lambda dt: None  # type: ignore[method-assign]  # held: the hook ticks
+        motion = RunCycleMotion(bridge, bridge.poll(), single_cycle=True)
+        motion.start()
+        channel.armed = True
+        torn = bridge.poll()
+        assert torn.moving and torn.last_cycle_time_ms == 0, torn
+        assert motion.judge(torn) is None
+        R6Device(channel).command("stop")  # another client's stop
+        R6SimDevice.tick(device, 0.02)  # stood: ``moving`` 0 before the next poll
+        del device.tick  # the simulator's own clock again
+        verdict = judge_until_after_start(bridge, motion)
+    finally:
+        link.close()
+    assert device.get("last_cycle_time") != 0  # the start wrote it
+    assert verdict.outcome is Outcome.STOPPED, verdict.message
+    assert "no poll read it while the cycle counted" in verdict.message
+    assert bridge.cycle_time_written_at is None
 
 
 def test_a_whole_cycle_is_not_claimed_when_2401_is_written_at_a_start(
