@@ -35,10 +35,9 @@ class RunCycleMotion(Motion[R6Snapshot]):
     the cycle was seen to run. A poll "saw the cycle running" when 2401 was read only if
     ``moving`` (read after it) or the next poll's counting says so, and the change proves
     an end only after a poll read 2401 unchanged while 2397 counted (or on a controller
-    seen to write it at the end). A cycle no poll saw
-    running is REACHED only on a controller seen (by an earlier goal) to write 2401 at a
-    cycle's end. A goal sent while the
-    program already ran is never REACHED (the cycle that ends began before it).
+    seen to write it at the end). A cycle no poll saw running is REACHED only on a
+    controller seen (by an earlier goal) to write 2401 at a cycle's end. A goal sent while
+    the program already ran is never REACHED (the cycle that ends began before it).
     Otherwise its end is STOPPED, and so is a continuous run's (it runs until stopped).
     Ends this goal causes (cancel, timeout, link loss, the node's halts) send pause
     (20001), which keeps the program's step, confirmed like ``~/pause`` (decision 29).

@@ -31,7 +31,6 @@ import sys
 import sysconfig
 import tempfile
 import time
-from collections.abc import Sequence
 from pathlib import Path
 
 from .ros import ROOT
@@ -88,7 +87,6 @@ CMAKE_ARGS = (
 # is ~160 CPU-s of compilers and rosidl's generators, which a fresh clone's suite (CPU-bound
 # on 2 cores) paid in ~20 s of its time. COLCON_MSG_DEFS_CACHE= (empty) builds it anyway.
 MSG_DEFS_CACHE_ENV = "COLCON_MSG_DEFS_CACHE"
-MSG_DEFS_CACHED_NOTE = "msg_defs.cached"  # in the workspace: the cached install it copied
 
 
 def msg_defs_cache_root() -> Path | None:
@@ -100,9 +98,9 @@ def msg_defs_cache_root() -> Path | None:
     return base / "modbus-ros-bridges" / "colcon-msg_defs"
 
 
-def msg_defs_key(cmake_args: Sequence[str]) -> str:
+def msg_defs_key() -> str:
     """A hash of what a colcon build of msg_defs depends on: its files (tracked or not,
-    its build directory aside), the CMake arguments, the Python, and the venv's
+    its build directory aside), ``CMAKE_ARGS``, the Python, and the venv's
     distributions (the ROS wheels and numpy it compiles against, colcon itself)."""
     digest = hashlib.sha256()
     source = ROOT / "msg_defs"
@@ -112,7 +110,7 @@ def msg_defs_key(cmake_args: Sequence[str]) -> str:
             continue
         digest.update(f"{relative}\0".encode())
         digest.update(path.read_bytes())
-    digest.update("\0".join(cmake_args).encode())
+    digest.update("\0".join(CMAKE_ARGS).encode())
     digest.update(f"{sys.version}\0{sysconfig.get_platform()}\0".encode())
     venv = sorted(
         f"{dist.metadata['Name']}=={dist.version}"
@@ -144,7 +142,6 @@ class ColconBuild:
         if cached is not None:
             # This msg_defs, built by colcon before on this machine: copied as installed.
             shutil.copytree(cached, self.install / "msg_defs", symlinks=True)
-            (self.workspace / MSG_DEFS_CACHED_NOTE).write_text(str(cached))
         else:
             reuse_msg_defs_build(self.workspace / "build")
         colcon = [
@@ -190,17 +187,18 @@ class ColconBuild:
         root = msg_defs_cache_root()
         if root is None:
             return None
-        cached = root / msg_defs_key(CMAKE_ARGS) / "msg_defs"
+        cached = root / msg_defs_key() / "msg_defs"
         return cached if cached.is_dir() else None
 
     def keep_msg_defs(self) -> None:
-        """After a build that compiled msg_defs: its install into the cache, whole or not
-        at all (two runs may finish at once on one machine)."""
+        """After a build: its msg_defs install into the cache unless the cache holds it
+        (the build copied it from there), whole or not at all (two runs may finish at once
+        on one machine)."""
         root = msg_defs_cache_root()
         built = self.install / "msg_defs"
-        if root is None or (self.workspace / MSG_DEFS_CACHED_NOTE).is_file() or not built.is_dir():
+        if root is None or not built.is_dir():
             return
-        key = root / msg_defs_key(CMAKE_ARGS)
+        key = root / msg_defs_key()
         if key.is_dir():
             return
         root.mkdir(parents=True, exist_ok=True)

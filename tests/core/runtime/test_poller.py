@@ -15,7 +15,7 @@ from bridge_core.wire.errors import (
 )
 from bridge_core.wire.link_state import LinkEvent
 
-from ...support.fakes import FakeChannel, FakeClock, FakeDevice
+from ...support.fakes import FakeChannel, FakeClock, FakeDevice, ScriptedBus
 
 
 def listen(channel: FakeChannel) -> list[bool]:
@@ -266,43 +266,15 @@ def test_a_stop_that_reconnected_between_polls_still_gets_the_link_up_work() -> 
     assert device.link_ups == 2
 
 
-class ScriptedTransport:
-    """A Transport that answers every read with zeros and records what it was sent."""
-
-    def __init__(self) -> None:
-        from bridge_core.wire.channel import PriorityLock
-
-        self.lock = PriorityLock()
-        self.is_serial = True
-        self.is_open = True
-        self.sent: list[object] = []
-
-    def describe(self) -> str:
-        return "scripted"
-
-    def open(self) -> None:
-        self.is_open = True
-
-    def close(self) -> None:
-        self.is_open = False
-
-    def execute(self, unit_id: int, request: object, timeout_s: float | None = None) -> list[int]:
-        self.sent.append(request)
-        return [0] * int(getattr(request, "count", 1))
-
-    def frame_time_s(self, request: object) -> float:
-        return 0.0
-
-
 def test_a_poll_stops_at_its_next_request_once_a_command_lost_the_link() -> None:
     """The rest of a poll is not sent after the link was marked down mid-poll: when the
     link is back, the first thing sent is the link-up work (pending stops first)."""
     from bridge_core.wire.channel import DeviceChannel
 
-    transport = ScriptedTransport()
+    transport = ScriptedBus()
     channel = DeviceChannel(transport, 1, retries=0)
     channel.read_registers(0, 1)  # connected
-    requests_before = len(transport.sent)
+    requests_before = len(transport.executed)
 
     def poll() -> int:
         channel.read_registers(0, 1)
@@ -320,7 +292,7 @@ def test_a_poll_stops_at_its_next_request_once_a_command_lost_the_link() -> None
         clock=FakeClock(1000.0),
     )
     assert poller.tick() is PollOutcome.LINK_LOST
-    assert len(transport.sent) == requests_before + 1
+    assert len(transport.executed) == requests_before + 1
 
 
 def test_a_probe_poll_yields_to_a_stop_that_failed_while_it_waited() -> None:
@@ -328,7 +300,7 @@ def test_a_probe_poll_yields_to_a_stop_that_failed_while_it_waited() -> None:
     marked down again meanwhile (a deadman stop failed: it is pending and goes first)."""
     from bridge_core.wire.channel import DeviceChannel
 
-    transport = ScriptedTransport()
+    transport = ScriptedBus()
     channel = DeviceChannel(transport, 1, retries=0)  # never connected: polls are probes
 
     def poll() -> int:
@@ -338,7 +310,7 @@ def test_a_probe_poll_yields_to_a_stop_that_failed_while_it_waited() -> None:
 
     poller = Poller(channel, poll, lambda _snapshot: None, rate_hz=10.0, clock=FakeClock(1000.0))
     assert poller.tick() is PollOutcome.LINK_LOST
-    assert transport.sent == []
+    assert transport.executed == []
     # Without a stop failing meanwhile, the probe (once the backoff allows) reconnects.
     channel.backoff.succeeded()
     poller = Poller(channel, lambda: channel.read_registers(0, 1)[0], lambda _s: None, rate_hz=10.0)
