@@ -57,14 +57,15 @@ if [[ "${LINT:-1}" == 1 ]]; then
 fi
 
 # The 15 slowest tests are printed at the end of every run. The tests run in
-# $TEST_WORKERS pytest-xdist worker processes (default 5: most tests wait on sockets, ptys
-# and ROS discovery, and 4 workers were each busy to the end of the run; a fresh clone's
-# .ci/run 342 s in all with 5, 359 s with 4 (2026-12-06, docs/testing.md). It was 3 while
-# each node process spent ~0.75 CPU-s importing, when two MOTEC bus tests missed their
-# real-time margins beside two CPU burners), grouped so that tests sharing a module-scoped
-# fixture stay on one worker (tests/conftest.py); TEST_WORKERS=0 runs them in this process.
+# $TEST_WORKERS pytest-xdist worker processes (default 4: most tests wait on sockets, ptys
+# and ROS discovery; 4 was 3 while each node process spent ~0.75 CPU-s importing, when two
+# MOTEC bus tests missed their real-time margins beside two CPU burners. 5 were the default
+# for a few runs on 2026-12-06: 342-390 s idle, but two of four runs beside two burners and
+# one idle run failed on load-sensitive tests, so back to 4; docs/testing.md), grouped so
+# that tests sharing a module-scoped fixture stay on one worker (tests/conftest.py);
+# TEST_WORKERS=0 runs them in this process.
 rc=0
-.venv/bin/python -m pytest --durations=15 -n "${TEST_WORKERS:-5}" --dist loadgroup "$@" || rc=$?
+.venv/bin/python -m pytest --durations=15 -n "${TEST_WORKERS:-4}" --dist loadgroup "$@" || rc=$?
 if ((rc == 5)); then
     echo "test: pytest collected no tests; treating that as a failure" >&2
     exit 1
