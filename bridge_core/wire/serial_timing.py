@@ -21,8 +21,10 @@ transport reports as a ``FrameError`` by type. Override points:
   works out from the request frame how long the reply will be;
 - ``recv(None)`` (called by ``TransactionManager.sync_get_response``): reads exactly that
   many bytes and returns at the last one; after an exception function code (byte 2) it
-  reads 5 bytes. Unknown function codes, ASCII framing, local echo and ports without a
-  file descriptor keep pymodbus's own behaviour.
+  reads 5 bytes. A whole, good frame of the unit that cannot answer the request (``answers``:
+  a late reply to an earlier one) is skipped and the next one read. Unknown function
+  codes, ASCII framing, local echo and ports without a file descriptor keep pymodbus's own
+  behaviour.
 
 Timing rules are from "MODBUS over Serial Line, Specification and Implementation Guide
 V1.02" §2.5.1.1 (framing) and §2.4.1 (master states).
@@ -75,8 +77,6 @@ SPIN_S = 100e-6
 MAX_RTU_FRAME_BYTES = 256
 
 EXCEPTION_FLAG = 0x80
-# unit id + function code: enough to tell a normal reply from an exception reply.
-REPLY_HEADER_LEN = 2
 # unit id, function code, exception code, CRC (2).
 EXCEPTION_REPLY_LEN = 5
 # unit id, function code, byte count, CRC (2): the frame around a read reply's data.
@@ -99,6 +99,20 @@ FC_WRITE_COILS = 0x0F
 FC_WRITE_REGISTERS = 0x10
 FC_MASK_WRITE = 0x16
 FC_READ_WRITE_REGISTERS = 0x17
+
+# unit id, function code, byte count: enough to know any listed reply's length.
+REPLY_HEAD_LEN = 3
+_READ_FUNCTIONS = frozenset(
+    {
+        FC_READ_COILS,
+        FC_READ_DISCRETE_INPUTS,
+        FC_READ_HOLDING,
+        FC_READ_INPUT,
+        FC_READ_WRITE_REGISTERS,
+    }
+)
+# Writes whose reply repeats the request's address and value (05 / 06) or quantity.
+_ECHO_FUNCTIONS = frozenset({FC_WRITE_COIL, FC_WRITE_REGISTER, FC_WRITE_COILS, FC_WRITE_REGISTERS})
 
 # Request length (with CRC) each rule needs to read its count field.
 _REQUEST_LEN_READ = 8
@@ -169,20 +183,45 @@ def expected_reply_length(request: bytes) -> int | None:
     return None
 
 
-def reply_length(request: bytes, header: bytes) -> int | None:
-    """Total reply length once its first two bytes are in (None: unknown, read to silence).
-
-    An exception reply has the request's function code with bit 7 set and is 5 bytes
-    long whatever was asked.
-    """
-    if len(header) < REPLY_HEADER_LEN or len(request) < MIN_FRAME_LEN:
+def frame_length(head: bytes) -> int | None:
+    """A reply frame's length from its own first three bytes (unit, function code, then a
+    read's byte count), whatever request it answers; None: a function code not listed."""
+    if len(head) < REPLY_HEAD_LEN:
         return None
-    function = header[1]
-    if function & EXCEPTION_FLAG and function & ~EXCEPTION_FLAG == request[1]:
+    function = head[1]
+    if function & EXCEPTION_FLAG:
         return EXCEPTION_REPLY_LEN
-    if function != request[1]:
-        return None
-    return expected_reply_length(request)
+    if function in _READ_FUNCTIONS:
+        return READ_REPLY_OVERHEAD + head[2]
+    if function in _ECHO_FUNCTIONS or function == FC_COMM_EVENT_COUNTER:
+        return ECHO_REPLY_LEN
+    if function == FC_MASK_WRITE:
+        return MASK_WRITE_REPLY_LEN
+    if function == FC_READ_EXCEPTION_STATUS:
+        return EXCEPTION_REPLY_LEN
+    return None
+
+
+def answers(request: bytes, reply: bytes) -> bool:
+    """Whether a whole ``reply`` frame can be the answer to the ``request`` frame.
+
+    Its function code (or that code with the exception flag), its length, and the fields
+    a write's reply repeats: address and value (FC 05 / 06), address and quantity
+    (15 / 16), address and masks (22). A read's reply names no address: one of the same
+    length is taken (MODBUS over Serial Line §2.4.1: a master discards a reply that
+    comes after its timeout, which one that comes after the next request cannot be told
+    from).
+    """
+    function = request[1]
+    if reply[1] == function | EXCEPTION_FLAG:
+        return True
+    if reply[1] != function or len(reply) != expected_reply_length(request):
+        return False
+    if function in _ECHO_FUNCTIONS:
+        return reply[2:6] == request[2:6]
+    if function == FC_MASK_WRITE:
+        return reply[2:8] == request[2:8]
+    return True
 
 
 class ReplyFrameError(ModbusException):
@@ -385,14 +424,33 @@ class TimedSerialClient(ModbusSerialClient):
             raise ConnectionException(str(self)) from None
 
     def _read_frame(self) -> bytes:
-        """One reply by its length; short (or empty) if the deadline passes first."""
-        header = self._read_exact(REPLY_HEADER_LEN)
-        if len(header) < REPLY_HEADER_LEN:
-            return header
-        total = reply_length(self._request, header)
-        if total is None:  # a function code we did not ask for: read until silence
-            return header + self._read_until_gap()
-        return header + self._read_exact(total - REPLY_HEADER_LEN)
+        """One reply by its length; short (or empty) if the deadline passes first.
+
+        A whole, good frame from the request's unit that answers another request (a reply
+        that came after its own request had timed out, in the buffer only once this
+        request was on the wire) is skipped and the next frame read: taken, it would have
+        confirmed a write with a poll's reply, or given one read's values to another.
+        """
+        while True:
+            head = self._read_exact(REPLY_HEAD_LEN)
+            if len(head) < REPLY_HEAD_LEN:
+                return head
+            total = frame_length(head)
+            if total is None:  # a function code not listed: read until silence
+                return head + self._read_until_gap()
+            frame = head + self._read_exact(total - REPLY_HEAD_LEN)
+            if not self._answers_another(frame, total):
+                return frame
+            _log.debug("skipped a reply to another request: %s", frame.hex(" "))
+
+    def _answers_another(self, frame: bytes, total: int) -> bool:
+        """A whole frame, good CRC, from the request's unit, that cannot answer it."""
+        return (
+            len(frame) == total
+            and frame[0] == self._request[0]
+            and FramerRTU.check_CRC(frame[:-CRC_LEN], int.from_bytes(frame[-CRC_LEN:], "big"))
+            and not answers(self._request, frame)
+        )
 
     def _after_rejected(self, previous: bytes) -> bytes:
         """pymodbus asks for more after the framer found no reply in ``previous``.
