@@ -21,6 +21,7 @@ from __future__ import annotations
 import importlib
 import itertools
 import string
+import threading
 from collections.abc import Callable, Hashable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Generic, Protocol, TypeVar, cast
@@ -31,6 +32,7 @@ from rclpy.callback_groups import (
     ReentrantCallbackGroup,
 )
 
+from ..runtime.motion_ledger import StopResult
 from ..wire.errors import ConfigurationError, DeviceException, NotConfirmed
 
 if TYPE_CHECKING:
@@ -141,11 +143,17 @@ class ServiceHost:
     def __init__(self, node: BridgeNode[Any], log_period_s: float) -> None:
         self.node = node
         self.log_period_s = log_period_s  # a pending stop that still fails: WARN this often
-        node.create_timer(
+        # Runs only while a stop is pending (``stop_all`` wakes it, the retry that finds
+        # none left puts it to sleep): a timer that fired 4 times a second for nothing
+        # cost every node a wait-set rebuild of its executor each time (a third of an
+        # idle three-drive MOTEC process's CPU).
+        self._retry = node.create_timer(
             PENDING_STOP_RETRY_S,
             self.retry_pending_stops,
             callback_group=MutuallyExclusiveCallbackGroup(),  # never in a stop service's way
         )
+        self._retry.cancel()
+        self._retry_lock = threading.Lock()  # pending() and the timer's state, together
 
     def create(
         self,
@@ -214,9 +222,20 @@ class ServiceHost:
                 logger.info(f"{stopped.what}: the pending stop was sent on reconnect")
 
     def stop_all(self, reason: str) -> None:
-        """Stop every motion a service started (a halt), each tried on the wire."""
+        """Stop every motion a service started (a halt), each tried on the wire; one
+        that failed is tried again on a timer (``retry_pending_stops``)."""
         logger = self.node.get_logger()
-        for stopped in self.node.service_motions.stop_all():
+        motions = self.node.service_motions
+        try:
+            self._log_stops(motions.stop_all(), reason, logger)
+        finally:
+            with self._retry_lock:
+                if motions.pending() and self._retry.is_canceled():
+                    self._retry.reset()
+
+    @staticmethod
+    def _log_stops(results: Iterable[StopResult], reason: str, logger: Any) -> None:
+        for stopped in results:
             if stopped.error is None:
                 logger.info(f"{stopped.what}: stopped ({reason})")
             elif isinstance(stopped.error, NotConfirmed):
@@ -233,8 +252,10 @@ class ServiceHost:
         """A halt's stop that failed (the link was down) is tried again on a timer, also
         while the node is inactive (nobody reactivates it to get the stop out)."""
         motions, logger = self.node.service_motions, self.node.get_logger()
-        if not motions.pending():
-            return
+        with self._retry_lock:
+            if not motions.pending():
+                self._retry.cancel()  # asleep until a halt leaves a stop pending
+                return
         for stopped in motions.retry_pending():
             if stopped.error is None:
                 logger.info(f"{stopped.what}: the pending stop got through")

@@ -11,6 +11,8 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from lifecycle_msgs.msg import Transition
+from lifecycle_msgs.srv import ChangeState
 from std_msgs.msg import Float64
 from std_srvs.srv import SetBool, Trigger
 
@@ -303,6 +305,39 @@ def test_a_deadman_stop_lost_in_an_outage_is_the_first_request_when_the_line_is_
         b.wait_connected(True, since=cut)
         assert proc.poll() is None
         client.node.destroy_publisher(jog)
+
+
+def test_a_halts_stop_lost_in_an_outage_is_retried_while_the_node_is_inactive(
+    client: Client, tmp_path: Path
+) -> None:
+    """A motor a service set running, a deactivate while the line is silent: its stop
+    fails and stays pending. The inactive node polls nothing, so no reconnect sends it:
+    its retry timer does, once the line is back ("the pending stop got through")."""
+    simulator = make_simulator(reply_delay_s=0.0)
+    device = simulator.device
+    assert isinstance(device, StepperSimDevice)
+    stop_coil = (Table.COIL, 4)  # motor 1 stop: coil 00005
+    with served_on_pty(simulator, BAUD) as port, bridge(client, tmp_path, port) as (b, _proc):
+        b.wait_connected(True)
+        reply = b.call(Trigger, "motor_1/forward")
+        assert reply.success, reply.message
+        wait_for(lambda: device.motion[1] is not None, WAIT_S, "motor 1 running")
+        simulator.withhold_replies = True
+        since = time.monotonic()
+        request = ChangeState.Request()
+        request.transition.id = Transition.TRANSITION_DEACTIVATE
+        assert client.call(ChangeState, b.service("change_state"), request).success
+        client.wait_log("stepper_bridge", "tried again until it gets through", since)
+        assert device.motion[1] is not None  # the stop did not get through: still running
+        writes_before = len(device.write_log)
+        simulator.withhold_replies = False
+        wait_for(
+            lambda: stop_coil in [(r.table, r.address) for r in device.write_log[writes_before:]],
+            WAIT_S,
+            "the pending stop, retried while inactive",
+        )
+        client.wait_log("stepper_bridge", "the pending stop got through", since)
+        assert device.motion[1] is None
 
 
 def test_a_stop_service_that_fails_in_an_outage_leaves_the_jogs_stop_pending(
