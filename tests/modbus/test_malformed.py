@@ -81,14 +81,21 @@ def test_modbus_doc_and_modbus_sim_say_one_line_and_exit_2(
 
 # Runs modbus_bridge's main once per file (argv[1:]) and prints, per file, one JSON line:
 # the exit code and what it wrote to stderr.
-BRIDGE_RUNNER = """
-import contextlib, io, json, sys
+# A case that takes longer than CASE_STALL_S has hung (one takes ~0.2 s): the runner then
+# prints every thread's stack and exits, well before pytest-timeout would end the test with
+# nothing but the test process's own stack (once, on an idle machine: 300 s, the child's
+# output lost, never seen again in 24 runs of 4 side by side).
+CASE_STALL_S = 60
+BRIDGE_RUNNER = f"""
+import contextlib, faulthandler, io, json, sys
 from modbus_bridge.node import main
 for path in sys.argv[1:]:
+    faulthandler.dump_traceback_later({CASE_STALL_S}, exit=True, file=sys.__stderr__)
     err = io.StringIO()
     with contextlib.redirect_stderr(err):
         code = main(["--ros-args", "-p", "device_file:=" + path])
-    print(json.dumps({"path": path, "code": code, "stderr": err.getvalue()}), flush=True)
+    faulthandler.cancel_dump_traceback_later()
+    print(json.dumps({{"path": path, "code": code, "stderr": err.getvalue()}}), flush=True)
 """
 
 
@@ -101,6 +108,7 @@ def test_modbus_bridge_says_one_line_and_exits_2_for_every_case(tmp_path: Path) 
         text=True,
         timeout=600,
     )
+    assert result.returncode == 0, f"runner exit {result.returncode}: {result.stderr[-6000:]}"
     assert "Traceback" not in result.stderr, result.stderr
     runs = [json.loads(line) for line in result.stdout.splitlines() if line.startswith("{")]
     assert len(runs) == len(CASES), result.stdout + result.stderr
