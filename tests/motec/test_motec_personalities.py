@@ -550,10 +550,12 @@ def test_contract_joint_commands_position_target_against_an_ignored_start(
 # drive marked down used to get (down_write_timeout_s, 50 ms), all within the link's
 # timeout_s 0.1 with the frames at 115200 baud.
 # Past the short wait of a stop to a drive marked down (STOP_TIMEOUT_S, 0.05 s), which
-# the probes waited before hole 1's fix; the link's timeout_s (0.25 s here) leaves a loaded
-# host 0.15 s over the longest reply (at 0.1 s with 50-80 ms replies a set_control_mode
-# timed out beside a CI run).
+# the probes waited before hole 1's fix; the link's timeout_s (DELAY_TIMEOUT_S) leaves a
+# loaded host 0.4 s over the longest reply (at 0.1 s with 50-80 ms replies a
+# set_control_mode timed out beside a CI run; at 0.25 s, a move's readiness read beside two
+# CPU burners: this simulator runs in the test's process, beside its rclpy client).
 DELAY_S = (0.06, 0.1)
+DELAY_TIMEOUT_S = 0.5
 
 
 @pytest.mark.ros
@@ -571,7 +573,7 @@ def test_delay_drives_answering_late_connect_poll_reconnect_and_stop_at_once(
         sim.start_serial(line.device_path, BAUD)
         try:
             params = bridge_params(
-                line.client_path, unit_ids=[1], timeout_s=0.25, poll_rate_hz=10.0
+                line.client_path, unit_ids=[1], timeout_s=DELAY_TIMEOUT_S, poll_rate_hz=10.0
             )
             with motec(client, tmp_path, params) as (b, proc):
                 b.wait_connected(1, True)  # at start
