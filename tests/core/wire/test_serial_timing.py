@@ -18,6 +18,7 @@ import threading
 import time
 import tty
 from collections.abc import Callable, Iterable, Iterator
+from typing import Self
 
 import pytest
 import serial
@@ -470,41 +471,33 @@ def test_withheld_reply_times_out_and_the_next_works(
 # ---------------------------------------------------------------- scripted faults
 
 
-class ScriptedDevice:
-    """Answers FC 03 requests on a pty as scripted: good, crc, wrong_unit, late, silent."""
+class PtyDevice:
+    """A device on a pty: each 8-byte request (a read, a single write) gets the frames
+    ``replies(request)`` gives, written one after another (a frame gap between them)."""
 
-    def __init__(self, script: list[str], late_s: float = 0.0) -> None:
-        self.script = list(script)
-        self.late_s = late_s
-        self.requests = 0
+    REQUEST_LEN = 8
+
+    def __init__(self) -> None:
         self._master, self._slave = pty.openpty()
         tty.setraw(self._slave)
         self.path = os.ttyname(self._slave)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
 
+    def replies(self, request: bytes) -> list[bytes]:
+        raise NotImplementedError
+
     def _run(self) -> None:
         while not self._stop.is_set():
             ready, _, _ = select.select([self._master], [], [], 0.02)
             if not ready:
                 continue
-            request = read_exactly(self._master, 8, timeout_s=0.5)
-            if len(request) < 8:
+            request = read_exactly(self._master, self.REQUEST_LEN, timeout_s=0.5)
+            if len(request) < self.REQUEST_LEN:
                 continue
-            self.requests += 1
-            unit, count = request[0], int.from_bytes(request[4:6], "big")
-            action = self.script.pop(0) if self.script else "good"
-            values = [self.requests * 10 + i for i in range(count)]
-            reply = frame(
-                regs.ReadHoldingRegistersResponse(
-                    registers=values, dev_id=unit + 2 if action == "wrong_unit" else unit
-                )
-            )
-            if action == "crc":
-                reply = reply[:-1] + bytes([reply[-1] ^ 0xFF])
-            if action == "late":
-                time.sleep(self.late_s)
-            if action != "silent":
+            for index, reply in enumerate(self.replies(request)):
+                if index:
+                    time.sleep(0.01)  # a frame gap at any baud rate
                 os.write(self._master, reply)
 
     def wait_buffered(self, size: int, timeout_s: float = 5.0) -> None:
@@ -517,7 +510,7 @@ class ScriptedDevice:
             assert time.monotonic() < deadline, f"{queued} of {size} bytes buffered"
             time.sleep(0.005)
 
-    def __enter__(self) -> ScriptedDevice:
+    def __enter__(self) -> Self:
         self._thread.start()
         return self
 
@@ -526,6 +519,32 @@ class ScriptedDevice:
         self._thread.join(2)
         os.close(self._master)
         os.close(self._slave)
+
+
+class ScriptedDevice(PtyDevice):
+    """Answers FC 03 requests as scripted: good, crc, wrong_unit, late, silent."""
+
+    def __init__(self, script: list[str], late_s: float = 0.0) -> None:
+        super().__init__()
+        self.script = list(script)
+        self.late_s = late_s
+        self.requests = 0
+
+    def replies(self, request: bytes) -> list[bytes]:
+        self.requests += 1
+        unit, count = request[0], int.from_bytes(request[4:6], "big")
+        action = self.script.pop(0) if self.script else "good"
+        values = [self.requests * 10 + i for i in range(count)]
+        reply = frame(
+            regs.ReadHoldingRegistersResponse(
+                registers=values, dev_id=unit + 2 if action == "wrong_unit" else unit
+            )
+        )
+        if action == "crc":
+            reply = reply[:-1] + bytes([reply[-1] ^ 0xFF])
+        if action == "late":
+            time.sleep(self.late_s)
+        return [] if action == "silent" else [reply]
 
 
 @pytest.mark.parametrize("fault", ["crc", "wrong_unit"])
@@ -626,39 +645,16 @@ def test_an_output_buffer_that_stays_full_is_an_error() -> None:
 # ---------------------------------------------------------------- replies to other requests
 
 
-class LateAnswerer:
-    """A pty device that answers each request with the frames ``answer(request)`` gives,
-    written as they come: a late reply to an earlier request first, then (or not) the
-    reply to this one."""
+class LateAnswerer(PtyDevice):
+    """Answers each request with the frames ``answer(request)`` gives: a late reply to an
+    earlier request first, then (or not) the reply to this one."""
 
-    def __init__(self, answer: Callable[[bytes], list[bytes]], request_len: int) -> None:
+    def __init__(self, answer: Callable[[bytes], list[bytes]]) -> None:
+        super().__init__()
         self.answer = answer
-        self.request_len = request_len
-        self._master, self._slave = pty.openpty()
-        tty.setraw(self._slave)
-        self.path = os.ttyname(self._slave)
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, daemon=True)
 
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            ready, _, _ = select.select([self._master], [], [], 0.02)
-            if not ready:
-                continue
-            request = read_exactly(self._master, self.request_len, timeout_s=0.5)
-            for reply in self.answer(request):
-                os.write(self._master, reply)
-                time.sleep(0.01)  # a frame gap at any baud rate
-
-    def __enter__(self) -> LateAnswerer:
-        self._thread.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self._stop.set()
-        self._thread.join(2)
-        os.close(self._master)
-        os.close(self._slave)
+    def replies(self, request: bytes) -> list[bytes]:
+        return self.answer(request)
 
 
 STALE_READ = frame(regs.ReadHoldingRegistersResponse(registers=[1, 2, 3], dev_id=1))
@@ -690,7 +686,7 @@ def test_a_late_reply_to_another_request_does_not_confirm_a_write(
     def answer(request: bytes) -> list[bytes]:
         return [stale, echo(request)] if answers else [stale]
 
-    with LateAnswerer(answer, request_len=8) as device:
+    with LateAnswerer(answer) as device:
         link = ModbusLink(SerialSettings(device.path, 115200, timeout_s=0.3))
         ch = DeviceChannel(link, 1, retries=0)
         try:
@@ -713,7 +709,7 @@ def test_a_late_read_reply_of_another_length_is_not_taken_for_this_read() -> Non
         values = [40 + i for i in range(int.from_bytes(request[4:6], "big"))]
         return [STALE_READ, frame(regs.ReadHoldingRegistersResponse(registers=values, dev_id=1))]
 
-    with LateAnswerer(answer, request_len=8) as device:
+    with LateAnswerer(answer) as device:
         link = ModbusLink(SerialSettings(device.path, 115200, timeout_s=0.3))
         ch = DeviceChannel(link, 1, retries=0)
         try:
