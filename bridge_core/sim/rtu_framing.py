@@ -24,16 +24,13 @@ from collections.abc import Callable, Iterable
 
 from pymodbus.framer.rtu import FramerRTU
 
+from ..wire.serial_timing import crc_matches
+
 # RTU frames: unit, function code and CRC at least; 256 bytes at most (serial line spec).
 RTU_MIN_FRAME = 4
 RTU_MAX_FRAME = 256
 BROADCAST_UNIT = 0
 CRC_SIZE = 2
-
-
-def crc_matches(frame: bytes) -> bool:
-    """Whether the last two bytes of ``frame`` are the CRC of the rest."""
-    return FramerRTU.check_CRC(frame[:-CRC_SIZE], int.from_bytes(frame[-CRC_SIZE:], "big"))
 
 
 def crc_frame_size(data: bytes) -> int:

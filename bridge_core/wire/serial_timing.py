@@ -113,6 +113,13 @@ _READ_FUNCTIONS = frozenset(
 )
 # Writes whose reply repeats the request's address and value (05 / 06) or quantity.
 _ECHO_FUNCTIONS = frozenset({FC_WRITE_COIL, FC_WRITE_REGISTER, FC_WRITE_COILS, FC_WRITE_REGISTERS})
+# Replies whose length is fixed by their function code, whatever the request asked.
+_FIXED_REPLY_LEN = {
+    **dict.fromkeys(_ECHO_FUNCTIONS, ECHO_REPLY_LEN),
+    FC_COMM_EVENT_COUNTER: ECHO_REPLY_LEN,  # status word, event count
+    FC_MASK_WRITE: MASK_WRITE_REPLY_LEN,
+    FC_READ_EXCEPTION_STATUS: EXCEPTION_REPLY_LEN,  # unit, function, status byte, CRC
+}
 
 # Request length (with CRC) each rule needs to read its count field.
 _REQUEST_LEN_READ = 8
@@ -172,15 +179,7 @@ def expected_reply_length(request: bytes) -> int | None:
         return READ_REPLY_OVERHEAD + 2 * int.from_bytes(request[4:6], "big")
     if function == FC_READ_WRITE_REGISTERS and len(request) >= _REQUEST_LEN_READ_WRITE:
         return READ_REPLY_OVERHEAD + 2 * int.from_bytes(request[4:6], "big")
-    if function in (FC_WRITE_COIL, FC_WRITE_REGISTER, FC_WRITE_COILS, FC_WRITE_REGISTERS):
-        return ECHO_REPLY_LEN
-    if function == FC_COMM_EVENT_COUNTER:
-        return ECHO_REPLY_LEN
-    if function == FC_MASK_WRITE:
-        return MASK_WRITE_REPLY_LEN
-    if function == FC_READ_EXCEPTION_STATUS:
-        return EXCEPTION_REPLY_LEN  # unit, function, status byte, CRC
-    return None
+    return _FIXED_REPLY_LEN.get(function)
 
 
 def frame_length(head: bytes) -> int | None:
@@ -193,13 +192,13 @@ def frame_length(head: bytes) -> int | None:
         return EXCEPTION_REPLY_LEN
     if function in _READ_FUNCTIONS:
         return READ_REPLY_OVERHEAD + head[2]
-    if function in _ECHO_FUNCTIONS or function == FC_COMM_EVENT_COUNTER:
-        return ECHO_REPLY_LEN
-    if function == FC_MASK_WRITE:
-        return MASK_WRITE_REPLY_LEN
-    if function == FC_READ_EXCEPTION_STATUS:
-        return EXCEPTION_REPLY_LEN
-    return None
+    return _FIXED_REPLY_LEN.get(function)
+
+
+def crc_matches(frame: bytes) -> bool:
+    """Whether the last two bytes of an RTU ``frame`` are the CRC of the rest (the client's
+    checks here, the simulators' framing in ``bridge_core.sim.rtu_framing``)."""
+    return FramerRTU.check_CRC(frame[:-CRC_LEN], int.from_bytes(frame[-CRC_LEN:], "big"))
 
 
 def answers(request: bytes, reply: bytes) -> bool:
@@ -448,7 +447,7 @@ class TimedSerialClient(ModbusSerialClient):
         return (
             len(frame) == total
             and frame[0] == self._request[0]
-            and FramerRTU.check_CRC(frame[:-CRC_LEN], int.from_bytes(frame[-CRC_LEN:], "big"))
+            and crc_matches(frame)
             and not answers(self._request, frame)
         )
 
@@ -464,9 +463,7 @@ class TimedSerialClient(ModbusSerialClient):
             self._returned = previous + more
             return more
         unit = self._request[0]
-        if len(previous) >= MIN_FRAME_LEN and not FramerRTU.check_CRC(
-            previous[:-CRC_LEN], int.from_bytes(previous[-CRC_LEN:], "big")
-        ):
+        if len(previous) >= MIN_FRAME_LEN and not crc_matches(previous):
             raise ReplyCrcError(previous)
         if previous and previous[0] != unit:
             if frame := self._read_frame():

@@ -324,9 +324,8 @@ def test_a_halts_stop_lost_in_an_outage_is_retried_while_the_node_is_inactive(
         wait_for(lambda: device.motion[1] is not None, WAIT_S, "motor 1 running")
         simulator.withhold_replies = True
         since = time.monotonic()
-        request = ChangeState.Request()
-        request.transition.id = Transition.TRANSITION_DEACTIVATE
-        assert client.call(ChangeState, b.service("change_state"), request).success
+        deactivate = Transition(id=Transition.TRANSITION_DEACTIVATE)
+        assert b.call(ChangeState, "change_state", transition=deactivate).success
         client.wait_log("stepper_bridge", "tried again until it gets through", since)
         assert device.motion[1] is not None  # the stop did not get through: still running
         writes_before = len(device.write_log)
