@@ -62,14 +62,17 @@ pytestmark = pytest.mark.ros
 
 BAUD = 115200
 UNITS = [1, 2, 3]
-# Reply timeout and deadman silence far above what scheduling on a loaded machine can
-# delay a reply or a message by: a live drive must never look dead, a stream never silent.
-TIMEOUT_S = 1.0
+# A pty can hold every byte ~2 s beside CPU burners (tests/support/serial_pair.py), so a
+# test whose subject is not a silent line takes PTY_REPLY_TIMEOUT_S: a live drive never
+# looks dead, a write never fails for a stall. A test that silences a drive, or arms a
+# lifeguard (its floor grows with the timeout), takes SHORT_TIMEOUT_S. The deadman
+# silence is far above what a loaded machine delays a message by.
+SHORT_TIMEOUT_S = 1.0
 COMMAND_TIMEOUT_S = 1.5
 SET_UP_TRIES = 3  # Bridge.set_up
 
 
-def lifeguard_floor_ms(drives: int, timeout_s: float = TIMEOUT_S) -> int:
+def lifeguard_floor_ms(drives: int, timeout_s: float = SHORT_TIMEOUT_S) -> int:
     """The shortest lifeguard time the bridge accepts on the tests' bus (docs/bridges/motec.md)."""
     return lifeguard_min_ms(drives, SerialSettings("", BAUD, timeout_s=timeout_s).longest_hold_s())
 
@@ -207,7 +210,7 @@ def bridge_params(port: str, **params: Any) -> dict[str, Any]:
         "baudrate": BAUD,
         "unit_ids": UNITS,
         "poll_rate_hz": 20.0,
-        "timeout_s": TIMEOUT_S,
+        "timeout_s": PTY_REPLY_TIMEOUT_S,
         "reconnect_max_s": 0.5,
         "command_timeout_s": COMMAND_TIMEOUT_S,
         "diagnostic_period_s": DIAGNOSTIC_PERIOD_S,
@@ -253,8 +256,7 @@ def test_three_drives_topics_services_and_deadman(bus, client: Client, tmp_path:
     sim.drive(2).set_position(2500)  # a quarter turn at 10000 counts/rev
     sim.drive(3).set_input(8, True)
     sim.drive(3).set_analog(1234)
-    # Its subject is not the reply timeout: a pty stall must not cost a call the link.
-    params = bridge_params(port, joint_prefix="m_", timeout_s=PTY_REPLY_TIMEOUT_S)
+    params = bridge_params(port, joint_prefix="m_")
     with motec(client, tmp_path, params) as (b, proc):
         for unit in UNITS:
             b.wait_connected(unit, True)
@@ -402,7 +404,7 @@ def test_cmd_velocity_floods_are_coalesced_and_rate_limited(
 
 def test_a_drive_removed_and_back(bus, client: Client, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     sim, port = bus
-    with motec(client, tmp_path, bridge_params(port)) as (b, proc):
+    with motec(client, tmp_path, bridge_params(port, timeout_s=SHORT_TIMEOUT_S)) as (b, proc):
         for unit in UNITS:
             b.wait_joint(unit)
             b.wait_connected(unit, True)
@@ -439,7 +441,9 @@ def test_a_drive_removed_and_back(bus, client: Client, tmp_path: Path) -> None: 
 
 def test_lifeguard_fault_after_the_bridge_dies(bus, client: Client, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     sim, port = bus
-    params = bridge_params(port, unit_ids=[1, 2], lifeguard_ms=LIFEGUARD_MS)
+    params = bridge_params(
+        port, unit_ids=[1, 2], lifeguard_ms=LIFEGUARD_MS, timeout_s=SHORT_TIMEOUT_S
+    )
     namespace = unique_namespace("motec_lifeguard")  # the same for both bridges
     drive = sim.drive(1)
     with motec(client, tmp_path / "first", params, units=[1, 2], namespace=namespace) as (b, proc):
@@ -495,7 +499,7 @@ def test_lifeguard_armed_changed_and_disarmed_at_run_time(
     drive = sim.drive(1)
     floor = lifeguard_floor_ms(len(UNITS))
     armed, changed = floor + 100, floor + 900
-    with motec(client, tmp_path, bridge_params(port)) as (b, _):
+    with motec(client, tmp_path, bridge_params(port, timeout_s=SHORT_TIMEOUT_S)) as (b, _):
         b.wait_connected(1, True)
         b.ok(1, SetControlMode, "set_control_mode", mode=SetControlMode.Request.VELOCITY)
         before = len(drive.write_log)
@@ -560,7 +564,7 @@ def test_lifeguard_armed_changed_and_disarmed_at_run_time(
 def test_a_lifeguard_too_short_for_the_bus_is_refused_at_start() -> None:
     """One line with the formula, exit code 2, before anything is sent."""
     floor = lifeguard_floor_ms(3)
-    params = {"unit_ids": UNITS, "baudrate": BAUD, "timeout_s": TIMEOUT_S}
+    params = {"unit_ids": UNITS, "baudrate": BAUD, "timeout_s": SHORT_TIMEOUT_S}
     params["lifeguard_ms"] = floor - 1
     line = refused_at_start("motec_bridge.node", ros_args(params), WAIT_S * 2)
     assert f"lifeguard_ms {floor - 1} is below {floor} ms" in line, line
@@ -720,7 +724,7 @@ def test_refusals_read_only_and_params_file(bus, client: Client, tmp_path: Path)
         ('"/dev/ttyUSB0"', f'"{port}"'),
         ("lifeguard_ms: 1000", "lifeguard_ms: 0"),
         ("poll_rate_hz: 10.0", "poll_rate_hz: 20.0"),
-        ("timeout_s: 0.1 ", f"timeout_s: {TIMEOUT_S} "),
+        ("timeout_s: 0.1 ", f"timeout_s: {PTY_REPLY_TIMEOUT_S} "),
     ):
         assert old in config, old
         config = config.replace(old, new)
@@ -926,7 +930,9 @@ def test_an_armed_drive_whose_replies_are_lost_is_still_fed(client: Client, tmp_
     with LineRelay(BAUD) as line:
         simulator.start_serial(line.device_path, BAUD)
         try:
-            params = bridge_params(line.client_path, unit_ids=[1], reconnect_max_s=5.0)
+            params = bridge_params(
+                line.client_path, unit_ids=[1], reconnect_max_s=5.0, timeout_s=SHORT_TIMEOUT_S
+            )
             with motec(client, tmp_path, params, port=line.client_path, units=[1]) as (b, proc):
                 b.wait_connected(1, True)
                 b.ok(1, SetControlMode, "set_control_mode", mode=SetControlMode.Request.VELOCITY)

@@ -67,7 +67,7 @@ from ..support.ros import (
 )
 from ..support.serial_pair import PTY_REPLY_TIMEOUT_S, socat_pair
 from ..support.sims import stepper_on_pty
-from .test_stepper_ros import COMMAND_TIMEOUT_S, TIMEOUT_S, bridge
+from .test_stepper_ros import COMMAND_TIMEOUT_S, bridge
 
 BAUD = 115200
 TRAVEL = 1000.0  # far beyond every motion here: no limit switch ends one
@@ -466,7 +466,7 @@ def test_contract_halts_against_an_ignored_stop(
         "serial_port": port,
         "baudrate": ROS_BAUD,
         "poll_rate_hz": 20.0,
-        "timeout_s": TIMEOUT_S,
+        "timeout_s": PTY_REPLY_TIMEOUT_S,  # a stalled pty must not cost a stop the link
         "reconnect_max_s": 1.0,
         # The jog is published once: its deadman must not stop motor 2 before the stops are
         # ignored (a loaded machine took longer than COMMAND_TIMEOUT_S to get there).

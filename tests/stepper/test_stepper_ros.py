@@ -46,15 +46,18 @@ from ..support.ros import (
     wait_stream_refusals,
     wait_subscribed,
 )
-from ..support.serial_pair import served_on_pty
+from ..support.serial_pair import PTY_REPLY_TIMEOUT_S, served_on_pty
 from ..support.sims import stepper_on_pty
 
 pytestmark = pytest.mark.ros
 
 BAUD = 115200
-# Reply timeout and jog deadman far above what scheduling on a loaded machine can delay a
-# reply or a jog message by: a live device must never look dead, a jog never silent.
-TIMEOUT_S = 1.0
+# A pty can hold every byte ~2 s beside CPU burners (tests/support/serial_pair.py), so a
+# test whose subject is not a silent line takes PTY_REPLY_TIMEOUT_S: a live device never
+# looks dead, a write never fails for a stall. The tests that silence the line themselves
+# take OUTAGE_TIMEOUT_S, so the outage is seen in a second. The jog deadman is far above
+# what a loaded machine delays a jog message by.
+OUTAGE_TIMEOUT_S = 1.0
 COMMAND_TIMEOUT_S = 1.5
 
 
@@ -80,7 +83,7 @@ def bridge(
         "serial_port": port,
         "baudrate": BAUD,
         "poll_rate_hz": 20.0,
-        "timeout_s": TIMEOUT_S,
+        "timeout_s": PTY_REPLY_TIMEOUT_S,
         "reconnect_max_s": 1.0,
         "command_timeout_s": COMMAND_TIMEOUT_S,
         "diagnostic_period_s": DIAGNOSTIC_PERIOD_S,
@@ -282,7 +285,10 @@ def test_a_deadman_stop_lost_in_an_outage_is_the_first_request_when_the_line_is_
     assert isinstance(device, StepperSimDevice)
     device.log_reads = True
     stop_coil = (Table.COIL, 4)  # motor 1 stop: coil 00005
-    with served_on_pty(simulator, BAUD) as port, bridge(client, tmp_path, port) as (b, proc):
+    with (
+        served_on_pty(simulator, BAUD) as port,
+        bridge(client, tmp_path, port, timeout_s=OUTAGE_TIMEOUT_S) as (b, proc),
+    ):
         jog = jog_motor_1(client, b, device)
         # The line goes silent (the controller hears nothing); the jog falls silent too.
         simulator.withhold_replies = True
@@ -317,7 +323,10 @@ def test_a_halts_stop_lost_in_an_outage_is_retried_while_the_node_is_inactive(
     device = simulator.device
     assert isinstance(device, StepperSimDevice)
     stop_coil = (Table.COIL, 4)  # motor 1 stop: coil 00005
-    with served_on_pty(simulator, BAUD) as port, bridge(client, tmp_path, port) as (b, _proc):
+    with (
+        served_on_pty(simulator, BAUD) as port,
+        bridge(client, tmp_path, port, timeout_s=OUTAGE_TIMEOUT_S) as (b, _proc),
+    ):
         b.wait_connected(True)
         reply = b.call(Trigger, "motor_1/forward")
         assert reply.success, reply.message
@@ -352,7 +361,10 @@ def test_a_stop_service_that_fails_in_an_outage_leaves_the_jogs_stop_pending(
     stop_coil = (Table.COIL, 4)  # motor 1 stop: coil 00005
     with (
         served_on_pty(simulator, BAUD) as port,
-        bridge(client, tmp_path, port, command_timeout_s=60.0) as (b, proc),
+        bridge(client, tmp_path, port, timeout_s=OUTAGE_TIMEOUT_S, command_timeout_s=60.0) as (
+            b,
+            proc,
+        ),
     ):
         jog = jog_motor_1(client, b, device)
         simulator.withhold_replies = True

@@ -52,6 +52,7 @@ from ...support.ros import (
     unique_namespace,
     wait_for,
 )
+from ...support.serial_pair import PTY_REPLY_TIMEOUT_S
 from ...support.sims import motec_on_pty, stepper_on_pty
 
 pytestmark = pytest.mark.ros
@@ -172,7 +173,7 @@ def motec_rig(client: Client, tmp_path: Path) -> Iterator[Rig]:
             "baudrate": BAUD,
             "unit_ids": [1],
             "poll_rate_hz": 20.0,
-            "timeout_s": 1.0,
+            "timeout_s": PTY_REPLY_TIMEOUT_S,  # a stalled pty must not cost a stop
         }
         with node_process("motec_bridge.node", params, tmp_path, ["-r", f"__ns:={ns}"]) as proc:
             client.wait_message(bridge.state, timeout=30)
@@ -201,7 +202,12 @@ def stepper_rig(client: Client, tmp_path: Path) -> Iterator[Rig]:
         assert isinstance(device, StepperSimDevice)
         ns = unique_namespace("service_motion_stepper")
         bridge = Bridge(client, ns, "stepper_bridge", StepperState)
-        params = {"serial_port": port, "baudrate": BAUD, "poll_rate_hz": 20.0, "timeout_s": 1.0}
+        params = {
+            "serial_port": port,
+            "baudrate": BAUD,
+            "poll_rate_hz": 20.0,
+            "timeout_s": PTY_REPLY_TIMEOUT_S,
+        }
         with node_process("stepper_bridge.node", params, tmp_path, ["-r", f"__ns:={ns}"]) as proc:
             bridge.wait_connected(True, timeout=30)
             yield Rig(

@@ -27,7 +27,7 @@ from stepper_bridge.sim import StepperSimDevice
 
 from ...support.fixtures import client_fixture
 from ...support.ros import Bridge, Client, node_process, wait_for
-from ...support.serial_pair import served_on_pty
+from ...support.serial_pair import PTY_REPLY_TIMEOUT_S, served_on_pty
 from ...support.sims import stepper_on_pty
 
 pytestmark = pytest.mark.ros
@@ -50,7 +50,7 @@ def stepper_params(port: str) -> dict[str, object]:
         "serial_port": port,
         "baudrate": BAUD,
         "poll_rate_hz": 20.0,
-        "timeout_s": 1.0,
+        "timeout_s": PTY_REPLY_TIMEOUT_S,  # a stalled pty must not cost the stop
         "command_timeout_s": 60.0,  # the deadman must not be what stops it
     }
 
@@ -120,7 +120,7 @@ def test_exit_zeroes_a_motec_velocity_stream(
             "baudrate": BAUD,
             "unit_ids": [1],
             "poll_rate_hz": 20.0,
-            "timeout_s": 1.0,
+            "timeout_s": PTY_REPLY_TIMEOUT_S,
             "command_timeout_s": 60.0,
         }
         state = f"{namespace}/motec_1/state"
