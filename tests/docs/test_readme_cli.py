@@ -33,6 +33,9 @@ import yaml  # type: ignore[import-untyped]
 from rcl_interfaces.srv import SetParameters
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from std_srvs.srv import Trigger
+
+from stepper_bridge.demo import DEMO as STEPPER_DEMO
 
 from ..support.ros import (
     ROOT,
@@ -308,7 +311,21 @@ def test_every_docs_action_line_works_as_typed_or_is_marked(demo: Client) -> Non
             raise AssertionError(f"{file}: {err}") from err
 
     todo = [line for line in runnable if _without_feedback(line[1]) not in in_block]
+    stop_the_motors_the_demo_started(demo)
     per_device(todo, run, lambda line: line[1])
+
+
+def stop_the_motors_the_demo_started(demo: Client) -> None:
+    """The docs' checks begin with the motors at rest, as on a commissioning bench; the
+    demo's start services leave stepper motors running (``motor_<n>/forward``,
+    ``/reverse``), and docs/ros2-cli.md's block stops them only when its test runs first
+    against the same demo. So each gets its ``motor_<n>/stop`` here, whatever ran before."""
+    for service, _type, _fields in STEPPER_DEMO.start_services:
+        motor, _, verb = service.rpartition("/")
+        if verb in ("forward", "reverse"):
+            name = f"/{STEPPER_DEMO.name.lower()}/{STEPPER_DEMO.node_name}/{motor}/stop"
+            reply = demo.call(Trigger, name, Trigger.Request(), timeout=WAIT_S * 3)
+            assert reply.success, f"{name}: {reply.message}"
 
 
 def _without_feedback(words: list[str]) -> tuple[str, ...]:
