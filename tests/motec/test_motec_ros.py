@@ -598,13 +598,20 @@ def test_a_dead_drive_never_starves_the_lifeguard_of_the_others(
             # Three lifeguard times of probes of the dead drive, counted by polls of drive 1.
             b.wait_joints(1, 3, time.monotonic() + 3 * lifeguard_ms / 1000.0)
             assert proc.poll() is None
+            # Judged while the bridge still feeds: once it exits, an armed drive faults
+            # after lifeguard_ms by design (docs/bridges/motec.md), and beside two CPU
+            # burners the exit took that long before the simulator stopped (a trip, no gap).
+            fed_until = time.time()
+            after = {
+                u: (d.lifeguard_trips, d.fault, d.enabled) for u, d in simulator.drives.items()
+            }
     for unit in (1, 2):
         drive = simulator.drive(unit)
-        times = [r.time for r in drive.write_log if r.time >= unplugged]
+        times = [r.time for r in drive.write_log if unplugged <= r.time <= fed_until]
         gaps = [later - earlier for earlier, later in itertools.pairwise(times)]
         assert len(times) >= 6, times  # fed all along
         assert max(gaps) < lifeguard_ms / 1000.0, (unit, max(gaps), lifeguard_ms)
-        assert drive.lifeguard_trips == 0 and drive.fault == 0 and drive.enabled
+        assert after[unit] == (0, 0, True), (unit, "lifeguard trips, fault, enabled")
 
 
 BLACKOUTS_MS = (300, 600, 900)
