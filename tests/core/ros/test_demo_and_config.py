@@ -54,7 +54,8 @@ def test_demo_ends_after_its_duration() -> None:
         capture_output=True,
         text=True,
         timeout=120,
-        start_new_session=True,
+        stdin=subprocess.DEVNULL,
+        process_group=0,  # in the tests' session, as test_readme_cli's demo
     )
     text = result.stdout + result.stderr
     assert result.returncode == 0, text
