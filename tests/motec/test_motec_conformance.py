@@ -57,7 +57,7 @@ from motec_bridge.snapshots import (
 from motec_bridge.units import DriveScale
 
 from ..support.rtu_replay import RtuReplay, Step
-from ..support.serial_pair import socat_pair
+from ..support.serial_pair import PTY_REPLY_TIMEOUT_S, socat_pair
 
 BAUD = 115200
 UNIT = 3
@@ -86,7 +86,7 @@ def get_crc16(data: bytes) -> int:
 def replay(steps: Sequence[Step], unit: int = UNIT) -> Iterator[tuple[MotecDevice, DeviceChannel]]:
     with socat_pair() as (bridge_end, device_end, _):
         peer = RtuReplay(device_end, list(steps))
-        link = ModbusLink(SerialSettings(bridge_end, BAUD, timeout_s=1.0))
+        link = ModbusLink(SerialSettings(bridge_end, BAUD, timeout_s=PTY_REPLY_TIMEOUT_S))
         channel = DeviceChannel(link, unit, retries=0)
         try:
             yield MotecDevice(channel), channel

@@ -37,7 +37,7 @@ from msg_defs.srv import PositionMove, SetControlMode
 
 from ..support.fixtures import client_fixture
 from ..support.ros import Client, wait_for, wait_subscribed
-from ..support.serial_pair import served_on_pty
+from ..support.serial_pair import PTY_REPLY_TIMEOUT_S, served_on_pty
 from ..support.sims import motec_on_pty
 from .test_motec_ros import MotecBridge, bridge_params, motec
 
@@ -58,8 +58,8 @@ class Bus:
 def bus() -> Iterator[Bus]:
     sim = make_simulator(UNITS)
     with served_on_pty(sim, BAUD) as bridge_end:
-        # Far above a reply's few ms: the simulator shares this process.
-        link = ModbusLink(SerialSettings(bridge_end, BAUD, timeout_s=0.5))
+        # A pty may stall for seconds beside CPU burners: not what these tests are about.
+        link = ModbusLink(SerialSettings(bridge_end, BAUD, timeout_s=PTY_REPLY_TIMEOUT_S))
         channels = {u: DeviceChannel(link, u, retries=0) for u in UNITS}
         try:
             yield Bus(sim, {u: MotecDevice(channels[u]) for u in UNITS}, channels, link)

@@ -36,7 +36,7 @@ from stepper_bridge.registers import (
 )
 
 from ..support.rtu_replay import RtuReplay, Step
-from ..support.serial_pair import socat_pair
+from ..support.serial_pair import PTY_REPLY_TIMEOUT_S, socat_pair
 
 BAUD = 115200
 
@@ -76,7 +76,7 @@ def test_manual_crcs_are_what_pymodbus_computes(name: str) -> None:
 def replay(steps: list[Step]) -> Iterator[tuple[StepperDevice, RtuReplay]]:
     with socat_pair() as (bridge_end, device_end, _):
         peer = RtuReplay(device_end, steps)
-        link = ModbusLink(SerialSettings(bridge_end, BAUD, timeout_s=1.0))
+        link = ModbusLink(SerialSettings(bridge_end, BAUD, timeout_s=PTY_REPLY_TIMEOUT_S))
         try:
             yield StepperDevice(DeviceChannel(link, 1, retries=0)), peer
         finally:

@@ -33,7 +33,7 @@ from stepper_bridge.registers import STEPPER_MAP, UNDEFINED_HOLDING, holding, mo
 from stepper_bridge.sim import START_POSITION, StepperSimDevice, make_simulator
 from stepper_bridge.units import JointScale
 
-from ..support.serial_pair import socat_pair
+from ..support.serial_pair import PTY_REPLY_TIMEOUT_S, socat_pair
 
 BAUD = 115200
 
@@ -47,7 +47,8 @@ class Rig:
         assert isinstance(sim_device, StepperSimDevice)
         self.fake = sim_device
         self.device_end = device_end
-        self.link = ModbusLink(SerialSettings(bridge_end, BAUD, timeout_s=0.5))
+        # A pty may stall for seconds beside CPU burners: not what these tests are about.
+        self.link = ModbusLink(SerialSettings(bridge_end, BAUD, timeout_s=PTY_REPLY_TIMEOUT_S))
         self.channel = DeviceChannel(self.link, 1, retries=0)
         self.device = StepperDevice(self.channel)
 
@@ -633,7 +634,7 @@ def test_reply_delay_is_kept() -> None:
     sim = make_simulator(reply_delay_s=0.035)
     with socat_pair() as (bridge_end, device_end, _):
         sim.start_serial(device_end, BAUD)
-        link = ModbusLink(SerialSettings(bridge_end, BAUD, timeout_s=0.5))
+        link = ModbusLink(SerialSettings(bridge_end, BAUD, timeout_s=PTY_REPLY_TIMEOUT_S))
         try:
             channel = DeviceChannel(link, 1, retries=0)
             device = StepperDevice(channel)
@@ -1002,7 +1003,6 @@ def test_stepper_sim_cli_on_its_own_pty(tmp_path: Path) -> None:
     from bridge_core.sim.logs import read_write_log
 
     from ..support.ros import ROOT
-    from ..support.serial_pair import PTY_REPLY_TIMEOUT_S
 
     link_path, log = tmp_path / "stepper", tmp_path / "writes.jsonl"
     proc = subprocess.Popen(
