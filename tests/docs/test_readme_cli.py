@@ -369,8 +369,10 @@ def test_demo_shows_moving_r6(demo_run: DemoRun) -> None:
         wait_for(partial(moved, prefix), WAIT_S * 3, f"two different {device} reports")
     out = demo_run.text()
     assert "start: done" in out
-    blocks = reports(prefixes["R6"])
-    assert abs(float(blocks[-1].split()[3]) - float(blocks[0].split()[3])) > 1.0, out
+    # The R6 moved more than a degree from its first report: at some report, not at the
+    # last (the docs' lines stop its program and run one cycle back to 0 before this test).
+    joint_1 = [float(block.split()[3]) for block in reports(prefixes["R6"])]
+    assert max(abs(value - joint_1[0]) for value in joint_1) > 1.0, out
     assert "[R6] connected  diagnostics OK" in out
     assert "[xArm] connected  diagnostics OK" in out
     assert "run_offline_task [1, 2, 3, 4, 5, 6]: done" in out
