@@ -97,6 +97,18 @@ class DemoDevice:
         return self.package
 
     @property
+    def namespace(self) -> str:
+        """The device's ROS namespace in the demo: its name in lower case."""
+        return f"/{self.name.lower()}"
+
+    def service(self, name: str) -> str:
+        """The full name of a service ``name`` of this device (with several state nodes,
+        ``name`` names its node itself)."""
+        if self.state_nodes:
+            return f"{self.namespace}/{name}"
+        return f"{self.namespace}/{self.node_name}/{name}"
+
+    @property
     def nodes(self) -> list[str]:
         return self.state_nodes or [self.node_name]
 
@@ -107,7 +119,7 @@ class DemoDevice:
 
     def node_command(self, where: Any) -> list[str]:
         params = {"serial_port": str(where)} if self.serial else {"port": where}
-        ros_args = ["--ros-args", "-r", f"__ns:=/{self.name.lower()}"]
+        ros_args = ["--ros-args", "-r", f"__ns:={self.namespace}"]
         for key, value in {**params, **self.node_params}.items():
             ros_args += ["-p", f"{key}:={value}"]
         return ["-m", f"{self.package}.node", *ros_args]
@@ -166,7 +178,7 @@ class Monitor:
             durability=DurabilityPolicy.TRANSIENT_LOCAL,
         )
         for device in devices:
-            ns = f"/{device.name.lower()}"
+            ns = device.namespace
             self._watch(JointState, f"{ns}/joint_states")
             for node in device.nodes:
                 self._watch(_import(device.state_type), f"{ns}/{node}/state")
@@ -224,9 +236,7 @@ class Monitor:
     def wait_connected(self, devices: Sequence[DemoDevice], timeout: float) -> list[str]:
         """Spin until every node says ``~/connected`` true; the nodes that did not."""
         topics = [
-            f"/{device.name.lower()}/{node}/connected"
-            for device in devices
-            for node in device.nodes
+            f"{device.namespace}/{node}/connected" for device in devices for node in device.nodes
         ]
         end = time.monotonic() + timeout
 
@@ -246,7 +256,7 @@ class Monitor:
 
 
 def render(monitor: Monitor, device: DemoDevice, rates: dict[str, float]) -> str:
-    ns = f"/{device.name.lower()}"
+    ns = device.namespace
     lines: list[str] = []
     for node in device.nodes:
         connected = monitor.latest.get(f"{ns}/{node}/connected")
@@ -319,10 +329,7 @@ def _call_start_services(monitor: Monitor, devices: Sequence[DemoDevice]) -> Non
             print(
                 "  "
                 + monitor.call(
-                    # with several state nodes, the service names its node itself
-                    f"/{device.name.lower()}/{service}"
-                    if device.state_nodes
-                    else f"/{device.name.lower()}/{device.node_name}/{service}",
+                    device.service(service),
                     type_name,
                     fields,
                 ),
@@ -346,7 +353,7 @@ def _show_until_stopped(
         monitor.spin_for(1.0)
         rates = {}
         for device in devices:
-            ns = f"/{device.name.lower()}"
+            ns = device.namespace
             topic = f"{ns}/joint_states"
             rates[ns] = float(monitor.counts[topic] - last_counts.get(topic, 0))
         last_counts = dict(monitor.counts)

@@ -329,7 +329,7 @@ def stop_the_motors_the_demo_started(demo: Client) -> None:
     for service, _type, _fields in STEPPER_DEMO.start_services:
         motor, _, verb = service.rpartition("/")
         if verb in ("forward", "reverse"):
-            name = f"/{STEPPER_DEMO.name.lower()}/{STEPPER_DEMO.node_name}/{motor}/stop"
+            name = STEPPER_DEMO.service(f"{motor}/stop")
             reply = demo.call(Trigger, name, Trigger.Request(), timeout=WAIT_S * 3)
             assert reply.success, f"{name}: {reply.message}"
 

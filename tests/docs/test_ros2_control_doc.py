@@ -35,11 +35,11 @@ EVERY_CYCLE = "-1"  # the threshold velocity control needs (the page says why)
 # The demo's namespaces (bridge_core/ros/demo.py: /<name in lower case>), the node that
 # owns each bridge's ~/joint_commands, and the joints it names in joint_states.
 SYSTEMS = {
-    f"/{STEPPER_DEMO.name.lower()}": (
+    STEPPER_DEMO.namespace: (
         "stepper_bridge",
         [f"motor_{m}" for m in range(1, MOTORS + 1)],
     ),
-    f"/{MOTEC_DEMO.name.lower()}": ("motec_bridge", [f"drive_{u}" for u in UNITS]),
+    MOTEC_DEMO.namespace: ("motec_bridge", [f"drive_{u}" for u in UNITS]),
 }
 
 
